@@ -1,0 +1,107 @@
+"""The one small interface every vision model and variant implements.
+
+A model is built from a frozen params dataclass and keeps its own state:
+
+* ``step(frame)`` processes one frame and returns ``{output_name: float}`` (online use);
+* ``run(frames)`` processes ``frames[T, H, W]`` and returns ``{output_name: ndarray[T]}``
+  (offline use). ``run`` continues from the current state, so running a recording in
+  chunks gives exactly the floats of one long ``run`` or of repeated ``step`` calls;
+* ``reset()`` forgets all history;
+* ``outputs`` names every output and its unit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any, ClassVar, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Output:
+    """One model output: its name (a column or entity name) and its unit."""
+
+    name: str
+    unit: str
+    description: str
+
+
+class Params:
+    """Mixin for frozen params dataclasses: flat dict round trip and validation hooks."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """Flat ``{field: value}`` with plain Python scalars (stored in recordings and tables)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}  # type: ignore[arg-type]
+
+    @classmethod
+    def field_types(cls) -> dict[str, type]:
+        """Field name → the Python type its string overrides are parsed into."""
+        out: dict[str, type] = {}
+        for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+            t = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
+            t = t.replace(" ", "")
+            if t in ("int",):
+                out[f.name] = int
+            elif t in ("float", "float|None"):
+                out[f.name] = float
+            elif t == "bool":
+                out[f.name] = bool
+            else:
+                out[f.name] = str
+        return out
+
+    def replace(self, **changes: Any) -> Params:
+        """A copy with ``changes`` applied (and validated)."""
+        return dataclasses.replace(self, **changes)  # type: ignore[type-var]
+
+
+@runtime_checkable
+class Model(Protocol):
+    """What analysis and capture rely on; every model in the registry satisfies it."""
+
+    name: str
+    params: Params
+    outputs: ClassVar[tuple[Output, ...]]
+
+    def reset(self) -> None: ...
+
+    def step(self, frame: np.ndarray) -> dict[str, float]: ...
+
+    def run(self, frames: np.ndarray) -> dict[str, np.ndarray]: ...
+
+
+def output_units(outputs: tuple[Output, ...]) -> Mapping[str, str]:
+    """``{name: unit}`` for a model's outputs."""
+    return {o.name: o.unit for o in outputs}
+
+
+def check_frames(frames: np.ndarray, *, min_h: int = 1, min_w: int = 2) -> np.ndarray:
+    """Validate a stack of frames ``(T, H, W)`` and return it C-contiguous.
+
+    Accepts ``uint8`` (0–255) or floating point (intensity scale [0, 1]). Raises
+    ``ValueError`` naming the problem for anything else: wrong rank, empty axes,
+    frames too small for the model, other dtypes, NaN or infinite values.
+    """
+    arr = np.asarray(frames)
+    if arr.ndim != 3:
+        raise ValueError(f"frames must have shape (T, H, W), got an array of shape {arr.shape}")
+    t, h, w = arr.shape
+    if t == 0 or h == 0 or w == 0:
+        raise ValueError(f"frames must not be empty, got shape {arr.shape}")
+    if h < min_h or w < min_w:
+        raise ValueError(f"frames of {h}x{w} px (HxW) are too small: need at least {min_h}x{min_w}")
+    if arr.dtype == np.uint8:
+        return np.ascontiguousarray(arr)
+    if arr.dtype in (np.float32, np.float64):
+        if not np.isfinite(arr).all():
+            raise ValueError("frames contain NaN or infinite values")
+        return np.ascontiguousarray(arr)
+    if arr.dtype == np.bool_ or np.issubdtype(arr.dtype, np.integer) or np.issubdtype(
+        arr.dtype, np.floating
+    ):
+        raise ValueError(
+            f"frames must be uint8 (0-255) or float32/float64 (0-1), got dtype {arr.dtype}"
+        )
+    raise ValueError(f"frames must be numeric images, got dtype {arr.dtype}")

@@ -1,0 +1,180 @@
+"""Named model variants and ``name:key=value,...`` overrides.
+
+A variant is a model kind plus parameter overrides. Users add their own on the command line:
+``--model avdm:beta=0.5,tw=6``. Every model is built through ``make_model`` so that analysis
+and capture treat them alike.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from avdm.avdm_model import Avdm, AvdmParams
+from avdm.base import Model, Params
+from avdm.calibration_store import lookup_calibration
+
+
+@dataclasses.dataclass(frozen=True)
+class Kind:
+    """A model family: its params class and how to build a model from params."""
+
+    params_cls: type[Params]
+    build: Callable[[Params, str], Model]
+    # fills parameters that depend on the camera (e.g. the decoding calibration); may raise
+    complete: Callable[[Params], Params]
+
+
+@dataclasses.dataclass(frozen=True)
+class Variant:
+    kind: str
+    overrides: Mapping[str, Any]
+    description: str
+
+
+def _complete_avdm(params: Params) -> Params:
+    assert isinstance(params, AvdmParams)
+    if params.a is not None and params.b is not None:
+        return params
+    cal = lookup_calibration(params.fps, params.deg_per_px)
+    if cal is None:
+        raise ValueError(
+            f"no shipped AVDM calibration for fps={params.fps:g}, deg_per_px={params.deg_per_px:g}: "
+            f"run `vdc-analyse calibrate --fps {params.fps:g} --deg-per-px {params.deg_per_px:g}` "
+            "and pass the printed a=...,b=... in the model spec"
+        )
+    return params.replace(
+        a=params.a if params.a is not None else cal["a"],
+        b=params.b if params.b is not None else cal["b"],
+    )
+
+
+KINDS: dict[str, Kind] = {
+    "avdm": Kind(AvdmParams, lambda p, n: Avdm(p, n), _complete_avdm),  # type: ignore[arg-type]
+}
+
+VARIANTS: dict[str, Variant] = {
+    "avdm": Variant("avdm", {}, "AVDM, ON and OFF channels averaged (default)"),
+    "avdm-on": Variant("avdm", {"channel": "on"}, "AVDM, ON channel only (tunnel-centring code)"),
+    "avdm-off": Variant("avdm", {"channel": "off"}, "AVDM, OFF channel only"),
+    "avdm-allmean": Variant(
+        "avdm", {"pooling": "all_mean"}, "AVDM pooling the mean of [E]+ over all detectors"
+    ),
+    "avdm-unity": Variant(
+        "avdm",
+        {"photoreceptor_lag": 9, "photoreceptor_sign": -1, "theta_e": 0.001},
+        "AVDM as the released Unity code runs it: I(t-9) - I(t) photoreceptor, theta_e = 0.001",
+    ),
+}
+
+_SPEC_RE = re.compile(r"^(?P<name>[A-Za-z0-9_\-]+)(?::(?P<over>.*))?$")
+_TRUE = {"1", "true", "yes", "on"}
+_FALSE = {"0", "false", "no", "off"}
+
+
+def register_kind(name: str, kind: Kind) -> None:
+    """Add a model family (used by the LGMD models)."""
+    KINDS[name] = kind
+
+
+def register_variant(name: str, variant: Variant) -> None:
+    """Add a named variant of an existing kind."""
+    if variant.kind not in KINDS:
+        raise ValueError(f"unknown model kind {variant.kind!r}")
+    VARIANTS[name] = variant
+
+
+def _parse_value(key: str, raw: str, typ: type) -> Any:
+    raw = raw.strip()
+    if raw == "":
+        raise ValueError(f"model override {key}= has no value")
+    if typ is bool:
+        low = raw.lower()
+        if low in _TRUE:
+            return True
+        if low in _FALSE:
+            return False
+        raise ValueError(f"model override {key}={raw!r}: expected true or false")
+    if typ is int:
+        try:
+            return int(raw)
+        except ValueError:
+            raise ValueError(f"model override {key}={raw!r}: expected an integer") from None
+    if typ is float:
+        try:
+            return float(raw)
+        except ValueError:
+            raise ValueError(f"model override {key}={raw!r}: expected a number") from None
+    return raw
+
+
+def parse_model_spec(spec: str) -> tuple[str, dict[str, Any]]:
+    """Split ``"name:key=value,key=value"`` into the variant name and typed overrides.
+
+    Raises ``ValueError`` naming the problem: unknown variant, unknown parameter, a value of
+    the wrong type, or a malformed spec.
+    """
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError("empty model spec: expected a name such as 'avdm' or 'avdm:beta=0.5'")
+    m = _SPEC_RE.match(spec.strip())
+    if m is None:
+        raise ValueError(f"malformed model spec {spec!r}: expected name or name:key=value,...")
+    name = m.group("name")
+    if name not in VARIANTS:
+        raise ValueError(f"unknown model {name!r}: known models are {', '.join(sorted(VARIANTS))}")
+    types = KINDS[VARIANTS[name].kind].params_cls.field_types()
+    overrides: dict[str, Any] = {}
+    over = m.group("over")
+    if over is not None:
+        if not over.strip():
+            raise ValueError(f"model spec {spec!r} has ':' but no key=value overrides")
+        for item in over.split(","):
+            if "=" not in item:
+                raise ValueError(f"model override {item.strip()!r} in {spec!r} is not key=value")
+            key, raw = (s.strip() for s in item.split("=", 1))
+            if key not in types:
+                raise ValueError(
+                    f"unknown parameter {key!r} for model {name!r}: "
+                    f"known parameters are {', '.join(types)}"
+                )
+            overrides[key] = _parse_value(key, raw, types[key])
+    return name, overrides
+
+
+def canonical_name(spec: str) -> str:
+    """The spec as it is stored in tables: ``name`` or ``name:k=v,...`` with keys sorted."""
+    name, overrides = parse_model_spec(spec)
+    if not overrides:
+        return name
+    return name + ":" + ",".join(f"{k}={overrides[k]}" for k in sorted(overrides))
+
+
+def make_params(spec: str, **context: Any) -> Params:
+    """Fully resolved params for ``spec``.
+
+    ``context`` carries camera facts the caller knows (``fps``, ``deg_per_px``); they apply
+    before the variant's and the user's overrides, which win.
+    """
+    name, overrides = parse_model_spec(spec)
+    variant = VARIANTS[name]
+    kind = KINDS[variant.kind]
+    fields = kind.params_cls.field_types()
+    values = {k: v for k, v in context.items() if k in fields}
+    values.update(variant.overrides)
+    values.update(overrides)
+    params = kind.params_cls(**values)  # validates in __post_init__
+    return kind.complete(params)
+
+
+def make_model(spec: str, **context: Any) -> Model:
+    """Build the model named by ``spec`` (e.g. ``"avdm"``, ``"avdm-on"``, ``"avdm:beta=0.5"``)."""
+    name, _ = parse_model_spec(spec)
+    params = make_params(spec, **context)
+    return KINDS[VARIANTS[name].kind].build(params, canonical_name(spec))
+
+
+def describe_models() -> str:
+    """One line per registered variant, for ``--help`` texts."""
+    return "\n".join(f"  {n:<14} {v.description}" for n, v in sorted(VARIANTS.items()))
