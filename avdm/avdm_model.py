@@ -377,7 +377,10 @@ class Avdm:
         return out
 
     def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
-        """Process ``frames`` (T, H, W), uint8 or float on [0, 1]; return ``{output: (T,) float64}``."""
+        """Process ``frames`` (T, H, W), uint8 or float on [0, 1].
+
+        Returns ``{output: (T,) float64}``.
+        """
         frames = check_frames(frames, min_h=1, min_w=2)
         out = self._advance(frames)
         return {name: np.ascontiguousarray(out[:, c]) for c, name in enumerate(OUTPUT_NAMES)}

@@ -98,8 +98,10 @@ def check_frames(frames: np.ndarray, *, min_h: int = 1, min_w: int = 2) -> np.nd
         if not np.isfinite(arr).all():
             raise ValueError("frames contain NaN or infinite values")
         return np.ascontiguousarray(arr)
-    if arr.dtype == np.bool_ or np.issubdtype(arr.dtype, np.integer) or np.issubdtype(
-        arr.dtype, np.floating
+    if (
+        arr.dtype == np.bool_
+        or np.issubdtype(arr.dtype, np.integer)
+        or np.issubdtype(arr.dtype, np.floating)
     ):
         raise ValueError(
             f"frames must be uint8 (0-255) or float32/float64 (0-1), got dtype {arr.dtype}"

@@ -41,7 +41,8 @@ def _complete_avdm(params: Params) -> Params:
     cal = lookup_calibration(params.fps, params.deg_per_px)
     if cal is None:
         raise ValueError(
-            f"no shipped AVDM calibration for fps={params.fps:g}, deg_per_px={params.deg_per_px:g}: "
+            f"no shipped AVDM calibration for fps={params.fps:g}, "
+            f"deg_per_px={params.deg_per_px:g}: "
             f"run `vdc-analyse calibrate --fps {params.fps:g} --deg-per-px {params.deg_per_px:g}` "
             "and pass the printed a=...,b=... in the model spec"
         )

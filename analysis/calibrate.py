@@ -1,0 +1,102 @@
+"""Saving, plotting and shipping AVDM decoding calibrations (the fit is in avdm.calibration)."""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from analysis.parquet_io import package_versions
+from avdm.base import Params
+from avdm.calibration import CalibrationResult
+from avdm.calibration_store import CALIBRATION_FILE
+
+
+def calibration_entry(
+    result: CalibrationResult, name: str, model: str, params: Params
+) -> dict[str, Any]:
+    """The JSON entry stored for a calibration: constants, quality, grid and provenance."""
+    cells = result.cells
+    entry: dict[str, Any] = {"name": name, "model": model, **result.to_dict()}
+    entry["grid"] = {
+        "periods_px": sorted({round(c.period_px, 6) for c in cells}),
+        "tfs_hz": sorted({round(c.tf_hz, 6) for c in cells}),
+        "contrasts": sorted({c.contrast for c in cells}),
+        "stimulus": "drifting sine gratings, peak-normalised, uint8, point-sampled",
+    }
+    entry["model_params"] = {k: v for k, v in params.to_dict().items() if k not in ("a", "b")}
+    entry["vdc_version"] = package_versions()["vdc"]
+    return entry
+
+
+def write_calibration(
+    result: CalibrationResult, path: Path, name: str, model: str, params: Params
+) -> dict[str, Any]:
+    """Write the calibration entry as JSON to ``path``; returns the entry."""
+    entry = calibration_entry(result, name, model, params)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(entry, indent=2) + "\n", encoding="utf-8")
+    return entry
+
+
+def update_shipped(entry: dict[str, Any]) -> Path:
+    """Replace (or add) the shipped entry with the same fps and deg/px in calibrations.json."""
+    path = Path(str(resources.files("avdm").joinpath(CALIBRATION_FILE)))
+    data = json.loads(path.read_text(encoding="utf-8"))
+    keep = [
+        e
+        for e in data["calibrations"]
+        if not (
+            np.isclose(e["fps"], entry["fps"], rtol=1e-6)
+            and np.isclose(e["deg_per_px"], entry["deg_per_px"], rtol=1e-6)
+        )
+    ]
+    data["calibrations"] = sorted([*keep, entry], key=lambda e: -e["fps"])
+    path.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+    return path
+
+
+def plot_calibration(result: CalibrationResult, path: Path) -> Path:
+    """Decoded against true angular velocity for every grating cell, log-log."""
+    fig, ax = plt.subplots(figsize=(6.5, 5.5), constrained_layout=True)
+    cells = result.cells
+    truth = np.array([c.omega_true_dps for c in cells])
+    est = np.array([result.a * c.lambda_px**result.b * c.gain_term for c in cells])
+    periods = np.array([c.period_px for c in cells])
+    contrast = np.array([c.contrast for c in cells])
+    for cval, marker in zip(sorted(set(contrast)), "os^dv", strict=False):
+        m = contrast == cval
+        sc = ax.scatter(
+            truth[m],
+            np.clip(est[m], 1e-3, None),
+            c=periods[m],
+            cmap="viridis",
+            norm=matplotlib.colors.LogNorm(),
+            marker=marker,
+            s=22,
+            label=f"contrast {cval:g}",
+        )
+    lo, hi = truth.min() / 1.5, truth.max() * 1.5
+    ax.plot([lo, hi], [lo, hi], "k--", lw=1, label="ω̂ = ω")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("true angular velocity ω (deg/s)")
+    ax.set_ylabel("decoded ω̂ (deg/s)")
+    fig.colorbar(sc, ax=ax, label="grating period (px)")
+    ax.set_title(
+        f"{result.fps:g} Hz, {result.deg_per_px:.3g} deg/px, {result.width}x{result.height} px\n"
+        f"a = {result.a:.4g}, b = {result.b:.4g}, RMS error {100 * result.rms_rel_error:.1f} %"
+    )
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,296 @@
+"""The SF–TF sweep of paper Fig. 3: AVDM response to drifting gratings at 100×100 px, 300 Hz.
+
+Default ("paper") layout: response against TF at SF = 1, 10 and 50 upc, and against SF at
+TF = 1, 5 and 50 Hz. With explicit SF and TF lists, the full grid instead.
+Each cell is a fresh model on a ``duration_s`` grating; its value is the mean over the frames
+after a warm-up of ``2·Tw`` frames.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import polars as pl
+
+from avdm.registry import canonical_name, make_model
+from avdm.stimuli import grating, omega_true_dps, period_px_from_sf
+
+PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
+PAPER_TF_HZ = (1.0, 5.0, 50.0)  # columns: response vs SF
+DEFAULT_TFS_HZ = (1, 2, 3, 5, 7, 10, 15, 20, 30, 40, 50, 60, 75, 100, 125, 150)
+DEFAULT_SFS_UPC = (1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 35, 40, 45, 50)
+OUTPUT_COLUMNS = ("omega_dps", "lambda_px", "motion", "contrast")
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """Stimulus settings of a sweep (recorded in the Parquet metadata)."""
+
+    size: tuple[int, int] = (100, 100)  # (H, W) px; W px stand for 360°
+    fps: float = 300.0
+    duration_s: float = 1.0
+    contrast: float = 1.0
+    waveform: str = "sine"
+
+    @property
+    def deg_per_px(self) -> float:
+        return 360.0 / self.size[1]
+
+
+def paper_cells(
+    sfs: Sequence[float] = DEFAULT_SFS_UPC, tfs: Sequence[float] = DEFAULT_TFS_HZ
+) -> list[tuple[float, float]]:
+    """(sf_upc, tf_hz) cells of the Fig. 3 layout, without duplicates, sorted."""
+    cells = {(float(sf), float(tf)) for sf in PAPER_SF_UPC for tf in tfs}
+    cells |= {(float(sf), float(tf)) for tf in PAPER_TF_HZ for sf in sfs}
+    return sorted(cells)
+
+
+def grid_cells(sfs: Sequence[float], tfs: Sequence[float]) -> list[tuple[float, float]]:
+    """Every (sf_upc, tf_hz) pair of two lists."""
+    return sorted({(float(sf), float(tf)) for sf in sfs for tf in tfs})
+
+
+def check_cells(cells: Sequence[tuple[float, float]], config: SweepConfig) -> None:
+    """Raise ValueError for cells a sweep cannot show (non-positive SF/TF, beyond Nyquist)."""
+    w = config.size[1]
+    for sf, tf in cells:
+        if not (math.isfinite(sf) and sf > 0):
+            raise ValueError(f"spatial frequency must be > 0 upc, got {sf:g}")
+        if sf > w / 2:
+            raise ValueError(
+                f"SF {sf:g} upc is above the spatial Nyquist limit of {w / 2:g} upc at {w} px wide"
+            )
+        if not (math.isfinite(tf) and tf > 0):
+            raise ValueError(f"temporal frequency must be > 0 Hz, got {tf:g}")
+        if tf > config.fps / 2:
+            raise ValueError(
+                f"TF {tf:g} Hz is above the temporal Nyquist limit of {config.fps / 2:g} Hz"
+            )
+
+
+def run_sweep(
+    model_spec: str,
+    cells: Sequence[tuple[float, float]],
+    config: SweepConfig = SweepConfig(),
+    progress: Callable[[], None] | None = None,
+) -> pl.DataFrame:
+    """Run a fresh ``model_spec`` model on a grating per cell; one row per cell.
+
+    Columns: model, sf_upc, tf_hz, period_px, omega_true_dps, omega_dps, lambda_px, motion,
+    contrast, omega_sd_dps (temporal standard deviation), n_frames.
+    """
+    check_cells(cells, config)
+    name = canonical_name(model_spec)
+    model = make_model(model_spec, fps=config.fps, deg_per_px=config.deg_per_px)
+    warm = 2 * int(getattr(model.params, "tw", 10))
+    n_frames = round(config.duration_s * config.fps)
+    if n_frames <= warm:
+        raise ValueError(
+            f"duration {config.duration_s:g} s gives {n_frames} frames: need more than the "
+            f"{warm}-frame warm-up"
+        )
+    rows = []
+    for sf, tf in cells:
+        frames = grating(
+            size=config.size,
+            fps=config.fps,
+            tf_hz=tf,
+            sf_upc=sf,
+            n_frames=n_frames,
+            contrast=config.contrast,
+            waveform=config.waveform,
+        )
+        model.reset()
+        out = model.run(frames)
+        row = {
+            "model": name,
+            "sf_upc": sf,
+            "tf_hz": tf,
+            "period_px": period_px_from_sf(sf, config.size[1]),
+            "omega_true_dps": omega_true_dps(sf, tf),
+        }
+        for col in OUTPUT_COLUMNS:
+            row[col] = float(np.mean(out[col][warm:]))
+        row["omega_sd_dps"] = float(np.std(out["omega_dps"][warm:]))
+        row["n_frames"] = n_frames
+        rows.append(row)
+        if progress is not None:
+            progress()
+    return pl.DataFrame(rows).sort("sf_upc", "tf_hz")
+
+
+def spearman(x: np.ndarray, y: np.ndarray) -> float:
+    """Spearman rank correlation (average ranks for ties); NaN if either side is constant."""
+    df = pl.DataFrame({"x": x, "y": y})
+    if df["x"].n_unique() < 2 or df["y"].n_unique() < 2:
+        return float("nan")
+    return float(df.select(pl.corr("x", "y", method="spearman")).item())
+
+
+def monotonicity(df: pl.DataFrame, min_points: int = 4) -> pl.DataFrame:
+    """Spearman ρ of ω̂ along every row (vs TF at fixed SF) and column (vs SF at fixed TF).
+
+    Rows and columns with fewer than ``min_points`` cells (the cross-sections the paper layout
+    only touches) are left out. Columns: along ("tf" or "sf"), fixed ("sf_upc=10" ...), n, rho,
+    trend
+    ("increasing", "decreasing", "flat" for |ρ| < 0.5, "undefined" when ω̂ is constant).
+    """
+    out = []
+    for along, fixed in (("tf_hz", "sf_upc"), ("sf_upc", "tf_hz")):
+        for key, group in df.group_by(fixed, maintain_order=True):
+            if group.height < min_points:
+                continue
+            g = group.sort(along)
+            rho = spearman(g[along].to_numpy(), g["omega_dps"].to_numpy())
+            if math.isnan(rho):
+                trend = "undefined"
+            elif abs(rho) < 0.5:
+                trend = "flat"
+            else:
+                trend = "increasing" if rho > 0 else "decreasing"
+            out.append(
+                {
+                    "along": along.split("_")[0],
+                    "fixed": f"{fixed}={key[0]:g}",
+                    "fixed_value": float(key[0]),
+                    "n": g.height,
+                    "rho": rho,
+                    "trend": trend,
+                }
+            )
+    if not out:
+        return pl.DataFrame(
+            schema={
+                "along": pl.String,
+                "fixed": pl.String,
+                "fixed_value": pl.Float64,
+                "n": pl.Int64,
+                "rho": pl.Float64,
+                "trend": pl.String,
+            }
+        )
+    return pl.DataFrame(out).sort("along", "fixed_value", descending=[True, False])
+
+
+def _valid_band(ax: plt.Axes, x_lo: float, x_hi: float, bad_from: float, label: str) -> None:
+    if bad_from < x_hi:
+        ax.axvspan(max(bad_from, x_lo), x_hi, color="0.9", zorder=0, label=label)
+
+
+def plot_paper(df: pl.DataFrame, path: Path, config: SweepConfig, title: str) -> Path:
+    """Six panels as in paper Fig. 3: ω̂ vs TF (top, per SF) and vs SF (bottom, per TF)."""
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7.5), constrained_layout=True)
+    w = config.size[1]
+    rho = {(r["along"], r["fixed_value"]): r["rho"] for r in monotonicity(df).iter_rows(named=True)}
+    for ax, sf in zip(axes[0], PAPER_SF_UPC, strict=True):
+        g = df.filter(pl.col("sf_upc") == sf).sort("tf_hz")
+        _panel(ax, g["tf_hz"], g, "TF (Hz)")
+        _valid_band(
+            ax,
+            g["tf_hz"].min(),
+            g["tf_hz"].max() * 1.1,
+            config.fps / 4,
+            "TF > fps/4 (near aliasing)",
+        )
+        ax.set_title(
+            f"SF = {sf:g} upc (period {w / sf:g} px)   ρ = {rho.get(('tf', sf), np.nan):+.2f}"
+        )
+    for ax, tf in zip(axes[1], PAPER_TF_HZ, strict=True):
+        g = df.filter(pl.col("tf_hz") == tf).sort("sf_upc")
+        _panel(ax, g["sf_upc"], g, "SF (units per circle)")
+        _valid_band(
+            ax,
+            g["sf_upc"].min(),
+            g["sf_upc"].max() * 1.1,
+            w / 4,
+            "period < 4 px (spatial aliasing)",
+        )
+        ax.set_title(f"TF = {tf:g} Hz   ρ = {rho.get(('sf', tf), np.nan):+.2f}")
+    for ax in axes.flat:
+        ax.legend(fontsize=7, loc="best")
+    fig.suptitle(title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _panel(ax: plt.Axes, x: pl.Series, g: pl.DataFrame, xlabel: str) -> None:
+    xs = x.to_numpy()
+    est = g["omega_dps"].to_numpy()
+    sd = g["omega_sd_dps"].to_numpy()
+    pos = est > 0
+    ax.plot(xs[pos], est[pos], "o-", color="C0", ms=4, label="AVDM ω̂ (mean ± sd over time)")
+    ax.fill_between(
+        xs[pos],
+        np.maximum(est[pos] - sd[pos], est[pos] / 10),
+        est[pos] + sd[pos],
+        color="C0",
+        alpha=0.2,
+        lw=0,
+    )
+    if (~pos).any():  # a log axis cannot show 0: mark zero responses on the bottom edge
+        ax.plot(
+            xs[~pos],
+            np.full((~pos).sum(), 0.02),
+            "v",
+            color="C3",
+            ms=6,
+            clip_on=False,
+            transform=ax.get_xaxis_transform(),
+            label="ω̂ = 0",
+        )
+    ax.plot(xs, g["omega_true_dps"], "--", color="k", lw=1, label="true ω = TF·360/SF")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("angular velocity (deg/s)")
+    ax.grid(True, which="both", alpha=0.3)
+
+
+def plot_grid(df: pl.DataFrame, path: Path, title: str) -> Path:
+    """Heat map of mean ω̂ over the SF × TF grid (log colour scale) beside the true ω."""
+    sfs = sorted(df["sf_upc"].unique().to_list())
+    tfs = sorted(df["tf_hz"].unique().to_list())
+    est = np.full((len(sfs), len(tfs)), np.nan)
+    true = np.full_like(est, np.nan)
+    index = {(r["sf_upc"], r["tf_hz"]): r for r in df.iter_rows(named=True)}
+    for i, sf in enumerate(sfs):
+        for j, tf in enumerate(tfs):
+            r = index.get((sf, tf))
+            if r is not None:
+                est[i, j] = r["omega_dps"]
+                true[i, j] = r["omega_true_dps"]
+    positive = est[np.isfinite(est) & (est > 0)]
+    vmin = max(float(positive.min()) if positive.size else 1.0, 1e-2)
+    vmax = float(max(np.nanmax(true), np.nanmax(est), vmin * 10))
+    norm = matplotlib.colors.LogNorm(vmin=vmin, vmax=vmax)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5), constrained_layout=True)
+    for ax, data, name in ((axes[0], est, "AVDM ω̂ (deg/s)"), (axes[1], true, "true ω (deg/s)")):
+        im = ax.imshow(
+            np.where(data > 0, data, np.nan),
+            origin="lower",
+            aspect="auto",
+            norm=norm,
+            cmap="viridis",
+        )
+        ax.set_xticks(range(len(tfs)), [f"{t:g}" for t in tfs], rotation=90)
+        ax.set_yticks(range(len(sfs)), [f"{s:g}" for s in sfs])
+        ax.set_xlabel("TF (Hz)")
+        ax.set_ylabel("SF (units per circle)")
+        ax.set_title(name)
+        fig.colorbar(im, ax=ax)
+    fig.suptitle(title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,259 @@
+"""Offline stimuli: drifting gratings and drifting natural scenes, as frame stacks.
+
+Conventions (DESIGN.md, "Units and frames"):
+
+* a stimulus image of width W px stands for a full 360° circle, so deg/px = 360 / W;
+* spatial frequency SF is in **units per circle (upc)** = cycles across the image; the spatial
+  period is ``W / SF`` px; temporal frequency TF is in Hz; the true angular velocity is
+  ``ω = TF · 360 / SF`` deg/s (``TF · period_px · deg_per_px`` in general);
+* pixels sample the pattern at their centres, columns j = 0 … W−1, frames n = 0 … T−1 at ``fps``;
+* intensities are on [0, 1]. ``normalisation="peak"`` keeps the peak at 1 (mean 1/(1+C)): the
+  condition under which the AVDM's (1+C)/(2C) factor removes contrast exactly;
+  ``"mean"`` keeps the mean at 0.5.
+* ``dtype=np.uint8`` rounds intensities to 0–255 (what a camera or a recording holds).
+
+Every function returns ``frames`` of shape (T, H, W).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+NORMALISATIONS = ("peak", "mean")
+WAVEFORMS = ("sine", "square")
+
+
+def period_px_from_sf(sf_upc: float, width: int) -> float:
+    """Spatial period in px of ``sf_upc`` cycles across an image ``width`` px wide."""
+    if not sf_upc > 0:
+        raise ValueError(f"spatial frequency must be > 0 upc, got {sf_upc}")
+    return width / sf_upc
+
+
+def omega_true_dps(sf_upc: float, tf_hz: float) -> float:
+    """True angular velocity ω = TF · 360 / SF, deg/s, of a grating on a full-circle image."""
+    return tf_hz * 360.0 / sf_upc
+
+
+def _n_frames(fps: float, duration_s: float | None, n_frames: int | None) -> int:
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a positive number, got {fps}")
+    if n_frames is None:
+        if duration_s is None or not (math.isfinite(duration_s) and duration_s > 0):
+            raise ValueError(f"duration must be a positive number of seconds, got {duration_s}")
+        n_frames = round(duration_s * fps)
+    if n_frames < 1:
+        raise ValueError(f"a stimulus needs at least one frame, got {n_frames}")
+    return int(n_frames)
+
+
+def _check_size(size: tuple[int, int]) -> tuple[int, int]:
+    h, w = (int(s) for s in size)
+    if h < 1 or w < 2:
+        raise ValueError(f"stimulus size must be at least 1x2 px (HxW), got {size}")
+    return h, w
+
+
+def _levels(contrast: float, normalisation: str) -> tuple[float, float]:
+    """(mean, amplitude) of intensities for Michelson ``contrast`` under ``normalisation``."""
+    if not (math.isfinite(contrast) and 0.0 <= contrast <= 1.0):
+        raise ValueError(f"contrast must be between 0 and 1, got {contrast}")
+    if normalisation == "peak":
+        mean = 1.0 / (1.0 + contrast)
+    elif normalisation == "mean":
+        mean = 0.5
+    else:
+        raise ValueError(f"normalisation must be one of {NORMALISATIONS}, got {normalisation!r}")
+    return mean, mean * contrast
+
+
+def _finish(intensity: np.ndarray, dtype: type | np.dtype) -> np.ndarray:
+    intensity = np.clip(intensity, 0.0, 1.0)
+    dt = np.dtype(dtype)
+    if dt == np.uint8:
+        return np.rint(intensity * 255.0).astype(np.uint8)
+    if dt in (np.float32, np.float64):
+        return intensity.astype(dt)
+    raise ValueError(f"dtype must be uint8, float32 or float64, got {dt}")
+
+
+def grating(
+    *,
+    size: tuple[int, int] = (100, 100),
+    fps: float = 300.0,
+    tf_hz: float = 1.0,
+    sf_upc: float | None = None,
+    period_px: float | None = None,
+    duration_s: float | None = 1.0,
+    n_frames: int | None = None,
+    contrast: float = 1.0,
+    normalisation: str = "peak",
+    waveform: str = "sine",
+    direction: int = 1,
+    phase_rad: float = 0.0,
+    dtype: type | np.dtype = np.uint8,
+) -> np.ndarray:
+    """A vertical grating drifting horizontally, frames (T, H, W).
+
+    Give the spatial frequency either as ``sf_upc`` (cycles across the image) or as
+    ``period_px``. ``direction=+1`` drifts toward +x (increasing column index), the AVDM's
+    default preferred direction. ``n_frames`` overrides ``duration_s``.
+
+    Intensity at column j, frame n: ``mean · (1 + C · s(2π (j − d·v·n) / period + phase))``
+    with ``v = TF · period / fps`` px/frame and ``s`` = sin or the sign of sin (square wave).
+    """
+    h, w = _check_size(size)
+    t = _n_frames(fps, duration_s, n_frames)
+    if (sf_upc is None) == (period_px is None):
+        raise ValueError("give exactly one of sf_upc and period_px")
+    period = period_px_from_sf(sf_upc, w) if sf_upc is not None else float(period_px)  # type: ignore[arg-type]
+    if not (math.isfinite(period) and period > 0):
+        raise ValueError(f"spatial period must be a positive number of px, got {period}")
+    if not (math.isfinite(tf_hz) and tf_hz >= 0):
+        raise ValueError(f"temporal frequency must be >= 0 Hz, got {tf_hz}")
+    if direction not in (1, -1):
+        raise ValueError(f"direction must be 1 or -1, got {direction}")
+    if waveform not in WAVEFORMS:
+        raise ValueError(f"waveform must be one of {WAVEFORMS}, got {waveform!r}")
+    mean, amp = _levels(contrast, normalisation)
+    # phase in cycles; computed per frame and column only (rows are identical)
+    cols = np.arange(w, dtype=np.float64) / period
+    shift = direction * tf_hz * np.arange(t, dtype=np.float64) / fps
+    phase = 2.0 * np.pi * (cols[None, :] - shift[:, None]) + phase_rad
+    wave = np.sin(phase)
+    if waveform == "square":
+        wave = np.where(wave >= 0.0, 1.0, -1.0)
+    rows = _finish(mean + amp * wave, dtype)  # (T, W)
+    return np.ascontiguousarray(np.broadcast_to(rows[:, None, :], (t, h, w)))
+
+
+def clutter_image(size: tuple[int, int], *, seed: int = 0, exponent: float = 1.0) -> np.ndarray:
+    """A natural-scene-like image with a 1/f^exponent amplitude spectrum, (H, W) float64.
+
+    Random phases from ``seed``; periodic in both axes (so it can drift around the circle
+    without a seam); scaled so its minimum is −1 and maximum +1.
+    """
+    h, w = _check_size(size)
+    if not (math.isfinite(exponent) and exponent >= 0):
+        raise ValueError(f"spectral exponent must be >= 0, got {exponent}")
+    rng = np.random.default_rng(seed)
+    fy = np.fft.fftfreq(h)[:, None]
+    fx = np.fft.rfftfreq(w)[None, :]
+    radius = np.sqrt(fx**2 + fy**2)
+    radius[0, 0] = np.inf  # no DC: the mean is set by the normalisation
+    amplitude = radius**-exponent
+    phases = rng.uniform(0.0, 2.0 * np.pi, size=amplitude.shape)
+    img = np.fft.irfft2(amplitude * np.exp(1j * phases), s=(h, w))
+    lo, hi = img.min(), img.max()
+    if hi - lo < 1e-12:
+        return np.zeros((h, w))
+    return 2.0 * (img - lo) / (hi - lo) - 1.0
+
+
+def resize_image(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resample a 2-D image to ``size`` (H, W) by area averaging (down) / linear (up), float64."""
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim != 2 or img.shape[0] < 1 or img.shape[1] < 2:
+        raise ValueError(f"an image must be 2-D with at least 1x2 px, got shape {img.shape}")
+    h, w = _check_size(size)
+
+    def axis_matrix(n_in: int, n_out: int) -> np.ndarray:
+        # weights (n_out, n_in): overlap of output cells with input cells on [0, 1]
+        edges_in = np.linspace(0.0, 1.0, n_in + 1)
+        edges_out = np.linspace(0.0, 1.0, n_out + 1)
+        lo = np.maximum(edges_out[:-1, None], edges_in[None, :-1])
+        hi = np.minimum(edges_out[1:, None], edges_in[None, 1:])
+        weights = np.clip(hi - lo, 0.0, None)
+        return weights / weights.sum(axis=1, keepdims=True)
+
+    return axis_matrix(img.shape[0], h) @ img @ axis_matrix(img.shape[1], w).T
+
+
+def drifting_image(
+    image: np.ndarray,
+    *,
+    size: tuple[int, int] | None = None,
+    fps: float = 300.0,
+    speed_px_s: float = 10.0,
+    duration_s: float | None = 1.0,
+    n_frames: int | None = None,
+    contrast: float = 1.0,
+    normalisation: str = "peak",
+    direction: int = 1,
+    dtype: type | np.dtype = np.uint8,
+) -> np.ndarray:
+    """An image drifting horizontally around the circle at ``speed_px_s``, frames (T, H, W).
+
+    ``image`` (2-D, any range) is resampled to ``size`` if given, rescaled to [−1, 1], then
+    shown as ``mean · (1 + C · z)``. Sub-pixel shifts are exact (Fourier shift along x, the image
+    wrapping around the circle); a non-periodic photograph therefore shows a seam where its
+    left and right edges meet.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim != 2:
+        raise ValueError(f"an image must be 2-D (grayscale), got shape {img.shape}")
+    if not np.isfinite(img).all():
+        raise ValueError("the image contains NaN or infinite values")
+    if size is not None:
+        img = resize_image(img, size)
+    h, w = _check_size(img.shape)
+    t = _n_frames(fps, duration_s, n_frames)
+    if not math.isfinite(speed_px_s):
+        raise ValueError(f"drift speed must be finite, got {speed_px_s}")
+    if direction not in (1, -1):
+        raise ValueError(f"direction must be 1 or -1, got {direction}")
+    lo, hi = img.min(), img.max()
+    z = 2.0 * (img - lo) / (hi - lo) - 1.0 if hi > lo else np.zeros_like(img)
+    mean, amp = _levels(contrast, normalisation)
+    spectrum = np.fft.rfft(z, axis=1)  # (H, W//2+1)
+    k = np.fft.rfftfreq(w) * w  # cycles across the image
+    shifts = direction * speed_px_s * np.arange(t) / fps  # px, toward +x for direction +1
+    out = np.empty((t, h, w), dtype=np.dtype(dtype))
+    chunk = 256  # bound the complex temporaries
+    for s in range(0, t, chunk):
+        ph = np.exp(-2j * np.pi * k[None, :] * shifts[s : s + chunk, None] / w)  # (c, K)
+        moved = np.fft.irfft(spectrum[None, :, :] * ph[:, None, :], n=w, axis=2)
+        out[s : s + chunk] = _finish(mean + amp * moved, dtype)
+    return out
+
+
+def natural_scene(
+    *,
+    size: tuple[int, int] = (100, 100),
+    fps: float = 300.0,
+    tf_hz: float = 1.0,
+    nominal_period_px: float = 10.0,
+    duration_s: float | None = 1.0,
+    n_frames: int | None = None,
+    seed: int = 0,
+    exponent: float = 1.0,
+    image: np.ndarray | None = None,
+    contrast: float = 1.0,
+    normalisation: str = "peak",
+    direction: int = 1,
+    dtype: type | np.dtype = np.uint8,
+) -> np.ndarray:
+    """A drifting natural scene, frames (T, H, W).
+
+    The scene is 1/f clutter generated from ``seed`` or, if given, ``image`` (a 2-D array a
+    caller read from a file). Like the arena's natural-scene walls (DESIGN.md), it drifts at
+    ``tf_hz · nominal_period_px`` px/s, so "TF" means the same speed a grating of that period
+    would have.
+    """
+    if not (math.isfinite(nominal_period_px) and nominal_period_px > 0):
+        raise ValueError(f"nominal period must be > 0 px, got {nominal_period_px}")
+    base = clutter_image(size, seed=seed, exponent=exponent) if image is None else image
+    return drifting_image(
+        base,
+        size=size,
+        fps=fps,
+        speed_px_s=tf_hz * nominal_period_px,
+        duration_s=duration_s,
+        n_frames=n_frames,
+        contrast=contrast,
+        normalisation=normalisation,
+        direction=direction,
+        dtype=dtype,
+    )

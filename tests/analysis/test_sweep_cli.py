@@ -1,0 +1,151 @@
+"""``vdc-analyse sweep`` and ``vdc-analyse calibrate`` as a user runs them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+from helpers import assert_one_line_error, run_cli
+
+from analysis.cli import main
+from analysis.parquet_io import read_metadata
+from avdm.calibration_store import lookup_calibration
+
+SWEEP_COLUMNS = [
+    "model",
+    "sf_upc",
+    "tf_hz",
+    "period_px",
+    "omega_true_dps",
+    "omega_dps",
+    "lambda_px",
+    "motion",
+    "contrast",
+]
+
+
+def test_paper_sweep_writes_table_figure_and_monotonicity(out_dir: Path, capsys) -> None:
+    assert main(["sweep", "--out", str(out_dir)]) == 0
+    printed = capsys.readouterr().out
+    df = pl.read_parquet(out_dir / "sweep.parquet")
+    assert df.columns[: len(SWEEP_COLUMNS)] == SWEEP_COLUMNS
+    # the six rows and columns of paper Fig. 3
+    for sf in (1.0, 10.0, 50.0):
+        assert df.filter(pl.col("sf_upc") == sf).height == 16
+    for tf in (1.0, 5.0, 50.0):
+        assert df.filter(pl.col("tf_hz") == tf).height == 17
+    np.testing.assert_allclose(df["omega_true_dps"], df["tf_hz"] * 360 / df["sf_upc"])
+    np.testing.assert_allclose(df["period_px"], 100 / df["sf_upc"])
+    assert (out_dir / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    mono = pl.read_parquet(out_dir / "monotonicity.parquet")
+    assert mono.height == 6
+    # the paper's claim on the well-sampled rows: rising with TF, falling with SF
+    for fixed in ("sf_upc=1", "sf_upc=10"):
+        assert mono.filter(pl.col("fixed") == fixed)["trend"].item() == "increasing"
+    for fixed in ("tf_hz=1", "tf_hz=5", "tf_hz=50"):
+        assert mono.filter(pl.col("fixed") == fixed)["rho"].item() < -0.9
+    assert "rho=" in printed and "vs TF at sf_upc=10" in printed
+    meta = read_metadata(out_dir / "sweep.parquet")
+    assert meta["model"] == "avdm"
+    assert meta["params"]["a"] == lookup_calibration(300.0, 3.6)["a"]
+    assert meta["stimulus"]["fps"] == 300.0
+    assert "numpy" in meta["versions"] and "vdc" in meta["versions"]
+
+
+def test_grid_sweep_is_idempotent_and_honours_the_model(tmp_path: Path) -> None:
+    args = [
+        "sweep",
+        "--sf",
+        "2,10",
+        "--tf",
+        "1,5,20",
+        "--duration",
+        "0.3",
+        "--model",
+        "avdm-on:beta=0.3",
+    ]
+    assert main([*args, "--out", str(tmp_path / "a")]) == 0
+    assert main([*args, "--out", str(tmp_path / "b")]) == 0
+    a = pl.read_parquet(tmp_path / "a" / "sweep.parquet")
+    b = pl.read_parquet(tmp_path / "b" / "sweep.parquet")
+    assert a.height == 6 and a.equals(b)
+    assert set(a["model"]) == {"avdm-on:beta=0.3"}
+    assert read_metadata(tmp_path / "a" / "sweep.parquet")["params"]["channel"] == "on"
+
+
+def test_sweep_runs_as_a_module(out_dir: Path) -> None:
+    proc = run_cli(
+        "analysis",
+        "sweep",
+        "--sf",
+        "5,10",
+        "--tf",
+        "2,4",
+        "--duration",
+        "0.2",
+        "--out",
+        str(out_dir),
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "summary:" in proc.stdout
+    assert pl.read_parquet(out_dir / "sweep.parquet").height == 4
+
+
+@pytest.mark.parametrize(
+    ("args", "needles"),
+    [
+        (["sweep", "--tf", "abc"], ["--tf", "comma-separated numbers"]),
+        (["sweep", "--model", "nope"], ["unknown model 'nope'"]),
+        (["sweep", "--model", "avdm:beta=x"], ["beta", "expected a number"]),
+        (["sweep", "--sf", "60"], ["Nyquist"]),
+        (["sweep", "--tf", "0"], ["> 0 Hz"]),
+        (["sweep", "--duration", "0.01"], ["warm-up"]),
+        (["sweep", "--contrast", "2"], ["--contrast"]),
+        (["sweep", "--size", "ten"], ["WIDTHxHEIGHT"]),
+        (["sweep", "--fps", "100"], ["paper layout"]),
+        (["sweep", "--bogus"], ["unrecognized arguments"]),
+        (["calibrate", "--fps", "-1"], ["positive number"]),
+        (["calibrate", "--model", "avdm:tw=x"], ["expected an integer"]),
+        (["frobnicate"], ["invalid choice"]),
+    ],
+)
+def test_bad_input_gives_one_line_and_exit_2(args: list[str], needles: list[str], out_dir) -> None:
+    proc = (
+        run_cli("analysis", *args, "--out", str(out_dir))
+        if args[0] != "frobnicate"
+        else run_cli("analysis", *args)
+    )
+    assert_one_line_error(proc, *needles)
+    assert not (out_dir / "sweep.parquet").exists()
+
+
+def test_unwritable_output_is_one_line(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    proc = run_cli("analysis", "sweep", "--sf", "5,10", "--tf", "2", "--out", str(blocker / "sub"))
+    assert_one_line_error(proc)
+
+
+def test_calibrate_prints_and_saves_the_fit(out_dir: Path) -> None:
+    proc = run_cli(
+        "analysis",
+        "calibrate",
+        "--fps",
+        "33",
+        "--size",
+        "99x72",
+        "--deg-per-px",
+        repr(70 / 99),
+        "--out",
+        str(out_dir),
+    )
+    assert proc.returncode == 0, proc.stderr
+    shipped = lookup_calibration(33.0, 70 / 99)
+    assert f"a = {shipped['a']:.6g}" in proc.stdout
+    assert f"b = {shipped['b']:.6g}" in proc.stdout
+    assert "--model avdm:a=" in proc.stdout
+    saved = (out_dir / "calibration.json").read_text()
+    assert '"r2"' in saved and '"grid"' in saved
+    assert (out_dir / "calibration.png").exists()

@@ -1,0 +1,30 @@
+"""The least-squares decoding calibration and the shipped defaults."""
+
+from __future__ import annotations
+
+import pytest
+
+from avdm import make_params
+from avdm.calibration import fit_decoding
+from avdm.calibration_store import shipped_calibrations
+
+
+@pytest.mark.parametrize("entry", shipped_calibrations(), ids=lambda e: e["name"])
+def test_shipped_calibration_is_reproduced_by_the_fit(entry: dict) -> None:
+    params = make_params(f"avdm:a=1,b=1,fps={entry['fps']!r},deg_per_px={entry['deg_per_px']!r}")
+    result = fit_decoding(
+        params, size=(entry["height"], entry["width"]), contrasts=tuple(entry["grid"]["contrasts"])
+    )
+    assert result.a == pytest.approx(entry["a"], rel=1e-9)
+    assert result.b == pytest.approx(entry["b"], rel=1e-9)
+    assert result.n_points == entry["n_points"]
+    # avdm.md §9.12: b close to 1 and a good log-log fit
+    assert 0.9 < result.b < 1.1
+    assert result.r2 > 0.98
+    assert result.rms_rel_error < 0.12
+
+
+def test_fit_refuses_a_grid_with_no_valid_cells() -> None:
+    params = make_params("avdm:a=1,b=1,theta_e=10")  # nothing ever passes the threshold
+    with pytest.raises(ValueError, match="valid band"):
+        fit_decoding(params, size=(20, 40), periods_px=[5.0, 10.0], tfs_hz=[5.0, 10.0])

@@ -1,0 +1,86 @@
+"""Named variants and ``name:key=value`` overrides."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from avdm import canonical_name, make_model, make_params, parse_model_spec
+from avdm.calibration_store import lookup_calibration, shipped_calibrations
+from avdm.registry import VARIANTS
+
+
+def test_overrides_are_parsed_into_typed_values() -> None:
+    name, over = parse_model_spec("avdm:beta=0.5, tw=6 ,channel=on,contrast_term=false")
+    assert name == "avdm"
+    assert over == {"beta": 0.5, "tw": 6, "channel": "on", "contrast_term": False}
+    assert isinstance(over["tw"], int) and isinstance(over["beta"], float)
+
+
+def test_variants_apply_their_overrides_and_user_overrides_win() -> None:
+    assert make_params("avdm-on").channel == "on"
+    assert make_params("avdm-on:channel=off").channel == "off"
+    assert make_params("avdm-unity").photoreceptor_lag == 9
+    assert make_params("avdm", fps=33.0, deg_per_px=70 / 99).fps == 33.0
+    assert make_params("avdm:fps=33", fps=300.0, deg_per_px=70 / 99).fps == 33.0
+
+
+def test_canonical_names_sort_keys() -> None:
+    assert canonical_name("avdm") == "avdm"
+    assert canonical_name("avdm:tw=6,beta=0.5") == "avdm:beta=0.5,tw=6"
+    assert make_model("avdm:tw=6,beta=0.5").name == "avdm:beta=0.5,tw=6"
+
+
+def test_shipped_calibrations_fill_in_a_and_b() -> None:
+    offline = make_params("avdm")
+    robot = make_params("avdm", fps=33.0, deg_per_px=70 / 99)
+    assert offline.a == lookup_calibration(300.0, 3.6)["a"]
+    assert robot.b == lookup_calibration(33.0, 70 / 99)["b"]
+    assert make_params("avdm:a=100,b=1").a == 100.0
+    names = {c["name"] for c in shipped_calibrations()}
+    assert {"offline-stimuli", "robot-camera"} <= names
+
+
+def test_params_round_trip_through_a_flat_dict() -> None:
+    p = make_params("avdm:beta=0.4")
+    d = p.to_dict()
+    assert d["beta"] == 0.4 and set(d) >= {"fps", "deg_per_px", "a", "b", "tw"}
+    assert type(p)(**d) == p
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("", "empty model spec"),
+        ("nope", "unknown model 'nope'"),
+        ("avdm:", "no key=value"),
+        ("avdm:beta", "not key=value"),
+        ("avdm:gamma=1", "unknown parameter 'gamma'"),
+        ("avdm:beta=abc", "expected a number"),
+        ("avdm:tw=2.5", "expected an integer"),
+        ("avdm:tw=0", "tw=0"),
+        ("avdm:beta=2", "between 0 and 1"),
+        ("avdm:channel=left", "one of on, off, on_off_mean"),
+        ("avdm:contrast_term=maybe", "true or false"),
+        ("avdm:beta=", "has no value"),
+        ("avdm:fps=-3", "positive"),
+        ("a vdm", "malformed"),
+    ],
+)
+def test_bad_specs_fail_with_a_message_naming_the_problem(spec: str, message: str) -> None:
+    with pytest.raises(ValueError, match=message.replace("(", r"\(")):
+        make_params(spec)
+
+
+def test_missing_calibration_says_how_to_make_one() -> None:
+    with pytest.raises(ValueError, match="vdc-analyse calibrate --fps 50"):
+        make_params("avdm", fps=50.0, deg_per_px=1.0)
+
+
+@given(st.sampled_from(sorted(VARIANTS)), st.floats(0.0, 1.0), st.integers(1, 50))
+def test_any_variant_accepts_valid_overrides(name: str, beta: float, tw: int) -> None:
+    spec = f"{name}:beta={beta!r},tw={tw}"
+    p = make_params(spec)
+    assert p.beta == beta and p.tw == tw
+    assert parse_model_spec(canonical_name(spec)) == parse_model_spec(spec)
