@@ -1,4 +1,5 @@
-"""Helpers shared by the tests (importable: tests/ is on pytest's pythonpath)."""
+"""Helpers shared by the tests, imported as ``tests.helpers`` (the repo root is on the
+pythonpath, so ``tests/avdm`` never shadows the ``avdm`` package)."""
 
 from __future__ import annotations
 

@@ -6,7 +6,8 @@ import subprocess
 import sys
 
 import pytest
-from helpers import ROOT, run_cli
+
+from tests.helpers import ROOT, run_cli
 
 
 @pytest.mark.parametrize("module", ["capture", "analysis"])

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 import pytest
-from helpers import assert_one_line_error, run_cli
 
 from analysis.cli import main
 from analysis.parquet_io import read_metadata
 from avdm.calibration_store import lookup_calibration
+from tests.helpers import assert_one_line_error, run_cli
 
 SWEEP_COLUMNS = [
     "model",

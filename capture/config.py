@@ -1,0 +1,307 @@
+"""Configuration of a simulated run: one frozen dataclass per part, every value recorded.
+
+Paper defaults (DESIGN.md); values the sources leave open are PROPOSED and say so. Every
+``__post_init__`` raises ``ValueError`` naming the field and the accepted range.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import re
+from typing import Any
+
+SCENES = ("grating", "natural")
+
+
+def _check(cond: bool, name: str, value: Any, why: str) -> None:
+    if not cond:
+        raise ValueError(f"{name}={value!r}: {why}")
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _in_range(name: str, v: Any, lo: float, hi: float, unit: str = "") -> None:
+    _check(_finite(v) and lo <= v <= hi, name, v, f"must be between {lo:g} and {hi:g}{unit}")
+
+
+@dataclasses.dataclass(frozen=True)
+class ArenaConfig:
+    """Rectangular arena centred on the origin; x along the long side (DESIGN.md)."""
+
+    length_m: float = 1.4
+    width_m: float = 0.8
+    wall_height_m: float = 0.15
+    ring_width_m: float = 0.05  # white light ring on the floor
+    ring_inset_m: float = 0.04  # gap between the walls and the ring's outer edge
+    floor_level: float = 0.1  # intensities on [0, 1]; PROPOSED: dark floor, white ring,
+    ring_level: float = 1.0  # dim room above the walls
+    room_level: float = 0.05
+
+    def __post_init__(self) -> None:
+        _in_range("arena length_m", self.length_m, 0.2, 20.0, " m")
+        _in_range("arena width_m", self.width_m, 0.2, 20.0, " m")
+        _in_range("wall_height_m", self.wall_height_m, 0.01, 5.0, " m")
+        _in_range("ring_width_m", self.ring_width_m, 0.0, 1.0, " m")
+        _in_range("ring_inset_m", self.ring_inset_m, 0.0, 1.0, " m")
+        inner = self.ring_inset_m + self.ring_width_m
+        _check(
+            2 * inner < min(self.length_m, self.width_m) - 0.1,
+            "ring_inset_m + ring_width_m",
+            inner,
+            "leaves no room inside the ring",
+        )
+        for name in ("floor_level", "ring_level", "room_level"):
+            _in_range(name, getattr(self, name), 0.0, 1.0)
+
+    @property
+    def half_extent(self) -> tuple[float, float]:
+        return self.length_m / 2, self.width_m / 2
+
+    @property
+    def perimeter_m(self) -> float:
+        return 2 * (self.length_m + self.width_m)
+
+    @property
+    def ring_inner_m(self) -> float:
+        """Distance from the walls to the ring's inner edge."""
+        return self.ring_inset_m + self.ring_width_m
+
+
+@dataclasses.dataclass(frozen=True)
+class WallConfig:
+    """What the LED walls show. The pattern runs along the unrolled wall coordinate s (m),
+    starting at the (−x, −y) corner and going counter-clockwise."""
+
+    scene: str = "grating"
+    period_m: float = 0.1  # grating period along the wall; PROPOSED default
+    contrast: float = 1.0  # Michelson; peak-normalised (brightest LED = 1)
+    tf_schedule: tuple[tuple[float, float], ...] = ((0.0, 1800.0),)  # (TF Hz, seconds)
+    nominal_period_m: float = 0.1  # a natural scene drifts at tf_hz · nominal_period_m m/s
+    image_path: str = ""  # natural scene from a file instead of seeded 1/f clutter
+    texture_px: tuple[int, int] = (120, 3520)  # (H, W) of the LED wall panorama
+
+    def __post_init__(self) -> None:
+        _check(self.scene in SCENES, "scene", self.scene, f"must be one of {', '.join(SCENES)}")
+        _in_range("period_m", self.period_m, 0.002, 10.0, " m")
+        _in_range("wall contrast", self.contrast, 0.0, 1.0)
+        _in_range("nominal_period_m", self.nominal_period_m, 0.002, 10.0, " m")
+        _check(len(self.tf_schedule) > 0, "tf_schedule", self.tf_schedule, "is empty")
+        for tf, dur in self.tf_schedule:
+            _in_range("wall TF", tf, 0.0, 100.0, " Hz")
+            _check(_finite(dur) and dur > 0, "schedule segment duration", dur, "must be > 0 s")
+        h, w = self.texture_px
+        _check(1 <= h <= 4096 and 8 <= w <= 65536, "texture_px", self.texture_px, "out of range")
+
+    def tf_at(self, t_s: float) -> float:
+        """The TF in force at ``t_s`` seconds (the last segment holds after the schedule)."""
+        end = 0.0
+        for tf, dur in self.tf_schedule:
+            end += dur
+            if t_s < end:
+                return tf
+        return self.tf_schedule[-1][0]
+
+    @property
+    def drift_period_m(self) -> float:
+        """Metres of drift per cycle of TF: the grating period, or the scene's nominal period."""
+        return self.period_m if self.scene == "grating" else self.nominal_period_m
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotConfig:
+    """Colias-IV: a disc driving forward, turning in place at the light ring."""
+
+    radius_m: float = 0.021
+    speed_mps: float = 0.08
+    turn_min_deg: float = 80.0
+    turn_max_deg: float = 100.0
+    turn_speed_dps: float = 120.0  # PROPOSED: in-place turn rate (a 90° turn takes 0.75 s)
+    refractory_s: float = 0.5  # PROPOSED: no new ring turn for this long after one ends
+    sensor_forward_m: float = 0.012  # two floor light sensors, PROPOSED placement
+    sensor_lateral_m: float = 0.012
+    start_x_m: float = float("nan")  # NaN = random start inside the ring (from the seed)
+    start_y_m: float = float("nan")
+    start_heading_rad: float = float("nan")
+
+    def __post_init__(self) -> None:
+        _in_range("robot radius_m", self.radius_m, 0.001, 0.5, " m")
+        _in_range("speed_mps", self.speed_mps, 0.0, 2.0, " m/s")
+        _in_range("turn_min_deg", self.turn_min_deg, 0.0, 360.0, " deg")
+        _in_range("turn_max_deg", self.turn_max_deg, self.turn_min_deg, 360.0, " deg")
+        _in_range("turn_speed_dps", self.turn_speed_dps, 1.0, 3600.0, " deg/s")
+        _in_range("refractory_s", self.refractory_s, 0.0, 60.0, " s")
+        _in_range("sensor_forward_m", self.sensor_forward_m, 0.0, 0.5, " m")
+        _in_range("sensor_lateral_m", self.sensor_lateral_m, 0.0, 0.5, " m")
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraConfig:
+    """The on-board camera: pinhole, horizontal, looking forward, area-averaged pixels."""
+
+    width_px: int = 99
+    height_px: int = 72
+    fps: float = 33.0
+    hfov_deg: float = 70.0
+    height_m: float = 0.03
+    supersample: int = 8  # sub-columns per pixel (area averaging across the stripes)
+    noise_sd: float = 0.0  # Gaussian sensor noise, 8-bit levels (0 = off)
+
+    def __post_init__(self) -> None:
+        _check(
+            isinstance(self.width_px, int) and 8 <= self.width_px <= 2048,
+            "camera width_px",
+            self.width_px,
+            "must be an integer from 8 to 2048",
+        )
+        _check(
+            isinstance(self.height_px, int) and 3 <= self.height_px <= 2048,
+            "camera height_px",
+            self.height_px,
+            "must be an integer from 3 to 2048",
+        )
+        _in_range("camera fps", self.fps, 1.0, 1000.0, " Hz")
+        _in_range("hfov_deg", self.hfov_deg, 5.0, 170.0, " deg")
+        _in_range("camera height_m", self.height_m, 0.001, 5.0, " m")
+        _check(
+            isinstance(self.supersample, int) and 1 <= self.supersample <= 64,
+            "supersample",
+            self.supersample,
+            "must be an integer from 1 to 64",
+        )
+        _in_range("noise_sd", self.noise_sd, 0.0, 100.0, " levels")
+
+    @property
+    def focal_px(self) -> float:
+        return (self.width_px / 2) / math.tan(math.radians(self.hfov_deg) / 2)
+
+    @property
+    def deg_per_px(self) -> float:
+        """Angular pitch at the image centre (what the AVDM calibration is keyed on)."""
+        return self.hfov_deg / self.width_px
+
+
+@dataclasses.dataclass(frozen=True)
+class OverheadConfig:
+    """Optional top-down camera: a render of the arena with a marker on the robot."""
+
+    enabled: bool = False
+    fps: float = 5.0
+    px_per_m: float = 200.0
+
+    def __post_init__(self) -> None:
+        _in_range("overhead fps", self.fps, 0.1, 100.0, " Hz")
+        _in_range("overhead px_per_m", self.px_per_m, 10.0, 2000.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class SimConfig:
+    """A whole simulated run."""
+
+    arena: ArenaConfig = ArenaConfig()
+    wall: WallConfig = WallConfig()
+    robot: RobotConfig = RobotConfig()
+    camera: CameraConfig = CameraConfig()
+    overhead: OverheadConfig = OverheadConfig()
+    duration_s: float = 1800.0
+    seed: int = 0
+    model: str = "avdm"
+
+    def __post_init__(self) -> None:
+        _check(
+            _finite(self.duration_s) and 0 < self.duration_s <= 48 * 3600,
+            "duration",
+            self.duration_s,
+            "must be between 0 and 48 hours",
+        )
+        _check(
+            isinstance(self.seed, int) and 0 <= self.seed < 2**63,
+            "seed",
+            self.seed,
+            "must be a non-negative integer",
+        )
+        hx, hy = self.arena.half_extent
+        for name, v, lim in (
+            ("start_x_m", self.robot.start_x_m, hx),
+            ("start_y_m", self.robot.start_y_m, hy),
+        ):
+            if not math.isnan(v):
+                _check(abs(v) < lim - self.robot.radius_m, name, v, "is outside the arena")
+
+    @property
+    def n_frames(self) -> int:
+        return round(self.duration_s * self.camera.fps)
+
+    def to_sections(self) -> dict[str, dict[str, Any]]:
+        """``{section: {field: value}}`` with JSON-friendly values (for recording properties)."""
+
+        def plain(v: Any) -> Any:
+            if isinstance(v, tuple):
+                return json.dumps(v)
+            if isinstance(v, float) and math.isnan(v):
+                return "random"
+            return v
+
+        out: dict[str, dict[str, Any]] = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if dataclasses.is_dataclass(v):
+                out[f.name] = {k: plain(x) for k, x in dataclasses.asdict(v).items()}
+            else:
+                out.setdefault("run", {})[f.name] = plain(v)
+        out["wall"]["tf_schedule_text"] = format_schedule(self.wall.tf_schedule)
+        return out
+
+    def digest(self) -> str:
+        """8 hex digits identifying this exact configuration (same config → same run)."""
+        text = json.dumps(self.to_sections(), sort_keys=True, default=str)
+        return hashlib.sha1(text.encode()).hexdigest()[:8]
+
+    def run_id(self) -> str:
+        """A readable recording id, e.g. ``grating-tf3-s1-1a2b3c4d``."""
+        tfs = []
+        for tf, _ in self.wall.tf_schedule:
+            label = f"{tf:g}".replace(".", "p")
+            if not tfs or tfs[-1] != label:
+                tfs.append(label)
+        return f"{self.wall.scene}-tf{'-'.join(tfs)}-s{self.seed}-{self.digest()}"
+
+
+_SEGMENT = re.compile(r"^\s*([0-9.eE+-]+)\s*:\s*([0-9.eE+-]+)\s*([smh]?)\s*$")
+_UNIT_S = {"": 1.0, "s": 1.0, "m": 60.0, "h": 3600.0}
+
+
+def parse_schedule(text: str) -> tuple[tuple[float, float], ...]:
+    """``"0:30m,3:30m"`` → ``((0.0, 1800.0), (3.0, 1800.0))``: TF Hz and duration (s|m|h,
+    seconds without a unit) per segment. Raises ValueError naming the bad segment."""
+    if not text or not text.strip():
+        raise ValueError("empty TF schedule: expected e.g. 0:30m,3:30m (TF Hz : duration)")
+    out = []
+    for part in text.split(","):
+        m = _SEGMENT.match(part)
+        if m is None:
+            raise ValueError(
+                f"TF schedule segment {part.strip()!r} is not TF:DURATION (e.g. 3:30m, 0:90s)"
+            )
+        try:
+            tf = float(m.group(1))
+            dur = float(m.group(2)) * _UNIT_S[m.group(3)]
+        except ValueError:
+            raise ValueError(
+                f"TF schedule segment {part.strip()!r} has a non-numeric value"
+            ) from None
+        if not (math.isfinite(tf) and 0 <= tf <= 100):
+            raise ValueError(f"TF {tf:g} Hz in schedule segment {part.strip()!r}: must be 0–100 Hz")
+        if not (math.isfinite(dur) and dur > 0):
+            raise ValueError(f"duration in schedule segment {part.strip()!r} must be > 0")
+        out.append((tf, dur))
+    return tuple(out)
+
+
+def format_schedule(schedule: tuple[tuple[float, float], ...]) -> str:
+    """The inverse of ``parse_schedule`` (durations in seconds)."""
+    return ",".join(f"{tf:g}:{dur:g}s" for tf, dur in schedule)

@@ -1,0 +1,361 @@
+"""The Rerun recorder: the only module that knows the entity paths and the default blueprint.
+
+Recording contract (DESIGN.md): application id ``vdc``; timelines ``frame`` (camera frame
+index) and ``time`` (duration since the run started); hardware runs add ``capture_time``.
+
+| entity                      | archetype                         | meaning                        |
+|-----------------------------|-----------------------------------|--------------------------------|
+| ``/arena`` (static)         | LineStrips3D (ViewCoordinates: /) | walls, light ring              |
+| ``/arena/wall/tf_hz``       | Scalars                           | wall temporal frequency        |
+| ``/arena/robot_path``       | Points3D                          | the robot's position (trail)   |
+| ``/robot/pose``             | Scalars [x_m, y_m, heading_rad]   | tracked or simulated pose      |
+| ``/robot``                  | Transform3D                       | the same pose, for the 3D view |
+| ``/robot/camera/image``     | Image (L, U8)                     | raw on-board frame, lossless   |
+| ``/model/<name>/<output>``  | Scalars                           | online model outputs           |
+| ``/events/<kind>``          | TextLog + Points3D                | ring_turn, avoidance, crash... |
+| ``/overhead/image``         | Image                             | optional overhead frames       |
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from avdm.base import Output
+from capture.config import ArenaConfig
+
+APP_ID = "vdc"
+FRAME_TIMELINE = "frame"
+TIME_TIMELINE = "time"
+CAPTURE_TIME_TIMELINE = "capture_time"
+
+ARENA = "/arena"
+ARENA_WALLS = "/arena/walls"
+ARENA_RING = "/arena/ring"
+WALL_TF = "/arena/wall/tf_hz"
+ROBOT_PATH = "/arena/robot_path"
+ROBOT = "/robot"
+ROBOT_BODY = "/robot/body"
+ROBOT_HEADING = "/robot/heading"
+POSE = "/robot/pose"
+CAMERA = "/robot/camera/image"
+OVERHEAD = "/overhead/image"
+EVENTS = "/events"
+MODEL_ROOT = "/model"
+MODEL_VARIANTS_ROOT = "/model_variants"
+POSE_NAMES = ("x_m", "y_m", "heading_rad")
+
+EVENT_COLORS = {
+    "ring_turn": (255, 200, 0),
+    "avoidance": (0, 200, 255),
+    "crash": (255, 40, 40),
+    "link_error": (255, 0, 255),
+    "tracker_lost": (160, 160, 160),
+}
+EVENT_LEVELS = {"crash": "WARN", "link_error": "ERROR", "tracker_lost": "WARN"}
+
+
+def entity_name(model_name: str) -> str:
+    """A model spec as one entity-path part: ``avdm:beta=0.5`` → ``avdm_beta_0.5``."""
+    return re.sub(r"[^A-Za-z0-9_.\-]", "_", model_name)
+
+
+def model_path(model_name: str, output: str) -> str:
+    return f"{MODEL_ROOT}/{entity_name(model_name)}/{output}"
+
+
+def variant_path(model_name: str, output: str) -> str:
+    return f"{MODEL_VARIANTS_ROOT}/{entity_name(model_name)}/{output}"
+
+
+def event_path(kind: str) -> str:
+    return f"{EVENTS}/{kind}"
+
+
+def default_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Blueprint:
+    """Camera, top-down arena with a 30 s pose trail, model traces, wall TF, pose, events."""
+    main = "omega_dps" if any(o.name == "omega_dps" for o in outputs) else outputs[0].name
+    main_unit = next(o.unit for o in outputs if o.name == main)
+    others = [o.name for o in outputs if o.name != main]
+    trail = rrb.VisibleTimeRange(
+        FRAME_TIMELINE,
+        start=rrb.TimeRangeBoundary.cursor_relative(seq=-1000),
+        end=rrb.TimeRangeBoundary.cursor_relative(),
+    )
+    top_down = rrb.EyeControls3D(
+        kind=rrb.Eye3DKind.Orbital,
+        position=[0.0, -0.05, 1.9],
+        look_target=[0.0, 0.0, 0.0],
+        eye_up=[0.0, 0.0, 1.0],
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial2DView(name="robot camera", origin=CAMERA),
+                rrb.Spatial3DView(
+                    name="arena, top-down (30 s trail)",
+                    origin="/",
+                    contents=[f"{ARENA}/**", ROBOT_BODY, ROBOT_HEADING, ROBOT, f"{EVENTS}/**"],
+                    time_ranges=trail,
+                    eye_controls=top_down,
+                    line_grid=False,
+                ),
+                row_shares=[1, 1.4],
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(
+                    name=f"{model_name} {main} ({main_unit})", origin=model_path(model_name, main)
+                ),
+                rrb.TimeSeriesView(
+                    name=f"{model_name} other outputs",
+                    origin=f"{MODEL_ROOT}/{entity_name(model_name)}",
+                    contents=[model_path(model_name, o) for o in others],
+                ),
+                rrb.TimeSeriesView(name="wall TF (Hz)", origin=WALL_TF),
+                rrb.TimeSeriesView(name="pose (m, rad)", origin=POSE),
+                rrb.TextLogView(name="events", origin=EVENTS),
+                row_shares=[2, 1.5, 1, 1.5, 1.5],
+            ),
+            column_shares=[1, 1.2],
+        ),
+        rrb.TimePanel(timeline=FRAME_TIMELINE),
+        collapse_panels=False,
+    )
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def spawn_viewer(memory_limit: str = "25%") -> str:
+    """Start a Rerun viewer listening on 127.0.0.1 only; return its gRPC URL."""
+    exe = shutil.which("rerun")
+    cmd = [exe] if exe else [sys.executable, "-m", "rerun_cli"]
+    port = _free_port()
+    subprocess.Popen(
+        [*cmd, "--bind", "127.0.0.1", "--port", str(port), "--memory-limit", memory_limit],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    time.sleep(1.0)  # let it open its port before the SDK connects
+    return f"rerun+http://127.0.0.1:{port}/proxy"
+
+
+def _time_indexes(frame: np.ndarray, t_s: np.ndarray) -> list[rr.TimeColumn]:
+    t_ns = np.rint(np.asarray(t_s, dtype=np.float64) * 1e9).astype("timedelta64[ns]")
+    return [
+        rr.TimeColumn(FRAME_TIMELINE, sequence=np.asarray(frame, dtype=np.int64)),
+        rr.TimeColumn(TIME_TIMELINE, duration=t_ns),
+    ]
+
+
+def _quaternions_z(heading: np.ndarray) -> np.ndarray:
+    h = np.asarray(heading, dtype=np.float64) / 2
+    z = np.zeros_like(h)
+    return np.column_stack([z, z, np.sin(h), np.cos(h)])  # x, y, z, w
+
+
+class Recorder:
+    """Writes one run to an ``.rrd`` file (and optionally a live viewer) per the contract."""
+
+    def __init__(
+        self,
+        path: Path,
+        recording_id: str,
+        *,
+        blueprint: rrb.Blueprint | None = None,
+        live_url: str | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.recording_id = recording_id
+        self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
+        sinks: list[Any] = [rr.FileSink(str(self.path))]
+        if live_url:
+            sinks.append(rr.GrpcSink(live_url))
+        self.rec.set_sinks(*sinks, default_blueprint=blueprint)
+        self._image_shapes: dict[str, tuple[int, int]] = {}
+        self._closed = False
+        self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self.rec.log(POSE, rr.SeriesLines(names=list(POSE_NAMES)), static=True)
+
+    # -- static and metadata -------------------------------------------------------------
+    def send_properties(self, sections: Mapping[str, Mapping[str, Any]]) -> None:
+        """One recording property per section, e.g. ``arena``, ``wall``, ``model_params``."""
+        for name, values in sections.items():
+            clean = {k: v for k, v in values.items() if v is not None}
+            self.rec.send_property(name, rr.AnyValues(**clean))
+
+    def log_arena(self, arena: ArenaConfig, robot_radius_m: float) -> None:
+        hx, hy = arena.half_extent
+        h = arena.wall_height_m
+
+        def rect(ix: float, iy: float, z: float) -> list[list[float]]:
+            return [[-ix, -iy, z], [ix, -iy, z], [ix, iy, z], [-ix, iy, z], [-ix, -iy, z]]
+
+        walls = [rect(hx, hy, 0.0), rect(hx, hy, h)]
+        walls += [
+            [[sx * hx, sy * hy, 0.0], [sx * hx, sy * hy, h]] for sx in (-1, 1) for sy in (-1, 1)
+        ]
+        self.rec.log(
+            ARENA_WALLS, rr.LineStrips3D(walls, colors=[(150, 150, 150)], radii=0.003), static=True
+        )
+        ri, ro = arena.ring_inner_m, arena.ring_inset_m
+        ring = [rect(hx - ro, hy - ro, 0.001), rect(hx - ri, hy - ri, 0.001)]
+        self.rec.log(
+            ARENA_RING, rr.LineStrips3D(ring, colors=[(255, 255, 255)], radii=0.002), static=True
+        )
+        self.rec.log(
+            ROBOT_BODY,
+            rr.Ellipsoids3D(
+                half_sizes=[[robot_radius_m, robot_radius_m, 0.01]],
+                centers=[[0, 0, 0.01]],
+                colors=[(80, 160, 255)],
+                fill_mode="solid",
+            ),
+            static=True,
+        )
+        self.rec.log(
+            ROBOT_HEADING,
+            rr.Arrows3D(
+                vectors=[[2.5 * robot_radius_m, 0, 0]],
+                origins=[[0, 0, 0.02]],
+                colors=[(255, 80, 80)],
+            ),
+            static=True,
+        )
+
+    def log_model_meta(
+        self, model_name: str, outputs: Sequence[Output], *, root: str = MODEL_ROOT
+    ) -> None:
+        """Static series names carrying each output's unit, e.g. ``omega_dps [deg/s]``."""
+        base = f"{root}/{entity_name(model_name)}"
+        for o in outputs:
+            self.rec.log(
+                f"{base}/{o.name}", rr.SeriesLines(names=[f"{o.name} [{o.unit}]"]), static=True
+            )
+
+    # -- per frame data, in columns ------------------------------------------------------
+    def _image_format(self, entity: str, h: int, w: int) -> None:
+        if self._image_shapes.get(entity) == (h, w):
+            return
+        fmt = rr.components.ImageFormat(width=w, height=h, color_model="L", channel_datatype="U8")
+        self.rec.log(entity, rr.Image.from_fields(format=fmt), static=True)
+        self._image_shapes[entity] = (h, w)
+
+    def log_frames(self, frame: np.ndarray, t_s: np.ndarray, images: np.ndarray) -> None:
+        """Raw camera frames (N, H, W) uint8, never compressed lossily."""
+        n, h, w = images.shape
+        self._image_format(CAMERA, h, w)
+        self.rec.send_columns(
+            CAMERA,
+            indexes=_time_indexes(frame, t_s),
+            columns=rr.Image.columns(buffer=images.reshape(n, h * w)),
+        )
+
+    def log_poses(self, frame: np.ndarray, t_s: np.ndarray, poses: np.ndarray) -> None:
+        """Poses (N, 3) [x_m, y_m, heading_rad] as scalars, transforms and a trail."""
+        idx = _time_indexes(frame, t_s)
+        self.rec.send_columns(POSE, indexes=idx, columns=rr.Scalars.columns(scalars=poses))
+        xyz = np.column_stack([poses[:, 0], poses[:, 1], np.zeros(len(poses))])
+        self.rec.send_columns(
+            ROBOT,
+            indexes=idx,
+            columns=rr.Transform3D.columns(translation=xyz, quaternion=_quaternions_z(poses[:, 2])),
+        )
+        self.rec.send_columns(
+            ROBOT_PATH,
+            indexes=idx,
+            columns=rr.Points3D.columns(
+                positions=xyz + np.array([0.0, 0.0, 0.002]),
+                radii=np.full(len(poses), 0.003, np.float32),
+            ),
+        )
+
+    def log_wall_tf(self, frame: np.ndarray, t_s: np.ndarray, tf_hz: np.ndarray) -> None:
+        self.rec.send_columns(
+            WALL_TF,
+            indexes=_time_indexes(frame, t_s),
+            columns=rr.Scalars.columns(scalars=np.asarray(tf_hz, np.float64)),
+        )
+
+    def log_model_outputs(
+        self,
+        model_name: str,
+        frame: np.ndarray,
+        t_s: np.ndarray,
+        outputs: Mapping[str, np.ndarray],
+        *,
+        root: str = MODEL_ROOT,
+    ) -> None:
+        idx = _time_indexes(frame, t_s)
+        base = f"{root}/{entity_name(model_name)}"
+        for name, values in outputs.items():
+            self.rec.send_columns(
+                f"{base}/{name}",
+                indexes=idx,
+                columns=rr.Scalars.columns(scalars=np.asarray(values, float)),
+            )
+
+    def log_events(
+        self, kind: str, frame: np.ndarray, t_s: np.ndarray, xy: np.ndarray, texts: Sequence[str]
+    ) -> None:
+        """Sparse events of one ``kind`` with their arena positions (N, 2)."""
+        if len(frame) == 0:
+            return
+        idx = _time_indexes(frame, t_s)
+        level = EVENT_LEVELS.get(kind, "INFO")
+        color = EVENT_COLORS.get(kind, (255, 255, 255))
+        self.rec.send_columns(
+            event_path(kind),
+            indexes=idx,
+            columns=[
+                *rr.TextLog.columns(text=list(texts), level=[level] * len(texts)),
+                *rr.Points3D.columns(
+                    positions=np.column_stack([xy, np.full(len(xy), 0.01)]),
+                    radii=np.full(len(xy), 0.008, np.float32),
+                    colors=np.tile(np.array(color, np.uint8), (len(xy), 1)),
+                ),
+            ],
+        )
+
+    def log_overhead(
+        self, frames: Sequence[int], t_s: Sequence[float], images: Sequence[np.ndarray]
+    ) -> None:
+        if not images:
+            return
+        stack = np.stack(images)
+        n, h, w = stack.shape
+        self._image_format(OVERHEAD, h, w)
+        self.rec.send_columns(
+            OVERHEAD,
+            indexes=_time_indexes(np.asarray(frames), np.asarray(t_s)),
+            columns=rr.Image.columns(buffer=stack.reshape(n, h * w)),
+        )
+
+    def close(self, **run_end: Any) -> None:
+        """Write the ``run_end`` property (frames, stop reason, ...), flush, write the footer."""
+        if self._closed:
+            return
+        self._closed = True
+        clean = {
+            k: (v if not (isinstance(v, float) and math.isnan(v)) else None)
+            for k, v in run_end.items()
+        }
+        self.send_properties({"run_end": clean})
+        self.rec.flush()
+        self.rec.disconnect()

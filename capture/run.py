@@ -1,0 +1,140 @@
+"""The capture loop: device → online model → recorder, with a clean stop on signals.
+
+Ctrl-C or SIGTERM sets a flag; the batch in hand is finished and logged, then the recording is
+closed with its footer and a ``run_end`` property saying how many frames it holds and why it
+stopped. Nothing already read from the device is dropped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import numpy as np
+
+from avdm.base import Model
+from capture.recorder import Recorder
+from capture.sim import Batch, CaptureDevice
+
+
+@dataclasses.dataclass
+class CaptureResult:
+    frames: int
+    turns: int
+    stop_reason: str  # "finished" or "signal SIGINT" / "signal SIGTERM"
+    wall_time_s: float
+
+
+class StopFlag:
+    """Set by SIGINT/SIGTERM while a capture runs."""
+
+    def __init__(self) -> None:
+        self.reason: str | None = None
+
+    def __bool__(self) -> bool:
+        return self.reason is not None
+
+
+@contextmanager
+def stop_on_signals() -> Iterator[StopFlag]:
+    """Route SIGINT and SIGTERM to a flag for the duration of the block (main thread only)."""
+    flag = StopFlag()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+
+    def handler(signum: int, _frame: Any) -> None:
+        flag.reason = f"signal {signal.Signals(signum).name}"
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield flag
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def turn_texts(batch: Batch) -> list[str]:
+    out = []
+    for ev in batch.turns:
+        side = "left" if ev.angle_deg > 0 else "right"
+        forced = " (forced: about to touch the wall)" if ev.forced else ""
+        out.append(
+            f"ring turn {ev.angle_deg:+.1f} deg ({side}) at x={ev.x_m:.3f} m, "
+            f"y={ev.y_m:.3f} m, heading={ev.heading_rad:.3f} rad{forced}"
+        )
+    return out
+
+
+def log_batch(recorder: Recorder, model: Model, batch: Batch) -> int:
+    """Run the online model on a batch and log everything in it; returns the turns logged."""
+    outputs = model.run(batch.images)  # ≡ per-frame step(), bit for bit
+    recorder.log_frames(batch.frame, batch.t_s, batch.images)
+    recorder.log_poses(batch.frame, batch.t_s, batch.poses)
+    recorder.log_wall_tf(batch.frame, batch.t_s, batch.wall_tf_hz)
+    recorder.log_model_outputs(model.name, batch.frame, batch.t_s, outputs)
+    if batch.turns:
+        frames = np.array([e.frame for e in batch.turns], dtype=np.int64)
+        xy = np.array([[e.x_m, e.y_m] for e in batch.turns])
+        t = np.interp(frames, batch.frame, batch.t_s)  # events happen on batch frames
+        recorder.log_events("ring_turn", frames, t, xy, turn_texts(batch))
+    if batch.overhead:
+        idx = np.array([f for f, _ in batch.overhead], dtype=np.int64)
+        recorder.log_overhead(
+            idx, np.interp(idx, batch.frame, batch.t_s), [img for _, img in batch.overhead]
+        )
+    return len(batch.turns)
+
+
+def run_capture(
+    device: CaptureDevice,
+    model: Model,
+    recorder: Recorder,
+    *,
+    total_frames: int | None = None,
+    progress: bool = True,
+) -> CaptureResult:
+    """Read the device to its end (or a signal), logging every batch; always closes cleanly."""
+    from tqdm import tqdm
+
+    t0 = time.perf_counter()
+    frames = turns = 0
+    reason = "error"
+    bar = tqdm(
+        total=total_frames,
+        unit="frame",
+        disable=not progress or None,
+        file=sys.stderr,
+        desc="capture",
+        leave=False,
+    )
+    try:
+        with stop_on_signals() as stop:
+            device.connect()
+            try:
+                while not stop:
+                    batch = device.read()
+                    if batch is None:
+                        break
+                    turns += log_batch(recorder, model, batch)
+                    frames += len(batch)
+                    bar.update(len(batch))
+            finally:
+                device.disconnect()
+            reason = stop.reason or "finished"
+    finally:
+        bar.close()
+        wall = time.perf_counter() - t0
+        recorder.close(
+            frames=frames,
+            stop_reason=reason,
+            complete=reason == "finished",
+            wall_time_s=round(wall, 3),
+        )
+    return CaptureResult(frames, turns, reason, wall)

@@ -1,0 +1,161 @@
+"""The simulated arena and robot as a capture device.
+
+Like LeRobot's devices, a config plus one interface that the simulated and the real robot both
+implement: ``connect()``, ``read()`` (the next ``Batch`` of frames, or None at the end),
+``disconnect()``, and use as a context manager. Capture code does not care which it has.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any, Protocol
+
+import cv2
+import numpy as np
+
+from avdm import __version__
+from avdm.base import Model
+from avdm.stimuli import clutter_image, resize_image
+from capture.config import SimConfig
+from capture.render import CameraRenderer, OverheadRenderer
+from capture.robot import RobotMotion, TurnEvent
+
+
+@dataclasses.dataclass
+class Batch:
+    """Consecutive camera frames with everything known about them.
+
+    frame (N,) int64 camera frame indices; t_s (N,) float64 seconds since the run started;
+    images (N, H, W) uint8; poses (N, 3) float64 [x_m, y_m, heading_rad]; wall_tf_hz (N,);
+    turns: ring turns starting in these frames; overhead: (frame index, image) pairs.
+    """
+
+    frame: np.ndarray
+    t_s: np.ndarray
+    images: np.ndarray
+    poses: np.ndarray
+    wall_tf_hz: np.ndarray
+    turns: list[TurnEvent]
+    overhead: list[tuple[int, np.ndarray]]
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+
+class CaptureDevice(Protocol):
+    """What the capture loop needs from a robot, simulated or real."""
+
+    def connect(self) -> None: ...
+
+    def read(self) -> Batch | None: ...
+
+    def disconnect(self) -> None: ...
+
+
+def load_wall_image(path: str, texture_px: tuple[int, int]) -> np.ndarray:
+    """Read an image file as the wall panorama, resized to ``texture_px`` (H, W), on [−1, 1].
+
+    Raises ValueError if the file is missing or not an image."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"wall image {path!r} does not exist")
+    img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise ValueError(f"wall image {path!r} is not a readable image (PNG, JPEG, ...)")
+    small = resize_image(img.astype(np.float64), texture_px)
+    lo, hi = small.min(), small.max()
+    if hi - lo < 1e-9:
+        raise ValueError(f"wall image {path!r} is uniform: it has no pattern to show")
+    return 2.0 * (small - lo) / (hi - lo) - 1.0
+
+
+class SimulatedRobot:
+    """A Colias-IV in the simulated arena: renders its camera, moves, reports ring turns."""
+
+    def __init__(self, config: SimConfig, batch_size: int = 1000) -> None:
+        self.config = config
+        self.batch_size = batch_size
+        seeds = np.random.SeedSequence(config.seed).spawn(3)
+        self._motion_rng = np.random.default_rng(seeds[0])
+        self._noise_rng = np.random.default_rng(seeds[1])
+        self._texture_seed = int(seeds[2].generate_state(1)[0])
+        self._connected = False
+        # validate what can fail now, before anything is written
+        self._texture = None
+        if config.wall.scene == "natural":
+            if config.wall.image_path:
+                self._texture = load_wall_image(config.wall.image_path, config.wall.texture_px)
+            else:
+                self._texture = clutter_image(config.wall.texture_px, seed=self._texture_seed)
+
+    def connect(self) -> None:
+        c = self.config
+        self._renderer = CameraRenderer(c.arena, c.wall, c.camera, self._texture)
+        self._motion = RobotMotion(c.arena, c.robot, c.camera.fps, self._motion_rng)
+        self._overhead = (
+            OverheadRenderer(c.arena, c.robot.radius_m, c.overhead.px_per_m)
+            if c.overhead.enabled
+            else None
+        )
+        self._next = 0
+        self._offset_m = 0.0
+        self._connected = True
+
+    def read(self) -> Batch | None:
+        if not self._connected:
+            raise RuntimeError("read() before connect()")
+        c = self.config
+        total = c.n_frames
+        if self._next >= total:
+            return None
+        n = min(self.batch_size, total - self._next)
+        frame = np.arange(self._next, self._next + n, dtype=np.int64)
+        t_s = frame / c.camera.fps
+        tf = np.array([c.wall.tf_at(t) for t in t_s])
+        # the pattern's drift accumulates so that a TF change never makes it jump
+        step_m = tf * c.wall.drift_period_m / c.camera.fps
+        offsets = self._offset_m + np.concatenate(([0.0], np.cumsum(step_m[:-1])))
+        self._offset_m = float(offsets[-1] + step_m[-1])
+        poses, turns = self._motion.advance(n)
+        images = self._renderer.render(poses, offsets)
+        if c.camera.noise_sd > 0:
+            noise = self._noise_rng.normal(0.0, c.camera.noise_sd, size=images.shape)
+            images = np.clip(np.rint(images + noise), 0, 255).astype(np.uint8)
+        overhead = []
+        if self._overhead is not None:
+            ratio = c.overhead.fps / c.camera.fps
+            for i in range(n):
+                f = self._next + i
+                if f == 0 or int(f * ratio) != int((f - 1) * ratio):
+                    overhead.append((f, self._overhead.render(poses[i])))
+        self._next += n
+        return Batch(frame, t_s, images, poses, tf, turns, overhead)
+
+    def disconnect(self) -> None:
+        self._connected = False
+
+    def __enter__(self) -> SimulatedRobot:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.disconnect()
+
+
+def recording_properties(config: SimConfig, model: Model) -> dict[str, dict[str, Any]]:
+    """Recording properties of a simulated run: every config value, model and versions."""
+    sections = config.to_sections()
+    sections["run"].update(
+        recording_id=config.run_id(),
+        source="simulation",
+        vdc_version=__version__,
+        numpy_version=np.__version__,
+    )
+    sections["model"] = {
+        "name": model.name,
+        "outputs": json.dumps({o.name: o.unit for o in model.outputs}),
+    }
+    sections["model_params"] = {k: v for k, v in model.params.to_dict().items() if v is not None}
+    return sections
