@@ -121,7 +121,10 @@ class RobotConfig:
     turn_min_deg: float = 80.0
     turn_max_deg: float = 100.0
     turn_speed_dps: float = 120.0  # PROPOSED: in-place turn rate (a 90° turn takes 0.75 s)
-    refractory_s: float = 0.5  # PROPOSED: no new ring turn for this long after one ends
+    # No refractory needed: a turn only triggers while heading toward the wall whose ring a
+    # sensor sees, so a robot leaving the ring never re-triggers; a refractory time instead
+    # let robots that turned ±90° parallel to a wall drive on into it (found by the tests).
+    refractory_s: float = 0.0
     sensor_forward_m: float = 0.012  # two floor light sensors, PROPOSED placement
     sensor_lateral_m: float = 0.012
     start_x_m: float = float("nan")  # NaN = random start inside the ring (from the seed)
@@ -239,20 +242,27 @@ class SimConfig:
     def to_sections(self) -> dict[str, dict[str, Any]]:
         """``{section: {field: value}}`` with JSON-friendly values (for recording properties)."""
 
-        def plain(v: Any) -> Any:
+        def plain(v: Any, declared: str) -> Any:
             if isinstance(v, tuple):
                 return json.dumps(v)
             if isinstance(v, float) and math.isnan(v):
                 return "random"
+            if declared == "float" and isinstance(v, int) and not isinstance(v, bool):
+                return float(v)  # one Arrow type per property, whatever the caller passed
             return v
+
+        def section(obj: Any) -> dict[str, Any]:
+            return {
+                f.name: plain(getattr(obj, f.name), str(f.type)) for f in dataclasses.fields(obj)
+            }
 
         out: dict[str, dict[str, Any]] = {}
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
             if dataclasses.is_dataclass(v):
-                out[f.name] = {k: plain(x) for k, x in dataclasses.asdict(v).items()}
+                out[f.name] = section(v)
             else:
-                out.setdefault("run", {})[f.name] = plain(v)
+                out.setdefault("run", {})[f.name] = plain(v, str(f.type))
         out["wall"]["tf_schedule_text"] = format_schedule(self.wall.tf_schedule)
         return out
 

@@ -96,14 +96,17 @@ def default_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Bluepri
     )
     top_down = rrb.EyeControls3D(
         kind=rrb.Eye3DKind.Orbital,
-        position=[0.0, -0.05, 1.9],
+        position=[0.0, -0.05, 1.3],
         look_target=[0.0, 0.0, 0.0],
         eye_up=[0.0, 0.0, 1.0],
     )
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.Spatial2DView(name="robot camera", origin=CAMERA),
+                rrb.Tabs(
+                    rrb.Spatial2DView(name="robot camera", origin=CAMERA),
+                    rrb.Spatial2DView(name="overhead camera", origin=OVERHEAD),
+                ),
                 rrb.Spatial3DView(
                     name="arena, top-down (30 s trail)",
                     origin="/",

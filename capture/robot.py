@@ -2,11 +2,11 @@
 
 Behaviour (paper brief; PROPOSED details in capture.config): the robot drives forward; when one
 of its two floor light sensors is on the white ring (or between the ring and the wall) while the
-robot heads toward that wall, and no turn happened within the refractory time, it stops and turns
-in place by U(turn_min, turn_max) degrees, left or right at random, at ``turn_speed_dps``, then
-goes on. As a last guard the robot never drives its body into a wall: a step that would touch a
-wall triggers a turn instead (logged as a ring turn with ``forced=True``; it does not happen with
-the paper's geometry).
+robot heads toward that wall, it stops and turns in place by U(turn_min, turn_max) degrees,
+left or right at random, at ``turn_speed_dps``, then goes on; if it still heads into the ring
+it turns again (an optional refractory time delays that). As a last guard the robot never
+drives its body into a wall: a step that would touch a wall triggers a turn instead (logged
+as a ring turn with ``forced=True``; it does not happen with the paper's geometry).
 """
 
 from __future__ import annotations

@@ -1,0 +1,230 @@
+"""Reading vdc recordings: the only module that knows Rerun's read API (rerun-sdk 0.41).
+
+* frames come back as numpy ``(N, H, W) uint8`` in chunks, in frame order (bounded memory);
+* scalar signals, events and properties come back as numpy / polars;
+* a recording without a footer (cut by a crash or SIGKILL) is read by a sequential scan, and
+  ``Recording.notice`` says so.
+
+Entity paths are the recording contract's, defined once in ``capture.recorder``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+import pyarrow as pa
+import rerun as rr
+
+from capture.recorder import CAMERA, EVENTS, MODEL_ROOT, POSE, WALL_TF, entity_name
+
+RRD_MAGIC = b"RRF2"
+
+
+class RecordingError(ValueError):
+    """A file that is not a readable vdc recording (printed as one line at the CLI)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameChunk:
+    """Consecutive camera frames: ``frame`` (N,) int64 indices, ``images`` (N, H, W) uint8."""
+
+    frame: np.ndarray
+    images: np.ndarray
+
+
+def _check_path(path: Path) -> None:
+    if not path.exists():
+        raise RecordingError(f"{str(path)!r} does not exist")
+    if path.is_dir():
+        raise RecordingError(f"{str(path)!r} is a directory, not an .rrd recording")
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(4)
+    except OSError as exc:
+        raise RecordingError(f"cannot read {str(path)!r}: {exc.strerror}") from None
+    if head != RRD_MAGIC:
+        what = "is empty" if not head else "is not a Rerun recording (.rrd)"
+        raise RecordingError(f"{str(path)!r} {what}")
+
+
+class Recording:
+    """One ``.rrd`` recording opened for analysis."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        _check_path(self.path)
+        try:
+            self._reader = rr.chunk.RrdReader(str(self.path))
+            entries = [e for e in self._reader.recordings() if e.kind == "recording"]
+        except Exception as exc:  # the SDK raises several types for damaged files
+            raise RecordingError(f"{str(self.path)!r} is damaged: {exc}") from None
+        if not entries:
+            raise RecordingError(f"{str(self.path)!r} holds no recording")
+        self.application_id = entries[0].application_id
+        self.recording_id = entries[0].recording_id
+        self.notice: str | None = None
+        try:
+            self._store = self._reader.store()  # lazy: reads the footer's manifest only
+        except Exception:
+            # no footer: the capture was killed. A sequential scan still reads every chunk.
+            self._store = None
+            self.notice = (
+                f"{self.path.name} has no footer (the capture was cut short): "
+                "read it by a sequential scan; every complete chunk is used"
+            )
+        self._props: dict[str, dict[str, Any]] | None = None
+
+    # -- chunks --------------------------------------------------------------------------
+    def _chunks(self, content: str) -> Iterator[Any]:
+        try:
+            source = self._store.stream() if self._store is not None else self._reader.stream()
+            yield from source.filter(content=content)
+        except RecordingError:
+            raise
+        except Exception as exc:
+            raise RecordingError(f"{str(self.path)!r} is damaged: {exc}") from None
+
+    def _batches(self, content: str) -> Iterator[tuple[str, pa.RecordBatch]]:
+        for ch in self._chunks(content):
+            yield ch.entity_path, ch.to_record_batch()
+
+    # -- properties ------------------------------------------------------------------------
+    def properties(self) -> dict[str, dict[str, Any]]:
+        """``{section: {field: value}}`` from the recording properties (``run``, ``wall``, ...)."""
+        if self._props is None:
+            props: dict[str, dict[str, Any]] = {}
+            for entity, rb in self._batches("/__properties/**"):
+                section = entity.rsplit("/", 1)[-1] if entity != "/__properties" else "info"
+                values = props.setdefault(section, {})
+                for name in rb.column_names:
+                    if name.startswith("rerun.controls"):
+                        continue
+                    v = rb.column(name).to_pylist()[-1]
+                    values[name.split(":")[-1]] = v[0] if isinstance(v, list) and len(v) == 1 else v
+            self._props = props
+        return self._props
+
+    # -- frames ----------------------------------------------------------------------------
+    def iter_frames(self, entity: str = CAMERA) -> Iterator[FrameChunk]:
+        """Camera frames chunk by chunk, in frame order; memory stays at one chunk.
+
+        Raises RecordingError if the recording holds no frames on ``entity``."""
+        shape: tuple[int, int] | None = None
+        last = -1
+        pending: list[tuple[np.ndarray, np.ndarray]] = []
+        any_frames = False
+        for _, rb in self._batches(entity):
+            cols = rb.schema.names
+            if "Image:format" in cols and shape is None:
+                fmt = rb.column("Image:format").to_pylist()[0]
+                fmt = fmt[0] if isinstance(fmt, list) else fmt
+                shape = (int(fmt["height"]), int(fmt["width"]))
+            if "Image:buffer" in cols and "frame" in cols:
+                idx = rb.column("frame").to_numpy()
+                flat = rb.column("Image:buffer").flatten().flatten()
+                pending.append((idx, flat.to_numpy(zero_copy_only=False)))
+            if shape is None:
+                continue  # the static format chunk may come later: hold the data until then
+            for idx_p, flat_p in pending:
+                images = flat_p.reshape(len(idx_p), *shape)
+                order = np.argsort(idx_p, kind="stable")
+                idx_p = idx_p[order]
+                if idx_p[0] <= last:
+                    raise RecordingError(
+                        f"{str(self.path)!r}: camera frames are stored out of order "
+                        f"(frame {idx_p[0]} after {last}); run `rerun rrd optimize` on it"
+                    )
+                last = int(idx_p[-1])
+                any_frames = True
+                yield FrameChunk(idx_p, images[order])
+            pending = []
+        if not any_frames:
+            raise RecordingError(f"{str(self.path)!r} holds no camera frames at {entity}")
+
+    def read_frames(self, entity: str = CAMERA) -> FrameChunk:
+        """All frames at once (for short recordings and tests)."""
+        parts = list(self.iter_frames(entity))
+        return FrameChunk(
+            np.concatenate([p.frame for p in parts]), np.concatenate([p.images for p in parts])
+        )
+
+    # -- scalars and events ----------------------------------------------------------------
+    def scalars(self, entity: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(frame (N,), t_s (N,), values (N, K))`` of a Scalars entity, sorted by frame."""
+        frames, times, values = [], [], []
+        for _, rb in self._batches(entity):
+            if "Scalars:scalars" not in rb.schema.names or "frame" not in rb.schema.names:
+                continue
+            col = rb.column("Scalars:scalars")
+            k = len(col[0]) if len(col) else 0
+            frames.append(rb.column("frame").to_numpy())
+            t = (
+                rb.column("time").cast(pa.int64()).to_numpy()
+                if "time" in rb.schema.names
+                else np.full(rb.num_rows, -1)
+            )
+            times.append(t / 1e9)
+            values.append(col.flatten().to_numpy(zero_copy_only=False).reshape(-1, k))
+        if not frames:
+            return np.empty(0, np.int64), np.empty(0), np.empty((0, 0))
+        f = np.concatenate(frames)
+        order = np.argsort(f, kind="stable")
+        return f[order], np.concatenate(times)[order], np.concatenate(values)[order]
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(frame, t_s, poses (N, 3) [x_m, y_m, heading_rad])``."""
+        return self.scalars(POSE)
+
+    def wall_tf(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.scalars(WALL_TF)
+
+    def model_outputs(self, model_name: str, outputs: list[str]) -> dict[str, np.ndarray]:
+        """Logged online outputs of ``model_name``: ``{"frame": ..., output: (N,)}``."""
+        out: dict[str, np.ndarray] = {}
+        for name in outputs:
+            f, _, v = self.scalars(f"{MODEL_ROOT}/{entity_name(model_name)}/{name}")
+            out.setdefault("frame", f)
+            out[name] = v[:, 0] if v.size else v.reshape(0)
+        return out
+
+    def events(self) -> pl.DataFrame:
+        """All events: frame, t_s, kind, text, x_m, y_m (position logged with the event)."""
+        rows = []
+        for entity, rb in self._batches(f"{EVENTS}/**"):
+            names = rb.schema.names
+            if "TextLog:text" not in names or "frame" not in names:
+                continue
+            kind = entity.rsplit("/", 1)[-1]
+            texts = rb.column("TextLog:text").to_pylist()
+            pos = (
+                rb.column("Points3D:positions").to_pylist()
+                if "Points3D:positions" in names
+                else [None] * rb.num_rows
+            )
+            t = rb.column("time").cast(pa.int64()).to_numpy() / 1e9
+            for f, ts, txt, p in zip(rb.column("frame").to_numpy(), t, texts, pos, strict=True):
+                xy = p[0] if p else (float("nan"), float("nan"))
+                rows.append(
+                    {
+                        "frame": int(f),
+                        "t_s": float(ts),
+                        "kind": kind,
+                        "text": txt[0] if isinstance(txt, list) else txt,
+                        "x_m": float(xy[0]),
+                        "y_m": float(xy[1]),
+                    }
+                )
+        schema = {
+            "frame": pl.Int64,
+            "t_s": pl.Float64,
+            "kind": pl.String,
+            "text": pl.String,
+            "x_m": pl.Float64,
+            "y_m": pl.Float64,
+        }
+        return pl.DataFrame(rows, schema=schema).sort("frame", "kind")
