@@ -11,6 +11,7 @@ Entity paths are the recording contract's, defined once in ``capture.recorder``.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -59,7 +60,9 @@ class Recording:
         self.path = Path(path)
         _check_path(self.path)
         try:
-            self._reader = rr.chunk.RrdReader(str(self.path))
+            with warnings.catch_warnings():  # a missing footer is reported by self.notice
+                warnings.filterwarnings("ignore", message=".*no footer.*")
+                self._reader = rr.chunk.RrdReader(str(self.path))
             entries = [e for e in self._reader.recordings() if e.kind == "recording"]
         except Exception as exc:  # the SDK raises several types for damaged files
             raise RecordingError(f"{str(self.path)!r} is damaged: {exc}") from None

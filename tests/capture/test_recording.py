@@ -273,3 +273,50 @@ def test_natural_scene_from_an_image_file(tmp_path: Path) -> None:
     rec = Recording(out)
     assert rec.properties()["wall"]["image_path"] == str(path)
     assert rec.read_frames().images.shape == (198, 72, 99)
+
+
+def test_connect_tees_to_a_live_viewer_while_writing_the_file(tmp_path: Path) -> None:
+    """A real Rerun gRPC receiver (the viewer binary in --save mode) gets the same frames."""
+    import shutil
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    received = tmp_path / "received.rrd"
+    exe = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
+    receiver = subprocess.Popen(
+        [exe, "--bind", "127.0.0.1", "--port", str(port), "--save", str(received)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        time.sleep(1.5)
+        out = tmp_path / "teed.rrd"
+        proc = run_cli(
+            "capture",
+            "sim",
+            "--minutes",
+            "0.1",
+            "--out",
+            str(out),
+            "--quiet",
+            "--connect",
+            f"rerun+http://127.0.0.1:{port}/proxy",
+        )
+        assert proc.returncode == 0, proc.stderr
+        deadline = time.time() + 30
+        frames = None
+        while time.time() < deadline:
+            try:
+                frames = Recording(received).read_frames()
+                if len(frames.frame) == 198:
+                    break
+            except Exception:
+                pass
+            time.sleep(0.5)
+        assert frames is not None and len(frames.frame) == 198
+        assert np.array_equal(frames.images, Recording(out).read_frames().images)
+    finally:
+        receiver.terminate()
+        receiver.wait(timeout=10)
