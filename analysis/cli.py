@@ -145,10 +145,177 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _frame_progress(desc: str):  # -> tqdm
+    from tqdm import tqdm
+
+    return tqdm(total=None, desc=desc, unit="frame", disable=None, leave=False, file=sys.stderr)
+
+
+def _notice(msg: str) -> None:
+    print(f"{PROG}: note: {msg}", file=sys.stderr)
+
+
+def _table_settings(args: argparse.Namespace):  # -> TableSettings
+    from analysis.tables import TableSettings
+
+    return TableSettings(
+        threshold_dps=args.threshold, near_wall_m=args.near_wall_m, centre_m=args.centre_m
+    )
+
+
+def cmd_tables(args: argparse.Namespace) -> int:
+    from analysis.tables import build_tables, write_tables
+
+    settings = _table_settings(args)
+    with _frame_progress("tables") as bar:
+        tables, meta = build_tables(args.recordings, args.model, settings, bar.update, _notice)
+    paths = write_tables(tables, Path(args.out), meta)
+    for path, (name, df) in zip(paths, tables.items(), strict=True):
+        print(f"{name:<14} {df.height:>8} rows -> {path}")
+    summary = tables["summary"]
+    print("summary (primary output after warm-up):")
+    for r in summary.iter_rows(named=True):
+        print(
+            f"  {r['recording_id']}  {r['model']:<16} TF {r['wall_tf_hz']:g} Hz: "
+            f"mean {r['mean']:.1f}, p95 {r['p95']:.1f}, > 100: {100 * r['frac_over_100']:.1f} %, "
+            f"near wall / centre {r['near_wall_centre_ratio']:.2f}"
+        )
+    return 0
+
+
+def cmd_profile(args: argparse.Namespace) -> int:
+    import hashlib
+
+    import polars as pl
+
+    from analysis.analysis_rrd import write_profile_rrd
+    from analysis.parquet_io import write_parquet
+    from analysis.profile import (
+        ProfileSettings,
+        plot_overview,
+        plot_segment,
+        segment_summary,
+        segments_from_tables,
+    )
+    from analysis.tables import build_tables, load_recording
+
+    settings = _table_settings(args)
+    prof = ProfileSettings(threshold_dps=args.threshold, bin_dps=args.bin_dps, cell_m=args.cell_m)
+    with _frame_progress("profile") as bar:
+        tables, meta = build_tables(args.recordings, args.model, settings, bar.update, _notice)
+    half = {}
+    for path in args.recordings:
+        loaded = load_recording(path)
+        half[loaded.recording_id] = loaded.arena_half_extent()
+    segs = segments_from_tables(
+        tables["frames"],
+        tables["model_outputs"],
+        tables["summary"],
+        half,
+        args.by,
+        settings.warmup_frames,
+    )
+    out = Path(args.out)
+    pngs = [plot_segment(seg, prof, out / f"profile_{seg.key}.png") for seg in segs]
+    overview = plot_overview(segs, prof, out / "profiles.png")
+    summary = pl.DataFrame([segment_summary(seg, prof, settings) for seg in segs])
+    meta = {
+        **meta,
+        "profile": {
+            "threshold_dps": prof.threshold_dps,
+            "bin_dps": prof.bin_dps,
+            "cell_m": prof.cell_m,
+            "by": args.by,
+        },
+    }
+    write_parquet(summary, out / "profile_summary.parquet", meta)
+    rid = "profile-" + hashlib.sha1("|".join(sorted(half)).encode()).hexdigest()[:8]
+    rrd = write_profile_rrd(segs, prof, out / "profiles.rrd", rid)
+    print(
+        f"{len(segs)} profile(s) by {args.by}: {len(pngs)} PNGs, {overview}, {rrd}, "
+        f"{out / 'profile_summary.parquet'}"
+    )
+    for r in summary.iter_rows(named=True):
+        print(
+            f"  {r['segment']:<44} n={r['n_frames']:>6}  > {prof.threshold_dps:g}: "
+            f"{100 * r['frac_over_threshold']:5.1f} %  near wall {r['near_wall_mean']:.1f} / "
+            f"centre {r['centre_mean']:.1f}"
+        )
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from analysis.analysis_rrd import write_variants_rrd
+    from analysis.compare import pairwise_correlations, plot_compare, variant_statistics
+    from analysis.parquet_io import write_parquet
+    from analysis.tables import load_recording, model_params, recompute
+    from avdm.registry import canonical_name, make_model
+
+    if len(args.model) < 2:
+        raise UserError("compare needs at least two --model variants")
+    names = [canonical_name(m) for m in args.model]
+    if len(set(names)) != len(names):
+        raise UserError(f"the same variant is given twice: {', '.join(names)}")
+    settings = _table_settings(args)
+    loaded = load_recording(args.recording)
+    if loaded.rec.notice:
+        _notice(loaded.rec.notice)
+    with _frame_progress("compare") as bar:
+        outputs = recompute(loaded, args.model, bar.update)
+    stats = variant_statistics(loaded, outputs, settings)
+    corr = pairwise_correlations(outputs, settings.warmup_frames)
+    out = Path(args.out)
+    meta = {
+        "params": model_params(loaded, args.model),
+        "recording": loaded.recording_id,
+        "settings": {
+            "threshold_dps": settings.threshold_dps,
+            "near_wall_m": settings.near_wall_m,
+            "centre_m": settings.centre_m,
+            "warmup_frames": settings.warmup_frames,
+        },
+    }
+    write_parquet(stats, out / "compare_summary.parquet", meta)
+    write_parquet(corr, out / "compare_correlations.parquet", meta)
+    png = plot_compare(
+        outputs,
+        stats,
+        corr,
+        settings,
+        f"{loaded.recording_id}: variants on identical frames",
+        out / "compare.png",
+    )
+    ctx = loaded.camera_context()
+    units = {
+        n: {o.name: o.unit for o in make_model(m, **ctx).outputs}
+        for n, m in zip(names, args.model, strict=True)
+    }
+    rrd = write_variants_rrd(
+        loaded.recording_id, outputs, units, out / "variants.rrd", loaded.online_model
+    )
+    print(f"{len(names)} variants on {loaded.frames.height} frames -> {png}, {rrd}")
+    for r in stats.iter_rows(named=True):
+        print(
+            f"  {r['model']:<22} mean {r['mean']:8.2f}  p95 {r['p95']:8.2f}  "
+            f"> {settings.threshold_dps:g}: {100 * r['frac_over_threshold']:5.1f} %  "
+            f"near wall / centre {r['near_wall_centre_ratio']:.2f}"
+        )
+    for r in corr.iter_rows(named=True):
+        print(
+            f"  corr {r['model_a']} ~ {r['model_b']}: pearson {r['pearson']:.3f}, "
+            f"spearman {r['spearman']:.3f}"
+        )
+    print(f"view together: rerun {args.recording} {rrd}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog=PROG,
-        description="Offline analysis for vdc: AVDM sweeps and calibration on synthetic gratings.",
+        description=(
+            "Offline analysis for vdc: recordings to tables and figures, model variants, "
+            "sweeps and calibration."
+        ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="models (--model NAME or NAME:key=value,...):\n" + describe_models(),
     )
@@ -238,6 +405,99 @@ def build_parser() -> argparse.ArgumentParser:
         "(edits avdm/calibrations.json in an editable install)",
     )
     ca.set_defaults(func=cmd_calibrate)
+
+    def add_summary_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument(
+            "--threshold",
+            type=positive_float,
+            default=100.0,
+            help="response threshold, deg/s (default: %(default)s, the paper's)",
+        )
+        p.add_argument(
+            "--near-wall-m",
+            type=positive_float,
+            default=0.15,
+            help="'near the wall' = robot centre within this of a wall, m (default: %(default)s)",
+        )
+        p.add_argument(
+            "--centre-m",
+            type=positive_float,
+            default=0.25,
+            help="'centre' = farther than this from every wall, m (default: %(default)s)",
+        )
+
+    tb = sub.add_parser(
+        "tables",
+        help="recordings -> frames, model_outputs, events, summary Parquet tables",
+        description=(
+            "Read recordings and write frames.parquet, model_outputs.parquet, events.parquet "
+            "and summary.parquet into --out. Without --model the online model's logged outputs "
+            "are used; each --model (repeatable) is recomputed from the raw frames instead."
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="models:\n" + describe_models(),
+    )
+    tb.add_argument("recordings", nargs="+", metavar="REC", help=".rrd recordings")
+    tb.add_argument("--out", default="results/tables", help="output folder (default: %(default)s)")
+    tb.add_argument("--model", action="append", help="recompute this variant (repeatable)")
+    add_summary_options(tb)
+    tb.set_defaults(func=cmd_tables)
+
+    pr = sub.add_parser(
+        "profile",
+        help="3D circle profiles, 'AVDM > 100' histograms and heat maps (paper Figs. 6-7)",
+        description=(
+            "For every recording segment (one wall TF) or condition: a 3D circle profile "
+            "(x, y against time, circle size proportional to the response), the histogram of "
+            "responses over the threshold, and a heat map of the mean response per arena "
+            "cell. Writes PNGs, profiles.png (overview), profile_summary.parquet and "
+            "profiles.rrd (open it with `rerun`)."
+        ),
+    )
+    pr.add_argument("recordings", nargs="+", metavar="REC", help=".rrd recordings")
+    pr.add_argument("--out", default="results/profile", help="output folder (default: %(default)s)")
+    pr.add_argument("--model", action="append", help="recompute this variant (repeatable)")
+    pr.add_argument(
+        "--by",
+        choices=["recording", "condition"],
+        default="recording",
+        help="one profile per recording segment, or pooled per scene/TF/model",
+    )
+    pr.add_argument(
+        "--bin-dps",
+        type=positive_float,
+        default=20.0,
+        help="histogram bin width (default: %(default)s)",
+    )
+    pr.add_argument(
+        "--cell-m",
+        type=positive_float,
+        default=0.05,
+        help="heat-map cell size, m (default: %(default)s)",
+    )
+    add_summary_options(pr)
+    pr.set_defaults(func=cmd_profile)
+
+    cp = sub.add_parser(
+        "compare",
+        help="run model variants on the same recorded frames and compare them",
+        description=(
+            "Recompute every --model variant on the recording's raw frames; write per-variant "
+            "statistics and pairwise correlations (Parquet), compare.png, and variants.rrd with "
+            "the traces under /model_variants/<name>/..., which opens alongside the original: "
+            "`rerun REC OUT/variants.rrd`."
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="example:\n  vdc-analyse compare rec.rrd --model avdm --model avdm-on "
+        "--model avdm:beta=0.5 --out results/compare\n\nmodels:\n" + describe_models(),
+    )
+    cp.add_argument("recording", metavar="REC", help="one .rrd recording")
+    cp.add_argument(
+        "--model", action="append", required=True, help="a variant to run (give at least two)"
+    )
+    cp.add_argument("--out", default="results/compare", help="output folder (default: %(default)s)")
+    add_summary_options(cp)
+    cp.set_defaults(func=cmd_compare)
     return parser
 
 

@@ -11,7 +11,11 @@ Entity paths are the recording contract's, defined once in ``capture.recorder``.
 from __future__ import annotations
 
 import dataclasses
+import os
+import struct
+import tempfile
 import warnings
+import weakref
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -24,6 +28,8 @@ import rerun as rr
 from capture.recorder import CAMERA, EVENTS, MODEL_ROOT, POSE, WALL_TF, entity_name
 
 RRD_MAGIC = b"RRF2"
+RRD_FILE_HEADER = 12  # magic, version, options
+RRD_MESSAGE_HEADER = 16  # kind (u64 LE), payload length (u64 LE)
 
 
 class RecordingError(ValueError):
@@ -53,34 +59,112 @@ def _check_path(path: Path) -> None:
         raise RecordingError(f"{str(path)!r} {what}")
 
 
+def _scalar_columns(rb: pa.RecordBatch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frame, t_s, values (N, K)) of one Scalars record batch (t_s = NaN without ``time``)."""
+    col = rb.column("Scalars:scalars")
+    k = len(col[0]) if len(col) else 1
+    frame = rb.column("frame").to_numpy()
+    if "time" in rb.schema.names:
+        t_s = rb.column("time").cast(pa.int64()).to_numpy() / 1e9
+    else:
+        t_s = np.full(rb.num_rows, np.nan)
+    return frame, t_s, col.flatten().to_numpy(zero_copy_only=False).reshape(-1, k)
+
+
+def _merge_sorted(
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if not parts:
+        return np.empty(0, np.int64), np.empty(0), np.empty((0, 1))
+    f = np.concatenate([p[0] for p in parts])
+    order = np.argsort(f, kind="stable")
+    t = np.concatenate([p[1] for p in parts])[order]
+    return f[order], t, np.concatenate([p[2] for p in parts])[order]
+
+
+def complete_prefix(path: Path) -> tuple[int, int]:
+    """(bytes of complete messages, messages) at the start of an ``.rrd`` file.
+
+    Walks the message headers only (seeks past payloads). A file cut by a crash or a copy that
+    stopped early ends inside a message; everything before it is intact."""
+    size = path.stat().st_size
+    pos, count = RRD_FILE_HEADER, 0
+    with path.open("rb") as fh:
+        while pos + RRD_MESSAGE_HEADER <= size:
+            fh.seek(pos)
+            _kind, length = struct.unpack("<QQ", fh.read(RRD_MESSAGE_HEADER))
+            end = pos + RRD_MESSAGE_HEADER + length
+            if end > size:
+                break
+            pos, count = end, count + 1
+    return pos, count
+
+
+def _repaired_copy(path: Path) -> tuple[Path, str] | None:
+    """A temporary copy of the complete messages of a truncated file, or None if the file is
+    not truncated mid-message (or holds no complete message)."""
+    good, count = complete_prefix(path)
+    size = path.stat().st_size
+    if good >= size or count == 0:
+        return None
+    fd, tmp = tempfile.mkstemp(suffix=".rrd", prefix="vdc-repaired-")
+    with os.fdopen(fd, "wb") as out, path.open("rb") as src:
+        remaining = good
+        while remaining:
+            block = src.read(min(remaining, 1 << 22))
+            out.write(block)
+            remaining -= len(block)
+    note = (
+        f"{path.name} is truncated ({size - good} bytes of an incomplete message at the "
+        f"end): repaired by reading its {count} complete messages"
+    )
+    return Path(tmp), note
+
+
 class Recording:
     """One ``.rrd`` recording opened for analysis."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         _check_path(self.path)
+        self.notice: str | None = None
         try:
-            with warnings.catch_warnings():  # a missing footer is reported by self.notice
-                warnings.filterwarnings("ignore", message=".*no footer.*")
-                self._reader = rr.chunk.RrdReader(str(self.path))
-            entries = [e for e in self._reader.recordings() if e.kind == "recording"]
+            self._reader = self._open(self.path)
         except Exception as exc:  # the SDK raises several types for damaged files
-            raise RecordingError(f"{str(self.path)!r} is damaged: {exc}") from None
+            # a file cut inside a message (a copy that stopped early, a crash mid-write):
+            # read the complete messages before the cut from a temporary copy
+            repaired = _repaired_copy(self.path)
+            if repaired is None:
+                raise RecordingError(f"{str(self.path)!r} is damaged: {exc}") from None
+            source, self.notice = repaired
+            weakref.finalize(self, os.unlink, source)
+            try:
+                self._reader = self._open(source)
+            except Exception as exc2:
+                raise RecordingError(f"{str(self.path)!r} is damaged: {exc2}") from None
+        entries = [e for e in self._reader.recordings() if e.kind == "recording"]
         if not entries:
-            raise RecordingError(f"{str(self.path)!r} holds no recording")
+            raise RecordingError(f"{str(self.path)!r} holds no recording (cut too early?)")
         self.application_id = entries[0].application_id
         self.recording_id = entries[0].recording_id
-        self.notice: str | None = None
         try:
             self._store = self._reader.store()  # lazy: reads the footer's manifest only
         except Exception:
             # no footer: the capture was killed. A sequential scan still reads every chunk.
             self._store = None
-            self.notice = (
+            self.notice = self.notice or (
                 f"{self.path.name} has no footer (the capture was cut short): "
                 "read it by a sequential scan; every complete chunk is used"
             )
         self._props: dict[str, dict[str, Any]] | None = None
+
+    @staticmethod
+    def _open(path: Path) -> Any:
+        with warnings.catch_warnings():  # a missing footer is reported by self.notice
+            warnings.filterwarnings("ignore", message=".*no footer.*")
+            reader = rr.chunk.RrdReader(str(path))
+            reader.recordings()  # enumerates the file: fails here if a message is cut
+        return reader
 
     # -- chunks --------------------------------------------------------------------------
     def _chunks(self, content: str) -> Iterator[Any]:
@@ -159,25 +243,26 @@ class Recording:
     # -- scalars and events ----------------------------------------------------------------
     def scalars(self, entity: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(frame (N,), t_s (N,), values (N, K))`` of a Scalars entity, sorted by frame."""
-        frames, times, values = [], [], []
-        for _, rb in self._batches(entity):
-            if "Scalars:scalars" not in rb.schema.names or "frame" not in rb.schema.names:
-                continue
-            col = rb.column("Scalars:scalars")
-            k = len(col[0]) if len(col) else 0
-            frames.append(rb.column("frame").to_numpy())
-            t = (
-                rb.column("time").cast(pa.int64()).to_numpy()
-                if "time" in rb.schema.names
-                else np.full(rb.num_rows, -1)
-            )
-            times.append(t / 1e9)
-            values.append(col.flatten().to_numpy(zero_copy_only=False).reshape(-1, k))
-        if not frames:
-            return np.empty(0, np.int64), np.empty(0), np.empty((0, 0))
-        f = np.concatenate(frames)
-        order = np.argsort(f, kind="stable")
-        return f[order], np.concatenate(times)[order], np.concatenate(values)[order]
+        parts = [
+            _scalar_columns(rb)
+            for _, rb in self._batches(entity)
+            if "Scalars:scalars" in rb.schema.names and "frame" in rb.schema.names
+        ]
+        return _merge_sorted(parts)
+
+    def signals(self) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Every Scalars entity in one pass over the file (images skipped):
+        ``{entity: (frame (N,), t_s (N,), values (N, K))}``, each sorted by frame."""
+        parts: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+        try:
+            source = self._store.stream() if self._store is not None else self._reader.stream()
+            for ch in source.filter(components="Scalars:scalars"):
+                rb = ch.to_record_batch()
+                if "frame" in rb.schema.names and "Scalars:scalars" in rb.schema.names:
+                    parts.setdefault(ch.entity_path, []).append(_scalar_columns(rb))
+        except Exception as exc:
+            raise RecordingError(f"{str(self.path)!r} is damaged: {exc}") from None
+        return {entity: _merge_sorted(items) for entity, items in parts.items()}
 
     def poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(frame, t_s, poses (N, 3) [x_m, y_m, heading_rad])``."""

@@ -118,18 +118,29 @@ def default_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Bluepri
                 row_shares=[1, 1.4],
             ),
             rrb.Vertical(
-                rrb.TimeSeriesView(
-                    name=f"{model_name} {main} ({main_unit})", origin=model_path(model_name, main)
-                ),
-                rrb.TimeSeriesView(
-                    name=f"{model_name} other outputs",
-                    origin=f"{MODEL_ROOT}/{entity_name(model_name)}",
-                    contents=[model_path(model_name, o) for o in others],
+                rrb.Tabs(
+                    rrb.Vertical(
+                        rrb.TimeSeriesView(
+                            name=f"{model_name} {main} ({main_unit})",
+                            origin=model_path(model_name, main),
+                        ),
+                        rrb.TimeSeriesView(
+                            name=f"{model_name} other outputs",
+                            origin=f"{MODEL_ROOT}/{entity_name(model_name)}",
+                            contents=[model_path(model_name, o) for o in others],
+                        ),
+                        row_shares=[2, 1.5],
+                        name="online model",
+                    ),
+                    # filled when `vdc-analyse compare` output is opened with this recording
+                    rrb.TimeSeriesView(
+                        name="model variants (vdc-analyse compare)", origin=MODEL_VARIANTS_ROOT
+                    ),
                 ),
                 rrb.TimeSeriesView(name="wall TF (Hz)", origin=WALL_TF),
                 rrb.TimeSeriesView(name="pose (m, rad)", origin=POSE),
                 rrb.TextLogView(name="events", origin=EVENTS),
-                row_shares=[2, 1.5, 1, 1.5, 1.5],
+                row_shares=[3.5, 1, 1.5, 1.5],
             ),
             column_shares=[1, 1.2],
         ),

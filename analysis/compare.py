@@ -1,0 +1,157 @@
+"""Model variants on identical recorded frames: statistics, pairwise correlations, overlays."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import polars as pl
+
+from analysis.sweep import spearman
+from analysis.tables import LoadedRecording, TableSettings, primary_output, summarise
+
+
+def variant_statistics(
+    loaded: LoadedRecording, outputs: dict[str, pl.DataFrame], s: TableSettings
+) -> pl.DataFrame:
+    """Per variant (all frames after warm-up): mean, p95, fraction over threshold,
+    near-wall/centre ratio, ... of its primary output."""
+    gap = loaded.frames.select("frame", "wall_gap_m")
+    rows = []
+    for name, df in outputs.items():
+        out = primary_output(df)
+        g = df.join(gap, on="frame", how="left").filter(pl.col("frame") >= s.warmup_frames)
+        rows.append(
+            {
+                "recording_id": loaded.recording_id,
+                "model": name,
+                "output": out,
+                "n_frames": g.height,
+                "threshold_dps": s.threshold_dps,
+                **summarise(g[out].to_numpy(), g["wall_gap_m"].to_numpy(), s),
+            }
+        )
+    return pl.DataFrame(rows)
+
+
+def pairwise_correlations(outputs: dict[str, pl.DataFrame], warmup: int) -> pl.DataFrame:
+    """Pearson and Spearman correlation of every pair of variants' primary outputs."""
+    series = {}
+    for name, df in outputs.items():
+        d = df.filter(pl.col("frame") >= warmup)
+        series[name] = d[primary_output(d)].to_numpy()
+    rows = []
+    for a, b in itertools.combinations(series, 2):
+        x, y = series[a], series[b]
+        pearson = float(np.corrcoef(x, y)[0, 1]) if x.std() > 0 and y.std() > 0 else float("nan")
+        rows.append(
+            {
+                "model_a": a,
+                "model_b": b,
+                "pearson": pearson,
+                "spearman": spearman(x, y),
+                "mean_ratio_b_over_a": float(y.mean() / x.mean()) if x.mean() else float("nan"),
+            }
+        )
+    schema = {
+        "model_a": pl.String,
+        "model_b": pl.String,
+        "pearson": pl.Float64,
+        "spearman": pl.Float64,
+        "mean_ratio_b_over_a": pl.Float64,
+    }
+    return pl.DataFrame(rows, schema=schema)
+
+
+def busiest_window(values: np.ndarray, width: int) -> slice:
+    """The ``width``-frame window with the largest summed response (for the trace panel)."""
+    if len(values) <= width:
+        return slice(0, len(values))
+    c = np.concatenate([[0.0], np.cumsum(np.nan_to_num(values))])
+    start = int(np.argmax(c[width:] - c[:-width]))
+    return slice(start, start + width)
+
+
+def plot_compare(
+    outputs: dict[str, pl.DataFrame],
+    stats: pl.DataFrame,
+    corr: pl.DataFrame,
+    s: TableSettings,
+    title: str,
+    path: Path,
+    window_frames: int = 1980,
+) -> Path:
+    """Traces over the busiest minute, response distributions, and the correlation matrix."""
+    names = list(outputs)
+    fig = plt.figure(figsize=(15, 9), constrained_layout=True)
+    grid = fig.add_gridspec(2, 2, height_ratios=[1, 1.1])
+    ax_t = fig.add_subplot(grid[0, :])
+    first = outputs[names[0]]
+    out0 = primary_output(first)
+    win = busiest_window(first[out0].to_numpy(), window_frames)
+    for i, name in enumerate(names):
+        df = outputs[name]
+        out = primary_output(df)
+        ax_t.plot(
+            df["t_s"].to_numpy()[win],
+            df[out].to_numpy()[win],
+            lw=0.9,
+            color=f"C{i}",
+            label=f"{name} ({out})",
+        )
+    ax_t.axhline(s.threshold_dps, color="k", ls="--", lw=0.8)
+    ax_t.set_xlabel("time (s)")
+    ax_t.set_ylabel("response")
+    ax_t.set_title("the busiest minute of the recording")
+    ax_t.legend(fontsize=8, loc="upper right")
+    ax_t.grid(alpha=0.3)
+
+    ax_d = fig.add_subplot(grid[1, 0])
+    top = max(
+        float(np.percentile(outputs[n][primary_output(outputs[n])].to_numpy(), 99.5)) for n in names
+    )
+    bins = np.linspace(0, max(top, 1.0), 60)
+    for i, name in enumerate(names):
+        df = outputs[name].filter(pl.col("frame") >= s.warmup_frames)
+        row = stats.filter(pl.col("model") == name).row(0, named=True)
+        ax_d.hist(
+            df[primary_output(df)].to_numpy(),
+            bins=bins,
+            histtype="step",
+            lw=1.3,
+            color=f"C{i}",
+            density=True,
+            label=f"{name}: mean {row['mean']:.1f}, "
+            f"{100 * row['frac_over_threshold']:.1f} % > {s.threshold_dps:g}",
+        )
+    ax_d.axvline(s.threshold_dps, color="k", ls="--", lw=0.8)
+    ax_d.set_yscale("log")
+    ax_d.set_xlabel("response")
+    ax_d.set_ylabel("density")
+    ax_d.legend(fontsize=8)
+    ax_d.set_title("distributions")
+
+    ax_c = fig.add_subplot(grid[1, 1])
+    n = len(names)
+    mat = np.eye(n)
+    for r in corr.iter_rows(named=True):
+        i, j = names.index(r["model_a"]), names.index(r["model_b"])
+        mat[i, j] = mat[j, i] = r["pearson"]
+    im = ax_c.imshow(mat, vmin=-1, vmax=1, cmap="coolwarm")
+    for i in range(n):
+        for j in range(n):
+            ax_c.text(j, i, f"{mat[i, j]:.3f}", ha="center", va="center", fontsize=9)
+    ax_c.set_xticks(range(n), names, rotation=30, ha="right", fontsize=8)
+    ax_c.set_yticks(range(n), names, fontsize=8)
+    ax_c.set_title("Pearson correlation over frames")
+    fig.colorbar(im, ax=ax_c, shrink=0.8)
+    fig.suptitle(title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

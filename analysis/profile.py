@@ -1,0 +1,262 @@
+"""Complexity profiles (paper Figs. 6–7): 3D circle profiles, "AVDM > 100" histograms and
+top-down heat maps of the response, per recording segment or per condition.
+
+A *segment* is the part of one recording under one wall TF (a TF schedule gives several); a
+*condition* pools the segments of several recordings with the same scene, TF and model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import polars as pl
+
+from analysis.tables import TableSettings, summarise
+
+
+@dataclasses.dataclass(frozen=True)
+class ProfileSettings:
+    threshold_dps: float = 100.0
+    bin_dps: float = 20.0  # histogram bin width above the threshold
+    cell_m: float = 0.05  # heat-map cell size
+    max_points: int = 4000  # circles drawn in a PNG 3D profile (all go to the .rrd)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.threshold_dps) and self.threshold_dps >= 0):
+            raise ValueError(f"--threshold must be >= 0, got {self.threshold_dps}")
+        if not (math.isfinite(self.bin_dps) and self.bin_dps > 0):
+            raise ValueError(f"--bin-dps must be > 0, got {self.bin_dps}")
+        if not (math.isfinite(self.cell_m) and 0.005 <= self.cell_m <= 0.5):
+            raise ValueError(f"--cell-m must be between 0.005 and 0.5 m, got {self.cell_m}")
+
+
+@dataclasses.dataclass
+class Segment:
+    """Responses of one model over one recording segment or pooled condition."""
+
+    key: str  # a file- and entity-safe name
+    label: str  # for titles
+    model: str
+    scene: str | None
+    wall_tf_hz: float
+    recording_ids: list[str]
+    t_s: np.ndarray  # (N,) seconds since the segment's recording started
+    x_m: np.ndarray
+    y_m: np.ndarray
+    gap_m: np.ndarray  # distance to the nearest wall
+    response: np.ndarray  # (N,) the primary output, deg/s for the AVDM
+    output: str
+    half_extent: tuple[float, float]
+
+
+def safe_key(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.\-]+", "_", text).strip("_")
+
+
+def segments_from_tables(
+    frames: pl.DataFrame,
+    outputs: pl.DataFrame,
+    summary: pl.DataFrame,
+    half_extents: dict[str, tuple[float, float]],
+    by: str,
+    warmup_frames: int,
+) -> list[Segment]:
+    """Split the long tables into segments (``by="recording"``) or conditions."""
+    cond = summary.select("recording_id", "model", "wall_tf_hz", "scene", "output").unique()
+    joined = outputs.join(frames, on=["recording_id", "frame"], how="inner", suffix="_f").filter(
+        pl.col("frame") >= warmup_frames
+    )
+    joined = joined.join(cond, on=["recording_id", "model", "wall_tf_hz"], how="left")
+    keys = (
+        ["model", "scene", "wall_tf_hz"]
+        if by == "condition"
+        else ["recording_id", "model", "wall_tf_hz"]
+    )
+    segs = []
+    for _, g in joined.sort("recording_id", "frame").group_by(keys, maintain_order=True):
+        out = g["output"][0]
+        rec_ids = g["recording_id"].unique(maintain_order=True).to_list()
+        model, scene, tf = g["model"][0], g["scene"][0], float(g["wall_tf_hz"][0])
+        if by == "condition":
+            label = f"{scene} TF {tf:g} Hz, {model} ({len(rec_ids)} recording(s))"
+            key = safe_key(f"{scene}_tf{tf:g}_{model}")
+        else:
+            label = f"{rec_ids[0]}: TF {tf:g} Hz, {model}"
+            key = safe_key(f"{rec_ids[0]}_tf{tf:g}_{model}")
+        segs.append(
+            Segment(
+                key=key,
+                label=label,
+                model=model,
+                scene=scene,
+                wall_tf_hz=tf,
+                recording_ids=rec_ids,
+                t_s=g["t_s"].to_numpy(),
+                x_m=g["x_m"].to_numpy(),
+                y_m=g["y_m"].to_numpy(),
+                gap_m=g["wall_gap_m"].to_numpy(),
+                response=g[out].to_numpy().astype(float),
+                output=out,
+                half_extent=half_extents[rec_ids[0]],
+            )
+        )
+    return segs
+
+
+def histogram_over(values: np.ndarray, s: ProfileSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Counts of responses above the threshold in ``bin_dps`` bins: (edges (B+1,), counts (B,))."""
+    over = values[values > s.threshold_dps]
+    top = max(float(over.max()) if len(over) else s.threshold_dps, s.threshold_dps + s.bin_dps)
+    n_bins = max(1, min(200, math.ceil((top - s.threshold_dps) / s.bin_dps)))
+    edges = s.threshold_dps + s.bin_dps * np.arange(n_bins + 1)
+    counts, _ = np.histogram(over, bins=edges)
+    return edges, counts
+
+
+def heat_map(seg: Segment, s: ProfileSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean response per arena cell: (x edges, y edges, mean (ny, nx), NaN where unvisited)."""
+    hx, hy = seg.half_extent
+    xe = np.linspace(-hx, hx, max(1, round(2 * hx / s.cell_m)) + 1)
+    ye = np.linspace(-hy, hy, max(1, round(2 * hy / s.cell_m)) + 1)
+    total, _, _ = np.histogram2d(seg.y_m, seg.x_m, bins=(ye, xe), weights=seg.response)
+    count, _, _ = np.histogram2d(seg.y_m, seg.x_m, bins=(ye, xe))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count > 0, total / count, np.nan)
+    return xe, ye, mean
+
+
+def segment_summary(seg: Segment, s: ProfileSettings, t: TableSettings) -> dict:
+    stats = summarise(
+        seg.response, seg.gap_m, dataclasses.replace(t, threshold_dps=s.threshold_dps)
+    )
+    return {
+        "segment": seg.key,
+        "model": seg.model,
+        "scene": seg.scene,
+        "wall_tf_hz": seg.wall_tf_hz,
+        "recordings": len(seg.recording_ids),
+        "output": seg.output,
+        "n_frames": len(seg.response),
+        "threshold_dps": s.threshold_dps,
+        **stats,
+    }
+
+
+def _arena_outline(ax, hx: float, hy: float, z: float | None = None) -> None:
+    xs = [-hx, hx, hx, -hx, -hx]
+    ys = [-hy, -hy, hy, hy, -hy]
+    if z is None:
+        ax.plot(xs, ys, color="0.5", lw=1)
+    else:
+        ax.plot(xs, ys, [z] * 5, color="0.5", lw=1)
+
+
+def plot_segment(seg: Segment, s: ProfileSettings, path: Path) -> Path:
+    """One PNG: 3D circle profile, histogram of responses over the threshold, heat map."""
+    fig = plt.figure(figsize=(16, 5.2), constrained_layout=True)
+    ax3 = fig.add_subplot(1, 3, 1, projection="3d")
+    step = max(1, math.ceil(len(seg.response) / s.max_points))
+    r = seg.response[::step]
+    ref = max(np.percentile(seg.response, 99) if len(seg.response) else 1.0, s.threshold_dps, 1e-9)
+    t_min = seg.t_s[::step] / 60
+    ax3.plot(seg.x_m[::step], seg.y_m[::step], t_min, color="0.75", lw=0.4)
+    sc = ax3.scatter(
+        seg.x_m[::step],
+        seg.y_m[::step],
+        t_min,
+        s=2 + 80 * np.clip(r / ref, 0, 1),
+        c=np.clip(r, 0, ref),
+        cmap="viridis",
+        alpha=0.6,
+        linewidths=0,
+    )
+    hx, hy = seg.half_extent
+    _arena_outline(ax3, hx, hy, float(t_min.min()) if len(t_min) else 0.0)
+    ax3.set_xlabel("x (m)")
+    ax3.set_ylabel("y (m)")
+    ax3.set_zlabel("time (min)")
+    ax3.set_box_aspect((2 * hx, 2 * hy, 1.2))
+    ax3.set_title("circle profile: size ∝ response", fontsize=10)
+    fig.colorbar(sc, ax=ax3, shrink=0.6, pad=0.12, label=f"{seg.output}")
+
+    ax_h = fig.add_subplot(1, 3, 2)
+    edges, counts = histogram_over(seg.response, s)
+    frac = float((seg.response > s.threshold_dps).mean()) if len(seg.response) else 0.0
+    ax_h.bar(
+        edges[:-1], counts, width=np.diff(edges), align="edge", color="C1", edgecolor="k", lw=0.3
+    )
+    ax_h.set_xlabel(f"{seg.output} (bins of {s.bin_dps:g})")
+    ax_h.set_ylabel("frames")
+    ax_h.set_title(
+        f"responses > {s.threshold_dps:g}: {counts.sum()} frames ({100 * frac:.1f} %)", fontsize=10
+    )
+    ax_h.grid(alpha=0.3)
+
+    ax_m = fig.add_subplot(1, 3, 3)
+    xe, ye, mean = heat_map(seg, s)
+    im = ax_m.pcolormesh(xe, ye, mean, cmap="magma", shading="flat")
+    _arena_outline(ax_m, hx, hy)
+    ax_m.set_aspect("equal")
+    ax_m.set_xlabel("x (m)")
+    ax_m.set_ylabel("y (m)")
+    near = seg.response[seg.gap_m <= 0.15]
+    centre = seg.response[seg.gap_m > 0.25]
+    ax_m.set_title(
+        f"mean response per {100 * s.cell_m:g} cm cell\nnear walls "
+        f"{near.mean() if len(near) else float('nan'):.1f}, centre "
+        f"{centre.mean() if len(centre) else float('nan'):.1f}",
+        fontsize=10,
+    )
+    fig.colorbar(im, ax=ax_m, shrink=0.8, label=f"mean {seg.output}")
+    fig.suptitle(seg.label)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_overview(segs: Sequence[Segment], s: ProfileSettings, path: Path) -> Path:
+    """All segments side by side: fraction over the threshold and the response distributions."""
+    fig, (ax_b, ax_d) = plt.subplots(1, 2, figsize=(14, 5), constrained_layout=True)
+    labels = [
+        f"{g.scene} TF {g.wall_tf_hz:g}\n{g.model}\n{g.recording_ids[0][-8:]}"
+        if len(g.recording_ids) == 1
+        else f"{g.scene} TF {g.wall_tf_hz:g}\n{g.model}"
+        for g in segs
+    ]
+    fracs = [100 * float((g.response > s.threshold_dps).mean()) for g in segs]
+    ax_b.bar(range(len(segs)), fracs, color="C1")
+    ax_b.set_xticks(range(len(segs)), labels, fontsize=7)
+    ax_b.set_ylabel(f"% of frames with response > {s.threshold_dps:g}")
+    ax_b.set_title(f"'AVDM > {s.threshold_dps:g}' per segment")
+    ax_b.grid(axis="y", alpha=0.3)
+    top = max([float(np.percentile(g.response, 99.5)) for g in segs if len(g.response)] + [1.0])
+    bins = np.linspace(0, top, 60)
+    for i, g in enumerate(segs):
+        ax_d.hist(
+            g.response,
+            bins=bins,
+            histtype="step",
+            lw=1.2,
+            label=labels[i].replace("\n", " "),
+            density=True,
+        )
+    ax_d.axvline(s.threshold_dps, color="k", ls="--", lw=1)
+    ax_d.set_yscale("log")
+    ax_d.set_xlabel("response")
+    ax_d.set_ylabel("density")
+    ax_d.legend(fontsize=7)
+    ax_d.set_title("response distributions")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

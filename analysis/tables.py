@@ -1,0 +1,358 @@
+"""Recordings → polars tables → Parquet (DESIGN.md table contract), and model recomputation.
+
+* ``frames``: recording_id, frame, t_s, x_m, y_m, heading_rad, wall_tf_hz, wall_gap_m
+  (distance from the robot's centre to the nearest wall);
+* ``model_outputs``: recording_id, model, frame, t_s, one column per output (long over models);
+* ``events``: recording_id, frame, t_s, kind, x_m, y_m, heading_rad, dtc_m (distance to
+  collision: from the robot's centre along its heading to the wall), text;
+* ``summary``: recording_id, model, condition columns (scene, wall_tf_hz, period_m, seed,
+  source), output, n_frames, mean, p50, p95, max, frac_over_100, frac_over_threshold,
+  near_wall_mean, centre_mean, near_wall_centre_ratio, threshold_dps.
+
+Every table is a pure function of its recordings, the model params and the settings: re-running
+writes identical rows. Frames are streamed chunk by chunk through all requested models at once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+from analysis.parquet_io import write_parquet
+from analysis.rrd_reader import Recording, RecordingError
+from avdm.base import Model
+from avdm.registry import canonical_name, make_model
+from capture.recorder import MODEL_ROOT, POSE, WALL_TF, entity_name
+
+
+@dataclasses.dataclass(frozen=True)
+class TableSettings:
+    """How summaries are computed (stored in the Parquet metadata)."""
+
+    threshold_dps: float = 100.0  # "AVDM > 100" (paper)
+    near_wall_m: float = 0.15  # robot centre within this of a wall: "near the wall" (PROPOSED)
+    centre_m: float = 0.25  # farther than this from every wall: "centre" (PROPOSED)
+    warmup_frames: int = 20  # the models' first 2·Tw frames are left out of statistics
+
+    def __post_init__(self) -> None:
+        for name in ("threshold_dps", "near_wall_m", "centre_m"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name}={v!r} must be a number >= 0")
+        if self.warmup_frames < 0:
+            raise ValueError(f"warmup_frames={self.warmup_frames} must be >= 0")
+
+
+@dataclasses.dataclass
+class LoadedRecording:
+    """What analysis needs from one recording (frames are streamed separately)."""
+
+    rec: Recording
+    props: dict[str, dict[str, Any]]
+    frames: pl.DataFrame
+    logged: dict[str, pl.DataFrame]  # online model name → its logged outputs
+
+    @property
+    def recording_id(self) -> str:
+        return self.rec.recording_id
+
+    @property
+    def online_model(self) -> str | None:
+        return self.props.get("model", {}).get("name")
+
+    def camera_context(self) -> dict[str, float]:
+        """The camera facts a model needs (fps, deg/px), from the recording's properties."""
+        cam = self.props.get("camera", {})
+        if "fps" not in cam:
+            return {}
+        return {"fps": float(cam["fps"]), "deg_per_px": float(cam["hfov_deg"]) / cam["width_px"]}
+
+    def arena_half_extent(self) -> tuple[float, float]:
+        arena = self.props.get("arena", {})
+        return float(arena.get("length_m", 1.4)) / 2, float(arena.get("width_m", 0.8)) / 2
+
+
+def load_recording(path: str | Path) -> LoadedRecording:
+    """Open a recording and read its properties, poses, wall TF and logged model outputs."""
+    rec = Recording(path)
+    props = rec.properties()
+    sig = rec.signals()
+    if POSE not in sig:
+        raise RecordingError(f"{str(path)!r} holds no robot poses at {POSE}")
+    f, t, pose = sig[POSE]
+    frames = pl.DataFrame(
+        {
+            "frame": f.astype(np.int64),
+            "t_s": t,
+            "x_m": pose[:, 0],
+            "y_m": pose[:, 1],
+            "heading_rad": pose[:, 2],
+        }
+    )
+    if WALL_TF in sig:
+        tf_f, _, tf = sig[WALL_TF]
+        tf_df = pl.DataFrame({"frame": tf_f.astype(np.int64), "wall_tf_hz": tf[:, 0]})
+        frames = frames.join(tf_df, on="frame", how="left")
+    else:
+        frames = frames.with_columns(wall_tf_hz=pl.lit(None, pl.Float64))
+    loaded = LoadedRecording(rec, props, frames, {})
+    hx, hy = loaded.arena_half_extent()
+    loaded.frames = frames.with_columns(
+        pl.lit(rec.recording_id).alias("recording_id"),
+        pl.min_horizontal(hx - pl.col("x_m").abs(), hy - pl.col("y_m").abs()).alias("wall_gap_m"),
+    ).select(
+        "recording_id", "frame", "t_s", "x_m", "y_m", "heading_rad", "wall_tf_hz", "wall_gap_m"
+    )
+    online = loaded.online_model
+    if online:
+        prefix = f"{MODEL_ROOT}/{entity_name(online)}/"
+        cols = {e[len(prefix) :]: v for e, v in sig.items() if e.startswith(prefix)}
+        if cols:
+            first = next(iter(cols.values()))
+            data = {"frame": first[0].astype(np.int64), "t_s": first[1]}
+            data.update({name: v[2][:, 0] for name, v in cols.items()})
+            loaded.logged[online] = pl.DataFrame(data)
+    return loaded
+
+
+def recompute(
+    loaded: LoadedRecording,
+    specs: Sequence[str],
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, pl.DataFrame]:
+    """Run every model in ``specs`` over the recorded raw frames, streaming chunk by chunk.
+
+    Returns ``{canonical model name: DataFrame(frame, t_s, outputs...)}``. Models are built
+    with the recording's camera (fps, deg/px), so the online model recomputes to the exact
+    floats it logged."""
+    ctx = loaded.camera_context()
+    models: list[Model] = [make_model(s, **ctx) for s in specs]
+    outs: dict[str, list[dict[str, np.ndarray]]] = {m.name: [] for m in models}
+    frames: list[np.ndarray] = []
+    for chunk in loaded.rec.iter_frames():
+        frames.append(chunk.frame)
+        for m in models:
+            outs[m.name].append(m.run(chunk.images))
+        if progress is not None:
+            progress(len(chunk.frame))
+    frame = np.concatenate(frames)
+    t = loaded.frames.select("frame", "t_s")
+    result = {}
+    for m in models:
+        cols = {o.name: np.concatenate([p[o.name] for p in outs[m.name]]) for o in m.outputs}
+        df = pl.DataFrame({"frame": frame.astype(np.int64), **cols})
+        result[m.name] = df.join(t, on="frame", how="left").select("frame", "t_s", *cols)
+    return result
+
+
+def model_params(loaded: LoadedRecording, specs: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """``{model name: params dict}`` as the models are built for this recording."""
+    ctx = loaded.camera_context()
+    return {canonical_name(s): make_model(s, **ctx).params.to_dict() for s in specs}
+
+
+def model_outputs_table(loaded: LoadedRecording, outputs: dict[str, pl.DataFrame]) -> pl.DataFrame:
+    """Long table over models: recording_id, model, frame, t_s, output columns."""
+    parts = [
+        df.with_columns(
+            pl.lit(loaded.recording_id).alias("recording_id"), pl.lit(name).alias("model")
+        ).select("recording_id", "model", pl.all().exclude("recording_id", "model"))
+        for name, df in outputs.items()
+    ]
+    return pl.concat(parts, how="diagonal_relaxed") if parts else pl.DataFrame()
+
+
+def distance_to_wall_along(
+    x: np.ndarray, y: np.ndarray, heading: np.ndarray, hx: float, hy: float
+) -> np.ndarray:
+    """Distance (m) from (x, y) along ``heading`` to the rectangle's wall (inf never occurs
+    from inside the arena)."""
+    dx, dy = np.cos(heading), np.sin(heading)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tx = np.where(dx > 1e-12, (hx - x) / dx, np.where(dx < -1e-12, (-hx - x) / dx, np.inf))
+        ty = np.where(dy > 1e-12, (hy - y) / dy, np.where(dy < -1e-12, (-hy - y) / dy, np.inf))
+    return np.minimum(tx, ty)
+
+
+def events_table(loaded: LoadedRecording) -> pl.DataFrame:
+    ev = loaded.rec.events()
+    pose = loaded.frames.select("frame", "x_m", "y_m", "heading_rad")
+    ev = ev.join(pose, on="frame", how="left", suffix="_pose")
+    # the event's own logged position wins; the pose fills in for events without one
+    ev = ev.with_columns(
+        pl.when(pl.col("x_m").is_nan())
+        .then(pl.col("x_m_pose"))
+        .otherwise(pl.col("x_m"))
+        .alias("x_m"),
+        pl.when(pl.col("y_m").is_nan())
+        .then(pl.col("y_m_pose"))
+        .otherwise(pl.col("y_m"))
+        .alias("y_m"),
+    )
+    hx, hy = loaded.arena_half_extent()
+    dtc = distance_to_wall_along(
+        ev["x_m"].to_numpy(),
+        ev["y_m"].to_numpy(),
+        ev["heading_rad"].fill_null(np.nan).to_numpy(),
+        hx,
+        hy,
+    )
+    return ev.with_columns(
+        pl.lit(loaded.recording_id).alias("recording_id"), pl.Series("dtc_m", dtc)
+    ).select("recording_id", "frame", "t_s", "kind", "x_m", "y_m", "heading_rad", "dtc_m", "text")
+
+
+NON_OUTPUT_COLUMNS = ("recording_id", "model", "frame", "t_s", "wall_tf_hz", "wall_gap_m")
+
+
+def primary_output(outputs_df: pl.DataFrame) -> str:
+    """The output summaries are about: ``omega_dps`` when a model has it, else its first
+    output (the column order of a model's ``outputs``); all-null columns belong to other
+    models of a long table."""
+    cols = [
+        c
+        for c in outputs_df.columns
+        if c not in NON_OUTPUT_COLUMNS and outputs_df[c].null_count() < outputs_df.height
+    ]
+    if not cols:
+        raise ValueError("no model output columns")
+    return "omega_dps" if "omega_dps" in cols else cols[0]
+
+
+def condition_columns(loaded: LoadedRecording) -> dict[str, Any]:
+    wall = loaded.props.get("wall", {})
+    run = loaded.props.get("run", {})
+    return {
+        "scene": wall.get("scene"),
+        "period_m": wall.get("period_m"),
+        "seed": run.get("seed"),
+        "source": run.get("source"),
+    }
+
+
+def summarise(values: np.ndarray, gap: np.ndarray, s: TableSettings) -> dict[str, float]:
+    """Statistics of one response series (N,) given the wall gap (N,) of each frame."""
+    if len(values) == 0:
+        nan = float("nan")
+        return dict.fromkeys(
+            (
+                "mean",
+                "p50",
+                "p95",
+                "max",
+                "frac_over_100",
+                "frac_over_threshold",
+                "near_wall_mean",
+                "centre_mean",
+                "near_wall_centre_ratio",
+            ),
+            nan,
+        )
+    near = values[gap <= s.near_wall_m]
+    centre = values[gap > s.centre_m]
+    near_mean = float(near.mean()) if len(near) else float("nan")
+    centre_mean = float(centre.mean()) if len(centre) else float("nan")
+    ratio = near_mean / centre_mean if centre_mean > 0 else float("nan")
+    return {
+        "mean": float(values.mean()),
+        "p50": float(np.percentile(values, 50)),
+        "p95": float(np.percentile(values, 95)),
+        "max": float(values.max()),
+        "frac_over_100": float((values > 100.0).mean()),
+        "frac_over_threshold": float((values > s.threshold_dps).mean()),
+        "near_wall_mean": near_mean,
+        "centre_mean": centre_mean,
+        "near_wall_centre_ratio": ratio,
+    }
+
+
+def summary_table(loaded: LoadedRecording, outputs: pl.DataFrame, s: TableSettings) -> pl.DataFrame:
+    """One row per (model, wall TF in force) of a recording."""
+    joined = outputs.join(
+        loaded.frames.select("frame", "wall_tf_hz", "wall_gap_m"), on="frame", how="left"
+    ).filter(pl.col("frame") >= s.warmup_frames)
+    rows = []
+    cond = condition_columns(loaded)
+    for (model, tf), g in joined.group_by("model", "wall_tf_hz", maintain_order=True):
+        out = primary_output(g)
+        vals = g[out].to_numpy()
+        finite = np.isfinite(vals)
+        rows.append(
+            {
+                "recording_id": loaded.recording_id,
+                "model": model,
+                **cond,
+                "wall_tf_hz": tf,
+                "output": out,
+                "n_frames": int(finite.sum()),
+                **summarise(vals[finite], g["wall_gap_m"].to_numpy()[finite], s),
+                "threshold_dps": s.threshold_dps,
+            }
+        )
+    return pl.DataFrame(rows).sort("recording_id", "model", "wall_tf_hz")
+
+
+def build_tables(
+    paths: Sequence[str | Path],
+    specs: Sequence[str] | None,
+    settings: TableSettings = TableSettings(),
+    progress: Callable[[int], None] | None = None,
+    notices: Callable[[str], None] | None = None,
+) -> tuple[dict[str, pl.DataFrame], dict[str, Any]]:
+    """All four tables for ``paths``; ``specs`` None = the online model's logged outputs.
+
+    Returns the tables and the metadata to store with them."""
+    frames, outputs, events, summary = [], [], [], []
+    params: dict[str, dict[str, dict[str, Any]]] = {}
+    for path in sorted(paths, key=str):
+        loaded = load_recording(path)
+        if loaded.rec.notice and notices:
+            notices(loaded.rec.notice)
+        if specs:
+            outs = recompute(loaded, specs, progress)
+            params[loaded.recording_id] = model_params(loaded, specs)
+        else:
+            if not loaded.logged:
+                raise RecordingError(
+                    f"{str(path)!r} has no logged model outputs: pass --model to recompute one"
+                )
+            outs = loaded.logged
+            params[loaded.recording_id] = {
+                loaded.online_model: loaded.props.get("model_params", {})  # type: ignore[dict-item]
+            }
+            if progress is not None:
+                progress(loaded.frames.height)
+        mo = model_outputs_table(loaded, outs)
+        frames.append(loaded.frames)
+        outputs.append(mo)
+        events.append(events_table(loaded))
+        summary.append(summary_table(loaded, mo, settings))
+    tables = {
+        "frames": pl.concat(frames).sort("recording_id", "frame"),
+        "model_outputs": pl.concat(outputs, how="diagonal_relaxed").sort(
+            "recording_id", "model", "frame"
+        ),
+        "events": pl.concat(events).sort("recording_id", "frame", "kind"),
+        "summary": pl.concat(summary, how="diagonal_relaxed").sort(
+            "recording_id", "model", "wall_tf_hz"
+        ),
+    }
+    meta = {
+        "params": params,
+        "settings": dataclasses.asdict(settings),
+        "recordings": sorted(params),
+    }
+    return tables, meta
+
+
+def write_tables(
+    tables: dict[str, pl.DataFrame], out_dir: Path, meta: dict[str, Any]
+) -> list[Path]:
+    """Write each table to ``out_dir/<name>.parquet`` with ``meta`` in its metadata."""
+    return [write_parquet(df, out_dir / f"{name}.parquet", meta) for name, df in tables.items()]

@@ -1,0 +1,137 @@
+"""``vdc-analyse profile`` and ``vdc-analyse compare``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+import rerun as rr
+
+from analysis.rrd_reader import Recording
+from tests.helpers import assert_one_line_error, run_cli
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def entities(path: Path) -> set[str]:
+    return {ch.entity_path for ch in rr.chunk.RrdReader(str(path)).store().stream()}
+
+
+def test_profile_per_recording_segment(recordings, tmp_path: Path) -> None:
+    out = tmp_path / "p"
+    proc = run_cli(
+        "analysis",
+        "profile",
+        str(recordings["phases"]),
+        "--out",
+        str(out),
+        "--threshold",
+        "80",
+        "--bin-dps",
+        "10",
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = pl.read_parquet(out / "profile_summary.parquet")
+    assert summary["wall_tf_hz"].to_list() == [0.0, 3.0]  # one profile per TF phase
+    pngs = sorted(out.glob("profile_*.png"))
+    assert len(pngs) == 2 and all(p.read_bytes()[:8] == PNG for p in pngs)
+    assert (out / "profiles.png").read_bytes()[:8] == PNG
+    assert (summary["threshold_dps"] == 80).all()
+    # the profile's own statistics agree with the tables'
+    t = run_cli(
+        "analysis",
+        "tables",
+        str(recordings["phases"]),
+        "--out",
+        str(tmp_path / "t"),
+        "--threshold",
+        "80",
+    )
+    assert t.returncode == 0
+    tab = pl.read_parquet(tmp_path / "t" / "summary.parquet").sort("wall_tf_hz")
+    np.testing.assert_allclose(summary["frac_over_threshold"], tab["frac_over_threshold"])
+    np.testing.assert_allclose(summary["near_wall_mean"], tab["near_wall_mean"])
+    ents = entities(out / "profiles.rrd")
+    seg = summary["segment"][1]
+    for leaf in ("circles", "histogram", "heatmap", "arena"):
+        assert f"/profile/{seg}/{leaf}" in ents
+    assert rr.chunk.RrdReader(str(out / "profiles.rrd")).blueprints()
+    assert "circles" not in proc.stderr
+
+
+def test_profile_pools_recordings_by_condition(recordings, tmp_path: Path) -> None:
+    out = tmp_path / "c"
+    proc = run_cli(
+        "analysis",
+        "profile",
+        str(recordings["tf3_a"]),
+        str(recordings["tf3_b"]),
+        "--by",
+        "condition",
+        "--out",
+        str(out),
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = pl.read_parquet(out / "profile_summary.parquet")
+    assert summary.height == 1
+    row = summary.row(0, named=True)
+    assert row["recordings"] == 2 and row["wall_tf_hz"] == 3.0
+    assert row["n_frames"] == 2 * (792 - 20)
+
+
+def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -> None:
+    out = tmp_path / "cmp"
+    rec = recordings["tf3_a"]
+    proc = run_cli(
+        "analysis",
+        "compare",
+        str(rec),
+        "--model",
+        "avdm",
+        "--model",
+        "avdm-on",
+        "--model",
+        "avdm:beta=0.5",
+        "--out",
+        str(out),
+    )
+    assert proc.returncode == 0, proc.stderr
+    stats = pl.read_parquet(out / "compare_summary.parquet")
+    assert stats["model"].to_list() == ["avdm", "avdm-on", "avdm:beta=0.5"]
+    assert set(stats.columns) >= {"mean", "p95", "frac_over_threshold", "near_wall_centre_ratio"}
+    corr = pl.read_parquet(out / "compare_correlations.parquet")
+    assert corr.height == 3 and (corr["pearson"].abs() <= 1).all()
+    assert corr.filter(pl.col("model_b") == "avdm-on")["pearson"][0] > 0.9
+    assert (out / "compare.png").read_bytes()[:8] == PNG
+    # the variants file opens alongside the source: same recording id, /model_variants/...
+    source = Recording(rec)
+    (entry,) = rr.chunk.RrdReader(str(out / "variants.rrd")).recordings()
+    assert entry.recording_id == source.recording_id and entry.application_id == "vdc"
+    ents = entities(out / "variants.rrd")
+    assert {
+        "/model_variants/avdm/omega_dps",
+        "/model_variants/avdm-on/omega_dps",
+        "/model_variants/avdm_beta_0.5/omega_dps",
+    } <= ents
+    variant = Recording(out / "variants.rrd").scalars("/model_variants/avdm/omega_dps")
+    logged = source.model_outputs("avdm", ["omega_dps"])
+    assert np.array_equal(variant[2][:, 0], logged["omega_dps"])  # identical frames, same floats
+    assert f"rerun {rec}" in proc.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["compare", "REC", "--model", "avdm"], "at least two"),
+        (["compare", "REC", "--model", "avdm", "--model", "avdm"], "given twice"),
+        (["compare", "REC", "--model", "avdm", "--model", "zzz"], "unknown model"),
+        (["profile", "REC", "--cell-m", "3"], "--cell-m"),
+        (["profile", "REC", "--by", "moon"], "invalid choice"),
+        (["profile", "REC", "--threshold", "-5"], "positive number"),
+    ],
+)
+def test_bad_options_give_one_line(recordings, tmp_path: Path, args, needle) -> None:
+    args = [str(recordings["tf3_a"]) if a == "REC" else a for a in args]
+    assert_one_line_error(run_cli("analysis", *args, "--out", str(tmp_path / "o")), needle)
