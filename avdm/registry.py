@@ -15,6 +15,8 @@ from typing import Any
 from avdm.avdm_model import Avdm, AvdmParams
 from avdm.base import Model, Params
 from avdm.calibration_store import lookup_calibration
+from avdm.lgmd import LgmdColias, LgmdPlus
+from avdm.lgmd_params import LgmdColiasParams, LgmdPlusParams
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,8 +54,14 @@ def _complete_avdm(params: Params) -> Params:
     )
 
 
+def _as_is(params: Params) -> Params:
+    return params
+
+
 KINDS: dict[str, Kind] = {
     "avdm": Kind(AvdmParams, lambda p, n: Avdm(p, n), _complete_avdm),  # type: ignore[arg-type]
+    "lgmd-plus": Kind(LgmdPlusParams, lambda p, n: LgmdPlus(p, n), _as_is),  # type: ignore[arg-type]
+    "lgmd-colias": Kind(LgmdColiasParams, lambda p, n: LgmdColias(p, n), _as_is),  # type: ignore[arg-type]
 }
 
 VARIANTS: dict[str, Variant] = {
@@ -67,6 +75,10 @@ VARIANTS: dict[str, Variant] = {
         "avdm",
         {"photoreceptor_lag": 9, "photoreceptor_sign": -1, "theta_e": 0.001},
         "AVDM as the released Unity code runs it: I(t-9) - I(t) photoreceptor, theta_e = 0.001",
+    ),
+    "lgmd-plus": Variant("lgmd-plus", {}, "LGMD+ collision detector, released defaults"),
+    "lgmd-colias": Variant(
+        "lgmd-colias", {}, "LGMD+ as ported to the Colias-IV firmware (integer, OFF-biased)"
     ),
 }
 

@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from avdm import make_model
+from avdm.lgmd_reference import LgmdColiasReference, LgmdPlusReference
 from avdm.reference import AvdmReference
 
 
@@ -66,6 +67,34 @@ def main() -> None:
             f"avdm reference (plain NumPy) step {w}x{h}: "
             f"{rate(ref_all, n_ref, repeats=1):.0f} frames/s"
         )
+    bench_lgmd(min(args.frames, 10_000))
+
+
+def bench_lgmd(n_frames: int) -> None:
+    frames = frames_for(72, 99, n_frames, seed=1)
+    for spec, ref_cls in (("lgmd-plus", LgmdPlusReference), ("lgmd-colias", LgmdColiasReference)):
+        model = make_model(spec)
+        model.run(frames[:5])
+
+        def step_all(model=model, frames=frames) -> None:
+            model.reset()
+            for f in frames:
+                model.step(f)
+
+        def run_all(model=model, frames=frames) -> None:
+            model.reset()
+            model.run(frames)
+
+        print(f"{spec} run 99x72: {rate(run_all, len(frames)):.0f} frames/s")
+        print(f"{spec} step 99x72: {rate(step_all, len(frames)):.0f} frames/s")
+        ref = ref_cls(model.params)
+
+        def ref_all(ref=ref, frames=frames[:300]) -> None:
+            ref.reset()
+            for f in frames:
+                ref.step(f)
+
+        print(f"{spec} reference (plain NumPy) step 99x72: {rate(ref_all, 300, 1):.0f} frames/s")
 
 
 if __name__ == "__main__":
