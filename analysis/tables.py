@@ -4,7 +4,7 @@
   (distance from the robot's centre to the nearest wall);
 * ``model_outputs``: recording_id, model, frame, t_s, one column per output (long over models);
 * ``events``: recording_id, frame, t_s, kind, x_m, y_m, heading_rad, dtc_m (distance to
-  collision: from the robot's centre along its heading to the wall), text;
+  collision: from the robot's body along its heading to the wall, D_ray − r), text;
 * ``summary``: recording_id, model, condition columns (scene, wall_tf_hz, period_m, seed,
   source), output, n_frames, mean, p50, p95, max, frac_over_100, frac_over_threshold,
   near_wall_mean, centre_mean, near_wall_centre_ratio, threshold_dps.
@@ -196,6 +196,7 @@ def events_table(loaded: LoadedRecording) -> pl.DataFrame:
         .alias("y_m"),
     )
     hx, hy = loaded.arena_half_extent()
+    radius = float(loaded.props.get("robot", {}).get("radius_m", 0.0))
     dtc = distance_to_wall_along(
         ev["x_m"].to_numpy(),
         ev["y_m"].to_numpy(),
@@ -204,7 +205,7 @@ def events_table(loaded: LoadedRecording) -> pl.DataFrame:
         hy,
     )
     return ev.with_columns(
-        pl.lit(loaded.recording_id).alias("recording_id"), pl.Series("dtc_m", dtc)
+        pl.lit(loaded.recording_id).alias("recording_id"), pl.Series("dtc_m", dtc - radius)
     ).select("recording_id", "frame", "t_s", "kind", "x_m", "y_m", "heading_rad", "dtc_m", "text")
 
 

@@ -389,6 +389,13 @@ class LgmdPlus(_LgmdBase):
         self._wloc = bias_matrix(h, w, p.std_w, p.w_min)
         self._g = np.zeros((h, w))
 
+    def set_t_ffi(self, t_ffi: float) -> None:
+        """Change the FFI threshold T_ffi from the next frame on (closed-loop adaptation; the
+        ``params`` keep the value the model was built with)."""
+        if not (math.isfinite(t_ffi) and t_ffi > 0):
+            raise ValueError(f"t_ffi must be a positive number, got {t_ffi}")
+        self._cfg[2] = t_ffi
+
     def _kernel(self, frames: np.ndarray, is_u8: bool, out: np.ndarray) -> None:
         _lgmd_plus_kernel(
             frames,

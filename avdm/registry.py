@@ -77,6 +77,11 @@ VARIANTS: dict[str, Variant] = {
         "AVDM as the released Unity code runs it: I(t-9) - I(t) photoreceptor, theta_e = 0.001",
     ),
     "lgmd-plus": Variant("lgmd-plus", {}, "LGMD+ collision detector, released defaults"),
+    "lgmd-plus-arena": Variant(
+        "lgmd-plus",
+        {"blur_truncate": False, "t_de": 5.0, "w_base": 0.3},
+        "LGMD+ retuned for the arena's 99x72 camera: alerts on static walls too",
+    ),
     "lgmd-colias": Variant(
         "lgmd-colias", {}, "LGMD+ as ported to the Colias-IV firmware (integer, OFF-biased)"
     ),

@@ -57,7 +57,9 @@ def check_output_path(path: Path, force: bool) -> None:
 
 def sim_config_from_args(args: argparse.Namespace):  # -> SimConfig
     from capture.config import (
+        ArenaConfig,
         CameraConfig,
+        CollisionConfig,
         OverheadConfig,
         RobotConfig,
         SimConfig,
@@ -82,50 +84,112 @@ def sim_config_from_args(args: argparse.Namespace):  # -> SimConfig
         nominal_period_m=args.period_m,
         image_path=args.image or "",
     )
+    collision = args.behaviour == "collision"
+    if collision:
+        detector = args.model or "lgmd-plus"  # validated by CollisionConfig
+        col = CollisionConfig(
+            detector=detector,
+            threshold=args.threshold if args.threshold is not None else float("nan"),
+            adaptive=args.adaptive,
+            adaptive_gain=args.adaptive_gain,
+            phase=args.phase or "",
+        )
+        model = args.profile_model
+    else:
+        for flag, given in (
+            ("--threshold", args.threshold is not None),
+            ("--adaptive", args.adaptive),
+            ("--phase", bool(args.phase)),
+        ):
+            if given:
+                raise UserError(f"{flag} belongs to --behaviour collision")
+        col = CollisionConfig()
+        model = args.model or "avdm"
     return SimConfig(
+        arena=ArenaConfig(ring_enabled=not collision),
         wall=wall,
         robot=RobotConfig(),
         camera=CameraConfig(noise_sd=args.noise_sd),
         overhead=OverheadConfig(enabled=args.overhead, fps=args.overhead_fps),
         duration_s=duration,
         seed=args.seed,
-        model=args.model,
+        model=model,
+        behaviour=args.behaviour,
+        collision=col,
     )
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
     from avdm.registry import make_model
-    from capture.recorder import Recorder, default_blueprint, spawn_viewer
+    from capture.collision import CONTROLLER, ClosedLoopRobot
+    from capture.recorder import Recorder, default_blueprint, model_path, spawn_viewer
     from capture.run import run_capture
     from capture.sim import SimulatedRobot, recording_properties
 
     config = sim_config_from_args(args)
-    model = make_model(config.model, fps=config.camera.fps, deg_per_px=config.camera.deg_per_px)
-    device = SimulatedRobot(config)  # reads a wall image now, so a bad one fails before writing
+    ctx = {"fps": config.camera.fps, "deg_per_px": config.camera.deg_per_px}
+    model = make_model(config.model, **ctx)
+    collision = config.behaviour == "collision"
+    detector = make_model(config.collision.detector_spec(), **ctx) if collision else None
+    # the device reads a wall image now, so a bad one fails before anything is written
+    device = ClosedLoopRobot(config) if collision else SimulatedRobot(config)
     run_id = config.run_id()
     out = Path(args.out) if args.out else Path("recordings") / f"{run_id}.rrd"
     check_output_path(out, args.force)
     live = spawn_viewer() if args.spawn else args.connect
+    if detector is not None:
+        main = detector
+        extra = [
+            ("AVDM omega_dps (deg/s), on board", [model_path(model.name, "omega_dps")]),
+            (
+                "alert threshold in force",
+                [model_path(CONTROLLER, "threshold"), model_path(detector.name, "spike_rate_hz")],
+            ),
+        ]
+    else:
+        main, extra = model, []
     recorder = Recorder(
-        out, run_id, blueprint=default_blueprint(model.name, model.outputs), live_url=live
+        out, run_id, blueprint=default_blueprint(main.name, main.outputs, extra), live_url=live
     )
-    recorder.send_properties(recording_properties(config, model))
+    recorder.send_properties(recording_properties(config, model, detector))
     recorder.log_arena(config.arena, config.robot.radius_m)
     recorder.log_model_meta(model.name, model.outputs)
+    if detector is not None:
+        from avdm.base import Output
+
+        recorder.log_model_meta(detector.name, detector.outputs)
+        recorder.log_model_meta(
+            CONTROLLER,
+            (
+                Output("threshold", "spikes/s", "alert threshold in force"),
+                Output("avdm_frac_over_100", "1", "recent fraction of AVDM > 100 deg/s"),
+            ),
+        )
     minutes = config.duration_s / 60
+    what = (
+        f"collision mode, detector {detector.name}"
+        + (" (adaptive threshold)" if config.collision.adaptive else "")
+        if detector
+        else f"model {model.name}"
+    )
     print(
         f"recording {run_id}: {config.wall.scene} walls, TF schedule "
         f"{config.to_sections()['wall']['tf_schedule_text']}, {minutes:g} min "
-        f"({config.n_frames} frames at {config.camera.fps:g} Hz), model {model.name}",
+        f"({config.n_frames} frames at {config.camera.fps:g} Hz), {what}",
         file=sys.stderr,
     )
     result = run_capture(
-        device, model, recorder, total_frames=config.n_frames, progress=not args.quiet
+        device,
+        None if collision else model,
+        recorder,
+        total_frames=config.n_frames,
+        progress=not args.quiet,
     )
     size_mb = out.stat().st_size / 1e6
     if result.stop_reason == "finished":
+        events = ", ".join(f"{n} {k.replace('_', ' ')}s" for k, n in sorted(result.events.items()))
         print(
-            f"wrote {out} ({result.frames} frames, {result.turns} ring turns, {size_mb:.0f} MB, "
+            f"wrote {out} ({result.frames} frames, {events or 'no events'}, {size_mb:.0f} MB, "
             f"{result.wall_time_s:.1f} s)"
         )
         return 0
@@ -189,7 +253,42 @@ def build_parser() -> argparse.ArgumentParser:
         "--minutes", type=positive_float, help="run length (default: 30, or the schedule's total)"
     )
     sim.add_argument("--seed", type=_seed, default=0, help="random seed (default: 0)")
-    sim.add_argument("--model", default="avdm", help="online model (default: %(default)s)")
+    sim.add_argument(
+        "--behaviour",
+        choices=["profile", "collision"],
+        default="profile",
+        help="profile: ring turns, online AVDM (default); collision: the robot "
+        "avoids walls with an on-board LGMD detector, ring off, wall contact = crash",
+    )
+    sim.add_argument(
+        "--model",
+        help="online model (default: avdm); in collision mode the "
+        "detector, lgmd-plus (default) or lgmd-colias",
+    )
+    sim.add_argument(
+        "--profile-model",
+        default="avdm",
+        help="collision mode: the complexity model running alongside (default: %(default)s)",
+    )
+    sim.add_argument(
+        "--threshold",
+        type=positive_float,
+        help="collision mode: alert threshold (lgmd-plus: spikes/s, default 56; "
+        "lgmd-colias: consecutive spikes, default 4)",
+    )
+    sim.add_argument(
+        "--adaptive",
+        action="store_true",
+        help="collision mode: scale the threshold with the on-board AVDM's recent "
+        "fraction of responses over 100 deg/s (beyond the paper)",
+    )
+    sim.add_argument(
+        "--adaptive-gain",
+        type=_non_negative_float,
+        default=5.0,
+        help="collision mode: T_ffi x (1 + gain x fraction) (default: 5)",
+    )
+    sim.add_argument("--phase", help="collision mode: a label for the study's tables")
     sim.add_argument(
         "--contrast",
         type=positive_float,

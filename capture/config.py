@@ -14,6 +14,8 @@ import re
 from typing import Any
 
 SCENES = ("grating", "natural")
+BEHAVIOURS = ("profile", "collision")
+DETECTORS = ("lgmd-plus", "lgmd-colias")
 
 
 def _check(cond: bool, name: str, value: Any, why: str) -> None:
@@ -41,6 +43,7 @@ class ArenaConfig:
     floor_level: float = 0.1  # intensities on [0, 1]; PROPOSED: dark floor, white ring,
     ring_level: float = 1.0  # dim room above the walls
     room_level: float = 0.05
+    ring_enabled: bool = True  # drawn on the floor and sensed by the robot
 
     def __post_init__(self) -> None:
         _in_range("arena length_m", self.length_m, 0.2, 20.0, " m")
@@ -202,6 +205,74 @@ class OverheadConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class CollisionConfig:
+    """Closed-loop collision mode: the robot avoids walls with an on-board collision detector.
+
+    The light ring is switched off in this mode (neither drawn nor sensed): only the detector
+    turns the robot away from walls, and touching a wall is a crash."""
+
+    detector: str = "lgmd-plus"
+    # alert threshold: spike rate (spikes/s) for lgmd-plus, consecutive spike count for
+    # lgmd-colias; NaN = the detector's own default (56 spikes/s, 4 spikes)
+    threshold: float = float("nan")
+    # beyond the paper (lgmd-plus only): the FFI threshold T_ffi follows the on-board AVDM,
+    # T_ffi × (1 + adaptive_gain × f), f = fraction of the last adaptive_window_s seconds with
+    # ω̂ > 100 deg/s: a visually busy scene no longer blinds the detector by inhibition
+    adaptive: bool = False
+    adaptive_gain: float = 5.0
+    adaptive_window_s: float = 60.0
+    refractory_frames: int = 10  # alerts ignored this long after an avoidance turn (§4)
+    turn_left_probability: float = 0.5
+    crash_margin_m: float = 0.005  # body within this of a wall = contact
+    phase: str = ""  # a label for the study's tables, e.g. "TF 3 Hz, adjusted threshold"
+
+    def __post_init__(self) -> None:
+        _check(
+            self.base_detector in DETECTORS,
+            "detector",
+            self.detector,
+            f"must be an LGMD detector ({', '.join(DETECTORS)}, lgmd-plus-arena; "
+            "optionally with :key=value overrides)",
+        )
+        if not math.isnan(self.threshold):
+            hi = 2000.0 if self.base_detector == "lgmd-plus" else 100.0
+            _in_range("collision threshold", self.threshold, 1.0, hi)
+        _check(
+            not (self.adaptive and self.base_detector != "lgmd-plus"),
+            "adaptive",
+            self.adaptive,
+            "the adaptive threshold needs a spike-rate detector (lgmd-plus)",
+        )
+        _in_range("adaptive_gain", self.adaptive_gain, 0.0, 100.0)
+        _in_range("adaptive_window_s", self.adaptive_window_s, 0.1, 600.0, " s")
+        _check(
+            isinstance(self.refractory_frames, int) and 0 <= self.refractory_frames <= 1000,
+            "refractory_frames",
+            self.refractory_frames,
+            "must be an integer from 0 to 1000",
+        )
+        _in_range("turn_left_probability", self.turn_left_probability, 0.0, 1.0)
+        _in_range("crash_margin_m", self.crash_margin_m, 0.0, 0.1, " m")
+
+    @property
+    def base_detector(self) -> str:
+        """The detector's model kind (``lgmd-plus`` for ``lgmd-plus-arena:t_sr=80``)."""
+        from avdm.registry import VARIANTS
+
+        name = self.detector.split(":", 1)[0].strip()
+        return VARIANTS[name].kind if name in VARIANTS else name
+
+    def detector_spec(self) -> str:
+        """The registry spec of the detector with its threshold applied."""
+        if math.isnan(self.threshold):
+            return self.detector
+        sep = "," if ":" in self.detector else ":"
+        if self.base_detector == "lgmd-plus":  # a spike-rate threshold
+            return f"{self.detector}{sep}t_sr={self.threshold:g}"
+        return f"{self.detector}{sep}n_alert={round(self.threshold)}"
+
+
+@dataclasses.dataclass(frozen=True)
 class SimConfig:
     """A whole simulated run."""
 
@@ -212,9 +283,17 @@ class SimConfig:
     overhead: OverheadConfig = OverheadConfig()
     duration_s: float = 1800.0
     seed: int = 0
-    model: str = "avdm"
+    model: str = "avdm"  # the online model (in collision mode: the profile model on board)
+    behaviour: str = "profile"
+    collision: CollisionConfig = CollisionConfig()
 
     def __post_init__(self) -> None:
+        _check(
+            self.behaviour in BEHAVIOURS,
+            "behaviour",
+            self.behaviour,
+            f"must be one of {', '.join(BEHAVIOURS)}",
+        )
         _check(
             _finite(self.duration_s) and 0 < self.duration_s <= 48 * 3600,
             "duration",
@@ -242,11 +321,11 @@ class SimConfig:
     def to_sections(self) -> dict[str, dict[str, Any]]:
         """``{section: {field: value}}`` with JSON-friendly values (for recording properties)."""
 
-        def plain(v: Any, declared: str) -> Any:
+        def plain(v: Any, declared: str, name: str = "") -> Any:
             if isinstance(v, tuple):
                 return json.dumps(v)
             if isinstance(v, float) and math.isnan(v):
-                return "random"
+                return "random" if name.startswith("start_") else "default"
             if declared == "float" and isinstance(v, int) and not isinstance(v, bool):
                 return float(v)  # one Arrow type per property, whatever the caller passed
             return v
@@ -278,7 +357,8 @@ class SimConfig:
             label = f"{tf:g}".replace(".", "p")
             if not tfs or tfs[-1] != label:
                 tfs.append(label)
-        return f"{self.wall.scene}-tf{'-'.join(tfs)}-s{self.seed}-{self.digest()}"
+        kind = self.wall.scene if self.behaviour == "profile" else f"collision-{self.wall.scene}"
+        return f"{kind}-tf{'-'.join(tfs)}-s{self.seed}-{self.digest()}"
 
 
 _SEGMENT = re.compile(r"^\s*([0-9.eE+-]+)\s*:\s*([0-9.eE+-]+)\s*([smh]?)\s*$")

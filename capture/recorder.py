@@ -84,8 +84,15 @@ def event_path(kind: str) -> str:
     return f"{EVENTS}/{kind}"
 
 
-def default_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Blueprint:
-    """Camera, top-down arena with a 30 s pose trail, model traces, wall TF, pose, events."""
+def default_blueprint(
+    model_name: str,
+    outputs: Sequence[Output],
+    extra_views: Sequence[tuple[str, Sequence[str]]] = (),
+) -> rrb.Blueprint:
+    """Camera, top-down arena with a 30 s pose trail, model traces, wall TF, pose, events.
+
+    ``extra_views``: (title, entity paths) of further time-series panes, e.g. the AVDM running
+    beside a collision detector."""
     main = "omega_dps" if any(o.name == "omega_dps" for o in outputs) else outputs[0].name
     main_unit = next(o.unit for o in outputs if o.name == main)
     others = [o.name for o in outputs if o.name != main]
@@ -137,10 +144,14 @@ def default_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Bluepri
                         name="model variants (vdc-analyse compare)", origin=MODEL_VARIANTS_ROOT
                     ),
                 ),
+                *[
+                    rrb.TimeSeriesView(name=title, origin="/", contents=list(paths))
+                    for title, paths in extra_views
+                ],
                 rrb.TimeSeriesView(name="wall TF (Hz)", origin=WALL_TF),
                 rrb.TimeSeriesView(name="pose (m, rad)", origin=POSE),
                 rrb.TextLogView(name="events", origin=EVENTS),
-                row_shares=[3.5, 1, 1.5, 1.5],
+                row_shares=[3.5, *([1.5] * len(extra_views)), 1, 1.5, 1.5],
             ),
             column_shares=[1, 1.2],
         ),

@@ -227,7 +227,7 @@ class CameraRenderer:
                 arena.ring_inset_m,
                 arena.ring_inner_m,
                 arena.floor_level,
-                arena.ring_level,
+                arena.ring_level if arena.ring_enabled else arena.floor_level,
                 arena.room_level,
             ],
             dtype=np.float64,
@@ -273,7 +273,7 @@ class OverheadRenderer:
         self._margin = margin
         base = np.full((self.height, self.width), 30, np.uint8)  # the room around the arena
         floor_val = round(arena.floor_level * 255)
-        ring_val = round(arena.ring_level * 255)
+        ring_val = round(arena.ring_level * 255) if arena.ring_enabled else floor_val
         cv2.rectangle(base, self.to_px(-hx, hy), self.to_px(hx, -hy), floor_val, -1)
         cv2.rectangle(
             base,

@@ -19,14 +19,14 @@ from typing import Any
 import numpy as np
 
 from avdm.base import Model
+from capture.device import Batch, CaptureDevice
 from capture.recorder import Recorder
-from capture.sim import Batch, CaptureDevice
 
 
 @dataclasses.dataclass
 class CaptureResult:
     frames: int
-    turns: int
+    events: dict[str, int]  # count per kind
     stop_reason: str  # "finished" or "signal SIGINT" / "signal SIGTERM"
     wall_time_s: float
 
@@ -60,41 +60,36 @@ def stop_on_signals() -> Iterator[StopFlag]:
             signal.signal(s, h)
 
 
-def turn_texts(batch: Batch) -> list[str]:
-    out = []
-    for ev in batch.turns:
-        side = "left" if ev.angle_deg > 0 else "right"
-        forced = " (forced: about to touch the wall)" if ev.forced else ""
-        out.append(
-            f"ring turn {ev.angle_deg:+.1f} deg ({side}) at x={ev.x_m:.3f} m, "
-            f"y={ev.y_m:.3f} m, heading={ev.heading_rad:.3f} rad{forced}"
-        )
-    return out
-
-
-def log_batch(recorder: Recorder, model: Model, batch: Batch) -> int:
-    """Run the online model on a batch and log everything in it; returns the turns logged."""
-    outputs = model.run(batch.images)  # ≡ per-frame step(), bit for bit
+def log_batch(recorder: Recorder, model: Model | None, batch: Batch) -> dict[str, int]:
+    """Log everything in a batch, running the host-side online ``model`` on its frames unless
+    the robot already ran it on board; returns the number of events logged per kind."""
     recorder.log_frames(batch.frame, batch.t_s, batch.images)
     recorder.log_poses(batch.frame, batch.t_s, batch.poses)
     recorder.log_wall_tf(batch.frame, batch.t_s, batch.wall_tf_hz)
-    recorder.log_model_outputs(model.name, batch.frame, batch.t_s, outputs)
-    if batch.turns:
-        frames = np.array([e.frame for e in batch.turns], dtype=np.int64)
-        xy = np.array([[e.x_m, e.y_m] for e in batch.turns])
+    for name, outputs in batch.onboard.items():
+        recorder.log_model_outputs(name, batch.frame, batch.t_s, outputs)
+    if model is not None and model.name not in batch.onboard:
+        outputs = model.run(batch.images)  # ≡ per-frame step(), bit for bit
+        recorder.log_model_outputs(model.name, batch.frame, batch.t_s, outputs)
+    counts: dict[str, int] = {}
+    for kind in sorted({e.kind for e in batch.events}):
+        evs = [e for e in batch.events if e.kind == kind]
+        frames = np.array([e.frame for e in evs], dtype=np.int64)
+        xy = np.array([[e.x_m, e.y_m] for e in evs])
         t = np.interp(frames, batch.frame, batch.t_s)  # events happen on batch frames
-        recorder.log_events("ring_turn", frames, t, xy, turn_texts(batch))
+        recorder.log_events(kind, frames, t, xy, [e.text for e in evs])
+        counts[kind] = len(evs)
     if batch.overhead:
         idx = np.array([f for f, _ in batch.overhead], dtype=np.int64)
         recorder.log_overhead(
             idx, np.interp(idx, batch.frame, batch.t_s), [img for _, img in batch.overhead]
         )
-    return len(batch.turns)
+    return counts
 
 
 def run_capture(
     device: CaptureDevice,
-    model: Model,
+    model: Model | None,
     recorder: Recorder,
     *,
     total_frames: int | None = None,
@@ -104,7 +99,8 @@ def run_capture(
     from tqdm import tqdm
 
     t0 = time.perf_counter()
-    frames = turns = 0
+    frames = 0
+    events: dict[str, int] = {}
     reason = "error"
     bar = tqdm(
         total=total_frames,
@@ -122,7 +118,8 @@ def run_capture(
                     batch = device.read()
                     if batch is None:
                         break
-                    turns += log_batch(recorder, model, batch)
+                    for kind, n in log_batch(recorder, model, batch).items():
+                        events[kind] = events.get(kind, 0) + n
                     frames += len(batch)
                     bar.update(len(batch))
             finally:
@@ -137,4 +134,4 @@ def run_capture(
             complete=reason == "finished",
             wall_time_s=round(wall, 3),
         )
-    return CaptureResult(frames, turns, reason, wall)
+    return CaptureResult(frames, events, reason, wall)

@@ -7,10 +7,9 @@ implement: ``connect()``, ``read()`` (the next ``Batch`` of frames, or None at t
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import cv2
 import numpy as np
@@ -19,39 +18,9 @@ from avdm import __version__
 from avdm.base import Model
 from avdm.stimuli import clutter_image, resize_image
 from capture.config import SimConfig
+from capture.device import Batch, Event
 from capture.render import CameraRenderer, OverheadRenderer
 from capture.robot import RobotMotion, TurnEvent
-
-
-@dataclasses.dataclass
-class Batch:
-    """Consecutive camera frames with everything known about them.
-
-    frame (N,) int64 camera frame indices; t_s (N,) float64 seconds since the run started;
-    images (N, H, W) uint8; poses (N, 3) float64 [x_m, y_m, heading_rad]; wall_tf_hz (N,);
-    turns: ring turns starting in these frames; overhead: (frame index, image) pairs.
-    """
-
-    frame: np.ndarray
-    t_s: np.ndarray
-    images: np.ndarray
-    poses: np.ndarray
-    wall_tf_hz: np.ndarray
-    turns: list[TurnEvent]
-    overhead: list[tuple[int, np.ndarray]]
-
-    def __len__(self) -> int:
-        return len(self.frame)
-
-
-class CaptureDevice(Protocol):
-    """What the capture loop needs from a robot, simulated or real."""
-
-    def connect(self) -> None: ...
-
-    def read(self) -> Batch | None: ...
-
-    def disconnect(self) -> None: ...
 
 
 def load_wall_image(path: str, texture_px: tuple[int, int]) -> np.ndarray:
@@ -69,6 +38,16 @@ def load_wall_image(path: str, texture_px: tuple[int, int]) -> np.ndarray:
     if hi - lo < 1e-9:
         raise ValueError(f"wall image {path!r} is uniform: it has no pattern to show")
     return 2.0 * (small - lo) / (hi - lo) - 1.0
+
+
+def ring_turn_event(turn: TurnEvent) -> Event:
+    side = "left" if turn.angle_deg > 0 else "right"
+    forced = " (forced: about to touch the wall)" if turn.forced else ""
+    text = (
+        f"ring turn {turn.angle_deg:+.1f} deg ({side}) at x={turn.x_m:.3f} m, "
+        f"y={turn.y_m:.3f} m, heading={turn.heading_rad:.3f} rad{forced}"
+    )
+    return Event("ring_turn", turn.frame, turn.x_m, turn.y_m, turn.heading_rad, text)
 
 
 class SimulatedRobot:
@@ -119,6 +98,7 @@ class SimulatedRobot:
         offsets = self._offset_m + np.concatenate(([0.0], np.cumsum(step_m[:-1])))
         self._offset_m = float(offsets[-1] + step_m[-1])
         poses, turns = self._motion.advance(n)
+        events = [ring_turn_event(t) for t in turns]
         images = self._renderer.render(poses, offsets)
         if c.camera.noise_sd > 0:
             noise = self._noise_rng.normal(0.0, c.camera.noise_sd, size=images.shape)
@@ -131,7 +111,7 @@ class SimulatedRobot:
                 if f == 0 or int(f * ratio) != int((f - 1) * ratio):
                     overhead.append((f, self._overhead.render(poses[i])))
         self._next += n
-        return Batch(frame, t_s, images, poses, tf, turns, overhead)
+        return Batch(frame, t_s, images, poses, tf, events, overhead)
 
     def disconnect(self) -> None:
         self._connected = False
@@ -144,8 +124,10 @@ class SimulatedRobot:
         self.disconnect()
 
 
-def recording_properties(config: SimConfig, model: Model) -> dict[str, dict[str, Any]]:
-    """Recording properties of a simulated run: every config value, model and versions."""
+def recording_properties(
+    config: SimConfig, model: Model, detector: Model | None = None
+) -> dict[str, dict[str, Any]]:
+    """Recording properties of a simulated run: every config value, the model(s) and versions."""
     sections = config.to_sections()
     sections["run"].update(
         recording_id=config.run_id(),
@@ -158,4 +140,10 @@ def recording_properties(config: SimConfig, model: Model) -> dict[str, dict[str,
         "outputs": json.dumps({o.name: o.unit for o in model.outputs}),
     }
     sections["model_params"] = {k: v for k, v in model.params.to_dict().items() if v is not None}
+    if detector is not None:
+        sections["detector"] = {
+            "name": detector.name,
+            "outputs": json.dumps({o.name: o.unit for o in detector.outputs}),
+        }
+        sections["detector_params"] = detector.params.to_dict()
     return sections

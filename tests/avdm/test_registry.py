@@ -78,7 +78,19 @@ def test_missing_calibration_says_how_to_make_one() -> None:
         make_params("avdm", fps=50.0, deg_per_px=1.0)
 
 
-@given(st.sampled_from(sorted(VARIANTS)), st.floats(0.0, 1.0), st.integers(1, 50))
+AVDM_VARIANTS = sorted(n for n, v in VARIANTS.items() if v.kind == "avdm")
+LGMD_VARIANTS = sorted(n for n, v in VARIANTS.items() if v.kind.startswith("lgmd"))
+
+
+@given(st.sampled_from(LGMD_VARIANTS), st.floats(1.0, 500.0), st.integers(1, 50))
+def test_any_lgmd_variant_accepts_valid_overrides(name: str, fps: float, n_ts: int) -> None:
+    spec = f"{name}:fps={fps!r},n_ts={n_ts}"
+    p = make_params(spec)
+    assert p.fps == fps and p.n_ts == n_ts
+    assert parse_model_spec(canonical_name(spec)) == parse_model_spec(spec)
+
+
+@given(st.sampled_from(AVDM_VARIANTS), st.floats(0.0, 1.0), st.integers(1, 50))
 def test_any_variant_accepts_valid_overrides(name: str, beta: float, tw: int) -> None:
     spec = f"{name}:beta={beta!r},tw={tw}"
     p = make_params(spec)

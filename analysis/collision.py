@@ -1,0 +1,233 @@
+"""Collision study metrics and figures (paper Fig. 8; definitions of lgmd_colias.md §9).
+
+* avoidance = an LGMD alert that triggered a turn; crash = the robot touched a wall;
+* success rate = avoidances / (avoidances + crashes);
+* distance to collision at an avoidance: from the robot's body along its heading to the wall;
+* false alarm = an avoidance with distance to collision ≥ ``false_alarm_m`` (0.30 m, §9);
+* density maps: 2D histograms in 0.02 m bins (occupancy = share of frames), lightly smoothed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import polars as pl
+import rerun as rr
+import rerun.blueprint as rrb
+
+from analysis.profile import safe_key
+from analysis.tables import LoadedRecording, events_table
+from capture.recorder import APP_ID
+
+# what the paper reports for its three phases (30 min each) [BRIEF]
+PAPER = {
+    "tf0": {"paper_avoidances": 229, "paper_success": "> 90 %"},
+    "tf3": {"paper_avoidances": 432, "paper_success": "> 90 %"},
+    "tf3-adjusted": {"paper_avoidances": 233, "paper_success": "> 90 %"},
+}
+COLLISION_ROOT = "/collision"
+
+
+@dataclasses.dataclass(frozen=True)
+class CollisionSettings:
+    false_alarm_m: float = 0.30
+    bin_m: float = 0.02
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.false_alarm_m) and self.false_alarm_m > 0):
+            raise ValueError(f"--false-alarm-m must be > 0, got {self.false_alarm_m}")
+        if not (math.isfinite(self.bin_m) and 0.005 <= self.bin_m <= 0.2):
+            raise ValueError(f"--bin-m must be between 0.005 and 0.2 m, got {self.bin_m}")
+
+
+def require_collision_recording(loaded: LoadedRecording) -> None:
+    """Raise ValueError unless the recording comes from collision mode."""
+    run = loaded.props.get("run", {})
+    if run.get("behaviour") != "collision" or "detector" not in loaded.props:
+        raise ValueError(
+            f"{str(loaded.rec.path)!r} is not a collision-mode recording (record one with "
+            "`vdc-capture sim --behaviour collision`): it has no avoidance/crash events to study"
+        )
+
+
+def phase_key(loaded: LoadedRecording) -> str:
+    """A short condition key: tf0, tf3, tf3-adjusted, tf3-adaptive, ..."""
+    col = loaded.props.get("collision", {})
+    label = str(col.get("phase") or "")
+    if label:
+        return safe_key(label)
+    tfs = loaded.frames["wall_tf_hz"].unique().sort().to_list()
+    key = "tf" + "-".join(f"{t:g}" for t in tfs)
+    return key + ("-adaptive" if col.get("adaptive") else "")
+
+
+def collision_metrics(loaded: LoadedRecording, s: CollisionSettings) -> tuple[dict, pl.DataFrame]:
+    """One summary row for a collision recording, and its events table."""
+    require_collision_recording(loaded)
+    ev = events_table(loaded)
+    avoid = ev.filter(pl.col("kind") == "avoidance")
+    crash = ev.filter(pl.col("kind") == "crash")
+    n_a, n_c = avoid.height, crash.height
+    minutes = loaded.frames.height / float(loaded.props["camera"]["fps"]) / 60.0
+    dtc = avoid["dtc_m"].to_numpy()
+    col = loaded.props.get("collision", {})
+    key = phase_key(loaded)
+    row = {
+        "recording_id": loaded.recording_id,
+        "phase": key,
+        "detector": loaded.props["detector"]["name"],
+        "wall_tf_hz": float(loaded.frames["wall_tf_hz"].median()),
+        "adaptive": bool(col.get("adaptive", False)),
+        "minutes": minutes,
+        "avoidances": n_a,
+        "crashes": n_c,
+        "success_rate": n_a / (n_a + n_c) if n_a + n_c else float("nan"),
+        "false_alarms": int((dtc >= s.false_alarm_m).sum()),
+        "dtc_mean_m": float(dtc.mean()) if n_a else float("nan"),
+        "dtc_median_m": float(np.median(dtc)) if n_a else float("nan"),
+        "avoidances_per_30min": n_a * 30.0 / minutes if minutes else float("nan"),
+        "crashes_per_30min": n_c * 30.0 / minutes if minutes else float("nan"),
+        **PAPER.get(key, {"paper_avoidances": None, "paper_success": None}),
+    }
+    return row, ev
+
+
+def _smooth(a: np.ndarray) -> np.ndarray:
+    """3×3 binomial smoothing (≈ Gaussian σ ≈ 0.7 bin) with zero padding."""
+    k = np.array([1.0, 2.0, 1.0]) / 4.0
+    p = np.pad(a, 1)
+    rows = k[0] * p[:-2] + k[1] * p[1:-1] + k[2] * p[2:]
+    return k[0] * rows[:, :-2] + k[1] * rows[:, 1:-1] + k[2] * rows[:, 2:]
+
+
+def density(x: np.ndarray, y: np.ndarray, hx: float, hy: float, bin_m: float) -> np.ndarray:
+    """Share of samples per bin (ny, nx), smoothed; rows run along +y."""
+    xe = np.linspace(-hx, hx, max(1, round(2 * hx / bin_m)) + 1)
+    ye = np.linspace(-hy, hy, max(1, round(2 * hy / bin_m)) + 1)
+    counts, _, _ = np.histogram2d(y, x, bins=(ye, xe))
+    total = counts.sum()
+    return _smooth(counts / total) if total else counts
+
+
+def plot_recording(
+    loaded: LoadedRecording, row: dict, ev: pl.DataFrame, s: CollisionSettings, path: Path
+) -> Path:
+    """Trajectory occupancy, avoidance and crash density maps (paper Fig. 8) for one run."""
+    hx, hy = loaded.arena_half_extent()
+    f = loaded.frames
+    maps = [
+        ("trajectory occupancy", f["x_m"].to_numpy(), f["y_m"].to_numpy(), "viridis", None),
+        (f"avoidances ({row['avoidances']})", *_xy(ev, "avoidance"), "Blues", "C0"),
+        (f"crashes ({row['crashes']})", *_xy(ev, "crash"), "Reds", "C3"),
+    ]
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.6), constrained_layout=True)
+    for ax, (title, x, y, cmap, dot) in zip(axes, maps, strict=True):
+        d = density(x, y, hx, hy, s.bin_m)
+        im = ax.imshow(d, origin="lower", extent=(-hx, hx, -hy, hy), cmap=cmap, aspect="equal")
+        if dot is not None and len(x):
+            ax.scatter(x, y, s=6, c=dot, edgecolors="k", linewidths=0.2)
+        ax.set_title(title)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        fig.colorbar(im, ax=ax, shrink=0.8, label="share per 2 cm bin")
+    sr = row["success_rate"]
+    fig.suptitle(
+        f"{row['phase']}: {row['detector']}, TF {row['wall_tf_hz']:g} Hz, "
+        f"{row['minutes']:.1f} min - success {100 * sr:.1f} %, false alarms "
+        f"{row['false_alarms']}, median distance to collision "
+        f"{100 * row['dtc_median_m']:.1f} cm"
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _xy(ev: pl.DataFrame, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    e = ev.filter(pl.col("kind") == kind)
+    return e["x_m"].to_numpy(), e["y_m"].to_numpy()
+
+
+def plot_study(summary: pl.DataFrame, path: Path) -> Path:
+    """Avoidances and crashes per 30 min and success rate per phase, beside the paper's."""
+    fig, (ax_n, ax_s) = plt.subplots(1, 2, figsize=(14, 5), constrained_layout=True)
+    labels = summary["phase"].to_list()
+    x = np.arange(len(labels))
+    ax_n.bar(x - 0.27, summary["avoidances_per_30min"], 0.27, label="avoidances (ours, per 30 min)")
+    ax_n.bar(x, summary["crashes_per_30min"], 0.27, color="C3", label="crashes (ours, per 30 min)")
+    paper = [v if v is not None else np.nan for v in summary["paper_avoidances"].to_list()]
+    ax_n.bar(x + 0.27, paper, 0.27, color="0.6", label="avoidances (paper)")
+    ax_n.set_xticks(x, labels, rotation=15)
+    ax_n.legend(fontsize=8)
+    ax_n.set_title("events per phase")
+    ax_s.bar(x, 100 * summary["success_rate"].to_numpy(), color="C2")
+    ax_s.axhline(90, color="k", ls="--", lw=1, label="paper: > 90 % in every phase")
+    ax_s.set_xticks(x, labels, rotation=15)
+    ax_s.set_ylim(0, 105)
+    ax_s.set_ylabel("success rate (%)")
+    ax_s.legend(fontsize=8)
+    ax_s.set_title("avoidances / (avoidances + crashes)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write_collision_rrd(
+    items: list[tuple[LoadedRecording, dict, pl.DataFrame]],
+    s: CollisionSettings,
+    path: Path,
+    recording_id: str,
+) -> Path:
+    """Avoidance and crash positions (Points3D) over an occupancy map, a tab per recording."""
+    tabs = []
+    for loaded, row, _ in items:
+        base = f"{COLLISION_ROOT}/{safe_key(row['phase'] + '_' + loaded.recording_id[-8:])}"
+        tabs.append(
+            rrb.Horizontal(
+                rrb.Spatial3DView(
+                    name=f"{row['phase']}: avoidances (blue), crashes (red)",
+                    origin=base,
+                    contents=[f"{base}/avoidances", f"{base}/crashes", f"{base}/arena"],
+                ),
+                rrb.Spatial2DView(name="trajectory occupancy", origin=f"{base}/occupancy"),
+                name=row["phase"],
+            )
+        )
+    rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
+    rec.save(str(path), default_blueprint=rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=True))
+    rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    for loaded, row, ev in items:
+        base = f"{COLLISION_ROOT}/{safe_key(row['phase'] + '_' + loaded.recording_id[-8:])}"
+        hx, hy = loaded.arena_half_extent()
+        rec.log(
+            f"{base}/arena",
+            rr.LineStrips3D(
+                [[[-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0], [-hx, -hy, 0]]],
+                colors=[(150, 150, 150)],
+            ),
+            static=True,
+        )
+        for kind, color in (("avoidance", (40, 140, 255)), ("crash", (255, 50, 50))):
+            x, y = _xy(ev, kind)
+            rec.log(
+                f"{base}/{kind}s",
+                rr.Points3D(np.column_stack([x, y, np.zeros_like(x)]), radii=0.008, colors=[color]),
+                static=True,
+            )
+        occ = density(
+            loaded.frames["x_m"].to_numpy(), loaded.frames["y_m"].to_numpy(), hx, hy, s.bin_m
+        )
+        top = occ.max() if occ.size and occ.max() > 0 else 1.0
+        rgb = (matplotlib.colormaps["viridis"](occ / top)[:, :, :3] * 255).astype(np.uint8)
+        rec.log(f"{base}/occupancy", rr.Image(np.ascontiguousarray(rgb[::-1])), static=True)
+    rec.flush()
+    rec.disconnect()
+    return path

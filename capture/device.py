@@ -1,0 +1,58 @@
+"""What every capture device delivers, simulated or real.
+
+Like LeRobot's devices: a config plus one interface that the simulated and the real robot both
+implement (``connect`` / ``read`` / ``disconnect``, context manager). ``read`` returns the next
+``Batch`` of consecutive frames, or None at the end; capture code does not care which it has.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Protocol
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Event:
+    """Something that happened at one frame: a ring turn, an avoidance, a crash, a link error."""
+
+    kind: str
+    frame: int
+    x_m: float
+    y_m: float
+    heading_rad: float
+    text: str
+
+
+@dataclasses.dataclass
+class Batch:
+    """Consecutive camera frames with everything known about them.
+
+    frame (N,) int64 camera frame indices; t_s (N,) float64 seconds since the run started;
+    images (N, H, W) uint8; poses (N, 3) float64 [x_m, y_m, heading_rad]; wall_tf_hz (N,);
+    events in these frames; overhead: (frame index, image) pairs; onboard: outputs of models
+    that ran on the robot itself, ``{model name: {output: (N,)}}``.
+    """
+
+    frame: np.ndarray
+    t_s: np.ndarray
+    images: np.ndarray
+    poses: np.ndarray
+    wall_tf_hz: np.ndarray
+    events: list[Event]
+    overhead: list[tuple[int, np.ndarray]] = dataclasses.field(default_factory=list)
+    onboard: dict[str, dict[str, np.ndarray]] = dataclasses.field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+
+class CaptureDevice(Protocol):
+    """What the capture loop needs from a robot, simulated or real."""
+
+    def connect(self) -> None: ...
+
+    def read(self) -> Batch | None: ...
+
+    def disconnect(self) -> None: ...
