@@ -230,6 +230,18 @@ class Recording:
                 any_frames = True
                 yield FrameChunk(idx_p, images[order])
             pending = []
+        if pending and shape is None:
+            # the static format chunk was lost (a file cut before it was written): the camera
+            # size recorded in the properties gives the frame shape
+            cam = self.properties().get("camera", {})
+            if "height_px" in cam and "width_px" in cam:
+                shape = (int(cam["height_px"]), int(cam["width_px"]))
+                for idx_p, flat_p in pending:
+                    if flat_p.size != len(idx_p) * shape[0] * shape[1]:
+                        break
+                    order = np.argsort(idx_p, kind="stable")
+                    any_frames = True
+                    yield FrameChunk(idx_p[order], flat_p.reshape(len(idx_p), *shape)[order])
         if not any_frames:
             raise RecordingError(f"{str(self.path)!r} holds no camera frames at {entity}")
 

@@ -66,12 +66,16 @@ class LoadedRecording:
     def online_model(self) -> str | None:
         return self.props.get("model", {}).get("name")
 
-    def camera_context(self) -> dict[str, float]:
-        """The camera facts a model needs (fps, deg/px), from the recording's properties."""
+    def camera_context(self) -> dict[str, float | int]:
+        """The camera facts a model needs (fps, deg/px, texture row), from the recording's
+        properties, exactly as the capture derived them (capture.config.CameraConfig)."""
         cam = self.props.get("camera", {})
         if "fps" not in cam:
             return {}
-        return {"fps": float(cam["fps"]), "deg_per_px": float(cam["hfov_deg"]) / cam["width_px"]}
+        from capture.config import CameraConfig
+
+        fields = {k: cam[k] for k in ("width_px", "height_px", "fps", "hfov_deg") if k in cam}
+        return CameraConfig(**fields).model_context()
 
     def arena_half_extent(self) -> tuple[float, float]:
         arena = self.props.get("arena", {})

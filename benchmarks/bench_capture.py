@@ -30,7 +30,7 @@ def capture(minutes: float, out: Path, checkpoints_min: tuple[float, ...] = ()) 
     cfg = SimConfig(
         wall=WallConfig(tf_schedule=((3.0, minutes * 60),)), duration_s=minutes * 60, seed=1
     )
-    model = make_model(cfg.model, fps=cfg.camera.fps, deg_per_px=cfg.camera.deg_per_px)
+    model = make_model(cfg.model, **cfg.camera.model_context())
     t0 = time.perf_counter()
     rec = Recorder(out, cfg.run_id(), blueprint=default_blueprint(model.name, model.outputs))
     rec.send_properties(recording_properties(cfg, model))

@@ -127,7 +127,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from capture.sim import SimulatedRobot, recording_properties
 
     config = sim_config_from_args(args)
-    ctx = {"fps": config.camera.fps, "deg_per_px": config.camera.deg_per_px}
+    ctx = config.camera.model_context()
     model = make_model(config.model, **ctx)
     collision = config.behaviour == "collision"
     detector = make_model(config.collision.detector_spec(), **ctx) if collision else None

@@ -164,14 +164,14 @@ class ClosedLoopRobot(SimulatedRobot):
         if config.arena.ring_enabled:
             raise ValueError("the light ring must be off in collision mode (ring_enabled=False)")
         super().__init__(config, batch_size)
-        ctx = {"fps": config.camera.fps, "deg_per_px": config.camera.deg_per_px}
+        ctx = config.camera.model_context()
         self._detector_spec = config.collision.detector_spec()
         make_model(self._detector_spec, **ctx)  # fail early on a bad spec
         make_model(config.model, **ctx)
 
     def connect(self) -> None:
         c = self.config
-        ctx = {"fps": c.camera.fps, "deg_per_px": c.camera.deg_per_px}
+        ctx = c.camera.model_context()
         self._renderer = CameraRenderer(c.arena, c.wall, c.camera, self._texture)
         self._motion = CollisionMotion(c, self._motion_rng)
         self._overhead = (

@@ -190,6 +190,13 @@ class CameraConfig:
         """Angular pitch at the image centre (what the AVDM calibration is keyed on)."""
         return self.hfov_deg / self.width_px
 
+    def model_context(self) -> dict[str, float | int]:
+        """What a model needs to know about this camera: frame rate, angular pitch, and the
+        AVDM's texture row. The released code counts transitions on row 2, which on this
+        camera sees the dark room above the wall until the robot is 25 cm from it; the horizon
+        row (camera height) always shows the wall."""
+        return {"fps": self.fps, "deg_per_px": self.deg_per_px, "texture_row": self.height_px // 2}
+
 
 @dataclasses.dataclass(frozen=True)
 class OverheadConfig:

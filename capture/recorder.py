@@ -281,6 +281,9 @@ class Recorder:
         fmt = rr.components.ImageFormat(width=w, height=h, color_model="L", channel_datatype="U8")
         self.rec.log(entity, rr.Image.from_fields(format=fmt), static=True)
         self._image_shapes[entity] = (h, w)
+        # static data goes through the SDK's batcher, frame columns straight to the file: flush
+        # so that a file cut by a crash still holds the properties and the image format
+        self.rec.flush()
 
     def log_frames(self, frame: np.ndarray, t_s: np.ndarray, images: np.ndarray) -> None:
         """Raw camera frames (N, H, W) uint8, never compressed lossily."""

@@ -11,7 +11,14 @@ import pytest
 from analysis.rrd_reader import Recording
 from avdm import make_model
 from capture.collision import ClosedLoopRobot, CollisionMotion
-from capture.config import ArenaConfig, CollisionConfig, RobotConfig, SimConfig, WallConfig
+from capture.config import (
+    ArenaConfig,
+    CameraConfig,
+    CollisionConfig,
+    RobotConfig,
+    SimConfig,
+    WallConfig,
+)
 from tests.helpers import assert_one_line_error, run_cli
 
 
@@ -80,7 +87,7 @@ def test_onboard_detector_outputs_recompute_exactly_offline() -> None:
     offline = make_model(name, fps=33.0).run(batch.images)
     for key, values in batch.onboard[name].items():
         assert np.array_equal(values, offline[key]), key
-    avdm = make_model("avdm", fps=33.0, deg_per_px=70 / 99).run(batch.images)
+    avdm = make_model("avdm", **CameraConfig().model_context()).run(batch.images)
     assert np.array_equal(batch.onboard["avdm"]["omega_dps"], avdm["omega_dps"])
     assert (batch.onboard["controller"]["t_ffi"] == 12.0).all()
 

@@ -105,7 +105,7 @@ def test_frames_come_back_bit_exact_and_outputs_recompute_exactly(short_recordin
     with SimulatedRobot(cfg) as dev:
         rendered = dev.read().images
     assert np.array_equal(frames.images, rendered)
-    model = make_model("avdm", fps=33.0, deg_per_px=70 / 99)
+    model = make_model("avdm", **cfg.camera.model_context())  # texture row = horizon
     offline = model.run(frames.images)
     logged = rec.model_outputs("avdm", ["omega_dps", "lambda_px", "motion", "contrast"])
     for key in ("omega_dps", "lambda_px", "motion", "contrast"):
