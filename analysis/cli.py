@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -310,86 +311,19 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
-def _collision_outputs(paths: list[str], out: Path, s) -> tuple:  # (summary, items)
-    import polars as pl
-
-    from analysis.collision import (
-        collision_metrics,
-        plot_recording,
-        plot_study,
-        write_collision_rrd,
-    )
-    from analysis.parquet_io import write_parquet
-    from analysis.profile import safe_key
-    from analysis.tables import load_recording
-
-    items = []
-    for path in paths:
-        loaded = load_recording(path)
-        if loaded.rec.notice:
-            _notice(loaded.rec.notice)
-        row, ev = collision_metrics(loaded, s)
-        items.append((loaded, row, ev))
-    order = ["tf0", "tf3", "tf3-adjusted", "tf3-adaptive", "tf0-adaptive"]
-    items.sort(
-        key=lambda it: (
-            order.index(it[1]["phase"]) if it[1]["phase"] in order else len(order),
-            it[1]["phase"],
-            it[1]["recording_id"],
-        )
-    )
-    summary = pl.DataFrame([row for _, row, _ in items])
-    meta = {
-        "settings": {"false_alarm_m": s.false_alarm_m, "bin_m": s.bin_m},
-        "recordings": [row["recording_id"] for _, row, _ in items],
-    }
-    write_parquet(summary, out / "collision_summary.parquet", meta)
-    events = pl.concat([ev for _, _, ev in items])
-    write_parquet(events, out / "collision_events.parquet", meta)
-    for loaded, row, ev in items:
-        plot_recording(loaded, row, ev, s, out / f"collision_{safe_key(row['phase'])}.png")
-    plot_study(summary, out / "collision_study.png")
-    import hashlib
-
-    rid = "collision-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
-    write_collision_rrd(items, s, out / "collision.rrd", rid)
-    return summary, items
-
-
-def _print_collision_table(summary) -> str:
-    """Print (and return as Markdown) the per-phase table beside the paper's numbers."""
-    lines = [
-        "| phase | detector | TF (Hz) | minutes | avoidances | per 30 min | crashes | "
-        "success | false alarms | median dist. to collision | paper avoidances | "
-        "paper success |",
-        "|" + "---|" * 12,
-    ]
-    for r in summary.iter_rows(named=True):
-        lines.append(
-            f"| {r['phase']} | {r['detector']} | {r['wall_tf_hz']:g} | {r['minutes']:.1f} | "
-            f"{r['avoidances']} | {r['avoidances_per_30min']:.0f} | {r['crashes']} | "
-            f"{100 * r['success_rate']:.1f} % | {r['false_alarms']} | "
-            f"{100 * r['dtc_median_m']:.1f} cm | {r['paper_avoidances'] or '-'} | "
-            f"{r['paper_success'] or '-'} |"
-        )
-    text = "\n".join(lines)
-    print(text)
-    return text
-
-
 def cmd_collision(args: argparse.Namespace) -> int:
-    from analysis.collision import CollisionSettings
+    from analysis.collision import CollisionSettings, collision_outputs, collision_table_markdown
 
     s = CollisionSettings(false_alarm_m=args.false_alarm_m, bin_m=args.bin_m)
     out = Path(args.out)
-    summary, _ = _collision_outputs(args.recordings, out, s)
-    _print_collision_table(summary)
+    summary, _ = collision_outputs(args.recordings, out, s, _notice)
+    print(collision_table_markdown(summary))
     print(f"wrote {out / 'collision_summary.parquet'}, collision_*.png, {out / 'collision.rrd'}")
     return 0
 
 
 def cmd_collision_study(args: argparse.Namespace) -> int:
-    from analysis.collision import CollisionSettings
+    from analysis.collision import CollisionSettings, collision_outputs, collision_table_markdown
     from analysis.collision_study import run_phases, study_phases
     from avdm.registry import parse_model_spec
 
@@ -412,8 +346,9 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
         lambda m: print(m, file=sys.stderr),
     )
     s = CollisionSettings(false_alarm_m=args.false_alarm_m)
-    summary, _ = _collision_outputs([str(p) for p in paths.values()], out, s)
-    table = _print_collision_table(summary)
+    summary, _ = collision_outputs([str(p) for p in paths.values()], out, s, _notice)
+    table = collision_table_markdown(summary)
+    print(table)
     (out / "collision_study.md").write_text(
         "# Collision study\n\n" + table + "\n\nPaper: 229, 432 and 233 avoidances in three "
         "30-min phases (TF 0, TF 3, TF 3 with the adjusted threshold), success > 90 % in "
@@ -421,6 +356,28 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
         encoding="utf-8",
     )
     print(f"wrote {out / 'collision_study.md'}, {out / 'collision_study.png'}")
+    return 0
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from analysis.reproduce import Plan, reproduce
+
+    plan = Plan.make(
+        args.quick,
+        profile_minutes=args.profile_minutes,
+        collision_minutes=args.collision_minutes,
+        approach_repeats=args.repeats,
+        seed=args.seed,
+        jobs=args.jobs,
+    )
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    paths = reproduce(plan, out, lambda m: print(m, file=sys.stderr, flush=True))
+    from analysis.reproduce import evaluate_claims
+
+    for c in evaluate_claims(out):
+        print(f"[{c.verdict:^13}] {c.claim}")
+    print(f"report: {paths[0]} and {paths[1]} ({time.perf_counter() - t0:.0f} s)")
     return 0
 
 
@@ -690,6 +647,36 @@ def build_parser() -> argparse.ArgumentParser:
         help="false-alarm distance, m (default: %(default)s)",
     )
     cs.set_defaults(func=cmd_collision_study)
+
+    rp = sub.add_parser(
+        "reproduce",
+        help="reproduce the paper end to end and write a claim-by-claim report",
+        description=(
+            "Run the SF-TF sweep, the open-loop approach, closed-loop profiling (grating TF 0, "
+            "1, 3 Hz; natural scene TF 0, 3 Hz) and the collision study (with the adaptive "
+            "detector), then write report.md and a self-contained report.html that put each "
+            "paper claim beside what was measured. --quick uses short runs (minutes); the "
+            "default uses the paper's 30-minute durations. Runs already recorded with the same "
+            "configuration are reused."
+        ),
+    )
+    rp.add_argument("--quick", action="store_true", help="short runs: 3 min, 3 repeats")
+    rp.add_argument(
+        "--out", default="results/reproduce", help="output folder (default: %(default)s)"
+    )
+    rp.add_argument(
+        "--jobs",
+        type=int,
+        default=max(1, os.cpu_count() or 1),
+        help="parallel capture processes (default: the number of cores)",
+    )
+    rp.add_argument("--seed", type=int, default=1, help="random seed (default: %(default)s)")
+    rp.add_argument("--profile-minutes", type=positive_float, help="override: profiling run length")
+    rp.add_argument(
+        "--collision-minutes", type=positive_float, help="override: collision phase length"
+    )
+    rp.add_argument("--repeats", type=int, help="override: approach repeats per TF")
+    rp.set_defaults(func=cmd_reproduce)
     return parser
 
 

@@ -231,3 +231,62 @@ def write_collision_rrd(
     rec.flush()
     rec.disconnect()
     return path
+
+
+def collision_outputs(
+    paths: list[str], out: Path, s: CollisionSettings, notice=None
+) -> tuple[pl.DataFrame, list]:
+    """Metrics, events, figures and the analysis .rrd for collision recordings."""
+    import hashlib
+
+    from analysis.parquet_io import write_parquet
+    from analysis.tables import load_recording
+
+    items = []
+    for path in paths:
+        loaded = load_recording(path)
+        if loaded.rec.notice and notice is not None:
+            notice(loaded.rec.notice)
+        row, ev = collision_metrics(loaded, s)
+        items.append((loaded, row, ev))
+    order = ["tf0", "tf3", "tf3-adjusted", "tf3-adaptive", "tf0-adaptive"]
+    items.sort(
+        key=lambda it: (
+            order.index(it[1]["phase"]) if it[1]["phase"] in order else len(order),
+            it[1]["phase"],
+            it[1]["recording_id"],
+        )
+    )
+    summary = pl.DataFrame([row for _, row, _ in items])
+    meta = {
+        "settings": {"false_alarm_m": s.false_alarm_m, "bin_m": s.bin_m},
+        "recordings": [row["recording_id"] for _, row, _ in items],
+    }
+    write_parquet(summary, out / "collision_summary.parquet", meta)
+    events = pl.concat([ev for _, _, ev in items])
+    write_parquet(events, out / "collision_events.parquet", meta)
+    for loaded, row, ev in items:
+        plot_recording(loaded, row, ev, s, out / f"collision_{safe_key(row['phase'])}.png")
+    plot_study(summary, out / "collision_study.png")
+    rid = "collision-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
+    write_collision_rrd(items, s, out / "collision.rrd", rid)
+    return summary, items
+
+
+def collision_table_markdown(summary: pl.DataFrame) -> str:
+    """The per-phase table beside the paper's numbers, as Markdown."""
+    lines = [
+        "| phase | detector | TF (Hz) | minutes | avoidances | per 30 min | crashes | "
+        "success | false alarms | median dist. to collision | paper avoidances | "
+        "paper success |",
+        "|" + "---|" * 12,
+    ]
+    for r in summary.iter_rows(named=True):
+        lines.append(
+            f"| {r['phase']} | {r['detector']} | {r['wall_tf_hz']:g} | {r['minutes']:.1f} | "
+            f"{r['avoidances']} | {r['avoidances_per_30min']:.0f} | {r['crashes']} | "
+            f"{100 * r['success_rate']:.1f} % | {r['false_alarms']} | "
+            f"{100 * r['dtc_median_m']:.1f} cm | {r['paper_avoidances'] or '-'} | "
+            f"{r['paper_success'] or '-'} |"
+        )
+    return "\n".join(lines)

@@ -87,6 +87,53 @@ def is_done(path: Path, recording_id: str) -> bool:
     return rec.recording_id == recording_id and bool(end.get("complete"))
 
 
+def run_captures(
+    items: list[tuple[str, list[str], Path]],
+    jobs: int,
+    log: Callable[[str], None],
+) -> dict[str, Path]:
+    """Run ``vdc-capture`` for every (key, args, output) in parallel processes, reusing a
+    recording that is already there with the same configuration; key → path."""
+    todo, paths = [], {}
+    for key, args, out in items:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        paths[key] = out
+        if is_done(out, expected_recording_id(args)):
+            log(f"  {key}: reusing {out}")
+        else:
+            todo.append((key, args))
+
+    def one(item: tuple[str, list[str]]) -> tuple[str, float]:
+        key, args = item
+        t0 = time.perf_counter()
+        proc = subprocess.run(
+            [sys.executable, "-m", "capture", *args], capture_output=True, text=True
+        )
+        if proc.returncode != 0:
+            raise RuntimeError(f"capture of {key} failed: {proc.stderr.strip()}")
+        return key, time.perf_counter() - t0
+
+    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        futures = [pool.submit(one, item) for item in todo]
+        for done, fut in enumerate(as_completed(futures), 1):
+            key, secs = fut.result()
+            log(f"  [{done}/{len(todo)}] {key} recorded in {secs:.0f} s")
+    return paths
+
+
+def phase_items(
+    phases: list[Phase], minutes: float, seed: int, folder: Path
+) -> list[tuple[str, list[str], Path]]:
+    return [
+        (
+            ph.key,
+            capture_args(ph, minutes, seed, folder / f"{ph.key}.rrd"),
+            folder / f"{ph.key}.rrd",
+        )
+        for ph in phases
+    ]
+
+
 def run_phases(
     phases: list[Phase],
     minutes: float,
@@ -96,30 +143,4 @@ def run_phases(
     log: Callable[[str], None],
 ) -> dict[str, Path]:
     """Record every phase (in parallel processes), reusing finished ones; phase key → path."""
-    folder.mkdir(parents=True, exist_ok=True)
-    todo, paths = [], {}
-    for ph in phases:
-        out = folder / f"{ph.key}.rrd"
-        args = capture_args(ph, minutes, seed, out)
-        paths[ph.key] = out
-        if is_done(out, expected_recording_id(args)):
-            log(f"  {ph.key}: reusing {out}")
-        else:
-            todo.append((ph, args))
-
-    def one(item: tuple[Phase, list[str]]) -> tuple[str, float]:
-        ph, args = item
-        t0 = time.perf_counter()
-        proc = subprocess.run(
-            [sys.executable, "-m", "capture", *args], capture_output=True, text=True
-        )
-        if proc.returncode != 0:
-            raise RuntimeError(f"capture of phase {ph.key} failed: {proc.stderr.strip()}")
-        return ph.key, time.perf_counter() - t0
-
-    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        futures = [pool.submit(one, item) for item in todo]
-        for done, fut in enumerate(as_completed(futures), 1):
-            key, secs = fut.result()
-            log(f"  [{done}/{len(todo)}] {key} recorded in {secs:.0f} s")
-    return paths
+    return run_captures(phase_items(phases, minutes, seed, folder), jobs, log)

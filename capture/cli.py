@@ -121,7 +121,7 @@ def sim_config_from_args(args: argparse.Namespace):  # -> SimConfig
 
 def cmd_sim(args: argparse.Namespace) -> int:
     from avdm.registry import make_model
-    from capture.collision import CONTROLLER, ClosedLoopRobot
+    from capture.collision import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
     from capture.recorder import Recorder, default_blueprint, model_path, spawn_viewer
     from capture.run import run_capture
     from capture.sim import SimulatedRobot, recording_properties
@@ -159,11 +159,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
         recorder.log_model_meta(detector.name, detector.outputs)
         recorder.log_model_meta(
-            CONTROLLER,
-            (
-                Output("threshold", "spikes/s", "alert threshold in force"),
-                Output("avdm_frac_over_100", "1", "recent fraction of AVDM > 100 deg/s"),
-            ),
+            CONTROLLER, tuple(Output(k, u, d) for k, (u, d) in CONTROLLER_OUTPUTS.items())
         )
     minutes = config.duration_s / 60
     what = (
@@ -279,14 +275,15 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument(
         "--adaptive",
         action="store_true",
-        help="collision mode: scale the threshold with the on-board AVDM's recent "
-        "fraction of responses over 100 deg/s (beyond the paper)",
+        help="collision mode, lgmd-plus: let its FFI threshold T_ffi follow the on-board "
+        "AVDM's running mean response (beyond the paper)",
     )
     sim.add_argument(
         "--adaptive-gain",
         type=_non_negative_float,
-        default=5.0,
-        help="collision mode: T_ffi x (1 + gain x fraction) (default: 5)",
+        default=1.0,
+        help="collision mode: T_ffi = max(12, gain x mean AVDM deg/s over the last 60 s) "
+        "(default: 1)",
     )
     sim.add_argument("--phase", help="collision mode: a label for the study's tables")
     sim.add_argument(

@@ -13,9 +13,9 @@ Beyond the paper (``adaptive``): in this arena a drifting grating raises LGMD+'s
 inhibition F far above its threshold T_ffi (F ≈ 26 at TF 3 Hz vs ≈ 2 at TF 0), and the
 inhibition β = F / T_ffi then blinds the detector to the approaching wall: the robot crashes
 (it does not raise false alarms). The adaptive controller therefore lets T_ffi follow the
-on-board AVDM's profile of the scene, ``T_ffi × (1 + gain × f)`` with f the fraction of the last
-``adaptive_window_s`` seconds in which ω̂ > 100 deg/s. The T_ffi in force is logged under
-``/model/controller/t_ffi``; the spike-rate alert threshold stays fixed.
+on-board AVDM's profile of the scene, ``T_ffi = max(T_ffi0, gain × ω̄)`` with ω̄ the mean ω̂ over the
+last ``adaptive_window_s`` seconds (deg/s; ≈ 15 at TF 0, ≈ 35 at TF 3 Hz). The T_ffi in force is
+logged under ``/model/controller/t_ffi``; the spike-rate alert threshold stays fixed.
 """
 
 from __future__ import annotations
@@ -32,6 +32,12 @@ from capture.sim import SimulatedRobot
 
 FORWARD, AVOIDING, CRASH_TURN = 0, 1, 2
 CONTROLLER = "controller"  # on-board outputs of the decision itself
+CONTROLLER_OUTPUTS = {
+    "threshold": ("spikes/s", "alert threshold in force"),
+    "t_ffi": ("levels/px", "LGMD+ FFI threshold in force"),
+    "avdm_mean_dps": ("deg/s", "running mean of the on-board AVDM over the window"),
+    "avdm_frac_over_100": ("1", "running fraction of AVDM > 100 deg/s over the window"),
+}
 _WALL_NAMES = ("+x", "-x", "+y", "-y")
 _NORMALS = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
 
@@ -185,7 +191,9 @@ class ClosedLoopRobot(SimulatedRobot):
         self._base = float(getattr(p, "t_sr", getattr(p, "n_alert", 0)))
         self._t_ffi0 = float(getattr(p, "t_ffi", 0.0))
         window = max(1, round(c.collision.adaptive_window_s * c.camera.fps))
-        self._over_ring = np.zeros(window, dtype=np.int8)  # AVDM ω̂ > 100 over the window
+        self._omega_ring = np.zeros(window)  # AVDM ω̂ over the window (running mean)
+        self._omega_sum = 0.0
+        self._over_ring = np.zeros(window, dtype=np.int64)  # AVDM ω̂ > 100 over the window
         self._over_sum = 0
         self._next = 0
         self._offset_m = 0.0
@@ -209,7 +217,7 @@ class ClosedLoopRobot(SimulatedRobot):
         tf = np.empty(n)
         det_out = {o.name: np.empty(n) for o in self.detector.outputs}
         prof_out = {o.name: np.empty(n) for o in self.profiler.outputs}
-        ctrl = {"threshold": np.empty(n), "t_ffi": np.empty(n), "avdm_frac_over_100": np.empty(n)}
+        ctrl = {name: np.empty(n) for name in CONTROLLER_OUTPUTS}
         events: list[Event] = []
         overhead = []
         ratio = c.overhead.fps / c.camera.fps
@@ -228,17 +236,21 @@ class ClosedLoopRobot(SimulatedRobot):
             images[i] = frame
             self._offset_m += tf[i] * c.wall.drift_period_m / c.camera.fps
             # the profile of the frames so far sets this frame's T_ffi (no look-ahead)
-            frac = self._over_sum / min(max(f, 1), window)
+            seen = min(max(f, 1), window)
+            frac = self._over_sum / seen
+            mean_dps = self._omega_sum / seen
             t_ffi = self._t_ffi0
             if c.collision.adaptive:
-                t_ffi = self._t_ffi0 * (1.0 + c.collision.adaptive_gain * frac)
+                t_ffi = max(self._t_ffi0, c.collision.adaptive_gain * mean_dps)
                 self.detector.set_t_ffi(t_ffi)  # type: ignore[attr-defined]
             d = self.detector.step(frame)
             a = self.profiler.step(frame)
-            over = int(a.get("omega_dps", 0.0) > 100.0)
+            omega = a.get("omega_dps", 0.0)
             slot = f % window
-            self._over_sum += over - int(self._over_ring[slot])
-            self._over_ring[slot] = over
+            self._over_sum += int(omega > 100.0) - int(self._over_ring[slot])
+            self._over_ring[slot] = int(omega > 100.0)
+            self._omega_sum += omega - self._omega_ring[slot]
+            self._omega_ring[slot] = omega
             threshold = self._base
             if spike_rate:
                 alert = d["spike_rate_hz"] >= threshold
@@ -255,6 +267,7 @@ class ClosedLoopRobot(SimulatedRobot):
                 prof_out[k][i] = v
             ctrl["threshold"][i] = threshold
             ctrl["t_ffi"][i] = t_ffi
+            ctrl["avdm_mean_dps"][i] = mean_dps
             ctrl["avdm_frac_over_100"][i] = frac
             ev = m.step(bool(alert), detail)
             if ev is not None:

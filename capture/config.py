@@ -222,11 +222,11 @@ class CollisionConfig:
     # alert threshold: spike rate (spikes/s) for lgmd-plus, consecutive spike count for
     # lgmd-colias; NaN = the detector's own default (56 spikes/s, 4 spikes)
     threshold: float = float("nan")
-    # beyond the paper (lgmd-plus only): the FFI threshold T_ffi follows the on-board AVDM,
-    # T_ffi × (1 + adaptive_gain × f), f = fraction of the last adaptive_window_s seconds with
-    # ω̂ > 100 deg/s: a visually busy scene no longer blinds the detector by inhibition
+    # beyond the paper (lgmd-plus only): the FFI threshold follows the on-board AVDM,
+    # T_ffi = max(T_ffi0, adaptive_gain × mean ω̂ over the last adaptive_window_s seconds),
+    # so a visually busy scene no longer blinds the detector by inhibition
     adaptive: bool = False
-    adaptive_gain: float = 5.0
+    adaptive_gain: float = 1.0  # (levels/px of FFI) per (deg/s of mean ω̂)
     adaptive_window_s: float = 60.0
     refractory_frames: int = 10  # alerts ignored this long after an avoidance turn (§4)
     turn_left_probability: float = 0.5

@@ -92,15 +92,20 @@ def test_onboard_detector_outputs_recompute_exactly_offline() -> None:
     assert (batch.onboard["controller"]["t_ffi"] == 12.0).all()
 
 
-def test_adaptive_mode_raises_t_ffi_with_the_avdm_profile() -> None:
+def test_adaptive_mode_lets_t_ffi_follow_the_avdm_mean() -> None:
     col = CollisionConfig(
-        detector="lgmd-plus-arena", adaptive=True, adaptive_gain=5.0, adaptive_window_s=5.0
+        detector="lgmd-plus-arena", adaptive=True, adaptive_gain=1.0, adaptive_window_s=5.0
     )
     with ClosedLoopRobot(config(tf=3.0, minutes=0.4, collision=col)) as dev:
-        ctrl = dev.read().onboard["controller"]
-    frac, t_ffi = ctrl["avdm_frac_over_100"], ctrl["t_ffi"]
-    np.testing.assert_allclose(t_ffi, 12.0 * (1 + 5.0 * frac))
-    assert frac.max() > 0.1 and t_ffi.max() > 12.0
+        batch = dev.read()
+    ctrl = batch.onboard["controller"]
+    np.testing.assert_allclose(ctrl["t_ffi"], np.maximum(12.0, 1.0 * ctrl["avdm_mean_dps"]))
+    # the running mean is over the frames before each frame (no look-ahead)
+    omega = batch.onboard["avdm"]["omega_dps"]
+    window = round(5.0 * 33)
+    k = 300
+    assert ctrl["avdm_mean_dps"][k] == pytest.approx(omega[k - window : k].mean())
+    assert ctrl["t_ffi"].max() > 12.0
 
 
 def test_collision_recording_has_events_detector_and_controller(tmp_path: Path) -> None:
