@@ -142,8 +142,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
         extra = [
             ("AVDM omega_dps (deg/s), on board", [model_path(model.name, "omega_dps")]),
             (
-                "alert threshold in force",
+                "spike rate and alert threshold (spikes/s)",
                 [model_path(CONTROLLER, "threshold"), model_path(detector.name, "spike_rate_hz")],
+            ),
+            (
+                "FFI and its threshold T_ffi in force",
+                [model_path(CONTROLLER, "t_ffi"), model_path(detector.name, "ffi")],
             ),
         ]
     else:

@@ -221,7 +221,7 @@ class ClosedLoopRobot(SimulatedRobot):
         events: list[Event] = []
         overhead = []
         ratio = c.overhead.fps / c.camera.fps
-        spike_rate = "lgmd-plus" == c.collision.detector
+        spike_rate = c.collision.base_detector == "lgmd-plus"  # LGMD+ kinds decide on the rate
         window = len(self._over_ring)
         for i in range(n):
             f = self._next + i
