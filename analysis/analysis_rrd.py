@@ -37,6 +37,12 @@ PROFILE_ROOT = "/profile"
 TIME_SCALE_M = 1.0  # the profile's time axis spans this height in the 3D view
 
 
+def log_arena_outline(rec: rr.RecordingStream, entity: str, hx: float, hy: float) -> None:
+    """The arena's rectangle at floor level (static), for the analysis recordings' 3D views."""
+    corners = [[-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0], [-hx, -hy, 0]]
+    rec.log(entity, rr.LineStrips3D([corners], colors=[(150, 150, 150)]), static=True)
+
+
 def _colours(values: np.ndarray, vmax: float, cmap: str = "viridis") -> np.ndarray:
     norm = np.clip(values / vmax, 0, 1) if vmax > 0 else np.zeros_like(values)
     return (matplotlib.colormaps[cmap](norm)[:, :3] * 255).astype(np.uint8)
@@ -90,14 +96,7 @@ def write_profile_rrd(
             static=True,
         )
         hx, hy = seg.half_extent
-        rec.log(
-            f"{base}/arena",
-            rr.LineStrips3D(
-                [[[-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0], [-hx, -hy, 0]]],
-                colors=[(150, 150, 150)],
-            ),
-            static=True,
-        )
+        log_arena_outline(rec, f"{base}/arena", hx, hy)
         edges, counts = histogram_over(seg.response, s)
         rec.log(
             f"{base}/histogram",

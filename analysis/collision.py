@@ -22,6 +22,7 @@ import polars as pl
 import rerun as rr
 import rerun.blueprint as rrb
 
+from analysis.analysis_rrd import log_arena_outline
 from analysis.profile import safe_key
 from analysis.tables import LoadedRecording, events_table
 from capture.recorder import APP_ID
@@ -207,14 +208,7 @@ def write_collision_rrd(
     for loaded, row, ev in items:
         base = f"{COLLISION_ROOT}/{safe_key(row['phase'] + '_' + loaded.recording_id[-8:])}"
         hx, hy = loaded.arena_half_extent()
-        rec.log(
-            f"{base}/arena",
-            rr.LineStrips3D(
-                [[[-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0], [-hx, -hy, 0]]],
-                colors=[(150, 150, 150)],
-            ),
-            static=True,
-        )
+        log_arena_outline(rec, f"{base}/arena", hx, hy)
         for kind, color in (("avoidance", (40, 140, 255)), ("crash", (255, 50, 50))):
             x, y = _xy(ev, kind)
             rec.log(

@@ -204,13 +204,10 @@ class ClosedLoopRobot(SimulatedRobot):
         return self.detector.name
 
     def read(self) -> Batch | None:
-        if not self._connected:
-            raise RuntimeError("read() before connect()")
-        c = self.config
-        total = c.n_frames
-        if self._next >= total:
+        n = self._batch_length()
+        if n == 0:
             return None
-        n = min(self.batch_size, total - self._next)
+        c = self.config
         h, w = c.camera.height_px, c.camera.width_px
         images = np.empty((n, h, w), np.uint8)
         poses = np.empty((n, 3))

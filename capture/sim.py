@@ -82,14 +82,17 @@ class SimulatedRobot:
         self._offset_m = 0.0
         self._connected = True
 
-    def read(self) -> Batch | None:
+    def _batch_length(self) -> int:
+        """Frames in the next batch (0 at the end of the run)."""
         if not self._connected:
             raise RuntimeError("read() before connect()")
-        c = self.config
-        total = c.n_frames
-        if self._next >= total:
+        return min(self.batch_size, max(0, self.config.n_frames - self._next))
+
+    def read(self) -> Batch | None:
+        n = self._batch_length()
+        if n == 0:
             return None
-        n = min(self.batch_size, total - self._next)
+        c = self.config
         frame = np.arange(self._next, self._next + n, dtype=np.int64)
         t_s = frame / c.camera.fps
         tf = np.array([c.wall.tf_at(t) for t in t_s])

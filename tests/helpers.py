@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,3 +35,32 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> N
     assert "Traceback" not in proc.stderr
     for needle in needles:
         assert needle in lines[0], (needle, lines[0])
+
+
+def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.Popen:
+    """Start a 60-minute simulated capture writing ``out`` and wait until the file holds at
+    least ``min_bytes`` (frames are being written); the caller stops it."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "capture",
+            "sim",
+            "--tf-hz",
+            "3",
+            "--minutes",
+            "60",
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    deadline = time.time() + 60
+    while time.time() < deadline and (not out.exists() or out.stat().st_size < min_bytes):
+        time.sleep(0.2)
+    return proc

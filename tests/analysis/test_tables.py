@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import os
 import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +13,7 @@ from analysis.parquet_io import read_metadata
 from analysis.rrd_reader import Recording
 from analysis.tables import distance_to_wall_along
 from capture.recorder import Recorder
-from tests.helpers import ROOT, assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error, run_cli, start_long_capture
 
 FRAMES_COLUMNS = ["recording_id", "frame", "t_s", "x_m", "y_m", "heading_rad", "wall_tf_hz"]
 EVENTS_COLUMNS = ["recording_id", "frame", "t_s", "kind", "x_m", "y_m", "heading_rad", "dtc_m"]
@@ -114,28 +110,7 @@ def test_recomputed_online_model_equals_the_logged_outputs(recordings, tmp_path:
 
 def test_a_capture_killed_with_sigkill_is_analysed(tmp_path: Path) -> None:
     out = tmp_path / "killed.rrd"
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "capture",
-            "sim",
-            "--tf-hz",
-            "3",
-            "--minutes",
-            "60",
-            "--out",
-            str(out),
-            "--quiet",
-        ],
-        cwd=ROOT,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    deadline = time.time() + 60
-    while time.time() < deadline and (not out.exists() or out.stat().st_size < 3_000_000):
-        time.sleep(0.2)
+    proc = start_long_capture(out, min_bytes=3_000_000)
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     res = run_cli("analysis", "tables", str(out), "--out", str(tmp_path / "t"))

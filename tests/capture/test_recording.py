@@ -3,7 +3,6 @@ frames; online outputs reproducible offline; clean stops on signals; bad input."
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -18,7 +17,7 @@ from analysis.rrd_reader import Recording
 from avdm import make_model
 from capture.config import SimConfig, WallConfig, parse_schedule
 from capture.sim import SimulatedRobot
-from tests.helpers import ROOT, assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error, run_cli, start_long_capture
 
 CONTRACT_ENTITIES = {
     "/arena/walls",
@@ -142,36 +141,10 @@ def test_same_seed_same_recording_content(short_recording: Path, tmp_path: Path)
     assert np.array_equal(a.poses()[2], b.poses()[2])
 
 
-def _start_long_capture(out: Path) -> subprocess.Popen:
-    return subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "capture",
-            "sim",
-            "--tf-hz",
-            "3",
-            "--minutes",
-            "60",
-            "--out",
-            str(out),
-            "--quiet",
-        ],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-
-
 @pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_signal_stops_cleanly_with_a_valid_recording(tmp_path: Path, sig, code) -> None:
     out = tmp_path / "cut.rrd"
-    proc = _start_long_capture(out)
-    deadline = time.time() + 60
-    while time.time() < deadline and (not out.exists() or out.stat().st_size < 2_000_000):
-        time.sleep(0.2)
+    proc = start_long_capture(out)
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == code, stderr
