@@ -354,7 +354,9 @@ class SimConfig:
 
     def digest(self) -> str:
         """8 hex digits identifying this exact configuration (same config → same run)."""
-        text = json.dumps(self.to_sections(), sort_keys=True, default=str)
+        from avdm import __version__  # a new vdc version records anew instead of reusing
+
+        text = json.dumps({**self.to_sections(), "vdc": __version__}, sort_keys=True, default=str)
         return hashlib.sha1(text.encode()).hexdigest()[:8]
 
     def run_id(self) -> str:
