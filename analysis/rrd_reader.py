@@ -293,38 +293,40 @@ class Recording:
         return out
 
     def events(self) -> pl.DataFrame:
-        """All events: frame, t_s, kind, text, x_m, y_m (position logged with the event)."""
-        rows = []
+        """All events: frame, t_s, kind, text, x_m, y_m (NaN where no position was logged)."""
+        texts, places = [], []
         for entity, rb in self._batches(f"{EVENTS}/**"):
             names = rb.schema.names
-            if "TextLog:text" not in names or "frame" not in names:
+            if "frame" not in names:
                 continue
             kind = entity.rsplit("/", 1)[-1]
-            texts = rb.column("TextLog:text").to_pylist()
-            pos = (
-                rb.column("Points3D:positions").to_pylist()
-                if "Points3D:positions" in names
-                else [None] * rb.num_rows
-            )
-            t = rb.column("time").cast(pa.int64()).to_numpy() / 1e9
-            for f, ts, txt, p in zip(rb.column("frame").to_numpy(), t, texts, pos, strict=True):
-                xy = p[0] if p else (float("nan"), float("nan"))
-                rows.append(
-                    {
-                        "frame": int(f),
-                        "t_s": float(ts),
-                        "kind": kind,
-                        "text": txt[0] if isinstance(txt, list) else txt,
-                        "x_m": float(xy[0]),
-                        "y_m": float(xy[1]),
-                    }
-                )
-        schema = {
-            "frame": pl.Int64,
-            "t_s": pl.Float64,
-            "kind": pl.String,
-            "text": pl.String,
-            "x_m": pl.Float64,
-            "y_m": pl.Float64,
-        }
-        return pl.DataFrame(rows, schema=schema).sort("frame", "kind")
+            frames = rb.column("frame").to_numpy()
+            if "TextLog:text" in names:
+                t = rb.column("time").cast(pa.int64()).to_numpy() / 1e9
+                for f, ts, txt in zip(
+                    frames, t, rb.column("TextLog:text").to_pylist(), strict=True
+                ):
+                    text = txt[0] if isinstance(txt, list) else txt
+                    texts.append({"frame": int(f), "t_s": float(ts), "kind": kind, "text": text})
+            if "Points3D:positions" in names:
+                for f, p in zip(frames, rb.column("Points3D:positions").to_pylist(), strict=True):
+                    if p:
+                        places.append(
+                            {
+                                "frame": int(f),
+                                "kind": kind,
+                                "x_m": float(p[0][0]),
+                                "y_m": float(p[0][1]),
+                            }
+                        )
+        schema = {"frame": pl.Int64, "t_s": pl.Float64, "kind": pl.String, "text": pl.String}
+        ev = pl.DataFrame(texts, schema=schema)
+        pos = pl.DataFrame(
+            places,
+            schema={"frame": pl.Int64, "kind": pl.String, "x_m": pl.Float64, "y_m": pl.Float64},
+        )
+        pos = pos.unique(subset=["frame", "kind"], keep="first", maintain_order=True)
+        ev = ev.join(pos, on=["frame", "kind"], how="left").with_columns(
+            pl.col("x_m").fill_null(float("nan")), pl.col("y_m").fill_null(float("nan"))
+        )
+        return ev.select("frame", "t_s", "kind", "text", "x_m", "y_m").sort("frame", "kind")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from avdm.cli_support import OneLineParser, UserError, fail, positive_float
 from avdm.registry import describe_models
+from capture.colias_link import LinkLost
 
 PROG = "vdc-capture"
 
@@ -200,6 +201,142 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 130 if "SIGINT" in result.stop_reason else 143
 
 
+def cmd_emulate_robot(args: argparse.Namespace) -> int:
+    from capture.colias_link import EmulatorConfig, RobotEmulator
+    from capture.config import CameraConfig, SimConfig, WallConfig
+
+    emu = EmulatorConfig(
+        corrupt_rate=args.corrupt_rate,
+        drop_rate=args.drop_rate,
+        disconnect_after_s=args.disconnect_after if args.disconnect_after else float("nan"),
+        reconnect_after_s=args.reconnect_after,
+        decimation=args.decimation,
+        realtime=not args.fast,
+        seed=args.seed,
+    )
+    sim = SimConfig(
+        wall=WallConfig(tf_schedule=((args.tf_hz, args.minutes * 60),)),
+        camera=CameraConfig(),
+        duration_s=args.minutes * 60,
+        seed=args.seed,
+    )
+    link = Path(args.link)
+    robot = RobotEmulator(sim, emu, link, Path(args.report) if args.report else None)
+    print(f"emulated Colias-IV on {link} (waiting for the host's START)", flush=True)
+    try:
+        report = robot.run(wait_for_host_s=args.wait)
+    except TimeoutError as exc:
+        raise UserError(str(exc)) from None
+    print(
+        f"sent {len(report['intact'])} intact and {len(report['corrupted'])} corrupted "
+        f"frames; dropped {len(report['dropped'])}; {len(report['lost_in_disconnect'])} "
+        f"lost in {report['disconnects']} disconnect(s)"
+    )
+    return 0
+
+
+class WallController:
+    """Optional LED wall controller on a second serial port; a line protocol (ASCII, \\n):
+    ``TF <hz> PERIOD <m> SCENE <grating|natural>`` whenever the TF in force changes."""
+
+    def __init__(self, port: str, wall) -> None:  # wall: WallConfig
+        import serial
+
+        try:
+            self.ser = serial.Serial(port, 115200, timeout=0.1)
+        except (serial.SerialException, OSError) as exc:
+            raise UserError(
+                f"cannot open the wall controller port {port!r}: "
+                f"{getattr(exc, 'strerror', None) or exc}"
+            ) from None
+        self.wall = wall
+        self.last: float | None = None
+
+    def update(self, tf_hz: float) -> None:
+        if tf_hz != self.last:
+            line = f"TF {tf_hz:.3f} PERIOD {self.wall.drift_period_m:.4f} SCENE {self.wall.scene}\n"
+            self.ser.write(line.encode("ascii"))
+            self.ser.flush()
+            self.last = tf_hz
+
+
+def cmd_robot(args: argparse.Namespace) -> int:
+    import hashlib
+    import time as _time
+
+    from capture.config import WallConfig, parse_schedule
+    from capture.recorder import Recorder, default_blueprint, spawn_viewer
+    from capture.robot_capture import LINK_STATS, ColiasRobotDevice, RobotCaptureConfig
+    from capture.run import run_capture
+
+    schedule = (
+        parse_schedule(args.tf_schedule) if args.tf_schedule else ((args.tf_hz, 48 * 3600.0),)
+    )
+    wall = WallConfig(tf_schedule=schedule, period_m=args.period_m, scene=args.scene)
+    cfg = RobotCaptureConfig(
+        port=args.port,
+        camera=args.camera,
+        baud=args.baud,
+        calibration=args.calibration or "",
+        camera_fps=args.camera_fps,
+        wall=wall,
+        model=args.model,
+    )
+    wall_ctl = WallController(args.wall_port, wall) if args.wall_port else None
+    device = ColiasRobotDevice(cfg, on_wall_tf=wall_ctl.update if wall_ctl else None)
+    stamp = _time.strftime("%Y%m%d-%H%M%S")
+    rid = (
+        f"robot-{stamp}-"
+        + hashlib.sha1(f"{args.port}{args.camera}{stamp}".encode()).hexdigest()[:8]
+    )
+    out = Path(args.out) if args.out else Path("recordings") / f"{rid}.rrd"
+    check_output_path(out, args.force)
+    device.connect()  # a missing port or camera fails here, before the file exists
+    live = spawn_viewer() if args.spawn else args.connect
+    from avdm.registry import make_model
+
+    model = make_model(args.model, fps=cfg.fps, deg_per_px=cfg.deg_per_px)
+    recorder = Recorder(
+        out, rid, blueprint=default_blueprint(model.name, model.outputs), live_url=live
+    )
+    recorder.send_properties(
+        {
+            "run": {
+                "recording_id": rid,
+                "source": "robot",
+                "port": args.port,
+                "baud": args.baud,
+                "camera": args.camera,
+                "behaviour": "robot",
+            },
+            "wall": {
+                "scene": wall.scene,
+                "period_m": wall.period_m,
+                "tf_schedule_text": ",".join(f"{t:g}:{d:g}s" for t, d in schedule),
+            },
+            "camera": {"fps": cfg.fps, "width_px": 99, "height_px": 72, "hfov_deg": 70.0},
+            "model": {"name": model.name, "on_board": True},
+            "model_params": model.params.to_dict(),
+            "link": {"protocol": "vdc serial v1 (see README)", "stats": ",".join(LINK_STATS)},
+        }
+    )
+    recorder.log_model_meta(model.name, model.outputs)
+    print(
+        f"recording {rid} from {args.port} (overhead camera {args.camera}) -> {out}",
+        file=sys.stderr,
+    )
+    result = run_capture(device, None, recorder, total_frames=None, progress=not args.quiet)
+    stats = device.link_stats()
+    print(
+        f"wrote {out}: {result.frames} frames, link: "
+        + ", ".join(f"{k} {v}" for k, v in stats.items())
+        + f" ({result.stop_reason})"
+    )
+    return (
+        0 if result.stop_reason == "finished" else (130 if "SIGINT" in result.stop_reason else 143)
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog=PROG,
@@ -325,6 +462,101 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sim.add_argument("--quiet", action="store_true", help="no progress bar")
     sim.set_defaults(func=cmd_sim)
+    em = sub.add_parser(
+        "emulate-robot",
+        help="a simulated Colias-IV on a pseudo-terminal, speaking the serial protocol",
+        description=(
+            "Open a pseudo-terminal behind --link, print it, wait for the host's START and "
+            "stream frames and on-board AVDM outputs from the simulator with the protocol of "
+            "the README; fault injection for testing the link."
+        ),
+    )
+    em.add_argument(
+        "--link",
+        default="/tmp/vdc-robot",
+        help="stable path (symlink) to the emulated port (default: %(default)s)",
+    )
+    em.add_argument("--tf-hz", type=_non_negative_float, default=0.0, help="wall TF, Hz")
+    em.add_argument("--minutes", type=positive_float, default=1.0, help="run length")
+    em.add_argument("--seed", type=_seed, default=0, help="random seed")
+    em.add_argument(
+        "--corrupt-rate",
+        type=_non_negative_float,
+        default=0.0,
+        help="probability of corrupting each byte (e.g. 0.0001)",
+    )
+    em.add_argument(
+        "--drop-rate",
+        type=_non_negative_float,
+        default=0.0,
+        help="probability of dropping each packet",
+    )
+    em.add_argument(
+        "--disconnect-after",
+        type=positive_float,
+        help="close the port once, this many seconds after START",
+    )
+    em.add_argument(
+        "--reconnect-after",
+        type=positive_float,
+        default=1.0,
+        help="seconds until the port reappears (default: %(default)s)",
+    )
+    em.add_argument(
+        "--decimation", type=int, default=1, help="send the image with every Nth frame (slow links)"
+    )
+    em.add_argument("--fast", action="store_true", help="do not pace frames at 33 Hz")
+    em.add_argument(
+        "--wait",
+        type=positive_float,
+        default=60.0,
+        help="seconds to wait for the host (default: %(default)s)",
+    )
+    em.add_argument("--report", help="write what was injected to this JSON file")
+    em.set_defaults(func=cmd_emulate_robot)
+
+    ro = sub.add_parser(
+        "robot",
+        help="record a real Colias-IV: serial link + overhead tracker (same recording contract)",
+        description=(
+            "Read frames and on-board model outputs from the robot's serial port and poses "
+            "from an overhead camera with ArUco markers (ids 0-3 at the arena corners, 10 on "
+            "the robot), join them on capture_time, and write the recording contract's "
+            "entities. Ctrl-C or SIGTERM stops cleanly."
+        ),
+    )
+    ro.add_argument("--port", required=True, help="the robot's serial device")
+    ro.add_argument(
+        "--camera",
+        required=True,
+        help="overhead camera: a device index, a video file or an image sequence "
+        "such as frames/%%05d.png",
+    )
+    ro.add_argument(
+        "--calibration",
+        help="saved tracker homography (default: calibrate on the first overhead frame)",
+    )
+    ro.add_argument(
+        "--camera-fps",
+        type=positive_float,
+        default=10.0,
+        help="pace of a video file or image sequence (default: %(default)s)",
+    )
+    tfr = ro.add_mutually_exclusive_group()
+    tfr.add_argument("--tf-hz", type=_non_negative_float, default=0.0, help="wall TF, Hz")
+    tfr.add_argument("--tf-schedule", metavar="S", help="e.g. 0:30m,3:30m")
+    ro.add_argument("--period-m", type=positive_float, default=0.1, help="wall period, m")
+    ro.add_argument("--scene", choices=["grating", "natural"], default="grating")
+    ro.add_argument("--wall-port", help="LED wall controller's serial port (line protocol)")
+    ro.add_argument("--baud", type=int, default=3_000_000, help="serial rate (default: 3000000)")
+    ro.add_argument("--model", default="avdm", help="the model running on the robot")
+    ro.add_argument("--out", help="output .rrd (default: recordings/robot-<time>.rrd)")
+    ro.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    rlive = ro.add_mutually_exclusive_group()
+    rlive.add_argument("--spawn", action="store_true", help="also stream to a new viewer")
+    rlive.add_argument("--connect", metavar="URL", help="also stream to a running viewer")
+    ro.add_argument("--quiet", action="store_true", help="no progress bar")
+    ro.set_defaults(func=cmd_robot)
     return parser
 
 
@@ -340,3 +572,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         fail(f"{PROG} {args.command}", str(exc))
     except OSError as exc:
         fail(f"{PROG} {args.command}", f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": "))
+    except LinkLost as exc:  # the recording was closed cleanly with everything received
+        print(
+            f"{PROG} {args.command}: error: {exc}; the recording holds every frame received before",
+            file=sys.stderr,
+        )
+        return 1

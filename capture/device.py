@@ -31,8 +31,9 @@ class Batch:
 
     frame (N,) int64 camera frame indices; t_s (N,) float64 seconds since the run started;
     images (N, H, W) uint8; poses (N, 3) float64 [x_m, y_m, heading_rad]; wall_tf_hz (N,);
-    events in these frames; overhead: (frame index, image) pairs; onboard: outputs of models
-    that ran on the robot itself, ``{model name: {output: (N,)}}``.
+    events in these frames (poses may be NaN where a real tracker lost the robot); overhead:
+    (frame index, image) pairs; onboard: outputs of models that ran on the robot itself,
+    ``{model name: {output: (N,)}}``.
     """
 
     frame: np.ndarray
@@ -43,6 +44,12 @@ class Batch:
     events: list[Event]
     overhead: list[tuple[int, np.ndarray]] = dataclasses.field(default_factory=list)
     onboard: dict[str, dict[str, np.ndarray]] = dataclasses.field(default_factory=dict)
+    # real robots: the frames ``images`` belong to (a decimating link sends fewer images than
+    # frames; None = one image per frame), host receive times (int64 ns since the epoch), and
+    # the link's running counts
+    image_frame: np.ndarray | None = None
+    capture_time_ns: np.ndarray | None = None
+    link_stats: dict[str, int] | None = None
 
     def __len__(self) -> int:
         return len(self.frame)

@@ -14,6 +14,7 @@ index) and ``time`` (duration since the run started); hardware runs add ``captur
 | ``/model/<name>/<output>``  | Scalars                           | online model outputs           |
 | ``/events/<kind>``          | TextLog + Points3D                | ring_turn, avoidance, crash... |
 | ``/overhead/image``         | Image                             | optional overhead frames       |
+| ``/link/stats``             | Scalars (hardware runs)           | serial link counts             |
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ OVERHEAD = "/overhead/image"
 EVENTS = "/events"
 MODEL_ROOT = "/model"
 MODEL_VARIANTS_ROOT = "/model_variants"
+LINK_STATS = "/link/stats"
 POSE_NAMES = ("x_m", "y_m", "heading_rad")
 
 EVENT_COLORS = {
@@ -181,12 +183,18 @@ def spawn_viewer(memory_limit: str = "25%") -> str:
     return f"rerun+http://127.0.0.1:{port}/proxy"
 
 
-def _time_indexes(frame: np.ndarray, t_s: np.ndarray) -> list[rr.TimeColumn]:
+def _time_indexes(
+    frame: np.ndarray, t_s: np.ndarray, capture_ns: np.ndarray | None = None
+) -> list[rr.TimeColumn]:
     t_ns = np.rint(np.asarray(t_s, dtype=np.float64) * 1e9).astype("timedelta64[ns]")
-    return [
+    out = [
         rr.TimeColumn(FRAME_TIMELINE, sequence=np.asarray(frame, dtype=np.int64)),
         rr.TimeColumn(TIME_TIMELINE, duration=t_ns),
     ]
+    if capture_ns is not None:  # hardware runs: the host clock at reception
+        stamps = np.asarray(capture_ns, dtype=np.int64).astype("datetime64[ns]")
+        out.append(rr.TimeColumn(CAPTURE_TIME_TIMELINE, timestamp=stamps))
+    return out
 
 
 def _quaternions_z(heading: np.ndarray) -> np.ndarray:
@@ -215,6 +223,7 @@ class Recorder:
         self.rec.set_sinks(*sinks, default_blueprint=blueprint)
         self._image_shapes: dict[str, tuple[int, int]] = {}
         self._closed = False
+        self._link_names_logged = False
         self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self.rec.log(POSE, rr.SeriesLines(names=list(POSE_NAMES)), static=True)
 
@@ -285,19 +294,39 @@ class Recorder:
         # so that a file cut by a crash still holds the properties and the image format
         self.rec.flush()
 
-    def log_frames(self, frame: np.ndarray, t_s: np.ndarray, images: np.ndarray) -> None:
+    def log_frames(
+        self,
+        frame: np.ndarray,
+        t_s: np.ndarray,
+        images: np.ndarray,
+        capture_ns: np.ndarray | None = None,
+    ) -> None:
         """Raw camera frames (N, H, W) uint8, never compressed lossily."""
         n, h, w = images.shape
+        if n == 0:
+            return
         self._image_format(CAMERA, h, w)
         self.rec.send_columns(
             CAMERA,
-            indexes=_time_indexes(frame, t_s),
+            indexes=_time_indexes(frame, t_s, capture_ns),
             columns=rr.Image.columns(buffer=images.reshape(n, h * w)),
         )
 
-    def log_poses(self, frame: np.ndarray, t_s: np.ndarray, poses: np.ndarray) -> None:
-        """Poses (N, 3) [x_m, y_m, heading_rad] as scalars, transforms and a trail."""
-        idx = _time_indexes(frame, t_s)
+    def log_poses(
+        self,
+        frame: np.ndarray,
+        t_s: np.ndarray,
+        poses: np.ndarray,
+        capture_ns: np.ndarray | None = None,
+    ) -> None:
+        """Poses (N, 3) [x_m, y_m, heading_rad] as scalars, transforms and a trail. Rows with
+        NaN (the tracker lost the robot) are left out: a gap, never an invented pose."""
+        ok = np.isfinite(poses).all(axis=1)
+        if not ok.any():
+            return
+        frame, t_s, poses = np.asarray(frame)[ok], np.asarray(t_s)[ok], poses[ok]
+        capture_ns = None if capture_ns is None else np.asarray(capture_ns)[ok]
+        idx = _time_indexes(frame, t_s, capture_ns)
         self.rec.send_columns(POSE, indexes=idx, columns=rr.Scalars.columns(scalars=poses))
         xyz = np.column_stack([poses[:, 0], poses[:, 1], np.zeros(len(poses))])
         self.rec.send_columns(
@@ -314,10 +343,31 @@ class Recorder:
             ),
         )
 
-    def log_wall_tf(self, frame: np.ndarray, t_s: np.ndarray, tf_hz: np.ndarray) -> None:
+    def log_link_stats(
+        self, frame: int, t_s: float, stats: Mapping[str, int], capture_ns: int | None = None
+    ) -> None:
+        """The serial link's running counts (packets, bad CRC, lost frames, ...)."""
+        if not self._link_names_logged:
+            self.rec.log(LINK_STATS, rr.SeriesLines(names=list(stats)), static=True)
+            self._link_names_logged = True
+        idx = _time_indexes(
+            np.array([frame]),
+            np.array([t_s]),
+            None if capture_ns is None else np.array([capture_ns]),
+        )
+        values = np.array([[float(v) for v in stats.values()]])
+        self.rec.send_columns(LINK_STATS, indexes=idx, columns=rr.Scalars.columns(scalars=values))
+
+    def log_wall_tf(
+        self,
+        frame: np.ndarray,
+        t_s: np.ndarray,
+        tf_hz: np.ndarray,
+        capture_ns: np.ndarray | None = None,
+    ) -> None:
         self.rec.send_columns(
             WALL_TF,
-            indexes=_time_indexes(frame, t_s),
+            indexes=_time_indexes(frame, t_s, capture_ns),
             columns=rr.Scalars.columns(scalars=np.asarray(tf_hz, np.float64)),
         )
 
@@ -329,8 +379,9 @@ class Recorder:
         outputs: Mapping[str, np.ndarray],
         *,
         root: str = MODEL_ROOT,
+        capture_ns: np.ndarray | None = None,
     ) -> None:
-        idx = _time_indexes(frame, t_s)
+        idx = _time_indexes(frame, t_s, capture_ns)
         base = f"{root}/{entity_name(model_name)}"
         for name, values in outputs.items():
             self.rec.send_columns(
@@ -340,26 +391,42 @@ class Recorder:
             )
 
     def log_events(
-        self, kind: str, frame: np.ndarray, t_s: np.ndarray, xy: np.ndarray, texts: Sequence[str]
+        self,
+        kind: str,
+        frame: np.ndarray,
+        t_s: np.ndarray,
+        xy: np.ndarray,
+        texts: Sequence[str],
+        capture_ns: np.ndarray | None = None,
     ) -> None:
-        """Sparse events of one ``kind`` with their arena positions (N, 2)."""
+        """Sparse events of one ``kind``; those with a known arena position (N, 2) are also
+        drawn there."""
         if len(frame) == 0:
             return
-        idx = _time_indexes(frame, t_s)
         level = EVENT_LEVELS.get(kind, "INFO")
         color = EVENT_COLORS.get(kind, (255, 255, 255))
         self.rec.send_columns(
             event_path(kind),
-            indexes=idx,
-            columns=[
-                *rr.TextLog.columns(text=list(texts), level=[level] * len(texts)),
-                *rr.Points3D.columns(
-                    positions=np.column_stack([xy, np.full(len(xy), 0.01)]),
-                    radii=np.full(len(xy), 0.008, np.float32),
-                    colors=np.tile(np.array(color, np.uint8), (len(xy), 1)),
-                ),
-            ],
+            indexes=_time_indexes(frame, t_s, capture_ns),
+            columns=rr.TextLog.columns(text=list(texts), level=[level] * len(texts)),
         )
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        ok = np.isfinite(xy).all(axis=1)
+        if ok.any():
+            idx = _time_indexes(
+                np.asarray(frame)[ok],
+                np.asarray(t_s)[ok],
+                None if capture_ns is None else np.asarray(capture_ns)[ok],
+            )
+            self.rec.send_columns(
+                event_path(kind),
+                indexes=idx,
+                columns=rr.Points3D.columns(
+                    positions=np.column_stack([xy[ok], np.full(int(ok.sum()), 0.01)]),
+                    radii=np.full(int(ok.sum()), 0.008, np.float32),
+                    colors=np.tile(np.array(color, np.uint8), (int(ok.sum()), 1)),
+                ),
+            )
 
     def log_overhead(
         self, frames: Sequence[int], t_s: Sequence[float], images: Sequence[np.ndarray]

@@ -262,12 +262,18 @@ class OverheadRenderer:
     a disc, a heading tick and a bright marker dot, as the overhead tracker would see it.
     Image x runs along arena +x; image rows run along arena −y (north up)."""
 
-    def __init__(self, arena: ArenaConfig, robot_radius_m: float, px_per_m: float) -> None:
+    def __init__(
+        self, arena: ArenaConfig, robot_radius_m: float, px_per_m: float, markers: bool = False
+    ) -> None:
+        from capture.tracker import MarkerLayout
+
         self.arena = arena
         self.px_per_m = px_per_m
         self.radius_m = robot_radius_m
+        self.markers = markers
         hx, hy = arena.half_extent
-        margin = 0.05
+        self.layout = MarkerLayout(half_extent=(hx, hy))
+        margin = 0.1 if markers else 0.05
         self.width = round((2 * hx + 2 * margin) * px_per_m)
         self.height = round((2 * hy + 2 * margin) * px_per_m)
         self._margin = margin
@@ -287,6 +293,12 @@ class OverheadRenderer:
             base, self.to_px(-hx + ri, hy - ri), self.to_px(hx - ri, -hy + ri), floor_val, -1
         )
         cv2.rectangle(base, self.to_px(-hx, hy), self.to_px(hx, -hy), 200, 2)  # walls
+        if markers:  # ArUco corner markers for the tracker's calibration
+            from capture.tracker import CORNER_IDS, draw_marker
+
+            for marker_id, (cx, cy) in zip(CORNER_IDS, self.layout.corner_centres(), strict=True):
+                px, py = self._to_px_f(cx, cy)
+                draw_marker(base, marker_id, (px, py), self.layout.corner_size_m * px_per_m, 0.0)
         self._base = base
 
     def to_px(self, x: float, y: float) -> tuple[int, int]:
@@ -296,10 +308,30 @@ class OverheadRenderer:
             round((hy + self._margin - y) * self.px_per_m),
         )
 
+    def _to_px_f(self, x: float, y: float) -> tuple[float, float]:
+        """Sub-pixel image coordinates (pixel centres at integers) of arena point (x, y)."""
+        hx, hy = self.arena.half_extent
+        m = self._margin
+        return (x + hx + m) * self.px_per_m - 0.5, (hy + m - y) * self.px_per_m - 0.5
+
     def render(self, pose: np.ndarray) -> np.ndarray:
         """One overhead frame (H, W) uint8 for pose [x_m, y_m, heading_rad]."""
         img = self._base.copy()
         x, y, hd = (float(v) for v in pose)
+        if self.markers:  # the robot's marker, x axis along its heading, on a dark disc
+            from capture.tracker import ROBOT_ID, draw_marker
+
+            c = self._to_px_f(x, y)
+            cv2.circle(
+                img,
+                (round(c[0]), round(c[1])),
+                round(self.radius_m * self.px_per_m),
+                60,
+                -1,
+                lineType=cv2.LINE_AA,
+            )
+            draw_marker(img, ROBOT_ID, c, self.layout.robot_size_m * self.px_per_m, hd)
+            return img
         c = self.to_px(x, y)
         r = max(2, round(self.radius_m * self.px_per_m))
         cv2.circle(img, c, r, 90, -1, lineType=cv2.LINE_AA)

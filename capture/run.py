@@ -63,21 +63,39 @@ def stop_on_signals() -> Iterator[StopFlag]:
 def log_batch(recorder: Recorder, model: Model | None, batch: Batch) -> dict[str, int]:
     """Log everything in a batch, running the host-side online ``model`` on its frames unless
     the robot already ran it on board; returns the number of events logged per kind."""
-    recorder.log_frames(batch.frame, batch.t_s, batch.images)
-    recorder.log_poses(batch.frame, batch.t_s, batch.poses)
-    recorder.log_wall_tf(batch.frame, batch.t_s, batch.wall_tf_hz)
+    if len(batch) == 0:
+        return {}
+    cap = batch.capture_time_ns
+
+    def at(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Time (and capture time) of some of the batch's frames."""
+        k = np.searchsorted(batch.frame, frames)
+        return batch.t_s[k], (None if cap is None else cap[k])
+
+    img_frames = batch.frame if batch.image_frame is None else batch.image_frame
+    t_img, cap_img = at(img_frames)
+    recorder.log_frames(img_frames, t_img, batch.images, cap_img)
+    recorder.log_poses(batch.frame, batch.t_s, batch.poses, cap)
+    recorder.log_wall_tf(batch.frame, batch.t_s, batch.wall_tf_hz, cap)
     for name, outputs in batch.onboard.items():
-        recorder.log_model_outputs(name, batch.frame, batch.t_s, outputs)
-    if model is not None and model.name not in batch.onboard:
+        recorder.log_model_outputs(name, batch.frame, batch.t_s, outputs, capture_ns=cap)
+    if model is not None and model.name not in batch.onboard and len(batch.images):
         outputs = model.run(batch.images)  # ≡ per-frame step(), bit for bit
-        recorder.log_model_outputs(model.name, batch.frame, batch.t_s, outputs)
+        recorder.log_model_outputs(model.name, img_frames, t_img, outputs, capture_ns=cap_img)
+    if batch.link_stats is not None:
+        recorder.log_link_stats(
+            int(batch.frame[-1]),
+            float(batch.t_s[-1]),
+            batch.link_stats,
+            None if cap is None else int(cap[-1]),
+        )
     counts: dict[str, int] = {}
     for kind in sorted({e.kind for e in batch.events}):
         evs = [e for e in batch.events if e.kind == kind]
         frames = np.array([e.frame for e in evs], dtype=np.int64)
         xy = np.array([[e.x_m, e.y_m] for e in evs])
-        t = np.interp(frames, batch.frame, batch.t_s)  # events happen on batch frames
-        recorder.log_events(kind, frames, t, xy, [e.text for e in evs])
+        t, c = at(frames)
+        recorder.log_events(kind, frames, t, xy, [e.text for e in evs], c)
         counts[kind] = len(evs)
     if batch.overhead:
         idx = np.array([f for f, _ in batch.overhead], dtype=np.int64)

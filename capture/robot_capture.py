@@ -1,0 +1,280 @@
+"""Capture from a real Colias-IV: serial packets + overhead tracker poses, joined on capture time.
+
+The robot sends its frames and on-board model outputs over the serial link (capture.colias_link);
+an overhead camera (a device index, a video file, or an image sequence such as
+``frames/%05d.png``) gives poses through the ArUco tracker (capture.tracker). Every robot frame
+gets the host's receive time (``capture_time``); its pose is the tracker sample nearest in host
+time if one lies within ``max_gap_s``, otherwise none (a gap, logged as ``tracker_lost``; a pose
+is never invented). Repeated frame indices are dropped (each frame is logged once), missing ones
+are counted as lost and logged as ``link_error`` events with the parser's counts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+import serial
+
+from avdm.registry import make_model
+from capture.colias_link import SerialLink
+from capture.config import WallConfig
+from capture.device import Batch, Event
+from capture.serial_protocol import TYPE_FRAME, FramePacket
+from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose
+
+LINK_STATS = (
+    "packets",
+    "bad_crc",
+    "bad_length",
+    "garbage_bytes",
+    "lost_frames",
+    "duplicate_frames",
+    "disconnects",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotCaptureConfig:
+    port: str
+    camera: str  # device index ("0"), a video file, or an image-sequence pattern
+    baud: int = 3_000_000
+    calibration: str = ""  # homography file; empty = calibrate on the first overhead frame
+    camera_fps: float = 10.0  # pace of video files / image sequences
+    wall: WallConfig = dataclasses.field(
+        default_factory=lambda: WallConfig(tf_schedule=((0.0, 48 * 3600.0),))
+    )
+    model: str = "avdm"  # the on-board model whose outputs the robot sends
+    fps: float = 33.0
+    deg_per_px: float = 70 / 99
+    max_gap_s: float = 0.25
+    batch_s: float = 0.5
+    reconnect_timeout_s: float = 30.0
+    layout: MarkerLayout = dataclasses.field(default_factory=MarkerLayout)
+
+
+def open_camera(source: str) -> cv2.VideoCapture:
+    """Open a camera index or a video / image-sequence path; ValueError if it gives no frame."""
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # end of file is normal
+    if source.isdigit():
+        cap = cv2.VideoCapture(int(source))
+    else:
+        is_pattern = "%" in source
+        if not is_pattern and not Path(source).exists():
+            raise ValueError(f"overhead camera {source!r}: no such file or camera index")
+        cap = cv2.VideoCapture(source, cv2.CAP_IMAGES if is_pattern else cv2.CAP_ANY)
+    if not cap.isOpened():
+        raise ValueError(f"overhead camera {source!r} cannot be opened")
+    return cap
+
+
+class ColiasRobotDevice:
+    """The real robot as a capture device (``connect`` / ``read`` / ``disconnect``)."""
+
+    def __init__(
+        self, config: RobotCaptureConfig, on_wall_tf: Callable[[float], None] | None = None
+    ) -> None:
+        self.cfg = config
+        self.on_wall_tf = on_wall_tf  # e.g. a WallController driving the LED walls
+        self._connected = False
+        model = make_model(config.model, fps=config.fps, deg_per_px=config.deg_per_px)
+        self.model_name = model.name
+        self.output_names = [o.name for o in model.outputs]
+        self.h = None if not config.calibration else load_calibration(Path(config.calibration))
+
+    def connect(self) -> None:
+        """Open the port (sends START) and the camera; a second call does nothing."""
+        if self._connected:
+            return
+        cfg = self.cfg
+        self.link = SerialLink(cfg.port, cfg.baud, cfg.reconnect_timeout_s)
+        try:
+            self.link.open()
+        except (serial.SerialException, OSError) as exc:
+            raise ValueError(
+                f"cannot open the robot's serial port {cfg.port!r}: "
+                f"{getattr(exc, 'strerror', None) or exc}"
+            ) from None
+        self.cam = open_camera(cfg.camera)
+        self._video = not cfg.camera.isdigit()
+        self.t0_ns = time.time_ns()
+        self._cam_next = 0  # next video frame index (files are paced at camera_fps)
+        self._cam_done = False
+        self.samples: deque[tuple[int, tuple[float, float, float] | None]] = deque(maxlen=256)
+        self.last_index = -1
+        self.first_robot_us: int | None = None
+        self.lost = 0
+        self.duplicates = 0
+        self.tracking = True
+        self._reported = dict.fromkeys(LINK_STATS, 0)
+        self._disconnect_events: list[str] = []
+        self._connected = True
+
+    def _poll_camera(self) -> None:
+        """Read the overhead frames due by now and track the robot in them."""
+        now = time.time_ns()
+        while not self._cam_done:
+            if self._video:
+                due = self.t0_ns + int(self._cam_next * 1e9 / self.cfg.camera_fps)
+                if due > now:
+                    return
+            ok, img = self.cam.read()
+            if not ok:
+                self._cam_done = True
+                return
+            stamp = due if self._video else time.time_ns()
+            self._cam_next += 1
+            grey = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+            if self.h is None:
+                self.h = calibrate(grey, self.cfg.layout)
+            self.samples.append((stamp, robot_pose(grey, self.h)))
+            if not self._video:
+                return
+
+    def _pose_at(self, t_ns: int) -> tuple[float, float, float] | None:
+        best, best_dt = None, math.inf
+        for stamp, pose in self.samples:
+            dt = abs(stamp - t_ns)
+            if dt < best_dt:
+                best, best_dt = pose, dt
+        if best is None or best_dt > self.cfg.max_gap_s * 1e9:
+            return None
+        return best
+
+    def read(self) -> Batch | None:
+        got: list[tuple[FramePacket, int]] = []
+        start = time.monotonic()
+        for ptype, obj in self.link.packets():
+            self._poll_camera()
+            if ptype == 0 and obj == "disconnect":
+                self._disconnect_events.append("serial port lost; reconnecting")
+            elif ptype == TYPE_FRAME:
+                pkt: FramePacket = obj  # type: ignore[assignment]
+                if pkt.index <= self.last_index:
+                    self.duplicates += 1
+                    continue
+                if self.last_index >= 0 and pkt.index > self.last_index + 1:
+                    self.lost += pkt.index - self.last_index - 1
+                self.last_index = pkt.index
+                got.append((pkt, time.time_ns()))
+            if time.monotonic() - start >= self.cfg.batch_s and (got or ptype != TYPE_FRAME):
+                break
+        if not got:
+            return None if self.link.ended else self._empty_batch()
+        return self._batch(got)
+
+    def _empty_batch(self) -> Batch:
+        """Nothing arrived this time: keep the loop alive (events only)."""
+        return Batch(
+            np.empty(0, np.int64),
+            np.empty(0),
+            np.empty((0, 1, 1), np.uint8),
+            np.empty((0, 3)),
+            np.empty(0),
+            [],
+        )
+
+    def _batch(self, got: list[tuple[FramePacket, int]]) -> Batch:
+        if self.first_robot_us is None:
+            self.first_robot_us = got[0][0].robot_time_us
+        idx = np.array([p.index for p, _ in got], dtype=np.int64)
+        t_s = np.array([(p.robot_time_us - self.first_robot_us) / 1e6 for p, _ in got])
+        cap_ns = np.array([ns for _, ns in got], dtype=np.int64)
+        with_img = [(p.index, p.image) for p, _ in got if p.image is not None]
+        images = (
+            np.stack([im for _, im in with_img])
+            if with_img
+            else np.empty((0, got[0][0].height, got[0][0].width), np.uint8)
+        )
+        poses = np.full((len(got), 3), np.nan)
+        events: list[Event] = []
+        for k, (pkt, ns) in enumerate(got):
+            pose = self._pose_at(int(ns))
+            if pose is None:
+                if self.tracking:
+                    events.append(
+                        Event(
+                            "tracker_lost",
+                            pkt.index,
+                            math.nan,
+                            math.nan,
+                            math.nan,
+                            f"overhead tracker lost the robot at frame {pkt.index}",
+                        )
+                    )
+                self.tracking = False
+            else:
+                poses[k] = pose
+                self.tracking = True
+        elapsed = (cap_ns - self.t0_ns) / 1e9
+        tf = np.array([self.cfg.wall.tf_at(float(s)) for s in elapsed])
+        if self.on_wall_tf is not None:
+            self.on_wall_tf(float(tf[-1]))
+        outputs = {
+            name: np.array([p.outputs[i] if i < len(p.outputs) else math.nan for p, _ in got])
+            for i, name in enumerate(self.output_names)
+        }
+        stats = self.link_stats()
+        changes = [
+            f"{k} +{stats[k] - self._reported[k]}"
+            for k in LINK_STATS[1:]
+            if stats[k] > self._reported[k]
+        ]
+        for text in self._disconnect_events:
+            events.append(Event("link_error", int(idx[0]), math.nan, math.nan, math.nan, text))
+        self._disconnect_events = []
+        if changes:
+            events.append(
+                Event(
+                    "link_error",
+                    int(idx[-1]),
+                    math.nan,
+                    math.nan,
+                    math.nan,
+                    "link: " + ", ".join(changes),
+                )
+            )
+        self._reported = stats
+        return Batch(
+            idx,
+            t_s,
+            images,
+            poses,
+            tf,
+            events,
+            onboard={self.model_name: outputs},
+            image_frame=np.array([i for i, _ in with_img], dtype=np.int64),
+            capture_time_ns=cap_ns,
+            link_stats=stats,
+        )
+
+    def link_stats(self) -> dict[str, int]:
+        s = self.link.parser.stats
+        return {
+            "packets": s.packets,
+            "bad_crc": s.bad_crc,
+            "bad_length": s.bad_length,
+            "garbage_bytes": s.garbage_bytes,
+            "lost_frames": self.lost,
+            "duplicate_frames": self.duplicates,
+            "disconnects": self.link.disconnects,
+        }
+
+    def disconnect(self) -> None:
+        if self._connected:
+            self.link.close(stop=True)
+            self.cam.release()
+            self._connected = False
+
+    def __enter__(self) -> ColiasRobotDevice:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.disconnect()

@@ -1,0 +1,168 @@
+"""The Colias ↔ host serial protocol: packet layout, encoding, and a resynchronising parser.
+
+Every packet (both directions), little-endian::
+
+    offset  size  field
+    0       2     sync: 0xAA 0x55
+    2       2     length L of type + payload (u16)
+    4       1     type
+    5       L-1   payload
+    4+L     2     CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF) over bytes 2 … 4+L-1
+
+Robot → host, type 0x01 FRAME (payload)::
+
+    u32 frame index, u64 robot time (µs), u8 flags (bit 0: image present),
+    u8 width, u8 height, u8 n outputs, n × f32 on-board model outputs,
+    width × height × u8 raw grey image (only if bit 0 is set)
+
+Robot → host, type 0x02 END (no payload): the run is over.
+Host → robot: 0x10 START, 0x11 STOP (no payload), 0x12 PARAMS (UTF-8 ``name:key=value,...``).
+
+Raw 99×72 frames at 33 Hz are 7,152 bytes a packet, 236 kB/s: at 8N1 that needs at least
+2.4 Mbaud (3,000,000 is the nearest standard rate). Slower links send the image every Nth frame
+(``decimation``; the outputs still every frame): at the Colias extension board's 115,200 baud,
+N ≥ 21 (≈ 1.6 images/s).
+"""
+
+from __future__ import annotations
+
+import binascii
+import dataclasses
+import struct
+from collections.abc import Iterator
+
+import numpy as np
+
+SYNC = b"\xaa\x55"
+TYPE_FRAME = 0x01
+TYPE_END = 0x02  # robot → host: the run is over (no payload; a real robot may never send it)
+TYPE_START = 0x10
+TYPE_STOP = 0x11
+TYPE_PARAMS = 0x12
+KNOWN_TYPES = {TYPE_FRAME, TYPE_END, TYPE_START, TYPE_STOP, TYPE_PARAMS}
+# allowed type + payload lengths per type: checked as soon as the header is in, so a false sync
+# word in noise is dropped at once instead of stalling the packets behind it
+LENGTH_RANGE = {
+    TYPE_FRAME: (1 + 16, 1 + 16 + 4 * 255 + 255 * 255),
+    TYPE_END: (1, 1),
+    TYPE_START: (1, 1),
+    TYPE_STOP: (1, 1),
+    TYPE_PARAMS: (1, 1 + 4096),
+}
+FLAG_IMAGE = 0x01
+_FRAME_HEAD = struct.Struct("<IQBBBB")  # index, time µs, flags, width, height, n outputs
+
+
+def crc16(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE (the check value of b"123456789" is 0x29B1)."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+def encode(ptype: int, payload: bytes = b"") -> bytes:
+    """A complete packet of ``ptype`` carrying ``payload``."""
+    body = struct.pack("<HB", len(payload) + 1, ptype) + payload
+    return SYNC + body + struct.pack("<H", crc16(body))
+
+
+@dataclasses.dataclass(frozen=True)
+class FramePacket:
+    """One camera frame as the robot reports it."""
+
+    index: int
+    robot_time_us: int
+    outputs: tuple[float, ...]
+    image: np.ndarray | None  # (H, W) uint8, None when the link decimates it away
+    width: int
+    height: int
+
+
+def encode_frame(
+    index: int,
+    robot_time_us: int,
+    outputs: tuple[float, ...] | list[float],
+    image: np.ndarray | None,
+    shape: tuple[int, int],
+) -> bytes:
+    """A FRAME packet; ``shape`` (H, W) is sent even when the image is omitted."""
+    h, w = shape
+    flags = FLAG_IMAGE if image is not None else 0
+    payload = _FRAME_HEAD.pack(index, robot_time_us, flags, w, h, len(outputs))
+    payload += struct.pack(f"<{len(outputs)}f", *outputs)
+    if image is not None:
+        img = np.ascontiguousarray(image, dtype=np.uint8)
+        if img.shape != (h, w):
+            raise ValueError(f"image shape {img.shape} is not {(h, w)}")
+        payload += img.tobytes()
+    return encode(TYPE_FRAME, payload)
+
+
+def decode_frame(payload: bytes) -> FramePacket:
+    """Parse a FRAME payload; raises ValueError if its length does not match its header."""
+    if len(payload) < _FRAME_HEAD.size:
+        raise ValueError("FRAME payload shorter than its header")
+    index, t_us, flags, w, h, n = _FRAME_HEAD.unpack_from(payload)
+    expected = _FRAME_HEAD.size + 4 * n + (w * h if flags & FLAG_IMAGE else 0)
+    if len(payload) != expected:
+        raise ValueError(f"FRAME payload of {len(payload)} bytes, header says {expected}")
+    outputs = struct.unpack_from(f"<{n}f", payload, _FRAME_HEAD.size)
+    image = None
+    if flags & FLAG_IMAGE:
+        start = _FRAME_HEAD.size + 4 * n
+        image = np.frombuffer(payload, np.uint8, w * h, start).reshape(h, w).copy()
+    return FramePacket(index, t_us, tuple(float(v) for v in outputs), image, w, h)
+
+
+@dataclasses.dataclass
+class LinkStats:
+    """What the parser saw: good packets, CRC failures, bytes skipped to resynchronise."""
+
+    packets: int = 0
+    bad_crc: int = 0
+    bad_length: int = 0
+    garbage_bytes: int = 0
+
+
+class PacketParser:
+    """Turns a byte stream into (type, payload) packets.
+
+    Bytes that do not start a valid packet are skipped until the next sync word; a packet whose
+    CRC fails is dropped and counted, and the search resumes one byte after its sync word, so a
+    corrupted length field cannot swallow the packets after it."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray()
+        self.stats = LinkStats()
+
+    def feed(self, data: bytes) -> Iterator[tuple[int, bytes]]:
+        self.buf += data
+        while True:
+            start = self.buf.find(SYNC)
+            if start < 0:
+                keep = 1 if self.buf.endswith(SYNC[:1]) else 0
+                self.stats.garbage_bytes += len(self.buf) - keep
+                del self.buf[: len(self.buf) - keep]
+                return
+            if start:
+                self.stats.garbage_bytes += start
+                del self.buf[:start]
+            if len(self.buf) < 5:
+                return
+            (length,) = struct.unpack_from("<H", self.buf, 2)
+            lo, hi = LENGTH_RANGE.get(self.buf[4], (1, 0))  # unknown type: empty range
+            if not lo <= length <= hi:
+                # a false sync word (or a damaged header): do not wait for a length it made up
+                self.stats.bad_length += 1
+                del self.buf[:1]
+                continue
+            end = 4 + length + 2
+            if len(self.buf) < end:
+                return
+            body = bytes(self.buf[2 : 4 + length])
+            (crc,) = struct.unpack_from("<H", self.buf, 4 + length)
+            if crc != crc16(body) or body[2] not in KNOWN_TYPES:
+                self.stats.bad_crc += 1
+                del self.buf[:1]
+                continue
+            del self.buf[:end]
+            self.stats.packets += 1
+            yield body[2], body[3:]
