@@ -222,9 +222,15 @@ def cmd_emulate_robot(args: argparse.Namespace) -> int:
     )
     link = Path(args.link)
     robot = RobotEmulator(sim, emu, link, Path(args.report) if args.report else None)
-    print(f"emulated Colias-IV on {link} (waiting for the host's START)", flush=True)
+
+    def announce(device: str) -> None:
+        print(
+            f"emulated Colias-IV on {device} (also {link}); waiting for the host's START",
+            flush=True,
+        )
+
     try:
-        report = robot.run(wait_for_host_s=args.wait)
+        report = robot.run(wait_for_host_s=args.wait, announce=announce)
     except TimeoutError as exc:
         raise UserError(str(exc)) from None
     print(
@@ -269,9 +275,13 @@ def cmd_robot(args: argparse.Namespace) -> int:
     from capture.robot_capture import LINK_STATS, ColiasRobotDevice, RobotCaptureConfig
     from capture.run import run_capture
 
-    schedule = (
-        parse_schedule(args.tf_schedule) if args.tf_schedule else ((args.tf_hz, 48 * 3600.0),)
-    )
+    schedule: tuple[tuple[float, float], ...] = ((args.tf_hz, 48 * 3600.0),)
+    if args.tf_schedule:
+        text = args.tf_schedule
+        if Path(text).is_file():  # a schedule file: the same syntax, one segment a line
+            lines = Path(text).read_text().splitlines()
+            text = ",".join(ln.strip() for ln in lines if ln.strip() and ln.strip()[0] != "#")
+        schedule = parse_schedule(text)
     wall = WallConfig(tf_schedule=schedule, period_m=args.period_m, scene=args.scene)
     cfg = RobotCaptureConfig(
         port=args.port,
@@ -321,6 +331,13 @@ def cmd_robot(args: argparse.Namespace) -> int:
         }
     )
     recorder.log_model_meta(model.name, model.outputs)
+    if args.save_calibration:
+        from capture.tracker import save_calibration
+
+        device._poll_camera()
+        if device.h is None:
+            raise UserError("no overhead frame yet to calibrate from")
+        save_calibration(device.h, Path(args.save_calibration))
     print(
         f"recording {rid} from {args.port} (overhead camera {args.camera}) -> {out}",
         file=sys.stderr,
@@ -483,7 +500,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--corrupt-rate",
         type=_non_negative_float,
         default=0.0,
-        help="probability of corrupting each byte (e.g. 0.0001)",
+        help="share of packets corrupted, e.g. 0.01 (1-3 bits flipped in each)",
     )
     em.add_argument(
         "--drop-rate",
@@ -544,7 +561,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     tfr = ro.add_mutually_exclusive_group()
     tfr.add_argument("--tf-hz", type=_non_negative_float, default=0.0, help="wall TF, Hz")
-    tfr.add_argument("--tf-schedule", metavar="S", help="e.g. 0:30m,3:30m")
+    tfr.add_argument(
+        "--tf-schedule",
+        metavar="S",
+        help="e.g. 0:30m,3:30m, or a file with one TF:DURATION per line",
+    )
+    ro.add_argument(
+        "--save-calibration",
+        metavar="FILE",
+        help="save the tracker's homography (calibrated on the first frame)",
+    )
     ro.add_argument("--period-m", type=positive_float, default=0.1, help="wall period, m")
     ro.add_argument("--scene", choices=["grating", "natural"], default="grating")
     ro.add_argument("--wall-port", help="LED wall controller's serial port (line protocol)")

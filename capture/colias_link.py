@@ -12,9 +12,12 @@ byte stream into packets, and reopens the port after it disappears.
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import json
 import os
 import pty
+import struct
+import termios
 import time
 import tty
 from collections.abc import Iterator
@@ -41,7 +44,7 @@ from capture.sim import SimulatedRobot
 
 @dataclasses.dataclass(frozen=True)
 class EmulatorConfig:
-    corrupt_rate: float = 0.0  # probability of flipping each byte sent
+    corrupt_rate: float = 0.0  # share of packets corrupted (1–3 bits flipped past the sync word)
     drop_rate: float = 0.0  # probability of not sending a packet
     disconnect_after_s: float = float("nan")  # close the port once, this long after START
     reconnect_after_s: float = 1.0  # the port reappears this long after a disconnect
@@ -120,6 +123,20 @@ class RobotEmulator:
             view = view[n:]
         return True
 
+    def _drain(self, timeout_s: float = 2.0) -> None:
+        """Wait until the host has read everything written so far (or ``timeout_s``)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            try:
+                pending = struct.unpack(
+                    "i", fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
+                )[0]
+            except OSError:
+                return
+            if pending == 0:
+                return
+            time.sleep(0.005)
+
     def _read_host(self) -> list[int]:
         """Packet types the host sent since the last call."""
         try:
@@ -136,12 +153,14 @@ class RobotEmulator:
         return False
 
     # -- the run ----------------------------------------------------------------------------
-    def run(self, wait_for_host_s: float = 60.0) -> dict:
+    def run(self, wait_for_host_s: float = 60.0, announce=None) -> dict:
         sim = self.sim
         model = make_model(sim.model, **sim.camera.model_context())
         shape = (sim.camera.height_px, sim.camera.width_px)
         self._parser = PacketParser()
-        self.open_port()
+        name = self.open_port()
+        if announce is not None:
+            announce(name)
         if not self._wait_for_start(time.monotonic() + wait_for_host_s):
             self.close_port()
             raise TimeoutError("no host sent START")
@@ -174,10 +193,13 @@ class RobotEmulator:
                     packet = bytearray(
                         encode_frame(f, round(batch.t_s[i] * 1e6), values, image, shape)
                     )
-                    flips = np.flatnonzero(self.rng.random(len(packet)) < self.emu.corrupt_rate)
-                    for k in flips:
-                        packet[k] ^= 1 << int(self.rng.integers(8))
-                    (self.report["corrupted"] if len(flips) else self.report["intact"]).append(f)
+                    corrupt = self.rng.random() < self.emu.corrupt_rate
+                    if corrupt:
+                        for k in self.rng.integers(
+                            2, len(packet), size=int(self.rng.integers(1, 4))
+                        ):
+                            packet[k] ^= 1 << int(self.rng.integers(8))
+                    (self.report["corrupted"] if corrupt else self.report["intact"]).append(f)
                     if not self._write(bytes(packet)):
                         break
         self._finish()
@@ -186,6 +208,7 @@ class RobotEmulator:
     def _disconnect(self, batch, outputs, i: int) -> None:
         """Close the port, stay away for reconnect_after_s, reopen behind the same link."""
         self.report["disconnects"] += 1
+        self._drain()  # what was sent before the cable "comes out" reaches the host
         self.close_port()
         gone = time.monotonic()
         frames_away = round(self.emu.reconnect_after_s * self.sim.camera.fps)
@@ -249,15 +272,17 @@ class SerialLink:
         self.disconnects += 1
         self.parser.buf.clear()  # a half packet from before the loss is gone for good
         deadline = time.monotonic() + self.reconnect_timeout_s
+        last = "no attempt"
         while time.monotonic() < deadline:
             time.sleep(0.1)
             try:
                 self.open()
                 return
-            except (serial.SerialException, OSError):
-                continue
+            except (serial.SerialException, OSError) as exc:
+                last = str(exc)
         raise LinkLost(
-            f"the port {self.port} did not come back within {self.reconnect_timeout_s:g} s"
+            f"the port {self.port} did not come back within {self.reconnect_timeout_s:g} s "
+            f"(last error: {last})"
         )
 
     def packets(self) -> Iterator[tuple[int, object]]:
@@ -265,7 +290,10 @@ class SerialLink:
         Yields (0, None) about every 50 ms while the line is quiet, so callers can stop."""
         while not self.ended:
             try:
-                data = self._ser.read(8192) if self._ser is not None else b""
+                # read only what is waiting: a read that spans the moment the port vanishes
+                # would otherwise lose the bytes it had already gathered
+                waiting = self._ser.in_waiting if self._ser is not None else 0
+                data = self._ser.read(waiting or 1) if self._ser is not None else b""
             except (serial.SerialException, OSError, TypeError):
                 yield (0, "disconnect")
                 self._reconnect()
