@@ -306,9 +306,18 @@ def cmd_robot(args: argparse.Namespace) -> int:
     from avdm.registry import make_model
 
     model = make_model(args.model, fps=cfg.fps, deg_per_px=cfg.deg_per_px)
+    from capture.config import ArenaConfig, RobotConfig
+    from capture.recorder import LINK_STATS as LINK_STATS_ENTITY
+
     recorder = Recorder(
-        out, rid, blueprint=default_blueprint(model.name, model.outputs), live_url=live
+        out,
+        rid,
+        live_url=live,
+        blueprint=default_blueprint(
+            model.name, model.outputs, [("serial link counts", [LINK_STATS_ENTITY])]
+        ),
     )
+    recorder.log_arena(ArenaConfig(), RobotConfig().radius_m)
     recorder.send_properties(
         {
             "run": {

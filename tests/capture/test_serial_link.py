@@ -345,3 +345,40 @@ def test_schedule_file_and_saved_calibration(tmp_path: Path) -> None:
     _, _, tf = Recording(out).wall_tf()
     assert set(np.unique(tf)) <= {0.0, 3.0} and tf[-1, 0] == 3.0
     assert tracker_load(tmp_path / "cal.json").shape == (3, 3)
+
+
+def test_sigint_stops_robot_capture_cleanly(tmp_path: Path) -> None:
+    render_overhead(tmp_path / "overhead", 20.0)
+    link, report_path, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
+    emu = start_emulator(link, report_path, "--minutes", "0.33")
+    cap = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "capture",
+            "robot",
+            "--port",
+            str(link),
+            "--camera",
+            str(tmp_path / "overhead" / "%05d.png"),
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.time() + 60
+    while time.time() < deadline and (not out.exists() or out.stat().st_size < 300_000):
+        time.sleep(0.2)
+    cap.send_signal(signal.SIGINT)
+    _, stderr = cap.communicate(timeout=30)
+    emu.wait(timeout=30)  # the host's STOP ends the emulator's run
+    assert cap.returncode == 130, stderr
+    rec = Recording(out)
+    assert rec.notice is None  # footer written
+    end = rec.properties()["run_end"]
+    assert end["stop_reason"] == "signal SIGINT" and end["frames"] > 10
+    assert len(rec.read_frames().frame) == end["frames"]
