@@ -144,6 +144,33 @@ def start_emulator(link: Path, report: Path, *extra: str) -> subprocess.Popen:
     return proc
 
 
+def start_robot_capture(link: Path, frames: Path, out: Path, min_bytes: int) -> subprocess.Popen:
+    """``vdc-capture robot`` in the background; returns once ``out`` holds ``min_bytes``."""
+    cap = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "capture",
+            "robot",
+            "--port",
+            str(link),
+            "--camera",
+            str(frames / "%05d.png"),
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.time() + 60
+    while time.time() < deadline and (not out.exists() or out.stat().st_size < min_bytes):
+        time.sleep(0.2)
+    return cap
+
+
 def test_end_to_end_on_a_pty_with_corruption_and_a_disconnect(tmp_path: Path) -> None:
     seconds = 12.0
     cfg = render_overhead(tmp_path / "overhead", seconds, seed=3)
@@ -213,27 +240,7 @@ def test_decimated_images_and_sigkill_leave_a_readable_recording(tmp_path: Path)
     render_overhead(tmp_path / "overhead", 20.0)
     link, report_path, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
     emu = start_emulator(link, report_path, "--minutes", "0.33", "--decimation", "3")
-    cap = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "capture",
-            "robot",
-            "--port",
-            str(link),
-            "--camera",
-            str(tmp_path / "overhead" / "%05d.png"),
-            "--out",
-            str(out),
-            "--quiet",
-        ],
-        cwd=ROOT,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    deadline = time.time() + 60
-    while time.time() < deadline and (not out.exists() or out.stat().st_size < 200_000):
-        time.sleep(0.2)
+    cap = start_robot_capture(link, tmp_path / "overhead", out, 200_000)
     time.sleep(1.0)
     cap.send_signal(signal.SIGKILL)
     cap.wait(timeout=30)
@@ -351,28 +358,7 @@ def test_sigint_stops_robot_capture_cleanly(tmp_path: Path) -> None:
     render_overhead(tmp_path / "overhead", 20.0)
     link, report_path, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
     emu = start_emulator(link, report_path, "--minutes", "0.33")
-    cap = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "capture",
-            "robot",
-            "--port",
-            str(link),
-            "--camera",
-            str(tmp_path / "overhead" / "%05d.png"),
-            "--out",
-            str(out),
-            "--quiet",
-        ],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = time.time() + 60
-    while time.time() < deadline and (not out.exists() or out.stat().st_size < 300_000):
-        time.sleep(0.2)
+    cap = start_robot_capture(link, tmp_path / "overhead", out, 300_000)
     cap.send_signal(signal.SIGINT)
     _, stderr = cap.communicate(timeout=30)
     emu.wait(timeout=30)  # the host's STOP ends the emulator's run
