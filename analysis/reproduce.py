@@ -318,7 +318,8 @@ def write_report(out: Path, plan: Plan, claims: list[Claim], elapsed_s: float) -
     )
     crow = "".join(
         "<tr>" + "".join(f"<td>{html.escape(_fmt(v))}</td>" for v in r) + "</tr>"
-        for r in col.select(
+        for r in col.with_columns((pl.col("success_rate") * 100).round(1).cast(pl.String) + " %")
+        .select(
             "phase",
             "detector",
             "wall_tf_hz",
@@ -328,7 +329,8 @@ def write_report(out: Path, plan: Plan, claims: list[Claim], elapsed_s: float) -
             "false_alarms",
             "paper_avoidances",
             "paper_success",
-        ).iter_rows()
+        )
+        .iter_rows()
     )
     figs = "".join(
         f"<h3>{html.escape(t)}</h3>{_img(out / rel)}" for t, rel in FIGURES if (out / rel).exists()
