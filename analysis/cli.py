@@ -199,21 +199,17 @@ def cmd_profile(args: argparse.Namespace) -> int:
         segment_summary,
         segments_from_tables,
     )
-    from analysis.tables import build_tables, load_recording
+    from analysis.tables import build_tables
 
     settings = _table_settings(args)
     prof = ProfileSettings(threshold_dps=args.threshold, bin_dps=args.bin_dps, cell_m=args.cell_m)
     with _frame_progress("profile") as bar:
         tables, meta = build_tables(args.recordings, args.model, settings, bar.update, _notice)
-    half = {}
-    for path in args.recordings:
-        loaded = load_recording(path)
-        half[loaded.recording_id] = loaded.arena_half_extent()
     segs = segments_from_tables(
         tables["frames"],
         tables["model_outputs"],
         tables["summary"],
-        half,
+        meta["arena_half_extent_m"],
         args.by,
         settings.warmup_frames,
     )
@@ -231,7 +227,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
         },
     }
     write_parquet(summary, out / "profile_summary.parquet", meta)
-    rid = "profile-" + hashlib.sha1("|".join(sorted(half)).encode()).hexdigest()[:8]
+    rid = "profile-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
     rrd = write_profile_rrd(segs, prof, out / "profiles.rrd", rid)
     print(
         f"{len(segs)} profile(s) by {args.by}: {len(pngs)} PNGs, {overview}, {rrd}, "

@@ -32,7 +32,7 @@ from analysis.profile import (
     segments_from_tables,
 )
 from analysis.sweep import SweepConfig, monotonicity, paper_cells, plot_paper, run_sweep
-from analysis.tables import TableSettings, build_tables, load_recording
+from analysis.tables import TableSettings, build_tables
 
 PROFILE_CONDITIONS = (
     ("grating", 0.0),
@@ -398,14 +398,11 @@ def reproduce(plan: Plan, out: Path, log: Callable[[str], None]) -> list[Path]:
     tables, tmeta = build_tables(prof_paths, None, settings)
     for name, t in tables.items():
         write_parquet(t, out / "profiling" / f"{name}.parquet", tmeta)
-    half = {
-        load_recording(p).recording_id: load_recording(p).arena_half_extent() for p in prof_paths
-    }
     segs = segments_from_tables(
         tables["frames"],
         tables["model_outputs"],
         tables["summary"],
-        half,
+        tmeta["arena_half_extent_m"],
         "condition",
         settings.warmup_frames,
     )

@@ -315,6 +315,7 @@ def build_tables(
     Returns the tables and the metadata to store with them."""
     frames, outputs, events, summary = [], [], [], []
     params: dict[str, dict[str, dict[str, Any]]] = {}
+    arenas: dict[str, tuple[float, float]] = {}
     for path in sorted(paths, key=str):
         loaded = load_recording(path)
         if loaded.rec.notice and notices:
@@ -333,6 +334,7 @@ def build_tables(
             }
             if progress is not None:
                 progress(loaded.frames.height)
+        arenas[loaded.recording_id] = loaded.arena_half_extent()
         mo = model_outputs_table(loaded, outs)
         frames.append(loaded.frames)
         outputs.append(mo)
@@ -349,6 +351,7 @@ def build_tables(
         ),
     }
     meta = {
+        "arena_half_extent_m": arenas,
         "params": params,
         "settings": dataclasses.asdict(settings),
         "recordings": sorted(params),

@@ -77,6 +77,14 @@ def output_units(outputs: tuple[Output, ...]) -> Mapping[str, str]:
     return {o.name: o.unit for o in outputs}
 
 
+def run_by_steps(
+    step: Any, frames: np.ndarray, names: tuple[str, ...], **check: int
+) -> dict[str, np.ndarray]:
+    """``run`` of a model that only knows ``step``: (T,) float64 per output name."""
+    rows = [step(f) for f in check_frames(frames, **check)]
+    return {k: np.array([r[k] for r in rows], dtype=np.float64) for k in names}
+
+
 def check_frames(frames: np.ndarray, *, min_h: int = 1, min_w: int = 2) -> np.ndarray:
     """Validate a stack of frames ``(T, H, W)`` and return it C-contiguous.
 

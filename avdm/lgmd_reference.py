@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from avdm.base import Output, check_frames
+from avdm.base import Output, check_frames, run_by_steps
 from avdm.lgmd_params import (
     LGMD_OUTPUT_NAMES,
     LGMD_OUTPUTS,
@@ -153,8 +153,7 @@ class LgmdPlusReference:
         return dict(zip(LGMD_OUTPUT_NAMES, values, strict=True))
 
     def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
-        rows = [self.step(f) for f in check_frames(frames, min_h=1, min_w=1)]
-        return {k: np.array([r[k] for r in rows]) for k in LGMD_OUTPUT_NAMES}
+        return run_by_steps(self.step, frames, LGMD_OUTPUT_NAMES, min_h=1, min_w=1)
 
 
 class LgmdColiasReference:
@@ -229,5 +228,4 @@ class LgmdColiasReference:
         return dict(zip(LGMD_OUTPUT_NAMES, values, strict=True))
 
     def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
-        rows = [self.step(f) for f in check_frames(frames, min_h=1, min_w=1)]
-        return {k: np.array([r[k] for r in rows]) for k in LGMD_OUTPUT_NAMES}
+        return run_by_steps(self.step, frames, LGMD_OUTPUT_NAMES, min_h=1, min_w=1)

@@ -14,7 +14,7 @@ from typing import ClassVar
 import numpy as np
 
 from avdm.avdm_model import AVDM_OUTPUTS, MIN_CONTRAST, OUTPUT_NAMES, AvdmParams
-from avdm.base import Output, check_frames
+from avdm.base import Output, check_frames, run_by_steps
 
 
 def to_intensity(frame: np.ndarray) -> np.ndarray:
@@ -146,6 +146,4 @@ class AvdmReference:
         return dict(zip(OUTPUT_NAMES, values, strict=True))
 
     def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
-        frames = check_frames(frames)
-        rows = [self.step(f) for f in frames]
-        return {k: np.array([r[k] for r in rows], dtype=np.float64) for k in OUTPUT_NAMES}
+        return run_by_steps(self.step, frames, OUTPUT_NAMES)

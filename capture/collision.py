@@ -27,7 +27,6 @@ import numpy as np
 from avdm.registry import make_model
 from capture.config import CollisionConfig, SimConfig
 from capture.device import Batch, Event
-from capture.render import CameraRenderer, OverheadRenderer
 from capture.sim import SimulatedRobot
 
 FORWARD, AVOIDING, CRASH_TURN = 0, 1, 2
@@ -175,16 +174,13 @@ class ClosedLoopRobot(SimulatedRobot):
         make_model(self._detector_spec, **ctx)  # fail early on a bad spec
         make_model(config.model, **ctx)
 
+    def _make_motion(self) -> CollisionMotion:
+        return CollisionMotion(self.config, self._motion_rng)
+
     def connect(self) -> None:
+        super().connect()
         c = self.config
         ctx = c.camera.model_context()
-        self._renderer = CameraRenderer(c.arena, c.wall, c.camera, self._texture)
-        self._motion = CollisionMotion(c, self._motion_rng)
-        self._overhead = (
-            OverheadRenderer(c.arena, c.robot.radius_m, c.overhead.px_per_m)
-            if c.overhead.enabled
-            else None
-        )
         self.detector = make_model(self._detector_spec, **ctx)
         self.profiler = make_model(c.model, **ctx)
         p = self.detector.params
@@ -195,13 +191,6 @@ class ClosedLoopRobot(SimulatedRobot):
         self._omega_sum = 0.0
         self._over_ring = np.zeros(window, dtype=np.int64)  # AVDM ω̂ > 100 over the window
         self._over_sum = 0
-        self._next = 0
-        self._offset_m = 0.0
-        self._connected = True
-
-    @property
-    def detector_name(self) -> str:
-        return self.detector.name
 
     def read(self) -> Batch | None:
         n = self._batch_length()

@@ -72,7 +72,7 @@ class SimulatedRobot:
     def connect(self) -> None:
         c = self.config
         self._renderer = CameraRenderer(c.arena, c.wall, c.camera, self._texture)
-        self._motion = RobotMotion(c.arena, c.robot, c.camera.fps, self._motion_rng)
+        self._motion = self._make_motion()
         self._overhead = (
             OverheadRenderer(c.arena, c.robot.radius_m, c.overhead.px_per_m)
             if c.overhead.enabled
@@ -81,6 +81,10 @@ class SimulatedRobot:
         self._next = 0
         self._offset_m = 0.0
         self._connected = True
+
+    def _make_motion(self):  # -> RobotMotion, or a subclass's own body model
+        c = self.config
+        return RobotMotion(c.arena, c.robot, c.camera.fps, self._motion_rng)
 
     def _batch_length(self) -> int:
         """Frames in the next batch (0 at the end of the run)."""
