@@ -48,11 +48,28 @@ def bias_matrix(h: int, w: int, std_w: float, w_min: float) -> np.ndarray:
     return np.maximum(1.0 - b, w_min)
 
 
-def _check_positive(obj: object, names: tuple[str, ...]) -> None:
-    for name in names:
+def _check_params(
+    obj: object,
+    positive: tuple[str, ...],
+    non_negative: tuple[str, ...],
+    integers: tuple[tuple[str, int, int], ...],
+) -> None:
+    """Raise ValueError naming the first field out of its range (shared by both detectors)."""
+    for name in positive:
         v = getattr(obj, name)
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
             raise ValueError(f"lgmd parameter {name}={v!r}: must be a positive number")
+    fps = obj.fps
+    if frame_interval_ms(fps) < 1:
+        raise ValueError(f"lgmd parameter fps={fps!r}: must be at most 1000")
+    for name in non_negative:
+        v = getattr(obj, name)
+        if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+            raise ValueError(f"lgmd parameter {name}={v!r}: must be a number >= 0")
+    for name, lo, hi in integers:
+        v = getattr(obj, name)
+        if not (isinstance(v, int) and lo <= v <= hi):
+            raise ValueError(f"lgmd parameter {name}={v!r}: must be an integer {lo}-{hi}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,9 +103,9 @@ class LgmdPlusParams(Params):
     t_sr: float = 56.0  # gene: collision threshold on the spike rate, spikes/s
 
     def __post_init__(self) -> None:
-        _check_positive(
+        _check_params(
             self,
-            (
+            positive=(
                 "fps",
                 "tau_ffi_ms",
                 "t_ffi",
@@ -100,29 +117,23 @@ class LgmdPlusParams(Params):
                 "tau_hp_ms",
                 "k_sp",
             ),
+            non_negative=(
+                "w_base",
+                "delta_c",
+                "clip_point",
+                "dc",
+                "w_min",
+                "w_on",
+                "w_off",
+                "w_onoff",
+                "c_de",
+                "t_de",
+                "t_sfa",
+                "t_sp",
+                "t_sr",
+            ),
+            integers=(("n_ts", 1, 1000),),
         )
-        if frame_interval_ms(self.fps) < 1:
-            raise ValueError(f"lgmd parameter fps={self.fps!r}: must be at most 1000")
-        for name in (
-            "w_base",
-            "delta_c",
-            "clip_point",
-            "dc",
-            "w_min",
-            "w_on",
-            "w_off",
-            "w_onoff",
-            "c_de",
-            "t_de",
-            "t_sfa",
-            "t_sp",
-            "t_sr",
-        ):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"lgmd parameter {name}={v!r}: must be a number >= 0")
-        if not (isinstance(self.n_ts, int) and 1 <= self.n_ts <= 1000):
-            raise ValueError(f"lgmd parameter n_ts={self.n_ts!r}: must be an integer 1-1000")
         if not 0 <= self.dc < 1:
             raise ValueError(f"lgmd parameter dc={self.dc!r}: must be below 1")
 
@@ -153,9 +164,9 @@ class LgmdColiasParams(Params):
     n_ts: int = 10  # window of the reported spike rate (not used by the decision)
 
     def __post_init__(self) -> None:
-        _check_positive(
+        _check_params(
             self,
-            (
+            positive=(
                 "fps",
                 "t_pm",
                 "tau_pm_ms",
@@ -166,14 +177,15 @@ class LgmdColiasParams(Params):
                 "tau_sfa_ms",
                 "a4",
             ),
+            non_negative=(
+                "w_on_base",
+                "w_off_base",
+                "o1",
+                "o2",
+                "delta_c",
+                "cde_tde",
+                "t_sfa",
+                "t_spi",
+            ),
+            integers=(("border", 0, 1000), ("n_alert", 1, 1000), ("n_ts", 1, 1000)),
         )
-        if frame_interval_ms(self.fps) < 1:
-            raise ValueError(f"lgmd parameter fps={self.fps!r}: must be at most 1000")
-        for name in ("w_on_base", "w_off_base", "o1", "o2", "delta_c", "cde_tde", "t_sfa", "t_spi"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"lgmd parameter {name}={v!r}: must be a number >= 0")
-        for name, lo, hi in (("border", 0, 1000), ("n_alert", 1, 1000), ("n_ts", 1, 1000)):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and lo <= v <= hi):
-                raise ValueError(f"lgmd parameter {name}={v!r}: must be an integer {lo}-{hi}")
