@@ -13,10 +13,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from analysis.parquet_io import package_versions
 from avdm.base import Params
 from avdm.calibration import CalibrationResult
 from avdm.calibration_store import CALIBRATION_FILE
+from contract.provenance import package_versions
 
 
 def calibration_entry(

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import platform
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -12,26 +10,17 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-_PACKAGES = ("vdc", "numpy", "numba", "polars", "pyarrow", "rerun-sdk", "opencv-python-headless")
-
-
-def package_versions() -> dict[str, str]:
-    """Versions of Python and of the packages that determine a table's contents."""
-    out = {"python": platform.python_version()}
-    for name in _PACKAGES:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
+from contract.provenance import machine_info, package_versions
 
 
 def write_parquet(df: pl.DataFrame, path: Path, meta: dict[str, Any]) -> Path:
     """Write ``df`` to ``path`` with ``meta`` (JSON-encoded per key, prefixed ``vdc.``) and
-    the package versions in the Parquet key-value metadata. Writes atomically."""
+    the package versions and the machine in the Parquet key-value metadata. Writes
+    atomically."""
     table: pa.Table = df.to_arrow()
     kv = {f"vdc.{k}": json.dumps(v, sort_keys=True, default=str) for k, v in meta.items()}
     kv["vdc.versions"] = json.dumps(package_versions(), sort_keys=True)
+    kv["vdc.machine"] = json.dumps(machine_info(), sort_keys=True)
     table = table.replace_schema_metadata({**(table.schema.metadata or {}), **kv})
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".partial")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import base64
 import dataclasses
 import html
+import json
 import math
 import time
 from collections.abc import Callable
@@ -23,7 +24,7 @@ import polars as pl
 from analysis.approach import ApproachConfig, plot_approach, run_approach
 from analysis.collision import CollisionSettings, collision_outputs, collision_table_markdown
 from analysis.collision_study import phase_items, run_captures, study_phases
-from analysis.parquet_io import write_parquet
+from analysis.parquet_io import read_metadata, write_parquet
 from analysis.profile import (
     ProfileSettings,
     plot_overview,
@@ -31,6 +32,7 @@ from analysis.profile import (
     segment_summary,
     segments_from_tables,
 )
+from analysis.rrd_reader import Recording
 from analysis.sweep import SweepConfig, monotonicity, paper_cells, plot_paper, run_sweep
 from analysis.tables import TableSettings, build_tables
 
@@ -307,6 +309,8 @@ def write_report(out: Path, plan: Plan, claims: list[Claim], elapsed_s: float) -
     md += [f"| {c.claim} | {c.paper} | {c.measured} | **{c.verdict}** |" for c in claims]
     md += ["", "## Collision study", "", collision_table_markdown(col), "", "## Figures", ""]
     md += [f"### {title}\n\n![{title}]({rel})\n" for title, rel in FIGURES if (out / rel).exists()]
+    env = environment_markdown(out)
+    md += ["## Environment", "", *env, ""]
     md_path = out / "report.md"
     md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
 
@@ -343,10 +347,22 @@ table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px;ve
 <h2>Claims</h2><table><tr><th>claim</th><th>paper</th><th>measured</th><th>verdict</th></tr>
 {rows}</table><h2>Collision study</h2><table><tr><th>phase</th><th>detector</th><th>TF (Hz)</th>
 <th>avoidances</th><th>crashes</th><th>success</th><th>false alarms</th><th>paper avoidances</th>
-<th>paper success</th></tr>{crow}</table><h2>Figures</h2>{figs}</body></html>"""
+<th>paper success</th></tr>{crow}</table><h2>Figures</h2>{figs}
+<h2>Environment</h2>{_env_html(env)}</body></html>"""
     html_path = out / "report.html"
     html_path.write_text(page, encoding="utf-8")
     return [md_path, html_path]
+
+
+def _env_html(lines: list[str]) -> str:
+    """The environment section's Markdown table as HTML (the rest as paragraphs)."""
+    rows = [ln for ln in lines if ln.startswith("|") and not ln.startswith("|---")]
+    text = [ln.strip() for ln in lines if ln.strip() and not ln.startswith("|")]
+    cells = [[c.strip() for c in r.strip("|").split("|")] for r in rows]
+    table = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in cells
+    )
+    return "".join(f"<p>{html.escape(t)}</p>" for t in text) + f"<table>{table}</table>"
 
 
 def _fmt(v: Any) -> str:
@@ -425,6 +441,43 @@ def reproduce(plan: Plan, out: Path, log: Callable[[str], None]) -> list[Path]:
     write_parquet(
         pl.DataFrame([dataclasses.asdict(c) for c in claims]),
         out / "claims.parquet",
-        {"plan": dataclasses.asdict(plan)},
+        {"plan": dataclasses.asdict(plan), "capture_provenance": capture_provenance(paths)},
     )
     return write_report(out, plan, claims, time.perf_counter() - t0)
+
+
+def capture_provenance(paths: dict[str, Path]) -> list[dict[str, Any]]:
+    """The distinct (versions, machine) the recordings were captured with, each with the
+    recordings that share it (recordings reused from an older run may differ)."""
+    groups: dict[str, dict[str, Any]] = {}
+    for key, path in sorted(paths.items()):
+        prov = Recording(path).properties().get("provenance") or {"unknown": "not recorded"}
+        entry = groups.setdefault(
+            json.dumps(prov, sort_keys=True), {"provenance": prov, "recordings": []}
+        )
+        entry["recordings"].append(key)
+    return list(groups.values())
+
+
+def environment_markdown(out: Path) -> list[str]:
+    """The versions and machines of the analysis and of the captures, from claims.parquet."""
+    meta = read_metadata(out / "claims.parquet")
+    lines = [
+        "Two reports can be compared number for number only when these agree; Numba compiles "
+        "for the host CPU, so floats may differ in the last digits between CPUs.",
+        "",
+        "| | "
+        + " | ".join(
+            ["analysis"]
+            + [f"capture {i + 1}" for i, _ in enumerate(meta.get("capture_provenance", []))]
+        )
+        + " |",
+    ]
+    cols = [{**meta.get("versions", {}), **meta.get("machine", {})}]
+    cols += [g["provenance"] for g in meta.get("capture_provenance", [])]
+    lines.append("|---" * (len(cols) + 1) + "|")
+    keys = list(dict.fromkeys(k for c in cols for k in c))
+    lines += [f"| {k} | " + " | ".join(str(c.get(k, "-")) for c in cols) + " |" for k in keys]
+    for i, g in enumerate(meta.get("capture_provenance", [])):
+        lines.append(f"\ncapture {i + 1}: {', '.join(g['recordings'])}")
+    return lines

@@ -274,6 +274,7 @@ def cmd_robot(args: argparse.Namespace) -> int:
     from capture.recorder import Recorder, default_blueprint, spawn_viewer
     from capture.robot_capture import LINK_STATS, ColiasRobotDevice, RobotCaptureConfig
     from capture.run import run_capture
+    from contract.provenance import machine_info, package_versions
 
     schedule: tuple[tuple[float, float], ...] = ((args.tf_hz, 48 * 3600.0),)
     if args.tf_schedule:
@@ -337,6 +338,7 @@ def cmd_robot(args: argparse.Namespace) -> int:
             "model": {"name": model.name, "on_board": True},
             "model_params": model.params.to_dict(),
             "link": {"protocol": "vdc serial v1 (see README)", "stats": ",".join(LINK_STATS)},
+            "provenance": {**package_versions(), **machine_info()},
         }
     )
     recorder.log_model_meta(model.name, model.outputs)

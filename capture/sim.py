@@ -21,6 +21,7 @@ from capture.config import SimConfig
 from capture.device import Batch, Event
 from capture.render import CameraRenderer, OverheadRenderer
 from capture.robot import RobotMotion, TurnEvent
+from contract.provenance import machine_info, package_versions
 
 
 def load_wall_image(path: str, texture_px: tuple[int, int]) -> np.ndarray:
@@ -142,6 +143,7 @@ def recording_properties(
         vdc_version=__version__,
         numpy_version=np.__version__,
     )
+    sections["provenance"] = {**package_versions(), **machine_info()}
     sections["model"] = {
         "name": model.name,
         "outputs": json.dumps({o.name: o.unit for o in model.outputs}),

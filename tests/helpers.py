@@ -4,12 +4,55 @@ pythonpath, so ``tests/avdm`` never shadows the ``avdm`` package)."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+# Background processes started by the running test; the autouse fixture in tests/conftest.py
+# ends them after every test, whether it passed, failed or was interrupted.
+_BACKGROUND: list[subprocess.Popen] = []
+
+
+def spawn(cmd: Sequence[str], **kwargs) -> subprocess.Popen:
+    """Start a background process for a test, in its own process group so that it and any
+    children it starts can be ended together by :func:`end_background_processes`."""
+    proc = subprocess.Popen(list(cmd), process_group=0, **kwargs)
+    _BACKGROUND.append(proc)
+    return proc
+
+
+def end_background_processes(grace_s: float = 5.0) -> list[str]:
+    """Terminate (then kill) every process :func:`spawn` started that still runs, with its
+    process group, and close its pipes; returns the commands that were still running."""
+    left = []
+    while _BACKGROUND:
+        proc = _BACKGROUND.pop()
+        if proc.poll() is None:
+            left.append(" ".join(map(str, proc.args)))  # type: ignore[arg-type]
+            for sig in (signal.SIGTERM, signal.SIGKILL):
+                try:
+                    os.killpg(proc.pid, sig)
+                except ProcessLookupError:
+                    break
+                try:
+                    proc.wait(timeout=grace_s)
+                    break
+                except subprocess.TimeoutExpired:
+                    continue
+        else:  # the leader is gone; its group may not be
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+        for pipe in (proc.stdin, proc.stdout, proc.stderr):
+            if pipe is not None:
+                pipe.close()
+    return left
 
 
 def run_cli(
@@ -40,7 +83,7 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> N
 def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.Popen:
     """Start a 60-minute simulated capture writing ``out`` and wait until the file holds at
     least ``min_bytes`` (frames are being written); the caller stops it."""
-    proc = subprocess.Popen(
+    proc = spawn(
         [
             sys.executable,
             "-m",

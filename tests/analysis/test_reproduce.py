@@ -55,6 +55,12 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
     md = (out / "report.md").read_text()
     for c in again:
         assert c.measured in md and f"**{c.verdict}**" in md
+    # the environment of the analysis and of the captures, so two reports can be compared
+    from contract.provenance import machine_info, package_versions
+
+    assert "## Environment" in md and machine_info()["cpu_model"] in md
+    assert f"| numpy | {package_versions()['numpy']} |" in md
+    assert "numba_target_cpu" in html and "capture 1" in md
     assert claims.height == 7 and set(claims["verdict"]) <= {"holds", "partly", "does not hold"}
     col = pl.read_parquet(out / "collision" / "collision_summary.parquet")
     tf0 = col.filter(pl.col("phase") == "tf0").row(0, named=True)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -143,8 +144,12 @@ def test_calibrate_prints_and_saves_the_fit(out_dir: Path) -> None:
     )
     assert proc.returncode == 0, proc.stderr
     shipped = lookup_calibration(33.0, 70 / 99)
-    assert f"a = {shipped['a']:.6g}" in proc.stdout
-    assert f"b = {shipped['b']:.6g}" in proc.stdout
+    printed = re.search(r"a = (\S+)\s+b = (\S+)", proc.stdout)
+    assert printed, proc.stdout
+    # compare numbers, not 6-digit strings: a fit on another CPU may round the last printed
+    # digit the other way (see test_calibration.py for the 1e-5 relative tolerance)
+    assert float(printed[1]) == pytest.approx(shipped["a"], rel=1e-5)
+    assert float(printed[2]) == pytest.approx(shipped["b"], rel=1e-5)
     assert "--model avdm:a=" in proc.stdout
     saved = (out_dir / "calibration.json").read_text()
     assert '"r2"' in saved and '"grid"' in saved

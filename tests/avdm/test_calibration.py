@@ -15,8 +15,13 @@ def test_shipped_calibration_is_reproduced_by_the_fit(entry: dict) -> None:
     result = fit_decoding(
         params, size=(entry["height"], entry["width"]), contrasts=tuple(entry["grid"]["contrasts"])
     )
-    assert result.a == pytest.approx(entry["a"], rel=1e-9)
-    assert result.b == pytest.approx(entry["b"], rel=1e-9)
+    # The AVDM kernel sums in float32 with reassociation (so LLVM vectorises it), and the
+    # vector width is the host CPU's: AVX-512 and AVX2 machines round the pooled sums
+    # differently, by a few float32 ulps (1.2e-7 each). Across machines the fit moved by
+    # 3e-7 relative; 1e-5 relative (about 100 ulps) covers that with room, and is still far
+    # below the 4 significant digits the README quotes and the 7 % RMS error of the fit.
+    assert result.a == pytest.approx(entry["a"], rel=1e-5)
+    assert result.b == pytest.approx(entry["b"], rel=1e-5)
     assert result.n_points == entry["n_points"]
     # avdm.md §9.12: b close to 1 and a good log-log fit
     assert 0.9 < result.b < 1.1

@@ -17,7 +17,7 @@ from analysis.rrd_reader import Recording
 from avdm import make_model
 from capture.config import SimConfig, WallConfig, parse_schedule
 from capture.sim import SimulatedRobot
-from tests.helpers import assert_one_line_error, run_cli, start_long_capture
+from tests.helpers import assert_one_line_error, run_cli, spawn, start_long_capture
 
 CONTRACT_ENTITIES = {
     "/arena/walls",
@@ -258,7 +258,7 @@ def test_connect_tees_to_a_live_viewer_while_writing_the_file(tmp_path: Path) ->
         port = s.getsockname()[1]
     received = tmp_path / "received.rrd"
     exe = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
-    receiver = subprocess.Popen(
+    receiver = spawn(
         [exe, "--bind", "127.0.0.1", "--port", str(port), "--save", str(received)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -290,6 +290,6 @@ def test_connect_tees_to_a_live_viewer_while_writing_the_file(tmp_path: Path) ->
             time.sleep(0.5)
         assert frames is not None and len(frames.frame) == 198
         assert np.array_equal(frames.images, Recording(out).read_frames().images)
-    finally:
+    finally:  # the autouse fixture also ends it if anything above raised first
         receiver.terminate()
         receiver.wait(timeout=10)

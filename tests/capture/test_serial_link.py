@@ -32,7 +32,7 @@ from capture.serial_protocol import (
 )
 from capture.sim import SimulatedRobot
 from capture.tracker import load_calibration as tracker_load
-from tests.helpers import ROOT, assert_one_line_error, run_cli
+from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn
 
 
 def test_crc_is_ccitt_false() -> None:
@@ -119,7 +119,7 @@ def render_overhead(folder: Path, seconds: float, fps: float = 10.0, seed: int =
 
 
 def start_emulator(link: Path, report: Path, *extra: str) -> subprocess.Popen:
-    proc = subprocess.Popen(
+    proc = spawn(
         [
             sys.executable,
             "-m",
@@ -146,7 +146,7 @@ def start_emulator(link: Path, report: Path, *extra: str) -> subprocess.Popen:
 
 def start_robot_capture(link: Path, frames: Path, out: Path, min_bytes: int) -> subprocess.Popen:
     """``vdc-capture robot`` in the background; returns once ``out`` holds ``min_bytes``."""
-    cap = subprocess.Popen(
+    cap = spawn(
         [
             sys.executable,
             "-m",

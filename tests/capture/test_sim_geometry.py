@@ -53,6 +53,7 @@ def test_turns_happen_at_the_ring_and_at_the_stated_rate() -> None:
     # during a turn the heading changes by turn_speed_dps / fps per frame, position is fixed
     t0 = turns[0].frame
     dh = np.degrees(np.abs(np.diff(np.unwrap(poses[t0 : t0 + 10, 2]))))
+    # float64 headings differenced after unwrap: a few ulps (~1e-15) of rounding, on any CPU
     assert dh[1:] == pytest.approx(m.cfg.turn_speed_dps / CAMERA.fps, rel=1e-9)
     assert np.ptp(poses[t0 + 1 : t0 + 10, :2], axis=0).max() == 0.0
 
@@ -61,6 +62,7 @@ def test_forward_speed_is_8_cm_per_second() -> None:
     m = motion(0, start_x_m=-0.3, start_y_m=0.0, start_heading_rad=0.0)
     poses, turns = m.advance(33)
     assert not turns
+    # 32 float64 steps accumulate at most ~32 ulps (~1e-14 relative); 1e-9 leaves room
     assert poses[-1, 0] - poses[0, 0] == pytest.approx(0.08 * 32 / 33, rel=1e-9)
 
 
