@@ -23,7 +23,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from analysis.profile import ProfileSettings, Segment, heat_map, histogram_over
-from capture.recorder import (
+from contract.recording import (
     APP_ID,
     CAMERA,
     FRAME_TIMELINE,

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -22,90 +22,49 @@ from avdm.registry import describe_models
 PROG = "vdc-analyse"
 
 
-def _progress(total: int, desc: str):  # -> tqdm
+def _progress(total: int | None, desc: str, unit: str = "cell"):  # -> tqdm
     from tqdm import tqdm
 
     # disable=None: a bar on terminals, silence in pipes and CI logs
-    return tqdm(total=total, desc=desc, unit="cell", disable=None, leave=False, file=sys.stderr)
+    return tqdm(total=total, desc=desc, unit=unit, disable=None, leave=False, file=sys.stderr)
+
+
+def _notice(msg: str) -> None:
+    print(f"{PROG}: note: {msg}", file=sys.stderr)
+
+
+def _stderr(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _settings(cls, args: argparse.Namespace, **extra):
+    """The command's settings dataclass from the parsed flags (flag name = field name)."""
+    fields = {f.name for f in dataclasses.fields(cls) if f.init}
+    values = {k: getattr(args, k) for k in fields if hasattr(args, k)}
+    for k, v in values.items():
+        if isinstance(v, list):  # repeatable flags and number lists: tuples in frozen settings
+            values[k] = tuple(v)
+    return cls(**{k: v for k, v in values.items() if v is not None}, **extra)
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     import polars as pl
 
-    from analysis.parquet_io import write_parquet
-    from analysis.sweep import (
-        DEFAULT_SFS_UPC,
-        DEFAULT_TFS_HZ,
-        SweepConfig,
-        check_cells,
-        grid_cells,
-        monotonicity,
-        paper_cells,
-        plot_grid,
-        plot_paper,
-        run_sweep,
-    )
-    from avdm.registry import canonical_name, make_params
+    from analysis.experiments.sweep import SweepSettings, sweep
+    from avdm.registry import canonical_name
 
-    config = SweepConfig(
-        size=args.size,
-        fps=args.fps,
-        duration_s=args.duration,
-        contrast=args.contrast,
-        waveform="square" if args.square else "sine",
-    )
-    if not 0 < args.contrast <= 1:
-        raise UserError(f"--contrast must be in (0, 1], got {args.contrast:g}")
-    grid = args.sf is not None or args.tf is not None
-    if grid:
-        cells = grid_cells(args.sf or DEFAULT_SFS_UPC, args.tf or DEFAULT_TFS_HZ)
-    else:
-        if config.size[1] < 100 or config.fps < 300:
-            raise UserError(
-                "the paper layout needs SF up to 50 upc and TF up to 150 Hz: use --size of at "
-                "least 100 px wide and --fps of at least 300, or give --sf and --tf lists"
-            )
-        cells = paper_cells()
-    check_cells(cells, config)
-    name = canonical_name(args.model)
-    params = make_params(args.model, fps=config.fps, deg_per_px=config.deg_per_px)
-    out = Path(args.out)
-    with _progress(len(cells), f"sweep {name}") as bar:
-        df = run_sweep(args.model, cells, config, progress=bar.update)
-    meta = {
-        "model": name,
-        "params": params.to_dict(),
-        "stimulus": {
-            "size_hw": list(config.size),
-            "fps": config.fps,
-            "duration_s": config.duration_s,
-            "contrast": config.contrast,
-            "waveform": config.waveform,
-            "normalisation": "peak",
-            "dtype": "uint8",
-            "layout": "grid" if grid else "paper",
-        },
-    }
-    write_parquet(df, out / "sweep.parquet", meta)
-    # the paper layout's cross-sections have 3 cells: only its six full rows/columns count
-    mono = monotonicity(df, min_points=3 if grid else 4)
-    write_parquet(mono, out / "monotonicity.parquet", meta)
-    title = (
-        f"{name} on drifting {config.waveform} gratings, {config.size[1]}x{config.size[0]} px, "
-        f"{config.fps:g} Hz, contrast {config.contrast:g}"
-    )
-    png = (plot_grid if grid else plot_paper)(
-        df, out / "sweep.png", *(() if grid else (config,)), title
-    )
-    print(f"{len(df)} cells -> {out / 'sweep.parquet'}, {png}")
+    settings = _settings(SweepSettings, args, waveform="square" if args.square else "sine")
+    with _progress(len(settings.cells()), f"sweep {canonical_name(settings.model)}") as bar:
+        res = sweep(settings, args.out, progress=bar.update)
+    print(f"{res.table.height} cells -> {res.paths[0]}, {res.paths[-1]}")
     print("monotonicity of the response (Spearman rho of omega_dps):")
-    for r in mono.iter_rows(named=True):
+    for r in res.monotonicity.iter_rows(named=True):
         print(
             f"  vs {r['along'].upper():<2} at {r['fixed']:<12} n={r['n']:<3} "
             f"rho={r['rho']:+.3f}  {r['trend']}"
         )
-    inc = mono.filter(pl.col("along") == "tf")
-    dec = mono.filter(pl.col("along") == "sf")
+    inc = res.monotonicity.filter(pl.col("along") == "tf")
+    dec = res.monotonicity.filter(pl.col("along") == "sf")
     print(
         f"summary: {int((inc['trend'] == 'increasing').sum())}/{inc.height} TF rows increasing, "
         f"{int((dec['trend'] == 'decreasing').sum())}/{dec.height} SF columns decreasing"
@@ -114,69 +73,44 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from analysis.calibrate import plot_calibration, update_shipped, write_calibration
-    from avdm.calibration import fit_decoding, valid_periods_px, valid_tfs_hz
-    from avdm.registry import canonical_name, make_params
+    from analysis.experiments.calibrate import CalibrateSettings, calibrate
 
-    h, w = args.size
-    deg_per_px = args.deg_per_px if args.deg_per_px is not None else 360.0 / w
-    spec = args.model
-    base = make_params(
-        spec + (":" if ":" not in spec else ",") + "a=1,b=1", fps=args.fps, deg_per_px=deg_per_px
-    )
-    contrasts = tuple(args.contrast)
-    n_cells = len(valid_periods_px(w)) * len(valid_tfs_hz(args.fps)) * len(contrasts)
-    with _progress(n_cells, "calibrate") as bar:
-        result = fit_decoding(base, size=(h, w), contrasts=contrasts, progress=bar.update)  # type: ignore[arg-type]
-    out = Path(args.out)
-    name = args.name or f"fps{args.fps:g}-{w}x{h}"
-    entry = write_calibration(result, out / "calibration.json", name, canonical_name(spec), base)
-    png = plot_calibration(result, out / "calibration.png")
-    print(f"calibration {name}: fps={args.fps:g} Hz, {deg_per_px:.6g} deg/px, {w}x{h} px")
-    print(f"  a = {result.a:.6g}   b = {result.b:.6g}")
+    s = _settings(CalibrateSettings, args)
+    with _progress(s.n_cells(), "calibrate") as bar:
+        res = calibrate(s, args.out, progress=bar.update)
+    fit, (h, w) = res.fit, s.size
     print(
-        f"  log-log R^2 = {result.r2:.4f}; over {result.n_points} valid cells the decoded "
-        f"omega is off by {100 * result.rms_rel_error:.1f} % RMS, "
-        f"{100 * result.max_rel_error:.1f} % at worst"
+        f"calibration {s.resolved_name}: fps={s.fps:g} Hz, "
+        f"{s.resolved_deg_per_px:.6g} deg/px, {w}x{h} px"
     )
-    print(f"  use it as: --model {spec.split(':')[0]}:a={result.a:.6g},b={result.b:.6g}")
-    print(f"  wrote {out / 'calibration.json'} and {png}")
-    if args.update_defaults:
-        path = update_shipped(entry)
-        print(f"  updated the shipped defaults in {path}")
+    print(f"  a = {fit.a:.6g}   b = {fit.b:.6g}")
+    print(
+        f"  log-log R^2 = {fit.r2:.4f}; over {fit.n_points} valid cells the decoded "
+        f"omega is off by {100 * fit.rms_rel_error:.1f} % RMS, "
+        f"{100 * fit.max_rel_error:.1f} % at worst"
+    )
+    print(f"  use it as: --model {s.model.split(':')[0]}:a={fit.a:.6g},b={fit.b:.6g}")
+    print(f"  wrote {res.paths[0]} and {res.paths[1]}")
+    if s.update_defaults:
+        print(f"  updated the shipped defaults in {res.paths[2]}")
     return 0
 
 
-def _frame_progress(desc: str):  # -> tqdm
-    from tqdm import tqdm
-
-    return tqdm(total=None, desc=desc, unit="frame", disable=None, leave=False, file=sys.stderr)
-
-
-def _notice(msg: str) -> None:
-    print(f"{PROG}: note: {msg}", file=sys.stderr)
-
-
-def _table_settings(args: argparse.Namespace):  # -> TableSettings
-    from analysis.tables import TableSettings
-
-    return TableSettings(
-        threshold_dps=args.threshold, near_wall_m=args.near_wall_m, centre_m=args.centre_m
-    )
-
-
 def cmd_tables(args: argparse.Namespace) -> int:
-    from analysis.tables import build_tables, write_tables
+    from analysis.tables import TablesSettings, tables
 
-    settings = _table_settings(args)
-    with _frame_progress("tables") as bar:
-        tables, meta = build_tables(args.recordings, args.model, settings, bar.update, _notice)
-    paths = write_tables(tables, Path(args.out), meta)
-    for path, (name, df) in zip(paths, tables.items(), strict=True):
+    with _progress(None, "tables", "frame") as bar:
+        res = tables(
+            args.recordings,
+            _settings(TablesSettings, args),
+            args.out,
+            progress=bar.update,
+            notice=_notice,
+        )
+    for path, (name, df) in zip(res.paths, res.tables.items(), strict=True):
         print(f"{name:<14} {df.height:>8} rows -> {path}")
-    summary = tables["summary"]
     print("summary (primary output after warm-up):")
-    for r in summary.iter_rows(named=True):
+    for r in res.summary.iter_rows(named=True):
         print(
             f"  {r['recording_id']}  {r['model']:<16} TF {r['wall_tf_hz']:g} Hz: "
             f"mean {r['mean']:.1f}, p95 {r['p95']:.1f}, > 100: {100 * r['frac_over_100']:.1f} %, "
@@ -186,56 +120,18 @@ def cmd_tables(args: argparse.Namespace) -> int:
 
 
 def cmd_profile(args: argparse.Namespace) -> int:
-    import hashlib
+    from analysis.profile import ProfileSettings, profile
 
-    import polars as pl
-
-    from analysis.analysis_rrd import write_profile_rrd
-    from analysis.parquet_io import write_parquet
-    from analysis.profile import (
-        ProfileSettings,
-        plot_overview,
-        plot_segment,
-        segment_summary,
-        segments_from_tables,
-    )
-    from analysis.tables import build_tables
-
-    settings = _table_settings(args)
-    prof = ProfileSettings(threshold_dps=args.threshold, bin_dps=args.bin_dps, cell_m=args.cell_m)
-    with _frame_progress("profile") as bar:
-        tables, meta = build_tables(args.recordings, args.model, settings, bar.update, _notice)
-    segs = segments_from_tables(
-        tables["frames"],
-        tables["model_outputs"],
-        tables["summary"],
-        meta["arena_half_extent_m"],
-        args.by,
-        settings.warmup_frames,
-    )
-    out = Path(args.out)
-    pngs = [plot_segment(seg, prof, out / f"profile_{seg.key}.png") for seg in segs]
-    overview = plot_overview(segs, prof, out / "profiles.png")
-    summary = pl.DataFrame([segment_summary(seg, prof, settings) for seg in segs])
-    meta = {
-        **meta,
-        "profile": {
-            "threshold_dps": prof.threshold_dps,
-            "bin_dps": prof.bin_dps,
-            "cell_m": prof.cell_m,
-            "by": args.by,
-        },
-    }
-    write_parquet(summary, out / "profile_summary.parquet", meta)
-    rid = "profile-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
-    rrd = write_profile_rrd(segs, prof, out / "profiles.rrd", rid)
+    s = _settings(ProfileSettings, args)
+    with _progress(None, "profile", "frame") as bar:
+        res = profile(args.recordings, s, args.out, progress=bar.update, notice=_notice)
+    pngs, overview, summary, rrd = res.paths[:-3], res.paths[-3], res.paths[-2], res.paths[-1]
     print(
-        f"{len(segs)} profile(s) by {args.by}: {len(pngs)} PNGs, {overview}, {rrd}, "
-        f"{out / 'profile_summary.parquet'}"
+        f"{len(res.segments)} profile(s) by {s.by}: {len(pngs)} PNGs, {overview}, {rrd}, {summary}"
     )
-    for r in summary.iter_rows(named=True):
+    for r in res.summary.iter_rows(named=True):
         print(
-            f"  {r['segment']:<44} n={r['n_frames']:>6}  > {prof.threshold_dps:g}: "
+            f"  {r['segment']:<44} n={r['n_frames']:>6}  > {s.threshold_dps:g}: "
             f"{100 * r['frac_over_threshold']:5.1f} %  near wall {r['near_wall_mean']:.1f} / "
             f"centre {r['centre_mean']:.1f}"
         )
@@ -243,62 +139,21 @@ def cmd_profile(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from analysis.analysis_rrd import write_variants_rrd
-    from analysis.compare import pairwise_correlations, plot_compare, variant_statistics
-    from analysis.parquet_io import write_parquet
-    from analysis.tables import load_recording, model_params, recompute
-    from avdm.registry import canonical_name, make_model
+    from analysis.compare import CompareSettings, compare
 
-    if len(args.model) < 2:
-        raise UserError("compare needs at least two --model variants")
-    names = [canonical_name(m) for m in args.model]
-    if len(set(names)) != len(names):
-        raise UserError(f"the same variant is given twice: {', '.join(names)}")
-    settings = _table_settings(args)
-    loaded = load_recording(args.recording)
-    if loaded.rec.notice:
-        _notice(loaded.rec.notice)
-    with _frame_progress("compare") as bar:
-        outputs = recompute(loaded, args.model, bar.update)
-    stats = variant_statistics(loaded, outputs, settings)
-    corr = pairwise_correlations(outputs, settings.warmup_frames)
-    out = Path(args.out)
-    meta = {
-        "params": model_params(loaded, args.model),
-        "recording": loaded.recording_id,
-        "settings": {
-            "threshold_dps": settings.threshold_dps,
-            "near_wall_m": settings.near_wall_m,
-            "centre_m": settings.centre_m,
-            "warmup_frames": settings.warmup_frames,
-        },
-    }
-    write_parquet(stats, out / "compare_summary.parquet", meta)
-    write_parquet(corr, out / "compare_correlations.parquet", meta)
-    png = plot_compare(
-        outputs,
-        stats,
-        corr,
-        settings,
-        f"{loaded.recording_id}: variants on identical frames",
-        out / "compare.png",
-    )
-    ctx = loaded.camera_context()
-    units = {
-        n: {o.name: o.unit for o in make_model(m, **ctx).outputs}
-        for n, m in zip(names, args.model, strict=True)
-    }
-    rrd = write_variants_rrd(
-        loaded.recording_id, outputs, units, out / "variants.rrd", loaded.online_model
-    )
-    print(f"{len(names)} variants on {loaded.frames.height} frames -> {png}, {rrd}")
-    for r in stats.iter_rows(named=True):
+    s = _settings(CompareSettings, args)
+    with _progress(None, "compare", "frame") as bar:
+        res = compare(args.recording, s, args.out, progress=bar.update, notice=_notice)
+    n_frames = res.outputs[next(iter(res.outputs))].height
+    png, rrd = res.paths[2], res.paths[3]
+    print(f"{len(res.outputs)} variants on {n_frames} frames -> {png}, {rrd}")
+    for r in res.statistics.iter_rows(named=True):
         print(
             f"  {r['model']:<22} mean {r['mean']:8.2f}  p95 {r['p95']:8.2f}  "
-            f"> {settings.threshold_dps:g}: {100 * r['frac_over_threshold']:5.1f} %  "
+            f"> {s.threshold_dps:g}: {100 * r['frac_over_threshold']:5.1f} %  "
             f"near wall / centre {r['near_wall_centre_ratio']:.2f}"
         )
-    for r in corr.iter_rows(named=True):
+    for r in res.correlations.iter_rows(named=True):
         print(
             f"  corr {r['model_a']} ~ {r['model_b']}: pearson {r['pearson']:.3f}, "
             f"spearman {r['spearman']:.3f}"
@@ -308,73 +163,54 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_collision(args: argparse.Namespace) -> int:
-    from analysis.collision import CollisionSettings, collision_outputs, collision_table_markdown
+    from analysis.collision import CollisionSettings, collision
 
-    s = CollisionSettings(false_alarm_m=args.false_alarm_m, bin_m=args.bin_m)
     out = Path(args.out)
-    summary, _ = collision_outputs(args.recordings, out, s, _notice)
-    print(collision_table_markdown(summary))
+    res = collision(args.recordings, _settings(CollisionSettings, args), out, notice=_notice)
+    print(res.markdown())
     print(f"wrote {out / 'collision_summary.parquet'}, collision_*.png, {out / 'collision.rrd'}")
     return 0
 
 
 def cmd_collision_study(args: argparse.Namespace) -> int:
-    from analysis.collision import CollisionSettings, collision_outputs, collision_table_markdown
-    from analysis.collision_study import run_phases, study_phases
-    from avdm.registry import parse_model_spec
+    from analysis.experiments.collision_study import CollisionStudySettings, collision_study
 
-    parse_model_spec(args.detector)  # a bad detector fails before anything runs
-    if args.adjusted:
-        parse_model_spec(f"{args.detector.split(':')[0]}:{args.adjusted}")
     out = Path(args.out)
-    phases = study_phases(args.detector, args.adjusted)
-    print(
-        f"collision study: {len(phases)} phases of {args.minutes:g} min, detector "
-        f"{args.detector}, adjusted threshold {args.adjusted or '(none)'}",
-        file=sys.stderr,
-    )
-    paths = run_phases(
-        phases,
-        args.minutes,
-        args.seed,
-        out / "recordings",
-        args.jobs,
-        lambda m: print(m, file=sys.stderr),
-    )
-    s = CollisionSettings(false_alarm_m=args.false_alarm_m)
-    summary, _ = collision_outputs([str(p) for p in paths.values()], out, s, _notice)
-    table = collision_table_markdown(summary)
-    print(table)
-    (out / "collision_study.md").write_text(
-        "# Collision study\n\n" + table + "\n\nPaper: 229, 432 and 233 avoidances in three "
-        "30-min phases (TF 0, TF 3, TF 3 with the adjusted threshold), success > 90 % in "
-        "each.\n",
-        encoding="utf-8",
-    )
+    res = collision_study(_settings(CollisionStudySettings, args), out, log=_stderr, notice=_notice)
+    print(res.markdown)
     print(f"wrote {out / 'collision_study.md'}, {out / 'collision_study.png'}")
     return 0
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from analysis.reproduce import Plan, reproduce
+    from analysis.experiments.reproduce import ReproduceSettings, reproduce
 
-    plan = Plan.make(
+    plan = ReproduceSettings.make(
         args.quick,
         profile_minutes=args.profile_minutes,
         collision_minutes=args.collision_minutes,
-        approach_repeats=args.repeats,
+        approach_repeats=args.approach_repeats,
         seed=args.seed,
         jobs=args.jobs,
     )
-    out = Path(args.out)
-    t0 = time.perf_counter()
-    paths = reproduce(plan, out, lambda m: print(m, file=sys.stderr, flush=True))
-    from analysis.reproduce import evaluate_claims
-
-    for c in evaluate_claims(out):
+    res = reproduce(plan, args.out, log=_stderr)
+    for c in res.claims:
         print(f"[{c.verdict:^13}] {c.claim}")
-    print(f"report: {paths[0]} and {paths[1]} ({time.perf_counter() - t0:.0f} s)")
+    print(f"report: {res.paths[0]} and {res.paths[1]} ({res.elapsed_s:.0f} s)")
     return 0
+
+
+def add_out(p: argparse.ArgumentParser, default: str) -> None:
+    p.add_argument("--out", default=default, help="output folder (default: %(default)s)")
+
+
+def add_models(
+    p: argparse.ArgumentParser,
+    required: bool = False,
+    help: str = "recompute this variant (repeatable)",
+) -> None:
+    """--model, repeatable: the variants a command recomputes from the raw frames."""
+    p.add_argument("--model", dest="models", action="append", required=required, help=help)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -402,10 +238,22 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="models:\n" + describe_models(),
     )
-    sw.add_argument("--out", default="results/sweep", help="output folder (default: %(default)s)")
+    add_out(sw, "results/sweep")
     sw.add_argument("--model", default="avdm", help="model variant (default: %(default)s)")
-    sw.add_argument("--sf", type=parse_float_list, help="spatial frequencies, upc, e.g. 1,5,10")
-    sw.add_argument("--tf", type=parse_float_list, help="temporal frequencies, Hz, e.g. 1,3,10")
+    sw.add_argument(
+        "--sf-upc",
+        "--sf",
+        dest="sf_upc",
+        type=parse_float_list,
+        help="spatial frequencies, upc, e.g. 1,5,10",
+    )
+    sw.add_argument(
+        "--tf-hz",
+        "--tf",
+        dest="tf_hz",
+        type=parse_float_list,
+        help="temporal frequencies, Hz, e.g. 1,3,10",
+    )
     sw.add_argument(
         "--size",
         type=parse_size,
@@ -416,7 +264,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--fps", type=positive_float, default=300.0, help="frame rate, Hz (default: %(default)s)"
     )
     sw.add_argument(
+        "--duration-s",
         "--duration",
+        dest="duration_s",
         type=positive_float,
         default=1.0,
         help="seconds of stimulus per cell (default: %(default)s)",
@@ -457,14 +307,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ca.add_argument("--model", default="avdm", help="AVDM variant to calibrate (default: avdm)")
     ca.add_argument(
+        "--contrasts",
         "--contrast",
+        dest="contrasts",
         type=parse_float_list,
         default=[0.5, 1.0],
         help="grating contrasts to include (default: 0.5,1)",
     )
-    ca.add_argument(
-        "--out", default="results/calibration", help="output folder (default: %(default)s)"
-    )
+    add_out(ca, "results/calibration")
     ca.add_argument("--name", help="name of this calibration (default: from fps and size)")
     ca.add_argument(
         "--update-defaults",
@@ -476,7 +326,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add_summary_options(p: argparse.ArgumentParser) -> None:
         p.add_argument(
+            "--threshold-dps",
             "--threshold",
+            dest="threshold_dps",
             type=positive_float,
             default=100.0,
             help="response threshold, deg/s (default: %(default)s, the paper's)",
@@ -506,8 +358,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="models:\n" + describe_models(),
     )
     tb.add_argument("recordings", nargs="+", metavar="REC", help=".rrd recordings")
-    tb.add_argument("--out", default="results/tables", help="output folder (default: %(default)s)")
-    tb.add_argument("--model", action="append", help="recompute this variant (repeatable)")
+    add_out(tb, "results/tables")
+    add_models(tb)
     add_summary_options(tb)
     tb.set_defaults(func=cmd_tables)
 
@@ -523,8 +375,8 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     pr.add_argument("recordings", nargs="+", metavar="REC", help=".rrd recordings")
-    pr.add_argument("--out", default="results/profile", help="output folder (default: %(default)s)")
-    pr.add_argument("--model", action="append", help="recompute this variant (repeatable)")
+    add_out(pr, "results/profile")
+    add_models(pr)
     pr.add_argument(
         "--by",
         choices=["recording", "condition"],
@@ -560,10 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--model avdm:beta=0.5 --out results/compare\n\nmodels:\n" + describe_models(),
     )
     cp.add_argument("recording", metavar="REC", help="one .rrd recording")
-    cp.add_argument(
-        "--model", action="append", required=True, help="a variant to run (give at least two)"
-    )
-    cp.add_argument("--out", default="results/compare", help="output folder (default: %(default)s)")
+    add_models(cp, required=True, help="a variant to run (give at least two)")
+    add_out(cp, "results/compare")
     add_summary_options(cp)
     cp.set_defaults(func=cmd_compare)
 
@@ -580,9 +430,7 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     co.add_argument("recordings", nargs="+", metavar="REC", help="collision-mode .rrd files")
-    co.add_argument(
-        "--out", default="results/collision", help="output folder (default: %(default)s)"
-    )
+    add_out(co, "results/collision")
     co.add_argument(
         "--false-alarm-m",
         type=positive_float,
@@ -615,9 +463,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=30.0,
         help="length of each phase (default: %(default)s, the paper's)",
     )
-    cs.add_argument(
-        "--out", default="results/collision-study", help="output folder (default: %(default)s)"
-    )
+    add_out(cs, "results/collision-study")
     cs.add_argument(
         "--detector",
         default="lgmd-plus-arena",
@@ -657,9 +503,7 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     rp.add_argument("--quick", action="store_true", help="short runs: 3 min, 3 repeats")
-    rp.add_argument(
-        "--out", default="results/reproduce", help="output folder (default: %(default)s)"
-    )
+    add_out(rp, "results/reproduce")
     rp.add_argument(
         "--jobs",
         type=int,
@@ -671,7 +515,13 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument(
         "--collision-minutes", type=positive_float, help="override: collision phase length"
     )
-    rp.add_argument("--repeats", type=int, help="override: approach repeats per TF")
+    rp.add_argument(
+        "--approach-repeats",
+        "--repeats",
+        dest="approach_repeats",
+        type=int,
+        help="override: approach repeats per TF",
+    )
     rp.set_defaults(func=cmd_reproduce)
     return parser
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import matplotlib
@@ -25,7 +26,7 @@ import rerun.blueprint as rrb
 from analysis.analysis_rrd import log_arena_outline
 from analysis.profile import safe_key
 from analysis.tables import LoadedRecording, events_table
-from capture.recorder import APP_ID
+from contract.recording import APP_ID
 
 # what the paper reports for its three phases (30 min each) [BRIEF]
 PAPER = {
@@ -227,21 +228,42 @@ def write_collision_rrd(
     return path
 
 
-def collision_outputs(
-    paths: list[str], out: Path, s: CollisionSettings, notice=None
-) -> tuple[pl.DataFrame, list]:
-    """Metrics, events, figures and the analysis .rrd for collision recordings."""
+@dataclasses.dataclass
+class CollisionResult:
+    """Per-recording (phase) metrics, every avoidance and crash, and the files written."""
+
+    summary: pl.DataFrame
+    events: pl.DataFrame
+    paths: list[Path]
+    notices: list[str]
+
+    def markdown(self) -> str:
+        return collision_table_markdown(self.summary)
+
+
+def collision(
+    recordings: Sequence[str | Path],
+    settings: CollisionSettings = CollisionSettings(),
+    out: str | Path | None = None,
+    *,
+    notice: Callable[[str], None] | None = None,
+) -> CollisionResult:
+    """``vdc-analyse collision`` (Fig. 8): metrics of closed-loop recordings, ordered by
+    phase. With ``out``: ``collision_summary.parquet``, ``collision_events.parquet``, a PNG
+    per recording, ``collision_study.png`` and ``collision.rrd``."""
     import hashlib
 
     from analysis.parquet_io import write_parquet
     from analysis.tables import load_recording
 
-    items = []
-    for path in paths:
+    items, notes = [], []
+    for path in recordings:
         loaded = load_recording(path)
-        if loaded.rec.notice and notice is not None:
-            notice(loaded.rec.notice)
-        row, ev = collision_metrics(loaded, s)
+        if loaded.rec.notice:
+            notes.append(loaded.rec.notice)
+            if notice is not None:
+                notice(loaded.rec.notice)
+        row, ev = collision_metrics(loaded, settings)
         items.append((loaded, row, ev))
     order = ["tf0", "tf3", "tf3-adjusted", "tf3-adaptive", "tf0-adaptive"]
     items.sort(
@@ -252,19 +274,23 @@ def collision_outputs(
         )
     )
     summary = pl.DataFrame([row for _, row, _ in items])
-    meta = {
-        "settings": {"false_alarm_m": s.false_alarm_m, "bin_m": s.bin_m},
-        "recordings": [row["recording_id"] for _, row, _ in items],
-    }
-    write_parquet(summary, out / "collision_summary.parquet", meta)
     events = pl.concat([ev for _, _, ev in items])
-    write_parquet(events, out / "collision_events.parquet", meta)
-    for loaded, row, ev in items:
-        plot_recording(loaded, row, ev, s, out / f"collision_{safe_key(row['phase'])}.png")
-    plot_study(summary, out / "collision_study.png")
-    rid = "collision-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
-    write_collision_rrd(items, s, out / "collision.rrd", rid)
-    return summary, items
+    paths: list[Path] = []
+    if out is not None:
+        out = Path(out)
+        meta = {
+            "settings": {"false_alarm_m": settings.false_alarm_m, "bin_m": settings.bin_m},
+            "recordings": [row["recording_id"] for _, row, _ in items],
+        }
+        paths.append(write_parquet(summary, out / "collision_summary.parquet", meta))
+        paths.append(write_parquet(events, out / "collision_events.parquet", meta))
+        for loaded, row, ev in items:
+            png = out / f"collision_{safe_key(row['phase'])}.png"
+            paths.append(plot_recording(loaded, row, ev, settings, png))
+        paths.append(plot_study(summary, out / "collision_study.png"))
+        rid = "collision-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
+        paths.append(write_collision_rrd(items, settings, out / "collision.rrd", rid))
+    return CollisionResult(summary, events, paths, notes)
 
 
 def collision_table_markdown(summary: pl.DataFrame) -> str:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
+from collections.abc import Callable
 from pathlib import Path
 
 import matplotlib
@@ -12,12 +14,22 @@ import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
 
-from analysis.sweep import spearman
-from analysis.tables import LoadedRecording, TableSettings, primary_output, summarise
+from analysis.stats import spearman
+from analysis.tables import (
+    LoadedRecording,
+    SummarySettings,
+    TablesSettings,
+    load_recording,
+    model_params,
+    primary_output,
+    recompute,
+    summarise,
+)
+from avdm.registry import canonical_name, make_model
 
 
 def variant_statistics(
-    loaded: LoadedRecording, outputs: dict[str, pl.DataFrame], s: TableSettings
+    loaded: LoadedRecording, outputs: dict[str, pl.DataFrame], s: SummarySettings
 ) -> pl.DataFrame:
     """Per variant (all frames after warm-up): mean, p95, fraction over threshold,
     near-wall/centre ratio, ... of its primary output."""
@@ -81,7 +93,7 @@ def plot_compare(
     outputs: dict[str, pl.DataFrame],
     stats: pl.DataFrame,
     corr: pl.DataFrame,
-    s: TableSettings,
+    s: SummarySettings,
     title: str,
     path: Path,
     window_frames: int = 1980,
@@ -155,3 +167,84 @@ def plot_compare(
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+@dataclasses.dataclass(frozen=True)
+class CompareSettings(TablesSettings):
+    """``vdc-analyse compare``: at least two distinct variants plus the summary settings."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if len(self.models) < 2:
+            raise ValueError("compare needs at least two --model variants")
+        names = [canonical_name(m) for m in self.models]
+        if len(set(names)) != len(names):
+            raise ValueError(f"the same variant is given twice: {', '.join(names)}")
+
+
+@dataclasses.dataclass
+class CompareResult:
+    """Every variant's outputs on the same frames, their statistics and correlations."""
+
+    recording_id: str
+    outputs: dict[str, pl.DataFrame]  # canonical variant name -> frame, t_s, outputs
+    statistics: pl.DataFrame
+    correlations: pl.DataFrame
+    paths: list[Path]
+    notices: list[str]
+
+
+def compare(
+    recording: str | Path,
+    settings: CompareSettings,
+    out: str | Path | None = None,
+    *,
+    progress: Callable[[int], None] | None = None,
+    notice: Callable[[str], None] | None = None,
+) -> CompareResult:
+    """``vdc-analyse compare``: recompute every variant on the recording's raw frames.
+
+    With ``out``: ``compare_summary.parquet``, ``compare_correlations.parquet``,
+    ``compare.png`` and ``variants.rrd`` (the traces under ``/model_variants/<name>/``, with
+    the source's recording id, so ``rerun REC variants.rrd`` shows them together)."""
+    from analysis.analysis_rrd import write_variants_rrd
+    from analysis.parquet_io import write_parquet
+
+    loaded = load_recording(recording)
+    notes = [loaded.rec.notice] if loaded.rec.notice else []
+    if notes and notice is not None:
+        notice(notes[0])
+    outputs = recompute(loaded, settings.models, progress)
+    stats = variant_statistics(loaded, outputs, settings)
+    corr = pairwise_correlations(outputs, settings.warmup_frames)
+    paths: list[Path] = []
+    if out is not None:
+        out = Path(out)
+        meta = {
+            "params": model_params(loaded, settings.models),
+            "recording": loaded.recording_id,
+            "settings": dataclasses.asdict(settings.summary_settings()),
+        }
+        paths.append(write_parquet(stats, out / "compare_summary.parquet", meta))
+        paths.append(write_parquet(corr, out / "compare_correlations.parquet", meta))
+        paths.append(
+            plot_compare(
+                outputs,
+                stats,
+                corr,
+                settings,
+                f"{loaded.recording_id}: variants on identical frames",
+                out / "compare.png",
+            )
+        )
+        ctx = loaded.camera_context()
+        units = {
+            canonical_name(m): {o.name: o.unit for o in make_model(m, **ctx).outputs}
+            for m in settings.models
+        }
+        paths.append(
+            write_variants_rrd(
+                loaded.recording_id, outputs, units, out / "variants.rrd", loaded.online_model
+            )
+        )
+    return CompareResult(loaded.recording_id, outputs, stats, corr, paths, notes)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import matplotlib
@@ -20,19 +20,22 @@ import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
 
-from analysis.tables import TableSettings, summarise
+from analysis.tables import SummarySettings, TablesSettings, build_tables, summarise
 
 
 @dataclasses.dataclass(frozen=True)
-class ProfileSettings:
-    threshold_dps: float = 100.0
+class ProfileSettings(TablesSettings):
+    """``vdc-analyse profile``: the tables' settings plus how profiles are drawn."""
+
+    by: str = "recording"  # one profile per recording segment, or pooled per condition
     bin_dps: float = 20.0  # histogram bin width above the threshold
     cell_m: float = 0.05  # heat-map cell size
     max_points: int = 4000  # circles drawn in a PNG 3D profile (all go to the .rrd)
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.threshold_dps) and self.threshold_dps >= 0):
-            raise ValueError(f"--threshold must be >= 0, got {self.threshold_dps}")
+        super().__post_init__()
+        if self.by not in ("recording", "condition"):
+            raise ValueError(f"--by must be recording or condition, got {self.by!r}")
         if not (math.isfinite(self.bin_dps) and self.bin_dps > 0):
             raise ValueError(f"--bin-dps must be > 0, got {self.bin_dps}")
         if not (math.isfinite(self.cell_m) and 0.005 <= self.cell_m <= 0.5):
@@ -134,7 +137,7 @@ def heat_map(seg: Segment, s: ProfileSettings) -> tuple[np.ndarray, np.ndarray, 
     return xe, ye, mean
 
 
-def segment_summary(seg: Segment, s: ProfileSettings, t: TableSettings) -> dict:
+def segment_summary(seg: Segment, s: ProfileSettings, t: SummarySettings) -> dict:
     stats = summarise(
         seg.response, seg.gap_m, dataclasses.replace(t, threshold_dps=s.threshold_dps)
     )
@@ -260,3 +263,71 @@ def plot_overview(segs: Sequence[Segment], s: ProfileSettings, path: Path) -> Pa
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+@dataclasses.dataclass
+class ProfileResult:
+    """Profiles of every segment (or condition), their summary table, and the files written."""
+
+    segments: list[Segment]
+    summary: pl.DataFrame
+    tables: dict[str, pl.DataFrame]
+    meta: dict
+    paths: list[Path]
+    notices: list[str]
+
+
+def profile(
+    recordings: Sequence[str | Path],
+    settings: ProfileSettings = ProfileSettings(),
+    out: str | Path | None = None,
+    *,
+    progress: Callable[[int], None] | None = None,
+    notice: Callable[[str], None] | None = None,
+) -> ProfileResult:
+    """``vdc-analyse profile`` (paper Figs. 6–7): a 3D circle profile, the histogram of
+    responses over the threshold and a heat map per recording segment or condition.
+
+    With ``out``: a PNG per profile, ``profiles.png``, ``profile_summary.parquet`` and
+    ``profiles.rrd``; with ``out=None`` only the result (segments and summary in hand;
+    draw one with :func:`plot_segment`)."""
+    import hashlib
+
+    from analysis.analysis_rrd import write_profile_rrd
+    from analysis.parquet_io import write_parquet
+
+    notes: list[str] = []
+
+    def note(msg: str) -> None:
+        notes.append(msg)
+        if notice is not None:
+            notice(msg)
+
+    tables, meta = build_tables(recordings, settings.models or None, settings, progress, note)
+    segs = segments_from_tables(
+        tables["frames"],
+        tables["model_outputs"],
+        tables["summary"],
+        meta["arena_half_extent_m"],
+        settings.by,
+        settings.warmup_frames,
+    )
+    summary = pl.DataFrame([segment_summary(seg, settings, settings) for seg in segs])
+    meta = {
+        **meta,
+        "profile": {
+            "threshold_dps": settings.threshold_dps,
+            "bin_dps": settings.bin_dps,
+            "cell_m": settings.cell_m,
+            "by": settings.by,
+        },
+    }
+    paths: list[Path] = []
+    if out is not None:
+        out = Path(out)
+        paths = [plot_segment(seg, settings, out / f"profile_{seg.key}.png") for seg in segs]
+        paths.append(plot_overview(segs, settings, out / "profiles.png"))
+        paths.append(write_parquet(summary, out / "profile_summary.parquet", meta))
+        rid = "profile-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
+        paths.append(write_profile_rrd(segs, settings, out / "profiles.rrd", rid))
+    return ProfileResult(segs, summary, tables, meta, paths, notes)

@@ -25,7 +25,7 @@ import polars as pl
 import pyarrow as pa
 import rerun as rr
 
-from capture.recorder import CAMERA, EVENTS, MODEL_ROOT, POSE, WALL_TF, entity_name
+from contract.recording import CAMERA, EVENTS, MODEL_ROOT, POSE, WALL_TF, entity_name
 
 RRD_MAGIC = b"RRF2"
 RRD_FILE_HEADER = 12  # magic, version, options

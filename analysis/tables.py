@@ -27,13 +27,13 @@ import polars as pl
 from analysis.parquet_io import write_parquet
 from analysis.rrd_reader import Recording, RecordingError
 from avdm.base import Model
-from avdm.registry import canonical_name, make_model
-from capture.recorder import MODEL_ROOT, POSE, WALL_TF, entity_name
+from avdm.registry import canonical_name, make_model, parse_model_spec
+from contract.recording import MODEL_ROOT, POSE, WALL_TF, camera_model_context, entity_name
 
 
 @dataclasses.dataclass(frozen=True)
-class TableSettings:
-    """How summaries are computed (stored in the Parquet metadata)."""
+class SummarySettings:
+    """How summaries are computed (stored in the Parquet metadata as ``settings``)."""
 
     threshold_dps: float = 100.0  # "AVDM > 100" (paper)
     near_wall_m: float = 0.15  # robot centre within this of a wall: "near the wall" (PROPOSED)
@@ -47,6 +47,26 @@ class TableSettings:
                 raise ValueError(f"{name}={v!r} must be a number >= 0")
         if self.warmup_frames < 0:
             raise ValueError(f"warmup_frames={self.warmup_frames} must be >= 0")
+
+    def summary_settings(self) -> SummarySettings:
+        """Just the summary fields (what the tables' metadata records as ``settings``)."""
+        return SummarySettings(
+            **{f.name: getattr(self, f.name) for f in dataclasses.fields(SummarySettings)}
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class TablesSettings(SummarySettings):
+    """``vdc-analyse tables``: the summary settings plus the models to recompute (none = the
+    online model's logged outputs)."""
+
+    models: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        object.__setattr__(self, "models", tuple(self.models or ()))
+        for spec in self.models:
+            parse_model_spec(spec)  # an unknown model fails before any file is read
 
 
 @dataclasses.dataclass
@@ -68,14 +88,16 @@ class LoadedRecording:
 
     def camera_context(self) -> dict[str, float | int]:
         """The camera facts a model needs (fps, deg/px, texture row), from the recording's
-        properties, exactly as the capture derived them (capture.config.CameraConfig)."""
+        properties, exactly as the capture derived them (contract.recording)."""
         cam = self.props.get("camera", {})
         if "fps" not in cam:
             return {}
-        from capture.config import CameraConfig
-
-        fields = {k: cam[k] for k in ("width_px", "height_px", "fps", "hfov_deg") if k in cam}
-        return CameraConfig(**fields).model_context()
+        return camera_model_context(
+            int(cam.get("width_px", 99)),
+            int(cam.get("height_px", 72)),
+            float(cam["fps"]),
+            float(cam.get("hfov_deg", 70.0)),
+        )
 
     def arena_half_extent(self) -> tuple[float, float]:
         arena = self.props.get("arena", {})
@@ -241,7 +263,7 @@ def condition_columns(loaded: LoadedRecording) -> dict[str, Any]:
     }
 
 
-def summarise(values: np.ndarray, gap: np.ndarray, s: TableSettings) -> dict[str, float]:
+def summarise(values: np.ndarray, gap: np.ndarray, s: SummarySettings) -> dict[str, float]:
     """Statistics of one response series (N,) given the wall gap (N,) of each frame."""
     if len(values) == 0:
         nan = float("nan")
@@ -277,7 +299,9 @@ def summarise(values: np.ndarray, gap: np.ndarray, s: TableSettings) -> dict[str
     }
 
 
-def summary_table(loaded: LoadedRecording, outputs: pl.DataFrame, s: TableSettings) -> pl.DataFrame:
+def summary_table(
+    loaded: LoadedRecording, outputs: pl.DataFrame, s: SummarySettings
+) -> pl.DataFrame:
     """One row per (model, wall TF in force) of a recording."""
     joined = outputs.join(
         loaded.frames.select("frame", "wall_tf_hz", "wall_gap_m"), on="frame", how="left"
@@ -306,7 +330,7 @@ def summary_table(loaded: LoadedRecording, outputs: pl.DataFrame, s: TableSettin
 def build_tables(
     paths: Sequence[str | Path],
     specs: Sequence[str] | None,
-    settings: TableSettings = TableSettings(),
+    settings: SummarySettings = SummarySettings(),
     progress: Callable[[int], None] | None = None,
     notices: Callable[[str], None] | None = None,
 ) -> tuple[dict[str, pl.DataFrame], dict[str, Any]]:
@@ -353,7 +377,7 @@ def build_tables(
     meta = {
         "arena_half_extent_m": arenas,
         "params": params,
-        "settings": dataclasses.asdict(settings),
+        "settings": dataclasses.asdict(settings.summary_settings()),
         "recordings": sorted(params),
     }
     return tables, meta
@@ -364,3 +388,54 @@ def write_tables(
 ) -> list[Path]:
     """Write each table to ``out_dir/<name>.parquet`` with ``meta`` in its metadata."""
     return [write_parquet(df, out_dir / f"{name}.parquet", meta) for name, df in tables.items()]
+
+
+@dataclasses.dataclass
+class TablesResult:
+    """The four tables (polars DataFrames), their metadata, and the files written (if any)."""
+
+    tables: dict[str, pl.DataFrame]
+    meta: dict[str, Any]
+    paths: list[Path]
+    notices: list[str]
+
+    @property
+    def frames(self) -> pl.DataFrame:
+        return self.tables["frames"]
+
+    @property
+    def model_outputs(self) -> pl.DataFrame:
+        return self.tables["model_outputs"]
+
+    @property
+    def events(self) -> pl.DataFrame:
+        return self.tables["events"]
+
+    @property
+    def summary(self) -> pl.DataFrame:
+        return self.tables["summary"]
+
+
+def tables(
+    recordings: Sequence[str | Path],
+    settings: TablesSettings = TablesSettings(),
+    out: str | Path | None = None,
+    *,
+    progress: Callable[[int], None] | None = None,
+    notice: Callable[[str], None] | None = None,
+) -> TablesResult:
+    """``vdc-analyse tables``: the frames, model_outputs, events and summary tables of
+    ``recordings``; written to ``out/<name>.parquet`` unless ``out`` is None.
+
+    ``progress`` is called with the number of frames done; ``notice`` with each note about a
+    repaired recording (they are also in the result)."""
+    notes: list[str] = []
+
+    def note(msg: str) -> None:
+        notes.append(msg)
+        if notice is not None:
+            notice(msg)
+
+    built, meta = build_tables(recordings, settings.models or None, settings, progress, note)
+    paths = write_tables(built, Path(out), meta) if out is not None else []
+    return TablesResult(built, meta, paths, notes)

@@ -20,7 +20,7 @@ import struct
 import termios
 import time
 import tty
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -315,3 +315,51 @@ class SerialLink:
                 elif ptype == TYPE_END:
                     self.ended = True
                     return
+
+
+@dataclasses.dataclass(frozen=True)
+class EmulateSettings:
+    """``vdc-capture emulate-robot`` as a settings object (one field per flag, same names)."""
+
+    link: str = "/tmp/vdc-robot"
+    tf_hz: float = 0.0
+    minutes: float = 1.0
+    seed: int = 0
+    corrupt_rate: float = 0.0
+    drop_rate: float = 0.0
+    disconnect_after: float | None = None
+    reconnect_after: float = 1.0
+    decimation: int = 1
+    fast: bool = False
+    wait: float = 60.0
+    report: str | None = None
+
+
+def emulate_robot(settings: EmulateSettings, announce: Callable[[str], None] | None = None) -> dict:
+    """Run a simulated Colias-IV on a pseudo-terminal behind ``settings.link`` until its run
+    ends; ``announce`` gets the pty's name once it exists. Returns what was injected (frames
+    intact, corrupted, dropped, lost in disconnects). ValueError if no host sends START."""
+    from capture.config import CameraConfig, WallConfig
+
+    emu = EmulatorConfig(
+        corrupt_rate=settings.corrupt_rate,
+        drop_rate=settings.drop_rate,
+        disconnect_after_s=settings.disconnect_after or float("nan"),
+        reconnect_after_s=settings.reconnect_after,
+        decimation=settings.decimation,
+        realtime=not settings.fast,
+        seed=settings.seed,
+    )
+    sim = SimConfig(
+        wall=WallConfig(tf_schedule=((settings.tf_hz, settings.minutes * 60),)),
+        camera=CameraConfig(),
+        duration_s=settings.minutes * 60,
+        seed=settings.seed,
+    )
+    robot = RobotEmulator(
+        sim, emu, Path(settings.link), Path(settings.report) if settings.report else None
+    )
+    try:
+        return robot.run(wait_for_host_s=settings.wait, announce=announce)
+    except TimeoutError as exc:
+        raise ValueError(str(exc)) from None

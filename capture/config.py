@@ -13,6 +13,8 @@ import math
 import re
 from typing import Any
 
+from contract.recording import camera_model_context
+
 SCENES = ("grating", "natural")
 BEHAVIOURS = ("profile", "collision")
 DETECTORS = ("lgmd-plus", "lgmd-colias")
@@ -195,7 +197,7 @@ class CameraConfig:
         AVDM's texture row. The released code counts transitions on row 2, which on this
         camera sees the dark room above the wall until the robot is 25 cm from it; the horizon
         row (camera height) always shows the wall."""
-        return {"fps": self.fps, "deg_per_px": self.deg_per_px, "texture_row": self.height_px // 2}
+        return camera_model_context(self.width_px, self.height_px, self.fps, self.hfov_deg)
 
 
 @dataclasses.dataclass(frozen=True)

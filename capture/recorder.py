@@ -1,26 +1,12 @@
-"""The Rerun recorder: the only module that knows the entity paths and the default blueprint.
+"""The Rerun recorder and the default blueprint: writes the recording contract.
 
-Recording contract (DESIGN.md): application id ``vdc``; timelines ``frame`` (camera frame
-index) and ``time`` (duration since the run started); hardware runs add ``capture_time``.
-
-| entity                      | archetype                         | meaning                        |
-|-----------------------------|-----------------------------------|--------------------------------|
-| ``/arena`` (static)         | LineStrips3D (ViewCoordinates: /) | walls, light ring              |
-| ``/arena/wall/tf_hz``       | Scalars                           | wall temporal frequency        |
-| ``/arena/robot_path``       | Points3D                          | the robot's position (trail)   |
-| ``/robot/pose``             | Scalars [x_m, y_m, heading_rad]   | tracked or simulated pose      |
-| ``/robot``                  | Transform3D                       | the same pose, for the 3D view |
-| ``/robot/camera/image``     | Image (L, U8)                     | raw on-board frame, lossless   |
-| ``/model/<name>/<output>``  | Scalars                           | online model outputs           |
-| ``/events/<kind>``          | TextLog + Points3D                | ring_turn, avoidance, crash... |
-| ``/overhead/image``         | Image                             | optional overhead frames       |
-| ``/link/stats``             | Scalars (hardware runs)           | serial link counts             |
+The entity paths, timelines and property sections are defined in ``contract.recording``
+(shared with the reader); this module is the only one that writes them with the Rerun SDK.
 """
 
 from __future__ import annotations
 
 import math
-import re
 import shutil
 import socket
 import subprocess
@@ -36,28 +22,31 @@ import rerun.blueprint as rrb
 
 from avdm.base import Output
 from capture.config import ArenaConfig
-
-APP_ID = "vdc"
-FRAME_TIMELINE = "frame"
-TIME_TIMELINE = "time"
-CAPTURE_TIME_TIMELINE = "capture_time"
-
-ARENA = "/arena"
-ARENA_WALLS = "/arena/walls"
-ARENA_RING = "/arena/ring"
-WALL_TF = "/arena/wall/tf_hz"
-ROBOT_PATH = "/arena/robot_path"
-ROBOT = "/robot"
-ROBOT_BODY = "/robot/body"
-ROBOT_HEADING = "/robot/heading"
-POSE = "/robot/pose"
-CAMERA = "/robot/camera/image"
-OVERHEAD = "/overhead/image"
-EVENTS = "/events"
-MODEL_ROOT = "/model"
-MODEL_VARIANTS_ROOT = "/model_variants"
-LINK_STATS = "/link/stats"
-POSE_NAMES = ("x_m", "y_m", "heading_rad")
+from contract.recording import (
+    APP_ID,
+    ARENA,
+    ARENA_RING,
+    ARENA_WALLS,
+    CAMERA,
+    CAPTURE_TIME_TIMELINE,
+    EVENTS,
+    FRAME_TIMELINE,
+    LINK_STATS,
+    MODEL_ROOT,
+    MODEL_VARIANTS_ROOT,
+    OVERHEAD,
+    POSE,
+    POSE_NAMES,
+    ROBOT,
+    ROBOT_BODY,
+    ROBOT_HEADING,
+    ROBOT_PATH,
+    TIME_TIMELINE,
+    WALL_TF,
+    entity_name,
+    event_path,
+    model_path,
+)
 
 EVENT_COLORS = {
     "ring_turn": (255, 200, 0),
@@ -67,23 +56,6 @@ EVENT_COLORS = {
     "tracker_lost": (160, 160, 160),
 }
 EVENT_LEVELS = {"crash": "WARN", "link_error": "ERROR", "tracker_lost": "WARN"}
-
-
-def entity_name(model_name: str) -> str:
-    """A model spec as one entity-path part: ``avdm:beta=0.5`` → ``avdm_beta_0.5``."""
-    return re.sub(r"[^A-Za-z0-9_.\-]", "_", model_name)
-
-
-def model_path(model_name: str, output: str) -> str:
-    return f"{MODEL_ROOT}/{entity_name(model_name)}/{output}"
-
-
-def variant_path(model_name: str, output: str) -> str:
-    return f"{MODEL_VARIANTS_ROOT}/{entity_name(model_name)}/{output}"
-
-
-def event_path(kind: str) -> str:
-    return f"{EVENTS}/{kind}"
 
 
 def default_blueprint(

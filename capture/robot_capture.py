@@ -26,6 +26,7 @@ from avdm.registry import make_model
 from capture.colias_link import SerialLink
 from capture.config import WallConfig
 from capture.device import Batch, Event
+from capture.run import RecordResult
 from capture.serial_protocol import TYPE_FRAME, FramePacket
 from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose
 
@@ -115,6 +116,12 @@ class ColiasRobotDevice:
         self._reported = dict.fromkeys(LINK_STATS, 0)
         self._disconnect_events: list[str] = []
         self._connected = True
+
+    def calibrate_tracker(self) -> np.ndarray | None:
+        """Read the overhead frames due by now and return the tracker's homography (3, 3)
+        from the corner markers, or None if no frame has shown them yet."""
+        self._poll_camera()
+        return self.h
 
     def _poll_camera(self) -> None:
         """Read the overhead frames due by now and track the robot in them."""
@@ -278,3 +285,151 @@ class ColiasRobotDevice:
 
     def __exit__(self, *exc: object) -> None:
         self.disconnect()
+
+
+class WallController:
+    """Optional LED wall controller on a second serial port; a line protocol (ASCII, \\n):
+    ``TF <hz> PERIOD <m> SCENE <grating|natural>`` whenever the TF in force changes."""
+
+    def __init__(self, port: str, wall: WallConfig) -> None:
+        try:
+            self.ser = serial.Serial(port, 115200, timeout=0.1)
+        except (serial.SerialException, OSError) as exc:
+            raise ValueError(
+                f"cannot open the wall controller port {port!r}: "
+                f"{getattr(exc, 'strerror', None) or exc}"
+            ) from None
+        self.wall = wall
+        self.last: float | None = None
+
+    def update(self, tf_hz: float) -> None:
+        if tf_hz != self.last:
+            line = f"TF {tf_hz:.3f} PERIOD {self.wall.drift_period_m:.4f} SCENE {self.wall.scene}\n"
+            self.ser.write(line.encode("ascii"))
+            self.ser.flush()
+            self.last = tf_hz
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotSettings:
+    """``vdc-capture robot`` as a settings object (one field per flag, same names)."""
+
+    port: str
+    camera: str  # overhead camera: a device index, a video file or an image sequence
+    calibration: str | None = None  # saved tracker homography
+    camera_fps: float = 10.0
+    tf_hz: float = 0.0
+    tf_schedule: str | None = None  # TF:DURATION,... or a file with one segment a line
+    save_calibration: str | None = None
+    period_m: float = 0.1
+    scene: str = "grating"
+    wall_port: str | None = None
+    baud: int = 3_000_000
+    model: str = "avdm"
+
+    def wall(self) -> WallConfig:
+        from capture.config import parse_schedule
+
+        schedule: tuple[tuple[float, float], ...] = ((self.tf_hz, 48 * 3600.0),)
+        if self.tf_schedule:
+            text = self.tf_schedule
+            if Path(text).is_file():  # a schedule file: the same syntax, one segment a line
+                lines = Path(text).read_text().splitlines()
+                text = ",".join(ln.strip() for ln in lines if ln.strip() and ln.strip()[0] != "#")
+            schedule = parse_schedule(text)
+        return WallConfig(tf_schedule=schedule, period_m=self.period_m, scene=self.scene)
+
+
+@dataclasses.dataclass
+class RobotRecordResult:
+    """A robot recording and the serial link's counts."""
+
+    record: RecordResult
+    link_stats: dict[str, int]
+
+
+def record_robot(
+    settings: RobotSettings,
+    out: str | Path | None = None,
+    *,
+    force: bool = False,
+    live_url: str | None = None,
+    spawn: bool = False,
+    progress: bool = False,
+    log: Callable[[str], None] | None = None,
+) -> RobotRecordResult:
+    """Record a real Colias-IV until it ends its run, the link is lost for good, or a signal
+    (default ``recordings/robot-<time>-<hash>.rrd``). A missing port or camera raises
+    ValueError before the file exists."""
+    import hashlib
+
+    from capture.config import ArenaConfig, RobotConfig
+    from capture.recorder import Recorder, default_blueprint, spawn_viewer
+    from capture.run import check_output_path, run_capture
+    from contract.provenance import machine_info, package_versions
+    from contract.recording import LINK_STATS as LINK_STATS_ENTITY
+
+    wall = settings.wall()
+    schedule = wall.tf_schedule
+    cfg = RobotCaptureConfig(
+        port=settings.port,
+        camera=settings.camera,
+        baud=settings.baud,
+        calibration=settings.calibration or "",
+        camera_fps=settings.camera_fps,
+        wall=wall,
+        model=settings.model,
+    )
+    wall_ctl = WallController(settings.wall_port, wall) if settings.wall_port else None
+    device = ColiasRobotDevice(cfg, on_wall_tf=wall_ctl.update if wall_ctl else None)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    digest = hashlib.sha1(f"{settings.port}{settings.camera}{stamp}".encode()).hexdigest()[:8]
+    rid = f"robot-{stamp}-{digest}"
+    path = Path(out) if out else Path("recordings") / f"{rid}.rrd"
+    check_output_path(path, force)
+    device.connect()  # a missing port or camera fails here, before the file exists
+    live = spawn_viewer() if spawn else live_url
+    model = make_model(settings.model, fps=cfg.fps, deg_per_px=cfg.deg_per_px)
+    recorder = Recorder(
+        path,
+        rid,
+        live_url=live,
+        blueprint=default_blueprint(
+            model.name, model.outputs, [("serial link counts", [LINK_STATS_ENTITY])]
+        ),
+    )
+    recorder.log_arena(ArenaConfig(), RobotConfig().radius_m)
+    recorder.send_properties(
+        {
+            "run": {
+                "recording_id": rid,
+                "source": "robot",
+                "port": settings.port,
+                "baud": settings.baud,
+                "camera": settings.camera,
+                "behaviour": "robot",
+            },
+            "wall": {
+                "scene": wall.scene,
+                "period_m": wall.period_m,
+                "tf_schedule_text": ",".join(f"{t:g}:{d:g}s" for t, d in schedule),
+            },
+            "camera": {"fps": cfg.fps, "width_px": 99, "height_px": 72, "hfov_deg": 70.0},
+            "model": {"name": model.name, "on_board": True},
+            "model_params": model.params.to_dict(),
+            "link": {"protocol": "vdc serial v1 (see README)", "stats": ",".join(LINK_STATS)},
+            "provenance": {**package_versions(), **machine_info()},
+        }
+    )
+    recorder.log_model_meta(model.name, model.outputs)
+    if settings.save_calibration:
+        from capture.tracker import save_calibration
+
+        h = device.calibrate_tracker()
+        if h is None:
+            raise ValueError("no overhead frame yet to calibrate from")
+        save_calibration(h, Path(settings.save_calibration))
+    if log is not None:
+        log(f"recording {rid} from {settings.port} (overhead camera {settings.camera}) -> {path}")
+    result = run_capture(device, None, recorder, total_frames=None, progress=progress)
+    return RobotRecordResult(RecordResult.of(path, rid, result, None), device.link_stats())

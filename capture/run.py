@@ -8,12 +8,14 @@ stopped. Nothing already read from the device is dropped.
 from __future__ import annotations
 
 import dataclasses
+import os
 import signal
 import sys
 import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,6 +31,62 @@ class CaptureResult:
     events: dict[str, int]  # count per kind
     stop_reason: str  # "finished" or "signal SIGINT" / "signal SIGTERM"
     wall_time_s: float
+
+
+@dataclasses.dataclass
+class RecordResult:
+    """What a capture command wrote: the recording and how its run ended."""
+
+    path: Path
+    recording_id: str
+    frames: int
+    events: dict[str, int]
+    stop_reason: str
+    wall_time_s: float
+    expected_frames: int | None = None  # None: a live source with no set length
+
+    @classmethod
+    def of(
+        cls, path: Path, recording_id: str, res: CaptureResult, expected: int | None
+    ) -> RecordResult:
+        return cls(
+            path, recording_id, res.frames, res.events, res.stop_reason, res.wall_time_s, expected
+        )
+
+    @property
+    def size_mb(self) -> float:
+        return self.path.stat().st_size / 1e6
+
+    @property
+    def complete(self) -> bool:
+        return self.stop_reason == "finished"
+
+    @property
+    def exit_status(self) -> int:
+        """0 when finished; 130 / 143 when stopped by SIGINT / SIGTERM (shell convention)."""
+        if self.complete:
+            return 0
+        return 130 if "SIGINT" in self.stop_reason else 143
+
+
+def check_output_path(path: Path, force: bool) -> None:
+    """Refuse to overwrite (unless ``force``) and make sure the folder is writable, before
+    anything is rendered; raises ValueError with the fix."""
+    if path.suffix != ".rrd":
+        raise ValueError(f"output {str(path)!r} must end in .rrd")
+    if path.is_dir():
+        raise ValueError(f"output {str(path)!r} is a directory; give a file name ending in .rrd")
+    if path.exists() and not force:
+        raise ValueError(
+            f"{str(path)!r} already exists (same configuration recorded before?): "
+            "pass --force to record it again, or choose --out"
+        )
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create the folder {str(path.parent)!r}: {exc.strerror}") from None
+    if not os.access(path.parent, os.W_OK):
+        raise ValueError(f"the folder {str(path.parent)!r} is not writable")
 
 
 class StopFlag:

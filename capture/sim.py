@@ -7,7 +7,9 @@ implement: ``connect()``, ``read()`` (the next ``Batch`` of frames, or None at t
 
 from __future__ import annotations
 
+import dataclasses
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +23,7 @@ from capture.config import SimConfig
 from capture.device import Batch, Event
 from capture.render import CameraRenderer, OverheadRenderer
 from capture.robot import RobotMotion, TurnEvent
+from capture.run import RecordResult
 from contract.provenance import machine_info, package_versions
 
 
@@ -156,3 +159,178 @@ def recording_properties(
         }
         sections["detector_params"] = detector.params.to_dict()
     return sections
+
+
+@dataclasses.dataclass(frozen=True)
+class SimSettings:
+    """``vdc-capture sim`` as a settings object: one field per flag, same names and defaults.
+
+    ``to_config()`` turns it into the full :class:`SimConfig` (where every value is checked);
+    ``tf_schedule`` (e.g. ``"0:30m,3:30m"``) replaces ``tf_hz``; ``minutes`` defaults to 30,
+    or to the schedule's total."""
+
+    scene: str = "grating"
+    period_m: float = 0.1
+    tf_hz: float = 0.0
+    tf_schedule: str | None = None
+    minutes: float | None = None
+    seed: int = 0
+    behaviour: str = "profile"
+    model: str | None = None  # online model (default avdm); collision mode: the detector
+    profile_model: str = "avdm"  # collision mode: the complexity model running alongside
+    threshold: float | None = None  # collision mode: alert threshold in the detector's units
+    adaptive: bool = False
+    adaptive_gain: float = 1.0
+    phase: str | None = None
+    contrast: float = 1.0
+    image: str | None = None
+    noise_sd: float = 0.0
+    overhead: bool = False
+    overhead_fps: float = 5.0
+
+    def to_config(self) -> SimConfig:
+        from capture.config import (
+            ArenaConfig,
+            CameraConfig,
+            CollisionConfig,
+            OverheadConfig,
+            RobotConfig,
+            WallConfig,
+            parse_schedule,
+        )
+
+        if self.tf_schedule is not None:
+            schedule = parse_schedule(self.tf_schedule)
+            total = sum(d for _, d in schedule)
+            duration = self.minutes * 60 if self.minutes is not None else total
+        else:
+            duration = (self.minutes if self.minutes is not None else 30.0) * 60
+            schedule = ((self.tf_hz, duration),)
+        if self.image and self.scene != "natural":
+            raise ValueError("--image gives a natural scene: use it with --scene natural")
+        wall = WallConfig(
+            scene=self.scene,
+            period_m=self.period_m,
+            contrast=self.contrast,
+            tf_schedule=schedule,
+            nominal_period_m=self.period_m,
+            image_path=self.image or "",
+        )
+        collision = self.behaviour == "collision"
+        if collision:
+            col = CollisionConfig(
+                detector=self.model or "lgmd-plus",  # validated by CollisionConfig
+                threshold=self.threshold if self.threshold is not None else float("nan"),
+                adaptive=self.adaptive,
+                adaptive_gain=self.adaptive_gain,
+                phase=self.phase or "",
+            )
+            model = self.profile_model
+        else:
+            for flag, given in (
+                ("--threshold", self.threshold is not None),
+                ("--adaptive", self.adaptive),
+                ("--phase", bool(self.phase)),
+            ):
+                if given:
+                    raise ValueError(f"{flag} belongs to --behaviour collision")
+            col = CollisionConfig()
+            model = self.model or "avdm"
+        return SimConfig(
+            arena=ArenaConfig(ring_enabled=not collision),
+            wall=wall,
+            robot=RobotConfig(),
+            camera=CameraConfig(noise_sd=self.noise_sd),
+            overhead=OverheadConfig(enabled=self.overhead, fps=self.overhead_fps),
+            duration_s=duration,
+            seed=self.seed,
+            model=model,
+            behaviour=self.behaviour,
+            collision=col,
+        )
+
+    def default_path(self) -> Path:
+        """``recordings/<run id>.rrd``: the run id is a function of the configuration."""
+        return Path("recordings") / f"{self.to_config().run_id()}.rrd"
+
+
+def record_sim(
+    settings: SimSettings,
+    out: str | Path | None = None,
+    *,
+    force: bool = False,
+    live_url: str | None = None,
+    spawn: bool = False,
+    progress: bool = False,
+    log: Callable[[str], None] | None = None,
+) -> RecordResult:
+    """Simulate a run and write it to ``out`` (default ``recordings/<run id>.rrd``).
+
+    ``live_url`` also streams to a running viewer, ``spawn`` to a new one; ``progress`` shows a
+    bar on stderr; ``log`` gets a one-line description before the run starts. Ctrl-C or SIGTERM
+    (in the main thread) ends the run cleanly: the result says so and the file is valid."""
+    from avdm.registry import make_model
+    from capture.collision import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
+    from capture.recorder import Recorder, default_blueprint, spawn_viewer
+    from capture.run import check_output_path, run_capture
+    from contract.recording import model_path
+
+    config = settings.to_config()
+    ctx = config.camera.model_context()
+    model = make_model(config.model, **ctx)
+    collision = config.behaviour == "collision"
+    detector = make_model(config.collision.detector_spec(), **ctx) if collision else None
+    # the device reads a wall image now, so a bad one fails before anything is written
+    device = ClosedLoopRobot(config) if collision else SimulatedRobot(config)
+    run_id = config.run_id()
+    path = Path(out) if out else Path("recordings") / f"{run_id}.rrd"
+    check_output_path(path, force)
+    live = spawn_viewer() if spawn else live_url
+    if detector is not None:
+        main = detector
+        extra = [
+            ("AVDM omega_dps (deg/s), on board", [model_path(model.name, "omega_dps")]),
+            (
+                "spike rate and alert threshold (spikes/s)",
+                [model_path(CONTROLLER, "threshold"), model_path(detector.name, "spike_rate_hz")],
+            ),
+            (
+                "FFI and its threshold T_ffi in force",
+                [model_path(CONTROLLER, "t_ffi"), model_path(detector.name, "ffi")],
+            ),
+        ]
+    else:
+        main, extra = model, []
+    recorder = Recorder(
+        path, run_id, blueprint=default_blueprint(main.name, main.outputs, extra), live_url=live
+    )
+    recorder.send_properties(recording_properties(config, model, detector))
+    recorder.log_arena(config.arena, config.robot.radius_m)
+    recorder.log_model_meta(model.name, model.outputs)
+    if detector is not None:
+        from avdm.base import Output
+
+        recorder.log_model_meta(detector.name, detector.outputs)
+        recorder.log_model_meta(
+            CONTROLLER, tuple(Output(k, u, d) for k, (u, d) in CONTROLLER_OUTPUTS.items())
+        )
+    if log is not None:
+        what = (
+            f"collision mode, detector {detector.name}"
+            + (" (adaptive threshold)" if config.collision.adaptive else "")
+            if detector
+            else f"model {model.name}"
+        )
+        log(
+            f"recording {run_id}: {config.wall.scene} walls, TF schedule "
+            f"{config.to_sections()['wall']['tf_schedule_text']}, {config.duration_s / 60:g} min "
+            f"({config.n_frames} frames at {config.camera.fps:g} Hz), {what}"
+        )
+    result = run_capture(
+        device,
+        None if collision else model,
+        recorder,
+        total_frames=config.n_frames,
+        progress=progress,
+    )
+    return RecordResult.of(path, run_id, result, config.n_frames)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import polars as pl
 
-from analysis.reproduce import evaluate_claims
+from analysis.experiments.reproduce import evaluate_claims
 from tests.helpers import run_cli
 
 ARGS = (

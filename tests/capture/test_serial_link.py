@@ -19,9 +19,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from analysis.rrd_reader import Recording
-from capture.cli import WallController
 from capture.config import SimConfig, WallConfig
 from capture.render import OverheadRenderer
+from capture.robot_capture import WallController
 from capture.serial_protocol import (
     TYPE_FRAME,
     PacketParser,

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -14,8 +16,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from avdm.base import Params
-from avdm.calibration import CalibrationResult
+from avdm.calibration import CalibrationResult, fit_decoding, valid_periods_px, valid_tfs_hz
 from avdm.calibration_store import CALIBRATION_FILE
+from avdm.registry import canonical_name, make_params
 from contract.provenance import package_versions
 
 
@@ -100,3 +103,66 @@ def plot_calibration(result: CalibrationResult, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrateSettings:
+    """``vdc-analyse calibrate``: the geometry to fit (a, b) for and the gratings used."""
+
+    fps: float = 300.0
+    size: tuple[int, int] = (100, 100)  # (H, W) px
+    deg_per_px: float | None = None  # default: 360 / W, the offline-stimulus convention
+    model: str = "avdm"
+    contrasts: tuple[float, ...] = (0.5, 1.0)
+    name: str | None = None  # default: from fps and size
+    update_defaults: bool = False  # also store the fit as the shipped default
+
+    @property
+    def resolved_deg_per_px(self) -> float:
+        return self.deg_per_px if self.deg_per_px is not None else 360.0 / self.size[1]
+
+    @property
+    def resolved_name(self) -> str:
+        return self.name or f"fps{self.fps:g}-{self.size[1]}x{self.size[0]}"
+
+    def base_params(self) -> Params:
+        """The model's params with a = b = 1 (the fit's starting point)."""
+        sep = ":" if ":" not in self.model else ","
+        return make_params(
+            f"{self.model}{sep}a=1,b=1", fps=self.fps, deg_per_px=self.resolved_deg_per_px
+        )
+
+    def n_cells(self) -> int:
+        w = self.size[1]
+        return len(valid_periods_px(w)) * len(valid_tfs_hz(self.fps)) * len(self.contrasts)
+
+
+@dataclasses.dataclass
+class CalibrateResult:
+    fit: CalibrationResult
+    entry: dict[str, Any]  # what calibration.json holds
+    paths: list[Path]
+
+
+def calibrate(
+    settings: CalibrateSettings = CalibrateSettings(),
+    out: str | Path | None = None,
+    *,
+    progress: Callable[[], None] | None = None,
+) -> CalibrateResult:
+    """``vdc-analyse calibrate``: least-squares fit of ω = a·λ^b·(1+C)/(2C)·√R̄ on the valid
+    band of drifting gratings. With ``out``: ``calibration.json`` and ``calibration.png``;
+    ``update_defaults`` also stores it in the shipped ``avdm/calibrations.json``."""
+    base = settings.base_params()
+    h, w = settings.size
+    fit = fit_decoding(base, size=(h, w), contrasts=settings.contrasts, progress=progress)  # type: ignore[arg-type]
+    name, model = settings.resolved_name, canonical_name(settings.model)
+    entry = calibration_entry(fit, name, model, base)
+    paths: list[Path] = []
+    if out is not None:
+        out = Path(out)
+        write_calibration(fit, out / "calibration.json", name, model, base)
+        paths += [out / "calibration.json", plot_calibration(fit, out / "calibration.png")]
+    if settings.update_defaults:
+        paths.append(update_shipped(entry))
+    return CalibrateResult(fit, entry, paths)

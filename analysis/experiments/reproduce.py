@@ -21,9 +21,11 @@ from typing import Any
 
 import polars as pl
 
-from analysis.approach import ApproachConfig, plot_approach, run_approach
-from analysis.collision import CollisionSettings, collision_outputs, collision_table_markdown
-from analysis.collision_study import phase_items, run_captures, study_phases
+from analysis.collision import CollisionSettings, collision, collision_table_markdown
+from analysis.experiments.approach import ApproachConfig, plot_approach, run_approach
+from analysis.experiments.captures import CaptureItem, run_captures
+from analysis.experiments.collision_study import phase_items, study_phases
+from analysis.experiments.sweep import SweepConfig, monotonicity, paper_cells, plot_paper, run_sweep
 from analysis.parquet_io import read_metadata, write_parquet
 from analysis.profile import (
     ProfileSettings,
@@ -33,8 +35,8 @@ from analysis.profile import (
     segments_from_tables,
 )
 from analysis.rrd_reader import Recording
-from analysis.sweep import SweepConfig, monotonicity, paper_cells, plot_paper, run_sweep
-from analysis.tables import TableSettings, build_tables
+from analysis.tables import SummarySettings, build_tables
+from capture.sim import SimSettings
 
 PROFILE_CONDITIONS = (
     ("grating", 0.0),
@@ -46,8 +48,9 @@ PROFILE_CONDITIONS = (
 
 
 @dataclasses.dataclass(frozen=True)
-class Plan:
-    """Durations and repeats; ``quick`` finishes in minutes, the default is the paper's."""
+class ReproduceSettings:
+    """``vdc-analyse reproduce``: durations and repeats; ``quick`` finishes in minutes, the
+    default is the paper's. ``make(quick, **overrides)`` applies the quick durations first."""
 
     quick: bool = False
     profile_minutes: float = 30.0
@@ -60,7 +63,7 @@ class Plan:
     adjusted: str = "t_ffi=30"
 
     @classmethod
-    def make(cls, quick: bool, **kw: Any) -> Plan:
+    def make(cls, quick: bool, **kw: Any) -> ReproduceSettings:
         if quick:
             base = {
                 "profile_minutes": 3.0,
@@ -73,33 +76,16 @@ class Plan:
         return cls(quick=False, **{k: v for k, v in kw.items() if v is not None})
 
 
-def profile_items(plan: Plan, folder: Path) -> list[tuple[str, list[str], Path]]:
-    items = []
-    for scene, tf in PROFILE_CONDITIONS:
-        key = f"{scene}-tf{tf:g}"
-        out = folder / f"{key}.rrd"
-        items.append(
-            (
-                key,
-                [
-                    "sim",
-                    "--scene",
-                    scene,
-                    "--tf-hz",
-                    f"{tf:g}",
-                    "--minutes",
-                    f"{plan.profile_minutes:g}",
-                    "--seed",
-                    str(plan.seed),
-                    "--out",
-                    str(out),
-                    "--force",
-                    "--quiet",
-                ],
-                out,
-            )
+def profile_items(plan: ReproduceSettings, folder: Path) -> list[CaptureItem]:
+    """The closed-loop profiling runs: one per (scene, TF) condition."""
+    return [
+        (
+            f"{scene}-tf{tf:g}",
+            SimSettings(scene=scene, tf_hz=tf, minutes=plan.profile_minutes, seed=plan.seed),
+            folder / f"{scene}-tf{tf:g}.rrd",
         )
-    return items
+        for scene, tf in PROFILE_CONDITIONS
+    ]
 
 
 @dataclasses.dataclass
@@ -286,7 +272,9 @@ FIGURES = (
 )
 
 
-def write_report(out: Path, plan: Plan, claims: list[Claim], elapsed_s: float) -> list[Path]:
+def write_report(
+    out: Path, plan: ReproduceSettings, claims: list[Claim], elapsed_s: float
+) -> list[Path]:
     """report.md and a self-contained report.html (figures embedded) in ``out``."""
     col = pl.read_parquet(out / "collision" / "collision_summary.parquet")
     mode = "quick" if plan.quick else "full"
@@ -373,9 +361,28 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def reproduce(plan: Plan, out: Path, log: Callable[[str], None]) -> list[Path]:
-    """Run every step into ``out``; return the report files."""
+@dataclasses.dataclass
+class ReproduceResult:
+    claims: list[Claim]  # each paper claim, what was measured, and the verdict
+    paths: list[Path]  # report.md, report.html
+    elapsed_s: float
+
+    @property
+    def claims_table(self) -> pl.DataFrame:
+        return pl.DataFrame([dataclasses.asdict(c) for c in self.claims])
+
+
+def reproduce(
+    plan: ReproduceSettings = ReproduceSettings(),
+    out: str | Path = "results/reproduce",
+    *,
+    log: Callable[[str], None] | None = None,
+) -> ReproduceResult:
+    """``vdc-analyse reproduce``: run every step into ``out`` (reusing finished recordings)
+    and write the claim-by-claim report; ``log`` gets one line per step."""
     t0 = time.perf_counter()
+    out = Path(out)
+    log = log or (lambda _m: None)
     out.mkdir(parents=True, exist_ok=True)
     rec_dir = out / "recordings"
     log(
@@ -410,7 +417,7 @@ def reproduce(plan: Plan, out: Path, log: Callable[[str], None]) -> list[Path]:
 
     log("profiling")
     prof_paths = [paths[k] for k, _, _ in profile_items(plan, rec_dir / "profiling")]
-    settings = TableSettings()
+    settings = SummarySettings()
     tables, tmeta = build_tables(prof_paths, None, settings)
     for name, t in tables.items():
         write_parquet(t, out / "profiling" / f"{name}.parquet", tmeta)
@@ -434,7 +441,7 @@ def reproduce(plan: Plan, out: Path, log: Callable[[str], None]) -> list[Path]:
 
     log("collision study")
     col_paths = [str(p) for k, p in paths.items() if k.startswith("tf")]
-    collision_outputs(col_paths, out / "collision", CollisionSettings())
+    collision(col_paths, CollisionSettings(), out / "collision")
 
     log("report")
     claims = evaluate_claims(out)
@@ -443,7 +450,8 @@ def reproduce(plan: Plan, out: Path, log: Callable[[str], None]) -> list[Path]:
         out / "claims.parquet",
         {"plan": dataclasses.asdict(plan), "capture_provenance": capture_provenance(paths)},
     )
-    return write_report(out, plan, claims, time.perf_counter() - t0)
+    paths_written = write_report(out, plan, claims, time.perf_counter() - t0)
+    return ReproduceResult(claims, paths_written, time.perf_counter() - t0)
 
 
 def capture_provenance(paths: dict[str, Path]) -> list[dict[str, Any]]:

@@ -20,7 +20,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
 
-from avdm.registry import canonical_name, make_model
+from analysis.stats import spearman
+from avdm.registry import canonical_name, make_model, make_params
 from avdm.stimuli import grating, omega_true_dps, period_px_from_sf
 
 PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
@@ -126,14 +127,6 @@ def run_sweep(
         if progress is not None:
             progress()
     return pl.DataFrame(rows).sort("sf_upc", "tf_hz")
-
-
-def spearman(x: np.ndarray, y: np.ndarray) -> float:
-    """Spearman rank correlation (average ranks for ties); NaN if either side is constant."""
-    df = pl.DataFrame({"x": x, "y": y})
-    if df["x"].n_unique() < 2 or df["y"].n_unique() < 2:
-        return float("nan")
-    return float(df.select(pl.corr("x", "y", method="spearman")).item())
 
 
 def monotonicity(df: pl.DataFrame, min_points: int = 4) -> pl.DataFrame:
@@ -294,3 +287,97 @@ def plot_grid(df: pl.DataFrame, path: Path, title: str) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+@dataclass(frozen=True)
+class SweepSettings:
+    """``vdc-analyse sweep``: the model, the cells (paper layout unless ``sf_upc`` or
+    ``tf_hz`` lists are given: then their full grid) and the stimulus."""
+
+    model: str = "avdm"
+    sf_upc: tuple[float, ...] | None = None
+    tf_hz: tuple[float, ...] | None = None
+    size: tuple[int, int] = (100, 100)  # (H, W) px; W px stand for 360°
+    fps: float = 300.0
+    duration_s: float = 1.0
+    contrast: float = 1.0
+    waveform: str = "sine"
+
+    def __post_init__(self) -> None:
+        if not 0 < self.contrast <= 1:
+            raise ValueError(f"--contrast must be in (0, 1], got {self.contrast:g}")
+        if self.waveform not in ("sine", "square"):
+            raise ValueError(f"waveform must be sine or square, got {self.waveform!r}")
+        if not self.grid and (self.size[1] < 100 or self.fps < 300):
+            raise ValueError(
+                "the paper layout needs SF up to 50 upc and TF up to 150 Hz: use --size of at "
+                "least 100 px wide and --fps of at least 300, or give --sf and --tf lists"
+            )
+        check_cells(self.cells(), self.stimulus)
+        make_params(self.model)  # an unknown model fails before any cell runs
+
+    @property
+    def grid(self) -> bool:
+        return self.sf_upc is not None or self.tf_hz is not None
+
+    @property
+    def stimulus(self) -> SweepConfig:
+        return SweepConfig(self.size, self.fps, self.duration_s, self.contrast, self.waveform)
+
+    def cells(self) -> list[tuple[float, float]]:
+        if self.grid:
+            return grid_cells(self.sf_upc or DEFAULT_SFS_UPC, self.tf_hz or DEFAULT_TFS_HZ)
+        return paper_cells()
+
+
+@dataclass
+class SweepResult:
+    table: pl.DataFrame  # one row per cell: sf_upc, tf_hz, ..., omega_dps, ...
+    monotonicity: pl.DataFrame  # Spearman rho along every row and column
+    paths: list[Path]
+
+
+def sweep(
+    settings: SweepSettings = SweepSettings(),
+    out: str | Path | None = None,
+    *,
+    progress: Callable[[], None] | None = None,
+) -> SweepResult:
+    """``vdc-analyse sweep`` (paper Fig. 3). With ``out``: ``sweep.parquet``,
+    ``monotonicity.parquet`` and ``sweep.png``. ``progress`` is called once per cell."""
+    from analysis.parquet_io import write_parquet
+
+    config = settings.stimulus
+    name = canonical_name(settings.model)
+    params = make_params(settings.model, fps=config.fps, deg_per_px=config.deg_per_px)
+    df = run_sweep(settings.model, settings.cells(), config, progress=progress)
+    # the paper layout's cross-sections have 3 cells: only its six full rows/columns count
+    mono = monotonicity(df, min_points=3 if settings.grid else 4)
+    paths: list[Path] = []
+    if out is not None:
+        out = Path(out)
+        meta = {
+            "model": name,
+            "params": params.to_dict(),
+            "stimulus": {
+                "size_hw": list(config.size),
+                "fps": config.fps,
+                "duration_s": config.duration_s,
+                "contrast": config.contrast,
+                "waveform": config.waveform,
+                "normalisation": "peak",
+                "dtype": "uint8",
+                "layout": "grid" if settings.grid else "paper",
+            },
+        }
+        paths.append(write_parquet(df, out / "sweep.parquet", meta))
+        paths.append(write_parquet(mono, out / "monotonicity.parquet", meta))
+        title = (
+            f"{name} on drifting {config.waveform} gratings, {config.size[1]}x{config.size[0]} "
+            f"px, {config.fps:g} Hz, contrast {config.contrast:g}"
+        )
+        if settings.grid:
+            paths.append(plot_grid(df, out / "sweep.png", title))
+        else:
+            paths.append(plot_paper(df, out / "sweep.png", config, title))
+    return SweepResult(df, mono, paths)

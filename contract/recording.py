@@ -1,0 +1,94 @@
+"""The recording contract (DESIGN.md): what capture writes and analysis reads.
+
+| entity                      | archetype                         | meaning                        |
+|-----------------------------|-----------------------------------|--------------------------------|
+| ``/arena`` (static)         | LineStrips3D (ViewCoordinates: /) | walls, light ring              |
+| ``/arena/wall/tf_hz``       | Scalars                           | wall temporal frequency        |
+| ``/arena/robot_path``       | Points3D                          | the robot's position (trail)   |
+| ``/robot/pose``             | Scalars [x_m, y_m, heading_rad]   | tracked or simulated pose      |
+| ``/robot``                  | Transform3D                       | the same pose, for the 3D view |
+| ``/robot/camera/image``     | Image (L, U8)                     | raw on-board frame, lossless   |
+| ``/model/<name>/<output>``  | Scalars                           | online model outputs           |
+| ``/events/<kind>``          | TextLog + Points3D                | ring_turn, avoidance, crash... |
+| ``/overhead/image``         | Image                             | optional overhead frames       |
+| ``/link/stats``             | Scalars (hardware runs)           | serial link counts             |
+
+Timelines: ``frame`` (camera frame index) and ``time`` (duration since the run started);
+hardware runs add ``capture_time``. Recording properties are sections of flat key-value pairs
+(``PROPERTY_SECTIONS``). ``capture.recorder`` writes this and ``analysis.rrd_reader`` reads it;
+both import the names from here.
+"""
+
+from __future__ import annotations
+
+import re
+
+APP_ID = "vdc"
+FRAME_TIMELINE = "frame"
+TIME_TIMELINE = "time"
+CAPTURE_TIME_TIMELINE = "capture_time"
+
+ARENA = "/arena"
+ARENA_WALLS = "/arena/walls"
+ARENA_RING = "/arena/ring"
+WALL_TF = "/arena/wall/tf_hz"
+ROBOT_PATH = "/arena/robot_path"
+ROBOT = "/robot"
+ROBOT_BODY = "/robot/body"
+ROBOT_HEADING = "/robot/heading"
+POSE = "/robot/pose"
+CAMERA = "/robot/camera/image"
+OVERHEAD = "/overhead/image"
+EVENTS = "/events"
+MODEL_ROOT = "/model"
+MODEL_VARIANTS_ROOT = "/model_variants"
+LINK_STATS = "/link/stats"
+POSE_NAMES = ("x_m", "y_m", "heading_rad")
+
+EVENT_KINDS = ("ring_turn", "avoidance", "crash", "link_error", "tracker_lost")
+
+# Recording property sections (rr.send_property): each a flat dict of scalars and strings.
+PROPERTY_SECTIONS = {
+    "run": "recording id, source (simulation | robot), seed, behaviour, versions",
+    "arena": "geometry of the arena (ArenaConfig)",
+    "wall": "scene, period_m, contrast, tf_schedule_text, image_path",
+    "robot": "the robot body and motion (RobotConfig)",
+    "camera": "width_px, height_px, fps, hfov_deg, height_m, noise_sd",
+    "overhead": "the optional overhead camera",
+    "collision": "collision mode: detector spec, threshold, adaptive rule, phase",
+    "model": "name and output units of the online model",
+    "model_params": "the online model's parameters",
+    "detector": "collision mode: name and output units of the detector",
+    "detector_params": "collision mode: the detector's parameters",
+    "link": "hardware runs: serial protocol and its counters",
+    "provenance": "package versions, CPU model and Numba's compile target",
+    "run_end": "written last: frames, stop_reason, complete",
+}
+
+
+def entity_name(model_name: str) -> str:
+    """A model spec as one entity-path part: ``avdm:beta=0.5`` → ``avdm_beta_0.5``."""
+    return re.sub(r"[^A-Za-z0-9_.\-]", "_", model_name)
+
+
+def model_path(model_name: str, output: str) -> str:
+    return f"{MODEL_ROOT}/{entity_name(model_name)}/{output}"
+
+
+def variant_path(model_name: str, output: str) -> str:
+    return f"{MODEL_VARIANTS_ROOT}/{entity_name(model_name)}/{output}"
+
+
+def event_path(kind: str) -> str:
+    return f"{EVENTS}/{kind}"
+
+
+def camera_model_context(
+    width_px: int, height_px: int, fps: float, hfov_deg: float
+) -> dict[str, float | int]:
+    """What a model needs to know about a camera: frame rate, angular pitch (deg/px at the
+    image centre) and the AVDM's texture row (the horizon row, H/2: the released code's row 2
+    sees the dark room above the arena wall on the robot camera). The capture builds its
+    online model from this, and analysis rebuilds the same model from the recorded camera
+    properties, so online and offline outputs agree bit for bit."""
+    return {"fps": fps, "deg_per_px": hfov_deg / width_px, "texture_row": height_px // 2}
