@@ -13,6 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
+from matplotlib.figure import Figure
 
 from analysis.stats import spearman
 from analysis.tables import (
@@ -89,15 +90,14 @@ def busiest_window(values: np.ndarray, width: int) -> slice:
     return slice(start, start + width)
 
 
-def plot_compare(
+def compare_figure(
     outputs: dict[str, pl.DataFrame],
     stats: pl.DataFrame,
     corr: pl.DataFrame,
     s: SummarySettings,
     title: str,
-    path: Path,
     window_frames: int = 1980,
-) -> Path:
+) -> Figure:
     """Traces over the busiest minute, response distributions, and the correlation matrix."""
     names = list(outputs)
     fig = plt.figure(figsize=(15, 9), constrained_layout=True)
@@ -163,10 +163,7 @@ def plot_compare(
     ax_c.set_title("Pearson correlation over frames")
     fig.colorbar(im, ax=ax_c, shrink=0.8)
     fig.suptitle(title)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return fig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,11 +184,22 @@ class CompareResult:
     """Every variant's outputs on the same frames, their statistics and correlations."""
 
     recording_id: str
+    settings: CompareSettings
     outputs: dict[str, pl.DataFrame]  # canonical variant name -> frame, t_s, outputs
     statistics: pl.DataFrame
     correlations: pl.DataFrame
     paths: list[Path]
     notices: list[str]
+
+    def figure(self) -> Figure:
+        """Traces over the busiest minute, distributions and correlations (compare.png)."""
+        return compare_figure(
+            self.outputs,
+            self.statistics,
+            self.correlations,
+            self.settings,
+            f"{self.recording_id}: variants on identical frames",
+        )
 
 
 def compare(
@@ -209,6 +217,7 @@ def compare(
     the source's recording id, so ``rerun REC variants.rrd`` shows them together)."""
     from analysis.analysis_rrd import write_variants_rrd
     from analysis.parquet_io import write_parquet
+    from analysis.profile import save_figure
 
     loaded = load_recording(recording)
     notes = [loaded.rec.notice] if loaded.rec.notice else []
@@ -218,6 +227,7 @@ def compare(
     stats = variant_statistics(loaded, outputs, settings)
     corr = pairwise_correlations(outputs, settings.warmup_frames)
     paths: list[Path] = []
+    result = CompareResult(loaded.recording_id, settings, outputs, stats, corr, paths, notes)
     if out is not None:
         out = Path(out)
         meta = {
@@ -227,16 +237,7 @@ def compare(
         }
         paths.append(write_parquet(stats, out / "compare_summary.parquet", meta))
         paths.append(write_parquet(corr, out / "compare_correlations.parquet", meta))
-        paths.append(
-            plot_compare(
-                outputs,
-                stats,
-                corr,
-                settings,
-                f"{loaded.recording_id}: variants on identical frames",
-                out / "compare.png",
-            )
-        )
+        paths.append(save_figure(result.figure(), out / "compare.png"))
         ctx = loaded.camera_context()
         units = {
             canonical_name(m): {o.name: o.unit for o in make_model(m, **ctx).outputs}
@@ -247,4 +248,4 @@ def compare(
                 loaded.recording_id, outputs, units, out / "variants.rrd", loaded.online_model
             )
         )
-    return CompareResult(loaded.recording_id, outputs, stats, corr, paths, notes)
+    return result

@@ -19,6 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
+from matplotlib.figure import Figure
 
 from analysis.tables import SummarySettings, TablesSettings, build_tables, summarise
 
@@ -163,8 +164,22 @@ def _arena_outline(ax, hx: float, hy: float, z: float | None = None) -> None:
         ax.plot(xs, ys, [z] * 5, color="0.5", lw=1)
 
 
+def save_figure(fig: Figure, path: Path) -> Path:
+    """Write ``fig`` as a PNG (100 dpi) to ``path`` and close it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def plot_segment(seg: Segment, s: ProfileSettings, path: Path) -> Path:
     """One PNG: 3D circle profile, histogram of responses over the threshold, heat map."""
+    return save_figure(segment_figure(seg, s), path)
+
+
+def segment_figure(seg: Segment, s: ProfileSettings) -> Figure:
+    """The profile of one segment as a matplotlib Figure (for notebooks): 3D circle profile,
+    histogram of responses over the threshold, heat map of the mean response."""
     fig = plt.figure(figsize=(16, 5.2), constrained_layout=True)
     ax3 = fig.add_subplot(1, 3, 1, projection="3d")
     step = max(1, math.ceil(len(seg.response) / s.max_points))
@@ -221,10 +236,7 @@ def plot_segment(seg: Segment, s: ProfileSettings, path: Path) -> Path:
     )
     fig.colorbar(im, ax=ax_m, shrink=0.8, label=f"mean {seg.output}")
     fig.suptitle(seg.label)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return fig
 
 
 def plot_overview(segs: Sequence[Segment], s: ProfileSettings, path: Path) -> Path:
@@ -259,22 +271,24 @@ def plot_overview(segs: Sequence[Segment], s: ProfileSettings, path: Path) -> Pa
     ax_d.set_ylabel("density")
     ax_d.legend(fontsize=7)
     ax_d.set_title("response distributions")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 @dataclasses.dataclass
 class ProfileResult:
-    """Profiles of every segment (or condition), their summary table, and the files written."""
+    """Profiles of every segment (or condition), their summary table, and the files written.
+    ``figure(i)`` draws segment ``i`` as a matplotlib Figure."""
 
+    settings: ProfileSettings
     segments: list[Segment]
     summary: pl.DataFrame
     tables: dict[str, pl.DataFrame]
     meta: dict
     paths: list[Path]
     notices: list[str]
+
+    def figure(self, i: int = 0) -> Figure:
+        return segment_figure(self.segments[i], self.settings)
 
 
 def profile(
@@ -330,4 +344,4 @@ def profile(
         paths.append(write_parquet(summary, out / "profile_summary.parquet", meta))
         rid = "profile-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
         paths.append(write_profile_rrd(segs, settings, out / "profiles.rrd", rid))
-    return ProfileResult(segs, summary, tables, meta, paths, notes)
+    return ProfileResult(settings, segs, summary, tables, meta, paths, notes)
