@@ -29,6 +29,11 @@ def _progress(total: int | None, desc: str, unit: str = "cell"):  # -> tqdm
     return tqdm(total=total, desc=desc, unit=unit, disable=None, leave=False, file=sys.stderr)
 
 
+def _tf(v: float | None) -> str:
+    """A wall TF for printing; recordings of a video have none."""
+    return "no walls" if v is None else f"TF {v:g} Hz"
+
+
 def _notice(msg: str) -> None:
     print(f"{PROG}: note: {msg}", file=sys.stderr)
 
@@ -112,7 +117,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
     print("summary (primary output after warm-up):")
     for r in res.summary.iter_rows(named=True):
         print(
-            f"  {r['recording_id']}  {r['model']:<16} TF {r['wall_tf_hz']:g} Hz: "
+            f"  {r['recording_id']}  {r['model']:<16} {_tf(r['wall_tf_hz'])}: "
             f"mean {r['mean']:.1f}, p95 {r['p95']:.1f}, > 100: {100 * r['frac_over_100']:.1f} %, "
             f"near wall / centre {r['near_wall_centre_ratio']:.2f}"
         )

@@ -28,7 +28,15 @@ from analysis.parquet_io import write_parquet
 from analysis.rrd_reader import Recording, RecordingError
 from avdm.base import Model
 from avdm.registry import canonical_name, make_model, parse_model_spec
-from contract.recording import MODEL_ROOT, POSE, WALL_TF, camera_model_context, entity_name
+from avdm.true_time import TrueTimeModel
+from contract.recording import (
+    FRAME_TIMING,
+    MODEL_ROOT,
+    POSE,
+    WALL_TF,
+    camera_model_context,
+    entity_name,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,36 +113,55 @@ class LoadedRecording:
 
 
 def load_recording(path: str | Path) -> LoadedRecording:
-    """Open a recording and read its properties, poses, wall TF and logged model outputs."""
+    """Open a recording and read its properties, poses, wall TF, frame timing and logged model
+    outputs. A recording without poses (a video) has null poses, wall TF and wall gap; one
+    without frame timing (simulated or robot runs) has null ``repeat`` and ``dropped_before``."""
     rec = Recording(path)
     props = rec.properties()
     sig = rec.signals()
-    if POSE not in sig:
-        raise RecordingError(f"{str(path)!r} holds no robot poses at {POSE}")
-    f, t, pose = sig[POSE]
-    frames = pl.DataFrame(
-        {
-            "frame": f.astype(np.int64),
-            "t_s": t,
-            "x_m": pose[:, 0],
-            "y_m": pose[:, 1],
-            "heading_rad": pose[:, 2],
-        }
-    )
+    if POSE in sig:
+        f, t, pose = sig[POSE]
+        frames = pl.DataFrame(
+            {
+                "frame": f.astype(np.int64),
+                "t_s": t,
+                "x_m": pose[:, 0],
+                "y_m": pose[:, 1],
+                "heading_rad": pose[:, 2],
+            }
+        )
+    else:
+        f, t = _frame_index(rec, sig, path)
+        nan = np.full(len(f), np.nan)
+        frames = pl.DataFrame(
+            {"frame": f, "t_s": t, "x_m": nan, "y_m": nan, "heading_rad": nan}
+        ).with_columns(pl.col("x_m", "y_m", "heading_rad").fill_nan(None))
     if WALL_TF in sig:
         tf_f, _, tf = sig[WALL_TF]
         tf_df = pl.DataFrame({"frame": tf_f.astype(np.int64), "wall_tf_hz": tf[:, 0]})
         frames = frames.join(tf_df, on="frame", how="left")
     else:
         frames = frames.with_columns(wall_tf_hz=pl.lit(None, pl.Float64))
+    if FRAME_TIMING in sig:
+        tm_f, _, tm = sig[FRAME_TIMING]
+        timing = pl.DataFrame(
+            {
+                "frame": tm_f.astype(np.int64),
+                "repeat": tm[:, 0] > 0.5,
+                "dropped_before": tm[:, 1].astype(np.int64),
+            }
+        )
+        frames = frames.join(timing, on="frame", how="left")
+    else:
+        frames = frames.with_columns(
+            repeat=pl.lit(None, pl.Boolean), dropped_before=pl.lit(None, pl.Int64)
+        )
     loaded = LoadedRecording(rec, props, frames, {})
     hx, hy = loaded.arena_half_extent()
     loaded.frames = frames.with_columns(
         pl.lit(rec.recording_id).alias("recording_id"),
         pl.min_horizontal(hx - pl.col("x_m").abs(), hy - pl.col("y_m").abs()).alias("wall_gap_m"),
-    ).select(
-        "recording_id", "frame", "t_s", "x_m", "y_m", "heading_rad", "wall_tf_hz", "wall_gap_m"
-    )
+    ).select(*FRAMES_COLUMNS)
     online = loaded.online_model
     if online:
         prefix = f"{MODEL_ROOT}/{entity_name(online)}/"
@@ -159,12 +186,27 @@ def recompute(
     floats it logged."""
     ctx = loaded.camera_context()
     models: list[Model] = [make_model(s, **ctx) for s in specs]
+    # a real camera's recording (frame timing logged): new frames only, over true time, as
+    # the capture ran its online model (avdm.true_time)
+    timing = loaded.frames.select("frame", "t_s", "repeat").drop_nulls()
+    true_time = timing.height > 0
+    runners = [TrueTimeModel(m) for m in models] if true_time else models
+    by_frame = timing.sort("frame") if true_time else None
     outs: dict[str, list[dict[str, np.ndarray]]] = {m.name: [] for m in models}
     frames: list[np.ndarray] = []
     for chunk in loaded.rec.iter_frames():
         frames.append(chunk.frame)
-        for m in models:
-            outs[m.name].append(m.run(chunk.images))
+        if by_frame is not None:
+            sel = pl.DataFrame({"frame": chunk.frame.astype(np.int64)}).join(
+                by_frame, on="frame", how="left", maintain_order="left"
+            )
+            t_c = sel["t_s"].to_numpy()
+            rep = sel["repeat"].fill_null(False).to_numpy()
+        for m in runners:
+            if isinstance(m, TrueTimeModel):
+                outs[m.name].append(m.run(chunk.images, t_c, rep))
+            else:
+                outs[m.name].append(m.run(chunk.images))
         if progress is not None:
             progress(len(chunk.frame))
     frame = np.concatenate(frames)
@@ -236,6 +278,28 @@ def events_table(loaded: LoadedRecording) -> pl.DataFrame:
 
 
 NON_OUTPUT_COLUMNS = ("recording_id", "model", "frame", "t_s", "wall_tf_hz", "wall_gap_m")
+FRAMES_COLUMNS = (
+    "recording_id",
+    "frame",
+    "t_s",
+    "x_m",
+    "y_m",
+    "heading_rad",
+    "wall_tf_hz",
+    "wall_gap_m",
+    "repeat",
+    "dropped_before",
+)
+
+
+def _frame_index(rec: Recording, sig: dict, path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Frame indices and times of a recording without poses: from its frame timing, else
+    from its first logged model output."""
+    for entity in (FRAME_TIMING, *sorted(e for e in sig if e.startswith(MODEL_ROOT + "/"))):
+        if entity in sig:
+            f, t, _ = sig[entity]
+            return f.astype(np.int64), t
+    raise RecordingError(f"{str(path)!r} holds neither poses nor frame timing nor model outputs")
 
 
 def primary_output(outputs_df: pl.DataFrame) -> str:

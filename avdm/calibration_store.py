@@ -1,15 +1,21 @@
-"""The shipped decoding calibrations (a, b) of the AVDM, read from ``calibrations.json``.
+"""The AVDM's decoding calibrations (a, b): shipped ones, and fits for any other camera.
 
-The file is produced by ``vdc-analyse calibrate ... --update-defaults`` and holds one entry per
-camera geometry (frame rate, degrees per pixel) with the fit quality and the grid it used.
+``calibrations.json`` is produced by ``vdc-analyse calibrate ... --update-defaults`` and holds
+one entry per camera geometry (frame rate, degrees per pixel) with the fit quality and the grid
+it used. A camera without a shipped entry is fitted on first use and the fit is cached in the
+user's cache folder (the one file outside the package that ``avdm`` reads or writes).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import os
+from collections.abc import Callable
 from functools import cache
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 CALIBRATION_FILE = "calibrations.json"
@@ -30,3 +36,79 @@ def lookup_calibration(fps: float, deg_per_px: float) -> dict[str, Any] | None:
         ):
             return entry
     return None
+
+
+# -- fits for any camera, cached per user ----------------------------------------------------
+#
+# Policy: a camera's frame rate and angular resolution are used as given, never snapped to a
+# "nominal" neighbour: 29.97 Hz (30000/1001) and 30 Hz get fits of their own (their decoding
+# constants differ by ~0.25 %; a fit takes well under a second). The fit uses the default AVDM
+# on 72-px-high frames 99 px wide (the robot camera's raster, which the valid band of periods
+# was designed for): the decoding constants depend on frame rate and degrees per pixel, not on
+# the frame's size. The key holds everything that changes the fit, so a stale entry is never
+# used: fps and deg/px (to 1e-9), the raster, the grating contrasts and the vdc version.
+
+CAL_SIZE = (72, 99)  # (H, W) of the calibration gratings
+CAL_CONTRASTS = (0.5, 1.0)
+
+
+def cache_dir() -> Path:
+    """``$VDC_CACHE_DIR``, else ``$XDG_CACHE_HOME/vdc``, else ``~/.cache/vdc``."""
+    if os.environ.get("VDC_CACHE_DIR"):
+        return Path(os.environ["VDC_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "vdc"
+
+
+def calibration_key(fps: float, deg_per_px: float) -> dict[str, Any]:
+    from avdm import __version__
+
+    return {
+        "fps": float(f"{fps:.9g}"),
+        "deg_per_px": float(f"{deg_per_px:.9g}"),
+        "size_hw": list(CAL_SIZE),
+        "contrasts": list(CAL_CONTRASTS),
+        "model": "avdm",
+        "vdc_version": __version__,
+    }
+
+
+def _cache_path(key: dict[str, Any]) -> Path:
+    digest = hashlib.sha1(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+    return cache_dir() / "calibrations" / f"avdm-{key['fps']:g}Hz-{digest}.json"
+
+
+def calibration_for(
+    fps: float, deg_per_px: float, progress: Callable[[], None] | None = None
+) -> dict[str, Any]:
+    """The decoding calibration for this camera: shipped, cached, or fitted now and cached.
+
+    The entry carries ``a``, ``b``, the fit's quality (``r2``, ``rms_rel_error``,
+    ``max_rel_error``, ``n_points``) and ``source``: ``shipped``, ``cache`` or ``fitted``.
+    ``progress`` is called once per grating cell of a new fit."""
+    shipped = lookup_calibration(fps, deg_per_px)
+    if shipped is not None:
+        return {**shipped, "source": "shipped"}
+    key = calibration_key(fps, deg_per_px)
+    path = _cache_path(key)
+    try:
+        entry = json.loads(path.read_text(encoding="utf-8"))
+        if entry.get("key") == key:
+            return {**entry, "source": "cache", "cache_file": str(path)}
+    except (OSError, ValueError):
+        pass  # absent or unreadable: fit again
+    from avdm.calibration import fit_decoding
+    from avdm.registry import make_params
+
+    params = make_params("avdm:a=1,b=1", fps=fps, deg_per_px=deg_per_px)
+    fit = fit_decoding(params, size=CAL_SIZE, contrasts=CAL_CONTRASTS, progress=progress)
+    entry = {"key": key, **key, **fit.to_dict()}
+    try:  # a cache that cannot be written only costs a fit next time
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.partial")
+        tmp.write_text(json.dumps(entry, indent=2) + "\n", encoding="utf-8")
+        tmp.replace(path)
+        where = str(path)
+    except OSError:
+        where = ""
+    return {**entry, "source": "fitted", "cache_file": where}

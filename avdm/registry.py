@@ -14,7 +14,7 @@ from typing import Any
 
 from avdm.avdm_model import Avdm, AvdmParams
 from avdm.base import Model, Params
-from avdm.calibration_store import lookup_calibration
+from avdm.calibration_store import calibration_for
 from avdm.lgmd import LgmdColias, LgmdPlus
 from avdm.lgmd_params import LgmdColiasParams, LgmdPlusParams
 
@@ -40,14 +40,8 @@ def _complete_avdm(params: Params) -> Params:
     assert isinstance(params, AvdmParams)
     if params.a is not None and params.b is not None:
         return params
-    cal = lookup_calibration(params.fps, params.deg_per_px)
-    if cal is None:
-        raise ValueError(
-            f"no shipped AVDM calibration for fps={params.fps:g}, "
-            f"deg_per_px={params.deg_per_px:g}: "
-            f"run `vdc-analyse calibrate --fps {params.fps:g} --deg-per-px {params.deg_per_px:g}` "
-            "and pass the printed a=...,b=... in the model spec"
-        )
+    # shipped, else cached, else fitted now (once per camera; see calibration_store)
+    cal = calibration_for(params.fps, params.deg_per_px)
     return params.replace(
         a=params.a if params.a is not None else cal["a"],
         b=params.b if params.b is not None else cal["b"],

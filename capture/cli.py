@@ -37,7 +37,9 @@ def _seed(text: str) -> int:
 
 def _settings(cls, args: argparse.Namespace):
     """The command's settings dataclass from the parsed flags (flag name = field name)."""
-    return cls(**{f.name: getattr(args, f.name) for f in dataclasses.fields(cls)})
+    return cls(
+        **{f.name: getattr(args, f.name) for f in dataclasses.fields(cls) if hasattr(args, f.name)}
+    )
 
 
 def _stderr(msg: str) -> None:
@@ -107,6 +109,56 @@ def cmd_robot(args: argparse.Namespace) -> int:
         f"wrote {rec.path}: {rec.frames} frames, link: "
         + ", ".join(f"{k} {v}" for k, v in res.link_stats.items())
         + f" ({rec.stop_reason})"
+    )
+    return rec.exit_status
+
+
+def cmd_video(args: argparse.Namespace) -> int:
+    from capture.video import VideoSettings, record_video
+
+    s = _settings(VideoSettings, args)
+    bars: list = []
+
+    def calibrating(n: int = 1) -> None:  # a bar only when a fit is really needed
+        if not bars:
+            from tqdm import tqdm
+
+            bars.append(
+                tqdm(
+                    desc="calibrating for this camera (once)",
+                    unit="cell",
+                    disable=args.quiet or None,
+                    leave=False,
+                    file=sys.stderr,
+                )
+            )
+        bars[0].update(n)
+
+    try:
+        res = record_video(
+            s,
+            args.out,
+            force=args.force,
+            live_url=args.connect,
+            spawn=args.spawn,
+            progress=not args.quiet,
+            log=_stderr,
+            calibration_progress=calibrating,
+        )
+    finally:
+        for bar in bars:
+            bar.close()
+    rec = res.record
+    if res.decode_error:
+        _stderr(
+            f"{PROG} video: note: decoding stopped after {rec.frames} frames "
+            f"({res.decode_error}); the recording keeps every frame before it"
+        )
+    cal = res.calibration
+    print(
+        f"wrote {rec.path} ({rec.frames} frames, {res.repeats} repeated, {res.dropped} dropped; "
+        f"calibration a={cal['a']:.5g}, b={cal['b']:.4g} ({cal['source']}, "
+        f"{100 * cal['rms_rel_error']:.1f} % RMS); {rec.size_mb:.1f} MB, {rec.wall_time_s:.1f} s)"
     )
     return rec.exit_status
 
@@ -340,6 +392,57 @@ def build_parser() -> argparse.ArgumentParser:
     ro.add_argument("--model", default="avdm", help="the model running on the robot")
     add_output_options(ro, "recordings/robot-<time>.rrd")
     ro.set_defaults(func=cmd_robot)
+
+    vi = sub.add_parser(
+        "video",
+        help="profile any video file, image sequence or camera (true timestamps)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Decode SOURCE with its true presentation timestamps (variable frame rates and "
+            "rotation metadata honoured), convert it to luma at the angular resolution the "
+            "models were calibrated for, detect repeated and dropped frames, and run the AVDM "
+            "on the new frames over true time. The decoding is calibrated for the source's "
+            "frame rate and angular resolution on first use (cached per user). A camera index "
+            "records until Ctrl-C."
+        ),
+        epilog="examples:\n"
+        "  vdc-capture video clip.mp4 --fov-deg 66 --out recordings/clip.rrd\n"
+        "  vdc-capture video 'frames/%05d.png' --fps 25 --fov-deg 90\n"
+        "  vdc-capture video 0 --fov-deg 60 --spawn       # a webcam, live\n",
+    )
+    vi.add_argument(
+        "source", help="a video file, an image sequence such as frames/%%05d.png, or a camera index"
+    )
+    vi.add_argument(
+        "--fov-deg",
+        type=positive_float,
+        required=True,
+        help="the camera's horizontal field of view, degrees",
+    )
+    vi.add_argument(
+        "--fps", type=positive_float, help="frame rate of an image sequence (or a camera), Hz"
+    )
+    vi.add_argument(
+        "--width",
+        type=int,
+        help="working width, px (default: fov / (70/99 deg), the robot camera's pitch)",
+    )
+    vi.add_argument("--model", default="avdm", help="the model to run (default: %(default)s)")
+    vi.add_argument(
+        "--repeat-tol",
+        type=_non_negative_float,
+        default=0.5,
+        help="a frame whose mean |difference| from the previous is at most this (8-bit "
+        "levels) repeats it (default: %(default)s)",
+    )
+    vi.add_argument(
+        "--max-repeats",
+        type=int,
+        default=3,
+        help="longer still stretches are a still scene, not repeats (default: %(default)s)",
+    )
+    add_output_options(vi, "recordings/video-<name>-<hash>.rrd")
+    vi.set_defaults(func=cmd_video)
     return parser
 
 

@@ -39,8 +39,8 @@ class Batch:
     frame: np.ndarray
     t_s: np.ndarray
     images: np.ndarray
-    poses: np.ndarray
-    wall_tf_hz: np.ndarray
+    poses: np.ndarray | None  # None: a source with no pose (a video)
+    wall_tf_hz: np.ndarray | None  # None: a source with no arena walls (a video)
     events: list[Event]
     overhead: list[tuple[int, np.ndarray]] = dataclasses.field(default_factory=list)
     onboard: dict[str, dict[str, np.ndarray]] = dataclasses.field(default_factory=dict)
@@ -50,6 +50,10 @@ class Batch:
     image_frame: np.ndarray | None = None
     capture_time_ns: np.ndarray | None = None
     link_stats: dict[str, int] | None = None
+    # real cameras (video): the frames that repeat the previous one, and how many frames the
+    # timestamps say are missing just before each frame (None: a source with neither)
+    repeat: np.ndarray | None = None
+    dropped_before: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.frame)

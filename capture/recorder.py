@@ -31,6 +31,8 @@ from contract.recording import (
     CAPTURE_TIME_TIMELINE,
     EVENTS,
     FRAME_TIMELINE,
+    FRAME_TIMING,
+    FRAME_TIMING_NAMES,
     LINK_STATS,
     MODEL_ROOT,
     MODEL_VARIANTS_ROOT,
@@ -55,7 +57,13 @@ EVENT_COLORS = {
     "link_error": (255, 0, 255),
     "tracker_lost": (160, 160, 160),
 }
-EVENT_LEVELS = {"crash": "WARN", "link_error": "ERROR", "tracker_lost": "WARN"}
+EVENT_LEVELS = {
+    "crash": "WARN",
+    "link_error": "ERROR",
+    "tracker_lost": "WARN",
+    "dropped_frames": "WARN",
+    "decode_error": "ERROR",
+}
 
 
 def default_blueprint(
@@ -134,6 +142,41 @@ def default_blueprint(
     )
 
 
+COMPLEXITY_ROOT = "/complexity"  # baselines written by `vdc-analyse complexity` (same id)
+
+
+def video_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Blueprint:
+    """A video recording: the frame, the AVDM trace and the baseline metrics (once
+    ``vdc-analyse complexity`` output is opened beside it) on one time axis, frame timing
+    (repeats, drops) and events. No arena or pose: a video has none."""
+    main = "omega_dps" if any(o.name == "omega_dps" for o in outputs) else outputs[0].name
+    main_unit = next(o.unit for o in outputs if o.name == main)
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial2DView(name="camera (luma, working size)", origin=CAMERA),
+                rrb.TextLogView(name="events (drops, decode errors)", origin=EVENTS),
+                row_shares=[2, 1],
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(
+                    name=f"{model_name} {main} ({main_unit})", origin=model_path(model_name, main)
+                ),
+                rrb.TimeSeriesView(
+                    name="baselines, normalised (vdc-analyse complexity)", origin=COMPLEXITY_ROOT
+                ),
+                rrb.TimeSeriesView(
+                    name="frame timing: repeat, dropped before, dt (s)", origin=FRAME_TIMING
+                ),
+                row_shares=[2, 2, 1],
+            ),
+            column_shares=[1, 1.3],
+        ),
+        rrb.TimePanel(timeline=TIME_TIMELINE),
+        collapse_panels=False,
+    )
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -196,6 +239,7 @@ class Recorder:
         self._image_shapes: dict[str, tuple[int, int]] = {}
         self._closed = False
         self._link_names_logged = False
+        self._timing_names_logged = False
         self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self.rec.log(POSE, rr.SeriesLines(names=list(POSE_NAMES)), static=True)
 
@@ -313,6 +357,28 @@ class Recorder:
                 positions=xyz + np.array([0.0, 0.0, 0.002]),
                 radii=np.full(len(poses), 0.003, np.float32),
             ),
+        )
+
+    def log_frame_timing(
+        self,
+        frame: np.ndarray,
+        t_s: np.ndarray,
+        repeat: np.ndarray,
+        dropped_before: np.ndarray,
+        dt_s: np.ndarray,
+    ) -> None:
+        """Per frame of a real camera: repeats the previous frame (0/1), frames missing just
+        before it, and the true seconds since the previous frame."""
+        if not self._timing_names_logged:
+            self.rec.log(FRAME_TIMING, rr.SeriesLines(names=list(FRAME_TIMING_NAMES)), static=True)
+            self._timing_names_logged = True
+        values = np.column_stack(
+            [repeat.astype(np.float64), dropped_before.astype(np.float64), dt_s]
+        )
+        self.rec.send_columns(
+            FRAME_TIMING,
+            indexes=_time_indexes(frame, t_s, None),
+            columns=rr.Scalars.columns(scalars=values),
         )
 
     def log_link_stats(

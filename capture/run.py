@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from avdm.base import Model
+from avdm.true_time import TrueTimeModel
 from capture.device import Batch, CaptureDevice
 from capture.recorder import Recorder
 
@@ -118,9 +119,15 @@ def stop_on_signals() -> Iterator[StopFlag]:
             signal.signal(s, h)
 
 
-def log_batch(recorder: Recorder, model: Model | None, batch: Batch) -> dict[str, int]:
+def log_batch(
+    recorder: Recorder,
+    model: Model | TrueTimeModel | None,
+    batch: Batch,
+    prev_t_s: float | None = None,
+) -> dict[str, int]:
     """Log everything in a batch, running the host-side online ``model`` on its frames unless
-    the robot already ran it on board; returns the number of events logged per kind."""
+    the robot already ran it on board; returns the number of events logged per kind.
+    ``prev_t_s``: the time of the frame before the batch (for the first frame's interval)."""
     if len(batch) == 0:
         return {}
     cap = batch.capture_time_ns
@@ -133,12 +140,26 @@ def log_batch(recorder: Recorder, model: Model | None, batch: Batch) -> dict[str
     img_frames = batch.frame if batch.image_frame is None else batch.image_frame
     t_img, cap_img = at(img_frames)
     recorder.log_frames(img_frames, t_img, batch.images, cap_img)
-    recorder.log_poses(batch.frame, batch.t_s, batch.poses, cap)
-    recorder.log_wall_tf(batch.frame, batch.t_s, batch.wall_tf_hz, cap)
+    if batch.poses is not None:
+        recorder.log_poses(batch.frame, batch.t_s, batch.poses, cap)
+    if batch.wall_tf_hz is not None:
+        recorder.log_wall_tf(batch.frame, batch.t_s, batch.wall_tf_hz, cap)
+    if batch.repeat is not None:
+        dropped = (
+            np.zeros(len(batch), np.int64) if batch.dropped_before is None else batch.dropped_before
+        )
+        dt = np.diff(batch.t_s, prepend=np.nan)
+        if len(dt) and prev_t_s is not None:
+            dt[0] = batch.t_s[0] - prev_t_s
+        recorder.log_frame_timing(batch.frame, batch.t_s, batch.repeat, dropped, dt)
     for name, outputs in batch.onboard.items():
         recorder.log_model_outputs(name, batch.frame, batch.t_s, outputs, capture_ns=cap)
     if model is not None and model.name not in batch.onboard and len(batch.images):
-        outputs = model.run(batch.images)  # ≡ per-frame step(), bit for bit
+        if isinstance(model, TrueTimeModel):  # a real camera: new frames, true time
+            repeat = np.zeros(len(batch), bool) if batch.repeat is None else batch.repeat
+            outputs = model.run(batch.images, t_img, repeat)
+        else:
+            outputs = model.run(batch.images)  # ≡ per-frame step(), bit for bit
         recorder.log_model_outputs(model.name, img_frames, t_img, outputs, capture_ns=cap_img)
     if batch.link_stats is not None:
         recorder.log_link_stats(
@@ -165,7 +186,7 @@ def log_batch(recorder: Recorder, model: Model | None, batch: Batch) -> dict[str
 
 def run_capture(
     device: CaptureDevice,
-    model: Model | None,
+    model: Model | TrueTimeModel | None,
     recorder: Recorder,
     *,
     total_frames: int | None = None,
@@ -178,6 +199,7 @@ def run_capture(
     frames = 0
     events: dict[str, int] = {}
     reason = "error"
+    prev_t: float | None = None
     bar = tqdm(
         total=total_frames,
         unit="frame",
@@ -194,8 +216,10 @@ def run_capture(
                     batch = device.read()
                     if batch is None:
                         break
-                    for kind, n in log_batch(recorder, model, batch).items():
+                    for kind, n in log_batch(recorder, model, batch, prev_t).items():
                         events[kind] = events.get(kind, 0) + n
+                    if len(batch):
+                        prev_t = float(batch.t_s[-1])
                     frames += len(batch)
                     bar.update(len(batch))
             finally:

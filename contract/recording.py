@@ -8,6 +8,7 @@
 | ``/robot/pose``             | Scalars [x_m, y_m, heading_rad]   | tracked or simulated pose      |
 | ``/robot``                  | Transform3D                       | the same pose, for the 3D view |
 | ``/robot/camera/image``     | Image (L, U8)                     | raw on-board frame, lossless   |
+| ``/robot/camera/timing``    | Scalars [repeat, dropped, dt_s]   | video: repeated/dropped frames |
 | ``/model/<name>/<output>``  | Scalars                           | online model outputs           |
 | ``/events/<kind>``          | TextLog + Points3D                | ring_turn, avoidance, crash... |
 | ``/overhead/image``         | Image                             | optional overhead frames       |
@@ -38,6 +39,10 @@ ROBOT_BODY = "/robot/body"
 ROBOT_HEADING = "/robot/heading"
 POSE = "/robot/pose"
 CAMERA = "/robot/camera/image"
+# per camera frame: repeats the previous frame (0/1), frames missing just before it (from the
+# timestamps), seconds since the previous frame; video recordings only
+FRAME_TIMING = "/robot/camera/timing"
+FRAME_TIMING_NAMES = ("repeat", "dropped_before", "dt_s")
 OVERHEAD = "/overhead/image"
 EVENTS = "/events"
 MODEL_ROOT = "/model"
@@ -45,7 +50,15 @@ MODEL_VARIANTS_ROOT = "/model_variants"
 LINK_STATS = "/link/stats"
 POSE_NAMES = ("x_m", "y_m", "heading_rad")
 
-EVENT_KINDS = ("ring_turn", "avoidance", "crash", "link_error", "tracker_lost")
+EVENT_KINDS = (
+    "ring_turn",
+    "avoidance",
+    "crash",
+    "link_error",
+    "tracker_lost",
+    "dropped_frames",
+    "decode_error",
+)
 
 # Recording property sections (rr.send_property): each a flat dict of scalars and strings.
 PROPERTY_SECTIONS = {
@@ -62,6 +75,8 @@ PROPERTY_SECTIONS = {
     "detector_params": "collision mode: the detector's parameters",
     "link": "hardware runs: serial protocol and its counters",
     "provenance": "package versions, CPU model and Numba's compile target",
+    "video": "video sources: path, codec, nominal fps, source size, rotation, FOV",
+    "calibration": "the AVDM decoding fit in use: a, b, r2, rms_rel_error, source",
     "run_end": "written last: frames, stop_reason, complete",
 }
 

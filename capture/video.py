@@ -1,0 +1,429 @@
+"""Any video, image sequence or camera as a capture device (``vdc-capture video``).
+
+Files are decoded with PyAV (FFmpeg) for their true presentation timestamps: the ``time``
+timeline is the time of each frame since the first, so variable-frame-rate video and dropped
+frames keep their real timing. Image sequences (``frames/%05d.png``) take their rate from
+``fps``; cameras (an index such as ``0``) are read with OpenCV, stamped with the host's clock,
+and run until Ctrl-C. Rotation metadata of phone videos is honoured.
+
+Frames are converted to luma and area-resized to a working raster whose angular pitch is the
+robot camera's (70°/99 px, the resolution the models were designed and calibrated for):
+``width = round(fov_deg / (70/99))`` unless given, height from the aspect ratio.
+
+Repeated frames (each frame shown twice, pulldown, webcams faster than their sensor) and
+dropped frames (gaps in the timestamps) are detected per frame and recorded; the online model
+sees only new frames, over true time (avdm.true_time). The device has no pose, arena or walls:
+its batches carry None there and the recording holds none of those entities.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from avdm.true_time import repeat_flags
+from capture.device import Batch, Event
+from capture.run import RecordResult
+
+ROBOT_DEG_PER_PX = 70.0 / 99.0  # the angular pitch the models were calibrated for
+
+
+@dataclasses.dataclass(frozen=True)
+class VideoSettings:
+    """``vdc-capture video``: one field per flag, same names and defaults."""
+
+    source: str  # a video file, an image-sequence pattern (frames/%05d.png) or a camera index
+    fov_deg: float  # the camera's horizontal field of view, degrees
+    fps: float | None = None  # image sequences (required) and cameras that do not report one
+    width: int | None = None  # working width, px (default: the robot camera's deg/px)
+    model: str = "avdm"
+    repeat_tol: float = 0.5  # mean |difference| (8-bit levels) under which a frame repeats
+    max_repeats: int = 3  # longer still stretches are a still scene, not repeats
+    batch_frames: int = 128
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.fov_deg) and 1.0 <= self.fov_deg <= 360.0):
+            raise ValueError(f"--fov-deg must be between 1 and 360 degrees, got {self.fov_deg:g}")
+        if self.fps is not None and not (math.isfinite(self.fps) and 0 < self.fps <= 10_000):
+            raise ValueError(f"--fps must be between 0 and 10000 Hz, got {self.fps:g}")
+        if self.width is not None and not 8 <= self.width <= 4096:
+            raise ValueError(f"--width must be between 8 and 4096 px, got {self.width}")
+        if not (self.repeat_tol >= 0 and self.max_repeats >= 0):
+            raise ValueError("--repeat-tol and --max-repeats must be >= 0")
+
+    @property
+    def kind(self) -> str:
+        if self.source.isdigit():
+            return "camera"
+        return "images" if "%" in self.source else "file"
+
+    def working_size(self, src_h: int, src_w: int) -> tuple[int, int]:
+        """(H, W) of the frames the models see."""
+        w = self.width or max(8, round(self.fov_deg / ROBOT_DEG_PER_PX))
+        return max(4, round(w * src_h / src_w)), w
+
+
+class _Reader:
+    """Frames and their times (s) from one source; ``info`` describes it."""
+
+    info: dict[str, Any]
+
+    def frames(self) -> Iterator[tuple[np.ndarray, float]]:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+class _PyAvReader(_Reader):
+    def __init__(self, path: str) -> None:
+        import av
+
+        p = Path(path)
+        if not p.exists():
+            raise ValueError(f"video {path!r}: no such file")
+        if p.stat().st_size == 0:
+            raise ValueError(f"video {path!r} is empty")
+        try:
+            self.container = av.open(path)
+        except av.FFmpegError as exc:
+            raise ValueError(f"cannot read {path!r} as a video: {_ffmpeg_reason(exc)}") from None
+        if not self.container.streams.video:
+            self.container.close()
+            raise ValueError(f"{path!r} holds no video stream")
+        self.stream = self.container.streams.video[0]
+        self.stream.thread_type = "AUTO"
+        rate = self.stream.average_rate or self.stream.guessed_rate or self.stream.base_rate
+        self.info = {
+            "kind": "file",
+            "codec": self.stream.codec_context.name,
+            "nominal_fps": float(rate) if rate else float("nan"),
+            "src_width_px": self.stream.codec_context.width,
+            "src_height_px": self.stream.codec_context.height,
+            "n_frames_header": int(self.stream.frames or 0),
+            "rotation_deg": 0,
+        }
+        self.error: str | None = None
+        self._frames = self._decode()
+        first = next(self._frames, None)  # a file with no decodable frame fails here
+        if first is None:
+            self.container.close()
+            why = f": {self.error}" if self.error else ""
+            raise ValueError(f"{path!r} holds no decodable video frame{why}")
+        self._first = first
+        self.info["src_height_px"], self.info["src_width_px"] = first[0].shape[:2]
+
+    def _decode(self) -> Iterator[tuple[np.ndarray, float]]:
+        import av
+
+        t0: float | None = None
+        try:
+            for i, frame in enumerate(self.container.decode(self.stream)):
+                t = frame.time
+                if t is None:
+                    t = i / self.info["nominal_fps"]
+                t0 = t if t0 is None else t0
+                rot = round(float(getattr(frame, "rotation", 0) or 0))
+                self.info["rotation_deg"] = rot
+                luma = frame.to_ndarray(format="gray")
+                if rot % 360:  # the display matrix's counter-clockwise angle
+                    luma = np.ascontiguousarray(np.rot90(luma, k=round(rot / 90)))
+                yield luma, float(t - t0)
+        except av.FFmpegError as exc:  # a cut or corrupt file: keep what came before
+            self.error = _ffmpeg_reason(exc)
+
+    def frames(self) -> Iterator[tuple[np.ndarray, float]]:
+        yield self._first
+        yield from self._frames
+
+    def close(self) -> None:
+        self.container.close()
+
+
+class _OpenCvReader(_Reader):
+    """Image sequences (timed by ``fps``) and cameras (timed by the host clock)."""
+
+    def __init__(self, source: str, fps: float | None) -> None:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        camera = source.isdigit()
+        if not camera and fps is None:
+            raise ValueError("an image sequence needs --fps (its frame rate)")
+        self.cap = (
+            cv2.VideoCapture(int(source)) if camera else cv2.VideoCapture(source, cv2.CAP_IMAGES)
+        )
+        if not self.cap.isOpened():
+            what = f"camera {source}" if camera else f"image sequence {source!r}"
+            raise ValueError(f"{what} cannot be opened (no such camera or no matching files)")
+        ok, first = self.cap.read()
+        if not ok or first is None:
+            raise ValueError(f"{source!r} gives no frame")
+        self.first = first
+        self.camera = camera
+        cam_fps = self.cap.get(cv2.CAP_PROP_FPS) if camera else 0.0
+        self.fps = fps or (cam_fps if cam_fps and cam_fps > 0 else 30.0)
+        h, w = first.shape[:2]
+        self.info = {
+            "kind": "camera" if camera else "images",
+            "codec": "camera" if camera else "image files",
+            "nominal_fps": float(self.fps),
+            "src_width_px": w,
+            "src_height_px": h,
+            "n_frames_header": 0 if camera else int(self.cap.get(cv2.CAP_PROP_FRAME_COUNT)),
+            "rotation_deg": 0,
+        }
+        self.error = None
+
+    def frames(self) -> Iterator[tuple[np.ndarray, float]]:
+        t0 = time.monotonic()
+        img, i = self.first, 0
+        while img is not None:
+            luma = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+            yield luma, (time.monotonic() - t0) if self.camera else i / self.fps
+            ok, img = self.cap.read()
+            img, i = (img if ok else None), i + 1
+
+    def close(self) -> None:
+        self.cap.release()
+
+
+def _ffmpeg_reason(exc: Exception) -> str:
+    return str(getattr(exc, "strerror", None) or exc).strip().rstrip(".")
+
+
+def open_source(settings: VideoSettings) -> _Reader:
+    if settings.kind == "file":
+        return _PyAvReader(settings.source)
+    return _OpenCvReader(settings.source, settings.fps)
+
+
+class VideoSource:
+    """A video, image sequence or camera as a capture device (connect / read / disconnect).
+
+    The source is opened by the constructor, so a missing or unreadable one fails before any
+    file is written; ``info`` then holds its codec, nominal fps, size and rotation."""
+
+    def __init__(self, settings: VideoSettings) -> None:
+        self.settings = settings
+        self.reader = open_source(settings)
+        self.info = self.reader.info
+        fps = settings.fps or self.info["nominal_fps"]
+        if not (math.isfinite(fps) and fps > 0):
+            raise ValueError(f"{settings.source!r} states no frame rate: pass --fps")
+        self.fps = float(fps)
+        self._it: Iterator[tuple[np.ndarray, float]] | None = None
+        self._size: tuple[int, int] | None = None
+        self._index = 0
+        self._prev: np.ndarray | None = None
+        self._prev_t: float | None = None
+        self._run = 0
+        self.dropped_total = 0
+        self.repeats_total = 0
+
+    def working_size(self) -> tuple[int, int]:
+        if self._size is None:
+            self._size = self.settings.working_size(
+                self.info["src_height_px"], self.info["src_width_px"]
+            )
+        return self._size
+
+    def connect(self) -> None:
+        if self._it is None:
+            self._it = self.reader.frames()
+
+    def read(self) -> Batch | None:
+        assert self._it is not None, "connect() first"
+        images, times = [], []
+        for luma, t in self._it:
+            if self._size is None or (self._index == 0 and not images):
+                self._size = self.settings.working_size(*luma.shape[:2])
+            h, w = self._size
+            images.append(cv2.resize(luma, (w, h), interpolation=cv2.INTER_AREA))
+            times.append(t)
+            if len(images) >= self.settings.batch_frames:
+                break
+        if not images:
+            return None
+        frames = np.stack(images)
+        # whole nanoseconds, as the recording stores them: recomputation from the file then
+        # sees exactly the times the online model saw
+        t_s = np.rint(np.asarray(times, dtype=np.float64) * 1e9) / 1e9
+        repeat = repeat_flags(
+            frames, self._prev, self._run, self.settings.repeat_tol, self.settings.max_repeats
+        )
+        run = self._run
+        for r in repeat:  # the run of repeats that ends this batch carries into the next
+            run = run + 1 if r else 0
+        self._run = run
+        prev_t = np.concatenate(([np.nan if self._prev_t is None else self._prev_t], t_s))
+        dt = np.diff(prev_t)
+        with np.errstate(invalid="ignore"):
+            missing = np.where(np.isfinite(dt), np.rint(dt * self.fps) - 1, 0)
+        # a gap of more than half a frame interval beyond the nominal one is a dropped frame
+        dropped = np.where(dt * self.fps > 1.5, np.maximum(missing, 1), 0).astype(np.int64)
+        frame = np.arange(self._index, self._index + len(frames), dtype=np.int64)
+        events = [
+            Event(
+                "dropped_frames",
+                int(f),
+                math.nan,
+                math.nan,
+                math.nan,
+                f"{n} frame(s) missing before frame {f} ({dt_i * 1000:.1f} ms gap)",
+            )
+            for f, n, dt_i in zip(frame, dropped, dt, strict=True)
+            if n > 0
+        ]
+        self._index += len(frames)
+        self._prev, self._prev_t = frames[-1], float(t_s[-1])
+        self.dropped_total += int(dropped.sum())
+        self.repeats_total += int(repeat.sum())
+        err = getattr(self.reader, "error", None)
+        if err and len(images) < self.settings.batch_frames:
+            events.append(
+                Event(
+                    "decode_error",
+                    int(frame[-1]),
+                    math.nan,
+                    math.nan,
+                    math.nan,
+                    f"decoding stopped after frame {int(frame[-1])}: {err}",
+                )
+            )
+        return Batch(
+            frame=frame,
+            t_s=t_s,
+            images=frames,
+            poses=None,
+            wall_tf_hz=None,
+            events=events,
+            repeat=repeat,
+            dropped_before=dropped,
+        )
+
+    def disconnect(self) -> None:
+        self.reader.close()
+
+    def __enter__(self) -> VideoSource:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.disconnect()
+
+
+@dataclasses.dataclass
+class VideoRecordResult:
+    """A video recording, with what was found about the source's frames."""
+
+    record: RecordResult
+    info: dict[str, Any]  # the source: codec, nominal fps, size, rotation
+    repeats: int  # frames that repeated the previous one
+    dropped: int  # frames missing according to the timestamps
+    decode_error: str | None  # why decoding stopped early, if it did
+    calibration: dict[str, Any]
+
+
+def recording_id(settings: VideoSettings) -> str:
+    """``video-<name>-<8 hex>``: the hex covers the source (path, size, modification time) and
+    every setting, so a changed file or setting never reuses an old id."""
+    src = settings.source
+    stem = "camera" + src if src.isdigit() else Path(src).stem.replace("%", "")
+    p = Path(src)
+    stat = (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else ()
+    text = repr((str(p.resolve()) if p.exists() else src, stat, dataclasses.astuple(settings)))
+    safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in stem)[:40] or "video"
+    if settings.kind == "camera":  # a live camera: every run is new
+        text += time.strftime("%Y%m%d-%H%M%S")
+    return f"video-{safe}-{hashlib.sha1(text.encode()).hexdigest()[:8]}"
+
+
+def record_video(
+    settings: VideoSettings,
+    out: str | Path | None = None,
+    *,
+    force: bool = False,
+    live_url: str | None = None,
+    spawn: bool = False,
+    progress: bool = False,
+    log: Callable[[str], None] | None = None,
+    calibration_progress: Callable[[int], Any] | None = None,
+) -> VideoRecordResult:
+    """Profile a video, image sequence or camera into ``out`` (default
+    ``recordings/<recording id>.rrd``). A missing, empty or unreadable source raises
+    ValueError before the file exists; a file cut short keeps the frames before the cut."""
+    from avdm.calibration_store import calibration_for
+    from avdm.registry import make_model
+    from avdm.true_time import TrueTimeModel
+    from capture.recorder import Recorder, spawn_viewer, video_blueprint
+    from capture.run import check_output_path, run_capture
+    from contract.provenance import machine_info, package_versions
+
+    device = VideoSource(settings)  # opens the source: bad input fails here
+    rid = recording_id(settings)
+    path = Path(out) if out else Path("recordings") / f"{rid}.rrd"
+    check_output_path(path, force)
+    h, w = device.working_size()
+    deg_per_px = settings.fov_deg / w
+    cal = calibration_for(device.fps, deg_per_px, progress=calibration_progress)
+    model = TrueTimeModel(make_model(settings.model, fps=device.fps, deg_per_px=deg_per_px))
+    live = spawn_viewer() if spawn else live_url
+    recorder = Recorder(
+        path, rid, blueprint=video_blueprint(model.name, model.outputs), live_url=live
+    )
+    info = device.info
+    recorder.send_properties(
+        {
+            "run": {"recording_id": rid, "source": "video", "behaviour": "video"},
+            "video": {
+                "path": settings.source,
+                "kind": info["kind"],
+                "codec": info["codec"],
+                "nominal_fps": info["nominal_fps"],
+                "src_width_px": info["src_width_px"],
+                "src_height_px": info["src_height_px"],
+                "fov_deg": settings.fov_deg,
+                "rotation_deg": info["rotation_deg"],
+                "repeat_tol": settings.repeat_tol,
+                "max_repeats": settings.max_repeats,
+            },
+            "camera": {
+                "fps": device.fps,
+                "width_px": w,
+                "height_px": h,
+                "hfov_deg": settings.fov_deg,
+            },
+            "model": {"name": model.name, "true_time": True},
+            "model_params": {k: v for k, v in model.params.to_dict().items() if v is not None},
+            "calibration": {
+                k: cal[k]
+                for k in ("a", "b", "r2", "rms_rel_error", "max_rel_error", "n_points", "source")
+                if k in cal
+            },
+            "provenance": {**package_versions(), **machine_info()},
+        }
+    )
+    recorder.log_model_meta(model.name, model.outputs)
+    if log is not None:
+        log(
+            f"recording {rid}: {settings.source} ({info['codec']}, {info['src_width_px']}x"
+            f"{info['src_height_px']}, {device.fps:.6g} fps) as {w}x{h} px luma at "
+            f"{deg_per_px:.4g} deg/px, model {model.name}"
+        )
+    total = info["n_frames_header"] or None
+    result = run_capture(device, model, recorder, total_frames=total, progress=progress)
+    return VideoRecordResult(
+        RecordResult.of(path, rid, result, total),
+        info,
+        device.repeats_total,
+        device.dropped_total,
+        getattr(device.reader, "error", None),
+        cal,
+    )
