@@ -187,6 +187,33 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_complexity(args: argparse.Namespace) -> int:
+    import polars as pl
+
+    from analysis.complexity import ComplexitySettings, complexity
+
+    with _progress(None, "complexity", "frame") as bar:
+        res = complexity(
+            args.recordings,
+            _settings(ComplexitySettings, args),
+            args.out,
+            progress=bar.update,
+            notice=_notice,
+        )
+    print(f"{res.table.height} frames -> " + ", ".join(str(p) for p in res.paths))
+    means = res.table.group_by("recording_id", maintain_order=True).mean()
+    for r in means.iter_rows(named=True):
+        print(
+            f"  {r['recording_id']}: mean omega {r['omega_dps']:.1f} deg/s, flow "
+            f"{r['flow_dps']:.1f} deg/s, SI {r['si_p910']:.1f} / TI {r['ti_p910']:.2f} (P.910), "
+            f"SI {r['si_legacy']:.1f} / TI {r['ti_legacy']:.2f} (legacy)"
+        )
+    rho = res.correlations.filter(pl.col("metric_a") == "omega_dps")
+    for r in rho.iter_rows(named=True):
+        print(f"  rho(omega_dps, {r['metric_b']}) = {r['spearman']:+.2f}  [{r['recording_id']}]")
+    return 0
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from analysis.experiments.reproduce import ReproduceSettings, reproduce
 
@@ -494,6 +521,30 @@ def build_parser() -> argparse.ArgumentParser:
         help="false-alarm distance, m (default: %(default)s)",
     )
     cs.set_defaults(func=cmd_collision_study)
+
+    cx = sub.add_parser(
+        "complexity",
+        help="the AVDM beside P.910 SI/TI, optic flow and compression, per frame",
+        description=(
+            "For any recording (video, arena, robot): per frame the AVDM's omega_dps, ITU-T "
+            "P.910 SI and TI (2022 and legacy, via siti-tools), mean absolute frame "
+            "difference, DIS optic-flow speed in deg/s, edge density, zlib and JPEG "
+            "compression. Writes complexity.parquet, complexity_correlations.parquet, and "
+            "per recording a PNG and an .rrd that opens beside the source "
+            "(`rerun REC OUT/complexity_<id>.rrd`)."
+        ),
+    )
+    cx.add_argument("recordings", nargs="+", metavar="REC", help=".rrd recordings")
+    add_out(cx, "results/complexity")
+    cx.add_argument("--model", default="avdm", help="the AVDM variant (default: %(default)s)")
+    cx.add_argument(
+        "--flow-preset",
+        choices=["ultrafast", "fast", "medium"],
+        default="medium",
+        help="DIS optic-flow preset (default: %(default)s)",
+    )
+    cx.add_argument("--jpeg-quality", type=int, default=75, help="JPEG quality (default: 75)")
+    cx.set_defaults(func=cmd_complexity)
 
     rp = sub.add_parser(
         "reproduce",

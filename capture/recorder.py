@@ -29,6 +29,7 @@ from contract.recording import (
     ARENA_WALLS,
     CAMERA,
     CAPTURE_TIME_TIMELINE,
+    COMPLEXITY_ROOT,
     EVENTS,
     FRAME_TIMELINE,
     FRAME_TIMING,
@@ -140,9 +141,6 @@ def default_blueprint(
         rrb.TimePanel(timeline=FRAME_TIMELINE),
         collapse_panels=False,
     )
-
-
-COMPLEXITY_ROOT = "/complexity"  # baselines written by `vdc-analyse complexity` (same id)
 
 
 def video_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Blueprint:

@@ -47,6 +47,7 @@ OVERHEAD = "/overhead/image"
 EVENTS = "/events"
 MODEL_ROOT = "/model"
 MODEL_VARIANTS_ROOT = "/model_variants"
+COMPLEXITY_ROOT = "/complexity"  # baselines written by `vdc-analyse complexity` (same id)
 LINK_STATS = "/link/stats"
 POSE_NAMES = ("x_m", "y_m", "heading_rad")
 

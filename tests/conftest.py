@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -19,3 +22,15 @@ def _end_background_processes():
     """No test leaves a process behind, even when it fails before its own clean-up."""
     yield
     end_background_processes()
+
+
+# Fitted calibrations are cached per user; the tests use a cache of their own (inherited by
+# the commands they run), removed at the end of the session.
+_CACHE = tempfile.mkdtemp(prefix="vdc-test-cache-")
+os.environ["VDC_CACHE_DIR"] = _CACHE
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _calibration_cache():
+    yield Path(_CACHE)
+    shutil.rmtree(_CACHE, ignore_errors=True)
