@@ -110,6 +110,8 @@ class _PyAvReader(_Reader):
             "src_height_px": self.stream.codec_context.height,
             "n_frames_header": int(self.stream.frames or 0),
             "rotation_deg": 0,
+            # what the container's header says (µs); a file cut short ends before it
+            "duration_s": (self.container.duration or 0) / 1e6,
         }
         self.error: str | None = None
         self._frames = self._decode()
@@ -226,6 +228,7 @@ class VideoSource:
         self._run = 0
         self.dropped_total = 0
         self.repeats_total = 0
+        self.last_t_s: float | None = None
 
     def working_size(self) -> tuple[int, int]:
         if self._size is None:
@@ -283,6 +286,7 @@ class VideoSource:
         ]
         self._index += len(frames)
         self._prev, self._prev_t = frames[-1], float(t_s[-1])
+        self.last_t_s = self._prev_t
         self.dropped_total += int(dropped.sum())
         self.repeats_total += int(repeat.sum())
         err = getattr(self.reader, "error", None)
@@ -419,11 +423,20 @@ def record_video(
         )
     total = info["n_frames_header"] or None
     result = run_capture(device, model, recorder, total_frames=total, progress=progress)
+    error = getattr(device.reader, "error", None)
+    stated = float(info.get("duration_s") or 0.0)
+    if error is None and stated > 0 and device.last_t_s is not None:
+        # the frames end well before the duration the header states: the file was cut
+        if device.last_t_s + 2.0 / device.fps < stated:
+            error = (
+                f"the file ends at {device.last_t_s:.2f} s but its header says {stated:.2f} s "
+                "(cut short?)"
+            )
     return VideoRecordResult(
         RecordResult.of(path, rid, result, total),
         info,
         device.repeats_total,
         device.dropped_total,
-        getattr(device.reader, "error", None),
+        error,
         cal,
     )
