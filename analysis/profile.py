@@ -75,9 +75,17 @@ def segments_from_tables(
     warmup_frames: int,
 ) -> list[Segment]:
     """Split the long tables into segments (``by="recording"``) or conditions."""
-    cond = summary.select("recording_id", "model", "wall_tf_hz", "scene", "output").unique()
-    joined = outputs.join(frames, on=["recording_id", "frame"], how="inner", suffix="_f").filter(
-        pl.col("frame") >= warmup_frames
+    # a video has no wall TF (null): NaN keys join with each other, nulls do not
+    no_tf = pl.col("wall_tf_hz").fill_null(float("nan"))
+    cond = (
+        summary.select("recording_id", "model", "wall_tf_hz", "scene", "output")
+        .unique()
+        .with_columns(no_tf)
+    )
+    joined = (
+        outputs.join(frames, on=["recording_id", "frame"], how="inner", suffix="_f")
+        .filter(pl.col("frame") >= warmup_frames)
+        .with_columns(no_tf)
     )
     joined = joined.join(cond, on=["recording_id", "model", "wall_tf_hz"], how="left")
     keys = (
@@ -90,12 +98,14 @@ def segments_from_tables(
         out = g["output"][0]
         rec_ids = g["recording_id"].unique(maintain_order=True).to_list()
         model, scene, tf = g["model"][0], g["scene"][0], float(g["wall_tf_hz"][0])
+        walls = f"TF {tf:g} Hz" if math.isfinite(tf) else "no walls"
+        tf_key = f"tf{tf:g}" if math.isfinite(tf) else "video"
         if by == "condition":
-            label = f"{scene} TF {tf:g} Hz, {model} ({len(rec_ids)} recording(s))"
-            key = safe_key(f"{scene}_tf{tf:g}_{model}")
+            label = f"{scene or 'video'} {walls}, {model} ({len(rec_ids)} recording(s))"
+            key = safe_key(f"{scene or 'video'}_{tf_key}_{model}")
         else:
-            label = f"{rec_ids[0]}: TF {tf:g} Hz, {model}"
-            key = safe_key(f"{rec_ids[0]}_tf{tf:g}_{model}")
+            label = f"{rec_ids[0]}: {walls}, {model}"
+            key = safe_key(f"{rec_ids[0]}_{tf_key}_{model}")
         segs.append(
             Segment(
                 key=key,
@@ -180,6 +190,8 @@ def plot_segment(seg: Segment, s: ProfileSettings, path: Path) -> Path:
 def segment_figure(seg: Segment, s: ProfileSettings) -> Figure:
     """The profile of one segment as a matplotlib Figure (for notebooks): 3D circle profile,
     histogram of responses over the threshold, heat map of the mean response."""
+    if not np.isfinite(seg.x_m).any():
+        return _time_series_figure(seg, s)
     fig = plt.figure(figsize=(16, 5.2), constrained_layout=True)
     ax3 = fig.add_subplot(1, 3, 1, projection="3d")
     step = max(1, math.ceil(len(seg.response) / s.max_points))
@@ -239,13 +251,44 @@ def segment_figure(seg: Segment, s: ProfileSettings) -> Figure:
     return fig
 
 
+def _condition(g: Segment) -> str:
+    """``grating TF 3``; a video has neither scene nor walls."""
+    if math.isfinite(g.wall_tf_hz):
+        return f"{g.scene} TF {g.wall_tf_hz:g}"
+    return "video"
+
+
+def _time_series_figure(seg: Segment, s: ProfileSettings) -> Figure:
+    """The profile of a source without poses (a video): the response over time and the
+    histogram over the threshold; there is no arena to map it onto."""
+    fig, (ax_t, ax_h) = plt.subplots(
+        1, 2, figsize=(16, 5.2), constrained_layout=True, gridspec_kw={"width_ratios": [2, 1]}
+    )
+    ax_t.plot(seg.t_s, seg.response, lw=0.8, color="C0")
+    ax_t.axhline(s.threshold_dps, color="k", ls="--", lw=1, label=f"threshold {s.threshold_dps:g}")
+    ax_t.set_xlabel("time (s)")
+    ax_t.set_ylabel(seg.output)
+    ax_t.set_title("response over time (no poses: a time series, not an arena map)")
+    ax_t.legend(fontsize=8)
+    ax_t.grid(alpha=0.3)
+    edges, counts = histogram_over(seg.response, s)
+    over = int(counts.sum())
+    ax_h.bar(edges[:-1], counts, width=np.diff(edges), align="edge", color="C1", edgecolor="0.4")
+    ax_h.set_xlabel(f"{seg.output} (bins of {s.bin_dps:g})")
+    ax_h.set_ylabel("frames")
+    share = 100 * over / max(1, len(seg.response))
+    ax_h.set_title(f"responses > {s.threshold_dps:g}: {over} frames ({share:.1f} %)")
+    fig.suptitle(seg.label)
+    return fig
+
+
 def plot_overview(segs: Sequence[Segment], s: ProfileSettings, path: Path) -> Path:
     """All segments side by side: fraction over the threshold and the response distributions."""
     fig, (ax_b, ax_d) = plt.subplots(1, 2, figsize=(14, 5), constrained_layout=True)
     labels = [
-        f"{g.scene} TF {g.wall_tf_hz:g}\n{g.model}\n{g.recording_ids[0][-8:]}"
+        f"{_condition(g)}\n{g.model}\n{g.recording_ids[0][-8:]}"
         if len(g.recording_ids) == 1
-        else f"{g.scene} TF {g.wall_tf_hz:g}\n{g.model}"
+        else f"{_condition(g)}\n{g.model}"
         for g in segs
     ]
     fracs = [100 * float((g.response > s.threshold_dps).mean()) for g in segs]

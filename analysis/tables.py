@@ -388,7 +388,12 @@ def summary_table(
                 "threshold_dps": s.threshold_dps,
             }
         )
-    return pl.DataFrame(rows).sort("recording_id", "model", "wall_tf_hz")
+    # a video has no walls: its wall TF is a null Float64 column, not an untyped one
+    return (
+        pl.DataFrame(rows)
+        .with_columns(pl.col("wall_tf_hz").cast(pl.Float64))
+        .sort("recording_id", "model", "wall_tf_hz")
+    )
 
 
 def build_tables(

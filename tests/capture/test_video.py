@@ -253,3 +253,21 @@ def test_complexity_on_a_simulated_arena_recording(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     df = pl.read_parquet(tmp_path / "cx" / "complexity.parquet")
     assert df.height == 198 and df["omega_dps"].null_count() == 0
+
+
+def test_profile_and_compare_take_a_video_recording(clips, tmp_path: Path) -> None:
+    rec = tmp_path / "o.rrd"
+    record_video(VideoSettings(str(clips["original"]), FOV), rec)
+    proc = run_cli("analysis", "profile", str(rec), "--out", str(tmp_path / "p"))
+    assert proc.returncode == 0, proc.stderr
+    summary = pl.read_parquet(tmp_path / "p" / "profile_summary.parquet")
+    assert summary.height == 1 and summary["n_frames"][0] == 130  # 150 - 20 warm-up
+    assert summary["near_wall_mean"].is_nan().all()  # no poses: nothing near a wall, not 0
+    assert len(list((tmp_path / "p").glob("profile_*_video_avdm.png"))) == 1
+    proc = run_cli(
+        "analysis", "compare", str(rec), "--model", "avdm", "--model", "avdm-on",
+        "--out", str(tmp_path / "c"),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    proc = run_cli("analysis", "collision", str(rec), "--out", str(tmp_path / "k"))
+    assert_one_line_error(proc, "not a collision-mode recording")
