@@ -73,9 +73,11 @@ def test_bad_specs_fail_with_a_message_naming_the_problem(spec: str, message: st
         make_params(spec)
 
 
-def test_missing_calibration_says_how_to_make_one() -> None:
-    with pytest.raises(ValueError, match="vdc-analyse calibrate --fps 50"):
-        make_params("avdm", fps=50.0, deg_per_px=1.0)
+def test_a_camera_without_a_shipped_calibration_is_fitted_on_first_use() -> None:
+    # (the tests' calibration cache is a temporary folder: see tests/conftest.py)
+    p = make_params("avdm", fps=50.0, deg_per_px=1.0)
+    assert p.a is not None and 0.9 < p.b < 1.1
+    assert make_params("avdm", fps=50.0, deg_per_px=1.0) == p  # the cached fit, same numbers
 
 
 AVDM_VARIANTS = sorted(n for n, v in VARIANTS.items() if v.kind == "avdm")
