@@ -46,18 +46,21 @@ def _stderr(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+def _recording_options(args: argparse.Namespace) -> dict:
+    """The options every capture command's function takes from add_output_options' flags."""
+    return {
+        "force": args.force,
+        "live_url": args.connect,
+        "spawn": args.spawn,
+        "progress": not args.quiet,
+        "log": _stderr,
+    }
+
+
 def cmd_sim(args: argparse.Namespace) -> int:
     from capture.sim import SimSettings, record_sim
 
-    res = record_sim(
-        _settings(SimSettings, args),
-        args.out,
-        force=args.force,
-        live_url=args.connect,
-        spawn=args.spawn,
-        progress=not args.quiet,
-        log=_stderr,
-    )
+    res = record_sim(_settings(SimSettings, args), args.out, **_recording_options(args))
     if res.complete:
         events = ", ".join(f"{n} {k.replace('_', ' ')}s" for k, n in sorted(res.events.items()))
         print(
@@ -95,15 +98,7 @@ def cmd_emulate_robot(args: argparse.Namespace) -> int:
 def cmd_robot(args: argparse.Namespace) -> int:
     from capture.robot_capture import RobotSettings, record_robot
 
-    res = record_robot(
-        _settings(RobotSettings, args),
-        args.out,
-        force=args.force,
-        live_url=args.connect,
-        spawn=args.spawn,
-        progress=not args.quiet,
-        log=_stderr,
-    )
+    res = record_robot(_settings(RobotSettings, args), args.out, **_recording_options(args))
     rec = res.record
     print(
         f"wrote {rec.path}: {rec.frames} frames, link: "
@@ -136,14 +131,7 @@ def cmd_video(args: argparse.Namespace) -> int:
 
     try:
         res = record_video(
-            s,
-            args.out,
-            force=args.force,
-            live_url=args.connect,
-            spawn=args.spawn,
-            progress=not args.quiet,
-            log=_stderr,
-            calibration_progress=calibrating,
+            s, args.out, calibration_progress=calibrating, **_recording_options(args)
         )
     finally:
         for bar in bars:
