@@ -271,3 +271,30 @@ def test_profile_and_compare_take_a_video_recording(clips, tmp_path: Path) -> No
     assert proc.returncode == 0, proc.stderr
     proc = run_cli("analysis", "collision", str(rec), "--out", str(tmp_path / "k"))
     assert_one_line_error(proc, "not a collision-mode recording")
+
+
+def test_rotation_metadata_is_honoured(tmp_path: Path) -> None:
+    """A display matrix of 90° (counter-clockwise, as FFmpeg's tools apply it): the frames are
+    turned upright before the models see them."""
+    img = np.full((72, 144), 20, np.uint8)
+    img[:, :36] = 235  # the left quarter is bright
+    clip = tmp_path / "rot.mp4"
+    out = av.open(str(clip), "w")
+    stream = out.add_stream("libx264", rate=Fraction(25))
+    stream.width, stream.height, stream.pix_fmt = 144, 72, "yuv420p"
+    stream.set_display_rotation(90)
+    for _ in range(10):
+        for p in stream.encode(av.VideoFrame.from_ndarray(np.stack([img] * 3, -1), "rgb24")):
+            out.mux(p)
+    for p in stream.encode():
+        out.mux(p)
+    out.close()
+    rec = tmp_path / "rot.rrd"
+    res = record_video(VideoSettings(str(clip), 50.0), rec)
+    frames = Recording(rec).read_frames().images
+    h, w = frames.shape[1:]
+    assert h > w  # portrait once upright
+    assert res.info["rotation_deg"] == 90
+    assert Recording(rec).properties()["video"]["rotation_deg"] == 90
+    # rotated counter-clockwise, the bright left quarter is now the bottom quarter
+    assert frames[0, -h // 8 :].mean() > 200 and frames[0, : h // 2].mean() < 60
