@@ -167,10 +167,17 @@ def load_recording(path: str | Path) -> LoadedRecording:
         prefix = f"{MODEL_ROOT}/{entity_name(online)}/"
         cols = {e[len(prefix) :]: v for e, v in sig.items() if e.startswith(prefix)}
         if cols:
-            first = next(iter(cols.values()))
-            data = {"frame": first[0].astype(np.int64), "t_s": first[1]}
-            data.update({name: v[2][:, 0] for name, v in cols.items()})
-            loaded.logged[online] = pl.DataFrame(data)
+            # a capture killed mid-write may have logged some outputs of its last frames and
+            # not others: every frame any output reached is kept, missing values are null
+            parts = [
+                pl.DataFrame({"frame": v[0].astype(np.int64), "t_s": v[1], name: v[2][:, 0]})
+                for name, v in cols.items()
+            ]
+            index = pl.concat([p.select("frame", "t_s") for p in parts]).unique("frame")
+            logged = index.sort("frame")
+            for p in parts:
+                logged = logged.join(p.drop("t_s"), on="frame", how="left")
+            loaded.logged[online] = logged
     return loaded
 
 

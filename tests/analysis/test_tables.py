@@ -187,3 +187,24 @@ def test_bad_files_give_one_line_and_exit_2(recordings, tmp_path: Path) -> None:
         "unknown model",
     )
     assert not (tmp_path / "o").exists()
+
+
+def test_outputs_cut_unevenly_by_a_crash_keep_every_frame_they_reached(tmp_path: Path) -> None:
+    """A capture killed mid-write can leave one output of the last frames logged and another
+    not; the frames table and the logged outputs keep every frame (missing values null)."""
+    from analysis.tables import load_recording
+
+    path = tmp_path / "uneven.rrd"
+    rec = Recorder(path, "uneven")
+    rec.send_properties({"model": {"name": "avdm"}})
+    f = np.arange(12)
+    rec.log_poses(f, f / 33, np.zeros((12, 3)))
+    rec.log_model_outputs(
+        "avdm", f[:10], f[:10] / 33, {"omega_dps": np.ones(10), "motion": np.ones(10)}
+    )
+    rec.log_model_outputs("avdm", f[10:], f[10:] / 33, {"omega_dps": np.full(2, 2.0)})
+    rec.close(frames=12, stop_reason="finished", complete=True)
+    logged = load_recording(path).logged["avdm"]
+    assert logged["frame"].to_list() == list(range(12))
+    assert logged["omega_dps"].to_list() == [1.0] * 10 + [2.0, 2.0]
+    assert logged["motion"].null_count() == 2
