@@ -254,15 +254,12 @@ def collision(
     import hashlib
 
     from analysis.parquet_io import write_parquet
-    from analysis.tables import load_recording
+    from analysis.tables import Notices, load_recording
 
-    items, notes = [], []
+    items, notes = [], Notices(notice)
     for path in recordings:
         loaded = load_recording(path)
-        if loaded.rec.notice:
-            notes.append(loaded.rec.notice)
-            if notice is not None:
-                notice(loaded.rec.notice)
+        notes.of(loaded)
         row, ev = collision_metrics(loaded, settings)
         items.append((loaded, row, ev))
     order = ["tf0", "tf3", "tf3-adjusted", "tf3-adaptive", "tf0-adaptive"]
@@ -290,7 +287,7 @@ def collision(
         paths.append(plot_study(summary, out / "collision_study.png"))
         rid = "collision-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
         paths.append(write_collision_rrd(items, settings, out / "collision.rrd", rid))
-    return CollisionResult(summary, events, paths, notes)
+    return CollisionResult(summary, events, paths, list(notes))
 
 
 def collision_table_markdown(summary: pl.DataFrame) -> str:

@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 from analysis.stats import spearman
 from analysis.tables import (
     LoadedRecording,
+    Notices,
     SummarySettings,
     TablesSettings,
     load_recording,
@@ -220,14 +221,13 @@ def compare(
     from analysis.profile import save_figure
 
     loaded = load_recording(recording)
-    notes = [loaded.rec.notice] if loaded.rec.notice else []
-    if notes and notice is not None:
-        notice(notes[0])
+    notes = Notices(notice)
+    notes.of(loaded)
     outputs = recompute(loaded, settings.models, progress)
     stats = variant_statistics(loaded, outputs, settings)
     corr = pairwise_correlations(outputs, settings.warmup_frames)
     paths: list[Path] = []
-    result = CompareResult(loaded.recording_id, settings, outputs, stats, corr, paths, notes)
+    result = CompareResult(loaded.recording_id, settings, outputs, stats, corr, paths, list(notes))
     if out is not None:
         out = Path(out)
         meta = {

@@ -209,15 +209,12 @@ def complexity(
     normalised, and their rank correlations) and an ``.rrd`` with the source's recording id
     (open it beside the source: ``rerun REC OUT/complexity_<id>.rrd``)."""
     from analysis.parquet_io import write_parquet
-    from analysis.tables import load_recording
+    from analysis.tables import Notices, load_recording
 
-    parts, corrs, paths, notes = [], [], [], []
+    parts, corrs, paths, notes = [], [], [], Notices(notice)
     for path in recordings:
         loaded = load_recording(path)
-        if loaded.rec.notice:
-            notes.append(loaded.rec.notice)
-            if notice is not None:
-                notice(loaded.rec.notice)
+        notes.of(loaded)
         ctx = loaded.camera_context()
         cam = loaded.props.get("camera", {})
         if not ctx or "width_px" not in cam:
@@ -265,7 +262,7 @@ def complexity(
         }
         paths.insert(0, write_parquet(table, Path(out) / "complexity.parquet", meta))
         paths.insert(1, write_parquet(corr, Path(out) / "complexity_correlations.parquet", meta))
-    return ComplexityResult(table, corr, paths, notes)
+    return ComplexityResult(table, corr, paths, list(notes))
 
 
 def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:

@@ -21,7 +21,7 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.tables import SummarySettings, TablesSettings, build_tables, summarise
+from analysis.tables import Notices, SummarySettings, TablesSettings, build_tables, summarise
 
 
 @dataclasses.dataclass(frozen=True)
@@ -353,14 +353,8 @@ def profile(
     from analysis.analysis_rrd import write_profile_rrd
     from analysis.parquet_io import write_parquet
 
-    notes: list[str] = []
-
-    def note(msg: str) -> None:
-        notes.append(msg)
-        if notice is not None:
-            notice(msg)
-
-    tables, meta = build_tables(recordings, settings.models or None, settings, progress, note)
+    notes = Notices(notice)
+    tables, meta = build_tables(recordings, settings.models or None, settings, progress, notes)
     segs = segments_from_tables(
         tables["frames"],
         tables["model_outputs"],
@@ -387,4 +381,4 @@ def profile(
         paths.append(write_parquet(summary, out / "profile_summary.parquet", meta))
         rid = "profile-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
         paths.append(write_profile_rrd(segs, settings, out / "profiles.rrd", rid))
-    return ProfileResult(settings, segs, summary, tables, meta, paths, notes)
+    return ProfileResult(settings, segs, summary, tables, meta, paths, list(notes))

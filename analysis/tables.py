@@ -112,6 +112,25 @@ class LoadedRecording:
         return float(arena.get("length_m", 1.4)) / 2, float(arena.get("width_m", 0.8)) / 2
 
 
+class Notices(list):
+    """Notes about repaired recordings: kept (for a command's result) and passed on to
+    ``sink`` as they come (the CLI prints them)."""
+
+    def __init__(self, sink: Callable[[str], None] | None = None) -> None:
+        super().__init__()
+        self.sink = sink
+
+    def __call__(self, msg: str) -> None:
+        self.append(msg)
+        if self.sink is not None:
+            self.sink(msg)
+
+    def of(self, loaded: LoadedRecording) -> None:
+        """The recording's own note (footer missing, file repaired), if it has one."""
+        if loaded.rec.notice:
+            self(loaded.rec.notice)
+
+
 def load_recording(path: str | Path) -> LoadedRecording:
     """Open a recording and read its properties, poses, wall TF, frame timing and logged model
     outputs. A recording without poses (a video) has null poses, wall TF and wall gap; one
@@ -418,7 +437,7 @@ def build_tables(
     arenas: dict[str, tuple[float, float]] = {}
     for path in sorted(paths, key=str):
         loaded = load_recording(path)
-        if loaded.rec.notice and notices:
+        if loaded.rec.notice and notices is not None:
             notices(loaded.rec.notice)
         if specs:
             outs = recompute(loaded, specs, progress)
@@ -505,13 +524,7 @@ def tables(
 
     ``progress`` is called with the number of frames done; ``notice`` with each note about a
     repaired recording (they are also in the result)."""
-    notes: list[str] = []
-
-    def note(msg: str) -> None:
-        notes.append(msg)
-        if notice is not None:
-            notice(msg)
-
-    built, meta = build_tables(recordings, settings.models or None, settings, progress, note)
+    notes = Notices(notice)
+    built, meta = build_tables(recordings, settings.models or None, settings, progress, notes)
     paths = write_tables(built, Path(out), meta) if out is not None else []
-    return TablesResult(built, meta, paths, notes)
+    return TablesResult(built, meta, paths, list(notes))

@@ -244,10 +244,8 @@ class VideoSource:
     def read(self) -> Batch | None:
         assert self._it is not None, "connect() first"
         images, times = [], []
+        h, w = self.working_size()
         for luma, t in self._it:
-            if self._size is None or (self._index == 0 and not images):
-                self._size = self.settings.working_size(*luma.shape[:2])
-            h, w = self._size
             images.append(cv2.resize(luma, (w, h), interpolation=cv2.INTER_AREA))
             times.append(t)
             if len(images) >= self.settings.batch_frames:

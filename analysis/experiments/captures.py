@@ -48,10 +48,10 @@ def run_captures(
     """Record every (key, settings, output) not already there; key → path."""
     todo, paths = [], {}
     for key, settings, out in items:
-        settings.to_config()  # a bad configuration fails here, before any process starts
+        run_id = settings.to_config().run_id()  # a bad configuration fails before any process
         out.parent.mkdir(parents=True, exist_ok=True)
         paths[key] = out
-        if is_done(out, settings.to_config().run_id()):
+        if is_done(out, run_id):
             log(f"  {key}: reusing {out}")
         else:
             todo.append((key, settings, out))
