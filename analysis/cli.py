@@ -377,6 +377,26 @@ def build_parser() -> argparse.ArgumentParser:
             default=0.25,
             help="'centre' = farther than this from every wall, m (default: %(default)s)",
         )
+        p.add_argument(
+            "--exclude-turns",
+            action="store_true",
+            help="summarise straight driving only: leave out frames where the robot turns "
+            "(or turned within --turn-hold-frames), so its own rotation is not counted as the "
+            "scene's complexity",
+        )
+        p.add_argument(
+            "--turn-threshold-dps",
+            type=positive_float,
+            default=30.0,
+            help="the robot turns when its own yaw rate exceeds this, deg/s (default: %(default)s)",
+        )
+        p.add_argument(
+            "--turn-hold-frames",
+            type=int,
+            default=10,
+            help="frames after a turn still counted as turning: the AVDM remembers a turn for "
+            "its 10-frame window (default: %(default)s)",
+        )
 
     tb = sub.add_parser(
         "tables",

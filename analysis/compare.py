@@ -21,6 +21,7 @@ from analysis.tables import (
     Notices,
     SummarySettings,
     TablesSettings,
+    frames_in_statistics,
     load_recording,
     model_params,
     primary_output,
@@ -33,13 +34,13 @@ from avdm.registry import canonical_name, make_model
 def variant_statistics(
     loaded: LoadedRecording, outputs: dict[str, pl.DataFrame], s: SummarySettings
 ) -> pl.DataFrame:
-    """Per variant (all frames after warm-up): mean, p95, fraction over threshold,
-    near-wall/centre ratio, ... of its primary output."""
-    gap = loaded.frames.select("frame", "wall_gap_m")
+    """Per variant (frames after warm-up; straight driving only with ``exclude_turns``):
+    mean, p95, fraction over threshold, near-wall/centre ratio, ... of its primary output."""
+    gap = loaded.frames.select("frame", "wall_gap_m", "turning")
     rows = []
     for name, df in outputs.items():
         out = primary_output(df)
-        g = df.join(gap, on="frame", how="left").filter(pl.col("frame") >= s.warmup_frames)
+        g = frames_in_statistics(df.join(gap, on="frame", how="left"), s, loaded.recording_id)
         rows.append(
             {
                 "recording_id": loaded.recording_id,
@@ -220,7 +221,7 @@ def compare(
     from analysis.parquet_io import write_parquet
     from analysis.profile import save_figure
 
-    loaded = load_recording(recording)
+    loaded = load_recording(recording, settings)
     notes = Notices(notice)
     notes.of(loaded)
     outputs = recompute(loaded, settings.models, progress)

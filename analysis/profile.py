@@ -73,8 +73,10 @@ def segments_from_tables(
     half_extents: dict[str, tuple[float, float]],
     by: str,
     warmup_frames: int,
+    exclude_turns: bool = False,
 ) -> list[Segment]:
-    """Split the long tables into segments (``by="recording"``) or conditions."""
+    """Split the long tables into segments (``by="recording"``) or conditions; with
+    ``exclude_turns`` only frames known to be straight driving (``turning`` false) are kept."""
     # a video has no wall TF (null): NaN keys join with each other, nulls do not
     no_tf = pl.col("wall_tf_hz").fill_null(float("nan"))
     cond = (
@@ -87,6 +89,9 @@ def segments_from_tables(
         .filter(pl.col("frame") >= warmup_frames)
         .with_columns(no_tf)
     )
+    if exclude_turns:
+        joined = joined.filter(pl.col("turning").not_())
+    straight = ", straight driving" if exclude_turns else ""
     joined = joined.join(cond, on=["recording_id", "model", "wall_tf_hz"], how="left")
     keys = (
         ["model", "scene", "wall_tf_hz"]
@@ -101,10 +106,10 @@ def segments_from_tables(
         walls = f"TF {tf:g} Hz" if math.isfinite(tf) else "no walls"
         tf_key = f"tf{tf:g}" if math.isfinite(tf) else "video"
         if by == "condition":
-            label = f"{scene or 'video'} {walls}, {model} ({len(rec_ids)} recording(s))"
+            label = f"{scene or 'video'} {walls}, {model}{straight} ({len(rec_ids)} recording(s))"
             key = safe_key(f"{scene or 'video'}_{tf_key}_{model}")
         else:
-            label = f"{rec_ids[0]}: {walls}, {model}"
+            label = f"{rec_ids[0]}: {walls}, {model}{straight}"
             key = safe_key(f"{rec_ids[0]}_{tf_key}_{model}")
         segs.append(
             Segment(
@@ -158,6 +163,7 @@ def segment_summary(seg: Segment, s: ProfileSettings, t: SummarySettings) -> dic
         "scene": seg.scene,
         "wall_tf_hz": seg.wall_tf_hz,
         "recordings": len(seg.recording_ids),
+        "motion": t.motion,
         "output": seg.output,
         "n_frames": len(seg.response),
         "threshold_dps": s.threshold_dps,
@@ -362,6 +368,7 @@ def profile(
         meta["arena_half_extent_m"],
         settings.by,
         settings.warmup_frames,
+        settings.exclude_turns,
     )
     summary = pl.DataFrame([segment_summary(seg, settings, settings) for seg in segs])
     meta = {
@@ -371,6 +378,7 @@ def profile(
             "bin_dps": settings.bin_dps,
             "cell_m": settings.cell_m,
             "by": settings.by,
+            "motion": settings.motion,
         },
     }
     paths: list[Path] = []

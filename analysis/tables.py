@@ -1,13 +1,15 @@
 """Recordings → polars tables → Parquet (DESIGN.md table contract), and model recomputation.
 
 * ``frames``: recording_id, frame, t_s, x_m, y_m, heading_rad, wall_tf_hz, wall_gap_m
-  (distance from the robot's centre to the nearest wall);
+  (distance from the robot's centre to the nearest wall), repeat, dropped_before (video frame
+  timing), robot_omega_dps (the robot's own yaw rate) and turning (see ``ego_motion``);
 * ``model_outputs``: recording_id, model, frame, t_s, one column per output (long over models);
 * ``events``: recording_id, frame, t_s, kind, x_m, y_m, heading_rad, dtc_m (distance to
   collision: from the robot's body along its heading to the wall, D_ray − r), text;
 * ``summary``: recording_id, model, condition columns (scene, wall_tf_hz, period_m, seed,
-  source), output, n_frames, mean, p50, p95, max, frac_over_100, frac_over_threshold,
-  near_wall_mean, centre_mean, near_wall_centre_ratio, threshold_dps.
+  source), motion ("all" frames, or "straight" driving only), output, n_frames, mean, p50,
+  p95, max, frac_over_100, frac_over_threshold, near_wall_mean, centre_mean,
+  near_wall_centre_ratio, threshold_dps.
 
 Every table is a pure function of its recordings, the model params and the settings: re-running
 writes identical rows. Frames are streamed chunk by chunk through all requested models at once.
@@ -24,6 +26,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
+from analysis.ego_motion import turning_flags, yaw_rate_dps
 from analysis.parquet_io import write_parquet
 from analysis.rrd_reader import Recording, RecordingError
 from avdm.base import Model
@@ -47,14 +50,25 @@ class SummarySettings:
     near_wall_m: float = 0.15  # robot centre within this of a wall: "near the wall" (PROPOSED)
     centre_m: float = 0.25  # farther than this from every wall: "centre" (PROPOSED)
     warmup_frames: int = 20  # the models' first 2·Tw frames are left out of statistics
+    # the robot's own turns (analysis/ego_motion.py): flagged in the frames table, and left
+    # out of the summaries with exclude_turns
+    turn_threshold_dps: float = 30.0
+    turn_hold_frames: int = 10
+    exclude_turns: bool = False
 
     def __post_init__(self) -> None:
-        for name in ("threshold_dps", "near_wall_m", "centre_m"):
+        for name in ("threshold_dps", "near_wall_m", "centre_m", "turn_threshold_dps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name}={v!r} must be a number >= 0")
-        if self.warmup_frames < 0:
-            raise ValueError(f"warmup_frames={self.warmup_frames} must be >= 0")
+        for name in ("warmup_frames", "turn_hold_frames"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 0")
+
+    @property
+    def motion(self) -> str:
+        """Which frames the summaries use: "all", or "straight" driving only."""
+        return "straight" if self.exclude_turns else "all"
 
     def summary_settings(self) -> SummarySettings:
         """Just the summary fields (what the tables' metadata records as ``settings``)."""
@@ -131,10 +145,13 @@ class Notices(list):
             self(loaded.rec.notice)
 
 
-def load_recording(path: str | Path) -> LoadedRecording:
+def load_recording(
+    path: str | Path, settings: SummarySettings = SummarySettings()
+) -> LoadedRecording:
     """Open a recording and read its properties, poses, wall TF, frame timing and logged model
-    outputs. A recording without poses (a video) has null poses, wall TF and wall gap; one
-    without frame timing (simulated or robot runs) has null ``repeat`` and ``dropped_before``."""
+    outputs. A recording without poses (a video) has null poses, wall TF, wall gap, yaw rate
+    and turning flag; one without frame timing (simulated or robot runs) has null ``repeat``
+    and ``dropped_before``. ``settings`` says what counts as a turn."""
     rec = Recording(path)
     props = rec.properties()
     sig = rec.signals()
@@ -175,6 +192,14 @@ def load_recording(path: str | Path) -> LoadedRecording:
         frames = frames.with_columns(
             repeat=pl.lit(None, pl.Boolean), dropped_before=pl.lit(None, pl.Int64)
         )
+    omega = yaw_rate_dps(
+        frames["t_s"].to_numpy(), frames["heading_rad"].fill_null(np.nan).to_numpy()
+    )
+    turning = turning_flags(omega, settings.turn_threshold_dps, settings.turn_hold_frames)
+    frames = frames.with_columns(
+        pl.Series("robot_omega_dps", omega).fill_nan(None),
+        pl.Series("turning", turning).fill_nan(None).cast(pl.Boolean),
+    )
     loaded = LoadedRecording(rec, props, frames, {})
     hx, hy = loaded.arena_half_extent()
     loaded.frames = frames.with_columns(
@@ -303,7 +328,15 @@ def events_table(loaded: LoadedRecording) -> pl.DataFrame:
     ).select("recording_id", "frame", "t_s", "kind", "x_m", "y_m", "heading_rad", "dtc_m", "text")
 
 
-NON_OUTPUT_COLUMNS = ("recording_id", "model", "frame", "t_s", "wall_tf_hz", "wall_gap_m")
+NON_OUTPUT_COLUMNS = (
+    "recording_id",
+    "model",
+    "frame",
+    "t_s",
+    "wall_tf_hz",
+    "wall_gap_m",
+    "turning",
+)
 FRAMES_COLUMNS = (
     "recording_id",
     "frame",
@@ -315,6 +348,8 @@ FRAMES_COLUMNS = (
     "wall_gap_m",
     "repeat",
     "dropped_before",
+    "robot_omega_dps",
+    "turning",
 )
 
 
@@ -393,21 +428,48 @@ def summary_table(
     loaded: LoadedRecording, outputs: pl.DataFrame, s: SummarySettings
 ) -> pl.DataFrame:
     """One row per (model, wall TF in force) of a recording."""
+    return summary_rows(loaded.recording_id, condition_columns(loaded), loaded.frames, outputs, s)
+
+
+def frames_in_statistics(df: pl.DataFrame, s: SummarySettings, recording_id: str) -> pl.DataFrame:
+    """The rows of ``df`` (one recording's; columns ``frame`` and ``turning``) that statistics
+    use: after the warm-up, and with ``s.exclude_turns`` only frames known to be straight."""
+    df = df.filter(pl.col("frame") >= s.warmup_frames)
+    if not s.exclude_turns:
+        return df
+    if df.height and df["turning"].null_count() == df.height:
+        raise RecordingError(
+            f"{recording_id} has no poses, so its turns are unknown: exclude_turns "
+            "(--exclude-turns) needs a simulated or tracked run"
+        )
+    return df.filter(pl.col("turning").not_())  # unknown (null) is not known to be straight
+
+
+def summary_rows(
+    recording_id: str,
+    cond: dict[str, Any],
+    frames: pl.DataFrame,
+    outputs: pl.DataFrame,
+    s: SummarySettings,
+) -> pl.DataFrame:
+    """The summary of one recording's ``frames`` and ``outputs`` (both for that recording
+    only); with ``s.exclude_turns`` only frames known to be straight driving count."""
     joined = outputs.join(
-        loaded.frames.select("frame", "wall_tf_hz", "wall_gap_m"), on="frame", how="left"
-    ).filter(pl.col("frame") >= s.warmup_frames)
+        frames.select("frame", "wall_tf_hz", "wall_gap_m", "turning"), on="frame", how="left"
+    )
+    joined = frames_in_statistics(joined, s, recording_id)
     rows = []
-    cond = condition_columns(loaded)
     for (model, tf), g in joined.group_by("model", "wall_tf_hz", maintain_order=True):
         out = primary_output(g)
         vals = g[out].to_numpy()
         finite = np.isfinite(vals)
         rows.append(
             {
-                "recording_id": loaded.recording_id,
+                "recording_id": recording_id,
                 "model": model,
                 **cond,
                 "wall_tf_hz": tf,
+                "motion": s.motion,
                 "output": out,
                 "n_frames": int(finite.sum()),
                 **summarise(vals[finite], g["wall_gap_m"].to_numpy()[finite], s),
@@ -436,7 +498,7 @@ def build_tables(
     params: dict[str, dict[str, dict[str, Any]]] = {}
     arenas: dict[str, tuple[float, float]] = {}
     for path in sorted(paths, key=str):
-        loaded = load_recording(path)
+        loaded = load_recording(path, settings)
         if loaded.rec.notice and notices is not None:
             notices(loaded.rec.notice)
         if specs:

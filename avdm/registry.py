@@ -70,6 +70,12 @@ VARIANTS: dict[str, Variant] = {
         {"photoreceptor_lag": 9, "photoreceptor_sign": -1, "theta_e": 0.001},
         "AVDM as the released Unity code runs it: I(t-9) - I(t) photoreceptor, theta_e = 0.001",
     ),
+    "avdm-released-units": Variant(
+        "avdm",
+        {"a": 100.0, "b": 1.0, "contrast_term": False},
+        "AVDM decoded as the released code does, 100·λ̂·√R̄ with no contrast term: relative "
+        "units, not deg/s, the units the paper's 'AVDM > 100' counts were set in",
+    ),
     "lgmd-plus": Variant("lgmd-plus", {}, "LGMD+ collision detector, released defaults"),
     "lgmd-plus-arena": Variant(
         "lgmd-plus",
@@ -189,4 +195,4 @@ def make_model(spec: str, **context: Any) -> Model:
 
 def describe_models() -> str:
     """One line per registered variant, for ``--help`` texts."""
-    return "\n".join(f"  {n:<14} {v.description}" for n, v in sorted(VARIANTS.items()))
+    return "\n".join(f"  {n:<20} {v.description}" for n, v in sorted(VARIANTS.items()))

@@ -15,7 +15,20 @@ from analysis.tables import distance_to_wall_along
 from capture.recorder import Recorder
 from tests.helpers import assert_one_line_error, run_cli, start_long_capture
 
-FRAMES_COLUMNS = ["recording_id", "frame", "t_s", "x_m", "y_m", "heading_rad", "wall_tf_hz"]
+FRAMES_COLUMNS = [
+    "recording_id",
+    "frame",
+    "t_s",
+    "x_m",
+    "y_m",
+    "heading_rad",
+    "wall_tf_hz",
+    "wall_gap_m",
+    "repeat",
+    "dropped_before",
+    "robot_omega_dps",
+    "turning",
+]
 EVENTS_COLUMNS = ["recording_id", "frame", "t_s", "kind", "x_m", "y_m", "heading_rad", "dtc_m"]
 SUMMARY_COLUMNS = [
     "recording_id",
@@ -25,6 +38,7 @@ SUMMARY_COLUMNS = [
     "seed",
     "source",
     "wall_tf_hz",
+    "motion",
     "output",
     "n_frames",
     "mean",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -98,3 +99,26 @@ def test_any_variant_accepts_valid_overrides(name: str, beta: float, tw: int) ->
     p = make_params(spec)
     assert p.beta == beta and p.tw == tw
     assert parse_model_spec(canonical_name(spec)) == parse_model_spec(spec)
+
+
+def test_released_units_variant_decodes_as_the_released_code_on_a_grating() -> None:
+    """``avdm-released-units`` is ω = 100 · λ̂ · √R̄ (avdm.md §6): no fitted gain, exponent 1,
+    no (1+C)/(2C) term; the robot camera's context (33 Hz, 70°/99 px) as in the arena."""
+    from avdm.stimuli import grating
+
+    frames = grating(size=(72, 99), fps=33.0, tf_hz=3.0, period_px=14.0, duration_s=2.0)
+    released = make_model("avdm-released-units", fps=33.0, deg_per_px=70 / 99).run(frames)
+    calibrated = make_model("avdm", fps=33.0, deg_per_px=70 / 99).run(frames)
+    settled = slice(30, None)  # after the 2·T_w warm-up
+    lam, motion = released["lambda_px"][settled], released["motion"][settled]
+    assert (motion > 0).all() and lam == pytest.approx(14.0, rel=0.05)
+    # the same float64 arithmetic as the kernel's last step, in another order: ~1 ulp
+    assert released["omega_dps"][settled] == pytest.approx(100.0 * lam * motion, rel=1e-12)
+    # the motion pathway is shared: only the decoding differs from the calibrated model
+    assert np.array_equal(released["motion"], calibrated["motion"])
+    assert np.array_equal(released["lambda_px"], calibrated["lambda_px"])
+    # and the two disagree by far more than rounding: the calibrated one reads deg/s (its fit
+    # has a 7 % RMS error over the calibration grid; 25 % leaves room for this one cell)
+    true_dps = 3.0 * 14.0 * 70 / 99
+    assert calibrated["omega_dps"][settled].mean() == pytest.approx(true_dps, rel=0.25)
+    assert released["omega_dps"][settled].mean() > 3 * true_dps
