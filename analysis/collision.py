@@ -4,7 +4,11 @@
 * success rate = avoidances / (avoidances + crashes);
 * distance to collision at an avoidance: from the robot's body along its heading to the wall;
 * false alarm = an avoidance with distance to collision ≥ ``false_alarm_m`` (0.30 m, §9);
-* density maps: 2D histograms in 0.02 m bins (occupancy = share of frames), lightly smoothed.
+* density maps: 2D histograms in 0.02 m bins (occupancy = share of frames), lightly smoothed;
+* ego-motion: the share of frames in which the robot turns (its avoidance turns included) and
+  the avoidances triggered while it was still turning (the detector seeing its own rotation);
+* across seeds (several recordings of one phase): mean and 95 % interval per phase
+  (``phase_statistics``).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import rerun.blueprint as rrb
 
 from analysis.analysis_rrd import log_arena_outline
 from analysis.profile import safe_key
+from analysis.stats import mean_ci, share_ci
 from analysis.tables import LoadedRecording, events_table
 from contract.recording import APP_ID
 
@@ -81,9 +86,12 @@ def collision_metrics(loaded: LoadedRecording, s: CollisionSettings) -> tuple[di
     dtc = avoid["dtc_m"].to_numpy()
     col = loaded.props.get("collision", {})
     key = phase_key(loaded)
+    turning = loaded.frames.select("frame", "turning")
+    avoid_turning = avoid.join(turning, on="frame", how="left")["turning"].fill_null(False)
     row = {
         "recording_id": loaded.recording_id,
         "phase": key,
+        "seed": loaded.props.get("run", {}).get("seed"),
         "detector": loaded.props["detector"]["name"],
         "wall_tf_hz": float(loaded.frames["wall_tf_hz"].median()),
         "adaptive": bool(col.get("adaptive", False)),
@@ -96,6 +104,8 @@ def collision_metrics(loaded: LoadedRecording, s: CollisionSettings) -> tuple[di
         "dtc_median_m": float(np.median(dtc)) if n_a else float("nan"),
         "avoidances_per_30min": n_a * 30.0 / minutes if minutes else float("nan"),
         "crashes_per_30min": n_c * 30.0 / minutes if minutes else float("nan"),
+        "turning_share": float(loaded.frames["turning"].fill_null(False).mean() or 0.0),
+        "avoidances_while_turning": int(avoid_turning.sum()),
         **PAPER.get(key, {"paper_avoidances": None, "paper_success": None}),
     }
     return row, ev
@@ -157,19 +167,76 @@ def _xy(ev: pl.DataFrame, kind: str) -> tuple[np.ndarray, np.ndarray]:
     return e["x_m"].to_numpy(), e["y_m"].to_numpy()
 
 
+PHASE_ORDER = ["tf0", "tf3", "tf3-adjusted", "tf3-adaptive", "tf0-adaptive"]
+
+
+def _phase_rank(phase: str) -> tuple[int, str]:
+    return (PHASE_ORDER.index(phase) if phase in PHASE_ORDER else len(PHASE_ORDER), phase)
+
+
+PHASE_STATISTICS = ("avoidances_per_30min", "crashes_per_30min", "success_rate", "false_alarms")
+
+
+def phase_statistics(summary: pl.DataFrame) -> pl.DataFrame:
+    """One row per phase from the per-recording ``summary`` (one recording per seed): the
+    number of seeds, and for avoidances and crashes per 30 min, success rate and false alarms
+    the mean with its 95 % interval (``<name>``, ``<name>_low``, ``<name>_high``; counts are
+    clipped at 0, NaN bounds with one seed). The success rate's interval also covers the
+    exact binomial interval of the pooled avoidances and crashes (``stats.share_ci``)."""
+    rows = []
+    for phase in sorted(summary["phase"].unique().to_list(), key=_phase_rank):
+        g = summary.filter(pl.col("phase") == phase)
+        row = {
+            "phase": phase,
+            "detector": g["detector"][0],
+            "wall_tf_hz": float(g["wall_tf_hz"][0]),
+            "seeds": g.height,
+            "minutes": float(g["minutes"].mean()),
+        }
+        for name in PHASE_STATISTICS:
+            if name == "success_rate":
+                n = g["avoidances"] + g["crashes"]
+                est = share_ci(g["avoidances"].to_numpy(), n.to_numpy())
+            else:
+                est = mean_ci(g[name].cast(pl.Float64).to_numpy(), bounds=(0.0, math.inf))
+            row |= {name: est.mean, f"{name}_low": est.low, f"{name}_high": est.high}
+        row |= PAPER.get(phase, {"paper_avoidances": None, "paper_success": None})
+        rows.append(row)
+    return pl.DataFrame(rows)
+
+
 def plot_study(summary: pl.DataFrame, path: Path) -> Path:
-    """Avoidances and crashes per 30 min and success rate per phase, beside the paper's."""
+    """Avoidances and crashes per 30 min and success rate per phase, beside the paper's: the
+    mean across seeds with its 95 % interval as error bars, each seed as a dot."""
+    phases = phase_statistics(summary)
     fig, (ax_n, ax_s) = plt.subplots(1, 2, figsize=(14, 5), constrained_layout=True)
-    labels = summary["phase"].to_list()
+    labels = phases["phase"].to_list()
     x = np.arange(len(labels))
-    ax_n.bar(x - 0.27, summary["avoidances_per_30min"], 0.27, label="avoidances (ours, per 30 min)")
-    ax_n.bar(x, summary["crashes_per_30min"], 0.27, color="C3", label="crashes (ours, per 30 min)")
-    paper = [v if v is not None else np.nan for v in summary["paper_avoidances"].to_list()]
+
+    def bars(ax, dx: float, name: str, color: str, label: str, scale: float = 1.0) -> None:
+        mean = phases[name].to_numpy() * scale
+        err = np.vstack(
+            [
+                mean - phases[f"{name}_low"].to_numpy() * scale,
+                phases[f"{name}_high"].to_numpy() * scale - mean,
+            ]
+        )
+        ax.bar(x + dx, mean, 0.27, color=color, label=label)
+        if np.isfinite(err).any():
+            ax.errorbar(x + dx, mean, yerr=np.nan_to_num(err), fmt="none", ecolor="k", capsize=3)
+        for i, phase in enumerate(labels):
+            seeds = summary.filter(pl.col("phase") == phase)[name].to_numpy() * scale
+            ax.scatter(np.full(len(seeds), i + dx), seeds, s=10, c="k", zorder=3)
+
+    n_seeds = ", ".join(sorted({str(n) for n in phases["seeds"].to_list()}))
+    bars(ax_n, -0.27, "avoidances_per_30min", "C0", "avoidances (ours, per 30 min)")
+    bars(ax_n, 0.0, "crashes_per_30min", "C3", "crashes (ours, per 30 min)")
+    paper = [v if v is not None else np.nan for v in phases["paper_avoidances"].to_list()]
     ax_n.bar(x + 0.27, paper, 0.27, color="0.6", label="avoidances (paper)")
     ax_n.set_xticks(x, labels, rotation=15)
     ax_n.legend(fontsize=8)
-    ax_n.set_title("events per phase")
-    ax_s.bar(x, 100 * summary["success_rate"].to_numpy(), color="C2")
+    ax_n.set_title(f"events per phase: mean of {n_seeds} seed(s), 95 % interval, seeds as dots")
+    bars(ax_s, 0.0, "success_rate", "C2", "success rate (ours)", scale=100.0)
     ax_s.axhline(90, color="k", ls="--", lw=1, label="paper: > 90 % in every phase")
     ax_s.set_xticks(x, labels, rotation=15)
     ax_s.set_ylim(0, 105)
@@ -237,8 +304,14 @@ class CollisionResult:
     paths: list[Path]
     notices: list[str]
 
+    @property
+    def phases(self) -> pl.DataFrame:
+        """One row per phase: means and 95 % intervals across its recordings (seeds)."""
+        return phase_statistics(self.summary)
+
     def markdown(self) -> str:
-        return collision_table_markdown(self.summary)
+        """The per-phase table across seeds, then the per-recording table."""
+        return phase_table_markdown(self.phases) + "\n\n" + collision_table_markdown(self.summary)
 
 
 def collision(
@@ -262,14 +335,7 @@ def collision(
         notes.of(loaded)
         row, ev = collision_metrics(loaded, settings)
         items.append((loaded, row, ev))
-    order = ["tf0", "tf3", "tf3-adjusted", "tf3-adaptive", "tf0-adaptive"]
-    items.sort(
-        key=lambda it: (
-            order.index(it[1]["phase"]) if it[1]["phase"] in order else len(order),
-            it[1]["phase"],
-            it[1]["recording_id"],
-        )
-    )
+    items.sort(key=lambda it: (_phase_rank(it[1]["phase"]), it[1]["seed"] or 0, it[0].recording_id))
     summary = pl.DataFrame([row for _, row, _ in items])
     events = pl.concat([ev for _, _, ev in items])
     paths: list[Path] = []
@@ -281,8 +347,14 @@ def collision(
         }
         paths.append(write_parquet(summary, out / "collision_summary.parquet", meta))
         paths.append(write_parquet(events, out / "collision_events.parquet", meta))
+        paths.append(
+            write_parquet(phase_statistics(summary), out / "collision_phases.parquet", meta)
+        )
+        per_phase = summary["phase"].value_counts()
+        several = set(per_phase.filter(pl.col("count") > 1)["phase"].to_list())
         for loaded, row, ev in items:
-            png = out / f"collision_{safe_key(row['phase'])}.png"
+            name = row["phase"] + (f"_seed{row['seed']}" if row["phase"] in several else "")
+            png = out / f"collision_{safe_key(name)}.png"
             paths.append(plot_recording(loaded, row, ev, settings, png))
         paths.append(plot_study(summary, out / "collision_study.png"))
         rid = "collision-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
@@ -291,19 +363,45 @@ def collision(
 
 
 def collision_table_markdown(summary: pl.DataFrame) -> str:
-    """The per-phase table beside the paper's numbers, as Markdown."""
+    """The per-recording table beside the paper's numbers, as Markdown."""
     lines = [
-        "| phase | detector | TF (Hz) | minutes | avoidances | per 30 min | crashes | "
-        "success | false alarms | median dist. to collision | paper avoidances | "
-        "paper success |",
-        "|" + "---|" * 12,
+        "| phase | seed | detector | TF (Hz) | minutes | avoidances | per 30 min | crashes | "
+        "success | false alarms | median dist. to collision | avoidances while turning | "
+        "paper avoidances | paper success |",
+        "|" + "---|" * 14,
     ]
     for r in summary.iter_rows(named=True):
         lines.append(
-            f"| {r['phase']} | {r['detector']} | {r['wall_tf_hz']:g} | {r['minutes']:.1f} | "
+            f"| {r['phase']} | {r['seed'] if r['seed'] is not None else '-'} | {r['detector']} | "
+            f"{r['wall_tf_hz']:g} | {r['minutes']:.1f} | "
             f"{r['avoidances']} | {r['avoidances_per_30min']:.0f} | {r['crashes']} | "
             f"{100 * r['success_rate']:.1f} % | {r['false_alarms']} | "
-            f"{100 * r['dtc_median_m']:.1f} cm | {r['paper_avoidances'] or '-'} | "
-            f"{r['paper_success'] or '-'} |"
+            f"{100 * r['dtc_median_m']:.1f} cm | {r['avoidances_while_turning']} | "
+            f"{r['paper_avoidances'] or '-'} | {r['paper_success'] or '-'} |"
+        )
+    return "\n".join(lines)
+
+
+def _est(r: dict, name: str, fmt: str, scale: float = 1.0) -> str:
+    m, lo, hi = (r[name] * scale, r[f"{name}_low"] * scale, r[f"{name}_high"] * scale)
+    if not math.isfinite(lo):
+        return fmt.format(m)
+    return f"{fmt.format(m)} [{fmt.format(lo)}, {fmt.format(hi)}]"
+
+
+def phase_table_markdown(phases: pl.DataFrame) -> str:
+    """The per-phase table across seeds (mean [95 % interval]) beside the paper's numbers."""
+    lines = [
+        "| phase | detector | TF (Hz) | seeds | avoidances per 30 min | crashes per 30 min | "
+        "success (%) | false alarms | paper avoidances | paper success |",
+        "|" + "---|" * 10,
+    ]
+    for r in phases.iter_rows(named=True):
+        lines.append(
+            f"| {r['phase']} | {r['detector']} | {r['wall_tf_hz']:g} | {r['seeds']} | "
+            f"{_est(r, 'avoidances_per_30min', '{:.0f}')} | "
+            f"{_est(r, 'crashes_per_30min', '{:.1f}')} | "
+            f"{_est(r, 'success_rate', '{:.1f}', 100.0)} | {_est(r, 'false_alarms', '{:.1f}')} | "
+            f"{r['paper_avoidances'] or '-'} | {r['paper_success'] or '-'} |"
         )
     return "\n".join(lines)

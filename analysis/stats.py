@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
+import math
+from collections.abc import Sequence
+
 import numpy as np
 import polars as pl
+import scipy.stats
 
 
 def spearman(x: np.ndarray, y: np.ndarray) -> float:
@@ -12,3 +18,153 @@ def spearman(x: np.ndarray, y: np.ndarray) -> float:
     if df["x"].n_unique() < 2 or df["y"].n_unique() < 2:
         return float("nan")
     return float(df.select(pl.corr("x", "y", method="spearman")).item())
+
+
+# Claims across seeds (reproduce, collision-study): a claim "holds" only when it holds at this
+# confidence across seeds, never on one run's point estimate.
+CONFIDENCE = 0.95
+ALPHA = 1.0 - CONFIDENCE
+HOLDS, PARTLY, FAILS = "holds", "partly", "does not hold"
+
+
+@dataclasses.dataclass(frozen=True)
+class Estimate:
+    """A mean across seeds with its two-sided ``CONFIDENCE`` interval (Student's t); the
+    interval is NaN with fewer than two finite values."""
+
+    mean: float
+    low: float
+    high: float
+    n: int
+
+    def text(self, fmt: str = "{:.1f}", scale: float = 1.0) -> str:
+        """``12.3 [10.1, 14.5]``; ``12.3 (n = 1)`` when there is no interval."""
+        m = fmt.format(self.mean * scale)
+        if not math.isfinite(self.low):
+            return f"{m} (n = {self.n})"
+        return f"{m} [{fmt.format(self.low * scale)}, {fmt.format(self.high * scale)}]"
+
+
+def mean_ci(
+    values: Sequence[float] | np.ndarray,
+    confidence: float = CONFIDENCE,
+    bounds: tuple[float, float] = (-math.inf, math.inf),
+) -> Estimate:
+    """Mean and t-interval of the finite ``values`` (one per seed), the interval clipped to
+    the quantity's possible range ``bounds`` (a share cannot leave [0, 1]: with few seeds the
+    t-interval of a share near 0 or 1 reaches past it)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    n = len(v)
+    if n == 0:
+        return Estimate(math.nan, math.nan, math.nan, 0)
+    mean = float(v.mean())
+    if n < 2:
+        return Estimate(mean, math.nan, math.nan, n)
+    half = float(scipy.stats.t.ppf(0.5 + confidence / 2, n - 1) * v.std(ddof=1) / math.sqrt(n))
+    lo, hi = bounds
+    return Estimate(mean, max(lo, mean - half), min(hi, mean + half), n)
+
+
+def share_ci(
+    successes: Sequence[int] | np.ndarray,
+    trials: Sequence[int] | np.ndarray,
+    confidence: float = CONFIDENCE,
+) -> Estimate:
+    """A share (e.g. the success rate) across seeds: the mean of the per-seed shares, with the
+    wider of their t-interval (spread between seeds) and the exact Clopper–Pearson interval
+    of the pooled counts (counting noise within runs). Seeds that all score 100 % on a few
+    events would otherwise give a zero-width interval."""
+    k = np.asarray(successes, dtype=np.int64)
+    n = np.asarray(trials, dtype=np.int64)
+    keep = n > 0
+    k, n = k[keep], n[keep]
+    if len(n) == 0:
+        return Estimate(math.nan, math.nan, math.nan, 0)
+    between = mean_ci(k / n, confidence, (0.0, 1.0))
+    pooled = scipy.stats.binomtest(int(k.sum()), int(n.sum())).proportion_ci(
+        confidence, method="exact"
+    )
+    if not math.isfinite(between.low):
+        return Estimate(between.mean, pooled.low, pooled.high, between.n)
+    return Estimate(
+        between.mean, min(between.low, pooled.low), max(between.high, pooled.high), between.n
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Trend:
+    """A one-sided test that a quantity rises along ordered conditions, seeds as blocks."""
+
+    p_value: float
+    method: str
+    n: int  # seeds (blocks) used
+    min_p: float  # the smallest p-value this test can give with n seeds
+
+    def text(self) -> str:
+        note = (
+            f"; with {self.n} seeds this test cannot reach p < {ALPHA:g}"
+            if self.min_p >= ALPHA
+            else ""
+        )
+        return f"{self.method}, p = {self.p_value:.3g}{note}"
+
+
+def rising_trend(table: np.ndarray) -> Trend:
+    """Test ``table`` (n_seeds, k_conditions), conditions in their stated order, for a rise.
+
+    The same seed drives the same trajectory in every condition of an open-loop profiling run
+    (the walls only drift), so seeds are blocks: Page's L test (exact for small tables) for
+    k ≥ 3 conditions, the sign test of the paired differences for k = 2. Rows with a NaN are
+    dropped."""
+    t = np.asarray(table, dtype=np.float64)
+    t = t[np.isfinite(t).all(axis=1)]
+    n, k = t.shape
+    if n == 0 or k < 2:
+        return Trend(math.nan, "no complete seeds", n, 1.0)
+    if k == 2:
+        d = t[:, 1] - t[:, 0]
+        d = d[d != 0]
+        if len(d) == 0:
+            return Trend(1.0, "sign test", n, 0.5**n)
+        res = scipy.stats.binomtest(int((d > 0).sum()), len(d), 0.5, alternative="greater")
+        return Trend(float(res.pvalue), "sign test", n, 0.5**n)
+    if n < 2:
+        return Trend(math.nan, "Page's L test needs 2 seeds", n, 1.0)
+    res = scipy.stats.page_trend_test(t)
+    return Trend(float(res.pvalue), "Page's L test", n, float(math.factorial(k)) ** -n)
+
+
+def trend_verdict(means: Sequence[float], trend: Trend) -> str:
+    """Holds: the means rise strictly and the test is significant; partly: one of the two;
+    does not hold: neither."""
+    rising = len(means) >= 2 and all(b > a for a, b in itertools.pairwise(means))
+    significant = math.isfinite(trend.p_value) and trend.p_value < ALPHA
+    if rising and significant:
+        return HOLDS
+    return PARTLY if rising or significant else FAILS
+
+
+def above_verdict(est: Estimate, threshold: float) -> str:
+    """Holds: the whole interval is above ``threshold``; partly: only the mean is (or there is
+    no interval); does not hold: the mean is not."""
+    if math.isfinite(est.low) and est.low > threshold:
+        return HOLDS
+    return PARTLY if est.mean > threshold else FAILS
+
+
+def below_verdict(est: Estimate, threshold: float) -> str:
+    """The mirror of :func:`above_verdict`."""
+    if math.isfinite(est.high) and est.high < threshold:
+        return HOLDS
+    return PARTLY if est.mean < threshold else FAILS
+
+
+def combine(verdicts: Sequence[str]) -> str:
+    """A claim made of parts: holds if every part holds, does not hold if none even partly
+    does, partly otherwise."""
+    if verdicts and all(v == HOLDS for v in verdicts):
+        return HOLDS
+    if all(v == FAILS for v in verdicts):
+        return FAILS
+    return PARTLY

@@ -431,17 +431,28 @@ def summary_table(
     return summary_rows(loaded.recording_id, condition_columns(loaded), loaded.frames, outputs, s)
 
 
-def frames_in_statistics(df: pl.DataFrame, s: SummarySettings, recording_id: str) -> pl.DataFrame:
+MOTIONS = ("all", "straight", "turning")
+
+
+def frames_in_statistics(
+    df: pl.DataFrame, s: SummarySettings, recording_id: str, motion: str | None = None
+) -> pl.DataFrame:
     """The rows of ``df`` (one recording's; columns ``frame`` and ``turning``) that statistics
-    use: after the warm-up, and with ``s.exclude_turns`` only frames known to be straight."""
+    use: after the warm-up, and with ``s.exclude_turns`` only frames known to be straight.
+    ``motion`` overrides the settings: "all", "straight" or "turning" frames."""
+    motion = motion or s.motion
+    if motion not in MOTIONS:
+        raise ValueError(f"motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
     df = df.filter(pl.col("frame") >= s.warmup_frames)
-    if not s.exclude_turns:
+    if motion == "all":
         return df
     if df.height and df["turning"].null_count() == df.height:
         raise RecordingError(
             f"{recording_id} has no poses, so its turns are unknown: exclude_turns "
             "(--exclude-turns) needs a simulated or tracked run"
         )
+    if motion == "turning":
+        return df.filter(pl.col("turning"))
     return df.filter(pl.col("turning").not_())  # unknown (null) is not known to be straight
 
 
@@ -451,13 +462,16 @@ def summary_rows(
     frames: pl.DataFrame,
     outputs: pl.DataFrame,
     s: SummarySettings,
+    motion: str | None = None,
 ) -> pl.DataFrame:
     """The summary of one recording's ``frames`` and ``outputs`` (both for that recording
-    only); with ``s.exclude_turns`` only frames known to be straight driving count."""
+    only); with ``s.exclude_turns`` only frames known to be straight driving count, and
+    ``motion`` ("all", "straight", "turning") overrides that."""
     joined = outputs.join(
         frames.select("frame", "wall_tf_hz", "wall_gap_m", "turning"), on="frame", how="left"
     )
-    joined = frames_in_statistics(joined, s, recording_id)
+    motion = motion or s.motion
+    joined = frames_in_statistics(joined, s, recording_id, motion)
     rows = []
     for (model, tf), g in joined.group_by("model", "wall_tf_hz", maintain_order=True):
         out = primary_output(g)
@@ -469,7 +483,7 @@ def summary_rows(
                 "model": model,
                 **cond,
                 "wall_tf_hz": tf,
-                "motion": s.motion,
+                "motion": motion,
                 "output": out,
                 "n_frames": int(finite.sum()),
                 **summarise(vals[finite], g["wall_gap_m"].to_numpy()[finite], s),

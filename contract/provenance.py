@@ -23,6 +23,7 @@ PACKAGES = (
     "pyarrow",
     "rerun-sdk",
     "opencv-python-headless",
+    "scipy",  # the claims' intervals and trend tests
 )
 
 

@@ -1,6 +1,7 @@
 """The paper's three-phase collision protocol, plus the complexity-adaptive detector.
 
-Phases (one closed-loop recording each, ``minutes`` long, same seed):
+Phases (one closed-loop recording per seed, ``minutes`` long; seeds ``seed`` .. ``seed + seeds
+- 1``, the same seeds in every phase):
 
 1. ``tf0``: static walls;
 2. ``tf3``: walls drifting at 3 Hz, same detector;
@@ -21,7 +22,7 @@ from pathlib import Path
 
 import polars as pl
 
-from analysis.collision import CollisionSettings, collision, collision_table_markdown
+from analysis.collision import CollisionSettings, collision
 from analysis.experiments.captures import CaptureItem, run_captures
 from avdm.registry import parse_model_spec
 from capture.sim import SimSettings
@@ -65,20 +66,36 @@ def phase_settings(phase: Phase, minutes: float, seed: int) -> SimSettings:
     )
 
 
-def phase_items(phases: list[Phase], minutes: float, seed: int, folder: Path) -> list[CaptureItem]:
-    return [(ph.key, phase_settings(ph, minutes, seed), folder / f"{ph.key}.rrd") for ph in phases]
+def seed_list(first: int, count: int) -> list[int]:
+    """The seeds of a campaign: ``first``, ``first + 1``, ... (``count`` of them)."""
+    return list(range(first, first + count))
+
+
+def phase_items(
+    phases: list[Phase], minutes: float, seeds: list[int], folder: Path
+) -> list[CaptureItem]:
+    """One capture per (phase, seed): key ``<phase>-seed<n>``, file ``seed<n>/<phase>.rrd``."""
+    return [
+        (
+            f"{ph.key}-seed{seed}",
+            phase_settings(ph, minutes, seed),
+            folder / f"seed{seed}" / f"{ph.key}.rrd",
+        )
+        for seed in seeds
+        for ph in phases
+    ]
 
 
 def run_phases(
     phases: list[Phase],
     minutes: float,
-    seed: int,
+    seeds: list[int],
     folder: Path,
     jobs: int,
     log: Callable[[str], None],
 ) -> dict[str, Path]:
-    """Record every phase (in parallel processes), reusing finished ones; phase key → path."""
-    return run_captures(phase_items(phases, minutes, seed, folder), jobs, log)
+    """Record every (phase, seed) in parallel processes, reusing finished ones; key → path."""
+    return run_captures(phase_items(phases, minutes, seeds, folder), jobs, log)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,11 +105,14 @@ class CollisionStudySettings:
     minutes: float = 30.0
     detector: str = "lgmd-plus-arena"
     adjusted: str = "t_ffi=30"
-    seed: int = 1
+    seed: int = 1  # the first seed
+    seeds: int = 5  # runs per phase, for the mean and 95 % interval of each figure
     jobs: int = dataclasses.field(default_factory=lambda: max(1, os.cpu_count() or 1))
     false_alarm_m: float = 0.30
 
     def __post_init__(self) -> None:
+        if self.seeds < 1:
+            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
         parse_model_spec(self.detector)  # a bad detector fails before anything runs
         if self.adjusted:
             parse_model_spec(f"{self.detector.split(':')[0]}:{self.adjusted}")
@@ -101,8 +121,9 @@ class CollisionStudySettings:
 
 @dataclasses.dataclass
 class CollisionStudyResult:
-    summary: pl.DataFrame  # one row per phase
-    markdown: str  # the per-phase table beside the paper's numbers
+    summary: pl.DataFrame  # one row per (phase, seed)
+    phases: pl.DataFrame  # one row per phase: means and 95 % intervals across seeds
+    markdown: str  # the per-phase and per-run tables beside the paper's numbers
     recordings: dict[str, Path]  # phase key -> recording
     paths: list[Path]
 
@@ -120,19 +141,26 @@ def collision_study(
     say = log or (lambda _m: None)
     phases = study_phases(settings.detector, settings.adjusted)
     say(
-        f"collision study: {len(phases)} phases of {settings.minutes:g} min, detector "
-        f"{settings.detector}, adjusted threshold {settings.adjusted or '(none)'}"
+        f"collision study: {len(phases)} phases x {settings.seeds} seed(s) of "
+        f"{settings.minutes:g} min, detector {settings.detector}, adjusted threshold "
+        f"{settings.adjusted or '(none)'}"
     )
-    recs = run_phases(
-        phases, settings.minutes, settings.seed, out / "recordings", settings.jobs, say
-    )
+    seeds = seed_list(settings.seed, settings.seeds)
+    recs = run_phases(phases, settings.minutes, seeds, out / "recordings", settings.jobs, say)
     res = collision(
         [str(p) for p in recs.values()],
         CollisionSettings(false_alarm_m=settings.false_alarm_m),
         out,
         notice=notice,
     )
-    table = collision_table_markdown(res.summary)
+    table = res.markdown()
     md = out / "collision_study.md"
-    md.write_text("# Collision study\n\n" + table + "\n\n" + PAPER_NOTE + "\n", encoding="utf-8")
-    return CollisionStudyResult(res.summary, table, recs, [*res.paths, md])
+    md.write_text(
+        "# Collision study\n\nPer phase: mean [95 % interval] across seeds; then every run.\n\n"
+        + table
+        + "\n\n"
+        + PAPER_NOTE
+        + "\n",
+        encoding="utf-8",
+    )
+    return CollisionStudyResult(res.summary, res.phases, table, recs, [*res.paths, md])

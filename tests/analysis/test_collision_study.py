@@ -11,18 +11,13 @@ from tests.helpers import assert_one_line_error, run_cli
 
 def test_collision_study_end_to_end_and_reuse(tmp_path: Path) -> None:
     out = tmp_path / "study"
-    proc = run_cli(
-        "analysis", "collision-study", "--minutes", "0.5", "--out", str(out), "--jobs", "2"
-    )
+    args = ("--minutes", "0.4", "--out", str(out), "--jobs", "2", "--seeds", "2")
+    proc = run_cli("analysis", "collision-study", *args)
     assert proc.returncode == 0, proc.stderr
     summary = pl.read_parquet(out / "collision_summary.parquet")
-    assert summary["phase"].to_list() == [
-        "tf0",
-        "tf3",
-        "tf3-adjusted",
-        "tf3-adaptive",
-        "tf0-adaptive",
-    ]
+    phases = ["tf0", "tf3", "tf3-adjusted", "tf3-adaptive", "tf0-adaptive"]
+    assert summary["phase"].to_list() == [p for p in phases for _ in (1, 2)]
+    assert summary["seed"].to_list() == [1, 2] * 5
     events = pl.read_parquet(out / "collision_events.parquet")
     for r in summary.iter_rows(named=True):
         ev = events.filter(pl.col("recording_id") == r["recording_id"])
@@ -33,18 +28,28 @@ def test_collision_study_end_to_end_and_reuse(tmp_path: Path) -> None:
             assert r["success_rate"] == a / (a + c)
         far = ev.filter((pl.col("kind") == "avoidance") & (pl.col("dtc_m") >= 0.30)).height
         assert r["false_alarms"] == far
-    paper = summary.filter(pl.col("phase") == "tf3")["paper_avoidances"].item()
-    assert paper == 432
-    assert (
-        summary.filter(pl.col("phase") == "tf3-adjusted")["detector"].item().endswith("t_ffi=30.0")
-    )
+    assert (summary.filter(pl.col("phase") == "tf3")["paper_avoidances"] == 432).all()
+    adjusted = summary.filter(pl.col("phase") == "tf3-adjusted")["detector"]
+    assert adjusted.str.ends_with("t_ffi=30.0").all()
+    # ego-motion: avoidances triggered while the robot was still turning are counted
+    frames_turning = summary["turning_share"]
+    assert ((frames_turning > 0) & (frames_turning < 1)).all()
+    assert (summary["avoidances_while_turning"] <= summary["avoidances"]).all()
+    # across seeds: the mean and its interval per phase
+    stats = pl.read_parquet(out / "collision_phases.parquet")
+    assert stats["phase"].to_list() == phases and (stats["seeds"] == 2).all()
+    tf0 = summary.filter(pl.col("phase") == "tf0")
+    row = stats.row(0, named=True)
+    assert row["avoidances_per_30min"] == tf0["avoidances_per_30min"].mean()
+    assert row["avoidances_per_30min_low"] <= row["avoidances_per_30min"]
+    assert 0.0 <= row["success_rate_low"] <= row["success_rate_high"] <= 1.0
     md = (out / "collision_study.md").read_text()
-    assert "| tf0 |" in md and "229" in md
-    for name in ("collision_study.png", "collision_tf0.png", "collision.rrd"):
+    assert "| tf0 |" in md and "229" in md and "| tf0 | 1 |" in md  # per phase, then per run
+    for name in ("collision_study.png", "collision_tf0_seed1.png", "collision.rrd"):
         assert (out / name).exists(), name
-    again = run_cli("analysis", "collision-study", "--minutes", "0.5", "--out", str(out))
+    again = run_cli("analysis", "collision-study", *args)
     assert again.returncode == 0, again.stderr
-    assert again.stderr.count("reusing") == 5
+    assert again.stderr.count("reusing") == 10
     assert pl.read_parquet(out / "collision_summary.parquet").equals(summary)
 
 

@@ -19,7 +19,10 @@ ARGS = (
     "1",
     "--jobs",
     "2",
+    "--seeds",
+    "2",
 )
+RECORDINGS = 2 * (5 + 5)  # seeds x (profiling conditions + collision phases)
 
 
 def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path) -> None:
@@ -39,14 +42,16 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
         "profiling/profile_summary.parquet",
         "profiling/summary.parquet",
         "profiling/profiles.png",
+        "profiling/fig6_seeds.png",
+        "collision/collision_phases.parquet",
         "collision/collision_summary.parquet",
         "collision/collision_study.png",
         "collision/collision.rrd",
     ):
         assert (out / rel).exists(), rel
-    assert len(list((out / "recordings").rglob("*.rrd"))) == 10
+    assert len(list((out / "recordings").rglob("*.rrd"))) == RECORDINGS
     html = (out / "report.html").read_text()
-    assert html.count("data:image/png;base64") == 4  # self-contained
+    assert html.count("data:image/png;base64") == 5  # self-contained
     # the report's numbers are recomputed from the tables it ships with
     claims = pl.read_parquet(out / "claims.parquet")
     again = evaluate_claims(out)
@@ -61,11 +66,20 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
     assert "## Environment" in md and machine_info()["cpu_model"] in md
     assert f"| numpy | {package_versions()['numpy']} |" in md
     assert "numba_target_cpu" in html and "capture 1" in md
-    assert claims.height == 7 and set(claims["verdict"]) <= {"holds", "partly", "does not hold"}
-    col = pl.read_parquet(out / "collision" / "collision_summary.parquet")
+    assert claims.height == 9 and set(claims["verdict"]) <= {"holds", "partly", "does not hold"}
+    assert (claims["seeds"] == [1, 1] + [2] * 7).all()
+    # every condition ran with both seeds, read in both units and split by the robot's turns
+    prof = pl.read_parquet(out / "profiling" / "summary.parquet")
+    assert sorted(prof["seed"].unique().to_list()) == [1, 2]
+    assert set(prof["model"]) == {"avdm", "avdm-released-units"}
+    assert set(prof["motion"]) == {"all", "straight", "turning"}
+    assert "## Fig. 6 across seeds" in md and "## Collision study across seeds" in md
+    col = pl.read_parquet(out / "collision" / "collision_phases.parquet")
     tf0 = col.filter(pl.col("phase") == "tf0").row(0, named=True)
-    assert f"{tf0['avoidances']} avoidances" in claims["measured"][5]
+    assert tf0["seeds"] == 2
+    measured = claims.filter(pl.col("claim").str.contains("collision detector"))["measured"][0]
+    assert f"{tf0['avoidances_per_30min']:.0f} [" in measured
     # a rerun records nothing new
     rerun = run_cli("analysis", "reproduce", *ARGS, "--out", str(out), timeout=600)
     assert rerun.returncode == 0, rerun.stderr
-    assert rerun.stderr.count("reusing") == 10 and "recorded in" not in rerun.stderr
+    assert rerun.stderr.count("reusing") == RECORDINGS and "recorded in" not in rerun.stderr
