@@ -271,6 +271,13 @@ def test_profile_and_compare_take_a_video_recording(clips, tmp_path: Path) -> No
     assert proc.returncode == 0, proc.stderr
     proc = run_cli("analysis", "collision", str(rec), "--out", str(tmp_path / "k"))
     assert_one_line_error(proc, "not a collision-mode recording")
+    # a video has no poses: its frames' turning flag is unknown, and excluding turns is refused
+    proc = run_cli("analysis", "tables", str(rec), "--out", str(tmp_path / "t"))
+    assert proc.returncode == 0, proc.stderr
+    frames = pl.read_parquet(tmp_path / "t" / "frames.parquet")
+    assert frames["turning"].null_count() == frames["robot_omega_dps"].null_count() == 150
+    proc = run_cli("analysis", "tables", str(rec), "--out", str(tmp_path / "t"), "--exclude-turns")
+    assert_one_line_error(proc, "has no poses, so its turns are unknown")
 
 
 def test_rotation_metadata_is_honoured(tmp_path: Path) -> None:
