@@ -233,6 +233,35 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_batch(args: argparse.Namespace) -> int:
+    from analysis.batch import BatchSettings, batch
+
+    settings = _settings(BatchSettings, args)
+    with _progress(None, "batch", "task") as bar:
+        res = batch(args.recordings, settings, args.out, progress=bar.update, log=_stderr)
+    ran = len(res.outcomes) - len([o for o in res.outcomes if o.error])
+    print(
+        f"{res.planned} tasks: {res.skipped} already done, {ran} ran, {len(res.failures)} "
+        f"failed ({res.elapsed_s:.1f} s)"
+    )
+    if res.tables is not None:
+        print(f"summarised into {args.out}/: " + ", ".join(p.name for p in res.paths))
+    elif res.failures == [] and settings.shard is not None:
+        print(f"this shard is done; when all are: vdc-analyse summarise {args.out}")
+    for task, err in res.failures:
+        print(f"FAILED {task}: {err}", file=sys.stderr)
+    return 1 if res.failures else 0
+
+
+def cmd_summarise(args: argparse.Namespace) -> int:
+    from analysis.batch import summarise
+
+    tables, paths = summarise(args.out)
+    for path, (name, df) in zip(paths, tables.items(), strict=True):
+        print(f"{name:<14} {df.height:>8} rows -> {path}")
+    return 0
+
+
 def add_out(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--out", default=default, help="output folder (default: %(default)s)")
 
@@ -555,6 +584,57 @@ def build_parser() -> argparse.ArgumentParser:
         help="false-alarm distance, m (default: %(default)s)",
     )
     cs.set_defaults(func=cmd_collision_study)
+
+    bt = sub.add_parser(
+        "batch",
+        help="many recordings x many variants: one task each, on all cores or a Dask cluster",
+        description=(
+            "Every (recording, --model) pair is one task: it reads the raw frames, recomputes "
+            "the variant and writes its own Parquet parts atomically under "
+            "OUT/parts/recording_id=.../model=.../. Finished parts are skipped on a re-run "
+            "(--force recomputes). At the end the parts are concatenated into the same "
+            "frames, model_outputs, events and summary tables `tables` writes. A failing "
+            "task is listed and does not stop the others (exit status 1)."
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="models:\n" + describe_models(),
+    )
+    bt.add_argument("recordings", nargs="+", metavar="REC", help=".rrd recordings")
+    add_out(bt, "results/batch")
+    add_models(bt, required=True)
+    add_summary_options(bt)
+    bt.add_argument(
+        "--executor",
+        choices=("local", "dask"),
+        default="local",
+        help="local: a process pool (default); dask: a Dask cluster (pip install -e '.[dask]')",
+    )
+    bt.add_argument(
+        "--jobs",
+        type=int,
+        help="worker processes of the local pool or local Dask cluster (default: usable cores)",
+    )
+    bt.add_argument(
+        "--scheduler",
+        help="an existing Dask cluster: tcp://HOST:PORT, tls://HOST:PORT or a scheduler file "
+        "(implies --executor dask); without it --executor dask starts one on 127.0.0.1",
+    )
+    bt.add_argument(
+        "--shard",
+        help="I/N: run only tasks I, I+N, ... (0-based; default in a SLURM array: its own); "
+        "then `vdc-analyse summarise OUT`",
+    )
+    bt.add_argument("--force", action="store_true", help="recompute finished parts")
+    bt.set_defaults(func=cmd_batch)
+
+    sm = sub.add_parser(
+        "summarise",
+        help="concatenate a batch's finished parts into the four tables",
+        description="After sharded batch runs: OUT/parts/... -> OUT/{frames,model_outputs,"
+        "events,summary}.parquet, as `tables` writes them.",
+    )
+    sm.add_argument("out", metavar="OUT", help="the batch's --out folder")
+    sm.set_defaults(func=cmd_summarise)
 
     cx = sub.add_parser(
         "complexity",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,8 @@ def write_parquet(df: pl.DataFrame, path: Path, meta: dict[str, Any]) -> Path:
     kv["vdc.machine"] = json.dumps(machine_info(), sort_keys=True)
     table = table.replace_schema_metadata({**(table.schema.metadata or {}), **kv})
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial")
+    # unique per process: two batch workers may write a recording's shared table at once
+    tmp = path.with_name(f"{path.name}.partial-{os.getpid()}")
     pq.write_table(table, tmp)
     tmp.replace(path)
     return path

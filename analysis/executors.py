@@ -1,0 +1,159 @@
+"""Where tasks run: one ``concurrent.futures`` loop, several backends.
+
+* ``local`` (default): a process pool over the usable cores, started fresh (``spawn``: polars
+  and Numba threads must not be forked). If a worker dies the stdlib pool breaks and every
+  pending task fails with it; :func:`run_tasks` then starts a new pool once for the tasks that
+  had not finished (finished ones wrote their results already).
+* ``dask``: an existing cluster (``scheduler`` = ``tcp://host:port``, ``tls://...`` or a
+  scheduler file) or, without one, a local cluster on 127.0.0.1 (dashboard on 127.0.0.1 too);
+  ``client.get_executor`` gives real ``concurrent.futures`` futures. Needs the optional extra
+  ``pip install "vdc[dask]"``.
+
+Tasks are module-level functions with small, picklable arguments (paths, not arrays) that
+write their own outputs and return a small dict (reference/distributed.md §1).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import dataclasses
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+from typing import Any
+
+EXECUTORS = ("local", "dask")
+
+
+def usable_cpus() -> int:
+    """CPUs this process may use (inside SLURM or a cgroup, not the whole node)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+@dataclasses.dataclass(frozen=True)
+class ExecutorSettings:
+    """Where tasks run: ``executor`` local|dask, ``jobs`` workers (local pool, or a local Dask
+    cluster), ``scheduler`` an existing Dask cluster's address or scheduler file."""
+
+    executor: str = "local"
+    jobs: int = dataclasses.field(default_factory=usable_cpus)
+    scheduler: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.scheduler and self.executor == "local":
+            object.__setattr__(self, "executor", "dask")  # a scheduler means Dask
+        if self.executor not in EXECUTORS:
+            raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}")
+        if self.jobs < 1:
+            raise ValueError(f"--jobs must be at least 1, got {self.jobs}")
+        if self.scheduler and not self.scheduler.startswith(("tcp://", "tls://", "inproc://")):
+            path = Path(self.scheduler).expanduser()
+            # Client(scheduler_file=...) neither expands ~ nor times out on a missing file
+            if not path.is_file():
+                raise ValueError(
+                    f"--scheduler {self.scheduler!r} is neither tcp://HOST:PORT, tls://HOST:PORT "
+                    "nor an existing scheduler file"
+                )
+
+
+def _dask_client(settings: ExecutorSettings, n_tasks: int) -> Any:
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise ValueError(
+            '--executor dask needs the optional extra: pip install -e ".[dask]"'
+        ) from None
+    if settings.scheduler:
+        s = settings.scheduler
+        if s.startswith(("tcp://", "tls://", "inproc://")):
+            return Client(s, timeout="10s")
+        return Client(scheduler_file=str(Path(s).expanduser()), timeout="10s")
+    # our own cluster: loopback only (a Dask port runs pickled code as the user), processes
+    # with one thread each (the models' Python loops hold the GIL)
+    cluster = LocalCluster(
+        n_workers=max(1, min(settings.jobs, n_tasks)),
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address="127.0.0.1:0",
+    )
+    client = Client(cluster)
+    client._vdc_own_cluster = cluster  # closed with the client
+    return client
+
+
+@contextlib.contextmanager
+def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf.Executor, Any]]:
+    """The executor (and the Dask client, or None) for ``n_tasks`` tasks; closed on exit."""
+    if settings.executor == "local":
+        ctx = multiprocessing.get_context("spawn")
+        pool = cf.ProcessPoolExecutor(max(1, min(settings.jobs, n_tasks)), mp_context=ctx)
+        try:
+            yield pool, None
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+        return
+    client = _dask_client(settings, n_tasks)
+    try:
+        yield client.get_executor(pure=False), client
+    finally:
+        cluster = getattr(client, "_vdc_own_cluster", None)
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+@dataclasses.dataclass
+class TaskOutcome:
+    key: str  # the task's name for people: "<recording> <model>"
+    result: dict[str, Any] | None
+    error: str | None
+
+
+def run_tasks(
+    fn: Callable[..., dict[str, Any]],
+    tasks: Sequence[tuple[str, tuple]],
+    settings: ExecutorSettings,
+    on_done: Callable[[TaskOutcome], None] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> list[TaskOutcome]:
+    """Run ``fn(*args)`` for every ``(key, args)`` in ``tasks``; a task that raises is an
+    outcome with its error and does not stop the others. Futures are dropped as they finish
+    (a held Dask future is recomputed if its worker dies)."""
+    outcomes: dict[str, TaskOutcome] = {}
+    todo = list(tasks)
+    restarted = False
+    while todo:
+        with open_executor(settings, len(todo)) as (ex, _client):
+            pending = {ex.submit(fn, *args): key for key, args in todo}
+            broken: list[str] = []
+            for fut in cf.as_completed(list(pending)):
+                key = pending.pop(fut)
+                try:
+                    res = fut.result()
+                    out = TaskOutcome(key, res, None)
+                except BrokenProcessPool:
+                    broken.append(key)  # a worker died: this task may not have run at all
+                    continue
+                except Exception as exc:  # the task's own error, reported, not fatal
+                    out = TaskOutcome(key, None, f"{type(exc).__name__}: {exc}")
+                outcomes[key] = out
+                if on_done is not None:
+                    on_done(out)
+        by_key = dict(todo)
+        todo = [(k, by_key[k]) for k in broken] if broken and not restarted else []
+        if todo and log is not None:
+            log(f"a worker process died: {len(todo)} unfinished task(s) go to a fresh pool")
+        if broken and restarted:
+            for k in broken:
+                outcomes[k] = TaskOutcome(k, None, "a worker process died twice running it")
+                if on_done is not None:
+                    on_done(outcomes[k])
+        restarted = restarted or bool(broken)
+    return [outcomes[k] for k, _ in tasks if k in outcomes]

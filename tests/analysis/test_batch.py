@@ -1,0 +1,178 @@
+"""``vdc-analyse batch`` and ``summarise``: parts, resume, shards, faults, the local pool."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import polars as pl
+
+from analysis.batch import model_slug
+from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn
+
+MODELS = ("avdm", "avdm:beta=0.5", "lgmd-plus")
+TABLES = ("frames", "model_outputs", "events", "summary")
+
+
+def _models() -> list[str]:
+    return [a for m in MODELS for a in ("--model", m)]
+
+
+def _read(folder: Path) -> dict[str, pl.DataFrame]:
+    return {n: pl.read_parquet(folder / f"{n}.parquet") for n in TABLES}
+
+
+def _same_tables(a: dict[str, pl.DataFrame], b: dict[str, pl.DataFrame]) -> None:
+    for name in TABLES:
+        assert a[name].columns == b[name].columns, name
+        assert a[name].equals(b[name]), name  # same recordings, same code, one machine
+
+
+def test_batch_writes_the_tables_tables_writes_and_resumes(recordings, tmp_path: Path) -> None:
+    recs = [str(recordings[k]) for k in ("phases", "tf3_a", "tf3_b")]
+    proc = run_cli("analysis", "tables", *recs, *_models(), "--out", str(tmp_path / "t"))
+    assert proc.returncode == 0, proc.stderr
+    out = tmp_path / "b"
+    proc = run_cli("analysis", "batch", *recs, *_models(), "--out", str(out), "--jobs", "2")
+    assert proc.returncode == 0, proc.stderr
+    assert "9 tasks: 0 already done, 9 ran, 0 failed" in proc.stdout
+    _same_tables(_read(out), _read(tmp_path / "t"))
+    # the hive layout: one directory per (recording, variant), no '=' inside a value
+    parts = sorted(out.glob("parts/recording_id=*/model=*/model_outputs.parquet"))
+    assert len(parts) == 9
+    assert {p.parent.name for p in parts} == {f"model={model_slug(m)}" for m in MODELS}
+    assert all(p.parent.name.count("=") == 1 for p in parts)
+    one = pl.read_parquet(parts[0])
+    assert one["recording_id"].n_unique() == 1 and one["model"].n_unique() == 1  # ids inside
+    # a re-run finds everything done; --force recomputes, to the same rows
+    stamp = parts[0].stat().st_mtime_ns
+    again = run_cli("analysis", "batch", *recs, *_models(), "--out", str(out))
+    assert again.returncode == 0, again.stderr
+    assert "9 already done, 0 ran" in again.stdout and parts[0].stat().st_mtime_ns == stamp
+    forced = run_cli("analysis", "batch", *recs, *_models(), "--out", str(out), "--force")
+    assert forced.returncode == 0 and "0 already done, 9 ran" in forced.stdout
+    _same_tables(_read(out), _read(tmp_path / "t"))
+
+
+def test_shards_split_the_tasks_and_summarise_joins_them(recordings, tmp_path: Path) -> None:
+    recs = [str(recordings[k]) for k in ("tf3_a", "tf3_b")]
+    out = tmp_path / "s"
+    done = []
+    for i in range(3):
+        proc = run_cli(
+            "analysis", "batch", *recs, *_models(), "--out", str(out), "--shard", f"{i}/3",
+            "--jobs", "1",
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        assert "2 tasks (shard" in proc.stderr and not (out / "summary.parquet").exists()
+        done.append(len(list(out.glob("parts/*/model=*/summary.parquet"))))
+    assert done == [2, 4, 6]  # each shard ran its own two of the six tasks
+    proc = run_cli("analysis", "summarise", str(out))
+    assert proc.returncode == 0, proc.stderr
+    whole = run_cli("analysis", "tables", *recs, *_models(), "--out", str(tmp_path / "t"))
+    assert whole.returncode == 0, whole.stderr
+    _same_tables(_read(out), _read(tmp_path / "t"))
+
+
+def test_a_corrupt_recording_fails_its_own_tasks_only(recordings, tmp_path: Path) -> None:
+    bad = tmp_path / "bad.rrd"
+    bad.write_bytes(b"not a recording" * 100)
+    out = tmp_path / "b"
+    proc = run_cli(
+        "analysis", "batch", str(recordings["tf3_a"]), str(bad), "--model", "avdm",
+        "--model", "lgmd-plus", "--out", str(out),
+    )  # fmt: skip
+    assert proc.returncode == 1
+    assert proc.stderr.count(f"FAILED {bad} ") >= 2 and "Traceback" not in proc.stderr
+    assert "4 tasks: 0 already done, 2 ran, 2 failed" in proc.stdout
+    failures = pl.read_parquet(out / "failures.parquet")
+    assert failures.height == 2 and failures["task"].str.contains("bad.rrd").all()
+    assert pl.read_parquet(out / "summary.parquet").height == 2  # the good recording's
+
+
+def _pool_workers(pid: int) -> list[int]:
+    """The children of ``pid`` running a spawned multiprocessing worker."""
+    kids = []
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/task/{tid}/children") as f:
+            kids += [int(k) for k in f.read().split()]
+    workers = []
+    for k in kids:
+        try:
+            with open(f"/proc/{k}/cmdline", "rb") as f:
+                if b"spawn_main" in f.read():  # not the resource tracker
+                    workers.append(k)
+        except FileNotFoundError:
+            pass
+    return workers
+
+
+def test_a_killed_pool_worker_loses_no_finished_part(recordings, tmp_path: Path) -> None:
+    """SIGKILL one worker of the local pool mid-run: the stdlib pool breaks; the unfinished
+    tasks go to a fresh pool, finished parts stay as they were, and a re-run has nothing left."""
+    recs = [str(recordings[k]) for k in ("phases", "tf3_a", "tf3_b")]
+    models = [
+        a for m in ("avdm", "avdm:beta=0.5", "avdm:tw=6", "lgmd-plus") for a in ("--model", m)
+    ]
+    out = tmp_path / "b"
+    proc = spawn(
+        [
+            sys.executable,
+            "-m",
+            "analysis",
+            "batch",
+            *recs,
+            *models,
+            "--out",
+            str(out),
+            "--jobs",
+            "2",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.time() + 120
+    killed = None
+    while time.time() < deadline and proc.poll() is None:
+        finished = list(out.glob("parts/*/model=*/summary.parquet"))
+        workers = _pool_workers(proc.pid)
+        if finished and workers:
+            killed = workers[0]
+            os.kill(killed, signal.SIGKILL)
+            break
+        time.sleep(0.05)
+    assert killed is not None, "no worker was seen with a finished part"
+    stdout, stderr = proc.communicate(timeout=300)
+    # the broken pool's unfinished tasks ran in a fresh one: the run still completes
+    assert proc.returncode == 0, stderr
+    assert "12 tasks: 0 already done, 12 ran, 0 failed" in stdout
+    assert "a worker process died" in stderr
+    for part in out.glob("parts/**/*.parquet"):
+        pl.read_parquet(part)  # every part is whole: written to a temporary name, then renamed
+    again = run_cli("analysis", "batch", *recs, *models, "--out", str(out))
+    assert again.returncode == 0, again.stderr
+    assert "12 already done, 0 ran" in again.stdout
+    assert pl.read_parquet(out / "summary.parquet").height == 12 + 4  # 'phases' has 2 TFs
+
+
+def test_bad_batch_input_is_one_line(tmp_path: Path, recordings) -> None:
+    rec = str(recordings["tf3_a"])
+    for args, message in (
+        (["--shard", "3/2"], "need 0 <= I < N"),
+        (["--shard", "x"], "expected I/N"),
+        (["--scheduler", str(tmp_path / "none.json")], "neither tcp://"),
+        (["--jobs", "0"], "--jobs must be at least 1"),
+        (["--model", "nope"], "unknown model"),
+    ):
+        proc = run_cli(
+            "analysis", "batch", rec, "--model", "avdm", *args, "--out", str(tmp_path / "o")
+        )
+        assert_one_line_error(proc, message)
+    proc = run_cli("analysis", "summarise", str(tmp_path / "empty"))
+    assert_one_line_error(proc, "has no finished batch parts")
