@@ -97,11 +97,6 @@ class BatchSettings(SummarySettings):
     def executor_settings(self) -> ExecutorSettings:
         return ExecutorSettings(self.executor, self.jobs, self.scheduler)
 
-    def summary_settings(self) -> SummarySettings:
-        return SummarySettings(
-            **{f.name: getattr(self, f.name) for f in dataclasses.fields(SummarySettings)}
-        )
-
 
 def part_dir(out: Path, recording_id: str, spec: str | None = None) -> Path:
     d = Path(out) / PARTS / f"recording_id={safe_key(recording_id)}"

@@ -29,7 +29,7 @@ import rerun.blueprint as rrb
 
 from analysis.analysis_rrd import log_arena_outline
 from analysis.profile import safe_key
-from analysis.stats import mean_ci, share_ci
+from analysis.stats import Estimate, mean_ci, share_ci
 from analysis.tables import LoadedRecording, events_table
 from contract.recording import APP_ID
 
@@ -382,11 +382,16 @@ def collision_table_markdown(summary: pl.DataFrame) -> str:
     return "\n".join(lines)
 
 
+def phase_estimate(row: dict, name: str) -> Estimate:
+    """One statistic of a :func:`phase_statistics` row as an :class:`Estimate`."""
+    return Estimate(row[name], row[f"{name}_low"], row[f"{name}_high"], row["seeds"])
+
+
 def _est(r: dict, name: str, fmt: str, scale: float = 1.0) -> str:
-    m, lo, hi = (r[name] * scale, r[f"{name}_low"] * scale, r[f"{name}_high"] * scale)
-    if not math.isfinite(lo):
-        return fmt.format(m)
-    return f"{fmt.format(m)} [{fmt.format(lo)}, {fmt.format(hi)}]"
+    e = phase_estimate(r, name)
+    if not math.isfinite(e.low):
+        return fmt.format(e.mean * scale)  # one seed: the value alone
+    return e.text(fmt, scale)
 
 
 def phase_table_markdown(phases: pl.DataFrame) -> str:

@@ -62,7 +62,8 @@ class ExecutorSettings:
                 )
 
 
-def _dask_client(settings: ExecutorSettings, n_tasks: int) -> Any:
+def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
+    """The client, and the local cluster it runs on when vdc started one (else None)."""
     try:
         from distributed import Client, LocalCluster
     except ImportError:
@@ -72,8 +73,8 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> Any:
     if settings.scheduler:
         s = settings.scheduler
         if s.startswith(("tcp://", "tls://", "inproc://")):
-            return Client(s, timeout="10s")
-        return Client(scheduler_file=str(Path(s).expanduser()), timeout="10s")
+            return Client(s, timeout="10s"), None
+        return Client(scheduler_file=str(Path(s).expanduser()), timeout="10s"), None
     # our own cluster: loopback only (a Dask port runs pickled code as the user), processes
     # with one thread each (the models' Python loops hold the GIL)
     cluster = LocalCluster(
@@ -83,9 +84,7 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> Any:
         host="127.0.0.1",
         dashboard_address="127.0.0.1:0",
     )
-    client = Client(cluster)
-    client._vdc_own_cluster = cluster  # closed with the client
-    return client
+    return Client(cluster), cluster
 
 
 @contextlib.contextmanager
@@ -99,11 +98,10 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
         return
-    client = _dask_client(settings, n_tasks)
+    client, cluster = _dask_client(settings, n_tasks)
     try:
         yield client.get_executor(pure=False), client
     finally:
-        cluster = getattr(client, "_vdc_own_cluster", None)
         client.close()
         if cluster is not None:
             cluster.close()

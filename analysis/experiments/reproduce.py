@@ -31,6 +31,7 @@ import polars as pl
 from analysis.collision import (
     CollisionSettings,
     collision,
+    phase_estimate,
     phase_statistics,
     phase_table_markdown,
 )
@@ -50,6 +51,7 @@ from analysis.rrd_reader import Recording
 from analysis.stats import (
     FAILS,
     HOLDS,
+    PARTLY,
     Estimate,
     above_verdict,
     below_verdict,
@@ -139,7 +141,7 @@ class Claim:
 
 
 def _verdict(all_ok: bool, any_ok: bool = False) -> str:
-    return "holds" if all_ok else ("partly" if any_ok else "does not hold")
+    return HOLDS if all_ok else (PARTLY if any_ok else FAILS)
 
 
 def evaluate_claims(out: Path) -> list[Claim]:
@@ -265,7 +267,7 @@ def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
     verdicts = []
     for scene, tf in PROFILE_CONDITIONS:
         t = per_seed(summary, scene, CALIBRATED, "all", "near_wall_centre_ratio")
-        col = f"{tf:g}" if f"{tf:g}" in t.columns else str(tf)
+        col = str(float(tf))  # polars names pivoted Float64 columns like "3.0"
         if col not in t.columns:
             continue
         est = mean_ci(t[col].to_numpy(), bounds=(0.0, math.inf))
@@ -342,8 +344,7 @@ def collision_claims(summary: pl.DataFrame) -> list[Claim]:
     phases = {r["phase"]: r for r in phase_statistics(summary).iter_rows(named=True)}
 
     def est(phase: str, name: str) -> Estimate:
-        r = phases[phase]
-        return Estimate(r[name], r[f"{name}_low"], r[f"{name}_high"], r["seeds"])
+        return phase_estimate(phases[phase], name)
 
     def txt(phase: str) -> str:
         return (
