@@ -1,5 +1,6 @@
 """vdc's offline analysis: everything that consumes recordings and stimuli.
 
-Sweeps (``analysis.sweep``), calibration output (``analysis.calibrate``) and Parquet tables
-(``analysis.parquet_io``); the command line is ``vdc-analyse`` (``analysis.cli``).
+Tables, profiles, comparisons, batch analysis and the paper's experiments
+(``analysis.experiments``), written as Parquet through ``contract.parquet_io``; the command line is
+``vdc-analyse`` (``analysis.cli``).
 """

@@ -27,8 +27,6 @@ from typing import Any
 
 import polars as pl
 
-from analysis.executors import ExecutorSettings, TaskOutcome, run_tasks, usable_cpus
-from analysis.parquet_io import read_metadata, write_parquet
 from analysis.profile import safe_key
 from analysis.rrd_reader import Recording, RecordingError
 from analysis.tables import (
@@ -42,6 +40,8 @@ from analysis.tables import (
     write_tables,
 )
 from avdm.registry import canonical_name, parse_model_spec
+from contract.executors import ExecutorSettings, TaskOutcome, run_tasks, usable_cpus
+from contract.parquet_io import read_metadata, write_parquet
 
 PARTS = "parts"
 
@@ -195,7 +195,7 @@ def batch(
     skipped = len(runnable) - len(todo)
     say(
         f"{len(tasks)} tasks{f' (shard {shard[0]}/{shard[1]})' if shard else ''}: "
-        f"{skipped} already done, {len(todo)} to run on {settings.executor}"
+        f"{skipped} already done, {len(todo)} to run on {settings.executor_settings().where()}"
     )
     s = dataclasses.asdict(settings.summary_settings())
 
@@ -205,12 +205,14 @@ def batch(
         if progress is not None:
             progress(1)
 
+    out.mkdir(parents=True, exist_ok=True)
     outcomes = run_tasks(
         analyse_task,
         [(f"{p} {spec}", (p, spec, str(out), s, settings.force)) for p, spec, _ in todo],
         settings.executor_settings(),
         done,
         say,
+        shared_paths=[todo[0][0], out] if todo else [],
     )
     failures += [(o.key, o.error) for o in outcomes if o.error is not None]
     tables, paths = None, []

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -12,12 +11,14 @@ from pathlib import Path
 from avdm.cli_support import (
     OneLineParser,
     UserError,
+    add_executor_options,
     fail,
     parse_float_list,
     parse_size,
     positive_float,
 )
 from avdm.registry import describe_models
+from contract.executors import TasksFailed
 
 PROG = "vdc-analyse"
 
@@ -224,7 +225,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         approach_repeats=args.approach_repeats,
         seed=args.seed,
         seeds=args.seeds,
+        executor=args.executor,
         jobs=args.jobs,
+        scheduler=args.scheduler,
     )
     res = reproduce(plan, args.out, log=_stderr)
     for c in res.claims:
@@ -571,12 +574,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="detector overrides of the 'adjusted threshold' phase (default: %(default)s)",
     )
     add_seed_options(cs, 5)
-    cs.add_argument(
-        "--jobs",
-        type=int,
-        default=max(1, os.cpu_count() or 1),
-        help="parallel capture processes (default: the number of cores)",
-    )
+    add_executor_options(cs, "simulated runs")
     cs.add_argument(
         "--false-alarm-m",
         type=positive_float,
@@ -603,22 +601,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_out(bt, "results/batch")
     add_models(bt, required=True)
     add_summary_options(bt)
-    bt.add_argument(
-        "--executor",
-        choices=("local", "dask"),
-        default="local",
-        help="local: a process pool (default); dask: a Dask cluster (pip install -e '.[dask]')",
-    )
-    bt.add_argument(
-        "--jobs",
-        type=int,
-        help="worker processes of the local pool or local Dask cluster (default: usable cores)",
-    )
-    bt.add_argument(
-        "--scheduler",
-        help="an existing Dask cluster: tcp://HOST:PORT, tls://HOST:PORT or a scheduler file "
-        "(implies --executor dask); without it --executor dask starts one on 127.0.0.1",
-    )
+    add_executor_options(bt, "analysis tasks")
     bt.add_argument(
         "--shard",
         help="I/N: run only tasks I, I+N, ... (0-based; default in a SLURM array: its own); "
@@ -676,12 +659,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rp.add_argument("--quick", action="store_true", help="short runs: 3 min, 3 repeats, 3 seeds")
     add_out(rp, "results/reproduce")
-    rp.add_argument(
-        "--jobs",
-        type=int,
-        default=max(1, os.cpu_count() or 1),
-        help="parallel capture processes (default: the number of cores)",
-    )
+    add_executor_options(rp, "simulated runs")
     add_seed_options(rp, None)
     rp.add_argument("--profile-minutes", type=positive_float, help="override: profiling run length")
     rp.add_argument(
@@ -706,6 +684,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return func(args)
     except (UserError, ValueError) as exc:
         fail(f"{PROG} {args.command}", str(exc))
+    except TasksFailed as exc:  # the finished runs are kept; a re-run retries the failed
+        print(f"{PROG} {args.command}: {exc}", file=sys.stderr)
+        return 1
     except OSError as exc:
         fail(f"{PROG} {args.command}", f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": "))
     except KeyboardInterrupt:

@@ -326,8 +326,8 @@ def collision(
     per recording, ``collision_study.png`` and ``collision.rrd``."""
     import hashlib
 
-    from analysis.parquet_io import write_parquet
     from analysis.tables import Notices, load_recording
+    from contract.parquet_io import write_parquet
 
     items, notes = [], Notices(notice)
     for path in recordings:

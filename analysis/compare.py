@@ -218,8 +218,8 @@ def compare(
     ``compare.png`` and ``variants.rrd`` (the traces under ``/model_variants/<name>/``, with
     the source's recording id, so ``rerun REC variants.rrd`` shows them together)."""
     from analysis.analysis_rrd import write_variants_rrd
-    from analysis.parquet_io import write_parquet
     from analysis.profile import save_figure
+    from contract.parquet_io import write_parquet
 
     loaded = load_recording(recording, settings)
     notes = Notices(notice)

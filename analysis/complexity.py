@@ -208,8 +208,8 @@ def complexity(
     ``complexity_correlations.parquet``, and per recording a figure (metrics over time,
     normalised, and their rank correlations) and an ``.rrd`` with the source's recording id
     (open it beside the source: ``rerun REC OUT/complexity_<id>.rrd``)."""
-    from analysis.parquet_io import write_parquet
     from analysis.tables import Notices, load_recording
+    from contract.parquet_io import write_parquet
 
     parts, corrs, paths, notes = [], [], [], Notices(notice)
     for path in recordings:

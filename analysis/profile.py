@@ -357,7 +357,7 @@ def profile(
     import hashlib
 
     from analysis.analysis_rrd import write_profile_rrd
-    from analysis.parquet_io import write_parquet
+    from contract.parquet_io import write_parquet
 
     notes = Notices(notice)
     tables, meta = build_tables(recordings, settings.models or None, settings, progress, notes)

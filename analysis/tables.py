@@ -27,11 +27,11 @@ import numpy as np
 import polars as pl
 
 from analysis.ego_motion import turning_flags, yaw_rate_dps
-from analysis.parquet_io import write_parquet
 from analysis.rrd_reader import Recording, RecordingError
 from avdm.base import Model
 from avdm.registry import canonical_name, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
+from contract.parquet_io import write_parquet
 from contract.recording import (
     FRAME_TIMING,
     MODEL_ROOT,

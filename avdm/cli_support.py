@@ -65,3 +65,27 @@ def positive_float(text: str) -> float:
     if not (v > 0 and v < float("inf")):
         raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
     return v
+
+
+def add_executor_options(p: argparse.ArgumentParser, what: str) -> None:
+    """``--executor``, ``--jobs`` and ``--scheduler``: where the command's independent
+    ``what`` (e.g. "analysis tasks", "simulated runs") run; fields of the same names in the
+    command's settings (``contract.executors.ExecutorSettings``)."""
+    p.add_argument(
+        "--executor",
+        choices=("local", "dask"),
+        default="local",
+        help=f"where the {what} run: local = a process pool on this machine (default); "
+        "dask = a Dask cluster (pip install -e '.[dask]')",
+    )
+    p.add_argument(
+        "--jobs",
+        type=int,
+        help="worker processes of the local pool or of a local Dask cluster "
+        "(default: the cores this process may use)",
+    )
+    p.add_argument(
+        "--scheduler",
+        help="an existing Dask cluster: tcp://HOST:PORT, tls://HOST:PORT or a scheduler file "
+        "(implies --executor dask); without it, --executor dask starts one on 127.0.0.1",
+    )

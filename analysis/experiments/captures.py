@@ -2,20 +2,25 @@
 
 Each run is a :class:`capture.sim.SimSettings` and an output path. A recording already at
 that path with the same configuration (the recording id is a function of it) and complete is
-reused; the others are recorded by ``jobs`` worker processes (started fresh, not forked, so no
-Rerun or Numba thread state is copied into them).
+reused; the others are recorded as tasks on an executor (``contract.executors``: a local pool
+of fresh processes, or a Dask cluster), so a campaign of many long runs spreads over a cluster.
 """
 
 from __future__ import annotations
 
-import multiprocessing
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from analysis.rrd_reader import Recording, RecordingError
 from capture.sim import SimSettings, record_sim
+from contract.executors import (
+    ExecutorSettings,
+    TaskOutcome,
+    TasksFailed,
+    failure_report,
+    run_tasks,
+)
 
 # (key, settings, output path) of one run
 CaptureItem = tuple[str, SimSettings, Path]
@@ -33,19 +38,20 @@ def is_done(path: Path, recording_id: str) -> bool:
     return rec.recording_id == recording_id and bool(end.get("complete"))
 
 
-def _record(key: str, settings: SimSettings, out: Path) -> tuple[str, float]:
+def _record(key: str, settings: SimSettings, out: str) -> dict:
+    """One run, as an executor task (module-level, small arguments, small result)."""
     t0 = time.perf_counter()
-    try:
-        record_sim(settings, out, force=True)
-    except Exception as exc:  # a worker's error names its run
-        raise RuntimeError(f"capture of {key} failed: {exc}") from exc
-    return key, time.perf_counter() - t0
+    record_sim(settings, out, force=True)  # a partial file of a killed run is replaced
+    return {"key": key, "seconds": time.perf_counter() - t0}
 
 
 def run_captures(
-    items: Sequence[CaptureItem], jobs: int, log: Callable[[str], None]
+    items: Sequence[CaptureItem], executor: ExecutorSettings, log: Callable[[str], None]
 ) -> dict[str, Path]:
-    """Record every (key, settings, output) not already there; key → path."""
+    """Record every (key, settings, output) not already there on ``executor``; key → path.
+
+    A failed run does not stop the others: they finish and are kept, then
+    :class:`TasksFailed` names the failed ones (a re-run records only those)."""
     todo, paths = [], {}
     for key, settings, out in items:
         run_id = settings.to_config().run_id()  # a bad configuration fails before any process
@@ -54,13 +60,29 @@ def run_captures(
         if is_done(out, run_id):
             log(f"  {key}: reusing {out}")
         else:
-            todo.append((key, settings, out))
+            todo.append((key, (key, settings, str(out))))
     if not todo:
         return paths
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=max(1, min(jobs, len(todo))), mp_context=ctx) as pool:
-        futures = [pool.submit(_record, *item) for item in todo]
-        for done, fut in enumerate(as_completed(futures), 1):
-            key, secs = fut.result()
-            log(f"  [{done}/{len(todo)}] {key} recorded in {secs:.0f} s")
+    finished = 0
+
+    def done(outcome: TaskOutcome) -> None:
+        nonlocal finished
+        finished += 1
+        if outcome.error is None:
+            secs = outcome.result["seconds"] if outcome.result else float("nan")
+            log(f"  [{finished}/{len(todo)}] {outcome.key} recorded in {secs:.0f} s")
+        else:
+            log(f"  [{finished}/{len(todo)}] {outcome.key} FAILED: {outcome.error}")
+
+    outcomes = run_tasks(
+        _record,
+        todo,
+        executor.executor_settings(),
+        done,
+        log,
+        shared_paths=[items[0][2].parent],
+    )
+    report = failure_report(outcomes, "simulated run")
+    if report:
+        raise TasksFailed(report)
     return paths

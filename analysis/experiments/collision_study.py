@@ -16,7 +16,6 @@ configuration (same recording id) and completed is reused.
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from analysis.collision import CollisionSettings, collision
 from analysis.experiments.captures import CaptureItem, run_captures
 from avdm.registry import parse_model_spec
 from capture.sim import SimSettings
+from contract.executors import ExecutorSettings
 
 PAPER_NOTE = (
     "Paper: 229, 432 and 233 avoidances in three 30-min phases (TF 0, TF 3, TF 3 with the "
@@ -91,26 +91,27 @@ def run_phases(
     minutes: float,
     seeds: list[int],
     folder: Path,
-    jobs: int,
+    executor: ExecutorSettings,
     log: Callable[[str], None],
 ) -> dict[str, Path]:
-    """Record every (phase, seed) in parallel processes, reusing finished ones; key → path."""
-    return run_captures(phase_items(phases, minutes, seeds, folder), jobs, log)
+    """Record every (phase, seed) on the executor, reusing finished ones; key → path."""
+    return run_captures(phase_items(phases, minutes, seeds, folder), executor, log)
 
 
 @dataclasses.dataclass(frozen=True)
-class CollisionStudySettings:
-    """``vdc-analyse collision-study``: phase length, detector, the adjusted phase's overrides."""
+class CollisionStudySettings(ExecutorSettings):
+    """``vdc-analyse collision-study``: phase length, detector, the adjusted phase's overrides;
+    the runs go to the executor (``executor``, ``jobs``, ``scheduler``)."""
 
     minutes: float = 30.0
     detector: str = "lgmd-plus-arena"
     adjusted: str = "t_ffi=30"
     seed: int = 1  # the first seed
     seeds: int = 5  # runs per phase, for the mean and 95 % interval of each figure
-    jobs: int = dataclasses.field(default_factory=lambda: max(1, os.cpu_count() or 1))
     false_alarm_m: float = 0.30
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.seeds < 1:
             raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
         parse_model_spec(self.detector)  # a bad detector fails before anything runs
@@ -146,7 +147,7 @@ def collision_study(
         f"{settings.adjusted or '(none)'}"
     )
     seeds = seed_list(settings.seed, settings.seeds)
-    recs = run_phases(phases, settings.minutes, seeds, out / "recordings", settings.jobs, say)
+    recs = run_phases(phases, settings.minutes, seeds, out / "recordings", settings, say)
     res = collision(
         [str(p) for p in recs.values()],
         CollisionSettings(false_alarm_m=settings.false_alarm_m),

@@ -39,7 +39,6 @@ from analysis.experiments.approach import ApproachConfig, plot_approach, run_app
 from analysis.experiments.captures import CaptureItem, run_captures
 from analysis.experiments.collision_study import phase_items, seed_list, study_phases
 from analysis.experiments.sweep import SweepConfig, monotonicity, paper_cells, plot_paper, run_sweep
-from analysis.parquet_io import read_metadata, write_parquet
 from analysis.profile import (
     ProfileSettings,
     plot_overview,
@@ -62,6 +61,8 @@ from analysis.stats import (
 )
 from analysis.tables import SummarySettings, build_tables, summary_rows
 from capture.sim import SimSettings
+from contract.executors import ExecutorSettings
+from contract.parquet_io import read_metadata, write_parquet
 
 # the calibrated decoder (deg/s) and the released code's decoding (the paper's units)
 CALIBRATED, RELEASED = "avdm", "avdm-released-units"
@@ -77,9 +78,10 @@ PROFILE_CONDITIONS = (
 
 
 @dataclasses.dataclass(frozen=True)
-class ReproduceSettings:
+class ReproduceSettings(ExecutorSettings):
     """``vdc-analyse reproduce``: durations and repeats; ``quick`` finishes in minutes, the
-    default is the paper's. ``make(quick, **overrides)`` applies the quick durations first."""
+    default is the paper's. ``make(quick, **overrides)`` applies the quick durations first.
+    The simulated runs go to the executor (``executor``, ``jobs``, ``scheduler``)."""
 
     quick: bool = False
     profile_minutes: float = 30.0
@@ -88,7 +90,6 @@ class ReproduceSettings:
     sweep_duration_s: float = 1.0
     seed: int = 1  # the first seed
     seeds: int = 5  # runs per closed-loop condition (the paper's claims are tested across them)
-    jobs: int = 2
     detector: str = "lgmd-plus-arena"
     adjusted: str = "t_ffi=30"
 
@@ -107,10 +108,9 @@ class ReproduceSettings:
         return cls(quick=False, **{k: v for k, v in kw.items() if v is not None})
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.seeds < 1:
             raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
-        if self.jobs < 1:
-            raise ValueError(f"--jobs must be at least 1, got {self.jobs}")
 
     @property
     def seed_list(self) -> list[int]:
@@ -672,11 +672,11 @@ def reproduce(
     phases = study_phases(plan.detector, plan.adjusted)
     log(
         f"recording {len(PROFILE_CONDITIONS)} profiling conditions and {len(phases)} collision "
-        f"phases x {plan.seeds} seeds ({plan.jobs} in parallel)"
+        f"phases x {plan.seeds} seeds ({plan.where()})"
     )
     items = profile_items(plan, rec_dir / "profiling")
     items += phase_items(phases, plan.collision_minutes, plan.seed_list, rec_dir / "collision")
-    paths = run_captures(items, plan.jobs, log)
+    paths = run_captures(items, plan, log)
 
     log("SF-TF sweep")
     cfg = SweepConfig(duration_s=plan.sweep_duration_s)

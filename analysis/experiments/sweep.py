@@ -345,7 +345,7 @@ def sweep(
 ) -> SweepResult:
     """``vdc-analyse sweep`` (paper Fig. 3). With ``out``: ``sweep.parquet``,
     ``monotonicity.parquet`` and ``sweep.png``. ``progress`` is called once per cell."""
-    from analysis.parquet_io import write_parquet
+    from contract.parquet_io import write_parquet
 
     config = settings.stimulus
     name = canonical_name(settings.model)

@@ -10,8 +10,8 @@ import polars as pl
 import pytest
 
 from analysis.cli import main
-from analysis.parquet_io import read_metadata
 from avdm.calibration_store import lookup_calibration
+from contract.parquet_io import read_metadata
 from tests.helpers import assert_one_line_error, run_cli
 
 SWEEP_COLUMNS = [

@@ -9,10 +9,10 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.parquet_io import read_metadata
 from analysis.rrd_reader import Recording
 from analysis.tables import distance_to_wall_along
 from capture.recorder import Recorder
+from contract.parquet_io import read_metadata
 from tests.helpers import assert_one_line_error, run_cli, start_long_capture
 
 FRAMES_COLUMNS = [

@@ -10,7 +10,9 @@
   ``pip install "vdc[dask]"``.
 
 Tasks are module-level functions with small, picklable arguments (paths, not arrays) that
-write their own outputs and return a small dict (reference/distributed.md §1).
+write their own outputs and return a small dict (reference/distributed.md §1). Both sides use
+this module: ``vdc-analyse batch`` and the closed-loop campaigns (``collision-study``,
+``reproduce``, ``vdc-capture sweep``).
 """
 
 from __future__ import annotations
@@ -61,6 +63,23 @@ class ExecutorSettings:
                     "nor an existing scheduler file"
                 )
 
+    def executor_settings(self) -> ExecutorSettings:
+        """Just where tasks run (a command's settings may carry more fields)."""
+        return ExecutorSettings(self.executor, self.jobs, self.scheduler)
+
+    def where(self) -> str:
+        """Where tasks run, for people: "2 local processes", "Dask at tcp://...", ..."""
+        if self.scheduler:
+            return f"Dask at {self.scheduler}"
+        if self.executor == "dask":
+            return f"a local Dask cluster of up to {self.jobs} worker(s)"
+        return f"up to {self.jobs} local process(es)"
+
+
+class TasksFailed(Exception):
+    """Some tasks of a campaign failed (the others finished and kept their outputs); the
+    command ends with exit status 1 and this message."""
+
 
 def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
     """The client, and the local cluster it runs on when vdc started one (else None)."""
@@ -72,9 +91,20 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
         ) from None
     if settings.scheduler:
         s = settings.scheduler
-        if s.startswith(("tcp://", "tls://", "inproc://")):
-            return Client(s, timeout="10s"), None
-        return Client(scheduler_file=str(Path(s).expanduser()), timeout="10s"), None
+        try:
+            if s.startswith(("tcp://", "tls://", "inproc://")):
+                client = Client(s, timeout="10s")
+            else:
+                client = Client(scheduler_file=str(Path(s).expanduser()), timeout="10s")
+        except OSError as exc:  # unreachable, refused, or TLS without certificates
+            raise ValueError(f"cannot reach the Dask scheduler {s}: {exc}") from None
+        try:
+            # workers running another vdc, Python or pickle library would fail obscurely later
+            client.get_versions(check=True)
+        except Exception as exc:
+            client.close()
+            raise ValueError(f"the Dask cluster at {s} does not match this client: {exc}") from None
+        return client, None
     # our own cluster: loopback only (a Dask port runs pickled code as the user), processes
     # with one thread each (the models' Python loops hold the GIL)
     cluster = LocalCluster(
@@ -114,21 +144,40 @@ class TaskOutcome:
     error: str | None
 
 
+def check_shared_paths(client: Any, paths: Sequence[str | Path]) -> None:
+    """Every Dask worker sees ``paths`` (tasks pass paths, not data: recordings and outputs
+    must be on a filesystem every worker mounts at the same place)."""
+    for path in paths:
+        seen = client.run(os.path.exists, str(Path(path).resolve()))
+        blind = sorted(w for w, ok in seen.items() if not ok)
+        if blind:
+            raise ValueError(
+                f"{len(blind)} of {len(seen)} Dask worker(s) cannot see {path} (e.g. {blind[0]}): "
+                "recordings and --out must be on a filesystem shared by every worker"
+            )
+
+
 def run_tasks(
     fn: Callable[..., dict[str, Any]],
     tasks: Sequence[tuple[str, tuple]],
     settings: ExecutorSettings,
     on_done: Callable[[TaskOutcome], None] | None = None,
     log: Callable[[str], None] | None = None,
+    shared_paths: Sequence[str | Path] = (),
 ) -> list[TaskOutcome]:
     """Run ``fn(*args)`` for every ``(key, args)`` in ``tasks``; a task that raises is an
     outcome with its error and does not stop the others. Futures are dropped as they finish
-    (a held Dask future is recomputed if its worker dies)."""
+    (a held Dask future is recomputed if its worker dies). On Dask, ``shared_paths`` (e.g.
+    the first input and the output folder) are checked on every worker first."""
     outcomes: dict[str, TaskOutcome] = {}
     todo = list(tasks)
     restarted = False
     while todo:
-        with open_executor(settings, len(todo)) as (ex, _client):
+        with open_executor(settings, len(todo)) as (ex, client):
+            if client is not None:
+                check_shared_paths(client, shared_paths)
+                if log is not None and settings.scheduler is None:
+                    log(f"local Dask cluster on 127.0.0.1, dashboard {client.dashboard_link}")
             pending = {ex.submit(fn, *args): key for key, args in todo}
             broken: list[str] = []
             for fut in cf.as_completed(list(pending)):
@@ -155,3 +204,16 @@ def run_tasks(
                     on_done(outcomes[k])
         restarted = restarted or bool(broken)
     return [outcomes[k] for k, _ in tasks if k in outcomes]
+
+
+def failure_report(outcomes: Sequence[TaskOutcome], what: str = "task") -> str | None:
+    """One message naming every failed task, or None when all finished."""
+    bad = [o for o in outcomes if o.error is not None]
+    if not bad:
+        return None
+    listed = "; ".join(f"{o.key}: {o.error}" for o in bad[:5])
+    more = f" (and {len(bad) - 5} more)" if len(bad) > 5 else ""
+    return (
+        f"{len(bad)} of {len(outcomes)} {what}(s) failed: {listed}{more}; the finished ones "
+        "are kept and a re-run retries only the failed"
+    )
