@@ -8,7 +8,13 @@ import math
 import sys
 from collections.abc import Sequence
 
-from avdm.cli_support import OneLineParser, UserError, fail, positive_float
+from avdm.cli_support import (
+    OneLineParser,
+    UserError,
+    add_executor_options,
+    fail,
+    positive_float,
+)
 from avdm.registry import describe_models
 from capture.colias_link import LinkLost
 
@@ -149,6 +155,31 @@ def cmd_video(args: argparse.Namespace) -> int:
         f"{100 * cal['rms_rel_error']:.1f} % RMS); {rec.size_mb:.1f} MB, {rec.wall_time_s:.1f} s)"
     )
     return rec.exit_status
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from capture.sweep import CaptureSweepSettings, capture_sweep
+
+    where = {k: getattr(args, k) for k in ("executor", "jobs", "scheduler")}
+    settings = CaptureSweepSettings(
+        grid=tuple(args.grid), force=args.force, **{k: v for k, v in where.items() if v is not None}
+    )
+    total = len(settings.runs())
+    # disable=None: a bar on terminals, silence in pipes and CI logs
+    with tqdm(total=total, desc="sweep", unit="run", disable=True if args.quiet else None) as bar:
+        res = capture_sweep(settings, args.out, progress=bar.update, log=_stderr)
+    ran = len(res.outcomes) - len(res.failures)
+    print(
+        f"{res.planned} runs: {res.skipped} already done, {ran} recorded, "
+        f"{len(res.failures)} failed ({res.elapsed_s:.1f} s)"
+    )
+    if res.paths:
+        print(f"runs table: {res.paths[0]} ({res.runs.height} rows)")
+    for key, error in res.failures:
+        print(f"  FAILED {key}: {error}", file=sys.stderr)
+    return 1 if res.failures else 0
 
 
 def add_output_options(p: argparse.ArgumentParser, default: str) -> None:
@@ -431,6 +462,37 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_output_options(vi, "recordings/video-<name>-<hash>.rrd")
     vi.set_defaults(func=cmd_video)
+
+    sw = sub.add_parser(
+        "sweep",
+        help="a grid of simulated runs (a campaign), on all cores or a Dask cluster",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Record one simulated run per point of a grid over `vdc-capture sim`'s settings. "
+            "Each GRID item is FIELD=V1,V2,... (a sim flag name; integers also as A..B); "
+            "items with one value apply to every run, the runs are the product of the rest. "
+            "Every run is one task: it writes OUT/recordings/<key>.rrd, then its row "
+            "OUT/runs/<key>.parquet. A re-run records only runs without a row (--force: "
+            "all); a failed run is listed and does not stop the others (exit status 1). "
+            "At the end the rows become OUT/runs.parquet."
+        ),
+        epilog="examples:\n"
+        "  vdc-capture sweep behaviour=collision minutes=30 threshold=40,60,80 tf_hz=0,1,3 "
+        "seed=1..5\n"
+        "  vdc-capture sweep tf_hz=0,1,3 seed=1..3 minutes=5 --executor dask "
+        "--scheduler tcp://head:8786\n"
+        "  vdc-analyse batch results/capture-sweep/recordings/*.rrd --model avdm --model "
+        "avdm:beta=0.5\n\n"
+        "models:\n" + describe_models(),
+    )
+    sw.add_argument("grid", nargs="+", metavar="GRID", help="FIELD=V1,V2,... (see above)")
+    sw.add_argument(
+        "--out", default="results/capture-sweep", help="output folder (default: %(default)s)"
+    )
+    sw.add_argument("--force", action="store_true", help="record finished runs again")
+    sw.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_executor_options(sw, "simulated runs")
+    sw.set_defaults(func=cmd_sweep)
     return parser
 
 

@@ -1,0 +1,127 @@
+"""``vdc-capture sweep``: grid specs, one recording and one row per run, resume, failures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from analysis.rrd_reader import Recording
+from capture.sim import SimSettings
+from capture.sweep import CaptureSweepSettings, parse_grid
+from tests.helpers import assert_one_line_error, run_cli
+
+
+def test_grid_items_take_the_sim_settings_types() -> None:
+    grid = parse_grid(
+        ["tf-hz=0,1.5", "seed=2..4", "behaviour=collision", "adaptive=yes,no", "threshold=none"]
+    )
+    assert grid == {
+        "tf_hz": [0.0, 1.5],
+        "seed": [2, 3, 4],
+        "behaviour": ["collision"],
+        "adaptive": [True, False],
+        "threshold": [None],
+    }
+    # a TF schedule holds commas itself: schedules are separated by ';'
+    assert parse_grid(["tf_schedule=0:10s,3:10s;3:20s"]) == {
+        "tf_schedule": ["0:10s,3:10s", "3:20s"]
+    }
+
+
+@given(
+    tfs=st.lists(st.sampled_from([0.0, 0.5, 1.0, 3.0]), min_size=1, max_size=3, unique=True),
+    seeds=st.lists(st.integers(0, 50), min_size=1, max_size=3, unique=True),
+)
+def test_runs_are_the_product_of_the_varied_items_with_distinct_keys(tfs, seeds) -> None:
+    items = [f"tf_hz={','.join(map(str, tfs))}", f"seed={','.join(map(str, seeds))}", "minutes=1"]
+    runs = CaptureSweepSettings(grid=tuple(items), jobs=1).runs()
+    assert len(runs) == len(tfs) * len(seeds)
+    assert len({key for key, _, _ in runs}) == len(runs)
+    pairs = {(s.tf_hz, s.seed) for _, _, s in runs}
+    assert pairs == {(tf, seed) for tf in tfs for seed in seeds}
+    for _key, values, settings in runs:
+        assert settings == SimSettings(minutes=1.0, tf_hz=settings.tf_hz, seed=settings.seed)
+        # only what varies names the run
+        assert set(values) == {k for k, v in (("tf_hz", tfs), ("seed", seeds)) if len(v) > 1}
+
+
+def _sweep(out: Path, *args: str) -> object:
+    return run_cli("capture", "sweep", *args, "--out", str(out), "--quiet", "--jobs", "2")
+
+
+def test_a_collision_grid_records_every_run_once_and_resumes(tmp_path: Path) -> None:
+    grid = ("behaviour=collision", "minutes=0.1", "threshold=20,60", "tf_hz=0,3")
+    out = tmp_path / "campaign"
+    proc = _sweep(out, *grid)
+    assert proc.returncode == 0, proc.stderr
+    assert "4 runs: 0 already done, 4 recorded, 0 failed" in proc.stdout
+    runs = pl.read_parquet(out / "runs.parquet")
+    assert runs.height == 4 and runs["complete"].all()
+    assert set(zip(runs["threshold"], runs["tf_hz"], strict=True)) == {
+        (20.0, 0.0), (20.0, 3.0), (60.0, 0.0), (60.0, 3.0)
+    }  # fmt: skip
+    for row in runs.iter_rows(named=True):
+        settings = SimSettings(
+            behaviour="collision", minutes=0.1, threshold=row["threshold"], tf_hz=row["tf_hz"]
+        )
+        rec = Recording(row["recording"])
+        # the recording is the run a single `vdc-capture sim` with these settings makes
+        assert rec.recording_id == row["recording_id"] == settings.to_config().run_id()
+        props = rec.properties()
+        assert props["run_end"]["complete"]
+        assert props["collision"]["threshold"] == row["threshold"]
+        assert row["events_crash"] + row["events_avoidance"] > 0  # 6 s in a 1.4 m arena
+    # a re-run records nothing; a lost row is recorded again, alone; --force records all
+    again = _sweep(out, *grid)
+    assert "4 already done, 0 recorded" in again.stdout, again.stderr
+    lost = sorted((out / "runs").glob("*.parquet"))[0]
+    lost.unlink()
+    again = _sweep(out, *grid)
+    assert again.returncode == 0 and "3 already done, 1 recorded" in again.stdout
+    assert lost.exists() and pl.read_parquet(out / "runs.parquet").height == 4
+    forced = _sweep(out, *grid, "--force")
+    assert forced.returncode == 0 and "0 already done, 4 recorded" in forced.stdout
+    assert (
+        pl.read_parquet(out / "runs.parquet").drop("wall_time_s").equals(runs.drop("wall_time_s"))
+    )  # same seeds, same code, one machine: the same runs
+
+
+def test_a_failing_run_is_listed_and_the_others_finish(tmp_path: Path) -> None:
+    import cv2
+
+    good = tmp_path / "scene.png"
+    cv2.imwrite(str(good), (np.random.default_rng(0).random((60, 400)) * 255).astype(np.uint8))
+    junk = tmp_path / "junk.png"
+    junk.write_bytes(b"not an image")
+    out = tmp_path / "c"
+    grid = ("scene=natural", f"image={good},{junk}", "minutes=0.05", "tf_hz=3")
+    proc = _sweep(out, *grid)
+    assert proc.returncode == 1
+    assert "2 runs: 0 already done, 1 recorded, 1 failed" in proc.stdout
+    assert "not a readable image" in proc.stderr and "Traceback" not in proc.stderr
+    runs = pl.read_parquet(out / "runs.parquet")
+    assert runs["image"].to_list() == [str(good)]
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["bogus=1"], "'bogus' is not a vdc-capture sim setting"),
+        (["tf_hz=x"], "'x' is not a float"),
+        (["seed=5..1"], "runs backwards"),
+        (["tf_hz"], "expected FIELD=V1,V2"),
+        (["tf_hz=1", "tf_hz=2"], "given twice"),
+        (["tf_hz=-3"], "must be between 0 and 100 Hz"),
+        (["tf_hz=1", "--jobs", "0"], "--jobs must be at least 1"),
+        (["tf_hz=1", "--scheduler", "missing.json"], "neither tcp://"),
+    ],
+)
+def test_bad_grids_are_one_line_errors(tmp_path: Path, args: list[str], needle: str) -> None:
+    proc = run_cli("capture", "sweep", *args, "--out", str(tmp_path / "o"))
+    assert_one_line_error(proc, needle)
+    assert not (tmp_path / "o").exists()  # nothing recorded
