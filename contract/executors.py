@@ -96,8 +96,11 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
                 client = Client(s, timeout="10s")
             else:
                 client = Client(scheduler_file=str(Path(s).expanduser()), timeout="10s")
-        except OSError as exc:  # unreachable, refused, or TLS without certificates
-            raise ValueError(f"cannot reach the Dask scheduler {s}: {exc}") from None
+        except (OSError, TypeError, ValueError) as exc:
+            # unreachable or refused (OSError); tls:// without a client certificate in Dask's
+            # configuration (TypeError "TLS expects a ssl_context")
+            why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ValueError(f"cannot reach the Dask scheduler {s}: {why}") from None
         try:
             # workers running another vdc, Python or pickle library would fail obscurely later
             client.get_versions(check=True)

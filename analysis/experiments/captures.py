@@ -63,6 +63,7 @@ def run_captures(
             todo.append((key, (key, settings, str(out))))
     if not todo:
         return paths
+    log(f"recording {len(todo)} run(s) on {executor.where()}")
     finished = 0
 
     def done(outcome: TaskOutcome) -> None:
