@@ -75,7 +75,7 @@ def add_executor_options(p: argparse.ArgumentParser, what: str) -> None:
         "--executor",
         choices=("local", "dask"),
         default="local",
-        help=f"where the {what} run: local = a process pool on this machine (default); "
+        help=f"where the {what} are done: local = a process pool on this machine (default); "
         "dask = a Dask cluster (pip install -e '.[dask]')",
     )
     p.add_argument(

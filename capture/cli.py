@@ -477,8 +477,8 @@ def build_parser() -> argparse.ArgumentParser:
             "At the end the rows become OUT/runs.parquet."
         ),
         epilog="examples:\n"
-        "  vdc-capture sweep behaviour=collision minutes=30 threshold=40,60,80 tf_hz=0,1,3 "
-        "seed=1..5\n"
+        "  vdc-capture sweep behaviour=collision model=lgmd-plus-arena minutes=30 "
+        "threshold=40,56,80 tf_hz=0,1,3 seed=1..5\n"
         "  vdc-capture sweep tf_hz=0,1,3 seed=1..3 minutes=5 --executor dask "
         "--scheduler tcp://head:8786\n"
         "  vdc-analyse batch results/capture-sweep/recordings/*.rrd --model avdm --model "

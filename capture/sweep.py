@@ -3,7 +3,7 @@
 The grid is a few ``FIELD=V1,V2,...`` items over :class:`capture.sim.SimSettings` (the
 ``vdc-capture sim`` flags, same names), e.g.::
 
-    behaviour=collision minutes=30 threshold=40,60,80 tf_hz=0,1,3 seed=1..5
+    behaviour=collision model=lgmd-plus-arena minutes=30 threshold=40,56,80 tf_hz=0,1,3 seed=1..5
 
 Items with one value apply to every run; the runs are the product of the others (here
 3 x 3 x 5 = 45). Each run records ``OUT/recordings/<key>.rrd`` and then writes its row of the
