@@ -20,6 +20,8 @@ import pytest
 from contract.executors import ExecutorSettings, open_executor
 from tests.helpers import ROOT, run_cli, spawn
 
+pytestmark = pytest.mark.dask  # the dask extra's test group: pytest -m dask
+
 MODELS = ("avdm", "avdm:beta=0.5", "avdm:tw=6", "lgmd-plus")
 TABLES = ("frames", "model_outputs", "events", "summary")
 
