@@ -176,3 +176,26 @@ def test_bad_batch_input_is_one_line(tmp_path: Path, recordings) -> None:
         assert_one_line_error(proc, message)
     proc = run_cli("analysis", "summarise", str(tmp_path / "empty"))
     assert_one_line_error(proc, "has no finished batch parts")
+
+
+def test_dask_without_the_extra_says_how_to_install_it(recordings, tmp_path: Path) -> None:
+    """Dask is optional: without it (hidden from the import system here), --executor dask
+    is one line naming the extra, and the local pool still works."""
+    code = (
+        "import sys; sys.modules['distributed'] = None\n"  # `import distributed` now fails
+        "from analysis.cli import main\n"
+        "raise SystemExit(main(sys.argv[1:]))\n"
+    )
+    args = ["batch", str(recordings["tf3_a"]), "--model", "avdm"]
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *args, "--out", str(tmp_path / "d"), "--executor", "dask"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    last = proc.stderr.splitlines()[-1]
+    assert last.endswith('needs the optional extra: pip install -e ".[dask]"'), last
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *args, "--out", str(tmp_path / "l"), "--jobs", "1"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
