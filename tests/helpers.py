@@ -107,3 +107,30 @@ def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.P
     while time.time() < deadline and (not out.exists() or out.stat().st_size < min_bytes):
         time.sleep(0.2)
     return proc
+
+
+def kill_a_worker_mid_batch(
+    args: Sequence[str], out: Path, victim, total: int
+) -> tuple[int, str, str, int]:
+    """Run ``vdc-analyse batch ARGS --out OUT`` in the background and SIGKILL one worker as
+    soon as a task has finished (fewer than ``total``, so the run is still going).
+    ``victim(batch_pid)`` names the worker's pid (None: not known yet). Returns the batch's
+    exit status, stdout, stderr and the killed pid."""
+    proc = spawn(
+        [sys.executable, "-m", "analysis", "batch", *args, "--out", str(out)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    deadline = time.time() + 120
+    killed = None
+    while time.time() < deadline and proc.poll() is None:
+        finished = list(out.glob("parts/*/model=*/summary.parquet"))
+        pid = victim(proc.pid) if finished else None
+        if pid is not None:
+            assert len(finished) < total, "the run ended before a worker could be killed"
+            killed = pid
+            os.kill(killed, signal.SIGKILL)
+            break
+        time.sleep(0.05)
+    assert killed is not None, "no worker was seen with a finished part"
+    stdout, stderr = proc.communicate(timeout=300)
+    return proc.returncode, stdout, stderr, killed

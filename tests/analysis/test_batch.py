@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import polars as pl
 
 from analysis.batch import model_slug
-from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn
+from tests.helpers import ROOT, assert_one_line_error, kill_a_worker_mid_batch, run_cli
 
 MODELS = ("avdm", "avdm:beta=0.5", "lgmd-plus")
 TABLES = ("frames", "model_outputs", "events", "summary")
@@ -119,38 +117,14 @@ def test_a_killed_pool_worker_loses_no_finished_part(recordings, tmp_path: Path)
         a for m in ("avdm", "avdm:beta=0.5", "avdm:tw=6", "lgmd-plus") for a in ("--model", m)
     ]
     out = tmp_path / "b"
-    proc = spawn(
-        [
-            sys.executable,
-            "-m",
-            "analysis",
-            "batch",
-            *recs,
-            *models,
-            "--out",
-            str(out),
-            "--jobs",
-            "2",
-        ],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+    rc, stdout, stderr, _killed = kill_a_worker_mid_batch(
+        [*recs, *models, "--jobs", "2"],
+        out,
+        lambda batch_pid: next(iter(_pool_workers(batch_pid)), None),
+        total=12,
     )
-    deadline = time.time() + 120
-    killed = None
-    while time.time() < deadline and proc.poll() is None:
-        finished = list(out.glob("parts/*/model=*/summary.parquet"))
-        workers = _pool_workers(proc.pid)
-        if finished and workers:
-            killed = workers[0]
-            os.kill(killed, signal.SIGKILL)
-            break
-        time.sleep(0.05)
-    assert killed is not None, "no worker was seen with a finished part"
-    stdout, stderr = proc.communicate(timeout=300)
     # the broken pool's unfinished tasks ran in a fresh one: the run still completes
-    assert proc.returncode == 0, stderr
+    assert rc == 0, stderr
     assert "12 tasks: 0 already done, 12 ran, 0 failed" in stdout
     assert "a worker process died" in stderr
     for part in out.glob("parts/**/*.parquet"):
