@@ -38,6 +38,7 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, repeat_flags
+from contract.recording import camera_model_context, working_size
 
 METRICS = (
     "omega_dps",
@@ -62,7 +63,7 @@ DIS_PRESETS = {
 class ComplexitySettings:
     """``vdc-analyse complexity``: the AVDM variant and the baselines' few free choices."""
 
-    model: str = "avdm"
+    model: str = "avdm-natural"  # the AVDM variant valid on real footage (1-300 deg/s)
     flow_preset: str = "medium"  # DIS preset; "medium" keeps the finest scale on small frames
     jpeg_quality: int = 75
     zlib_level: int = 6
@@ -170,16 +171,29 @@ def complexity_of_frames(
     fov_deg: float,
     t_s: np.ndarray | None = None,
     settings: ComplexitySettings = ComplexitySettings(),
+    width: int | None = None,
 ) -> pl.DataFrame:
-    """Every metric per frame of ``frames`` (T, H, W) uint8 luma filmed at ``fps`` Hz (or at
-    the times ``t_s``, seconds) by a camera whose horizontal field of view is ``fov_deg``.
+    """Every metric per frame of ``frames`` (T, H, W) uint8 luma at the source's resolution,
+    filmed at ``fps`` Hz (or at the times ``t_s``, seconds) by a camera whose horizontal field
+    of view is ``fov_deg``.
+
+    The frames are area-resized to the working raster ``vdc-capture video`` uses (``width``
+    px, default the robot camera's angular pitch; ``contract.recording.working_size``) and the
+    models are built with the same context, so this function and ``vdc-capture video`` then
+    ``vdc-analyse complexity`` give the same readings for the same decoded frames.
 
     Returns a DataFrame: frame, t_s, repeat, then one column per metric (see the module)."""
     frames = np.asarray(frames)
     if frames.ndim != 3 or frames.dtype != np.uint8 or len(frames) == 0:
         raise ValueError(f"frames must be a non-empty (T, H, W) uint8 array, got {frames.shape}")
+    h, w = working_size(frames.shape[1], frames.shape[2], fov_deg, width)
+    if (h, w) != frames.shape[1:]:
+        frames = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
     t = np.arange(len(frames)) / fps if t_s is None else np.asarray(t_s, np.float64)
-    meter = ComplexityMeter(fps, fov_deg / frames.shape[2], settings)
+    # whole nanoseconds, as a recording stores times: the true-time scaling then matches
+    t = np.rint(t * 1e9) / 1e9
+    ctx = camera_model_context(w, h, fps, fov_deg)
+    meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx)
     repeat = repeat_flags(frames)
     out = meter.update(frames, t, repeat)
     return pl.DataFrame(

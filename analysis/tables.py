@@ -109,8 +109,18 @@ class LoadedRecording:
         return self.props.get("model", {}).get("name")
 
     def camera_context(self) -> dict[str, float | int]:
-        """The camera facts a model needs (fps, deg/px, texture row), from the recording's
-        properties, exactly as the capture derived them (contract.recording)."""
+        """The camera facts a model needs (fps, deg/px, texture row): the recording's own
+        ``model_context`` section, which the capture built its online model with, else (older
+        recordings) derived from its camera properties as the capture derived them."""
+        recorded = self.props.get("model_context", {})
+        if "fps" in recorded and "deg_per_px" in recorded:
+            ctx: dict[str, float | int] = {
+                "fps": float(recorded["fps"]),
+                "deg_per_px": float(recorded["deg_per_px"]),
+            }
+            if "texture_row" in recorded:
+                ctx["texture_row"] = int(recorded["texture_row"])
+            return ctx
         cam = self.props.get("camera", {})
         if "fps" not in cam:
             return {}

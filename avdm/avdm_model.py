@@ -47,6 +47,11 @@ CHANNELS = ("on", "off", "on_off_mean")
 POOLINGS = ("active_mean", "all_mean")
 # Michelson contrast below this counts as a uniform image: the decoding is undefined there.
 MIN_CONTRAST = 1e-6
+# The valid regime of the one-frame decoding (sin(π·TF/fps) ≈ π·TF/fps within ~10 %): an
+# estimated TF up to fps/4 (the calibration's band) and motion up to 1 px per frame, beyond
+# which natural texture decorrelates between neighbouring detectors (README, video section).
+VALID_TF_FRACTION = 0.25
+VALID_PX_PER_FRAME = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,8 +121,15 @@ AVDM_OUTPUTS: tuple[Output, ...] = (
     Output("contrast", "1", "Michelson contrast C of the frame that set the texture threshold"),
     Output("rbar_on", "intensity²", "temporal mean R̄ of the pooled ON detectors"),
     Output("rbar_off", "intensity²", "temporal mean R̄ of the pooled OFF detectors"),
+    Output(
+        "omega_valid",
+        "1",
+        "1 where the estimated temporal frequency ω̂/(λ̂·deg/px) stays under fps/4 and the "
+        "estimated motion under 1 px per frame (the decoding's linear regime), after warm-up",
+    ),
 )
 OUTPUT_NAMES = tuple(o.name for o in AVDM_OUTPUTS)
+LAYER_OUTPUT_NAMES = OUTPUT_NAMES[:6]  # what the layers compute; omega_valid derives from them
 
 _CHANNEL_CODE = {"on": 0, "off": 1, "on_off_mean": 2}
 
@@ -360,7 +372,8 @@ class Avdm:
                 f"frame dtype changed from {self._dtype} to {frames.dtype} (intensity scale "
                 "would change); call reset() first"
             )
-        out = np.empty((frames.shape[0], len(AVDM_OUTPUTS)), dtype=np.float64)
+        seen = int(self._counter[0])
+        k_out = np.empty((frames.shape[0], 6), dtype=np.float64)
         _avdm_kernel(
             frames,
             self._cfg,
@@ -372,9 +385,28 @@ class Avdm:
             self._nbuf,
             self._held,
             self._counter,
-            out,
+            k_out,
         )
+        out = np.empty((frames.shape[0], len(AVDM_OUTPUTS)), dtype=np.float64)
+        out[:, :6] = k_out
+        out[:, 6] = self._omega_valid(k_out, seen)
         return out
+
+    def _omega_valid(self, out: np.ndarray, seen: int) -> np.ndarray:
+        """The ``omega_valid`` column for rows of ``out`` whose first frame is ``seen``."""
+        p = self.params
+        omega, lam, contrast = out[:, 0], out[:, 1], out[:, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tf_hz = omega / (lam * p.deg_per_px)
+        px_per_frame = omega / (p.fps * p.deg_per_px)
+        warm = np.arange(seen, seen + len(out)) + 1 >= p.tw
+        ok = (
+            warm
+            & (contrast >= MIN_CONTRAST)
+            & (tf_hz <= VALID_TF_FRACTION * p.fps)
+            & (px_per_frame <= VALID_PX_PER_FRAME)
+        )
+        return ok.astype(np.float64)
 
     def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
         """Process ``frames`` (T, H, W), uint8 or float on [0, 1].

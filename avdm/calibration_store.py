@@ -28,13 +28,30 @@ def shipped_calibrations() -> tuple[dict[str, Any], ...]:
     return tuple(json.loads(text)["calibrations"])
 
 
-def lookup_calibration(fps: float, deg_per_px: float) -> dict[str, Any] | None:
-    """The shipped entry whose fps and deg/px match (to 1e-6 relative), or None."""
+# Parameters that never change a calibration fit: the decoding constants themselves, the camera
+# (keyed separately, to 1e-9), the texture row (the calibration gratings are uniform down
+# every column, so every row sees the same pattern) and the preferred direction (the gratings
+# drift in it, so a mirrored model meets mirrored stimuli: the same fit).
+NOT_DYNAMICS = frozenset({"a", "b", "fps", "deg_per_px", "texture_row", "direction"})
+
+
+def dynamics(params: Any) -> dict[str, Any]:
+    """The parameters of ``params`` that change the model's dynamics, hence its calibration:
+    every field but the decoding constants, the camera and the texture row."""
+    return {k: v for k, v in params.to_dict().items() if k not in NOT_DYNAMICS}
+
+
+def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any] | None:
+    """The shipped entry whose fps and deg/px match (to 1e-6 relative) and, if ``params`` is
+    given, whose model dynamics equal those of ``params``; or None."""
+    want = None if params is None else dynamics(params)
     for entry in shipped_calibrations():
         if math.isclose(entry["fps"], fps, rel_tol=1e-6) and math.isclose(
             entry["deg_per_px"], deg_per_px, rel_tol=1e-6
         ):
-            return entry
+            have = {k: v for k, v in entry["model_params"].items() if k not in NOT_DYNAMICS}
+            if want is None or (entry.get("model", "avdm") == "avdm" and have == want):
+                return entry
     return None
 
 
@@ -60,36 +77,56 @@ def cache_dir() -> Path:
     return Path(base) / "vdc"
 
 
-def calibration_key(fps: float, deg_per_px: float) -> dict[str, Any]:
+def calibration_key(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any]:
     from avdm import __version__
+    from avdm.avdm_model import AvdmParams
 
-    return {
+    kind = "avdm" if params is None or isinstance(params, AvdmParams) else "avdm-multiscale"
+    key: dict[str, Any] = {
         "fps": float(f"{fps:.9g}"),
         "deg_per_px": float(f"{deg_per_px:.9g}"),
         "size_hw": list(CAL_SIZE),
-        "contrasts": list(CAL_CONTRASTS),
-        "model": "avdm",
+        "model": kind,
         "vdc_version": __version__,
     }
+    if key["model"] == "avdm":
+        key["contrasts"] = list(CAL_CONTRASTS)
+    if params is not None:
+        key["dynamics"] = dynamics(params)
+    return key
 
 
 def _cache_path(key: dict[str, Any]) -> Path:
     digest = hashlib.sha1(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
-    return cache_dir() / "calibrations" / f"avdm-{key['fps']:g}Hz-{digest}.json"
+    return cache_dir() / "calibrations" / f"{key['model']}-{key['fps']:g}Hz-{digest}.json"
 
 
 def calibration_for(
-    fps: float, deg_per_px: float, progress: Callable[[], None] | None = None
+    fps: float,
+    deg_per_px: float,
+    progress: Callable[[], None] | None = None,
+    params: Any = None,
 ) -> dict[str, Any]:
-    """The decoding calibration for this camera: shipped, cached, or fitted now and cached.
+    """The decoding calibration for this camera and these model dynamics: shipped, cached, or
+    fitted now and cached.
 
-    The entry carries ``a``, ``b``, the fit's quality (``r2``, ``rms_rel_error``,
-    ``max_rel_error``, ``n_points``) and ``source``: ``shipped``, ``cache`` or ``fitted``.
-    ``progress`` is called once per grating cell of a new fit."""
-    shipped = lookup_calibration(fps, deg_per_px)
-    if shipped is not None:
-        return {**shipped, "source": "shipped"}
-    key = calibration_key(fps, deg_per_px)
+    ``params`` (an ``AvdmParams`` or ``AvdmMultiScaleParams``; default: the default AVDM)
+    says which model and which dynamics: a variant that changes ``beta``, ``tw``, thresholds
+    or any other parameter but the decoding constants gets a fit of its own, so its output is
+    honest deg/s. The entry carries ``a``, ``b``, the fit's quality (``r2``,
+    ``rms_rel_error``, ``max_rel_error``, ``n_points``) and ``source``: ``shipped``, ``cache``
+    or ``fitted``. ``progress`` is called once per stimulus of a new fit."""
+    from avdm.avdm_model import AvdmParams
+
+    if params is None:
+        params = AvdmParams(fps=fps, deg_per_px=deg_per_px)
+    params = params.replace(fps=fps, deg_per_px=deg_per_px, a=None, b=None)
+    multiscale = not isinstance(params, AvdmParams)
+    if not multiscale:
+        shipped = lookup_calibration(fps, deg_per_px, params)
+        if shipped is not None:
+            return {**shipped, "source": "shipped"}
+    key = calibration_key(fps, deg_per_px, params)
     path = _cache_path(key)
     try:
         entry = json.loads(path.read_text(encoding="utf-8"))
@@ -97,11 +134,14 @@ def calibration_for(
             return {**entry, "source": "cache", "cache_file": str(path)}
     except (OSError, ValueError):
         pass  # absent or unreadable: fit again
-    from avdm.calibration import fit_decoding
-    from avdm.registry import make_params
+    if multiscale:
+        from avdm.calibration import fit_multiscale
 
-    params = make_params("avdm:a=1,b=1", fps=fps, deg_per_px=deg_per_px)
-    fit = fit_decoding(params, size=CAL_SIZE, contrasts=CAL_CONTRASTS, progress=progress)
+        fit = fit_multiscale(params, size=CAL_SIZE, progress=progress)
+    else:
+        from avdm.calibration import fit_decoding
+
+        fit = fit_decoding(params, size=CAL_SIZE, contrasts=CAL_CONTRASTS, progress=progress)
     entry = {"key": key, **key, **fit.to_dict()}
     try:  # a cache that cannot be written only costs a fit next time
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -13,7 +13,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from avdm.avdm_model import AVDM_OUTPUTS, MIN_CONTRAST, OUTPUT_NAMES, AvdmParams
+from avdm.avdm_model import AVDM_OUTPUTS, LAYER_OUTPUT_NAMES, MIN_CONTRAST, AvdmParams
 from avdm.base import Output, check_frames, run_by_steps
 
 
@@ -143,7 +143,7 @@ class AvdmReference:
         omega = decode(lam, motion, self._contrast, p.a, p.b, p.contrast_term)  # type: ignore[arg-type]
         self._t += 1
         values = (omega, lam, motion, self._contrast, r_on, r_off)
-        return dict(zip(OUTPUT_NAMES, values, strict=True))
+        return dict(zip(LAYER_OUTPUT_NAMES, values, strict=True))
 
     def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
-        return run_by_steps(self.step, frames, OUTPUT_NAMES)
+        return run_by_steps(self.step, frames, LAYER_OUTPUT_NAMES)

@@ -13,6 +13,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from avdm.avdm_model import Avdm, AvdmParams
+from avdm.avdm_multiscale import AvdmMultiScale, AvdmMultiScaleParams
 from avdm.base import Model, Params
 from avdm.calibration_store import calibration_for
 from avdm.lgmd import LgmdColias, LgmdPlus
@@ -37,11 +38,12 @@ class Variant:
 
 
 def _complete_avdm(params: Params) -> Params:
-    assert isinstance(params, AvdmParams)
+    assert isinstance(params, AvdmParams | AvdmMultiScaleParams)
     if params.a is not None and params.b is not None:
         return params
-    # shipped, else cached, else fitted now (once per camera; see calibration_store)
-    cal = calibration_for(params.fps, params.deg_per_px)
+    # shipped, else cached, else fitted now: once per camera and per set of dynamics
+    # (a variant with another beta or tw gets a fit of its own; see calibration_store)
+    cal = calibration_for(params.fps, params.deg_per_px, params=params)
     return params.replace(
         a=params.a if params.a is not None else cal["a"],
         b=params.b if params.b is not None else cal["b"],
@@ -54,6 +56,11 @@ def _as_is(params: Params) -> Params:
 
 KINDS: dict[str, Kind] = {
     "avdm": Kind(AvdmParams, lambda p, n: Avdm(p, n), _complete_avdm),  # type: ignore[arg-type]
+    "avdm-multiscale": Kind(
+        AvdmMultiScaleParams,
+        lambda p, n: AvdmMultiScale(p, n),  # type: ignore[arg-type]
+        _complete_avdm,
+    ),
     "lgmd-plus": Kind(LgmdPlusParams, lambda p, n: LgmdPlus(p, n), _as_is),  # type: ignore[arg-type]
     "lgmd-colias": Kind(LgmdColiasParams, lambda p, n: LgmdColias(p, n), _as_is),  # type: ignore[arg-type]
 }
@@ -75,6 +82,12 @@ VARIANTS: dict[str, Variant] = {
         {"a": 100.0, "b": 1.0, "contrast_term": False},
         "AVDM decoded as the released code does, 100·λ̂·√R̄ with no contrast term: relative "
         "units, not deg/s, the units the paper's 'AVDM > 100' counts were set in",
+    ),
+    "avdm-natural": Variant(
+        "avdm-multiscale",
+        {},
+        "AVDM for real footage: multi-scale, direction-symmetric correlators, texture pooled "
+        "over the field; valid 1-300 deg/s at 25-30 fps (default for video and complexity)",
     ),
     "lgmd-plus": Variant("lgmd-plus", {}, "LGMD+ collision detector, released defaults"),
     "lgmd-plus-arena": Variant(

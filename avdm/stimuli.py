@@ -159,16 +159,17 @@ def resize_image(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         raise ValueError(f"an image must be 2-D with at least 1x2 px, got shape {img.shape}")
     h, w = _check_size(size)
 
-    def axis_matrix(n_in: int, n_out: int) -> np.ndarray:
-        # weights (n_out, n_in): overlap of output cells with input cells on [0, 1]
-        edges_in = np.linspace(0.0, 1.0, n_in + 1)
-        edges_out = np.linspace(0.0, 1.0, n_out + 1)
-        lo = np.maximum(edges_out[:-1, None], edges_in[None, :-1])
-        hi = np.minimum(edges_out[1:, None], edges_in[None, 1:])
-        weights = np.clip(hi - lo, 0.0, None)
-        return weights / weights.sum(axis=1, keepdims=True)
+    return _area_matrix(img.shape[0], h) @ img @ _area_matrix(img.shape[1], w).T
 
-    return axis_matrix(img.shape[0], h) @ img @ axis_matrix(img.shape[1], w).T
+
+def _area_matrix(n_in: int, n_out: int) -> np.ndarray:
+    """Area-averaging weights (n_out, n_in): overlap of output cells with input cells."""
+    edges_in = np.linspace(0.0, 1.0, n_in + 1)
+    edges_out = np.linspace(0.0, 1.0, n_out + 1)
+    lo = np.maximum(edges_out[:-1, None], edges_in[None, :-1])
+    hi = np.minimum(edges_out[1:, None], edges_in[None, 1:])
+    weights = np.clip(hi - lo, 0.0, None)
+    return weights / weights.sum(axis=1, keepdims=True)
 
 
 def drifting_image(
@@ -257,3 +258,60 @@ def natural_scene(
         direction=direction,
         dtype=dtype,
     )
+
+
+def panned_image(
+    image: np.ndarray,
+    *,
+    size: tuple[int, int],
+    fov_deg: float,
+    image_deg: float,
+    fps: float,
+    omega_dps: float,
+    n_frames: int,
+    direction: int = 1,
+    dtype: type | np.dtype = np.uint8,
+) -> np.ndarray:
+    """A camera panning across a photograph at a known angular velocity, frames (T, H, W).
+
+    ``image`` (2-D, 0–255 or 0–1 scale kept as given, then clipped) is a panorama whose full
+    width spans ``image_deg`` degrees and wraps around; the camera sees ``fov_deg`` of it
+    (its centre rows, square pixels) and samples that window onto ``size`` (H, W) by area
+    averaging, like a real sensor's pixels. The view turns by ``omega_dps · n / fps`` degrees at frame
+    n (toward +x of the image for ``direction`` +1: the scene then moves toward −x on the
+    sensor). Sub-pixel positions are exact: a Fourier shift of the panorama's rows.
+
+    Intensities: an image on 0–255 gives uint8 levels directly; pass ``dtype`` float32 or
+    float64 to keep them unrounded (divided by 255)."""
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim != 2:
+        raise ValueError(f"an image must be 2-D (grayscale), got shape {img.shape}")
+    h, w = _check_size(size)
+    n = _n_frames(fps, None, n_frames)
+    if direction not in (1, -1):
+        raise ValueError(f"direction must be 1 or -1, got {direction}")
+    if not (0 < fov_deg < image_deg):
+        raise ValueError(f"the camera's field of view ({fov_deg}°) must be under {image_deg}°")
+    src_h, src_w = img.shape
+    src_dpp = image_deg / src_w
+    win_w = max(2, round(fov_deg / src_dpp))
+    win_h = max(1, round(win_w * h / w))
+    if win_h > src_h:
+        raise ValueError(
+            f"the image is {src_h} px high but the camera's window needs {win_h} rows: "
+            "use a wider field of view in the image or a taller image"
+        )
+    r0 = (src_h - win_h) // 2
+    spectrum = np.fft.rfft(img[r0 : r0 + win_h], axis=1)
+    k = np.fft.rfftfreq(src_w) * src_w
+    rows, cols = _area_matrix(win_h, h), _area_matrix(win_w, w).T
+    out = np.empty((n, h, w), dtype=np.dtype(dtype))
+    for i in range(n):
+        shift = direction * omega_dps * i / fps / src_dpp  # source px the view has turned
+        moved = np.fft.irfft(spectrum * np.exp(2j * np.pi * k * shift / src_w), n=src_w, axis=1)
+        view = rows @ moved[:, :win_w] @ cols
+        if np.dtype(dtype) == np.uint8:
+            out[i] = np.clip(np.rint(view), 0, 255).astype(np.uint8)
+        else:
+            out[i] = np.clip(view / 255.0, 0.0, 1.0)
+    return out

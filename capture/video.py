@@ -32,8 +32,12 @@ import numpy as np
 from avdm.true_time import repeat_flags
 from capture.device import Batch, Event
 from capture.run import RecordResult
+from contract.recording import camera_model_context, working_size
 
-ROBOT_DEG_PER_PX = 70.0 / 99.0  # the angular pitch the models were calibrated for
+# The AVDM variant valid on real footage (1-300 deg/s at 25-30 fps); the faithful `avdm`
+# reads low and differs by direction above ~1-2 px of motion per frame on natural texture.
+VIDEO_MODEL = "avdm-natural"
+
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,7 +48,7 @@ class VideoSettings:
     fov_deg: float  # the camera's horizontal field of view, degrees
     fps: float | None = None  # image sequences (required) and cameras that do not report one
     width: int | None = None  # working width, px (default: the robot camera's deg/px)
-    model: str = "avdm"
+    model: str = VIDEO_MODEL
     repeat_tol: float = 0.5  # mean |difference| (8-bit levels) under which a frame repeats
     max_repeats: int = 3  # longer still stretches are a still scene, not repeats
     batch_frames: int = 128
@@ -66,9 +70,8 @@ class VideoSettings:
         return "images" if "%" in self.source else "file"
 
     def working_size(self, src_h: int, src_w: int) -> tuple[int, int]:
-        """(H, W) of the frames the models see."""
-        w = self.width or max(8, round(self.fov_deg / ROBOT_DEG_PER_PX))
-        return max(4, round(w * src_h / src_w)), w
+        """(H, W) of the frames the models see (``contract.recording.working_size``)."""
+        return working_size(src_h, src_w, self.fov_deg, self.width)
 
 
 class _Reader:
@@ -347,6 +350,15 @@ def recording_id(settings: VideoSettings) -> str:
     return f"video-{safe}-{hashlib.sha1(text.encode()).hexdigest()[:8]}"
 
 
+def _calibrated(model: Any) -> Any:
+    """The params whose calibration the recording reports (the AVDM kinds), else None."""
+    from avdm.avdm_model import AvdmParams
+    from avdm.avdm_multiscale import AvdmMultiScaleParams
+
+    p = model.params
+    return p if isinstance(p, AvdmParams | AvdmMultiScaleParams) else None
+
+
 def record_video(
     settings: VideoSettings,
     out: str | Path | None = None,
@@ -373,9 +385,14 @@ def record_video(
     path = Path(out) if out else Path("recordings") / f"{rid}.rrd"
     check_output_path(path, force)
     h, w = device.working_size()
-    deg_per_px = settings.fov_deg / w
-    cal = calibration_for(device.fps, deg_per_px, progress=calibration_progress)
-    model = TrueTimeModel(make_model(settings.model, fps=device.fps, deg_per_px=deg_per_px))
+    # the one context every model of this recording is built with, online and offline
+    context = camera_model_context(w, h, device.fps, settings.fov_deg)
+    deg_per_px = float(context["deg_per_px"])
+    built = make_model(settings.model, **context)
+    cal = calibration_for(
+        device.fps, deg_per_px, progress=calibration_progress, params=_calibrated(built)
+    )
+    model = TrueTimeModel(built)
     live = spawn_viewer() if spawn else live_url
     recorder = Recorder(
         path, rid, blueprint=video_blueprint(model.name, model.outputs), live_url=live
@@ -403,6 +420,7 @@ def record_video(
                 "hfov_deg": settings.fov_deg,
             },
             "model": {"name": model.name, "true_time": True},
+            "model_context": dict(context),
             "model_params": {k: v for k, v in model.params.to_dict().items() if v is not None},
             "calibration": {
                 k: cal[k]

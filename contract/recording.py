@@ -78,6 +78,8 @@ PROPERTY_SECTIONS = {
     "provenance": "package versions, CPU model and Numba's compile target",
     "video": "video sources: path, codec, nominal fps, source size, rotation, FOV",
     "calibration": "the AVDM decoding fit in use: a, b, r2, rms_rel_error, source",
+    "model_context": "what every model of this recording is built with: fps, deg_per_px, "
+    "texture_row (capture, recomputation and complexity read this one section)",
     "run_end": "written last: frames, stop_reason, complete",
 }
 
@@ -97,6 +99,21 @@ def variant_path(model_name: str, output: str) -> str:
 
 def event_path(kind: str) -> str:
     return f"{EVENTS}/{kind}"
+
+
+# The angular pitch the models were designed and calibrated for: the robot camera's 70° over
+# 99 px. Video is resized to it (``working_size``) unless a width is given.
+ROBOT_DEG_PER_PX = 70.0 / 99.0
+
+
+def working_size(
+    src_h: int, src_w: int, fov_deg: float, width: int | None = None
+) -> tuple[int, int]:
+    """(H, W) of the frames the models see for a source of ``src_h`` x ``src_w`` px whose
+    horizontal field of view is ``fov_deg``: ``width`` if given, else the robot camera's
+    angular pitch; the height keeps the aspect ratio (at least 4 rows)."""
+    w = width or max(8, round(fov_deg / ROBOT_DEG_PER_PX))
+    return max(4, round(w * src_h / src_w)), w
 
 
 def camera_model_context(
