@@ -31,7 +31,8 @@ What this variant keeps from the AVDM, and what it changes, layer by layer:
 6. decoding, per scale: ``ω̂_k = a · (√(R̄_k/S̄_k) · f_k · deg_per_px · fps)^b`` deg/s, with
    (a, b) fitted by least squares on drifting 1/f clutter (``avdm.calibration``);
 7. scale choice, coarse to fine: start at the coarsest scale that has texture (RMS spatial
-   contrast ≥ ``min_texture`` 8-bit levels), then move to each finer scale while the current
+   contrast ≥ ``min_texture`` 8-bit levels and ≥ ``min_texture_ratio`` of the finer scales'
+   largest: a picture without coarse structure leaves a coarse scale only noise), then move to each finer scale while the current
    estimate moves less than ``v_low`` of its samples per frame there, blending linearly up to
    ``v_high``: the finest scale still inside the correlators' linear range wins (more samples,
    less noise), and a fine scale that is too slow to follow the motion is never trusted.
@@ -40,7 +41,7 @@ Valid range (measured by ``benchmarks/bench_avdm_truth.py``, real photographs pa
 speeds, 25 and 30 fps, the robot camera's pitch and a video pitch, with and without H.264):
 1–300 deg/s, monotonic in speed, both directions alike; see the README's video section for the
 figures. ``omega_valid`` is 0 during the warm-up, on frames without texture at any scale, and
-when the estimate exceeds what the coarsest scale can follow.
+when the estimate moves more than one sample per frame at the coarsest usable scale.
 
 Intensity scale: uint8 frames are divided by 255; float frames are taken as on [0, 1].
 """
@@ -81,7 +82,10 @@ class AvdmMultiScaleParams(Params):
     min_width_px: int = 24  # the pyramid halves a scale while it stays this wide [px]
     v_low: float = 0.35  # below this shift per frame [samples] a finer scale is trusted fully
     v_high: float = 0.7  # above it a scale is not trusted [samples per frame]
-    min_texture: float = 2.5  # a scale needs this RMS spatial contrast [8-bit levels]
+    min_texture: float = 1.0  # a scale needs this RMS spatial contrast [8-bit levels]
+    # ... and this share of the largest RMS contrast of the finer scales: a texture with no
+    # coarse structure (bricks, a fine grating) leaves coarse scales with only codec noise
+    min_texture_ratio: float = 0.2
     a: float | None = None  # decoding gain
     b: float | None = None  # decoding exponent
 
@@ -89,7 +93,7 @@ class AvdmMultiScaleParams(Params):
         def bad(name: str, why: str) -> ValueError:
             return ValueError(f"avdm-natural parameter {name}={getattr(self, name)!r}: {why}")
 
-        for name in ("fps", "deg_per_px", "max_dps", "min_texture"):
+        for name in ("fps", "deg_per_px", "max_dps", "min_texture", "min_texture_ratio"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise bad(name, "must be a positive number")
@@ -137,6 +141,9 @@ def scale_geometry(p: AvdmMultiScaleParams, h: int, w: int) -> np.ndarray:
 
 
 _FASTMATH = {"reassoc", "contract", "nsz"}
+# A reading is valid while the coarsest usable scale moves at most one sample per frame: the
+# one-frame correlators' limit (the faithful avdm's flag uses the same 1 px per frame).
+VALID_SHIFT = 1.0
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -211,7 +218,8 @@ def _binomial(src, sh, sw, dst, dh, dw, hole, dec, tmp):
 def _multiscale_kernel(frames, cfg, geo, lev, prev, qon, qoff, tmp, rbuf, sbuf, counter, out):
     """Advance the model over ``frames`` (T, H, W); write (T, 6) outputs.
 
-    cfg (f64): scale, a, b, fps, deg_per_px, v_low, v_high, min_texture (8-bit levels), tw
+    cfg (f64): scale, a, b, fps, deg_per_px, v_low, v_high, min_texture (8-bit levels), tw,
+    min_texture_ratio
     geo (K, 7) i64: see ``scale_geometry``; lev/prev/qon/qoff: flat f32 buffers of all scales;
     rbuf/sbuf (K, tw) f64 rings; counter (1,) i64 frames seen."""
     n_frames, h, w = frames.shape
@@ -222,6 +230,8 @@ def _multiscale_kernel(frames, cfg, geo, lev, prev, qon, qoff, tmp, rbuf, sbuf, 
     v_low, v_high = cfg[5], cfg[6]
     floor = (cfg[7] / 255.0) ** 2 * 2.0  # S̄ of a field whose RMS contrast is min_texture
     tw = int(cfg[8])
+    rel2 = cfg[9] * cfg[9]  # min_texture_ratio, on S̄ (a squared contrast)
+    usable = np.zeros(geo.shape[0], dtype=np.bool_)
     raw = np.empty(n_px, dtype=np.float32)
     row_on = np.empty(w, dtype=np.float32)
     row_off = np.empty(w, dtype=np.float32)
@@ -239,17 +249,7 @@ def _multiscale_kernel(frames, cfg, geo, lev, prev, qon, qoff, tmp, rbuf, sbuf, 
         for k in range(1, n_sc):
             ph, pw, po = geo[k - 1, 0], geo[k - 1, 1], geo[k - 1, 2]
             kh, kw, ko = geo[k, 0], geo[k, 1], geo[k, 2]
-            _binomial(
-                lev[po : po + ph * pw],
-                ph,
-                pw,
-                lev[ko : ko + kh * kw],
-                kh,
-                kw,
-                geo[k, 4],
-                geo[k, 5],
-                tmp,
-            )
+            _binomial(lev[po : po + ph * pw], ph, pw, lev[ko : ko + kh * kw], kh, kw, geo[k, 4], geo[k, 5], tmp)
         if t == 0:  # history before the first frame = the first frame: no onset flash
             for x in range(lev.shape[0]):
                 prev[x] = lev[x]
@@ -308,11 +308,13 @@ def _multiscale_kernel(frames, cfg, geo, lev, prev, qon, qoff, tmp, rbuf, sbuf, 
             ratio[k] = math.sqrt(r_m / s_m) if s_m > 0.0 and r_m > 0.0 else 0.0
             nu = ratio[k] * geo[k, 6] * dpp * fps
             om[k] = a * nu**b if nu > 0.0 else 0.0
+        finest_max = 0.0
         top = -1
-        for k in range(n_sc - 1, -1, -1):
-            if sb[k] >= floor:
+        for k in range(n_sc):
+            usable[k] = sb[k] >= floor and sb[k] >= rel2 * finest_max
+            finest_max = max(finest_max, sb[k])
+            if usable[k]:
                 top = k
-                break
         valid = 1.0 if t + 1 >= tw else 0.0
         if top < 0:  # no texture anywhere: nothing to measure
             out[i, 0] = 0.0
@@ -324,10 +326,10 @@ def _multiscale_kernel(frames, cfg, geo, lev, prev, qon, qoff, tmp, rbuf, sbuf, 
             continue
         est = om[top]
         used = top
-        if est / (geo[top, 6] * dpp * fps) > v_high:
+        if est / (geo[top, 6] * dpp * fps) > VALID_SHIFT:
             valid = 0.0  # faster than the coarsest scale can follow
         for k in range(top - 1, -1, -1):
-            if sb[k] < floor:
+            if not usable[k]:
                 continue
             shift = est / (geo[k, 6] * dpp * fps)
             wgt = (v_high - shift) / (v_high - v_low)
@@ -403,6 +405,7 @@ class AvdmMultiScale:
                 p.v_high,
                 p.min_texture,
                 p.tw,
+                p.min_texture_ratio,
             ],
             dtype=np.float64,
         )

@@ -122,6 +122,8 @@ def calibration_for(
         params = AvdmParams(fps=fps, deg_per_px=deg_per_px)
     params = params.replace(fps=fps, deg_per_px=deg_per_px, a=None, b=None)
     multiscale = not isinstance(params, AvdmParams)
+    if not multiscale:  # the row does not change the fit; the calibration raster is 72 rows
+        params = params.replace(texture_row=AvdmParams.texture_row)
     if not multiscale:
         shipped = lookup_calibration(fps, deg_per_px, params)
         if shipped is not None:

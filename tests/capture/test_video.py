@@ -72,9 +72,15 @@ def clips(tmp_path_factory) -> dict[str, Path]:
     }
 
 
+def online_model(rec: Recording) -> str:
+    """The model the capture ran (video's default: avdm-natural)."""
+    return rec.properties()["model"]["name"]
+
+
 def mean_omega(path: Path, out: Path) -> tuple[float, object]:
     res = record_video(VideoSettings(str(path), FOV), out)
-    omega = Recording(out).model_outputs("avdm", ["omega_dps"])["omega_dps"]
+    rec = Recording(out)
+    omega = rec.model_outputs(online_model(rec), ["omega_dps"])["omega_dps"]
     return float(np.mean(omega[40:])), res
 
 
@@ -130,7 +136,7 @@ def test_variable_frame_rate_timestamps_and_dropped_frames(tmp_path: Path) -> No
     assert res.dropped == 12 == int(timing[:, 1].sum())
     assert (rec.events()["kind"] == "dropped_frames").sum() == 12
     # true time: the gaps do not read as faster motion (one frame's motion over two intervals)
-    omega = rec.model_outputs("avdm", ["omega_dps"])["omega_dps"]
+    omega = rec.model_outputs(online_model(rec), ["omega_dps"])["omega_dps"]
     assert abs(np.mean(omega[40:]) - TRUTH_DPS) / TRUTH_DPS < res.calibration["max_rel_error"]
 
 
@@ -138,7 +144,7 @@ def test_recomputation_of_a_video_recording_equals_the_online_outputs(clips, tmp
     out = tmp_path / "d.rrd"
     record_video(VideoSettings(str(clips["doubled"]), FOV), out)
     logged = tables([out]).model_outputs
-    again = tables([out], TablesSettings(models=("avdm",))).model_outputs
+    again = tables([out], TablesSettings(models=(online_model(Recording(out)),))).model_outputs
     assert np.array_equal(logged["omega_dps"].to_numpy(), again["omega_dps"].to_numpy())
 
 
@@ -263,7 +269,7 @@ def test_profile_and_compare_take_a_video_recording(clips, tmp_path: Path) -> No
     summary = pl.read_parquet(tmp_path / "p" / "profile_summary.parquet")
     assert summary.height == 1 and summary["n_frames"][0] == 130  # 150 - 20 warm-up
     assert summary["near_wall_mean"].is_nan().all()  # no poses: nothing near a wall, not 0
-    assert len(list((tmp_path / "p").glob("profile_*_video_avdm.png"))) == 1
+    assert len(list((tmp_path / "p").glob("profile_*_video_avdm-natural.png"))) == 1
     proc = run_cli(
         "analysis", "compare", str(rec), "--model", "avdm", "--model", "avdm-on",
         "--out", str(tmp_path / "c"),
