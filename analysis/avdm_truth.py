@@ -21,6 +21,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from fractions import Fraction
+from itertools import pairwise
 from pathlib import Path
 
 import cv2
@@ -48,7 +49,9 @@ def photograph(name: str) -> np.ndarray:
     try:
         from skimage import data
     except ImportError:  # pragma: no cover - the test extra installs it
-        raise ValueError("the validation photographs need scikit-image: pip install scikit-image")
+        raise ValueError(
+            "the validation photographs need scikit-image: pip install scikit-image"
+        ) from None
     img = getattr(data, name)()
     if img.ndim == 3:  # BT.601 luma, as a video decoder's gray conversion gives
         img = img[..., :3] @ np.array([0.299, 0.587, 0.114])
@@ -116,7 +119,7 @@ def dis_speed_dps(frames: np.ndarray, fps: float, deg_per_px: float) -> np.ndarr
     """Mean |horizontal DIS flow| (OpenCV, preset medium, as ``complexity``'s ``flow_dps``) per
     frame pair, deg/s: (T−1,)."""
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    px = [float(np.abs(dis.calc(a, b, None)[..., 0]).mean()) for a, b in zip(frames, frames[1:])]
+    px = [float(np.abs(dis.calc(a, b, None)[..., 0]).mean()) for a, b in pairwise(frames)]
     return np.asarray(px) * deg_per_px * fps
 
 
@@ -223,8 +226,14 @@ def summarise(table: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
     ):
         rho = spearman(g["omega_true_dps"].to_numpy(), g["omega_dps"].to_numpy())
         groups.append(
-            {"reader": reader, "image": image, "fps": fps, "pitch": pitch, "codec": codec,
-             "spearman": rho}
+            {
+                "reader": reader,
+                "image": image,
+                "fps": fps,
+                "pitch": pitch,
+                "codec": codec,
+                "spearman": rho,
+            }
         )
     rho_t = pl.DataFrame(groups)
     per_reader = (

@@ -19,6 +19,7 @@ from avdm.cli_support import (
 )
 from avdm.registry import describe_models
 from contract.executors import TasksFailed
+from contract.recording import FOOTAGE_MODEL
 
 PROG = "vdc-analyse"
 
@@ -633,7 +634,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cx.add_argument("recordings", nargs="+", metavar="REC", help=".rrd recordings")
     add_out(cx, "results/complexity")
-    cx.add_argument("--model", default="avdm", help="the AVDM variant (default: %(default)s)")
+    cx.add_argument(
+        "--model",
+        default=FOOTAGE_MODEL,
+        help="the AVDM variant (default: %(default)s, valid 1-300 deg/s on real footage; "
+        "avdm is the paper's, valid up to about 1 px of motion per frame)",
+    )
     cx.add_argument(
         "--flow-preset",
         choices=["ultrafast", "fast", "medium"],

@@ -38,7 +38,7 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, repeat_flags
-from contract.recording import camera_model_context, working_size
+from contract.recording import FOOTAGE_MODEL, camera_model_context, working_size
 
 METRICS = (
     "omega_dps",
@@ -63,7 +63,7 @@ DIS_PRESETS = {
 class ComplexitySettings:
     """``vdc-analyse complexity``: the AVDM variant and the baselines' few free choices."""
 
-    model: str = "avdm-natural"  # the AVDM variant valid on real footage (1-300 deg/s)
+    model: str = FOOTAGE_MODEL  # the AVDM variant valid on real footage (1-300 deg/s)
     flow_preset: str = "medium"  # DIS preset; "medium" keeps the finest scale on small frames
     jpeg_quality: int = 75
     zlib_level: int = 6

@@ -118,8 +118,9 @@ class LoadedRecording:
                 "fps": float(recorded["fps"]),
                 "deg_per_px": float(recorded["deg_per_px"]),
             }
-            if "texture_row" in recorded:
-                ctx["texture_row"] = int(recorded["texture_row"])
+            for key in ("texture_row", "width_px", "height_px"):
+                if key in recorded:
+                    ctx[key] = int(recorded[key])
             return ctx
         cam = self.props.get("camera", {})
         if "fps" not in cam:

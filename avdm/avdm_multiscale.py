@@ -32,7 +32,8 @@ What this variant keeps from the AVDM, and what it changes, layer by layer:
    (a, b) fitted by least squares on drifting 1/f clutter (``avdm.calibration``);
 7. scale choice, coarse to fine: start at the coarsest scale that has texture (RMS spatial
    contrast ≥ ``min_texture`` 8-bit levels and ≥ ``min_texture_ratio`` of the finer scales'
-   largest: a picture without coarse structure leaves a coarse scale only noise), then move to each finer scale while the current
+   largest: a picture without coarse structure leaves a coarse scale only noise), then
+   move to each finer scale while the current
    estimate moves less than ``v_low`` of its samples per frame there, blending linearly up to
    ``v_high``: the finest scale still inside the correlators' linear range wins (more samples,
    less noise), and a fine scale that is too slow to follow the motion is never trusted.
@@ -77,6 +78,9 @@ class AvdmMultiScaleParams(Params):
 
     fps: float = 30.0  # frame rate [Hz]
     deg_per_px: float = 70.0 / 99.0  # horizontal angle of one pixel [deg]
+    # the raster: the scales (pyramid, then à trous) and so the calibration depend on it
+    width_px: int = 99
+    height_px: int = 72
     tw: int = 10  # temporal window of R̄ and S̄ [frames]
     max_dps: float = 300.0  # fastest motion the coarsest scale must follow [deg/s]
     min_width_px: int = 24  # the pyramid halves a scale while it stays this wide [px]
@@ -97,6 +101,10 @@ class AvdmMultiScaleParams(Params):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise bad(name, "must be a positive number")
+        if not (isinstance(self.width_px, int) and 4 <= self.width_px <= 100_000):
+            raise bad("width_px", "must be an integer from 4 to 100000")
+        if not (isinstance(self.height_px, int) and 1 <= self.height_px <= 100_000):
+            raise bad("height_px", "must be an integer from 1 to 100000")
         if not (isinstance(self.tw, int) and 1 <= self.tw <= 10_000):
             raise bad("tw", "must be an integer from 1 to 10000")
         if not (isinstance(self.min_width_px, int) and 4 <= self.min_width_px <= 100_000):
@@ -249,7 +257,8 @@ def _multiscale_kernel(frames, cfg, geo, lev, prev, qon, qoff, tmp, rbuf, sbuf, 
         for k in range(1, n_sc):
             ph, pw, po = geo[k - 1, 0], geo[k - 1, 1], geo[k - 1, 2]
             kh, kw, ko = geo[k, 0], geo[k, 1], geo[k, 2]
-            _binomial(lev[po : po + ph * pw], ph, pw, lev[ko : ko + kh * kw], kh, kw, geo[k, 4], geo[k, 5], tmp)
+            src, dst = lev[po : po + ph * pw], lev[ko : ko + kh * kw]
+            _binomial(src, ph, pw, dst, kh, kw, geo[k, 4], geo[k, 5], tmp)
         if t == 0:  # history before the first frame = the first frame: no onset flash
             for x in range(lev.shape[0]):
                 prev[x] = lev[x]
@@ -382,8 +391,12 @@ class AvdmMultiScale:
 
     def _allocate(self, h: int, w: int, dtype: np.dtype) -> None:
         p = self.params
-        if w < 4 or h < 1:
-            raise ValueError(f"frames of {h}x{w} px (HxW) are too small: need at least 1x4")
+        if (h, w) != (p.height_px, p.width_px):
+            raise ValueError(
+                f"frames of {h}x{w} px (HxW) but this avdm-natural is calibrated for "
+                f"{p.height_px}x{p.width_px}: build it for the frames' raster, e.g. "
+                "make_model(spec, **contract.recording.camera_model_context(W, H, fps, fov))"
+            )
         self._geo = scale_geometry(p, h, w)
         total = int(self._geo[-1, 2] + self._geo[-1, 0] * self._geo[-1, 1])
         self._lev = np.zeros(total, dtype=np.float32)

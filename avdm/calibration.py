@@ -216,8 +216,7 @@ def clutter_pans(
     speed; ``build(params)`` makes the model. Returns one response per (speed, seed)."""
     from avdm.stimuli import clutter_image, panned_image
 
-    h, w = size
-    fov = w * params.deg_per_px
+    fov = size[1] * params.deg_per_px
     warm = 2 * params.tw
     n = warm + max(30, round(params.fps))  # at least one second of readings
     out = []

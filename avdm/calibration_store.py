@@ -85,7 +85,9 @@ def calibration_key(fps: float, deg_per_px: float, params: Any = None) -> dict[s
     key: dict[str, Any] = {
         "fps": float(f"{fps:.9g}"),
         "deg_per_px": float(f"{deg_per_px:.9g}"),
-        "size_hw": list(CAL_SIZE),
+        "size_hw": list(CAL_SIZE)
+        if kind == "avdm"
+        else [params.height_px, params.width_px],  # type: ignore[union-attr]
         "model": kind,
         "vdc_version": __version__,
     }
@@ -139,7 +141,8 @@ def calibration_for(
     if multiscale:
         from avdm.calibration import fit_multiscale
 
-        fit = fit_multiscale(params, size=CAL_SIZE, progress=progress)
+        size = (params.height_px, params.width_px)  # its scales depend on the raster
+        fit = fit_multiscale(params, size=size, progress=progress)
     else:
         from avdm.calibration import fit_decoding
 

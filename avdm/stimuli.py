@@ -277,8 +277,8 @@ def panned_image(
     ``image`` (2-D, 0–255 or 0–1 scale kept as given, then clipped) is a panorama whose full
     width spans ``image_deg`` degrees and wraps around; the camera sees ``fov_deg`` of it
     (its centre rows, square pixels) and samples that window onto ``size`` (H, W) by area
-    averaging, like a real sensor's pixels. The view turns by ``omega_dps · n / fps`` degrees at frame
-    n (toward +x of the image for ``direction`` +1: the scene then moves toward −x on the
+    averaging, like a real sensor's pixels. The view turns by ``omega_dps · n / fps`` degrees
+    at frame n (toward +x of the image for ``direction`` +1: the scene then moves toward −x on the
     sensor). Sub-pixel positions are exact: a Fourier shift of the panorama's rows.
 
     Intensities: an image on 0–255 gives uint8 levels directly; pass ``dtype`` float32 or

@@ -90,7 +90,7 @@ def main() -> None:
         index=["image", "fps", "pitch", "codec", "omega_true_dps", "direction"],
         values="omega_dps",
     ).sort("image", "fps", "pitch", "codec", "omega_true_dps", "direction")
-    with pl.Config(tbl_rows=-1, tbl_cols=-1, float_precision=1, tbl_width_chars=200):
+    with pl.Config(tbl_rows=-1, tbl_cols=-1, float_precision=2, tbl_width_chars=200):
         print(wide)
         per_speed, per_reader = summarise(table)
         print("\nmedian |reading − truth| / truth per speed (over images, directions, fps,")

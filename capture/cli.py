@@ -17,6 +17,7 @@ from avdm.cli_support import (
 )
 from avdm.registry import describe_models
 from capture.colias_link import LinkLost
+from contract.recording import FOOTAGE_MODEL
 
 PROG = "vdc-capture"
 
@@ -446,7 +447,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         help="working width, px (default: fov / (70/99 deg), the robot camera's pitch)",
     )
-    vi.add_argument("--model", default="avdm", help="the model to run (default: %(default)s)")
+    vi.add_argument(
+        "--model",
+        default=FOOTAGE_MODEL,
+        help="the model to run (default: %(default)s, the AVDM valid 1-300 deg/s on real "
+        "footage; avdm is the paper's, valid up to about 1 px of motion per frame)",
+    )
     vi.add_argument(
         "--repeat-tol",
         type=_non_negative_float,

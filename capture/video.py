@@ -32,12 +32,7 @@ import numpy as np
 from avdm.true_time import repeat_flags
 from capture.device import Batch, Event
 from capture.run import RecordResult
-from contract.recording import camera_model_context, working_size
-
-# The AVDM variant valid on real footage (1-300 deg/s at 25-30 fps); the faithful `avdm`
-# reads low and differs by direction above ~1-2 px of motion per frame on natural texture.
-VIDEO_MODEL = "avdm-natural"
-
+from contract.recording import FOOTAGE_MODEL, camera_model_context, working_size
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,7 +43,7 @@ class VideoSettings:
     fov_deg: float  # the camera's horizontal field of view, degrees
     fps: float | None = None  # image sequences (required) and cameras that do not report one
     width: int | None = None  # working width, px (default: the robot camera's deg/px)
-    model: str = VIDEO_MODEL
+    model: str = FOOTAGE_MODEL
     repeat_tol: float = 0.5  # mean |difference| (8-bit levels) under which a frame repeats
     max_repeats: int = 3  # longer still stretches are a still scene, not repeats
     batch_frames: int = 128

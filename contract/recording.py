@@ -101,6 +101,11 @@ def event_path(kind: str) -> str:
     return f"{EVENTS}/{kind}"
 
 
+# The AVDM variant for real footage (valid 1-300 deg/s at 25-30 fps): the default model of
+# `vdc-capture video` and `vdc-analyse complexity`. The faithful `avdm` reads low and differs
+# by direction above about 1-2 px of motion per frame on natural texture.
+FOOTAGE_MODEL = "avdm-natural"
+
 # The angular pitch the models were designed and calibrated for: the robot camera's 70° over
 # 99 px. Video is resized to it (``working_size``) unless a width is given.
 ROBOT_DEG_PER_PX = 70.0 / 99.0
@@ -123,5 +128,13 @@ def camera_model_context(
     image centre) and the AVDM's texture row (the horizon row, H/2: the released code's row 2
     sees the dark room above the arena wall on the robot camera). The capture builds its
     online model from this, and analysis rebuilds the same model from the recorded camera
-    properties, so online and offline outputs agree bit for bit."""
-    return {"fps": fps, "deg_per_px": hfov_deg / width_px, "texture_row": height_px // 2}
+    properties, so online and offline outputs agree bit for bit. The raster (``width_px``,
+    ``height_px``) is part of it: the multi-scale AVDM's scales, hence its calibration, depend
+    on the frame size."""
+    return {
+        "fps": fps,
+        "deg_per_px": hfov_deg / width_px,
+        "texture_row": height_px // 2,
+        "width_px": width_px,
+        "height_px": height_px,
+    }

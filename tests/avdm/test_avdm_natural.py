@@ -39,7 +39,7 @@ def test_fast_kernel_matches_the_plain_reference(size) -> None:
     cell = Cell("coffee", 80.0, -1, 25.0, "robot" if size == (72, 99) else "video", "none")
     frames = cell_frames(cell, 30)
     fps, dpp = 25.0, 70.0 / size[1]
-    model = make_model("avdm-natural", fps=fps, deg_per_px=dpp)
+    model = make_model("avdm-natural", fps=fps, deg_per_px=dpp, width_px=size[1], height_px=size[0])
     fast = model.run(frames)
     ref = AvdmMultiScaleReference(model.params).run(frames)
     for key in MULTISCALE_OUTPUT_NAMES:
@@ -64,19 +64,18 @@ def test_avdm_natural_reads_true_speed_in_both_directions(image, speed, fps) -> 
 
 
 def test_faithful_avdm_holds_in_its_stated_range_and_fails_beyond_it() -> None:
-    """The README states the faithful avdm's range on natural footage at 25-30 fps: up to
-    about 1 px of motion per frame (here 10 deg/s = 0.47 px/frame at 30 fps). Beyond it the
-    reading falls although the speed rises: the reason avdm-natural exists."""
-    slow = {
-        d: measure_cell(Cell("astronaut", 10.0, d, 30.0, "robot", "h264"), ["avdm"])[0]
-        for d in (1, -1)
-    }
-    for d, row in slow.items():
-        assert abs(row["omega_dps"] - 10.0) / 10.0 < 0.6, (d, row["omega_dps"])
+    """The README states the faithful avdm's behaviour on natural footage at 25-30 fps: at
+    10 deg/s on the robot raster (0.47 px/frame) 80 % of readings lie within 0.25-2x the truth;
+    beyond about 1 px per frame the reading falls relative to the truth (median 0.13x at
+    160 deg/s) although the speed rises: the reason avdm-natural exists."""
+    for d in (1, -1):
+        row = measure_cell(Cell("astronaut", 10.0, d, 30.0, "robot", "h264"), ["avdm"])[0]
+        assert 0.25 < row["omega_dps"] / 10.0 < 2.0, (d, row["omega_dps"])
     fast = measure_cell(Cell("astronaut", 160.0, 1, 30.0, "robot", "h264"), ["avdm"])[0]
     mid = measure_cell(Cell("astronaut", 40.0, 1, 30.0, "robot", "h264"), ["avdm"])[0]
-    assert fast["omega_dps"] < 0.6 * 160.0  # reads far below the truth at 7.5 px/frame
+    assert fast["omega_dps"] < 0.6 * 160.0  # far below the truth at 7.5 px/frame
     assert fast["omega_dps"] / 160.0 < mid["omega_dps"] / 40.0
+    assert fast["valid_share"] < 1.0  # and its flag says so on some frames
 
 
 def test_omega_valid_marks_warm_up_and_textureless_frames(panned) -> None:
