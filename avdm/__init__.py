@@ -2,8 +2,10 @@
 
 * ``avdm.Avdm`` / ``avdm.AvdmParams``: the angular velocity decoding model (fast path);
 * ``avdm.reference.AvdmReference``: the same model written plainly (test oracle);
+* ``avdm.avdm_multiscale.AvdmMultiScale`` (variant ``avdm-natural``): the AVDM for real
+  footage, valid 1–300 deg/s at 25–30 fps; ``avdm.reference_multiscale`` is its oracle;
 * ``avdm.registry``: named variants and ``name:key=value`` overrides (``make_model``);
-* ``avdm.stimuli``: drifting gratings and natural scenes;
+* ``avdm.stimuli``: drifting gratings, natural scenes and a camera panning across a photograph;
 * ``avdm.calibration``: least-squares fit of the decoding constants (a, b).
 """
 

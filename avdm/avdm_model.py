@@ -17,6 +17,14 @@ Layer by layer (see ``avdm.reference`` for the same model written plainly, and
 8. decoding: ``ω̂ = a · λ̂^b · (1+C)/(2C) · √R̄`` deg/s (mean of the ON and OFF decodings by
    default).
 
+Valid range: drifting gratings and the arena's walls inside the calibration band (≥ 2 periods
+across, ≥ 4 px per period, TF ≤ fps/4) within 22 % (the shipped fits' worst cell). On natural
+footage at 25–30 fps the reading is not a speed (``benchmarks/bench_avdm_truth.py``: at 10 deg/s
+80 % of readings within 0.25–2× the truth; above about 1 px per frame it falls, median 0.13× at
+160 deg/s on the robot raster) and it differs by direction; use ``avdm-natural`` there. The
+``omega_valid`` output marks frames whose estimated TF exceeds fps/4 or whose estimated motion
+exceeds 1 px per frame.
+
 Intensity scale: every threshold is defined on intensities in [0, 1]. ``uint8`` frames are
 divided by 255; float frames are taken as already on [0, 1].
 

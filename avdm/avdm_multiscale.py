@@ -29,7 +29,8 @@ What this variant keeps from the AVDM, and what it changes, layer by layer:
    grating of period λ and amplitude A this is ∝ (A·π·s/λ)², so 1/√S̄ plays the role of
    λ̂·(1+C)/(2C) in the AVDM's decoding, estimated on every row and every scale;
 6. decoding, per scale: ``ω̂_k = a · (√(R̄_k/S̄_k) · f_k · deg_per_px · fps)^b`` deg/s, with
-   (a, b) fitted by least squares on drifting 1/f clutter (``avdm.calibration``);
+   (a, b) fitted by least squares on camera pans over 1/f clutter, per camera and raster
+   (``avdm.calibration.fit_multiscale``; the scales depend on the frame size);
 7. scale choice, coarse to fine: start at the coarsest scale that has texture (RMS spatial
    contrast ≥ ``min_texture`` 8-bit levels and ≥ ``min_texture_ratio`` of the finer scales'
    largest: a picture without coarse structure leaves a coarse scale only noise), then
@@ -38,11 +39,15 @@ What this variant keeps from the AVDM, and what it changes, layer by layer:
    ``v_high``: the finest scale still inside the correlators' linear range wins (more samples,
    less noise), and a fine scale that is too slow to follow the motion is never trusted.
 
-Valid range (measured by ``benchmarks/bench_avdm_truth.py``, real photographs panned at known
-speeds, 25 and 30 fps, the robot camera's pitch and a video pitch, with and without H.264):
-1–300 deg/s, monotonic in speed, both directions alike; see the README's video section for the
-figures. ``omega_valid`` is 0 during the warm-up, on frames without texture at any scale, and
-when the estimate moves more than one sample per frame at the coarsest usable scale.
+Valid range (``benchmarks/bench_avdm_truth.py``: 8 real photographs panned at 1–300 deg/s in
+both directions, 25 and 30 fps, the robot camera's pitch and a video pitch, raw and through
+H.264; 1,152 cells): median error ≤ 10 % at every speed from 1 to 300 deg/s, Spearman ρ ≥ 0.995
+against the truth on 7 of the 8 pictures, directions within 10 % on 99 % of cells; 34,000
+frames/s on 99×72 on one core (14.6× OpenCV's DIS flow). It fails on texture without coarse
+structure (a regular brick wall) moving more than about half its period per frame, which is
+ambiguous for any one-frame correlator. ``omega_valid`` is 0 during the warm-up, on frames
+without texture at any scale, and when the estimate moves more than one sample per frame at the
+coarsest usable scale.
 
 Intensity scale: uint8 frames are divided by 255; float frames are taken as on [0, 1].
 """

@@ -15,6 +15,7 @@ A cell's value is the mean over its frames after ``2·Tw`` warm-up frames.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -220,8 +221,10 @@ def clutter_pans(
     warm = 2 * params.tw
     n = warm + max(30, round(params.fps))  # at least one second of readings
     out = []
+    # a tall raster (a portrait video) needs a panorama tall enough for the camera's window
+    rows = max(CLUTTER_SIZE[0], math.ceil(VIEW_FRACTION * CLUTTER_SIZE[1] * size[0] / size[1]) + 2)
     for seed in seeds:
-        scene = (clutter_image(CLUTTER_SIZE, seed=seed) + 1.0) * 127.5
+        scene = (clutter_image((rows, CLUTTER_SIZE[1]), seed=seed) + 1.0) * 127.5
         for v in speeds_dps:
             frames = panned_image(
                 scene,

@@ -18,17 +18,18 @@ import argparse
 import os
 import sys
 import time
+from itertools import pairwise
 from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-import polars as pl  # noqa: E402
-from tqdm import tqdm  # noqa: E402
+import cv2
+import numpy as np
+import polars as pl
+from tqdm import tqdm
 
-from analysis.avdm_truth import (  # noqa: E402
+from analysis.avdm_truth import (
     FOV_DEG,
     IMAGES,
     VARIANTS,
@@ -39,8 +40,8 @@ from analysis.avdm_truth import (  # noqa: E402
     run_protocol,
     summarise,
 )
-from avdm.registry import make_model  # noqa: E402
-from contract.recording import camera_model_context  # noqa: E402
+from avdm.registry import make_model
+from contract.recording import camera_model_context
 
 
 def speed(pitch: str) -> list[str]:
@@ -60,7 +61,7 @@ def speed(pitch: str) -> list[str]:
         rates[spec] = len(frames) / (time.perf_counter() - t)
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     t = time.perf_counter()
-    for a, b in zip(frames, frames[1:]):
+    for a, b in pairwise(frames):
         dis.calc(a, b, None)
     rates["dis (reference)"] = (len(frames) - 1) / (time.perf_counter() - t)
     for k, v in rates.items():
@@ -95,9 +96,7 @@ def main() -> None:
         per_speed, per_reader = summarise(table)
         print("\nmedian |reading − truth| / truth per speed (over images, directions, fps,")
         print("pitches and codecs):")
-        print(
-            per_speed.pivot(on="reader", index="omega_true_dps", values="median_abs_rel_error")
-        )
+        print(per_speed.pivot(on="reader", index="omega_true_dps", values="median_abs_rel_error"))
     with pl.Config(tbl_cols=-1, float_precision=3, tbl_width_chars=200):
         print("\nper reader (asymmetry and ρ over 2-300 deg/s):")
         print(per_reader)

@@ -15,6 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from avdm.avdm_model import AvdmParams
 from avdm.base import Params
 from avdm.calibration import CalibrationResult, fit_decoding, valid_periods_px, valid_tfs_hz
 from avdm.calibration_store import CALIBRATION_FILE
@@ -128,9 +129,16 @@ class CalibrateSettings:
     def base_params(self) -> Params:
         """The model's params with a = b = 1 (the fit's starting point)."""
         sep = ":" if ":" not in self.model else ","
-        return make_params(
+        params = make_params(
             f"{self.model}{sep}a=1,b=1", fps=self.fps, deg_per_px=self.resolved_deg_per_px
         )
+        if not isinstance(params, AvdmParams):
+            raise ValueError(
+                f"calibrate fits the grating-calibrated AVDM (avdm and its variants); "
+                f"{self.model.split(':')[0]} is fitted on clutter automatically for each camera "
+                "on first use (avdm.calibration.fit_multiscale)"
+            )
+        return params
 
     def n_cells(self) -> int:
         w = self.size[1]
