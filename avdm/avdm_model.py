@@ -49,7 +49,7 @@ from typing import ClassVar
 import numba
 import numpy as np
 
-from avdm.base import Output, Params, check_frames
+from avdm.base import FrameStream, Output, Params
 
 CHANNELS = ("on", "off", "on_off_mean")
 POOLINGS = ("active_mean", "all_mean")
@@ -291,7 +291,7 @@ def _avdm_kernel(frames, cfg, icfg, hist, qhist, valid, rbuf, nbuf, held, counte
     counter[0] += n_frames
 
 
-class Avdm:
+class Avdm(FrameStream):
     """The AVDM as a stateful model (fast Numba path).
 
     >>> from avdm.registry import make_model
@@ -304,6 +304,8 @@ class Avdm:
     """
 
     outputs: ClassVar[tuple[Output, ...]] = AVDM_OUTPUTS
+    output_names: ClassVar[tuple[str, ...]] = OUTPUT_NAMES
+    min_width: ClassVar[int] = 2
 
     def __init__(self, params: AvdmParams, name: str = "avdm") -> None:
         if params.a is None or params.b is None:
@@ -329,20 +331,7 @@ class Avdm:
             ],
             dtype=np.int64,
         )
-        self._shape: tuple[int, int] | None = None
-        self._dtype: np.dtype | None = None
         self.reset()
-
-    def reset(self) -> None:
-        """Forget all history; the next frame is treated as the first."""
-        self._shape = None
-        self._dtype = None
-        self._counter = np.zeros(1, dtype=np.int64)
-
-    @property
-    def frames_seen(self) -> int:
-        """Number of frames processed since construction or the last ``reset``."""
-        return int(self._counter[0])
 
     def _allocate(self, h: int, w: int, dtype: np.dtype) -> None:
         p = self.params
@@ -353,8 +342,6 @@ class Avdm:
             )
         if w <= p.sd:
             raise ValueError(f"frames of width {w} px are too narrow for sd={p.sd}")
-        self._shape = (h, w)
-        self._dtype = dtype
         self._hist = np.zeros((p.photoreceptor_lag, h * w), dtype=np.float32)
         self._qhist = np.zeros((p.delay + 1, 2, h * w), dtype=np.float32)
         valid = np.ones((h, w), dtype=np.float32)
@@ -365,21 +352,7 @@ class Avdm:
         self._held = np.zeros(2, dtype=np.float64)
         self._cfg[0] = 1.0 / 255.0 if dtype == np.uint8 else 1.0
 
-    def _advance(self, frames: np.ndarray) -> np.ndarray:
-        _, h, w = frames.shape
-        if self._shape is None:
-            self._allocate(h, w, frames.dtype)
-        elif (h, w) != self._shape:
-            raise ValueError(
-                f"frame shape changed from {self._shape} to {(h, w)} (HxW); call reset() first"
-            )
-        elif frames.dtype != self._dtype and (frames.dtype == np.uint8) != (
-            self._dtype == np.uint8
-        ):
-            raise ValueError(
-                f"frame dtype changed from {self._dtype} to {frames.dtype} (intensity scale "
-                "would change); call reset() first"
-            )
+    def _kernel(self, frames: np.ndarray) -> np.ndarray:
         seen = int(self._counter[0])
         k_out = np.empty((frames.shape[0], 6), dtype=np.float64)
         _avdm_kernel(
@@ -415,21 +388,3 @@ class Avdm:
             & (px_per_frame <= VALID_PX_PER_FRAME)
         )
         return ok.astype(np.float64)
-
-    def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
-        """Process ``frames`` (T, H, W), uint8 or float on [0, 1].
-
-        Returns ``{output: (T,) float64}``.
-        """
-        frames = check_frames(frames, min_h=1, min_w=2)
-        out = self._advance(frames)
-        return {name: np.ascontiguousarray(out[:, c]) for c, name in enumerate(OUTPUT_NAMES)}
-
-    def step(self, frame: np.ndarray) -> dict[str, float]:
-        """Process one frame (H, W); return ``{output: float}``."""
-        arr = np.asarray(frame)
-        if arr.ndim != 2:
-            raise ValueError(f"a frame must have shape (H, W), got an array of shape {arr.shape}")
-        out = self._advance(check_frames(arr[None], min_h=1, min_w=2))
-        row = out[0]
-        return {name: float(row[c]) for c, name in enumerate(OUTPUT_NAMES)}

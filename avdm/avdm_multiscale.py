@@ -61,7 +61,7 @@ from typing import ClassVar
 import numba
 import numpy as np
 
-from avdm.base import Output, Params, check_frames
+from avdm.base import FrameStream, Output, Params
 
 MULTISCALE_OUTPUTS: tuple[Output, ...] = (
     Output("omega_dps", "deg/s", "decoded angular velocity ω̂ (finest trusted scale)"),
@@ -362,7 +362,7 @@ def _multiscale_kernel(frames, cfg, geo, lev, prev, qon, qoff, tmp, rbuf, sbuf, 
     counter[0] += n_frames
 
 
-class AvdmMultiScale:
+class AvdmMultiScale(FrameStream):
     """The multi-scale AVDM as a stateful model (see the module for the layers).
 
     >>> from avdm.registry import make_model
@@ -373,6 +373,8 @@ class AvdmMultiScale:
     """
 
     outputs: ClassVar[tuple[Output, ...]] = MULTISCALE_OUTPUTS
+    output_names: ClassVar[tuple[str, ...]] = MULTISCALE_OUTPUT_NAMES
+    min_width: ClassVar[int] = 4
 
     def __init__(self, params: AvdmMultiScaleParams, name: str = "avdm-natural") -> None:
         if params.a is None or params.b is None:
@@ -383,16 +385,6 @@ class AvdmMultiScale:
         self.name = name
         self.params = params
         self.reset()
-
-    def reset(self) -> None:
-        """Forget all history; the next frame is treated as the first."""
-        self._shape: tuple[int, int] | None = None
-        self._dtype: np.dtype | None = None
-        self._counter = np.zeros(1, dtype=np.int64)
-
-    @property
-    def frames_seen(self) -> int:
-        return int(self._counter[0])
 
     def _allocate(self, h: int, w: int, dtype: np.dtype) -> None:
         p = self.params
@@ -427,21 +419,8 @@ class AvdmMultiScale:
             ],
             dtype=np.float64,
         )
-        self._shape, self._dtype = (h, w), dtype
 
-    def _advance(self, frames: np.ndarray) -> np.ndarray:
-        _, h, w = frames.shape
-        if self._shape is None:
-            self._allocate(h, w, frames.dtype)
-        elif (h, w) != self._shape:
-            raise ValueError(
-                f"frame shape changed from {self._shape} to {(h, w)} (HxW); call reset() first"
-            )
-        elif (frames.dtype == np.uint8) != (self._dtype == np.uint8):
-            raise ValueError(
-                f"frame dtype changed from {self._dtype} to {frames.dtype} (intensity scale "
-                "would change); call reset() first"
-            )
+    def _kernel(self, frames: np.ndarray) -> np.ndarray:
         out = np.empty((frames.shape[0], len(MULTISCALE_OUTPUTS)), dtype=np.float64)
         _multiscale_kernel(
             frames,
@@ -458,16 +437,3 @@ class AvdmMultiScale:
             out,
         )
         return out
-
-    def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
-        """Process ``frames`` (T, H, W), uint8 or float on [0, 1]; ``{output: (T,) float64}``."""
-        out = self._advance(check_frames(frames, min_h=1, min_w=4))
-        return {n: np.ascontiguousarray(out[:, c]) for c, n in enumerate(MULTISCALE_OUTPUT_NAMES)}
-
-    def step(self, frame: np.ndarray) -> dict[str, float]:
-        """Process one frame (H, W); return ``{output: float}``."""
-        arr = np.asarray(frame)
-        if arr.ndim != 2:
-            raise ValueError(f"a frame must have shape (H, W), got an array of shape {arr.shape}")
-        row = self._advance(check_frames(arr[None], min_h=1, min_w=4))[0]
-        return {n: float(row[c]) for c, n in enumerate(MULTISCALE_OUTPUT_NAMES)}

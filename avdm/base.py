@@ -115,3 +115,62 @@ def check_frames(frames: np.ndarray, *, min_h: int = 1, min_w: int = 2) -> np.nd
             f"frames must be uint8 (0-255) or float32/float64 (0-1), got dtype {arr.dtype}"
         )
     raise ValueError(f"frames must be numeric images, got dtype {arr.dtype}")
+
+
+class FrameStream:
+    """What the stateful kernel models share: a stream of frames of one raster and one
+    intensity scale, counted; ``run`` and ``step`` on top of the subclass's ``_advance``.
+
+    A subclass sets ``output_names`` and ``min_width`` and implements ``_allocate(h, w,
+    dtype)`` (buffers for a new stream) and ``_kernel(frames) -> (T, n_outputs)``."""
+
+    output_names: ClassVar[tuple[str, ...]] = ()
+    min_width: ClassVar[int] = 2
+
+    def reset(self) -> None:
+        """Forget all history; the next frame is treated as the first."""
+        self._shape: tuple[int, int] | None = None
+        self._dtype: np.dtype | None = None
+        self._counter = np.zeros(1, dtype=np.int64)
+
+    @property
+    def frames_seen(self) -> int:
+        """Number of frames processed since construction or the last ``reset``."""
+        return int(self._counter[0])
+
+    def _allocate(self, h: int, w: int, dtype: np.dtype) -> None:  # pragma: no cover
+        raise NotImplementedError
+
+    def _kernel(self, frames: np.ndarray) -> np.ndarray:  # pragma: no cover
+        raise NotImplementedError
+
+    def _advance(self, frames: np.ndarray) -> np.ndarray:
+        _, h, w = frames.shape
+        if self._shape is None:
+            self._allocate(h, w, frames.dtype)
+            self._shape, self._dtype = (h, w), frames.dtype
+        elif (h, w) != self._shape:
+            raise ValueError(
+                f"frame shape changed from {self._shape} to {(h, w)} (HxW); call reset() first"
+            )
+        elif (frames.dtype == np.uint8) != (self._dtype == np.uint8):
+            raise ValueError(
+                f"frame dtype changed from {self._dtype} to {frames.dtype} (intensity scale "
+                "would change); call reset() first"
+            )
+        return self._kernel(frames)
+
+    def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
+        """Process ``frames`` (T, H, W), uint8 or float on [0, 1].
+
+        Returns ``{output: (T,) float64}``."""
+        out = self._advance(check_frames(frames, min_h=1, min_w=self.min_width))
+        return {n: np.ascontiguousarray(out[:, c]) for c, n in enumerate(self.output_names)}
+
+    def step(self, frame: np.ndarray) -> dict[str, float]:
+        """Process one frame (H, W); return ``{output: float}``."""
+        arr = np.asarray(frame)
+        if arr.ndim != 2:
+            raise ValueError(f"a frame must have shape (H, W), got an array of shape {arr.shape}")
+        row = self._advance(check_frames(arr[None], min_h=1, min_w=self.min_width))[0]
+        return {n: float(row[c]) for c, n in enumerate(self.output_names)}

@@ -168,18 +168,31 @@ def fit_decoding(
     predicted = np.array([a * c.lambda_px**b * c.gain_term for c in used])
     truth = np.array([c.omega_true_dps for c in used])
     rel = (predicted - truth) / truth
+    return _result(a, float(b), r2, rel, params, (h, w), tuple(cells))
+
+
+def _result(
+    a: float,
+    b: float,
+    r2: float,
+    rel: np.ndarray,
+    params: Any,
+    size: tuple[int, int],
+    cells: tuple[CellResponse, ...] = (),
+) -> CalibrationResult:
+    """A fit's result from its constants and the relative errors of the points it used."""
     return CalibrationResult(
         a=a,
-        b=float(b),
+        b=b,
         r2=r2,
         rms_rel_error=float(np.sqrt(np.mean(rel**2))),
         max_rel_error=float(np.max(np.abs(rel))),
-        n_points=len(used),
+        n_points=len(rel),
         fps=params.fps,
         deg_per_px=params.deg_per_px,
-        width=w,
-        height=h,
-        cells=tuple(cells),
+        width=size[1],
+        height=size[0],
+        cells=cells,
     )
 
 
@@ -279,16 +292,4 @@ def fit_multiscale(
     resid = y - design @ np.array([c, d])
     r2 = 1.0 - float(resid @ resid) / float(((y - y.mean()) ** 2).sum())
     rel = np.exp(design @ np.array([c, d]) - y) - 1.0
-    return CalibrationResult(
-        a=a,
-        b=b,
-        r2=r2,
-        rms_rel_error=float(np.sqrt(np.mean(rel**2))),
-        max_rel_error=float(np.max(np.abs(rel))),
-        n_points=len(used),
-        fps=params.fps,
-        deg_per_px=params.deg_per_px,
-        width=size[1],
-        height=size[0],
-        cells=(),
-    )
+    return _result(a, b, r2, rel, params, size)
