@@ -82,7 +82,8 @@ def add_executor_options(p: argparse.ArgumentParser, what: str) -> None:
         "--jobs",
         type=int,
         help="worker processes of the local pool or of a local Dask cluster "
-        "(default: the cores this process may use)",
+        "(default, and the local pool's cap: the cores this process may use; "
+        "VDC_OVERSUBSCRIBE=1 lifts the cap)",
     )
     p.add_argument(
         "--scheduler",

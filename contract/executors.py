@@ -22,6 +22,10 @@ import contextlib
 import dataclasses
 import multiprocessing
 import os
+import signal
+import sys
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -120,12 +124,61 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
     return Client(cluster), cluster
 
 
+def _die_with_parent(parent_pid: int) -> None:
+    """Pool worker start-up: end this worker when the process that started it ends, by any
+    signal, SIGKILL included, and undo the signal handling it may have inherited.
+
+    * Linux: the kernel sends SIGKILL when the parent dies (``PR_SET_PDEATHSIG``); the parent
+      may already be gone by then, so that is checked once after asking;
+    * elsewhere, and as a second line: a daemon thread that checks every half second whether
+      the worker has been handed to another parent;
+    * SIGTERM is the default again (a capture's handler, or an ignored SIGTERM, must not keep
+      a worker alive), and SIGINT is ignored: Ctrl-C reaches the whole process group, and the
+      parent decides what ends (it shuts the pool down)."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            pr_set_pdeathsig = 1
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
+        except (OSError, AttributeError):  # another libc: the watch thread still works
+            pass
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="vdc-parent-watch", daemon=True).start()
+
+
+def pool_size(jobs: int, n_tasks: int) -> int:
+    """Workers of a local pool: ``jobs``, but no more than the tasks and, unless
+    ``VDC_OVERSUBSCRIBE=1``, no more than the usable cores (each worker holds a Numba and
+    polars runtime of several hundred MB: 18 workers on 2 cores only cost memory)."""
+    n = max(1, min(jobs, n_tasks))
+    if os.environ.get("VDC_OVERSUBSCRIBE") != "1":
+        n = min(n, usable_cpus())
+    return n
+
+
 @contextlib.contextmanager
 def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf.Executor, Any]]:
-    """The executor (and the Dask client, or None) for ``n_tasks`` tasks; closed on exit."""
+    """The executor (and the Dask client, or None) for ``n_tasks`` tasks; closed on exit.
+
+    Local pool workers end with the process that started them, however it ends."""
     if settings.executor == "local":
         ctx = multiprocessing.get_context("spawn")
-        pool = cf.ProcessPoolExecutor(max(1, min(settings.jobs, n_tasks)), mp_context=ctx)
+        pool = cf.ProcessPoolExecutor(
+            pool_size(settings.jobs, n_tasks),
+            mp_context=ctx,
+            initializer=_die_with_parent,
+            initargs=(os.getpid(),),
+        )
         try:
             yield pool, None
         finally:
