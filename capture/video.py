@@ -60,6 +60,10 @@ class VideoSettings:
 
     @property
     def kind(self) -> str:
+        """``file`` (an existing file wins, even one named ``2024`` or ``clip 100%.mkv``),
+        ``camera`` (an index such as ``0``) or ``images`` (a pattern with ``%``)."""
+        if Path(self.source).is_file():
+            return "file"
         if self.source.isdigit():
             return "camera"
         return "images" if "%" in self.source else "file"
@@ -335,7 +339,7 @@ def recording_id(settings: VideoSettings) -> str:
     """``video-<name>-<8 hex>``: the hex covers the source (path, size, modification time) and
     every setting, so a changed file or setting never reuses an old id."""
     src = settings.source
-    stem = "camera" + src if src.isdigit() else Path(src).stem.replace("%", "")
+    stem = "camera" + src if settings.kind == "camera" else Path(src).stem.replace("%", "")
     p = Path(src)
     stat = (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else ()
     text = repr((str(p.resolve()) if p.exists() else src, stat, dataclasses.astuple(settings)))
@@ -375,9 +379,15 @@ def record_video(
     from capture.run import check_output_path, run_capture
     from contract.provenance import machine_info, package_versions
 
-    device = VideoSource(settings)  # opens the source: bad input fails here
     rid = recording_id(settings)
     path = Path(out) if out else Path("recordings") / f"{rid}.rrd"
+    src = Path(settings.source)
+    if settings.kind == "file" and path.exists() and src.exists() and src.samefile(path):
+        raise ValueError(
+            f"the output {str(path)!r} is the source video: writing it would destroy the input; "
+            "choose another --out"
+        )
+    device = VideoSource(settings)  # opens the source: bad input fails here
     check_output_path(path, force)
     h, w = device.working_size()
     # the one context every model of this recording is built with, online and offline

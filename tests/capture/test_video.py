@@ -370,3 +370,23 @@ def test_complexity_of_frames_equals_the_cli_on_a_real_clip(natural_clip, tmp_pa
     # and the default is the variant valid on real footage: 40 deg/s within 25 %
     late = arr["omega_dps"].to_numpy()[30:]
     assert abs(late.mean() - 40.0) / 40.0 < 0.25
+
+
+def test_a_video_given_as_its_own_output_is_refused_and_kept(clips, tmp_path) -> None:
+    clip = tmp_path / "v.rrd"  # an H.264 file that happens to end in .rrd
+    clip.write_bytes(clips["original"].read_bytes())
+    before = clip.read_bytes()
+    proc = run_cli("capture", "video", str(clip), "--fov-deg", "70", "--out", str(clip), "--force")
+    assert_one_line_error(proc, "is the source video")
+    assert clip.read_bytes() == before  # the input is untouched
+
+
+@pytest.mark.parametrize("name", ["clip 100%.mp4", "2024"])
+def test_a_file_named_like_a_pattern_or_a_camera_is_a_file(clips, tmp_path, name) -> None:
+    clip = tmp_path / name
+    clip.write_bytes(clips["original"].read_bytes())
+    settings = VideoSettings(str(clip), FOV)
+    assert settings.kind == "file"
+    res = record_video(settings, tmp_path / "out.rrd")
+    assert res.record.frames == 150
+    assert "camera" not in Recording(tmp_path / "out.rrd").recording_id
