@@ -223,11 +223,12 @@ def clutter_pans(
     size: tuple[int, int],
     speeds_dps: np.ndarray,
     seeds: tuple[int, ...] = CLUTTER_SEEDS,
-    build: Any,
     progress: Any = None,
 ) -> list[PanResponse]:
     """Pan a camera of ``size`` (H, W) at ``params.deg_per_px`` across 1/f clutter at each
-    speed; ``build(params)`` makes the model. Returns one response per (speed, seed)."""
+    speed and read it with a multi-scale AVDM of ``params``. Returns one response per (speed,
+    seed)."""
+    from avdm.avdm_multiscale import AvdmMultiScale
     from avdm.stimuli import clutter_image, panned_image
 
     fov = size[1] * params.deg_per_px
@@ -248,7 +249,7 @@ def clutter_pans(
                 omega_dps=float(v),
                 n_frames=n,
             )
-            reading = build(params).run(frames)["omega_dps"][warm:]
+            reading = AvdmMultiScale(params).run(frames)["omega_dps"][warm:]
             out.append(PanResponse(float(v), float(reading.mean()), seed))
             if progress is not None:
                 progress()
@@ -264,8 +265,6 @@ def fit_multiscale(
 ) -> CalibrationResult:
     """Fit (a, b) of ``ω̂ = a·ν^b`` for the multi-scale AVDM (``params`` with any a, b) at its
     fps and deg/px, on camera pans over 1/f clutter from 1 deg/s to ``params.max_dps``."""
-    from avdm.avdm_multiscale import AvdmMultiScale
-
     speeds = np.geomspace(1.0, params.max_dps, 10) if speeds_dps is None else speeds_dps
     # Two passes: the scale choice compares calibrated speeds with each scale's range, so the
     # second pass refits the residual of the first with the first's constants in place.
@@ -275,7 +274,6 @@ def fit_multiscale(
             params.replace(a=a, b=b),
             size=size,
             speeds_dps=speeds,
-            build=AvdmMultiScale,
             progress=progress,
         )
         used = [p for p in pans if p.omega_dps > 0]

@@ -36,9 +36,10 @@ NOT_DYNAMICS = frozenset({"a", "b", "fps", "deg_per_px", "texture_row", "directi
 
 
 def dynamics(params: Any) -> dict[str, Any]:
-    """The parameters of ``params`` that change the model's dynamics, hence its calibration:
-    every field but the decoding constants, the camera and the texture row."""
-    return {k: v for k, v in params.to_dict().items() if k not in NOT_DYNAMICS}
+    """The parameters of ``params`` (a params object or its flat dict) that change the model's
+    dynamics, hence its calibration: every field but those in ``NOT_DYNAMICS``."""
+    values = params if isinstance(params, dict) else params.to_dict()
+    return {k: v for k, v in values.items() if k not in NOT_DYNAMICS}
 
 
 def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any] | None:
@@ -49,7 +50,7 @@ def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dic
         if math.isclose(entry["fps"], fps, rel_tol=1e-6) and math.isclose(
             entry["deg_per_px"], deg_per_px, rel_tol=1e-6
         ):
-            have = {k: v for k, v in entry["model_params"].items() if k not in NOT_DYNAMICS}
+            have = dynamics(entry["model_params"])
             if want is None or (entry.get("model", "avdm") == "avdm" and have == want):
                 return entry
     return None
@@ -126,7 +127,6 @@ def calibration_for(
     multiscale = not isinstance(params, AvdmParams)
     if not multiscale:  # the row does not change the fit; the calibration raster is 72 rows
         params = params.replace(texture_row=AvdmParams.texture_row)
-    if not multiscale:
         shipped = lookup_calibration(fps, deg_per_px, params)
         if shipped is not None:
             return {**shipped, "source": "shipped"}
