@@ -327,7 +327,7 @@ def collision(
     import hashlib
 
     from analysis.tables import Notices, load_recording
-    from contract.parquet_io import write_parquet
+    from contract.parquet_io import table_set, write_parquet
 
     items, notes = [], Notices(notice)
     for path in recordings:
@@ -345,20 +345,22 @@ def collision(
             "settings": {"false_alarm_m": settings.false_alarm_m, "bin_m": settings.bin_m},
             "recordings": [row["recording_id"] for _, row, _ in items],
         }
-        paths.append(write_parquet(summary, out / "collision_summary.parquet", meta))
-        paths.append(write_parquet(events, out / "collision_events.parquet", meta))
-        paths.append(
-            write_parquet(phase_statistics(summary), out / "collision_phases.parquet", meta)
-        )
-        per_phase = summary["phase"].value_counts()
-        several = set(per_phase.filter(pl.col("count") > 1)["phase"].to_list())
-        for loaded, row, ev in items:
-            name = row["phase"] + (f"_seed{row['seed']}" if row["phase"] in several else "")
-            png = out / f"collision_{safe_key(name)}.png"
-            paths.append(plot_recording(loaded, row, ev, settings, png))
-        paths.append(plot_study(summary, out / "collision_study.png"))
-        rid = "collision-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
-        paths.append(write_collision_rrd(items, settings, out / "collision.rrd", rid))
+        with table_set(out) as stage:  # published whole: never a mix of two runs
+            paths.append(write_parquet(summary, stage / "collision_summary.parquet", meta))
+            paths.append(write_parquet(events, stage / "collision_events.parquet", meta))
+            paths.append(
+                write_parquet(phase_statistics(summary), stage / "collision_phases.parquet", meta)
+            )
+            per_phase = summary["phase"].value_counts()
+            several = set(per_phase.filter(pl.col("count") > 1)["phase"].to_list())
+            for loaded, row, ev in items:
+                name = row["phase"] + (f"_seed{row['seed']}" if row["phase"] in several else "")
+                png = stage / f"collision_{safe_key(name)}.png"
+                paths.append(plot_recording(loaded, row, ev, settings, png))
+            paths.append(plot_study(summary, stage / "collision_study.png"))
+            rid = "collision-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
+            paths.append(write_collision_rrd(items, settings, stage / "collision.rrd", rid))
+        paths = [out / p.name for p in paths]
     return CollisionResult(summary, events, paths, list(notes))
 
 

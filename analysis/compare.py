@@ -219,7 +219,7 @@ def compare(
     the source's recording id, so ``rerun REC variants.rrd`` shows them together)."""
     from analysis.analysis_rrd import write_variants_rrd
     from analysis.profile import save_figure
-    from contract.parquet_io import write_parquet
+    from contract.parquet_io import table_set, write_parquet
 
     loaded = load_recording(recording, settings)
     notes = Notices(notice)
@@ -236,17 +236,19 @@ def compare(
             "recording": loaded.recording_id,
             "settings": dataclasses.asdict(settings.summary_settings()),
         }
-        paths.append(write_parquet(stats, out / "compare_summary.parquet", meta))
-        paths.append(write_parquet(corr, out / "compare_correlations.parquet", meta))
-        paths.append(save_figure(result.figure(), out / "compare.png"))
-        ctx = loaded.camera_context()
-        units = {
-            canonical_name(m): {o.name: o.unit for o in make_model(m, **ctx).outputs}
-            for m in settings.models
-        }
-        paths.append(
-            write_variants_rrd(
-                loaded.recording_id, outputs, units, out / "variants.rrd", loaded.online_model
+        with table_set(out) as stage:  # published whole: never a mix of two runs
+            paths.append(write_parquet(stats, stage / "compare_summary.parquet", meta))
+            paths.append(write_parquet(corr, stage / "compare_correlations.parquet", meta))
+            paths.append(save_figure(result.figure(), stage / "compare.png"))
+            ctx = loaded.camera_context()
+            units = {
+                canonical_name(m): {o.name: o.unit for o in make_model(m, **ctx).outputs}
+                for m in settings.models
+            }
+            paths.append(
+                write_variants_rrd(
+                    loaded.recording_id, outputs, units, stage / "variants.rrd", loaded.online_model
+                )
             )
-        )
+        paths[:] = [out / p.name for p in paths]
     return result

@@ -223,7 +223,7 @@ def complexity(
     normalised, and their rank correlations) and an ``.rrd`` with the source's recording id
     (open it beside the source: ``rerun REC OUT/complexity_<id>.rrd``)."""
     from analysis.tables import Notices, load_recording
-    from contract.parquet_io import write_parquet
+    from contract.parquet_io import table_set, write_parquet
 
     parts, corrs, paths, notes = [], [], [], Notices(notice)
     for path in recordings:
@@ -256,16 +256,6 @@ def complexity(
         )
         parts.append(df)
         corrs.append(rank_correlations(df, loaded.recording_id))
-        if out is not None:
-            out_p = Path(out)
-            paths.append(
-                plot_complexity(df, corrs[-1], out_p / f"complexity_{loaded.recording_id}.png")
-            )
-            paths.append(
-                write_complexity_rrd(
-                    df, loaded.recording_id, out_p / f"complexity_{loaded.recording_id}.rrd"
-                )
-            )
     table = pl.concat(parts)
     corr = pl.concat(corrs)
     if out is not None:
@@ -274,8 +264,14 @@ def complexity(
             "recordings": sorted(table["recording_id"].unique().to_list()),
             "metrics": list(METRICS),
         }
-        paths.insert(0, write_parquet(table, Path(out) / "complexity.parquet", meta))
-        paths.insert(1, write_parquet(corr, Path(out) / "complexity_correlations.parquet", meta))
+        with table_set(Path(out)) as stage:  # published whole: never a mix of two runs
+            paths.append(write_parquet(table, stage / "complexity.parquet", meta))
+            paths.append(write_parquet(corr, stage / "complexity_correlations.parquet", meta))
+            for df, c in zip(parts, corrs, strict=True):
+                rid = df["recording_id"][0]
+                paths.append(plot_complexity(df, c, stage / f"complexity_{rid}.png"))
+                paths.append(write_complexity_rrd(df, rid, stage / f"complexity_{rid}.rrd"))
+        paths = [Path(out) / p.name for p in paths]
     return ComplexityResult(table, corr, paths, list(notes))
 
 

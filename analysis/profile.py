@@ -357,7 +357,7 @@ def profile(
     import hashlib
 
     from analysis.analysis_rrd import write_profile_rrd
-    from contract.parquet_io import write_parquet
+    from contract.parquet_io import table_set, write_parquet
 
     notes = Notices(notice)
     tables, meta = build_tables(recordings, settings.models or None, settings, progress, notes)
@@ -384,9 +384,11 @@ def profile(
     paths: list[Path] = []
     if out is not None:
         out = Path(out)
-        paths = [plot_segment(seg, settings, out / f"profile_{seg.key}.png") for seg in segs]
-        paths.append(plot_overview(segs, settings, out / "profiles.png"))
-        paths.append(write_parquet(summary, out / "profile_summary.parquet", meta))
-        rid = "profile-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
-        paths.append(write_profile_rrd(segs, settings, out / "profiles.rrd", rid))
+        with table_set(out) as stage:  # published whole: never a mix of two runs
+            paths = [plot_segment(seg, settings, stage / f"profile_{seg.key}.png") for seg in segs]
+            paths.append(plot_overview(segs, settings, stage / "profiles.png"))
+            paths.append(write_parquet(summary, stage / "profile_summary.parquet", meta))
+            rid = "profile-" + hashlib.sha1("|".join(meta["recordings"]).encode()).hexdigest()[:8]
+            paths.append(write_profile_rrd(segs, settings, stage / "profiles.rrd", rid))
+        paths = [out / p.name for p in paths]
     return ProfileResult(settings, segs, summary, tables, meta, paths, list(notes))

@@ -46,6 +46,12 @@ class FrameChunk:
 
 def _check_path(path: Path) -> None:
     if not path.exists():
+        partial = path.with_name(path.name.removesuffix(".rrd") + ".partial.rrd")
+        if path.suffix == ".rrd" and partial.exists():  # capture.output's name, in progress
+            raise RecordingError(
+                f"{str(path)!r} does not exist, but {str(partial)!r} does: a capture still "
+                "running or killed; analyse that file by name"
+            )
         raise RecordingError(f"{str(path)!r} does not exist")
     if path.is_dir():
         raise RecordingError(f"{str(path)!r} is a directory, not an .rrd recording")
@@ -100,25 +106,39 @@ def complete_prefix(path: Path) -> tuple[int, int]:
     return pos, count
 
 
-def _repaired_copy(path: Path) -> tuple[Path, str] | None:
-    """A temporary copy of the complete messages of a truncated file, or None if the file is
-    not truncated mid-message (or holds no complete message)."""
+def _repaired_copy(path: Path) -> tuple[int, Path, str] | None:
+    """An unnamed temporary copy of the complete messages of a truncated file: (its open file
+    descriptor, a path that reads it, a note), or None if the file is not truncated
+    mid-message (or holds no complete message).
+
+    The copy goes to the temporary folder (``TMPDIR``) and is unlinked the moment it is
+    created, so it is gone on every exit path, a SIGKILL included; the reader opens it through
+    ``/proc/self/fd``. A copy that does not fit raises RecordingError naming the folder."""
     good, count = complete_prefix(path)
     size = path.stat().st_size
     if good >= size or count == 0:
         return None
-    fd, tmp = tempfile.mkstemp(suffix=".rrd", prefix="vdc-repaired-")
-    with os.fdopen(fd, "wb") as out, path.open("rb") as src:
-        remaining = good
-        while remaining:
-            block = src.read(min(remaining, 1 << 22))
-            out.write(block)
-            remaining -= len(block)
+    folder = tempfile.gettempdir()
+    fd, tmp = tempfile.mkstemp(suffix=".rrd", prefix="vdc-repaired-", dir=folder)
+    os.unlink(tmp)  # nameless from here: freed when the descriptor closes, however we exit
+    try:
+        with path.open("rb") as src, os.fdopen(fd, "wb", closefd=False) as out:
+            remaining = good
+            while remaining:
+                block = src.read(min(remaining, 1 << 22))
+                out.write(block)  # raises on a full disk (ENOSPC) or a size limit (EFBIG)
+                remaining -= len(block)
+    except OSError as exc:
+        os.close(fd)
+        raise RecordingError(
+            f"cannot repair the truncated {str(path)!r}: no room for its {good / 1e6:.0f} MB "
+            f"copy in {folder} ({exc.strerror}); set TMPDIR to a folder with room"
+        ) from None
     note = (
         f"{path.name} is truncated ({size - good} bytes of an incomplete message at the "
         f"end): repaired by reading its {count} complete messages"
     )
-    return Path(tmp), note
+    return fd, Path(f"/proc/self/fd/{fd}"), note
 
 
 class Recording:
@@ -136,8 +156,8 @@ class Recording:
             repaired = _repaired_copy(self.path)
             if repaired is None:
                 raise RecordingError(f"{str(self.path)!r} is damaged: {exc}") from None
-            source, self.notice = repaired
-            weakref.finalize(self, os.unlink, source)
+            fd, source, self.notice = repaired
+            weakref.finalize(self, os.close, fd)
             try:
                 self._reader = self._open(source)
             except Exception as exc2:

@@ -31,7 +31,7 @@ from analysis.rrd_reader import Recording, RecordingError
 from avdm.base import Model
 from avdm.registry import canonical_name, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
-from contract.parquet_io import write_parquet
+from contract.parquet_io import table_set, write_parquet
 from contract.recording import (
     FRAME_TIMING,
     MODEL_ROOT,
@@ -568,8 +568,12 @@ def build_tables(
 def write_tables(
     tables: dict[str, pl.DataFrame], out_dir: Path, meta: dict[str, Any]
 ) -> list[Path]:
-    """Write each table to ``out_dir/<name>.parquet`` with ``meta`` in its metadata."""
-    return [write_parquet(df, out_dir / f"{name}.parquet", meta) for name, df in tables.items()]
+    """Write each table to ``out_dir/<name>.parquet`` with ``meta`` in its metadata, as one set
+    (``contract.parquet_io.table_set``): a reader never sees new tables beside old ones."""
+    with table_set(out_dir) as stage:
+        for name, df in tables.items():
+            write_parquet(df, stage / f"{name}.parquet", meta)
+    return [out_dir / f"{name}.parquet" for name in tables]
 
 
 @dataclasses.dataclass

@@ -7,6 +7,7 @@ import dataclasses
 import math
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from avdm.cli_support import (
     OneLineParser,
@@ -18,6 +19,9 @@ from avdm.cli_support import (
 from avdm.registry import describe_models
 from capture.colias_link import LinkLost
 from contract.recording import FOOTAGE_MODEL
+
+if TYPE_CHECKING:
+    from capture.run import RecordResult
 
 PROG = "vdc-capture"
 
@@ -64,17 +68,27 @@ def _recording_options(args: argparse.Namespace) -> dict:
     }
 
 
+def _report_write_error(rec: RecordResult) -> None:
+    """One line when the file could not take more: what, where, and what it keeps."""
+    if rec.write_error:
+        _stderr(
+            f"{PROG}: error: {rec.write_error}; stopped at once: {rec.path} is a readable "
+            f"recording of the first {rec.frames} frames"
+        )
+
+
 def cmd_sim(args: argparse.Namespace) -> int:
     from capture.sim import SimSettings, record_sim
 
     res = record_sim(_settings(SimSettings, args), args.out, **_recording_options(args))
+    _report_write_error(res)
     if res.complete:
         events = ", ".join(f"{n} {k.replace('_', ' ')}s" for k, n in sorted(res.events.items()))
         print(
             f"wrote {res.path} ({res.frames} frames, {events or 'no events'}, "
             f"{res.size_mb:.0f} MB, {res.wall_time_s:.1f} s)"
         )
-    else:
+    elif not res.write_error:
         print(
             f"stopped by {res.stop_reason} after {res.frames} of {res.expected_frames} frames; "
             f"{res.path} is a valid recording of those frames ({res.size_mb:.0f} MB)"
@@ -107,6 +121,7 @@ def cmd_robot(args: argparse.Namespace) -> int:
 
     res = record_robot(_settings(RobotSettings, args), args.out, **_recording_options(args))
     rec = res.record
+    _report_write_error(rec)
     print(
         f"wrote {rec.path}: {rec.frames} frames, link: "
         + ", ".join(f"{k} {v}" for k, v in res.link_stats.items())
@@ -144,6 +159,9 @@ def cmd_video(args: argparse.Namespace) -> int:
         for bar in bars:
             bar.close()
     rec = res.record
+    _report_write_error(rec)
+    if rec.write_error:
+        return rec.exit_status
     if res.decode_error:
         _stderr(
             f"{PROG} video: note: decoding stopped after {rec.frames} frames "

@@ -7,16 +7,25 @@ The entity paths, timelines and property sections are defined in ``contract.reco
 from __future__ import annotations
 
 import math
+import os
+import resource
 import shutil
 import socket
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import numpy as np
+
+# The SDK's own log lines for a viewer that went away or a file it could not write would repeat
+# every batch; the recorder watches both sinks itself and says so in one line. Set before the
+# SDK starts its logger; a RUST_LOG the user set wins.
+os.environ.setdefault("RUST_LOG", "warn,re_sdk::recording_stream=off,re_grpc_client=off")
 import rerun as rr
 import rerun.blueprint as rrb
 
@@ -181,19 +190,177 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def spawn_viewer(memory_limit: str = "25%") -> str:
-    """Start a Rerun viewer listening on 127.0.0.1 only; return its gRPC URL."""
+def _warn(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr, flush=True)
+
+
+def _reachable(host: str, port: int, timeout_s: float = 1.0) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return True
+    except OSError:
+        return False
+
+
+def spawn_viewer(
+    memory_limit: str = "25%", warn: Callable[[str], None] = _warn, wait_s: float = 5.0
+) -> str | None:
+    """Start a Rerun viewer listening on 127.0.0.1 only; return its gRPC URL, or None (with
+    one warning) when it cannot start, e.g. on a machine without a display or GPU driver: the
+    recording never depends on the live view."""
     exe = shutil.which("rerun")
     cmd = [exe] if exe else [sys.executable, "-m", "rerun_cli"]
     port = _free_port()
-    subprocess.Popen(
-        [*cmd, "--bind", "127.0.0.1", "--port", str(port), "--memory-limit", memory_limit],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=True,
+    try:
+        proc = subprocess.Popen(
+            [*cmd, "--bind", "127.0.0.1", "--port", str(port), "--memory-limit", memory_limit],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+    except OSError as exc:
+        warn(f"could not start a Rerun viewer ({exc.strerror}); recording to the file only")
+        return None
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline:  # until it listens (or dies: no display, no driver)
+        if _reachable("127.0.0.1", port, 0.2):
+            return f"rerun+http://127.0.0.1:{port}/proxy"
+        if proc.poll() is not None:
+            break
+        time.sleep(0.1)
+    if proc.poll() is None:
+        proc.kill()
+    warn(
+        f"the Rerun viewer did not start (exit status {proc.wait()}; no display or GPU driver?); "
+        "recording to the file only"
     )
-    time.sleep(1.0)  # let it open its port before the SDK connects
-    return f"rerun+http://127.0.0.1:{port}/proxy"
+    return None
+
+
+def check_live_url(url: str) -> tuple[str, int]:
+    """The host and port of a viewer URL such as ``rerun+http://127.0.0.1:9876/proxy``;
+    ValueError with the expected form when it is malformed (before anything is written)."""
+    form = "expected rerun+http://HOST:PORT/proxy"
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme not in ("rerun+http", "rerun+https", "rerun") or not parts.hostname or not port:
+        raise ValueError(f"--connect {url!r} is not a Rerun viewer address; {form}")
+    try:
+        rr.GrpcSink(url)  # the SDK's own parse, so what passes here also connects
+    except (RuntimeError, ValueError) as exc:
+        raise ValueError(f"--connect {url!r}: {exc}; {form}") from None
+    return parts.hostname, port
+
+
+class LiveView:
+    """The optional second sink: a viewer. It can cost only itself.
+
+    A separate recording stream (same application and recording id) so that a flush of the
+    file never waits on, or fails with, the network. The viewer's port is probed at start and
+    every ``probe_s`` seconds; when it does not answer, one warning is printed and the stream is
+    dropped (its shutdown runs in a daemon thread, so the capture does not wait)."""
+
+    def __init__(
+        self,
+        url: str,
+        recording_id: str,
+        blueprint: rrb.Blueprint | None,
+        warn: Callable[[str], None] = _warn,
+        probe_s: float = 2.0,
+    ) -> None:
+        self.url = url
+        self.host, self.port = check_live_url(url)
+        self.warn = warn
+        self.probe_s = probe_s
+        self._last_probe = time.monotonic()
+        self.stream: rr.RecordingStream | None = None
+        if not _reachable(self.host, self.port):
+            warn(f"no Rerun viewer answers at {url}; recording to the file only")
+            return
+        self.stream = rr.RecordingStream(APP_ID, recording_id=recording_id)
+        self.stream.set_sinks(rr.GrpcSink(url), default_blueprint=blueprint)
+
+    @property
+    def alive(self) -> bool:
+        return self.stream is not None
+
+    def check(self) -> None:
+        """Probe the viewer at most every ``probe_s``; drop the stream if it has gone."""
+        if self.stream is None or time.monotonic() - self._last_probe < self.probe_s:
+            return
+        self._last_probe = time.monotonic()
+        if not _reachable(self.host, self.port):
+            self.drop(f"the Rerun viewer at {self.url} went away; recording to the file only")
+
+    def drop(self, message: str | None = None) -> None:
+        stream, self.stream = self.stream, None
+        if stream is None:
+            return
+        if message:
+            self.warn(message)
+        # disconnecting a gRPC sink waits for its final connection attempt: not on our time
+        threading.Thread(target=stream.disconnect, daemon=True).start()
+
+    def close(self) -> None:
+        """End of the run: give a live viewer what is buffered (bounded), then let go."""
+        if self.stream is None:
+            return
+        self.check()
+        if self.stream is not None:
+            try:
+                self.stream.flush(timeout_sec=2.0)
+            except RuntimeError:
+                pass  # a slow viewer misses the tail of the live view; the file has it
+            self.drop()
+
+
+class _Tee:
+    """What the recorder logs with: the file stream first, then the live view if it is up."""
+
+    def __init__(self, file_stream: rr.RecordingStream, live: LiveView | None) -> None:
+        self.file = file_stream
+        self.live = live
+
+    def _each(self, method: str, *args: Any, **kwargs: Any) -> None:
+        getattr(self.file, method)(*args, **kwargs)
+        live = self.live
+        if live is not None and live.stream is not None:
+            try:
+                getattr(live.stream, method)(*args, **kwargs)
+            except Exception as exc:
+                live.drop(f"the live view failed ({exc}); recording to the file only")
+
+    def log(self, *args: Any, **kwargs: Any) -> None:
+        self._each("log", *args, **kwargs)
+
+    def send_columns(self, *args: Any, **kwargs: Any) -> None:
+        self._each("send_columns", *args, **kwargs)
+
+    def send_property(self, *args: Any, **kwargs: Any) -> None:
+        self._each("send_property", *args, **kwargs)
+
+
+class RecordingWriteError(RuntimeError):
+    """The file sink cannot write (disk full, file size limit): stop, keep what fitted."""
+
+
+# room kept free for the run_end property and the footer after the last batch
+_CLOSE_RESERVE_BYTES = 1 << 20
+
+
+def free_bytes(path: Path) -> int:
+    """Bytes ``path`` can still grow by: the free space of its file system (for this user)
+    and the process's file size limit (RLIMIT_FSIZE), whichever is smaller."""
+    st = os.statvfs(path.parent)
+    room = st.f_bavail * st.f_frsize
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    if soft != resource.RLIM_INFINITY:
+        size = path.stat().st_size if path.exists() else 0
+        room = min(room, soft - size)
+    return int(room)
 
 
 def _time_indexes(
@@ -217,7 +384,12 @@ def _quaternions_z(heading: np.ndarray) -> np.ndarray:
 
 
 class Recorder:
-    """Writes one run to an ``.rrd`` file (and optionally a live viewer) per the contract."""
+    """Writes one run to an ``.rrd`` file (and optionally a live viewer) per the contract.
+
+    The file is the primary sink: a viewer that is missing, unreachable or closed costs only the
+    live view (:class:`LiveView`). Before each batch :meth:`reserve` checks that it fits on the
+    disk and under the file size limit, and :meth:`end_batch` flushes it, so a capture that
+    cannot write stops at once with a readable file of what fitted."""
 
     def __init__(
         self,
@@ -226,20 +398,63 @@ class Recorder:
         *,
         blueprint: rrb.Blueprint | None = None,
         live_url: str | None = None,
+        warn: Callable[[str], None] = _warn,
     ) -> None:
         self.path = Path(path)
         self.recording_id = recording_id
-        self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
-        sinks: list[Any] = [rr.FileSink(str(self.path))]
-        if live_url:
-            sinks.append(rr.GrpcSink(live_url))
-        self.rec.set_sinks(*sinks, default_blueprint=blueprint)
+        self.live = LiveView(live_url, recording_id, blueprint, warn) if live_url else None
+        self.file_stream = rr.RecordingStream(APP_ID, recording_id=recording_id)
+        self.file_stream.set_sinks(rr.FileSink(str(self.path)), default_blueprint=blueprint)
+        self.rec = _Tee(self.file_stream, self.live)
         self._image_shapes: dict[str, tuple[int, int]] = {}
         self._closed = False
         self._link_names_logged = False
         self._timing_names_logged = False
+        self.frames_logged = 0  # camera frames written (the claim keeps a file that has any)
+        self.write_error: str | None = None  # why the capture stopped writing, for the user
+        self._writer_failed = False  # the SDK's file writer died (cannot flush again)
         self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self.rec.log(POSE, rr.SeriesLines(names=list(POSE_NAMES)), static=True)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def flush(self) -> None:
+        """Write everything sent so far to the file; RecordingWriteError if it cannot."""
+        if self._writer_failed:
+            raise RecordingWriteError(self.write_error)
+        try:
+            # bounded: a file writer that died can make an unbounded flush wait for ever
+            self.file_stream.flush(timeout_sec=60.0)
+        except RuntimeError as exc:
+            self._writer_failed = True
+            room = free_bytes(self.path)
+            self.write_error = (
+                f"cannot write {self.path.parent}: {'no space left' if room < (1 << 20) else exc}"
+            )
+            raise RecordingWriteError(self.write_error) from None
+
+    def reserve(self, nbytes: int) -> None:
+        """Raise RecordingWriteError, before anything of it is sent, when about ``nbytes`` more
+        (plus the footer) would not fit on the disk or under RLIMIT_FSIZE."""
+        room = free_bytes(self.path)
+        if nbytes + _CLOSE_RESERVE_BYTES > room:
+            disk = os.statvfs(self.path.parent)
+            what = (
+                "disk" if room >= disk.f_bavail * disk.f_frsize else "file size limit (ulimit -f)"
+            )
+            self.write_error = (
+                f"no room left in {self.path.parent.resolve()} under the {what}: "
+                f"{max(room, 0) / 1e6:.1f} MB left, the next batch needs ~{nbytes / 1e6:.1f} MB"
+            )
+            raise RecordingWriteError(self.write_error)
+
+    def end_batch(self) -> None:
+        """After each batch: the file holds it (or RecordingWriteError), the viewer is there."""
+        self.flush()
+        if self.live is not None:
+            self.live.check()
 
     # -- static and metadata -------------------------------------------------------------
     def send_properties(self, sections: Mapping[str, Mapping[str, Any]]) -> None:
@@ -306,7 +521,7 @@ class Recorder:
         self._image_shapes[entity] = (h, w)
         # static data goes through the SDK's batcher, frame columns straight to the file: flush
         # so that a file cut by a crash still holds the properties and the image format
-        self.rec.flush()
+        self.flush()
 
     def log_frames(
         self,
@@ -325,6 +540,7 @@ class Recorder:
             indexes=_time_indexes(frame, t_s, capture_ns),
             columns=rr.Image.columns(buffer=images.reshape(n, h * w)),
         )
+        self.frames_logged += n
 
     def log_poses(
         self,
@@ -479,14 +695,21 @@ class Recorder:
         )
 
     def close(self, **run_end: Any) -> None:
-        """Write the ``run_end`` property (frames, stop reason, ...), flush, write the footer."""
+        """Write the ``run_end`` property (frames, stop reason, ...), flush, write the footer.
+        After a write error only what is safe is done: the reserve kept room for the footer,
+        but a file writer that died cannot be flushed again."""
         if self._closed:
             return
         self._closed = True
+        if self.live is not None:
+            self.live.close()
         clean = {
             k: (v if not (isinstance(v, float) and math.isnan(v)) else None)
             for k, v in run_end.items()
         }
         self.send_properties({"run_end": clean})
-        self.rec.flush()
-        self.rec.disconnect()
+        try:
+            self.flush()
+        except RecordingWriteError:
+            return  # the file holds what was flushed before; readers repair it
+        self.file_stream.disconnect()

@@ -364,8 +364,9 @@ def record_robot(
     import hashlib
 
     from capture.config import ArenaConfig, RobotConfig
+    from capture.output import claim_output
     from capture.recorder import Recorder, default_blueprint, spawn_viewer
-    from capture.run import check_output_path, run_capture
+    from capture.run import finish_output, run_capture
     from contract.provenance import machine_info, package_versions
     from contract.recording import LINK_STATS as LINK_STATS_ENTITY
 
@@ -386,50 +387,54 @@ def record_robot(
     digest = hashlib.sha1(f"{settings.port}{settings.camera}{stamp}".encode()).hexdigest()[:8]
     rid = f"robot-{stamp}-{digest}"
     path = Path(out) if out else Path("recordings") / f"{rid}.rrd"
-    check_output_path(path, force)
-    device.connect()  # a missing port or camera fails here, before the file exists
-    live = spawn_viewer() if spawn else live_url
-    model = make_model(settings.model, fps=cfg.fps, deg_per_px=cfg.deg_per_px)
-    recorder = Recorder(
-        path,
-        rid,
-        live_url=live,
-        blueprint=default_blueprint(
-            model.name, model.outputs, [("serial link counts", [LINK_STATS_ENTITY])]
-        ),
-    )
-    recorder.log_arena(ArenaConfig(), RobotConfig().radius_m)
-    recorder.send_properties(
-        {
-            "run": {
-                "recording_id": rid,
-                "source": "robot",
-                "port": settings.port,
-                "baud": settings.baud,
-                "camera": settings.camera,
-                "behaviour": "robot",
-            },
-            "wall": {
-                "scene": wall.scene,
-                "period_m": wall.period_m,
-                "tf_schedule_text": ",".join(f"{t:g}:{d:g}s" for t, d in schedule),
-            },
-            "camera": {"fps": cfg.fps, "width_px": 99, "height_px": 72, "hfov_deg": 70.0},
-            "model": {"name": model.name, "on_board": True},
-            "model_params": model.params.to_dict(),
-            "link": {"protocol": "vdc serial v1 (see README)", "stats": ",".join(LINK_STATS)},
-            "provenance": {**package_versions(), **machine_info()},
-        }
-    )
-    recorder.log_model_meta(model.name, model.outputs)
-    if settings.save_calibration:
-        from capture.tracker import save_calibration
+    claim = claim_output(path, force)  # exclusive from here; bad folders fail here
+    recorder = None
+    try:
+        device.connect()  # a missing port or camera fails here, before the file exists
+        live = spawn_viewer() if spawn else live_url
+        model = make_model(settings.model, fps=cfg.fps, deg_per_px=cfg.deg_per_px)
+        recorder = Recorder(
+            claim.partial,
+            rid,
+            live_url=live,
+            blueprint=default_blueprint(
+                model.name, model.outputs, [("serial link counts", [LINK_STATS_ENTITY])]
+            ),
+        )
+        recorder.log_arena(ArenaConfig(), RobotConfig().radius_m)
+        recorder.send_properties(
+            {
+                "run": {
+                    "recording_id": rid,
+                    "source": "robot",
+                    "port": settings.port,
+                    "baud": settings.baud,
+                    "camera": settings.camera,
+                    "behaviour": "robot",
+                },
+                "wall": {
+                    "scene": wall.scene,
+                    "period_m": wall.period_m,
+                    "tf_schedule_text": ",".join(f"{t:g}:{d:g}s" for t, d in schedule),
+                },
+                "camera": {"fps": cfg.fps, "width_px": 99, "height_px": 72, "hfov_deg": 70.0},
+                "model": {"name": model.name, "on_board": True},
+                "model_params": model.params.to_dict(),
+                "link": {"protocol": "vdc serial v1 (see README)", "stats": ",".join(LINK_STATS)},
+                "provenance": {**package_versions(), **machine_info()},
+            }
+        )
+        recorder.log_model_meta(model.name, model.outputs)
+        if settings.save_calibration:
+            from capture.tracker import save_calibration
 
-        h = device.calibrate_tracker()
-        if h is None:
-            raise ValueError("no overhead frame yet to calibrate from")
-        save_calibration(h, Path(settings.save_calibration))
-    if log is not None:
-        log(f"recording {rid} from {settings.port} (overhead camera {settings.camera}) -> {path}")
-    result = run_capture(device, None, recorder, total_frames=None, progress=progress)
+            h = device.calibrate_tracker()
+            if h is None:
+                raise ValueError("no overhead frame yet to calibrate from")
+            save_calibration(h, Path(settings.save_calibration))
+        if log is not None:
+            log(f"recording {rid} from {settings.port} (camera {settings.camera}) -> {path}")
+        result = run_capture(device, None, recorder, total_frames=None, progress=progress)
+    finally:
+        finish_output(claim, recorder)
     return RobotRecordResult(RecordResult.of(path, rid, result, None), device.link_stats())

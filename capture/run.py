@@ -8,7 +8,6 @@ stopped. Nothing already read from the device is dropped.
 from __future__ import annotations
 
 import dataclasses
-import os
 import signal
 import sys
 import threading
@@ -23,15 +22,17 @@ import numpy as np
 from avdm.base import Model
 from avdm.true_time import TrueTimeModel
 from capture.device import Batch, CaptureDevice
-from capture.recorder import Recorder
+from capture.output import OutputClaim
+from capture.recorder import Recorder, RecordingWriteError
 
 
 @dataclasses.dataclass
 class CaptureResult:
     frames: int
     events: dict[str, int]  # count per kind
-    stop_reason: str  # "finished" or "signal SIGINT" / "signal SIGTERM"
+    stop_reason: str  # "finished", "signal SIGINT" / "signal SIGTERM" or "write error"
     wall_time_s: float
+    write_error: str | None = None
 
 
 @dataclasses.dataclass
@@ -51,7 +52,14 @@ class RecordResult:
         cls, path: Path, recording_id: str, res: CaptureResult, expected: int | None
     ) -> RecordResult:
         return cls(
-            path, recording_id, res.frames, res.events, res.stop_reason, res.wall_time_s, expected
+            path,
+            recording_id,
+            res.frames,
+            res.events,
+            res.stop_reason,
+            res.wall_time_s,
+            expected,
+            res.write_error,
         )
 
     @property
@@ -62,32 +70,24 @@ class RecordResult:
     def complete(self) -> bool:
         return self.stop_reason == "finished"
 
+    write_error: str | None = None  # why the file could not take more (disk full, ...)
+
     @property
     def exit_status(self) -> int:
-        """0 when finished; 130 / 143 when stopped by SIGINT / SIGTERM (shell convention)."""
+        """0 when finished; 130 / 143 when stopped by SIGINT / SIGTERM (shell convention); 1
+        when the file could not take more."""
         if self.complete:
             return 0
+        if self.stop_reason == "write error":
+            return 1
         return 130 if "SIGINT" in self.stop_reason else 143
 
 
-def check_output_path(path: Path, force: bool) -> None:
-    """Refuse to overwrite (unless ``force``) and make sure the folder is writable, before
-    anything is rendered; raises ValueError with the fix."""
-    if path.suffix != ".rrd":
-        raise ValueError(f"output {str(path)!r} must end in .rrd")
-    if path.is_dir():
-        raise ValueError(f"output {str(path)!r} is a directory; give a file name ending in .rrd")
-    if path.exists() and not force:
-        raise ValueError(
-            f"{str(path)!r} already exists (same configuration recorded before?): "
-            "pass --force to record it again, or choose --out"
-        )
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"cannot create the folder {str(path.parent)!r}: {exc.strerror}") from None
-    if not os.access(path.parent, os.W_OK):
-        raise ValueError(f"the folder {str(path.parent)!r} is not writable")
+def finish_output(claim: OutputClaim, recorder: Recorder | None) -> None:
+    """End a capture's claim on its output: publish the recording if the run happened (it was
+    closed, or holds frames), else remove the partial file. Call in a ``finally``."""
+    keep = recorder is not None and (recorder.closed or recorder.frames_logged > 0)
+    claim.finish(keep=keep)
 
 
 class StopFlag:
@@ -117,6 +117,13 @@ def stop_on_signals() -> Iterator[StopFlag]:
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+
+
+def batch_bytes(batch: Batch) -> int:
+    """About what a batch adds to the file: its raw images (camera noise does not compress)
+    and a margin for the scalars, events and chunk headers."""
+    overhead = sum(img.nbytes for _, img in batch.overhead) if batch.overhead else 0
+    return int(batch.images.nbytes + overhead + 512 * len(batch) + (64 << 10))
 
 
 def log_batch(
@@ -216,7 +223,14 @@ def run_capture(
                     batch = device.read()
                     if batch is None:
                         break
-                    for kind, n in log_batch(recorder, model, batch, prev_t).items():
+                    try:
+                        recorder.reserve(batch_bytes(batch))
+                        logged = log_batch(recorder, model, batch, prev_t)
+                        recorder.end_batch()
+                    except RecordingWriteError:
+                        stop.reason = "write error"
+                        break
+                    for kind, n in logged.items():
                         events[kind] = events.get(kind, 0) + n
                     if len(batch):
                         prev_t = float(batch.t_s[-1])
@@ -234,4 +248,4 @@ def run_capture(
             complete=reason == "finished",
             wall_time_s=round(wall, 3),
         )
-    return CaptureResult(frames, events, reason, wall)
+    return CaptureResult(frames, events, reason, wall, recorder.write_error)

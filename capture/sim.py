@@ -271,8 +271,9 @@ def record_sim(
     (in the main thread) ends the run cleanly: the result says so and the file is valid."""
     from avdm.registry import make_model
     from capture.collision import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
+    from capture.output import claim_output
     from capture.recorder import Recorder, default_blueprint, spawn_viewer
-    from capture.run import check_output_path, run_capture
+    from capture.run import finish_output, run_capture
     from contract.recording import model_path
 
     config = settings.to_config()
@@ -284,53 +285,64 @@ def record_sim(
     device = ClosedLoopRobot(config) if collision else SimulatedRobot(config)
     run_id = config.run_id()
     path = Path(out) if out else Path("recordings") / f"{run_id}.rrd"
-    check_output_path(path, force)
-    live = spawn_viewer() if spawn else live_url
-    if detector is not None:
-        main = detector
-        extra = [
-            ("AVDM omega_dps (deg/s), on board", [model_path(model.name, "omega_dps")]),
-            (
-                "spike rate and alert threshold (spikes/s)",
-                [model_path(CONTROLLER, "threshold"), model_path(detector.name, "spike_rate_hz")],
-            ),
-            (
-                "FFI and its threshold T_ffi in force",
-                [model_path(CONTROLLER, "t_ffi"), model_path(detector.name, "ffi")],
-            ),
-        ]
-    else:
-        main, extra = model, []
-    recorder = Recorder(
-        path, run_id, blueprint=default_blueprint(main.name, main.outputs, extra), live_url=live
-    )
-    recorder.send_properties(recording_properties(config, model, detector))
-    recorder.log_arena(config.arena, config.robot.radius_m)
-    recorder.log_model_meta(model.name, model.outputs)
-    if detector is not None:
-        from avdm.base import Output
+    claim = claim_output(path, force)  # exclusive from here; bad folders fail here
+    recorder = None
+    try:
+        live = spawn_viewer() if spawn else live_url
+        if detector is not None:
+            main = detector
+            extra = [
+                ("AVDM omega_dps (deg/s), on board", [model_path(model.name, "omega_dps")]),
+                (
+                    "spike rate and alert threshold (spikes/s)",
+                    [
+                        model_path(CONTROLLER, "threshold"),
+                        model_path(detector.name, "spike_rate_hz"),
+                    ],
+                ),
+                (
+                    "FFI and its threshold T_ffi in force",
+                    [model_path(CONTROLLER, "t_ffi"), model_path(detector.name, "ffi")],
+                ),
+            ]
+        else:
+            main, extra = model, []
+        recorder = Recorder(
+            claim.partial,
+            run_id,
+            blueprint=default_blueprint(main.name, main.outputs, extra),
+            live_url=live,
+        )
+        recorder.send_properties(recording_properties(config, model, detector))
+        recorder.log_arena(config.arena, config.robot.radius_m)
+        recorder.log_model_meta(model.name, model.outputs)
+        if detector is not None:
+            from avdm.base import Output
 
-        recorder.log_model_meta(detector.name, detector.outputs)
-        recorder.log_model_meta(
-            CONTROLLER, tuple(Output(k, u, d) for k, (u, d) in CONTROLLER_OUTPUTS.items())
+            recorder.log_model_meta(detector.name, detector.outputs)
+            recorder.log_model_meta(
+                CONTROLLER, tuple(Output(k, u, d) for k, (u, d) in CONTROLLER_OUTPUTS.items())
+            )
+        if log is not None:
+            what = (
+                f"collision mode, detector {detector.name}"
+                + (" (adaptive threshold)" if config.collision.adaptive else "")
+                if detector
+                else f"model {model.name}"
+            )
+            schedule = config.to_sections()["wall"]["tf_schedule_text"]
+            log(
+                f"recording {run_id}: {config.wall.scene} walls, TF schedule "
+                f"{schedule}, {config.duration_s / 60:g} min "
+                f"({config.n_frames} frames at {config.camera.fps:g} Hz), {what}"
+            )
+        result = run_capture(
+            device,
+            None if collision else model,
+            recorder,
+            total_frames=config.n_frames,
+            progress=progress,
         )
-    if log is not None:
-        what = (
-            f"collision mode, detector {detector.name}"
-            + (" (adaptive threshold)" if config.collision.adaptive else "")
-            if detector
-            else f"model {model.name}"
-        )
-        log(
-            f"recording {run_id}: {config.wall.scene} walls, TF schedule "
-            f"{config.to_sections()['wall']['tf_schedule_text']}, {config.duration_s / 60:g} min "
-            f"({config.n_frames} frames at {config.camera.fps:g} Hz), {what}"
-        )
-    result = run_capture(
-        device,
-        None if collision else model,
-        recorder,
-        total_frames=config.n_frames,
-        progress=progress,
-    )
+    finally:
+        finish_output(claim, recorder)
     return RecordResult.of(path, run_id, result, config.n_frames)

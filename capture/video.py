@@ -375,8 +375,9 @@ def record_video(
     from avdm.calibration_store import calibration_for
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel
+    from capture.output import claim_output
     from capture.recorder import Recorder, spawn_viewer, video_blueprint
-    from capture.run import check_output_path, run_capture
+    from capture.run import finish_output, run_capture
     from contract.provenance import machine_info, package_versions
 
     rid = recording_id(settings)
@@ -388,65 +389,78 @@ def record_video(
             "choose another --out"
         )
     device = VideoSource(settings)  # opens the source: bad input fails here
-    check_output_path(path, force)
-    h, w = device.working_size()
-    # the one context every model of this recording is built with, online and offline
-    context = camera_model_context(w, h, device.fps, settings.fov_deg)
-    deg_per_px = float(context["deg_per_px"])
-    built = make_model(settings.model, **context)
-    cal = calibration_for(
-        device.fps, deg_per_px, progress=calibration_progress, params=_calibrated(built)
-    )
-    model = TrueTimeModel(built)
-    live = spawn_viewer() if spawn else live_url
-    recorder = Recorder(
-        path, rid, blueprint=video_blueprint(model.name, model.outputs), live_url=live
-    )
-    info = device.info
-    recorder.send_properties(
-        {
-            "run": {"recording_id": rid, "source": "video", "behaviour": "video"},
-            "video": {
-                "path": settings.source,
-                "kind": info["kind"],
-                "codec": info["codec"],
-                "nominal_fps": info["nominal_fps"],
-                "src_width_px": info["src_width_px"],
-                "src_height_px": info["src_height_px"],
-                "fov_deg": settings.fov_deg,
-                "rotation_deg": info["rotation_deg"],
-                "repeat_tol": settings.repeat_tol,
-                "max_repeats": settings.max_repeats,
-            },
-            "camera": {
-                "fps": device.fps,
-                "width_px": w,
-                "height_px": h,
-                "hfov_deg": settings.fov_deg,
-            },
-            "model": {"name": model.name, "true_time": True},
-            "model_context": dict(context),
-            "model_params": {k: v for k, v in model.params.to_dict().items() if v is not None},
-            "calibration": {
-                k: cal[k]
-                for k in ("a", "b", "r2", "rms_rel_error", "max_rel_error", "n_points", "source")
-                if k in cal
-            },
-            "provenance": {**package_versions(), **machine_info()},
-        }
-    )
-    recorder.log_model_meta(model.name, model.outputs)
-    if log is not None:
-        log(
-            f"recording {rid}: {settings.source} ({info['codec']}, {info['src_width_px']}x"
-            f"{info['src_height_px']}, {device.fps:.6g} fps) as {w}x{h} px luma at "
-            f"{deg_per_px:.4g} deg/px, model {model.name}"
+    claim = claim_output(path, force)  # exclusive from here; bad folders fail here
+    recorder = None
+    try:
+        h, w = device.working_size()
+        # the one context every model of this recording is built with, online and offline
+        context = camera_model_context(w, h, device.fps, settings.fov_deg)
+        deg_per_px = float(context["deg_per_px"])
+        built = make_model(settings.model, **context)
+        cal = calibration_for(
+            device.fps, deg_per_px, progress=calibration_progress, params=_calibrated(built)
         )
-    total = info["n_frames_header"] or None
-    result = run_capture(device, model, recorder, total_frames=total, progress=progress)
+        model = TrueTimeModel(built)
+        live = spawn_viewer() if spawn else live_url
+        recorder = Recorder(
+            claim.partial, rid, blueprint=video_blueprint(model.name, model.outputs), live_url=live
+        )
+        info = device.info
+        recorder.send_properties(
+            {
+                "run": {"recording_id": rid, "source": "video", "behaviour": "video"},
+                "video": {
+                    "path": settings.source,
+                    "kind": info["kind"],
+                    "codec": info["codec"],
+                    "nominal_fps": info["nominal_fps"],
+                    "src_width_px": info["src_width_px"],
+                    "src_height_px": info["src_height_px"],
+                    "fov_deg": settings.fov_deg,
+                    "rotation_deg": info["rotation_deg"],
+                    "repeat_tol": settings.repeat_tol,
+                    "max_repeats": settings.max_repeats,
+                },
+                "camera": {
+                    "fps": device.fps,
+                    "width_px": w,
+                    "height_px": h,
+                    "hfov_deg": settings.fov_deg,
+                },
+                "model": {"name": model.name, "true_time": True},
+                "model_context": dict(context),
+                "model_params": {k: v for k, v in model.params.to_dict().items() if v is not None},
+                "calibration": {
+                    k: cal[k]
+                    for k in (
+                        "a",
+                        "b",
+                        "r2",
+                        "rms_rel_error",
+                        "max_rel_error",
+                        "n_points",
+                        "source",
+                    )
+                    if k in cal
+                },
+                "provenance": {**package_versions(), **machine_info()},
+            }
+        )
+        recorder.log_model_meta(model.name, model.outputs)
+        if log is not None:
+            log(
+                f"recording {rid}: {settings.source} ({info['codec']}, {info['src_width_px']}x"
+                f"{info['src_height_px']}, {device.fps:.6g} fps) as {w}x{h} px luma at "
+                f"{deg_per_px:.4g} deg/px, model {model.name}"
+            )
+        total = info["n_frames_header"] or None
+        result = run_capture(device, model, recorder, total_frames=total, progress=progress)
+    finally:
+        finish_output(claim, recorder)
     error = getattr(device.reader, "error", None)
     stated = float(info.get("duration_s") or 0.0)
-    if error is None and stated > 0 and device.last_t_s is not None:
+    finished = result.stop_reason == "finished"  # a signal or a full disk is not a cut file
+    if error is None and finished and stated > 0 and device.last_t_s is not None:
         # the frames end well before the duration the header states: the file was cut
         if device.last_t_s + 2.0 / device.fps < stated:
             error = (

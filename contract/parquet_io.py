@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import json
 import os
+import shutil
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -35,3 +39,86 @@ def read_metadata(path: Path) -> dict[str, Any]:
     """The ``vdc.*`` key-value metadata of a Parquet file, JSON-decoded, keys without prefix."""
     raw = pq.read_schema(path).metadata or {}
     return {k.decode()[4:]: json.loads(v) for k, v in raw.items() if k.decode().startswith("vdc.")}
+
+
+_STAGING = ".staging-"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_stale_staging(out_dir: Path) -> None:
+    """Staging folders of writers that died (SIGKILL leaves them): removed by the next one."""
+    for old in out_dir.parent.glob(f".{out_dir.name}{_STAGING}*"):
+        pid = old.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and not _pid_alive(int(pid)):
+            shutil.rmtree(old, ignore_errors=True)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux renameat2 RENAME_EXCHANGE); False where unsupported."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    rc = renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange)
+    return rc == 0
+
+
+def _publish(stage: Path, out_dir: Path) -> None:
+    if not out_dir.exists():
+        try:
+            os.rename(stage, out_dir)
+            return
+        except OSError:
+            if not out_dir.exists():
+                raise
+    # files of other commands (or earlier sets) in the folder stay: linked into the new one
+    for entry in out_dir.iterdir():
+        target = stage / entry.name
+        if target.exists() or entry.name.startswith("."):
+            continue
+        if entry.is_dir():
+            os.rename(entry, target)
+        else:
+            try:
+                os.link(entry, target)
+            except OSError:
+                shutil.copy2(entry, target)
+    if _exchange(stage, out_dir):
+        shutil.rmtree(stage, ignore_errors=True)  # now the old folder
+        return
+    old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
+    os.rename(out_dir, old)  # not atomic: for a moment the folder is absent, never mixed
+    os.rename(stage, out_dir)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def table_set(out_dir: Path) -> Iterator[Path]:
+    """Write a set of tables (and figures) as one: yields a staging folder beside ``out_dir``;
+    when the block ends, the folder replaces ``out_dir`` in one atomic exchange, so a reader
+    sees the old set or the new one, never a mix. Files already in ``out_dir`` that the new set
+    does not write are kept. If the block raises (a full disk, a signal), ``out_dir`` is left
+    as it was and the staging folder is removed; one left by a SIGKILL is removed by the next
+    writer."""
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_staging(out_dir)
+    stage = out_dir.with_name(f".{out_dir.name}{_STAGING}{os.getpid()}")
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir()
+    try:
+        yield stage
+        _publish(stage, out_dir)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)

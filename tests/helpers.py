@@ -81,8 +81,10 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> N
 
 
 def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.Popen:
-    """Start a 60-minute simulated capture writing ``out`` and wait until the file holds at
-    least ``min_bytes`` (frames are being written); the caller stops it."""
+    """Start a 60-minute simulated capture to ``out`` and wait until its partial file (where a
+    capture writes until it ends) holds at least ``min_bytes``; the caller stops it."""
+    from capture.output import partial_path
+
     proc = spawn(
         [
             sys.executable,
@@ -104,7 +106,8 @@ def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.P
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     deadline = time.time() + 60
-    while time.time() < deadline and (not out.exists() or out.stat().st_size < min_bytes):
+    part = partial_path(out)
+    while time.time() < deadline and (not part.exists() or part.stat().st_size < min_bytes):
         time.sleep(0.2)
     return proc
 

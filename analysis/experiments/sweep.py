@@ -351,7 +351,7 @@ def sweep(
 ) -> SweepResult:
     """``vdc-analyse sweep`` (paper Fig. 3). With ``out``: ``sweep.parquet``,
     ``monotonicity.parquet`` and ``sweep.png``. ``progress`` is called once per cell."""
-    from contract.parquet_io import write_parquet
+    from contract.parquet_io import table_set, write_parquet
 
     config = settings.stimulus
     name = canonical_name(settings.model)
@@ -376,14 +376,16 @@ def sweep(
                 "layout": "grid" if settings.grid else "paper",
             },
         }
-        paths.append(write_parquet(df, out / "sweep.parquet", meta))
-        paths.append(write_parquet(mono, out / "monotonicity.parquet", meta))
-        title = (
-            f"{name} on drifting {config.waveform} gratings, {config.size[1]}x{config.size[0]} "
-            f"px, {config.fps:g} Hz, contrast {config.contrast:g}"
-        )
-        if settings.grid:
-            paths.append(plot_grid(df, out / "sweep.png", title))
-        else:
-            paths.append(plot_paper(df, out / "sweep.png", config, title))
+        with table_set(out) as stage:  # published whole: never a mix of two runs
+            paths.append(write_parquet(df, stage / "sweep.parquet", meta))
+            paths.append(write_parquet(mono, stage / "monotonicity.parquet", meta))
+            title = (
+                f"{name} on drifting {config.waveform} gratings, {config.size[1]}x{config.size[0]} "
+                f"px, {config.fps:g} Hz, contrast {config.contrast:g}"
+            )
+            if settings.grid:
+                paths.append(plot_grid(df, stage / "sweep.png", title))
+            else:
+                paths.append(plot_paper(df, stage / "sweep.png", config, title))
+        paths = [out / p.name for p in paths]
     return SweepResult(df, mono, paths)
