@@ -86,9 +86,7 @@ def calibration_key(fps: float, deg_per_px: float, params: Any = None) -> dict[s
     key: dict[str, Any] = {
         "fps": float(f"{fps:.9g}"),
         "deg_per_px": float(f"{deg_per_px:.9g}"),
-        "size_hw": list(CAL_SIZE)
-        if kind == "avdm"
-        else [params.height_px, params.width_px],  # type: ignore[union-attr]
+        "size_hw": list(CAL_SIZE) if kind == "avdm" else [params.height_px, params.width_px],  # type: ignore[union-attr]
         "model": kind,
         "vdc_version": __version__,
     }

@@ -162,6 +162,11 @@ def cmd_video(args: argparse.Namespace) -> int:
     _report_write_error(rec)
     if rec.write_error:
         return rec.exit_status
+    if res.lost:
+        _stderr(
+            f"{PROG} video: note: {res.lost} frame(s) lost inside the source (first: "
+            f"{res.first_loss}); each is a decode_error event in the recording"
+        )
     if res.decode_error:
         _stderr(
             f"{PROG} video: note: decoding stopped after {rec.frames} frames "

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import re
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -73,13 +74,27 @@ class VideoSettings:
         return working_size(src_h, src_w, self.fov_deg, self.width)
 
 
+# (luma (H, W) uint8, time since the first frame in s, what went wrong just before it or None)
+SourceFrame = tuple[np.ndarray, float, str | None]
+
+
 class _Reader:
-    """Frames and their times (s) from one source; ``info`` describes it."""
+    """Frames and their times (s) from one source; ``info`` describes it. ``error``: why the
+    source ended early (None when it ended normally); ``problems``: frames lost inside it
+    (missing or unreadable images, packets that would not decode), counted."""
 
     info: dict[str, Any]
+    error: str | None = None
+    problems: int = 0
+    first_problem: str | None = None
 
-    def frames(self) -> Iterator[tuple[np.ndarray, float]]:  # pragma: no cover - interface
+    def frames(self) -> Iterator[SourceFrame]:  # pragma: no cover - interface
         raise NotImplementedError
+
+    def _problem(self, text: str) -> str:
+        self.problems += 1
+        self.first_problem = self.first_problem or text
+        return text
 
     def close(self) -> None:
         pass
@@ -115,7 +130,6 @@ class _PyAvReader(_Reader):
             # what the container's header says (µs); a file cut short ends before it
             "duration_s": (self.container.duration or 0) / 1e6,
         }
-        self.error: str | None = None
         self._frames = self._decode()
         first = next(self._frames, None)  # a file with no decodable frame fails here
         if first is None:
@@ -125,26 +139,38 @@ class _PyAvReader(_Reader):
         self._first = first
         self.info["src_height_px"], self.info["src_width_px"] = first[0].shape[:2]
 
-    def _decode(self) -> Iterator[tuple[np.ndarray, float]]:
+    def _decode(self) -> Iterator[SourceFrame]:
+        """Packet by packet, so that one packet that will not decode costs its own frames
+        only: the error is noted on the next frame and decoding goes on (a whole-stream decode
+        stops at the first bad packet). A container that cannot be demuxed further ends here."""
         import av
 
         t0: float | None = None
+        i = 0
+        note: list[str] = []
         try:
-            for i, frame in enumerate(self.container.decode(self.stream)):
-                t = frame.time
-                if t is None:
-                    t = i / self.info["nominal_fps"]
-                t0 = t if t0 is None else t0
-                rot = round(float(getattr(frame, "rotation", 0) or 0))
-                self.info["rotation_deg"] = rot
-                luma = frame.to_ndarray(format="gray")
-                if rot % 360:  # the display matrix's counter-clockwise angle
-                    luma = np.ascontiguousarray(np.rot90(luma, k=round(rot / 90)))
-                yield luma, float(t - t0)
-        except av.FFmpegError as exc:  # a cut or corrupt file: keep what came before
+            for packet in self.container.demux(self.stream):
+                try:
+                    decoded = packet.decode()
+                except av.FFmpegError as exc:
+                    note.append(self._problem(f"a packet would not decode: {_ffmpeg_reason(exc)}"))
+                    continue
+                for frame in decoded:
+                    t = frame.time
+                    if t is None:
+                        t = i / self.info["nominal_fps"]
+                    t0 = t if t0 is None else t0
+                    rot = round(float(getattr(frame, "rotation", 0) or 0))
+                    self.info["rotation_deg"] = rot
+                    luma = frame.to_ndarray(format="gray")
+                    if rot % 360:  # the display matrix's counter-clockwise angle
+                        luma = np.ascontiguousarray(np.rot90(luma, k=round(rot / 90)))
+                    yield luma, float(t - t0), ("; ".join(note) or None)
+                    note, i = [], i + 1
+        except av.FFmpegError as exc:  # a cut or corrupt container: keep what came before
             self.error = _ffmpeg_reason(exc)
 
-    def frames(self) -> Iterator[tuple[np.ndarray, float]]:
+    def frames(self) -> Iterator[SourceFrame]:
         yield self._first
         yield from self._frames
 
@@ -152,50 +178,153 @@ class _PyAvReader(_Reader):
         self.container.close()
 
 
-class _OpenCvReader(_Reader):
-    """Image sequences (timed by ``fps``) and cameras (timed by the host clock)."""
+class _CameraReader(_Reader):
+    """A camera by index, read with OpenCV and stamped with the host's clock."""
 
     def __init__(self, source: str, fps: float | None) -> None:
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-        camera = source.isdigit()
-        if not camera and fps is None:
-            raise ValueError("an image sequence needs --fps (its frame rate)")
-        self.cap = (
-            cv2.VideoCapture(int(source)) if camera else cv2.VideoCapture(source, cv2.CAP_IMAGES)
-        )
+        self.cap = cv2.VideoCapture(int(source))
         if not self.cap.isOpened():
-            what = f"camera {source}" if camera else f"image sequence {source!r}"
-            raise ValueError(f"{what} cannot be opened (no such camera or no matching files)")
+            raise ValueError(f"camera {source} cannot be opened (no such camera)")
         ok, first = self.cap.read()
         if not ok or first is None:
-            raise ValueError(f"{source!r} gives no frame")
+            self.cap.release()
+            raise ValueError(f"camera {source} gives no frame")
         self.first = first
-        self.camera = camera
-        cam_fps = self.cap.get(cv2.CAP_PROP_FPS) if camera else 0.0
+        cam_fps = self.cap.get(cv2.CAP_PROP_FPS)
         self.fps = fps or (cam_fps if cam_fps and cam_fps > 0 else 30.0)
         h, w = first.shape[:2]
         self.info = {
-            "kind": "camera" if camera else "images",
-            "codec": "camera" if camera else "image files",
+            "kind": "camera",
+            "codec": "camera",
             "nominal_fps": float(self.fps),
             "src_width_px": w,
             "src_height_px": h,
-            "n_frames_header": 0 if camera else int(self.cap.get(cv2.CAP_PROP_FRAME_COUNT)),
+            "n_frames_header": 0,
             "rotation_deg": 0,
         }
-        self.error = None
 
-    def frames(self) -> Iterator[tuple[np.ndarray, float]]:
+    def frames(self) -> Iterator[SourceFrame]:
         t0 = time.monotonic()
-        img, i = self.first, 0
+        img = self.first
         while img is not None:
-            luma = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-            yield luma, (time.monotonic() - t0) if self.camera else i / self.fps
+            yield _luma(img), time.monotonic() - t0, None
             ok, img = self.cap.read()
-            img, i = (img if ok else None), i + 1
+            img = img if ok else None
 
     def close(self) -> None:
         self.cap.release()
+
+
+def _luma(img: np.ndarray) -> np.ndarray:
+    return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+
+
+_PATTERN_FIELD = re.compile(r"%(0?)(\d*)d")
+
+
+def _jpeg_cut(path: Path) -> bool:
+    """A JPEG without its end-of-image marker was cut short (OpenCV decodes it anyway, with
+    the missing part grey); trailing padding after the marker is allowed."""
+    with path.open("rb") as fh:
+        fh.seek(max(0, path.stat().st_size - 4096))
+        tail = fh.read().rstrip(b"\x00")
+    return not tail.endswith(b"\xff\xd9")
+
+
+class _ImageSequenceReader(_Reader):
+    """Numbered images (``frames/%05d.png``), timed by their number and ``fps``.
+
+    Every number from the first file to the last is a frame: a missing number, a file that
+    will not decode or a JPEG cut short is a lost frame, noted on the next good one (and so
+    recorded as a dropped frame with its reason), never a silent end of the sequence."""
+
+    def __init__(self, pattern: str, fps: float | None) -> None:
+        if fps is None:
+            raise ValueError("an image sequence needs --fps (its frame rate)")
+        fields = list(_PATTERN_FIELD.finditer(pattern))
+        if len(fields) != 1:
+            raise ValueError(
+                f"image sequence {pattern!r}: give one number field such as %05d "
+                "(a file with % in its name is read as a video when it exists)"
+            )
+        field = fields[0]
+        head, tail = pattern[: field.start()], pattern[field.end() :]
+        folder_text, _, prefix = head.rpartition("/")
+        folder, suffix = Path(folder_text or "."), tail
+        number = re.compile(re.escape(prefix) + r"(\d+)" + re.escape(suffix) + "$")
+        found: dict[int, Path] = {}
+        if folder.is_dir():
+            for entry in folder.iterdir():
+                m = number.match(entry.name)
+                if m and (not field.group(2) or len(m.group(1)) >= int(field.group(2))):
+                    found.setdefault(int(m.group(1)), entry)
+        if not found:
+            raise ValueError(f"image sequence {pattern!r} cannot be opened (no matching files)")
+        width = f"{field.group(1)}{field.group(2)}d"
+        self.name_of = lambda k: Path(head + format(k, width) + tail).name
+        self.paths = found
+        self.first_index, self.last_index = min(found), max(found)
+        self.fps = float(fps)
+        first = None
+        for k in range(self.first_index, self.last_index + 1):  # the first readable image
+            first = self._read(k)
+            if first is not None:
+                break
+        if first is None:
+            raise ValueError(f"image sequence {pattern!r}: no image in it can be read")
+        self.problems, self.first_problem = 0, None  # counted again when the frames are read
+        h, w = first.shape
+        self.info = {
+            "kind": "images",
+            "codec": "image files",
+            "nominal_fps": self.fps,
+            "src_width_px": w,
+            "src_height_px": h,
+            "n_frames_header": self.last_index - self.first_index + 1,
+            "rotation_deg": 0,
+        }
+        self.size = (h, w)
+
+    def _read(self, k: int) -> np.ndarray | None:
+        path = self.paths.get(k)
+        if path is None:
+            return None
+        if path.suffix.lower() in (".jpg", ".jpeg") and _jpeg_cut(path):
+            return None
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None or img.ndim not in (2, 3):
+            return None
+        if img.dtype != np.uint8:  # 16-bit PNG/TIFF: the top 8 bits
+            img = (img >> 8).astype(np.uint8) if img.dtype == np.uint16 else None
+            if img is None:
+                return None
+        if img.ndim == 3 and img.shape[2] == 4:
+            img = img[:, :, :3]
+        return _luma(img)
+
+    def frames(self) -> Iterator[SourceFrame]:
+        note: list[str] = []
+        k0: int | None = None  # the first image read: time 0
+        for k in range(self.first_index, self.last_index + 1):
+            img = self._read(k)
+            path = self.paths.get(k)
+            why = (
+                None
+                if img is not None and img.shape == self.size
+                else "missing"
+                if path is None
+                else "of another size"
+                if img is not None
+                else "unreadable or cut short"
+            )
+            if why is not None:
+                name = path.name if path is not None else self.name_of(k)
+                note.append(self._problem(f"image {name} {why}"))
+                continue
+            k0 = k if k0 is None else k0
+            yield img, (k - k0) / self.fps, ("; ".join(note) or None)
+            note = []
 
 
 def _ffmpeg_reason(exc: Exception) -> str:
@@ -205,7 +334,9 @@ def _ffmpeg_reason(exc: Exception) -> str:
 def open_source(settings: VideoSettings) -> _Reader:
     if settings.kind == "file":
         return _PyAvReader(settings.source)
-    return _OpenCvReader(settings.source, settings.fps)
+    if settings.kind == "camera":
+        return _CameraReader(settings.source, settings.fps)
+    return _ImageSequenceReader(settings.source, settings.fps)
 
 
 class VideoSource:
@@ -222,7 +353,7 @@ class VideoSource:
         if not (math.isfinite(fps) and fps > 0):
             raise ValueError(f"{settings.source!r} states no frame rate: pass --fps")
         self.fps = float(fps)
-        self._it: Iterator[tuple[np.ndarray, float]] | None = None
+        self._it: Iterator[SourceFrame] | None = None
         self._size: tuple[int, int] | None = None
         self._index = 0
         self._prev: np.ndarray | None = None
@@ -245,11 +376,12 @@ class VideoSource:
 
     def read(self) -> Batch | None:
         assert self._it is not None, "connect() first"
-        images, times = [], []
+        images, times, notes = [], [], []
         h, w = self.working_size()
-        for luma, t in self._it:
+        for luma, t, note in self._it:
             images.append(cv2.resize(luma, (w, h), interpolation=cv2.INTER_AREA))
             times.append(t)
+            notes.append(note)
             if len(images) >= self.settings.batch_frames:
                 break
         if not images:
@@ -284,12 +416,17 @@ class VideoSource:
             for f, n, dt_i in zip(frame, dropped, dt, strict=True)
             if n > 0
         ]
+        events += [  # frames lost inside the source, with the reason
+            Event("decode_error", int(f), math.nan, math.nan, math.nan, f"before frame {f}: {n}")
+            for f, n in zip(frame, notes, strict=True)
+            if n
+        ]
         self._index += len(frames)
         self._prev, self._prev_t = frames[-1], float(t_s[-1])
         self.last_t_s = self._prev_t
         self.dropped_total += int(dropped.sum())
         self.repeats_total += int(repeat.sum())
-        err = getattr(self.reader, "error", None)
+        err = self.reader.error
         if err and len(images) < self.settings.batch_frames:
             events.append(
                 Event(
@@ -333,6 +470,8 @@ class VideoRecordResult:
     dropped: int  # frames missing according to the timestamps
     decode_error: str | None  # why decoding stopped early, if it did
     calibration: dict[str, Any]
+    lost: int = 0  # frames lost inside the source (bad packets, missing or bad images)
+    first_loss: str | None = None  # the first of them, named
 
 
 def recording_id(settings: VideoSettings) -> str:
@@ -474,4 +613,6 @@ def record_video(
         device.dropped_total,
         error,
         cal,
+        device.reader.problems,
+        device.reader.first_problem,
     )

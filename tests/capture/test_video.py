@@ -338,8 +338,15 @@ def test_online_equals_offline_on_natural_footage_through_h264(natural_clip, tmp
     row 2 online and row H/2 offline)."""
     out = tmp_path / "nat.rrd"
     proc = run_cli(
-        "capture", "video", str(natural_clip), "--fov-deg", "70", "--model", model,
-        "--out", str(out),
+        "capture",
+        "video",
+        str(natural_clip),
+        "--fov-deg",
+        "70",
+        "--model",
+        model,
+        "--out",
+        str(out),
     )
     assert proc.returncode == 0, proc.stderr
     rec = Recording(out)
