@@ -1,5 +1,5 @@
 """``python -m analysis`` = ``vdc-analyse``."""
 
-from analysis.cli import main
+from contract.launch import analyse
 
-raise SystemExit(main())
+raise SystemExit(analyse())

@@ -26,10 +26,13 @@ from pathlib import Path
 from typing import Any
 
 import polars as pl
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 from analysis.profile import safe_key
 from analysis.rrd_reader import Recording, RecordingError
 from analysis.tables import (
+    DistinctRecordings,
     SummarySettings,
     events_table,
     load_recording,
@@ -103,8 +106,28 @@ def part_dir(out: Path, recording_id: str, spec: str | None = None) -> Path:
     return d if spec is None else d / f"model={model_slug(spec)}"
 
 
+def readable_part(path: Path) -> bool:
+    """A part file that exists and whose Parquet footer reads (parts are written atomically,
+    so a damaged one was damaged afterwards: a disk error, a copy cut short)."""
+    try:
+        pq.read_metadata(path)
+    except (OSError, pa.ArrowException):
+        return False
+    return True
+
+
 def is_done(out: Path, recording_id: str, spec: str) -> bool:
-    return (part_dir(out, recording_id, spec) / "summary.parquet").exists()
+    """A task is done when its parts, and the recording's shared ones, all read."""
+    d, shared = part_dir(out, recording_id, spec), part_dir(out, recording_id)
+    return all(
+        readable_part(p)
+        for p in (
+            d / "summary.parquet",
+            d / "model_outputs.parquet",
+            shared / "frames.parquet",
+            shared / "events.parquet",
+        )
+    )
 
 
 def analyse_task(path: str, spec: str, out: str, settings: dict[str, Any], force: bool) -> dict:
@@ -126,7 +149,7 @@ def analyse_task(path: str, spec: str, out: str, settings: dict[str, Any], force
     }
     shared = part_dir(Path(out), rid)
     for table, df in (("frames", loaded.frames), ("events", events_table(loaded))):
-        if force or not (shared / f"{table}.parquet").exists():
+        if force or not readable_part(shared / f"{table}.parquet"):
             write_parquet(df, shared / f"{table}.parquet", meta)
     outputs = recompute(loaded, [spec])
     mo = model_outputs_table(loaded, outputs)
@@ -161,12 +184,15 @@ def plan_tasks(
     """Every (path, spec, recording id) in a fixed order, and recordings that do not open
     (path, error): a corrupt recording fails its own tasks only."""
     tasks, bad = [], []
+    distinct = DistinctRecordings()  # two files of one id would share (and mix) their parts
     for path in sorted({str(p) for p in recordings}):
         try:
             rid = Recording(path).recording_id
         except (RecordingError, OSError, ValueError) as exc:
             bad.append((path, str(exc)))
             rid = None
+        if rid is not None:
+            distinct.add(rid, path)
         tasks += [(path, spec, rid) for spec in models]
     return tasks, bad
 
@@ -238,6 +264,13 @@ def summarise(out: str | Path) -> tuple[dict[str, pl.DataFrame], list[Path]]:
     done = sorted((out / PARTS).glob("recording_id=*/model=*/summary.parquet"))
     if not done:
         raise ValueError(f"{str(out)!r} has no finished batch parts (run vdc-analyse batch)")
+    for p in done:
+        for part in (p, p.parent / "model_outputs.parquet", *p.parent.parent.glob("*.parquet")):
+            if not readable_part(part):
+                raise ValueError(
+                    f"the batch part {str(part)!r} is damaged or missing: run the same "
+                    "vdc-analyse batch again to recompute it"
+                )
     recs = sorted({p.parent.parent for p in done})
     meta: dict[str, Any] = {"arena_half_extent_m": {}, "params": {}, "recordings": []}
     for p in done:

@@ -80,7 +80,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from analysis.experiments.calibrate import CalibrateSettings, calibrate
+    from analysis.experiments.calibrate import MIN_CALIBRATION_R2, CalibrateSettings, calibrate
 
     s = _settings(CalibrateSettings, args)
     with _progress(s.n_cells(), "calibrate") as bar:
@@ -96,8 +96,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         f"omega is off by {100 * fit.rms_rel_error:.1f} % RMS, "
         f"{100 * fit.max_rel_error:.1f} % at worst"
     )
-    print(f"  use it as: --model {s.model.split(':')[0]}:a={fit.a:.6g},b={fit.b:.6g}")
     print(f"  wrote {res.paths[0]} and {res.paths[1]}")
+    if not res.usable:
+        print(
+            f"{PROG} calibrate: error: the fit is poor (R^2 {fit.r2:.2f} < {MIN_CALIBRATION_R2}):"
+            " not offered for use; the geometry leaves too few valid cells (try a larger --size"
+            " or a higher --fps)",
+            file=sys.stderr,
+        )
+        return 1
+    print(f"  use it as: --model {s.model.split(':')[0]}:a={fit.a:.6g},b={fit.b:.6g}")
     if s.update_defaults:
         print(f"  updated the shipped defaults in {res.paths[2]}")
     return 0

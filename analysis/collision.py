@@ -326,12 +326,14 @@ def collision(
     per recording, ``collision_study.png`` and ``collision.rrd``."""
     import hashlib
 
-    from analysis.tables import Notices, load_recording
+    from analysis.tables import DistinctRecordings, Notices, load_recording
     from contract.parquet_io import table_set, write_parquet
 
     items, notes = [], Notices(notice)
+    distinct = DistinctRecordings()
     for path in recordings:
         loaded = load_recording(path)
+        distinct.add(loaded.recording_id, path)
         notes.of(loaded)
         row, ev = collision_metrics(loaded, settings)
         items.append((loaded, row, ev))

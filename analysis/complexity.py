@@ -222,12 +222,14 @@ def complexity(
     ``complexity_correlations.parquet``, and per recording a figure (metrics over time,
     normalised, and their rank correlations) and an ``.rrd`` with the source's recording id
     (open it beside the source: ``rerun REC OUT/complexity_<id>.rrd``)."""
-    from analysis.tables import Notices, load_recording
+    from analysis.tables import DistinctRecordings, Notices, load_recording
     from contract.parquet_io import table_set, write_parquet
 
     parts, corrs, paths, notes = [], [], [], Notices(notice)
+    distinct = DistinctRecordings()
     for path in recordings:
         loaded = load_recording(path)
+        distinct.add(loaded.recording_id, path)
         notes.of(loaded)
         ctx = loaded.camera_context()
         cam = loaded.props.get("camera", {})

@@ -14,6 +14,7 @@ import dataclasses
 import os
 import struct
 import tempfile
+import time
 import warnings
 import weakref
 from collections.abc import Iterator
@@ -25,7 +26,16 @@ import polars as pl
 import pyarrow as pa
 import rerun as rr
 
-from contract.recording import CAMERA, EVENTS, MODEL_ROOT, POSE, WALL_TF, entity_name
+from contract.recording import (
+    CAMERA,
+    EVENTS,
+    MODEL_ROOT,
+    PARTIAL_SUFFIX,
+    POSE,
+    WALL_TF,
+    capture_writing,
+    entity_name,
+)
 
 RRD_MAGIC = b"RRF2"
 RRD_FILE_HEADER = 12  # magic, version, options
@@ -106,7 +116,7 @@ def complete_prefix(path: Path) -> tuple[int, int]:
     return pos, count
 
 
-def _repaired_copy(path: Path) -> tuple[int, Path, str] | None:
+def _repaired_copy(path: Path, snapshot: bool = False) -> tuple[int, Path, str] | None:
     """An unnamed temporary copy of the complete messages of a truncated file: (its open file
     descriptor, a path that reads it, a note), or None if the file is not truncated
     mid-message (or holds no complete message).
@@ -116,7 +126,7 @@ def _repaired_copy(path: Path) -> tuple[int, Path, str] | None:
     ``/proc/self/fd``. A copy that does not fit raises RecordingError naming the folder."""
     good, count = complete_prefix(path)
     size = path.stat().st_size
-    if good >= size or count == 0:
+    if (good >= size and not snapshot) or count == 0:
         return None
     folder = tempfile.gettempdir()
     fd, tmp = tempfile.mkstemp(suffix=".rrd", prefix="vdc-repaired-", dir=folder)
@@ -135,10 +145,20 @@ def _repaired_copy(path: Path) -> tuple[int, Path, str] | None:
             f"copy in {folder} ({exc.strerror}); set TMPDIR to a folder with room"
         ) from None
     note = (
-        f"{path.name} is truncated ({size - good} bytes of an incomplete message at the "
+        f"{path.name} is still being written: read as a snapshot of its first {count} "
+        f"messages ({good / 1e6:.1f} MB)"
+        if snapshot
+        else f"{path.name} is truncated ({size - good} bytes of an incomplete message at the "
         f"end): repaired by reading its {count} complete messages"
     )
     return fd, Path(f"/proc/self/fd/{fd}"), note
+
+
+def _growing(path: Path, wait_s: float = 0.3) -> bool:
+    """Whether a file without a footer is still being written by someone (it grows)."""
+    before = path.stat().st_size
+    time.sleep(wait_s)
+    return path.stat().st_size != before
 
 
 class Recording:
@@ -148,35 +168,54 @@ class Recording:
         self.path = Path(path)
         _check_path(self.path)
         self.notice: str | None = None
-        try:
-            self._reader = self._open(self.path)
-        except Exception as exc:  # the SDK raises several types for damaged files
-            # a file cut inside a message (a copy that stopped early, a crash mid-write):
-            # read the complete messages before the cut from a temporary copy
-            repaired = _repaired_copy(self.path)
-            if repaired is None:
-                raise RecordingError(f"{str(self.path)!r} is damaged: {exc}") from None
-            fd, source, self.notice = repaired
-            weakref.finalize(self, os.close, fd)
+        # a capture still writing it (its claim names a live pid): read a snapshot, so that
+        # every table comes from the same bytes
+        if self.path.name.endswith(PARTIAL_SUFFIX) and capture_writing(self.path) is not None:
+            self._open_copy(snapshot=True)
+        else:
             try:
-                self._reader = self._open(source)
-            except Exception as exc2:
-                raise RecordingError(f"{str(self.path)!r} is damaged: {exc2}") from None
+                self._reader = self._open(self.path)
+            except Exception as exc:  # the SDK raises several types for damaged files
+                # a file cut inside a message (a copy that stopped early, a crash mid-write):
+                # read the complete messages before the cut from a temporary copy
+                self._open_copy(snapshot=False, cause=exc)
+        self._check_entries()
+        try:
+            self._store = self._reader.store()  # lazy: reads the footer's manifest only
+        except Exception:
+            self._store = None
+            if self._snapshot is None and _growing(self.path):  # written by another tool
+                self._open_copy(snapshot=True)
+                self._check_entries()
+            else:
+                # no footer: the capture was killed. A sequential scan reads every chunk.
+                self.notice = self.notice or (
+                    f"{self.path.name} has no footer (the capture was cut short): "
+                    "read it by a sequential scan; every complete chunk is used"
+                )
+        self._props: dict[str, dict[str, Any]] | None = None
+
+    _snapshot: Path | None = None
+
+    def _open_copy(self, snapshot: bool, cause: Exception | None = None) -> None:
+        """Read from an unnamed copy of the complete messages (see ``_repaired_copy``)."""
+        copy = _repaired_copy(self.path, snapshot)
+        if copy is None:
+            raise RecordingError(f"{str(self.path)!r} is damaged: {cause}") from None
+        fd, source, self.notice = copy
+        self._snapshot = source
+        weakref.finalize(self, os.close, fd)
+        try:
+            self._reader = self._open(source)
+        except Exception as exc2:
+            raise RecordingError(f"{str(self.path)!r} is damaged: {exc2}") from None
+
+    def _check_entries(self) -> None:
         entries = [e for e in self._reader.recordings() if e.kind == "recording"]
         if not entries:
             raise RecordingError(f"{str(self.path)!r} holds no recording (cut too early?)")
         self.application_id = entries[0].application_id
         self.recording_id = entries[0].recording_id
-        try:
-            self._store = self._reader.store()  # lazy: reads the footer's manifest only
-        except Exception:
-            # no footer: the capture was killed. A sequential scan still reads every chunk.
-            self._store = None
-            self.notice = self.notice or (
-                f"{self.path.name} has no footer (the capture was cut short): "
-                "read it by a sequential scan; every complete chunk is used"
-            )
-        self._props: dict[str, dict[str, Any]] | None = None
 
     @staticmethod
     def _open(path: Path) -> Any:

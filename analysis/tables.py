@@ -501,12 +501,42 @@ def summary_rows(
                 "threshold_dps": s.threshold_dps,
             }
         )
+    if not rows:
+        n = frames.height
+        why = (
+            f"it has {n} frames and the summary skips the models' warm-up of "
+            f"{s.warmup_frames}: record at least {s.warmup_frames + 1} frames"
+            if n <= s.warmup_frames
+            else f"no frame after the warm-up is {motion} driving"
+        )
+        raise RecordingError(f"{recording_id}: nothing to summarise: {why}")
     # a video has no walls: its wall TF is a null Float64 column, not an untyped one
     return (
         pl.DataFrame(rows)
         .with_columns(pl.col("wall_tf_hz").cast(pl.Float64))
         .sort("recording_id", "model", "wall_tf_hz")
     )
+
+
+class DistinctRecordings:
+    """Refuses a second recording with an id already seen in one analysis: the same file
+    given twice, a copy, or a run recorded twice would give every table duplicate
+    ``(recording_id, frame)`` keys."""
+
+    def __init__(self) -> None:
+        self.seen: dict[str, str] = {}
+
+    def add(self, recording_id: str, path: str | Path) -> None:
+        first = self.seen.get(recording_id)
+        if first is None:
+            self.seen[recording_id] = str(path)
+            return
+        what = (
+            "is given twice"
+            if Path(first).resolve() == Path(path).resolve()
+            else f"and {first!r} are the same recording (id {recording_id})"
+        )
+        raise RecordingError(f"{str(path)!r} {what}: give each recording once")
 
 
 def build_tables(
@@ -522,8 +552,10 @@ def build_tables(
     frames, outputs, events, summary = [], [], [], []
     params: dict[str, dict[str, dict[str, Any]]] = {}
     arenas: dict[str, tuple[float, float]] = {}
+    distinct = DistinctRecordings()
     for path in sorted(paths, key=str):
         loaded = load_recording(path, settings)
+        distinct.add(loaded.recording_id, path)
         if loaded.rec.notice and notices is not None:
             notices(loaded.rec.notice)
         if specs:

@@ -43,6 +43,9 @@ def parse_float_list(text: str) -> list[float]:
     return values
 
 
+MAX_SIDE_PX = 4096
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """``"99x72"`` (W x H, as image sizes are usually written) → ``(H, W)``."""
     try:
@@ -53,6 +56,10 @@ def parse_size(text: str) -> tuple[int, int]:
         ) from None
     if w < 2 or h < 1:
         raise argparse.ArgumentTypeError(f"size {text!r} is too small")
+    if w > MAX_SIDE_PX or h > MAX_SIDE_PX:  # stimuli are held in memory: 4096² is ~16 MB/frame
+        raise argparse.ArgumentTypeError(
+            f"size {text!r} is too large: at most {MAX_SIDE_PX} px a side"
+        )
     return h, w
 
 

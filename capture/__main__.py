@@ -1,5 +1,5 @@
 """``python -m capture`` = ``vdc-capture``."""
 
-from capture.cli import main
+from contract.launch import capture
 
-raise SystemExit(main())
+raise SystemExit(capture())

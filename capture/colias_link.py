@@ -88,15 +88,28 @@ class RobotEmulator:
         self._lost: set[int] = set()
 
     # -- the port ---------------------------------------------------------------------------
+    def _check_link(self) -> None:
+        """The link may replace only a link to a pseudo-terminal (an earlier emulator's):
+        never a file or a link the user made."""
+        link = self.link
+        if link.is_symlink():
+            if not os.readlink(link).startswith("/dev/pts/"):
+                raise ValueError(
+                    f"--link {str(link)!r} is a link to {os.readlink(link)!r}, not to an "
+                    "emulator's terminal; choose another path"
+                )
+        elif link.exists():
+            raise ValueError(f"--link {str(link)!r} exists and is not a link; choose another path")
+
     def open_port(self) -> str:
+        self._check_link()
         master, slave = pty.openpty()
         tty.setraw(slave)  # bytes pass untouched: no echo, no newline translation
         os.set_blocking(master, False)
         self._master, self._slave = master, slave
         name = os.ttyname(slave)
-        tmp = self.link.with_name(self.link.name + ".tmp")
-        if tmp.is_symlink() or tmp.exists():
-            tmp.unlink()
+        tmp = self.link.with_name(f".{self.link.name}.{os.getpid()}.tmp")  # ours alone
+        tmp.unlink(missing_ok=True)
         tmp.symlink_to(name)
         tmp.replace(self.link)  # atomic: the host never sees a half-made link
         return name

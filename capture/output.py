@@ -20,16 +20,9 @@ import os
 from pathlib import Path
 from typing import Any
 
-PARTIAL_SUFFIX = ".partial.rrd"
+from contract.recording import PARTIAL_SUFFIX, lock_path, partial_path
 
-
-def partial_path(path: Path) -> Path:
-    """Where a capture to ``path`` writes until it ends: ``<stem>.partial.rrd`` beside it."""
-    return path.with_name(path.name.removesuffix(".rrd") + PARTIAL_SUFFIX)
-
-
-def lock_path(path: Path) -> Path:
-    return path.with_name(f".{path.name}.lock")
+__all__ = ["OutputClaim", "claim_output", "lock_path", "partial_path"]
 
 
 def _check_name(path: Path) -> None:
@@ -140,6 +133,7 @@ def claim_output(path: Path, force: bool) -> OutputClaim:
     claim = OutputClaim(path, force, fd)
     try:
         # a probe write: a folder that accepts a lock file but no data (a full disk) fails here
+        os.ftruncate(fd, 0)  # the pid names the live writer (contract.recording.capture_writing)
         os.write(fd, f"{os.getpid()}\n".encode())
         if not force and path.exists():
             raise ValueError(

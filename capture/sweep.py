@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import re
 import time
 from collections.abc import Callable, Sequence
@@ -26,6 +27,7 @@ from typing import Any
 
 import polars as pl
 
+from avdm.registry import make_params
 from capture.sim import SimSettings
 from contract.executors import ExecutorSettings, TaskOutcome, run_tasks
 from contract.parquet_io import write_parquet
@@ -60,6 +62,27 @@ def _convert(field: str, kind: str, text: str) -> Any:
     return text
 
 
+_MODEL_FIELDS = ("model", "profile_model")
+# the most runs one sweep plans; a typo such as seed=1..1000000 is refused, not started
+MAX_RUNS = 10_000
+
+
+def _model_specs(text: str) -> list[str]:
+    """``avdm:beta=0.5,tw=6,avdm-on`` → ``["avdm:beta=0.5,tw=6", "avdm-on"]``: a comma starts a
+    new variant unless what follows is one more ``key=value`` of the variant before it (the
+    model spec syntax, ``name:key=value,...``); ``;`` always separates."""
+    specs: list[str] = []
+    for group in text.split(";"):
+        for token in group.split(","):
+            token = token.strip()
+            if specs and "=" in token and ":" not in token and ":" in specs[-1]:
+                specs[-1] += "," + token
+            elif token:
+                specs.append(token)
+        specs.append("")  # a ';' closes the variant before it
+    return [s for s in specs if s]
+
+
 def _values(field: str, kind: str, text: str) -> list[Any]:
     """``1,2,3`` or, for integers, ``1..5`` (inclusive)."""
     m = re.fullmatch(r"\s*(-?\d+)\s*\.\.\s*(-?\d+)\s*", text)
@@ -69,7 +92,12 @@ def _values(field: str, kind: str, text: str) -> list[Any]:
             raise ValueError(f"grid item {field}={text}: the range runs backwards")
         return list(range(lo, hi + 1))
     # a TF schedule holds commas itself: give several schedules separated by ';'
-    parts = text.split(";") if field == "tf_schedule" else text.split(",")
+    if field == "tf_schedule":
+        parts = text.split(";")
+    elif field in _MODEL_FIELDS:
+        parts = _model_specs(text)
+    else:
+        parts = text.split(",")
     values = [_convert(field, kind, v) for v in parts if v.strip()]
     if not values:
         raise ValueError(f"grid item {field}= has no value")
@@ -122,6 +150,16 @@ class CaptureSweepSettings(ExecutorSettings):
         grid = parse_grid(self.grid)
         fixed = {k: v[0] for k, v in grid.items() if len(v) == 1}
         varied = {k: v for k, v in grid.items() if len(v) > 1}
+        n_runs = math.prod(len(v) for v in varied.values())
+        if n_runs > MAX_RUNS:
+            raise ValueError(
+                f"the grid makes {n_runs:,} runs, more than {MAX_RUNS:,}: give fewer values "
+                "(or several sweeps)"
+            )
+        for field in _MODEL_FIELDS:  # unknown variants or overrides fail before any run
+            for spec in grid.get(field, []):
+                if spec is not None:
+                    make_params(spec)
         runs = []
         for combo in itertools.product(*varied.values()) if varied else [()]:
             values = dict(zip(varied, combo, strict=True))

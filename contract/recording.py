@@ -22,7 +22,9 @@ both import the names from here.
 
 from __future__ import annotations
 
+import os
 import re
+from pathlib import Path
 
 APP_ID = "vdc"
 FRAME_TIMELINE = "frame"
@@ -138,3 +140,39 @@ def camera_model_context(
         "width_px": width_px,
         "height_px": height_px,
     }
+
+
+# A capture writes <stem>.partial.rrd beside its output while it runs and holds an flock on
+# .<name>.lock (which names its pid); capture.output writes these, the reader checks them.
+PARTIAL_SUFFIX = ".partial.rrd"
+
+
+def partial_path(path: Path) -> Path:
+    """Where a capture to ``path`` writes until it ends: ``<stem>.partial.rrd`` beside it."""
+    return path.with_name(path.name.removesuffix(".rrd") + PARTIAL_SUFFIX)
+
+
+def lock_path(path: Path) -> Path:
+    """The claim of the capture writing ``path`` (or its partial file)."""
+    name = path.name
+    if name.endswith(PARTIAL_SUFFIX):
+        name = name.removesuffix(PARTIAL_SUFFIX) + ".rrd"
+    return path.with_name(f".{name}.lock")
+
+
+def capture_writing(path: Path) -> int | None:
+    """The pid of a live capture writing ``path`` (a final or partial name), else None."""
+    try:
+        text = lock_path(path).read_text().split()
+    except OSError:
+        return None
+    if not text or not text[0].isdigit():
+        return None
+    pid = int(text[0])
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return None  # a claim left by a killed capture
+    except PermissionError:
+        pass
+    return pid

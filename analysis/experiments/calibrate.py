@@ -145,11 +145,20 @@ class CalibrateSettings:
         return len(valid_periods_px(w)) * len(valid_tfs_hz(self.fps)) * len(self.contrasts)
 
 
+# Below this log-log R² a fit does not describe the model (the shipped fits reach 0.99): it
+# is written for inspection but never offered for use or stored as a default.
+MIN_CALIBRATION_R2 = 0.9
+
+
 @dataclasses.dataclass
 class CalibrateResult:
     fit: CalibrationResult
     entry: dict[str, Any]  # what calibration.json holds
     paths: list[Path]
+
+    @property
+    def usable(self) -> bool:
+        return bool(self.fit.r2 >= MIN_CALIBRATION_R2)
 
 
 def calibrate(
@@ -171,6 +180,7 @@ def calibrate(
         out = Path(out)
         write_calibration(fit, out / "calibration.json", name, model, base)
         paths += [out / "calibration.json", plot_calibration(fit, out / "calibration.png")]
-    if settings.update_defaults:
+    result = CalibrateResult(fit, entry, paths)
+    if settings.update_defaults and result.usable:
         paths.append(update_shipped(entry))
-    return CalibrateResult(fit, entry, paths)
+    return result

@@ -1,0 +1,28 @@
+"""The console scripts' entry: imports nothing heavy itself, so that Ctrl-C while the
+command's modules load (NumPy, Numba, polars: the first half-second) is one line, not a
+traceback."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+
+def launch(prog: str, module: str) -> int:
+    """Run ``module.main()`` for the console script ``prog``; Ctrl-C at any moment ends in
+    one line and exit status 130."""
+    try:
+        return int(importlib.import_module(module).main() or 0)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+
+
+def capture() -> int:
+    """``vdc-capture``."""
+    return launch("vdc-capture", "capture.cli")
+
+
+def analyse() -> int:
+    """``vdc-analyse``."""
+    return launch("vdc-analyse", "analysis.cli")
