@@ -100,8 +100,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if not res.usable:
         print(
             f"{PROG} calibrate: error: the fit is poor (R^2 {fit.r2:.2f} < {MIN_CALIBRATION_R2}):"
-            " not offered for use; the geometry leaves too few valid cells (try a larger --size"
-            " or a higher --fps)",
+            " not offered for use: over this geometry's narrow valid band the law explains too"
+            " little of the response (try a larger --size or a higher --fps)",
             file=sys.stderr,
         )
         return 1

@@ -412,6 +412,7 @@ class Recorder:
         self._timing_names_logged = False
         self.frames_logged = 0  # camera frames written (the claim keeps a file that has any)
         self.write_error: str | None = None  # why the capture stopped writing, for the user
+        self._raw_reserved = 0  # raw bytes of the batches reserved so far
         self._writer_failed = False  # the SDK's file writer died (cannot flush again)
         self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self.rec.log(POSE, rr.SeriesLines(names=list(POSE_NAMES)), static=True)
@@ -437,7 +438,12 @@ class Recorder:
 
     def reserve(self, nbytes: int) -> None:
         """Raise RecordingWriteError, before anything of it is sent, when about ``nbytes`` more
-        (plus the footer) would not fit on the disk or under RLIMIT_FSIZE."""
+        (plus the footer) would not fit on the disk or under RLIMIT_FSIZE. ``nbytes`` is the
+        batch's raw size; after the first batch it is scaled by the compression seen so far."""
+        raw = nbytes
+        if self._raw_reserved > 0:  # the file sink compresses: scale by what it has done
+            ratio = 1.5 * self.path.stat().st_size / self._raw_reserved  # 1.5: noisier frames
+            nbytes = int(nbytes * min(1.0, ratio))
         room = free_bytes(self.path)
         if nbytes + _CLOSE_RESERVE_BYTES > room:
             disk = os.statvfs(self.path.parent)
@@ -449,6 +455,7 @@ class Recorder:
                 f"{max(room, 0) / 1e6:.1f} MB left, the next batch needs ~{nbytes / 1e6:.1f} MB"
             )
             raise RecordingWriteError(self.write_error)
+        self._raw_reserved += raw
 
     def end_batch(self) -> None:
         """After each batch: the file holds it (or RecordingWriteError), the viewer is there."""

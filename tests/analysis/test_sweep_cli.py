@@ -105,6 +105,7 @@ def test_sweep_runs_as_a_module(out_dir: Path) -> None:
         (["sweep", "--duration", "0.01"], ["warm-up"]),
         (["sweep", "--contrast", "2"], ["--contrast"]),
         (["sweep", "--size", "ten"], ["WIDTHxHEIGHT"]),
+        (["sweep", "--size", "100000x100000"], ["too large"]),  # refused, not out of memory
         (["sweep", "--fps", "100"], ["paper layout"]),
         (["sweep", "--bogus"], ["unrecognized arguments"]),
         (["calibrate", "--fps", "-1"], ["positive number"]),
@@ -154,3 +155,16 @@ def test_calibrate_prints_and_saves_the_fit(out_dir: Path) -> None:
     saved = (out_dir / "calibration.json").read_text()
     assert '"r2"' in saved and '"grid"' in saved
     assert (out_dir / "calibration.png").exists()
+
+
+def test_a_poor_calibration_is_not_offered(tmp_path: Path) -> None:
+    """12x4 px at 30 Hz leaves a narrow valid band: the log-log fit explains too little of it
+    (R^2 about 0.67), so it is written for inspection but neither offered nor stored."""
+    proc = run_cli(
+        "analysis", "calibrate", "--fps", "30", "--size", "12x4", "--update-defaults",
+        "--out", str(tmp_path),
+    )  # fmt: skip
+    assert proc.returncode == 1, proc.stderr
+    assert "not offered for use" in proc.stderr and "use it as" not in proc.stdout
+    assert "updated the shipped defaults" not in proc.stdout
+    assert (tmp_path / "calibration.json").exists()

@@ -33,6 +33,15 @@ def test_grid_items_take_the_sim_settings_types() -> None:
     }
 
 
+def test_model_specs_keep_their_overrides_in_a_grid() -> None:
+    grid = parse_grid(["model=avdm:beta=0.5,tw=6,avdm-on;avdm:tw=3", "profile_model=avdm"])
+    assert grid["model"] == ["avdm:beta=0.5,tw=6", "avdm-on", "avdm:tw=3"]
+    keys = [
+        key for key, _, _ in CaptureSweepSettings(grid=("model=avdm:beta=0.5,tw=6,avdm",)).runs()
+    ]
+    assert len(keys) == 2 and not any(k.startswith("modeltw") for k in keys)
+
+
 @given(
     tfs=st.lists(st.sampled_from([0.0, 0.5, 1.0, 3.0]), min_size=1, max_size=3, unique=True),
     seeds=st.lists(st.integers(0, 50), min_size=1, max_size=3, unique=True),
@@ -119,6 +128,9 @@ def test_a_failing_run_is_listed_and_the_others_finish(tmp_path: Path) -> None:
         (["tf_hz=-3"], "must be between 0 and 100 Hz"),
         (["tf_hz=1", "--jobs", "0"], "--jobs must be at least 1"),
         (["tf_hz=1", "--scheduler", "missing.json"], "neither tcp://"),
+        (["model=avdm:beta=x"], "beta"),  # overrides are checked before any run starts
+        (["model=avdm,nope"], "unknown model 'nope'"),
+        (["seed=1..1000", "tf_hz=0,1,2,3,4,5,6,7,8,9,10"], "11,000 runs"),
     ],
 )
 def test_bad_grids_are_one_line_errors(tmp_path: Path, args: list[str], needle: str) -> None:
