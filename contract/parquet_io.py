@@ -112,6 +112,8 @@ def table_set(out_dir: Path) -> Iterator[Path]:
     as it was and the staging folder is removed; one left by a SIGKILL is removed by the next
     writer."""
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():  # e.g. an input recording given as --out
+        raise ValueError(f"--out {str(out_dir)!r} is a file, not a folder; give a folder")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     _remove_stale_staging(out_dir)
     stage = out_dir.with_name(f".{out_dir.name}{_STAGING}{os.getpid()}")

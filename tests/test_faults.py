@@ -486,3 +486,14 @@ def test_a_recording_shorter_than_the_warm_up_is_one_line(tmp_path: Path) -> Non
     assert res.returncode == 0, res.stderr  # per-frame metrics need no warm-up
     assert pl.read_parquet(tmp_path / "c" / "complexity.parquet").height == 20
     assert_clean(tmp_path)
+
+
+def test_a_recording_given_as_the_tables_folder_is_refused_and_kept(tmp_path: Path) -> None:
+    rec = tmp_path / "r.rrd"
+    assert sim(rec, minutes=0.2).wait(timeout=120) == 0
+    before = hashlib.sha256(rec.read_bytes()).hexdigest()
+    assert_one_line_error(
+        run_cli("analysis", "tables", str(rec), "--out", str(rec)), "not a folder"
+    )
+    assert hashlib.sha256(rec.read_bytes()).hexdigest() == before
+    assert_clean(tmp_path)
