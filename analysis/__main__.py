@@ -1,5 +1,5 @@
 """``python -m analysis`` = ``vdc-analyse``."""
 
-from contract.launch import analyse
+from vdc.launch import analyse
 
 raise SystemExit(analyse())

@@ -22,8 +22,9 @@ import polars as pl
 import rerun as rr
 import rerun.blueprint as rrb
 
-from analysis.profile import ProfileSettings, Segment, heat_map, histogram_over
-from contract.recording import (
+from analysis.segments import ProfileSettings, Segment, heat_map, histogram_over
+from avdm.base import primary_output_name
+from vdc.recording import (
     APP_ID,
     CAMERA,
     FRAME_TIMELINE,
@@ -127,7 +128,7 @@ def write_variants_rrd(
     names = list(outputs)
     first = outputs[names[0]]
     out_names = [c for c in first.columns if c not in ("frame", "t_s")]
-    main = "omega_dps" if "omega_dps" in out_names else out_names[0]
+    main = primary_output_name(out_names)
     main_contents = [variant_path(n, main) for n in names]
     if original_model:
         main_contents.append(f"{MODEL_ROOT}/{entity_name(original_model)}/{main}")

@@ -30,7 +30,7 @@ import polars as pl
 
 from avdm.registry import make_model
 from avdm.stimuli import panned_image
-from contract.recording import camera_model_context
+from vdc.recording import camera_model_context
 
 FOV_DEG = 70.0
 VIEW_FRACTION = 0.65  # the camera sees this share of the photograph's width

@@ -43,8 +43,8 @@ from analysis.tables import (
     write_tables,
 )
 from avdm.registry import canonical_name, parse_model_spec
-from contract.executors import ExecutorSettings, TaskOutcome, run_tasks, usable_cpus
-from contract.parquet_io import read_metadata, write_parquet
+from vdc.executors import ExecutorSettings, TaskOutcome, run_tasks, usable_cpus
+from vdc.parquet_io import read_metadata, write_parquet
 
 PARTS = "parts"
 

@@ -8,7 +8,8 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from avdm.cli_support import (
+from avdm.registry import describe_models
+from vdc.cli_support import (
     OneLineParser,
     UserError,
     add_executor_options,
@@ -17,9 +18,8 @@ from avdm.cli_support import (
     parse_size,
     positive_float,
 )
-from avdm.registry import describe_models
-from contract.executors import TasksFailed
-from contract.recording import FOOTAGE_MODEL
+from vdc.executors import TasksFailed
+from vdc.recording import FOOTAGE_MODEL
 
 PROG = "vdc-analyse"
 
@@ -63,7 +63,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     settings = _settings(SweepSettings, args, waveform="square" if args.square else "sine")
     with _progress(len(settings.cells()), f"sweep {canonical_name(settings.model)}") as bar:
         res = sweep(settings, args.out, progress=bar.update)
-    print(f"{res.table.height} cells -> {res.paths[0]}, {res.paths[-1]}")
+    print(f"{res.table.height} cells -> {res.files.sweep_parquet}, {res.files.sweep_png}")
     print("monotonicity of the response (Spearman rho of omega_dps):")
     for r in res.monotonicity.iter_rows(named=True):
         print(
@@ -96,7 +96,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         f"omega is off by {100 * fit.rms_rel_error:.1f} % RMS, "
         f"{100 * fit.max_rel_error:.1f} % at worst"
     )
-    print(f"  wrote {res.paths[0]} and {res.paths[1]}")
+    print(f"  wrote {res.files.calibration_json} and {res.files.calibration_png}")
     if not res.usable:
         print(
             f"{PROG} calibrate: error: the fit is poor (R^2 {fit.r2:.2f} < {MIN_CALIBRATION_R2}):"
@@ -107,7 +107,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         return 1
     print(f"  use it as: --model {s.model.split(':')[0]}:a={fit.a:.6g},b={fit.b:.6g}")
     if s.update_defaults:
-        print(f"  updated the shipped defaults in {res.paths[2]}")
+        print(f"  updated the shipped defaults in {res.files.calibrations}")
     return 0
 
 
@@ -140,9 +140,11 @@ def cmd_profile(args: argparse.Namespace) -> int:
     s = _settings(ProfileSettings, args)
     with _progress(None, "profile", "frame") as bar:
         res = profile(args.recordings, s, args.out, progress=bar.update, notice=_notice)
-    pngs, overview, summary, rrd = res.paths[:-3], res.paths[-3], res.paths[-2], res.paths[-1]
+    files = res.files
+    pngs = [p for role, p in files.items() if role.startswith("profile_") and p.suffix == ".png"]
     print(
-        f"{len(res.segments)} profile(s) by {s.by}: {len(pngs)} PNGs, {overview}, {rrd}, {summary}"
+        f"{len(res.segments)} profile(s) by {s.by}: {len(pngs)} PNGs, {files.profiles_png}, "
+        f"{files.profiles_rrd}, {files.profile_summary}"
     )
     for r in res.summary.iter_rows(named=True):
         print(
@@ -160,8 +162,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     with _progress(None, "compare", "frame") as bar:
         res = compare(args.recording, s, args.out, progress=bar.update, notice=_notice)
     n_frames = res.outputs[next(iter(res.outputs))].height
-    png, rrd = res.paths[2], res.paths[3]
-    print(f"{len(res.outputs)} variants on {n_frames} frames -> {png}, {rrd}")
+    files = res.files
+    print(f"{len(res.outputs)} variants on {n_frames} frames -> {files.compare}, {files.variants}")
     for r in res.statistics.iter_rows(named=True):
         print(
             f"  {r['model']:<22} mean {r['mean']:8.2f}  p95 {r['p95']:8.2f}  "
@@ -173,7 +175,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             f"  corr {r['model_a']} ~ {r['model_b']}: pearson {r['pearson']:.3f}, "
             f"spearman {r['spearman']:.3f}"
         )
-    print(f"view together: rerun {args.recording} {rrd}")
+    print(f"view together: rerun {args.recording} {files.variants}")
     return 0
 
 
@@ -241,7 +243,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     res = reproduce(plan, args.out, log=_stderr)
     for c in res.claims:
         print(f"[{c.verdict:^13}] {c.claim}")
-    print(f"report: {res.paths[0]} and {res.paths[1]} ({res.elapsed_s:.0f} s)")
+    print(f"report: {res.files.report_md} and {res.files.report_html} ({res.elapsed_s:.0f} s)")
     return 0
 
 

@@ -19,19 +19,19 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
 import rerun as rr
 import rerun.blueprint as rrb
+from matplotlib.figure import Figure
 
 from analysis.analysis_rrd import log_arena_outline
+from analysis.ego_motion import turning_before
 from analysis.profile import safe_key
 from analysis.stats import Estimate, mean_ci, share_ci
-from analysis.tables import LoadedRecording, events_table
-from contract.recording import APP_ID
+from analysis.tables import LoadedRecording, SummarySettings, events_table
+from vdc.parquet_io import Files
+from vdc.recording import APP_ID
 
 # what the paper reports for its three phases (30 min each) [BRIEF]
 PAPER = {
@@ -86,8 +86,17 @@ def collision_metrics(loaded: LoadedRecording, s: CollisionSettings) -> tuple[di
     dtc = avoid["dtc_m"].to_numpy()
     col = loaded.props.get("collision", {})
     key = phase_key(loaded)
-    turning = loaded.frames.select("frame", "turning")
-    avoid_turning = avoid.join(turning, on="frame", how="left")["turning"].fill_null(False)
+    # avoidances while the robot was already turning before the alert (poses before it only;
+    # the per-frame turning flag would also see the turn the avoidance itself starts)
+    fr = loaded.frames
+    index = {f: i for i, f in enumerate(fr["frame"].to_list())}
+    at = np.array([index.get(f, -1) for f in avoid["frame"].to_list()], dtype=np.int64)
+    avoid_turning = turning_before(
+        fr["t_s"].to_numpy(),
+        fr["heading_rad"].fill_null(float("nan")).to_numpy(),
+        at,
+        SummarySettings.turn_threshold_dps,  # the tables' turn threshold (30 deg/s)
+    )
     row = {
         "recording_id": loaded.recording_id,
         "phase": key,
@@ -100,6 +109,9 @@ def collision_metrics(loaded: LoadedRecording, s: CollisionSettings) -> tuple[di
         "crashes": n_c,
         "success_rate": n_a / (n_a + n_c) if n_a + n_c else float("nan"),
         "false_alarms": int((dtc >= s.false_alarm_m).sum()),
+        "false_alarms_per_30min": (
+            int((dtc >= s.false_alarm_m).sum()) * 30.0 / minutes if minutes else float("nan")
+        ),
         "dtc_mean_m": float(dtc.mean()) if n_a else float("nan"),
         "dtc_median_m": float(np.median(dtc)) if n_a else float("nan"),
         "avoidances_per_30min": n_a * 30.0 / minutes if minutes else float("nan"),
@@ -139,7 +151,8 @@ def plot_recording(
         (f"avoidances ({row['avoidances']})", *_xy(ev, "avoidance"), "Blues", "C0"),
         (f"crashes ({row['crashes']})", *_xy(ev, "crash"), "Reds", "C3"),
     ]
-    fig, axes = plt.subplots(1, 3, figsize=(17, 4.6), constrained_layout=True)
+    fig = Figure(figsize=(17, 4.6), layout="constrained")
+    axes = fig.subplots(1, 3)
     for ax, (title, x, y, cmap, dot) in zip(axes, maps, strict=True):
         d = density(x, y, hx, hy, s.bin_m)
         im = ax.imshow(d, origin="lower", extent=(-hx, hx, -hy, hy), cmap=cmap, aspect="equal")
@@ -158,7 +171,6 @@ def plot_recording(
     )
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
@@ -174,12 +186,18 @@ def _phase_rank(phase: str) -> tuple[int, str]:
     return (PHASE_ORDER.index(phase) if phase in PHASE_ORDER else len(PHASE_ORDER), phase)
 
 
-PHASE_STATISTICS = ("avoidances_per_30min", "crashes_per_30min", "success_rate", "false_alarms")
+# every count is a rate per 30 min (the paper's run length), whatever the runs' length
+PHASE_STATISTICS = (
+    "avoidances_per_30min",
+    "crashes_per_30min",
+    "success_rate",
+    "false_alarms_per_30min",
+)
 
 
 def phase_statistics(summary: pl.DataFrame) -> pl.DataFrame:
     """One row per phase from the per-recording ``summary`` (one recording per seed): the
-    number of seeds, and for avoidances and crashes per 30 min, success rate and false alarms
+    number of seeds, and for avoidances, crashes and false alarms per 30 min and success rate
     the mean with its 95 % interval (``<name>``, ``<name>_low``, ``<name>_high``; counts are
     clipped at 0, NaN bounds with one seed). The success rate's interval also covers the
     exact binomial interval of the pooled avoidances and crashes (``stats.share_ci``)."""
@@ -209,7 +227,8 @@ def plot_study(summary: pl.DataFrame, path: Path) -> Path:
     """Avoidances and crashes per 30 min and success rate per phase, beside the paper's: the
     mean across seeds with its 95 % interval as error bars, each seed as a dot."""
     phases = phase_statistics(summary)
-    fig, (ax_n, ax_s) = plt.subplots(1, 2, figsize=(14, 5), constrained_layout=True)
+    fig = Figure(figsize=(14, 5), layout="constrained")
+    (ax_n, ax_s) = fig.subplots(1, 2)
     labels = phases["phase"].to_list()
     x = np.arange(len(labels))
 
@@ -245,7 +264,6 @@ def plot_study(summary: pl.DataFrame, path: Path) -> Path:
     ax_s.set_title("avoidances / (avoidances + crashes)")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
@@ -313,6 +331,11 @@ class CollisionResult:
         """The per-phase table across seeds, then the per-recording table."""
         return phase_table_markdown(self.phases) + "\n\n" + collision_table_markdown(self.summary)
 
+    @property
+    def files(self) -> Files:
+        """The files written, by role (``vdc.parquet_io.Files``)."""
+        return Files.of(self.paths)
+
 
 def collision(
     recordings: Sequence[str | Path],
@@ -327,7 +350,7 @@ def collision(
     import hashlib
 
     from analysis.tables import DistinctRecordings, Notices, load_recording
-    from contract.parquet_io import table_set, write_parquet
+    from vdc.parquet_io import table_set, write_parquet
 
     items, notes = [], Notices(notice)
     distinct = DistinctRecordings()
@@ -402,7 +425,7 @@ def phase_table_markdown(phases: pl.DataFrame) -> str:
     """The per-phase table across seeds (mean [95 % interval]) beside the paper's numbers."""
     lines = [
         "| phase | detector | TF (Hz) | seeds | avoidances per 30 min | crashes per 30 min | "
-        "success (%) | false alarms | paper avoidances | paper success |",
+        "success (%) | false alarms per 30 min | paper avoidances | paper success |",
         "|" + "---|" * 10,
     ]
     for r in phases.iter_rows(named=True):
@@ -410,7 +433,8 @@ def phase_table_markdown(phases: pl.DataFrame) -> str:
             f"| {r['phase']} | {r['detector']} | {r['wall_tf_hz']:g} | {r['seeds']} | "
             f"{_est(r, 'avoidances_per_30min', '{:.0f}')} | "
             f"{_est(r, 'crashes_per_30min', '{:.1f}')} | "
-            f"{_est(r, 'success_rate', '{:.1f}', 100.0)} | {_est(r, 'false_alarms', '{:.1f}')} | "
+            f"{_est(r, 'success_rate', '{:.1f}', 100.0)} | "
+            f"{_est(r, 'false_alarms_per_30min', '{:.1f}')} | "
             f"{r['paper_avoidances'] or '-'} | {r['paper_success'] or '-'} |"
         )
     return "\n".join(lines)

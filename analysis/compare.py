@@ -7,10 +7,6 @@ import itertools
 from collections.abc import Callable
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
@@ -29,6 +25,7 @@ from analysis.tables import (
     summarise,
 )
 from avdm.registry import canonical_name, make_model
+from vdc.parquet_io import Files
 
 
 def variant_statistics(
@@ -102,7 +99,7 @@ def compare_figure(
 ) -> Figure:
     """Traces over the busiest minute, response distributions, and the correlation matrix."""
     names = list(outputs)
-    fig = plt.figure(figsize=(15, 9), constrained_layout=True)
+    fig = Figure(figsize=(15, 9), layout="constrained")
     grid = fig.add_gridspec(2, 2, height_ratios=[1, 1.1])
     ax_t = fig.add_subplot(grid[0, :])
     first = outputs[names[0]]
@@ -203,6 +200,11 @@ class CompareResult:
             f"{self.recording_id}: variants on identical frames",
         )
 
+    @property
+    def files(self) -> Files:
+        """The files written, by role (``vdc.parquet_io.Files``)."""
+        return Files.of(self.paths)
+
 
 def compare(
     recording: str | Path,
@@ -219,7 +221,7 @@ def compare(
     the source's recording id, so ``rerun REC variants.rrd`` shows them together)."""
     from analysis.analysis_rrd import write_variants_rrd
     from analysis.profile import save_figure
-    from contract.parquet_io import table_set, write_parquet
+    from vdc.parquet_io import table_set, write_parquet
 
     loaded = load_recording(recording, settings)
     notes = Notices(notice)

@@ -38,7 +38,8 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, repeat_flags
-from contract.recording import FOOTAGE_MODEL, camera_model_context, working_size
+from vdc.parquet_io import Files
+from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 
 METRICS = (
     "omega_dps",
@@ -69,6 +70,9 @@ class ComplexitySettings:
     zlib_level: int = 6
 
     def __post_init__(self) -> None:
+        from avdm.registry import require_angular_velocity
+
+        require_angular_velocity(self.model, "complexity")
         if self.flow_preset not in DIS_PRESETS:
             raise ValueError(f"--flow-preset must be one of {', '.join(DIS_PRESETS)}")
         if not 1 <= self.jpeg_quality <= 100:
@@ -178,7 +182,7 @@ def complexity_of_frames(
     of view is ``fov_deg``.
 
     The frames are area-resized to the working raster ``vdc-capture video`` uses (``width``
-    px, default the robot camera's angular pitch; ``contract.recording.working_size``) and the
+    px, default the robot camera's angular pitch; ``vdc.recording.working_size``) and the
     models are built with the same context, so this function and ``vdc-capture video`` then
     ``vdc-analyse complexity`` give the same readings for the same decoded frames.
 
@@ -208,6 +212,11 @@ class ComplexityResult:
     paths: list[Path]
     notices: list[str]
 
+    @property
+    def files(self) -> Files:
+        """The files written, by role (``vdc.parquet_io.Files``)."""
+        return Files.of(self.paths)
+
 
 def complexity(
     recordings: Sequence[str | Path],
@@ -223,7 +232,7 @@ def complexity(
     normalised, and their rank correlations) and an ``.rrd`` with the source's recording id
     (open it beside the source: ``rerun REC OUT/complexity_<id>.rrd``)."""
     from analysis.tables import DistinctRecordings, Notices, load_recording
-    from contract.parquet_io import table_set, write_parquet
+    from vdc.parquet_io import table_set, write_parquet
 
     parts, corrs, paths, notes = [], [], [], Notices(notice)
     distinct = DistinctRecordings()
@@ -303,15 +312,14 @@ def _normalised(df: pl.DataFrame) -> dict[str, np.ndarray]:
 
 
 def plot_complexity(df: pl.DataFrame, corr: pl.DataFrame, path: Path) -> Path:
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from analysis.profile import save_figure
 
     norm = _normalised(df)
     t = df["t_s"].to_numpy()
-    fig, (ax, axc) = plt.subplots(
-        1, 2, figsize=(16, 5.5), constrained_layout=True, gridspec_kw={"width_ratios": [2.2, 1]}
-    )
+    fig = Figure(figsize=(16, 5.5), layout="constrained")
+    (ax, axc) = fig.subplots(1, 2, gridspec_kw={"width_ratios": [2.2, 1]})
     for m in METRICS:
         ax.plot(t, norm[m], lw=1.6 if m == "omega_dps" else 0.8, label=m, alpha=0.9)
     ax.set_xlabel("time (s)")
@@ -342,7 +350,7 @@ def write_complexity_rrd(df: pl.DataFrame, recording_id: str, path: Path) -> Pat
     on its ``frame`` and ``time`` timelines (so it merges with the source in the viewer)."""
     import rerun as rr
 
-    from contract.recording import APP_ID, COMPLEXITY_ROOT, FRAME_TIMELINE, TIME_TIMELINE
+    from vdc.recording import APP_ID, COMPLEXITY_ROOT, FRAME_TIMELINE, TIME_TIMELINE
 
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id)

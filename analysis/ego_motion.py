@@ -95,3 +95,43 @@ def turning_flags(
     out = held.astype(np.float64)
     out[~np.isfinite(w) & ~held] = np.nan
     return out
+
+
+# how far back an alert looks for a turn already under way (PROPOSED): 0.15 s, five frames at
+# 33 Hz, long enough to average pose jitter, short enough to end before the alert
+TURNING_BEFORE_S = 0.15
+
+
+def turning_before(
+    t_s: np.ndarray,
+    heading_rad: np.ndarray,
+    at: np.ndarray,
+    threshold_dps: float = 30.0,
+    window_s: float = TURNING_BEFORE_S,
+) -> np.ndarray:
+    """Whether the robot was already turning just before each frame index in ``at`` (M,):
+    bool (M,), from poses strictly before it only.
+
+    The mean |yaw rate| over the ``window_s`` that end one frame before the event exceeds
+    ``threshold_dps``. Unlike the per-frame ``turning`` flag (a centred slope plus a hold),
+    it cannot see the turn that the event itself triggers. False where the window has no pose.
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    h = np.asarray(heading_rad, dtype=np.float64)
+    at = np.asarray(at, dtype=np.int64)
+    out = np.zeros(len(at), dtype=bool)
+    if len(t) < 2:
+        return out
+    for i, k in enumerate(at):
+        end = k - 1  # the last frame before the event
+        start = int(np.searchsorted(t, t[end] - window_s)) if 0 < end < len(t) else -1
+        if start < 0 or start >= end:
+            continue
+        seg_t, seg_h = t[start : end + 1], h[start : end + 1]
+        ok = np.isfinite(seg_h)
+        if ok.sum() < 2:
+            continue
+        turned = np.diff(np.unwrap(seg_h[ok]))
+        span = seg_t[ok][-1] - seg_t[ok][0]
+        out[i] = span > 0 and abs(np.degrees(turned.sum()) / span) > threshold_dps
+    return out

@@ -9,166 +9,24 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.tables import Notices, SummarySettings, TablesSettings, build_tables, summarise
-
-
-@dataclasses.dataclass(frozen=True)
-class ProfileSettings(TablesSettings):
-    """``vdc-analyse profile``: the tables' settings plus how profiles are drawn."""
-
-    by: str = "recording"  # one profile per recording segment, or pooled per condition
-    bin_dps: float = 20.0  # histogram bin width above the threshold
-    cell_m: float = 0.05  # heat-map cell size
-    max_points: int = 4000  # circles drawn in a PNG 3D profile (all go to the .rrd)
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.by not in ("recording", "condition"):
-            raise ValueError(f"--by must be recording or condition, got {self.by!r}")
-        if not (math.isfinite(self.bin_dps) and self.bin_dps > 0):
-            raise ValueError(f"--bin-dps must be > 0, got {self.bin_dps}")
-        if not (math.isfinite(self.cell_m) and 0.005 <= self.cell_m <= 0.5):
-            raise ValueError(f"--cell-m must be between 0.005 and 0.5 m, got {self.cell_m}")
-
-
-@dataclasses.dataclass
-class Segment:
-    """Responses of one model over one recording segment or pooled condition."""
-
-    key: str  # a file- and entity-safe name
-    label: str  # for titles
-    model: str
-    scene: str | None
-    wall_tf_hz: float
-    recording_ids: list[str]
-    t_s: np.ndarray  # (N,) seconds since the segment's recording started
-    x_m: np.ndarray
-    y_m: np.ndarray
-    gap_m: np.ndarray  # distance to the nearest wall
-    response: np.ndarray  # (N,) the primary output, deg/s for the AVDM
-    output: str
-    half_extent: tuple[float, float]
-
-
-def safe_key(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.\-]+", "_", text).strip("_")
-
-
-def segments_from_tables(
-    frames: pl.DataFrame,
-    outputs: pl.DataFrame,
-    summary: pl.DataFrame,
-    half_extents: dict[str, tuple[float, float]],
-    by: str,
-    warmup_frames: int,
-    exclude_turns: bool = False,
-) -> list[Segment]:
-    """Split the long tables into segments (``by="recording"``) or conditions; with
-    ``exclude_turns`` only frames known to be straight driving (``turning`` false) are kept."""
-    # a video has no wall TF (null): NaN keys join with each other, nulls do not
-    no_tf = pl.col("wall_tf_hz").fill_null(float("nan"))
-    cond = (
-        summary.select("recording_id", "model", "wall_tf_hz", "scene", "output")
-        .unique()
-        .with_columns(no_tf)
-    )
-    joined = (
-        outputs.join(frames, on=["recording_id", "frame"], how="inner", suffix="_f")
-        .filter(pl.col("frame") >= warmup_frames)
-        .with_columns(no_tf)
-    )
-    if exclude_turns:
-        joined = joined.filter(pl.col("turning").not_())
-    straight = ", straight driving" if exclude_turns else ""
-    joined = joined.join(cond, on=["recording_id", "model", "wall_tf_hz"], how="left")
-    keys = (
-        ["model", "scene", "wall_tf_hz"]
-        if by == "condition"
-        else ["recording_id", "model", "wall_tf_hz"]
-    )
-    segs = []
-    for _, g in joined.sort("recording_id", "frame").group_by(keys, maintain_order=True):
-        out = g["output"][0]
-        rec_ids = g["recording_id"].unique(maintain_order=True).to_list()
-        model, scene, tf = g["model"][0], g["scene"][0], float(g["wall_tf_hz"][0])
-        walls = f"TF {tf:g} Hz" if math.isfinite(tf) else "no walls"
-        tf_key = f"tf{tf:g}" if math.isfinite(tf) else "video"
-        if by == "condition":
-            label = f"{scene or 'video'} {walls}, {model}{straight} ({len(rec_ids)} recording(s))"
-            key = safe_key(f"{scene or 'video'}_{tf_key}_{model}")
-        else:
-            label = f"{rec_ids[0]}: {walls}, {model}{straight}"
-            key = safe_key(f"{rec_ids[0]}_{tf_key}_{model}")
-        segs.append(
-            Segment(
-                key=key,
-                label=label,
-                model=model,
-                scene=scene,
-                wall_tf_hz=tf,
-                recording_ids=rec_ids,
-                t_s=g["t_s"].to_numpy(),
-                x_m=g["x_m"].to_numpy(),
-                y_m=g["y_m"].to_numpy(),
-                gap_m=g["wall_gap_m"].to_numpy(),
-                response=g[out].to_numpy().astype(float),
-                output=out,
-                half_extent=half_extents[rec_ids[0]],
-            )
-        )
-    return segs
-
-
-def histogram_over(values: np.ndarray, s: ProfileSettings) -> tuple[np.ndarray, np.ndarray]:
-    """Counts of responses above the threshold in ``bin_dps`` bins: (edges (B+1,), counts (B,))."""
-    over = values[values > s.threshold_dps]
-    top = max(float(over.max()) if len(over) else s.threshold_dps, s.threshold_dps + s.bin_dps)
-    n_bins = max(1, min(200, math.ceil((top - s.threshold_dps) / s.bin_dps)))
-    edges = s.threshold_dps + s.bin_dps * np.arange(n_bins + 1)
-    counts, _ = np.histogram(over, bins=edges)
-    return edges, counts
-
-
-def heat_map(seg: Segment, s: ProfileSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean response per arena cell: (x edges, y edges, mean (ny, nx), NaN where unvisited)."""
-    hx, hy = seg.half_extent
-    xe = np.linspace(-hx, hx, max(1, round(2 * hx / s.cell_m)) + 1)
-    ye = np.linspace(-hy, hy, max(1, round(2 * hy / s.cell_m)) + 1)
-    total, _, _ = np.histogram2d(seg.y_m, seg.x_m, bins=(ye, xe), weights=seg.response)
-    count, _, _ = np.histogram2d(seg.y_m, seg.x_m, bins=(ye, xe))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(count > 0, total / count, np.nan)
-    return xe, ye, mean
-
-
-def segment_summary(seg: Segment, s: ProfileSettings, t: SummarySettings) -> dict:
-    stats = summarise(
-        seg.response, seg.gap_m, dataclasses.replace(t, threshold_dps=s.threshold_dps)
-    )
-    return {
-        "segment": seg.key,
-        "model": seg.model,
-        "scene": seg.scene,
-        "wall_tf_hz": seg.wall_tf_hz,
-        "recordings": len(seg.recording_ids),
-        "motion": t.motion,
-        "output": seg.output,
-        "n_frames": len(seg.response),
-        "threshold_dps": s.threshold_dps,
-        **stats,
-    }
+from analysis.segments import (  # noqa: F401 - the profile's data, re-exported
+    ProfileSettings,
+    Segment,
+    heat_map,
+    histogram_over,
+    safe_key,
+    segment_summary,
+    segments_from_tables,
+)
+from analysis.tables import Notices, build_tables
+from vdc.parquet_io import Files
 
 
 def _arena_outline(ax, hx: float, hy: float, z: float | None = None) -> None:
@@ -184,7 +42,6 @@ def save_figure(fig: Figure, path: Path) -> Path:
     """Write ``fig`` as a PNG (100 dpi) to ``path`` and close it."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
@@ -198,7 +55,7 @@ def segment_figure(seg: Segment, s: ProfileSettings) -> Figure:
     histogram of responses over the threshold, heat map of the mean response."""
     if not np.isfinite(seg.x_m).any():
         return _time_series_figure(seg, s)
-    fig = plt.figure(figsize=(16, 5.2), constrained_layout=True)
+    fig = Figure(figsize=(16, 5.2), layout="constrained")
     ax3 = fig.add_subplot(1, 3, 1, projection="3d")
     step = max(1, math.ceil(len(seg.response) / s.max_points))
     r = seg.response[::step]
@@ -244,11 +101,11 @@ def segment_figure(seg: Segment, s: ProfileSettings) -> Figure:
     ax_m.set_aspect("equal")
     ax_m.set_xlabel("x (m)")
     ax_m.set_ylabel("y (m)")
-    near = seg.response[seg.gap_m <= 0.15]
-    centre = seg.response[seg.gap_m > 0.25]
+    near = seg.response[seg.gap_m <= s.near_wall_m]  # the summary's own split
+    centre = seg.response[seg.gap_m > s.centre_m]
     ax_m.set_title(
-        f"mean response per {100 * s.cell_m:g} cm cell\nnear walls "
-        f"{near.mean() if len(near) else float('nan'):.1f}, centre "
+        f"mean response per {100 * s.cell_m:g} cm cell\nwithin {s.near_wall_m:g} m of a wall "
+        f"{near.mean() if len(near) else float('nan'):.1f}, beyond {s.centre_m:g} m "
         f"{centre.mean() if len(centre) else float('nan'):.1f}",
         fontsize=10,
     )
@@ -267,9 +124,8 @@ def _condition(g: Segment) -> str:
 def _time_series_figure(seg: Segment, s: ProfileSettings) -> Figure:
     """The profile of a source without poses (a video): the response over time and the
     histogram over the threshold; there is no arena to map it onto."""
-    fig, (ax_t, ax_h) = plt.subplots(
-        1, 2, figsize=(16, 5.2), constrained_layout=True, gridspec_kw={"width_ratios": [2, 1]}
-    )
+    fig = Figure(figsize=(16, 5.2), layout="constrained")
+    (ax_t, ax_h) = fig.subplots(1, 2, gridspec_kw={"width_ratios": [2, 1]})
     ax_t.plot(seg.t_s, seg.response, lw=0.8, color="C0")
     ax_t.axhline(s.threshold_dps, color="k", ls="--", lw=1, label=f"threshold {s.threshold_dps:g}")
     ax_t.set_xlabel("time (s)")
@@ -290,7 +146,8 @@ def _time_series_figure(seg: Segment, s: ProfileSettings) -> Figure:
 
 def plot_overview(segs: Sequence[Segment], s: ProfileSettings, path: Path) -> Path:
     """All segments side by side: fraction over the threshold and the response distributions."""
-    fig, (ax_b, ax_d) = plt.subplots(1, 2, figsize=(14, 5), constrained_layout=True)
+    fig = Figure(figsize=(14, 5), layout="constrained")
+    (ax_b, ax_d) = fig.subplots(1, 2)
     labels = [
         f"{_condition(g)}\n{g.model}\n{g.recording_ids[0][-8:]}"
         if len(g.recording_ids) == 1
@@ -339,6 +196,11 @@ class ProfileResult:
     def figure(self, i: int = 0) -> Figure:
         return segment_figure(self.segments[i], self.settings)
 
+    @property
+    def files(self) -> Files:
+        """The files written, by role (``vdc.parquet_io.Files``)."""
+        return Files.of(self.paths)
+
 
 def profile(
     recordings: Sequence[str | Path],
@@ -357,7 +219,7 @@ def profile(
     import hashlib
 
     from analysis.analysis_rrd import write_profile_rrd
-    from contract.parquet_io import table_set, write_parquet
+    from vdc.parquet_io import table_set, write_parquet
 
     notes = Notices(notice)
     tables, meta = build_tables(recordings, settings.models or None, settings, progress, notes)

@@ -26,7 +26,7 @@ import polars as pl
 import pyarrow as pa
 import rerun as rr
 
-from contract.recording import (
+from vdc.recording import (
     CAMERA,
     EVENTS,
     MODEL_ROOT,

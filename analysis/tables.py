@@ -28,11 +28,11 @@ import polars as pl
 
 from analysis.ego_motion import turning_flags, yaw_rate_dps
 from analysis.rrd_reader import Recording, RecordingError
-from avdm.base import Model
+from avdm.base import Model, primary_output_name
 from avdm.registry import canonical_name, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
-from contract.parquet_io import table_set, write_parquet
-from contract.recording import (
+from vdc.parquet_io import Files, table_set, write_parquet
+from vdc.recording import (
     FRAME_TIMING,
     MODEL_ROOT,
     POSE,
@@ -385,7 +385,7 @@ def primary_output(outputs_df: pl.DataFrame) -> str:
     ]
     if not cols:
         raise ValueError("no model output columns")
-    return "omega_dps" if "omega_dps" in cols else cols[0]
+    return primary_output_name(cols)
 
 
 def condition_columns(loaded: LoadedRecording) -> dict[str, Any]:
@@ -601,7 +601,7 @@ def write_tables(
     tables: dict[str, pl.DataFrame], out_dir: Path, meta: dict[str, Any]
 ) -> list[Path]:
     """Write each table to ``out_dir/<name>.parquet`` with ``meta`` in its metadata, as one set
-    (``contract.parquet_io.table_set``): a reader never sees new tables beside old ones."""
+    (``vdc.parquet_io.table_set``): a reader never sees new tables beside old ones."""
     with table_set(out_dir) as stage:
         for name, df in tables.items():
             write_parquet(df, stage / f"{name}.parquet", meta)
@@ -632,6 +632,11 @@ class TablesResult:
     @property
     def summary(self) -> pl.DataFrame:
         return self.tables["summary"]
+
+    @property
+    def files(self) -> Files:
+        """The files written, by role (``vdc.parquet_io.Files``)."""
+        return Files.of(self.paths)
 
 
 def tables(

@@ -392,7 +392,7 @@ class AvdmMultiScale(FrameStream):
             raise ValueError(
                 f"frames of {h}x{w} px (HxW) but this avdm-natural is calibrated for "
                 f"{p.height_px}x{p.width_px}: build it for the frames' raster, e.g. "
-                "make_model(spec, **contract.recording.camera_model_context(W, H, fps, fov))"
+                "make_model(spec, **vdc.recording.camera_model_context(W, H, fps, fov))"
             )
         self._geo = scale_geometry(p, h, w)
         total = int(self._geo[-1, 2] + self._geo[-1, 0] * self._geo[-1, 1])

@@ -13,10 +13,22 @@ A model is built from a frozen params dataclass and keeps its own state:
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
+
+# The output a model is summarised, profiled and plotted by: the angular velocity when a model
+# has one, else its first output (the detectors' spike rate or membrane potential).
+PRIMARY_OUTPUT = "omega_dps"
+
+
+def primary_output_name(names: Sequence[str]) -> str:
+    """The one rule for a model's primary output, given its output names in order."""
+    names = list(names)
+    if not names:
+        raise ValueError("a model with no outputs has no primary output")
+    return PRIMARY_OUTPUT if PRIMARY_OUTPUT in names else names[0]
 
 
 @dataclasses.dataclass(frozen=True)

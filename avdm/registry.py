@@ -206,6 +206,23 @@ def make_model(spec: str, **context: Any) -> Model:
     return KINDS[VARIANTS[name].kind].build(params, canonical_name(spec))
 
 
+# the families whose models decode an angular velocity (output ``omega_dps``); the others are
+# collision detectors (spike rate, membrane potential)
+ANGULAR_VELOCITY_KINDS = ("avdm", "avdm-multiscale")
+
+
+def require_angular_velocity(spec: str, what: str) -> None:
+    """ValueError, in one line, when ``spec`` is not a model with ``omega_dps`` (``what``: the
+    command that needs one, e.g. ``"sweep"``)."""
+    name, _ = parse_model_spec(spec)
+    if VARIANTS[name].kind not in ANGULAR_VELOCITY_KINDS:
+        avdms = sorted(n for n, v in VARIANTS.items() if v.kind in ANGULAR_VELOCITY_KINDS)
+        raise ValueError(
+            f"{what} needs a model's angular velocity (omega_dps); {name} is a collision "
+            f"detector without one: give an AVDM variant ({', '.join(avdms)})"
+        )
+
+
 def describe_models() -> str:
     """One line per registered variant, for ``--help`` texts."""
     return "\n".join(f"  {n:<20} {v.description}" for n, v in sorted(VARIANTS.items()))

@@ -41,7 +41,7 @@ from analysis.avdm_truth import (
     summarise,
 )
 from avdm.registry import make_model
-from contract.recording import camera_model_context
+from vdc.recording import camera_model_context
 
 
 def speed(pitch: str) -> list[str]:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from analysis.batch import BatchSettings, analyse_task, plan_tasks
 from capture.sim import SimSettings, record_sim
-from contract.executors import ExecutorSettings, open_executor, run_tasks
+from vdc.executors import ExecutorSettings, open_executor, run_tasks
 
 VARIANTS = ("avdm", "avdm:beta=0.5", "avdm:tw=6", "lgmd-plus")
 

@@ -1,5 +1,5 @@
 """``python -m capture`` = ``vdc-capture``."""
 
-from contract.launch import capture
+from vdc.launch import capture
 
 raise SystemExit(capture())

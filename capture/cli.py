@@ -9,16 +9,16 @@ import sys
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from avdm.cli_support import (
+from avdm.registry import describe_models
+from capture.colias_link import LinkLost
+from vdc.cli_support import (
     OneLineParser,
     UserError,
     add_executor_options,
     fail,
     positive_float,
 )
-from avdm.registry import describe_models
-from capture.colias_link import LinkLost
-from contract.recording import FOOTAGE_MODEL
+from vdc.recording import FOOTAGE_MODEL
 
 if TYPE_CHECKING:
     from capture.run import RecordResult
@@ -200,7 +200,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         f"{len(res.failures)} failed ({res.elapsed_s:.1f} s)"
     )
     if res.paths:
-        print(f"runs table: {res.paths[0]} ({res.runs.height} rows)")
+        print(f"runs table: {res.files.runs} ({res.runs.height} rows)")
     for key, error in res.failures:
         print(f"  FAILED {key}: {error}", file=sys.stderr)
     return 1 if res.failures else 0

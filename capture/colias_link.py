@@ -39,7 +39,7 @@ from capture.serial_protocol import (
     encode,
     encode_frame,
 )
-from capture.sim import SimulatedRobot
+from capture.sim_robot import SimulatedRobot
 
 
 @dataclasses.dataclass(frozen=True)

@@ -27,7 +27,7 @@ import numpy as np
 from avdm.registry import make_model
 from capture.config import CollisionConfig, SimConfig
 from capture.device import Batch, Event
-from capture.sim import SimulatedRobot
+from capture.sim_robot import SimulatedRobot
 
 FORWARD, AVOIDING, CRASH_TURN = 0, 1, 2
 CONTROLLER = "controller"  # on-board outputs of the decision itself

@@ -13,7 +13,7 @@ import math
 import re
 from typing import Any
 
-from contract.recording import camera_model_context
+from vdc.recording import camera_model_context
 
 SCENES = ("grating", "natural")
 BEHAVIOURS = ("profile", "collision")

@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from contract.recording import PARTIAL_SUFFIX, lock_path, partial_path
+from vdc.recording import PARTIAL_SUFFIX, lock_path, partial_path
 
 __all__ = ["OutputClaim", "claim_output", "lock_path", "partial_path"]
 
@@ -133,7 +133,7 @@ def claim_output(path: Path, force: bool) -> OutputClaim:
     claim = OutputClaim(path, force, fd)
     try:
         # a probe write: a folder that accepts a lock file but no data (a full disk) fails here
-        os.ftruncate(fd, 0)  # the pid names the live writer (contract.recording.capture_writing)
+        os.ftruncate(fd, 0)  # the pid names the live writer (vdc.recording.capture_writing)
         os.write(fd, f"{os.getpid()}\n".encode())
         if not force and path.exists():
             raise ValueError(

@@ -1,6 +1,6 @@
 """The Rerun recorder and the default blueprint: writes the recording contract.
 
-The entity paths, timelines and property sections are defined in ``contract.recording``
+The entity paths, timelines and property sections are defined in ``vdc.recording``
 (shared with the reader); this module is the only one that writes them with the Rerun SDK.
 """
 
@@ -29,9 +29,9 @@ os.environ.setdefault("RUST_LOG", "warn,re_sdk::recording_stream=off,re_grpc_cli
 import rerun as rr
 import rerun.blueprint as rrb
 
-from avdm.base import Output
+from avdm.base import Output, primary_output_name
 from capture.config import ArenaConfig
-from contract.recording import (
+from vdc.recording import (
     APP_ID,
     ARENA,
     ARENA_RING,
@@ -85,7 +85,7 @@ def default_blueprint(
 
     ``extra_views``: (title, entity paths) of further time-series panes, e.g. the AVDM running
     beside a collision detector."""
-    main = "omega_dps" if any(o.name == "omega_dps" for o in outputs) else outputs[0].name
+    main = primary_output_name([o.name for o in outputs])
     main_unit = next(o.unit for o in outputs if o.name == main)
     others = [o.name for o in outputs if o.name != main]
     trail = rrb.VisibleTimeRange(
@@ -156,7 +156,7 @@ def video_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Blueprint
     """A video recording: the frame, the AVDM trace and the baseline metrics (once
     ``vdc-analyse complexity`` output is opened beside it) on one time axis, frame timing
     (repeats, drops) and events. No arena or pose: a video has none."""
-    main = "omega_dps" if any(o.name == "omega_dps" for o in outputs) else outputs[0].name
+    main = primary_output_name([o.name for o in outputs])
     main_unit = next(o.unit for o in outputs if o.name == main)
     return rrb.Blueprint(
         rrb.Horizontal(

@@ -367,8 +367,8 @@ def record_robot(
     from capture.output import claim_output
     from capture.recorder import Recorder, default_blueprint, spawn_viewer
     from capture.run import finish_output, run_capture
-    from contract.provenance import machine_info, package_versions
-    from contract.recording import LINK_STATS as LINK_STATS_ENTITY
+    from vdc.provenance import machine_info, package_versions
+    from vdc.recording import LINK_STATS as LINK_STATS_ENTITY
 
     wall = settings.wall()
     schedule = wall.tf_schedule

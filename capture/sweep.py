@@ -29,8 +29,8 @@ import polars as pl
 
 from avdm.registry import make_params
 from capture.sim import SimSettings
-from contract.executors import ExecutorSettings, TaskOutcome, run_tasks
-from contract.parquet_io import write_parquet
+from vdc.executors import ExecutorSettings, TaskOutcome, run_tasks
+from vdc.parquet_io import Files, write_parquet
 
 RUNS = "runs"
 RECORDINGS = "recordings"
@@ -179,6 +179,11 @@ class CaptureSweepResult:
     failures: list[tuple[str, str]]  # (run key, error)
     paths: list[Path]
     elapsed_s: float
+
+    @property
+    def files(self) -> Files:
+        """The files written, by role (``vdc.parquet_io.Files``)."""
+        return Files.of(self.paths)
 
 
 def run_path(out: Path, key: str) -> Path:

@@ -33,7 +33,7 @@ import numpy as np
 from avdm.true_time import repeat_flags
 from capture.device import Batch, Event
 from capture.run import RecordResult
-from contract.recording import FOOTAGE_MODEL, camera_model_context, working_size
+from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,7 +70,7 @@ class VideoSettings:
         return "images" if "%" in self.source else "file"
 
     def working_size(self, src_h: int, src_w: int) -> tuple[int, int]:
-        """(H, W) of the frames the models see (``contract.recording.working_size``)."""
+        """(H, W) of the frames the models see (``vdc.recording.working_size``)."""
         return working_size(src_h, src_w, self.fov_deg, self.width)
 
 
@@ -517,7 +517,7 @@ def record_video(
     from capture.output import claim_output
     from capture.recorder import Recorder, spawn_viewer, video_blueprint
     from capture.run import finish_output, run_capture
-    from contract.provenance import machine_info, package_versions
+    from vdc.provenance import machine_info, package_versions
 
     rid = recording_id(settings)
     path = Path(out) if out else Path("recordings") / f"{rid}.rrd"

@@ -27,7 +27,7 @@ def _declared() -> list[Requirement]:
     reqs = [Requirement(r) for r in project["dependencies"]]
     for extra in project.get("optional-dependencies", {}).values():
         reqs += [Requirement(r) for r in extra]
-    return [r for r in reqs if canonicalize_name(r.name) != "vdc"]
+    return [r for r in reqs if canonicalize_name(r.name) != "visual-dynamic-complexity"]
 
 
 def test_every_declared_dependency_is_pinned_within_its_range() -> None:

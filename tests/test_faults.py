@@ -26,9 +26,9 @@ import polars as pl
 import pytest
 
 from analysis.rrd_reader import Recording
-from contract.executors import pool_size, usable_cpus
-from contract.recording import partial_path
 from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn
+from vdc.executors import pool_size, usable_cpus
+from vdc.recording import partial_path
 
 PY = sys.executable
 
@@ -112,7 +112,7 @@ def test_an_output_in_an_unwritable_place_is_one_line(tmp_path: Path) -> None:
 # two workers that would sleep a minute each: long enough to be killed mid-task
 SCRIPT = """
 import time
-from contract.executors import ExecutorSettings, run_tasks
+from vdc.executors import ExecutorSettings, run_tasks
 run_tasks(time.sleep, [("a", (60,)), ("b", (60,))], ExecutorSettings(jobs=2))
 """
 

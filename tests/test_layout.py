@@ -36,7 +36,7 @@ def test_ruff_is_clean() -> None:
 
 def test_analysis_outside_experiments_does_not_import_capture() -> None:
     """Only analysis/experiments produce recordings; the rest only consumes them, and the
-    recording contract comes from contract/, not from the recorder."""
+    recording contract comes from vdc/, not from the recorder."""
     mods = sorted(
         f"analysis.{p.stem}"
         for p in (ROOT / "analysis").glob("*.py")
@@ -68,3 +68,107 @@ def test_old_flag_names_are_aliases_of_the_field_names(old: list[str], new: list
 
     parser = build_parser()
     assert vars(parser.parse_args(old)) == vars(parser.parse_args(new))
+
+
+def test_no_module_imports_pyplot_or_changes_the_backend() -> None:
+    """A notebook's inline plots survive importing vdc: figures are built with
+    ``matplotlib.figure.Figure``, never through pyplot or ``matplotlib.use``."""
+    mods = sorted(
+        ".".join(p.relative_to(ROOT).with_suffix("").parts)
+        for pkg in ("vdc", "avdm", "capture", "analysis")
+        for p in (ROOT / pkg).rglob("*.py")
+        if p.stem not in ("__main__", "__init__")
+    )
+    code = (
+        "import sys, importlib, matplotlib; "
+        "before = matplotlib.rcParams._get_backend_or_none(); "
+        f"[importlib.import_module(m) for m in {mods!r}]; "
+        "bad = 'matplotlib.pyplot' in sys.modules or "
+        "matplotlib.rcParams._get_backend_or_none() != before; "
+        "sys.exit(1 if bad else 0)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_import_vdc_is_fast_and_its_api_resolves() -> None:
+    code = (
+        "import sys, vdc; heavy = [m for m in ('numpy', 'numba', 'rerun', 'polars') "
+        "if m in sys.modules]; assert not heavy, heavy; "
+        "[getattr(vdc, n) for n in vdc.__all__]; print(len(vdc.__all__))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+# What may import what (the architecture page, docs/architecture.md): vdc is the base, the
+# models need only it, capture adds devices and the recorder, analysis reads recordings, and
+# only analysis.experiments (which record runs) may use capture.
+ALLOWED = {
+    "vdc": {"vdc"},
+    "avdm": {"vdc", "avdm"},
+    "capture": {"vdc", "avdm", "capture"},
+    "analysis": {"vdc", "avdm", "analysis"},
+    "analysis.experiments": {"vdc", "avdm", "capture", "analysis"},
+}
+
+
+def import_graph() -> dict[str, set[str]]:
+    """module -> the project modules it imports, function-level imports included."""
+    import ast
+
+    mods = {}
+    for pkg in ("vdc", "avdm", "capture", "analysis"):
+        for p in (ROOT / pkg).rglob("*.py"):
+            name = ".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+            mods[name] = p
+
+    def resolve(target: str) -> str | None:
+        while target and target not in mods:
+            target = target.rpartition(".")[0]
+        return target or None
+
+    graph = {}
+    for name, path in mods.items():
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                targets = [f"{node.module}.{a.name}" for a in node.names]
+            else:
+                continue
+            deps |= {r for t in targets if (r := resolve(t))}
+        # a module may import its own packages' __init__ (the package is loaded first anyway)
+        graph[name] = {d for d in deps if d != name and not name.startswith(d + ".")}
+    return graph
+
+
+def test_the_import_graph_is_acyclic() -> None:
+    graph = import_graph()
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+
+    def visit(node: str, path: list[str]) -> None:
+        state[node] = 1
+        for dep in sorted(graph[node]):
+            if state.get(dep) == 1:
+                cycle = [*path[path.index(dep) :], dep]
+                raise AssertionError("import cycle: " + " -> ".join(cycle))
+            if dep not in state:
+                visit(dep, [*path, dep])
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+
+
+def test_the_import_graph_follows_the_layers() -> None:
+    bad = []
+    for name, deps in import_graph().items():
+        layer = "analysis.experiments" if name.startswith("analysis.experiments") else name
+        layer = layer if layer in ALLOWED else name.split(".")[0]
+        if name in ("analysis.cli", "analysis.__main__"):
+            layer = "analysis.experiments"  # the command line runs the experiments too
+        bad += [f"{name} -> {d}" for d in deps if d.split(".")[0] not in ALLOWED[layer]]
+    assert not bad, bad

@@ -12,12 +12,9 @@ import dataclasses
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
+from matplotlib.figure import Figure
 
 from avdm.registry import make_model
 from capture.config import ArenaConfig, CameraConfig, RobotConfig, WallConfig
@@ -89,7 +86,8 @@ def run_approach(cfg: ApproachConfig) -> tuple[pl.DataFrame, pl.DataFrame]:
 
 
 def plot_approach(runs: pl.DataFrame, summary: pl.DataFrame, path: Path) -> Path:
-    fig, (ax_t, ax_d) = plt.subplots(1, 2, figsize=(14, 5), constrained_layout=True)
+    fig = Figure(figsize=(14, 5), layout="constrained")
+    (ax_t, ax_d) = fig.subplots(1, 2)
     for i, (tf,) in enumerate(runs.select("tf_hz").unique().sort("tf_hz").iter_rows()):
         g = (
             runs.filter(pl.col("tf_hz") == tf)
@@ -119,5 +117,4 @@ def plot_approach(runs: pl.DataFrame, summary: pl.DataFrame, path: Path) -> Path
         ax.legend()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path

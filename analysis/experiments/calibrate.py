@@ -10,17 +10,16 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from avdm.avdm_model import AvdmParams
 from avdm.base import Params
 from avdm.calibration import CalibrationResult, fit_decoding, valid_periods_px, valid_tfs_hz
 from avdm.calibration_store import CALIBRATION_FILE
 from avdm.registry import canonical_name, make_params
-from contract.provenance import package_versions
+from vdc.parquet_io import Files
+from vdc.provenance import package_versions
 
 
 def calibration_entry(
@@ -69,7 +68,8 @@ def update_shipped(entry: dict[str, Any]) -> Path:
 
 def plot_calibration(result: CalibrationResult, path: Path) -> Path:
     """Decoded against true angular velocity for every grating cell, log-log."""
-    fig, ax = plt.subplots(figsize=(6.5, 5.5), constrained_layout=True)
+    fig = Figure(figsize=(6.5, 5.5), layout="constrained")
+    ax = fig.subplots()
     cells = result.cells
     truth = np.array([c.omega_true_dps for c in cells])
     est = np.array([result.a * c.lambda_px**result.b * c.gain_term for c in cells])
@@ -102,7 +102,6 @@ def plot_calibration(result: CalibrationResult, path: Path) -> Path:
     ax.grid(True, which="both", alpha=0.3)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -159,6 +158,11 @@ class CalibrateResult:
     @property
     def usable(self) -> bool:
         return bool(self.fit.r2 >= MIN_CALIBRATION_R2)
+
+    @property
+    def files(self) -> Files:
+        """The files written, by role (``vdc.parquet_io.Files``)."""
+        return Files.of(self.paths)
 
 
 def calibrate(

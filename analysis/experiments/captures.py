@@ -2,7 +2,7 @@
 
 Each run is a :class:`capture.sim.SimSettings` and an output path. A recording already at
 that path with the same configuration (the recording id is a function of it) and complete is
-reused; the others are recorded as tasks on an executor (``contract.executors``: a local pool
+reused; the others are recorded as tasks on an executor (``vdc.executors``: a local pool
 of fresh processes, or a Dask cluster), so a campaign of many long runs spreads over a cluster.
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 from analysis.rrd_reader import Recording, RecordingError
 from capture.sim import SimSettings, record_sim
-from contract.executors import (
+from vdc.executors import (
     ExecutorSettings,
     TaskOutcome,
     TasksFailed,

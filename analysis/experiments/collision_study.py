@@ -25,7 +25,7 @@ from analysis.collision import CollisionSettings, collision
 from analysis.experiments.captures import CaptureItem, run_captures
 from avdm.registry import parse_model_spec
 from capture.sim import SimSettings
-from contract.executors import ExecutorSettings
+from vdc.executors import ExecutorSettings
 
 PAPER_NOTE = (
     "Paper: 229, 432 and 233 avoidances in three 30-min phases (TF 0, TF 3, TF 3 with the "

@@ -23,7 +23,7 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import polars as pl
@@ -61,8 +61,8 @@ from analysis.stats import (
 )
 from analysis.tables import SummarySettings, build_tables, summary_rows
 from capture.sim import SimSettings
-from contract.executors import ExecutorSettings
-from contract.parquet_io import read_metadata, write_parquet
+from vdc.executors import ExecutorSettings
+from vdc.parquet_io import Files, read_metadata, write_parquet
 
 # the calibrated decoder (deg/s) and the released code's decoding (the paper's units)
 CALIBRATED, RELEASED = "avdm", "avdm-released-units"
@@ -79,11 +79,11 @@ PROFILE_CONDITIONS = (
 
 @dataclasses.dataclass(frozen=True)
 class ReproduceSettings(ExecutorSettings):
-    """``vdc-analyse reproduce``: durations and repeats; ``quick`` finishes in minutes, the
-    default is the paper's. ``make(quick, **overrides)`` applies the quick durations first.
+    """``vdc-analyse reproduce``: durations and repeats. The defaults are the paper's plan;
+    :meth:`quick` is the preset that finishes in minutes (a settings object always is what its
+    report says: :attr:`plan_name` is read from the values, not from a flag).
     The simulated runs go to the executor (``executor``, ``jobs``, ``scheduler``)."""
 
-    quick: bool = False
     profile_minutes: float = 30.0
     collision_minutes: float = 30.0
     approach_repeats: int = 10
@@ -93,19 +93,36 @@ class ReproduceSettings(ExecutorSettings):
     detector: str = "lgmd-plus-arena"
     adjusted: str = "t_ffi=30"
 
+    QUICK: ClassVar[dict[str, Any]] = {
+        "profile_minutes": 3.0,
+        "collision_minutes": 3.0,
+        "approach_repeats": 3,
+        "sweep_duration_s": 0.5,
+        "seeds": 3,
+    }
+
+    @classmethod
+    def quick(cls, **overrides: Any) -> ReproduceSettings:
+        """The quick preset (3-minute runs, 3 seeds), then ``overrides``."""
+        return cls(**{**cls.QUICK, **{k: v for k, v in overrides.items() if v is not None}})
+
     @classmethod
     def make(cls, quick: bool, **kw: Any) -> ReproduceSettings:
+        """The command line's: the quick preset or the paper's plan, then the given flags."""
         if quick:
-            base = {
-                "profile_minutes": 3.0,
-                "collision_minutes": 3.0,
-                "approach_repeats": 3,
-                "sweep_duration_s": 0.5,
-                "seeds": 3,
-            }
-            base.update({k: v for k, v in kw.items() if v is not None})
-            return cls(quick=True, **base)
-        return cls(quick=False, **{k: v for k, v in kw.items() if v is not None})
+            return cls.quick(**kw)
+        return cls(**{k: v for k, v in kw.items() if v is not None})
+
+    @property
+    def plan_name(self) -> str:
+        """``quick`` or ``full`` when the durations are a preset's, else ``custom``."""
+        values = {k: getattr(self, k) for k in self.QUICK}
+        if values == self.QUICK:
+            return "quick"
+        defaults = {f.name: f.default for f in dataclasses.fields(self) if f.name in values}
+        if values == defaults:
+            return "full"
+        return "custom"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -447,7 +464,7 @@ FIGURES = (
     ("SF–TF sweep (Fig. 3)", "sweep/sweep.png"),
     ("Open-loop approach (Fig. 4)", "approach/approach.png"),
     ("Fig. 6 across seeds: all frames and straight driving", "profiling/fig6_seeds.png"),
-    ("Profiles per condition, first seed (Figs. 6–7)", "profiling/profiles.png"),
+    ("Profiles per condition, every seed pooled (Figs. 6–7)", "profiling/profiles.png"),
     ("Collision study across seeds (Fig. 8)", "collision/collision_study.png"),
 )
 
@@ -458,7 +475,7 @@ def write_report(
     """report.md and a self-contained report.html (figures embedded) in ``out``."""
     col = pl.read_parquet(out / "collision" / "collision_summary.parquet")
     prof = pl.read_parquet(out / "profiling" / "summary.parquet")
-    mode = "quick" if plan.quick else "full"
+    mode = plan.plan_name
     head = (
         f"Mode: {mode} (profiling {plan.profile_minutes:g} min per condition, collision "
         f"phases {plan.collision_minutes:g} min, {plan.seeds} seeds per condition "
@@ -554,13 +571,12 @@ def plot_fig6_seeds(tables: dict[str, pl.DataFrame], warmup: int, path: Path) ->
     response per wall TF, each reading as mean ± 95 % interval with every seed as a dot; and
     the histograms of responses over 100 in the released code's units, for all frames and for
     straight driving, as the mean share per bin with a shaded 95 % band."""
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     summary = tables["summary"]
-    fig, axes = plt.subplots(2, 2, figsize=(15, 10), constrained_layout=True)
+    fig = Figure(figsize=(15, 10), layout="constrained")
+    axes = fig.subplots(2, 2)
     ax_frac, ax_mean, ax_all, ax_straight = axes.ravel()
 
     def errorbars(ax, model: str, motion: str, metric: str, scale: float, dx: float, label: str):
@@ -641,7 +657,6 @@ def plot_fig6_seeds(tables: dict[str, pl.DataFrame], warmup: int, path: Path) ->
         ax.legend(fontsize=8)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
@@ -654,6 +669,11 @@ class ReproduceResult:
     @property
     def claims_table(self) -> pl.DataFrame:
         return pl.DataFrame([dataclasses.asdict(c) for c in self.claims])
+
+    @property
+    def files(self) -> Files:
+        """The files written, by role (``vdc.parquet_io.Files``)."""
+        return Files.of(self.paths)
 
 
 def reproduce(

@@ -14,15 +14,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import polars as pl
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
 from analysis.stats import spearman
-from avdm.registry import canonical_name, make_model, make_params
+from avdm.registry import canonical_name, make_model, make_params, require_angular_velocity
 from avdm.stimuli import grating, omega_true_dps, period_px_from_sf
+from vdc.parquet_io import Files
 
 PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
 PAPER_TF_HZ = (1.0, 5.0, 50.0)  # columns: response vs SF
@@ -180,14 +180,15 @@ def monotonicity(df: pl.DataFrame, min_points: int = 4) -> pl.DataFrame:
     return pl.DataFrame(out).sort("along", "fixed_value", descending=[True, False])
 
 
-def _valid_band(ax: plt.Axes, x_lo: float, x_hi: float, bad_from: float, label: str) -> None:
+def _valid_band(ax: Axes, x_lo: float, x_hi: float, bad_from: float, label: str) -> None:
     if bad_from < x_hi:
         ax.axvspan(max(bad_from, x_lo), x_hi, color="0.9", zorder=0, label=label)
 
 
 def plot_paper(df: pl.DataFrame, path: Path, config: SweepConfig, title: str) -> Path:
     """Six panels as in paper Fig. 3: ω̂ vs TF (top, per SF) and vs SF (bottom, per TF)."""
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7.5), constrained_layout=True)
+    fig = Figure(figsize=(13, 7.5), layout="constrained")
+    axes = fig.subplots(2, 3)
     w = config.size[1]
     rho = {(r["along"], r["fixed_value"]): r["rho"] for r in monotonicity(df).iter_rows(named=True)}
     for ax, sf in zip(axes[0], PAPER_SF_UPC, strict=True):
@@ -219,11 +220,10 @@ def plot_paper(df: pl.DataFrame, path: Path, config: SweepConfig, title: str) ->
     fig.suptitle(title)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
-def _panel(ax: plt.Axes, x: pl.Series, g: pl.DataFrame, xlabel: str) -> None:
+def _panel(ax: Axes, x: pl.Series, g: pl.DataFrame, xlabel: str) -> None:
     xs = x.to_numpy()
     est = g["omega_dps"].to_numpy()
     sd = g["omega_sd_dps"].to_numpy()
@@ -273,7 +273,8 @@ def plot_grid(df: pl.DataFrame, path: Path, title: str) -> Path:
     vmin = max(float(positive.min()) if positive.size else 1.0, 1e-2)
     vmax = float(max(np.nanmax(true), np.nanmax(est), vmin * 10))
     norm = matplotlib.colors.LogNorm(vmin=vmin, vmax=vmax)
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5), constrained_layout=True)
+    fig = Figure(figsize=(12, 5), layout="constrained")
+    axes = fig.subplots(1, 2)
     for ax, data, name in ((axes[0], est, "AVDM ω̂ (deg/s)"), (axes[1], true, "true ω (deg/s)")):
         im = ax.imshow(
             np.where(data > 0, data, np.nan),
@@ -291,7 +292,6 @@ def plot_grid(df: pl.DataFrame, path: Path, title: str) -> Path:
     fig.suptitle(title)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -321,6 +321,7 @@ class SweepSettings:
             )
         check_cells(self.cells(), self.stimulus)
         make_params(self.model)  # an unknown model fails before any cell runs
+        require_angular_velocity(self.model, "the sweep")
 
     @property
     def grid(self) -> bool:
@@ -342,6 +343,11 @@ class SweepResult:
     monotonicity: pl.DataFrame  # Spearman rho along every row and column
     paths: list[Path]
 
+    @property
+    def files(self) -> Files:
+        """The files written, by role (``vdc.parquet_io.Files``)."""
+        return Files.of(self.paths)
+
 
 def sweep(
     settings: SweepSettings = SweepSettings(),
@@ -351,7 +357,7 @@ def sweep(
 ) -> SweepResult:
     """``vdc-analyse sweep`` (paper Fig. 3). With ``out``: ``sweep.parquet``,
     ``monotonicity.parquet`` and ``sweep.png``. ``progress`` is called once per cell."""
-    from contract.parquet_io import table_set, write_parquet
+    from vdc.parquet_io import table_set, write_parquet
 
     config = settings.stimulus
     name = canonical_name(settings.model)

@@ -181,6 +181,7 @@ def _collision(success: dict[str, tuple[int, int]], seeds: int = 5) -> pl.DataFr
                     "crashes": c,
                     "success_rate": (a + seed % 2) / (a + seed % 2 + c),
                     "false_alarms": 1,
+                    "false_alarms_per_30min": 1.0,
                     "avoidances_per_30min": float(a + seed % 2),
                     "crashes_per_30min": float(c),
                 }

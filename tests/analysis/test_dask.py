@@ -15,8 +15,8 @@ import distributed  # the dask extra; the test extra brings it
 import polars as pl
 import pytest
 
-from contract.executors import ExecutorSettings, open_executor
 from tests.helpers import ROOT, kill_a_worker_mid_batch, run_cli
+from vdc.executors import ExecutorSettings, open_executor
 
 pytestmark = pytest.mark.dask  # the dask extra's test group: pytest -m dask
 

@@ -133,3 +133,23 @@ def test_exclude_turns_summarises_straight_driving_only(recordings, tmp_path: Pa
     assert proc.returncode == 0, proc.stderr
     prof = pl.read_parquet(tmp_path / "p" / "profile_summary.parquet").row(0, named=True)
     assert prof["motion"] == "straight" and prof["n_frames"] == kept.height
+
+
+def test_an_alert_that_starts_a_turn_is_not_counted_as_while_turning() -> None:
+    """A constructed run at 33 Hz: straight, an alert at frame 100 that starts a 90 deg/s turn;
+    straight again, a turn from frame 190 and an alert at 200 in the middle of it. Only the
+    second alert happened while the robot was already turning; the per-frame turning flag
+    (a centred slope and a hold) marks both, because it sees the turn the first one starts."""
+    from analysis.ego_motion import turning_before, turning_flags, yaw_rate_dps
+
+    fps = 33.0
+    t = np.arange(300) / fps
+    rate = np.zeros(300)
+    rate[100:130] = 90.0  # the turn the first alert triggers
+    rate[190:230] = 90.0  # a turn under way before the second alert
+    heading = np.radians(np.cumsum(rate) / fps)
+    alerts = np.array([100, 200])
+    before = turning_before(t, heading, alerts, threshold_dps=30.0)
+    assert before.tolist() == [False, True]
+    flags = turning_flags(yaw_rate_dps(t, heading), 30.0, 10)
+    assert flags[alerts].tolist() == [1.0, 1.0]  # the old count: both

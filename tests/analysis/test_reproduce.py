@@ -61,7 +61,7 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
     for c in again:
         assert c.measured in md and f"**{c.verdict}**" in md
     # the environment of the analysis and of the captures, so two reports can be compared
-    from contract.provenance import machine_info, package_versions
+    from vdc.provenance import machine_info, package_versions
 
     assert "## Environment" in md and machine_info()["cpu_model"] in md
     assert f"| numpy | {package_versions()['numpy']} |" in md

@@ -11,8 +11,8 @@ import pytest
 
 from analysis.cli import main
 from avdm.calibration_store import lookup_calibration
-from contract.parquet_io import read_metadata
 from tests.helpers import assert_one_line_error, run_cli
+from vdc.parquet_io import read_metadata
 
 SWEEP_COLUMNS = [
     "model",
@@ -105,7 +105,11 @@ def test_sweep_runs_as_a_module(out_dir: Path) -> None:
         (["sweep", "--duration", "0.01"], ["warm-up"]),
         (["sweep", "--contrast", "2"], ["--contrast"]),
         (["sweep", "--size", "ten"], ["WIDTHxHEIGHT"]),
-        (["sweep", "--size", "100000x100000"], ["too large"]),  # refused, not out of memory
+        (["sweep", "--size", "100000x100000"], ["too large"]),
+        (
+            ["sweep", "--model", "lgmd-plus"],
+            ["omega_dps", "collision detector"],
+        ),  # refused, not out of memory
         (["sweep", "--fps", "100"], ["paper layout"]),
         (["sweep", "--bogus"], ["unrecognized arguments"]),
         (["calibrate", "--fps", "-1"], ["positive number"]),
@@ -168,3 +172,10 @@ def test_a_poor_calibration_is_not_offered(tmp_path: Path) -> None:
     assert "not offered for use" in proc.stderr and "use it as" not in proc.stdout
     assert "updated the shipped defaults" not in proc.stdout
     assert (tmp_path / "calibration.json").exists()
+
+
+def test_complexity_refuses_a_model_without_omega_in_one_line() -> None:
+    from analysis.complexity import ComplexitySettings
+
+    with pytest.raises(ValueError, match="lgmd-plus is a collision detector"):
+        ComplexitySettings(model="lgmd-plus")

@@ -13,8 +13,8 @@ from analysis.rrd_reader import Recording
 from analysis.tables import distance_to_wall_along
 from capture.output import partial_path
 from capture.recorder import Recorder
-from contract.parquet_io import read_metadata
 from tests.helpers import assert_one_line_error, run_cli, start_long_capture
+from vdc.parquet_io import read_metadata
 
 FRAMES_COLUMNS = [
     "recording_id",

@@ -15,7 +15,7 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from contract.provenance import machine_info, package_versions
+from vdc.provenance import machine_info, package_versions
 
 
 def write_parquet(df: pl.DataFrame, path: Path, meta: dict[str, Any]) -> Path:
@@ -124,3 +124,26 @@ def table_set(out_dir: Path) -> Iterator[Path]:
         _publish(stage, out_dir)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+class Files(dict):
+    """The files a command wrote, by role: ``result.files.summary`` or
+    ``result.files["summary"]``. The role is the file's stem (``summary`` for
+    ``summary.parquet``), with its suffix added where two files share a stem
+    (``profiles_png``, ``profiles_rrd``)."""
+
+    @classmethod
+    def of(cls, paths: list[Path]) -> Files:
+        stems = [p.stem for p in paths]
+        return cls(
+            (s if stems.count(s) == 1 else f"{s}_{p.suffix.lstrip('.')}", p)
+            for s, p in zip(stems, paths, strict=True)
+        )
+
+    def __getattr__(self, role: str) -> Path:
+        try:
+            return self[role]
+        except KeyError:
+            raise AttributeError(
+                f"no file {role!r} was written (roles: {', '.join(self)})"
+            ) from None

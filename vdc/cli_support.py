@@ -77,7 +77,7 @@ def positive_float(text: str) -> float:
 def add_executor_options(p: argparse.ArgumentParser, what: str) -> None:
     """``--executor``, ``--jobs`` and ``--scheduler``: where the command's independent
     ``what`` (e.g. "analysis tasks", "simulated runs") run; fields of the same names in the
-    command's settings (``contract.executors.ExecutorSettings``)."""
+    command's settings (``vdc.executors.ExecutorSettings``)."""
     p.add_argument(
         "--executor",
         choices=("local", "dask"),

@@ -13,6 +13,10 @@ import platform
 from importlib import metadata
 from pathlib import Path
 
+# vdc's own distribution on the package index ("vdc" there is an unrelated project); its
+# version is reported under the key "vdc"
+DISTRIBUTION = "visual-dynamic-complexity"
+
 # the packages that determine a recording's or a table's contents
 PACKAGES = (
     "vdc",
@@ -32,7 +36,7 @@ def package_versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
     for name in PACKAGES:
         try:
-            out[name] = metadata.version(name)
+            out[name] = metadata.version(DISTRIBUTION if name == "vdc" else name)
         except metadata.PackageNotFoundError:
             out[name] = "not installed"
     return out

@@ -7,7 +7,7 @@
 * ``dask``: an existing cluster (``scheduler`` = ``tcp://host:port``, ``tls://...`` or a
   scheduler file) or, without one, a local cluster on 127.0.0.1 (dashboard on 127.0.0.1 too);
   ``client.get_executor`` gives real ``concurrent.futures`` futures. Needs the optional extra
-  ``pip install "vdc[dask]"``.
+  ``pip install "visual-dynamic-complexity[dask]"``.
 
 Tasks are module-level functions with small, picklable arguments (paths, not arrays) that
 write their own outputs and return a small dict (reference/distributed.md §1). Both sides use

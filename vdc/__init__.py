@@ -1,0 +1,93 @@
+"""vdc: profiling the visual dynamic complexity of what a camera sees.
+
+``import vdc`` is the flat API for notebooks and scripts; names load on first use, so the
+import itself is fast (no NumPy, Numba or Rerun until a name is used)::
+
+    import vdc
+
+    rec = vdc.record_sim(vdc.SimSettings(tf_hz=3, minutes=3), "run.rrd", progress=False)
+    t = vdc.tables([rec.path], out="tables")
+    t.summary                                   # a polars DataFrame
+    model = vdc.make_model("avdm-natural", fps=30, deg_per_px=0.7)
+
+Every command of ``vdc-capture`` and ``vdc-analyse`` is one of these functions with its
+settings dataclass; the command lines only parse and print.
+
+The package also holds what capture and analysis agree on (neither imports the other for it):
+
+* ``vdc.recording``: the recording contract: application id, timelines, entity paths,
+  property sections, the partial-file and claim names of captures in progress;
+* ``vdc.provenance``: the package versions and the machine every recording and table carries;
+* ``vdc.parquet_io``: the table contract: atomic Parquet files with that provenance in their
+  key-value metadata, and table sets published whole;
+* ``vdc.executors``: where independent tasks run (a local process pool, a Dask cluster);
+* ``vdc.cli_support``: one-line errors and argparse helpers shared by both command lines;
+* ``vdc.launch``: the console scripts' entry points.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+# name -> module that defines it
+_API = {
+    # capture
+    "SimSettings": "capture.sim",
+    "record_sim": "capture.sim",
+    "VideoSettings": "capture.video",
+    "record_video": "capture.video",
+    "RobotSettings": "capture.robot_capture",
+    "record_robot": "capture.robot_capture",
+    "CaptureSweepSettings": "capture.sweep",
+    "capture_sweep": "capture.sweep",
+    # reading recordings
+    "Recording": "analysis.rrd_reader",
+    "load_recording": "analysis.tables",
+    # analysis
+    "TablesSettings": "analysis.tables",
+    "tables": "analysis.tables",
+    "ProfileSettings": "analysis.profile",
+    "profile": "analysis.profile",
+    "CompareSettings": "analysis.compare",
+    "compare": "analysis.compare",
+    "ComplexitySettings": "analysis.complexity",
+    "complexity": "analysis.complexity",
+    "complexity_of_frames": "analysis.complexity",
+    "BatchSettings": "analysis.batch",
+    "batch": "analysis.batch",
+    "summarise": "analysis.batch",
+    "CollisionSettings": "analysis.collision",
+    "collision": "analysis.collision",
+    "SweepSettings": "analysis.experiments.sweep",
+    "sweep": "analysis.experiments.sweep",
+    "CalibrateSettings": "analysis.experiments.calibrate",
+    "calibrate": "analysis.experiments.calibrate",
+    "CollisionStudySettings": "analysis.experiments.collision_study",
+    "collision_study": "analysis.experiments.collision_study",
+    "ReproduceSettings": "analysis.experiments.reproduce",
+    "reproduce": "analysis.experiments.reproduce",
+    # models
+    "make_model": "avdm.registry",
+    "make_params": "avdm.registry",
+    "describe_models": "avdm.registry",
+    "calibration_for": "avdm.calibration_store",
+    # where tasks run
+    "ExecutorSettings": "vdc.executors",
+}
+
+__all__ = sorted(_API)
+__version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> Any:
+    module = _API.get(name)
+    if module is None:
+        raise AttributeError(f"module 'vdc' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # once loaded, a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_API])
