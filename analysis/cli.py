@@ -692,6 +692,36 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def cli_reference() -> str:
+    """docs/cli.md: every command and flag of ``vdc-capture`` and ``vdc-analyse``, rendered from
+    the parsers (whose defaults are the settings dataclasses'); a test keeps the file equal."""
+    import capture.cli
+
+    lines = [
+        "# CLI reference",
+        "",
+        "Generated from the command lines' parsers by `analysis.cli.cli_reference()`; "
+        "`tests/test_layout.py` keeps this page equal to it. Each flag is the field of the same "
+        "name of the command's settings dataclass (see the README's table of functions).",
+        "",
+    ]
+    for prog, parser in ((capture.cli.PROG, capture.cli.build_parser()), (PROG, build_parser())):
+        subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        for name, sub in subs.choices.items():
+            lines += [f"## `{prog} {name}`", "", (sub.description or "").strip(), ""]
+            lines += ["| flag | default | meaning |", "|---|---|---|"]
+            for act in sub._actions:
+                if isinstance(act, argparse._HelpAction):
+                    continue
+                flag = ", ".join(f"`{o}`" for o in act.option_strings) or f"`{act.dest.upper()}`"
+                default = "" if act.default in (None, False, argparse.SUPPRESS) else act.default
+                text = (act.help or "").replace("|", "\\|").replace("\n", " ")
+                text = text.replace("%(default)s", str(act.default)).replace("%%", "%")
+                lines.append(f"| {flag} | {f'`{default}`' if default != '' else ''} | {text} |")
+            lines.append("")
+    return "\n".join(lines).rstrip() + "\n"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)

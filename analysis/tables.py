@@ -1,4 +1,5 @@
-"""Recordings → polars tables → Parquet (DESIGN.md table contract), and model recomputation.
+"""Recordings → polars tables → Parquet, and model recomputation (the table contract is in
+docs/architecture.md).
 
 * ``frames``: recording_id, frame, t_s, x_m, y_m, heading_rad, wall_tf_hz, wall_gap_m
   (distance from the robot's centre to the nearest wall), repeat, dropped_before (video frame

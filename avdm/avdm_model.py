@@ -1,7 +1,7 @@
 """AVDM, the angular velocity decoding model (Wang, Fu et al.), fast path.
 
 Layer by layer (see ``avdm.reference`` for the same model written plainly, and
-../shared/reference/avdm.md for the sources):
+docs/architecture.md for the sources):
 
 1. retina: ``P(t) = sign · (I(t) − I(t − lag))``, a one-frame temporal difference by default;
 2. lamina: ``ON = [P]+``, ``OFF = [−P]+``;

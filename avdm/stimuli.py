@@ -1,6 +1,6 @@
 """Offline stimuli: drifting gratings and drifting natural scenes, as frame stacks.
 
-Conventions (DESIGN.md, "Units and frames"):
+Conventions (docs/architecture.md, "Units and frames"):
 
 * a stimulus image of width W px stands for a full 360° circle, so deg/px = 360 / W;
 * spatial frequency SF is in **units per circle (upc)** = cycles across the image; the spatial
@@ -239,9 +239,9 @@ def natural_scene(
     """A drifting natural scene, frames (T, H, W).
 
     The scene is 1/f clutter generated from ``seed`` or, if given, ``image`` (a 2-D array a
-    caller read from a file). Like the arena's natural-scene walls (DESIGN.md), it drifts at
-    ``tf_hz · nominal_period_px`` px/s, so "TF" means the same speed a grating of that period
-    would have.
+    caller read from a file). Like the arena's natural-scene walls (docs/architecture.md), it
+    drifts at ``tf_hz · nominal_period_px`` px/s, so "TF" means the same speed a grating of that
+    period would have.
     """
     if not (math.isfinite(nominal_period_px) and nominal_period_px > 0):
         raise ValueError(f"nominal period must be > 0 px, got {nominal_period_px}")

@@ -1,6 +1,6 @@
 """Configuration of a simulated run: one frozen dataclass per part, every value recorded.
 
-Paper defaults (DESIGN.md); values the sources leave open are PROPOSED and say so. Every
+Paper defaults (docs/architecture.md); values the sources leave open are PROPOSED and say so. Every
 ``__post_init__`` raises ``ValueError`` naming the field and the accepted range.
 """
 
@@ -35,7 +35,7 @@ def _in_range(name: str, v: Any, lo: float, hi: float, unit: str = "") -> None:
 
 @dataclasses.dataclass(frozen=True)
 class ArenaConfig:
-    """Rectangular arena centred on the origin; x along the long side (DESIGN.md)."""
+    """Rectangular arena centred on the origin; x along the long side (docs/architecture.md)."""
 
     length_m: float = 1.4
     width_m: float = 0.8

@@ -1,7 +1,8 @@
 """Small helpers shared by the ``vdc-capture`` and ``vdc-analyse`` command lines.
 
-Bad input must end in one clear line and exit status 2, never a traceback (DESIGN.md); these
-helpers make argparse and the commands' own checks behave that way.
+Bad input must end in one clear line and exit status 2, never a traceback
+(docs/architecture.md); these helpers make argparse and the commands' own checks behave that
+way.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@
   ``pip install "visual-dynamic-complexity[dask]"``.
 
 Tasks are module-level functions with small, picklable arguments (paths, not arrays) that
-write their own outputs and return a small dict (reference/distributed.md §1). Both sides use
+write their own outputs and return a small dict. Both sides use
 this module: ``vdc-analyse batch`` and the closed-loop campaigns (``collision-study``,
 ``reproduce``, ``vdc-capture sweep``).
 """

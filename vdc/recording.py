@@ -1,4 +1,4 @@
-"""The recording contract (DESIGN.md): what capture writes and analysis reads.
+"""The recording contract (docs/architecture.md): what capture writes and analysis reads.
 
 | entity                      | archetype                         | meaning                        |
 |-----------------------------|-----------------------------------|--------------------------------|

@@ -203,8 +203,9 @@ def _tls_files(folder: Path) -> dict[str, Path]:
 
 
 def test_a_tls_cluster_takes_dasks_own_configuration(recordings, tmp_path: Path) -> None:
-    """The README's TLS recipe: vdc passes no security object, so Dask's configuration (here
-    its environment variables) gives the client its certificate; without it, one line."""
+    """The TLS recipe of docs/clusters.md: vdc passes no security object, so Dask's
+    configuration (here its environment variables) gives the client its certificate; without
+    it, one line."""
     from distributed.security import Security
 
     f = _tls_files(tmp_path)

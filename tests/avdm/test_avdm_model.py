@@ -1,4 +1,4 @@
-"""The AVDM: behaviours of reference/avdm.md §9 under our defaults, and fast ≡ reference."""
+"""The AVDM: the behaviours the authors describe, under our defaults, and fast ≡ reference."""
 
 from __future__ import annotations
 

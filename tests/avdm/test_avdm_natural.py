@@ -52,7 +52,7 @@ def test_fast_kernel_matches_the_plain_reference(size) -> None:
     ("image", "speed", "fps"), [("astronaut", 80.0, 30.0), ("gravel", 300.0, 25.0)]
 )
 def test_avdm_natural_reads_true_speed_in_both_directions(image, speed, fps) -> None:
-    """Held to the bounds the README states for avdm-natural: within 25 % of the truth and the
+    """Held to the bounds docs/video.md states for avdm-natural: within 25 % of the truth and the
     two directions within 10 % of each other, through H.264 at the robot camera's pitch."""
     read = {}
     for d in (1, -1):
@@ -64,7 +64,7 @@ def test_avdm_natural_reads_true_speed_in_both_directions(image, speed, fps) -> 
 
 
 def test_faithful_avdm_holds_in_its_stated_range_and_fails_beyond_it() -> None:
-    """The README states the faithful avdm's behaviour on natural footage at 25-30 fps: at
+    """docs/video.md states the faithful avdm's behaviour on natural footage at 25-30 fps: at
     10 deg/s on the robot raster (0.47 px/frame) 80 % of readings lie within 0.25-2x the truth;
     beyond about 1 px per frame the reading falls relative to the truth (median 0.13x at
     160 deg/s) although the speed rises: the reason avdm-natural exists."""

@@ -19,7 +19,7 @@ def test_shipped_calibration_is_reproduced_by_the_fit(entry: dict) -> None:
     # vector width is the host CPU's: AVX-512 and AVX2 machines round the pooled sums
     # differently, by a few float32 ulps (1.2e-7 each). Across machines the fit moved by
     # 3e-7 relative; 1e-5 relative (about 100 ulps) covers that with room, and is still far
-    # below the 4 significant digits the README quotes and the 7 % RMS error of the fit.
+    # below the 4 significant digits the docs quote and the 7 % RMS error of the fit.
     assert result.a == pytest.approx(entry["a"], rel=1e-5)
     assert result.b == pytest.approx(entry["b"], rel=1e-5)
     assert result.n_points == entry["n_points"]
