@@ -13,10 +13,14 @@ from vdc.cli_support import (
     OneLineParser,
     UserError,
     add_executor_options,
+    bind_settings,
     fail,
+    field_default,
+    load_settings_class,
     parse_float_list,
     parse_size,
     positive_float,
+    settings_from_args,
 )
 from vdc.executors import TasksFailed
 from vdc.recording import FOOTAGE_MODEL
@@ -44,23 +48,13 @@ def _stderr(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def _settings(cls, args: argparse.Namespace, **extra):
-    """The command's settings dataclass from the parsed flags (flag name = field name)."""
-    fields = {f.name for f in dataclasses.fields(cls) if f.init}
-    values = {k: getattr(args, k) for k in fields if hasattr(args, k)}
-    for k, v in values.items():
-        if isinstance(v, list):  # repeatable flags and number lists: tuples in frozen settings
-            values[k] = tuple(v)
-    return cls(**{k: v for k, v in values.items() if v is not None}, **extra)
-
-
 def cmd_sweep(args: argparse.Namespace) -> int:
     import polars as pl
 
     from analysis.experiments.sweep import SweepSettings, sweep
     from avdm.registry import canonical_name
 
-    settings = _settings(SweepSettings, args, waveform="square" if args.square else "sine")
+    settings = settings_from_args(SweepSettings, args, waveform="square" if args.square else "sine")
     with _progress(len(settings.cells()), f"sweep {canonical_name(settings.model)}") as bar:
         res = sweep(settings, args.out, progress=bar.update)
     print(f"{res.table.height} cells -> {res.files.sweep_parquet}, {res.files.sweep_png}")
@@ -82,7 +76,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from analysis.experiments.calibrate import MIN_CALIBRATION_R2, CalibrateSettings, calibrate
 
-    s = _settings(CalibrateSettings, args)
+    s = settings_from_args(CalibrateSettings, args)
     with _progress(s.n_cells(), "calibrate") as bar:
         res = calibrate(s, args.out, progress=bar.update)
     fit, (h, w) = res.fit, s.size
@@ -117,7 +111,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
     with _progress(None, "tables", "frame") as bar:
         res = tables(
             args.recordings,
-            _settings(TablesSettings, args),
+            settings_from_args(TablesSettings, args),
             args.out,
             progress=bar.update,
             notice=_notice,
@@ -137,7 +131,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
 def cmd_profile(args: argparse.Namespace) -> int:
     from analysis.profile import ProfileSettings, profile
 
-    s = _settings(ProfileSettings, args)
+    s = settings_from_args(ProfileSettings, args)
     with _progress(None, "profile", "frame") as bar:
         res = profile(args.recordings, s, args.out, progress=bar.update, notice=_notice)
     files = res.files
@@ -158,7 +152,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     from analysis.compare import CompareSettings, compare
 
-    s = _settings(CompareSettings, args)
+    s = settings_from_args(CompareSettings, args)
     with _progress(None, "compare", "frame") as bar:
         res = compare(args.recording, s, args.out, progress=bar.update, notice=_notice)
     n_frames = res.outputs[next(iter(res.outputs))].height
@@ -183,7 +177,9 @@ def cmd_collision(args: argparse.Namespace) -> int:
     from analysis.collision import CollisionSettings, collision
 
     out = Path(args.out)
-    res = collision(args.recordings, _settings(CollisionSettings, args), out, notice=_notice)
+    res = collision(
+        args.recordings, settings_from_args(CollisionSettings, args), out, notice=_notice
+    )
     print(res.markdown())
     print(f"wrote {out / 'collision_summary.parquet'}, collision_*.png, {out / 'collision.rrd'}")
     return 0
@@ -193,7 +189,9 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
     from analysis.experiments.collision_study import CollisionStudySettings, collision_study
 
     out = Path(args.out)
-    res = collision_study(_settings(CollisionStudySettings, args), out, log=_stderr, notice=_notice)
+    res = collision_study(
+        settings_from_args(CollisionStudySettings, args), out, log=_stderr, notice=_notice
+    )
     print(res.markdown)
     print(f"wrote {out / 'collision_study.md'}, {out / 'collision_study.png'}")
     return 0
@@ -207,7 +205,7 @@ def cmd_complexity(args: argparse.Namespace) -> int:
     with _progress(None, "complexity", "frame") as bar:
         res = complexity(
             args.recordings,
-            _settings(ComplexitySettings, args),
+            settings_from_args(ComplexitySettings, args),
             args.out,
             progress=bar.update,
             notice=_notice,
@@ -229,17 +227,8 @@ def cmd_complexity(args: argparse.Namespace) -> int:
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from analysis.experiments.reproduce import ReproduceSettings, reproduce
 
-    plan = ReproduceSettings.make(
-        args.quick,
-        profile_minutes=args.profile_minutes,
-        collision_minutes=args.collision_minutes,
-        approach_repeats=args.approach_repeats,
-        seed=args.seed,
-        seeds=args.seeds,
-        executor=args.executor,
-        jobs=args.jobs,
-        scheduler=args.scheduler,
-    )
+    fields = [f.name for f in dataclasses.fields(ReproduceSettings)]
+    plan = ReproduceSettings.make(args.quick, **{k: getattr(args, k) for k in fields})
     res = reproduce(plan, args.out, log=_stderr)
     for c in res.claims:
         print(f"[{c.verdict:^13}] {c.claim}")
@@ -250,7 +239,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 def cmd_batch(args: argparse.Namespace) -> int:
     from analysis.batch import BatchSettings, batch
 
-    settings = _settings(BatchSettings, args)
+    settings = settings_from_args(BatchSettings, args)
     with _progress(None, "batch", "task") as bar:
         res = batch(args.recordings, settings, args.out, progress=bar.update, log=_stderr)
     ran = len(res.outcomes) - len([o for o in res.outcomes if o.error])
@@ -282,7 +271,7 @@ def add_out(p: argparse.ArgumentParser, default: str) -> None:
 
 def add_seed_options(p: argparse.ArgumentParser, seeds: int | None) -> None:
     """--seed (the first) and --seeds (how many runs per condition)."""
-    p.add_argument("--seed", type=int, default=1, help="first random seed (default: %(default)s)")
+    p.add_argument("--seed", type=int, help="first random seed (default: %(default)s)")
     p.add_argument(
         "--seeds",
         type=int,
@@ -300,6 +289,21 @@ def add_models(
 ) -> None:
     """--model, repeatable: the variants a command recomputes from the raw frames."""
     p.add_argument("--model", dest="models", action="append", required=required, help=help)
+
+
+# each sub-command's settings dataclass: the one source of its flags' defaults
+SETTINGS = {
+    "tables": "analysis.tables:TablesSettings",
+    "profile": "analysis.profile:ProfileSettings",
+    "compare": "analysis.compare:CompareSettings",
+    "complexity": "analysis.complexity:ComplexitySettings",
+    "batch": "analysis.batch:BatchSettings",
+    "collision": "analysis.collision:CollisionSettings",
+    "sweep": "analysis.experiments.sweep:SweepSettings",
+    "calibrate": "analysis.experiments.calibrate:CalibrateSettings",
+    "collision-study": "analysis.experiments.collision_study:CollisionStudySettings",
+    "reproduce": "analysis.experiments.reproduce:ReproduceSettings",
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -328,7 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="models:\n" + describe_models(),
     )
     add_out(sw, "results/sweep")
-    sw.add_argument("--model", default="avdm", help="model variant (default: %(default)s)")
+    sw.add_argument("--model", help="model variant (default: %(default)s)")
     sw.add_argument(
         "--sf-upc",
         "--sf",
@@ -346,24 +350,19 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument(
         "--size",
         type=parse_size,
-        default=(100, 100),
         help="stimulus WIDTHxHEIGHT px; the width spans 360 deg (default: 100x100)",
     )
-    sw.add_argument(
-        "--fps", type=positive_float, default=300.0, help="frame rate, Hz (default: %(default)s)"
-    )
+    sw.add_argument("--fps", type=positive_float, help="frame rate, Hz (default: %(default)s)")
     sw.add_argument(
         "--duration-s",
         "--duration",
         dest="duration_s",
         type=positive_float,
-        default=1.0,
         help="seconds of stimulus per cell (default: %(default)s)",
     )
     sw.add_argument(
         "--contrast",
         type=positive_float,
-        default=1.0,
         help="Michelson contrast, peak-normalised (default: %(default)s)",
     )
     sw.add_argument("--square", action="store_true", help="square-wave instead of sine gratings")
@@ -379,28 +378,23 @@ def build_parser() -> argparse.ArgumentParser:
             "calibration.png into --out."
         ),
     )
-    ca.add_argument(
-        "--fps", type=positive_float, default=300.0, help="frame rate, Hz (default: %(default)s)"
-    )
+    ca.add_argument("--fps", type=positive_float, help="frame rate, Hz (default: %(default)s)")
     ca.add_argument(
         "--deg-per-px",
         type=positive_float,
-        default=None,
         help="degrees per pixel (default: 360/width, the offline-stimulus convention)",
     )
     ca.add_argument(
         "--size",
         type=parse_size,
-        default=(100, 100),
         help="frame WIDTHxHEIGHT px (default: 100x100)",
     )
-    ca.add_argument("--model", default="avdm", help="AVDM variant to calibrate (default: avdm)")
+    ca.add_argument("--model", help="AVDM variant to calibrate (default: avdm)")
     ca.add_argument(
         "--contrasts",
         "--contrast",
         dest="contrasts",
         type=parse_float_list,
-        default=[0.5, 1.0],
         help="grating contrasts to include (default: 0.5,1)",
     )
     add_out(ca, "results/calibration")
@@ -419,19 +413,16 @@ def build_parser() -> argparse.ArgumentParser:
             "--threshold",
             dest="threshold_dps",
             type=positive_float,
-            default=100.0,
             help="response threshold, deg/s (default: %(default)s, the paper's)",
         )
         p.add_argument(
             "--near-wall-m",
             type=positive_float,
-            default=0.15,
             help="'near the wall' = robot centre within this of a wall, m (default: %(default)s)",
         )
         p.add_argument(
             "--centre-m",
             type=positive_float,
-            default=0.25,
             help="'centre' = farther than this from every wall, m (default: %(default)s)",
         )
         p.add_argument(
@@ -444,13 +435,11 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument(
             "--turn-threshold-dps",
             type=positive_float,
-            default=30.0,
             help="the robot turns when its own yaw rate exceeds this, deg/s (default: %(default)s)",
         )
         p.add_argument(
             "--turn-hold-frames",
             type=int,
-            default=10,
             help="frames after a turn still counted as turning: the AVDM remembers a turn for "
             "its 10-frame window (default: %(default)s)",
         )
@@ -489,19 +478,16 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument(
         "--by",
         choices=["recording", "condition"],
-        default="recording",
         help="one profile per recording segment, or pooled per scene/TF/model",
     )
     pr.add_argument(
         "--bin-dps",
         type=positive_float,
-        default=20.0,
         help="histogram bin width (default: %(default)s)",
     )
     pr.add_argument(
         "--cell-m",
         type=positive_float,
-        default=0.05,
         help="heat-map cell size, m (default: %(default)s)",
     )
     add_summary_options(pr)
@@ -543,14 +529,12 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument(
         "--false-alarm-m",
         type=positive_float,
-        default=0.30,
         help="avoidance with the wall farther ahead than this = false alarm, m "
         "(default: %(default)s)",
     )
     co.add_argument(
         "--bin-m",
         type=positive_float,
-        default=0.02,
         help="density-map bin, m (default: %(default)s)",
     )
     co.set_defaults(func=cmd_collision)
@@ -569,19 +553,16 @@ def build_parser() -> argparse.ArgumentParser:
     cs.add_argument(
         "--minutes",
         type=positive_float,
-        default=30.0,
         help="length of each phase (default: %(default)s, the paper's)",
     )
     add_out(cs, "results/collision-study")
     cs.add_argument(
         "--detector",
-        default="lgmd-plus-arena",
         help="collision detector (default: %(default)s; lgmd-plus = released "
         "parameters, which never alert on this arena's static walls)",
     )
     cs.add_argument(
         "--adjusted",
-        default="t_ffi=30",
         help="detector overrides of the 'adjusted threshold' phase (default: %(default)s)",
     )
     add_seed_options(cs, 5)
@@ -589,7 +570,6 @@ def build_parser() -> argparse.ArgumentParser:
     cs.add_argument(
         "--false-alarm-m",
         type=positive_float,
-        default=0.30,
         help="false-alarm distance, m (default: %(default)s)",
     )
     cs.set_defaults(func=cmd_collision_study)
@@ -653,10 +633,9 @@ def build_parser() -> argparse.ArgumentParser:
     cx.add_argument(
         "--flow-preset",
         choices=["ultrafast", "fast", "medium"],
-        default="medium",
         help="DIS optic-flow preset (default: %(default)s)",
     )
-    cx.add_argument("--jpeg-quality", type=int, default=75, help="JPEG quality (default: 75)")
+    cx.add_argument("--jpeg-quality", type=int, help="JPEG quality (default: 75)")
     cx.set_defaults(func=cmd_complexity)
 
     rp = sub.add_parser(
@@ -688,7 +667,17 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         help="override: approach repeats per TF",
     )
+    rp.add_argument(
+        "--sweep-duration-s", type=positive_float, help="override: seconds per sweep cell"
+    )
+    rp.add_argument("--detector", help="collision detector of the study (default: %(default)s)")
+    rp.add_argument(
+        "--adjusted",
+        help="detector overrides of the 'adjusted threshold' phase (default: %(default)s)",
+    )
     rp.set_defaults(func=cmd_reproduce)
+    for name, target in SETTINGS.items():
+        bind_settings(sub.choices[name], load_settings_class(target))
     return parser
 
 
@@ -705,16 +694,28 @@ def cli_reference() -> str:
         "name of the command's settings dataclass (see the README's table of functions).",
         "",
     ]
-    for prog, parser in ((capture.cli.PROG, capture.cli.build_parser()), (PROG, build_parser())):
+    clis = ((capture.cli.PROG, capture.cli), (PROG, sys.modules[__name__]))
+    for prog, cli in clis:
+        parser = cli.build_parser()
         subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         for name, sub in subs.choices.items():
+            target = cli.SETTINGS.get(name)
+            fields = (
+                {f.name: field_default(f) for f in dataclasses.fields(load_settings_class(target))}
+                if target
+                else {}
+            )
             lines += [f"## `{prog} {name}`", "", (sub.description or "").strip(), ""]
             lines += ["| flag | default | meaning |", "|---|---|---|"]
             for act in sub._actions:
                 if isinstance(act, argparse._HelpAction):
                     continue
                 flag = ", ".join(f"`{o}`" for o in act.option_strings) or f"`{act.dest.upper()}`"
-                default = "" if act.default in (None, False, argparse.SUPPRESS) else act.default
+                default = fields.get(act.dest, act.default)  # the settings' default first
+                if any(default is v for v in (None, False, argparse.SUPPRESS, dataclasses.MISSING)):
+                    default = ""  # identity: 0 and 0.0 are defaults worth showing
+                elif default == ():
+                    default = ""
                 text = (act.help or "").replace("|", "\\|").replace("\n", " ")
                 text = text.replace("%(default)s", str(act.default)).replace("%%", "%")
                 lines.append(f"| {flag} | {f'`{default}`' if default != '' else ''} | {text} |")

@@ -38,6 +38,7 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, repeat_flags
+from vdc.cli_support import API_ONLY
 from vdc.parquet_io import Files
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 
@@ -67,7 +68,7 @@ class ComplexitySettings:
     model: str = FOOTAGE_MODEL  # the AVDM variant valid on real footage (1-300 deg/s)
     flow_preset: str = "medium"  # DIS preset; "medium" keeps the finest scale on small frames
     jpeg_quality: int = 75
-    zlib_level: int = 6
+    zlib_level: int = dataclasses.field(default=6, metadata=API_ONLY)
 
     def __post_init__(self) -> None:
         from avdm.registry import require_angular_velocity

@@ -14,6 +14,7 @@ import numpy as np
 import polars as pl
 
 from analysis.tables import SummarySettings, TablesSettings, summarise
+from vdc.cli_support import API_ONLY
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,7 +24,8 @@ class ProfileSettings(TablesSettings):
     by: str = "recording"  # one profile per recording segment, or pooled per condition
     bin_dps: float = 20.0  # histogram bin width above the threshold
     cell_m: float = 0.05  # heat-map cell size
-    max_points: int = 4000  # circles drawn in a PNG 3D profile (all go to the .rrd)
+    # circles drawn in a PNG 3D profile (all go to the .rrd)
+    max_points: int = dataclasses.field(default=4000, metadata=API_ONLY)
 
     def __post_init__(self) -> None:
         super().__post_init__()

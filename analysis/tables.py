@@ -32,6 +32,7 @@ from analysis.rrd_reader import Recording, RecordingError
 from avdm.base import Model, primary_output_name
 from avdm.registry import canonical_name, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
+from vdc.cli_support import API_ONLY
 from vdc.parquet_io import Files, table_set, write_parquet
 from vdc.recording import (
     FRAME_TIMING,
@@ -50,7 +51,8 @@ class SummarySettings:
     threshold_dps: float = 100.0  # "AVDM > 100" (paper)
     near_wall_m: float = 0.15  # robot centre within this of a wall: "near the wall" (PROPOSED)
     centre_m: float = 0.25  # farther than this from every wall: "centre" (PROPOSED)
-    warmup_frames: int = 20  # the models' first 2·Tw frames are left out of statistics
+    # the models' first 2·Tw frames are left out of statistics
+    warmup_frames: int = dataclasses.field(default=20, metadata=API_ONLY)
     # the robot's own turns (analysis/ego_motion.py): flagged in the frames table, and left
     # out of the summaries with exclude_turns
     turn_threshold_dps: float = 30.0

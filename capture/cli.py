@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import sys
 from collections.abc import Sequence
@@ -15,10 +14,12 @@ from vdc.cli_support import (
     OneLineParser,
     UserError,
     add_executor_options,
+    bind_settings,
     fail,
+    load_settings_class,
     positive_float,
+    settings_from_args,
 )
-from vdc.recording import FOOTAGE_MODEL
 
 if TYPE_CHECKING:
     from capture.run import RecordResult
@@ -44,13 +45,6 @@ def _seed(text: str) -> int:
     if v < 0:
         raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
     return v
-
-
-def _settings(cls, args: argparse.Namespace):
-    """The command's settings dataclass from the parsed flags (flag name = field name)."""
-    return cls(
-        **{f.name: getattr(args, f.name) for f in dataclasses.fields(cls) if hasattr(args, f.name)}
-    )
 
 
 def _stderr(msg: str) -> None:
@@ -80,7 +74,7 @@ def _report_write_error(rec: RecordResult) -> None:
 def cmd_sim(args: argparse.Namespace) -> int:
     from capture.sim import SimSettings, record_sim
 
-    res = record_sim(_settings(SimSettings, args), args.out, **_recording_options(args))
+    res = record_sim(settings_from_args(SimSettings, args), args.out, **_recording_options(args))
     _report_write_error(res)
     if res.complete:
         events = ", ".join(f"{n} {k.replace('_', ' ')}s" for k, n in sorted(res.events.items()))
@@ -107,7 +101,7 @@ def cmd_emulate_robot(args: argparse.Namespace) -> int:
             flush=True,
         )
 
-    report = emulate_robot(_settings(EmulateSettings, args), announce)
+    report = emulate_robot(settings_from_args(EmulateSettings, args), announce)
     print(
         f"sent {len(report['intact'])} intact and {len(report['corrupted'])} corrupted "
         f"frames; dropped {len(report['dropped'])}; {len(report['lost_in_disconnect'])} "
@@ -119,7 +113,9 @@ def cmd_emulate_robot(args: argparse.Namespace) -> int:
 def cmd_robot(args: argparse.Namespace) -> int:
     from capture.robot_capture import RobotSettings, record_robot
 
-    res = record_robot(_settings(RobotSettings, args), args.out, **_recording_options(args))
+    res = record_robot(
+        settings_from_args(RobotSettings, args), args.out, **_recording_options(args)
+    )
     rec = res.record
     _report_write_error(rec)
     print(
@@ -133,7 +129,7 @@ def cmd_robot(args: argparse.Namespace) -> int:
 def cmd_video(args: argparse.Namespace) -> int:
     from capture.video import VideoSettings, record_video
 
-    s = _settings(VideoSettings, args)
+    s = settings_from_args(VideoSettings, args)
     bars: list = []
 
     def calibrating(n: int = 1) -> None:  # a bar only when a fit is really needed
@@ -224,6 +220,16 @@ def add_output_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+# each sub-command's settings dataclass: the one source of its flags' defaults
+SETTINGS = {
+    "sim": "capture.sim:SimSettings",
+    "video": "capture.video:VideoSettings",
+    "robot": "capture.robot_capture:RobotSettings",
+    "emulate-robot": "capture.colias_link:EmulateSettings",
+    "sweep": "capture.sweep:CaptureSweepSettings",
+}
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog=PROG,
@@ -251,13 +257,11 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument(
         "--scene",
         choices=["grating", "natural"],
-        default="grating",
         help="what the walls show (default: %(default)s)",
     )
     sim.add_argument(
         "--period-m",
         type=positive_float,
-        default=0.1,
         help="grating period along the wall, m; a natural scene drifts at "
         "TF x this (default: %(default)s)",
     )
@@ -265,7 +269,6 @@ def build_parser() -> argparse.ArgumentParser:
     tf.add_argument(
         "--tf-hz",
         type=_non_negative_float,
-        default=0.0,
         help="wall drift temporal frequency, Hz (default: %(default)s)",
     )
     tf.add_argument(
@@ -276,11 +279,10 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument(
         "--minutes", type=positive_float, help="run length (default: 30, or the schedule's total)"
     )
-    sim.add_argument("--seed", type=_seed, default=0, help="random seed (default: 0)")
+    sim.add_argument("--seed", type=_seed, help="random seed (default: 0)")
     sim.add_argument(
         "--behaviour",
         choices=["profile", "collision"],
-        default="profile",
         help="profile: ring turns, online AVDM (default); collision: the robot "
         "avoids walls with an on-board LGMD detector, ring off, wall contact = crash",
     )
@@ -291,7 +293,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sim.add_argument(
         "--profile-model",
-        default="avdm",
         help="collision mode: the complexity model running alongside (default: %(default)s)",
     )
     sim.add_argument(
@@ -309,7 +310,6 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument(
         "--adaptive-gain",
         type=_non_negative_float,
-        default=1.0,
         help="collision mode: T_ffi = max(12, gain x mean AVDM deg/s over the last 60 s) "
         "(default: 1)",
     )
@@ -317,21 +317,18 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument(
         "--contrast",
         type=positive_float,
-        default=1.0,
         help="wall pattern contrast, 0-1 (default: %(default)s)",
     )
     sim.add_argument("--image", metavar="PATH", help="natural-scene wall from an image file")
     sim.add_argument(
         "--noise-sd",
         type=_non_negative_float,
-        default=0.0,
         help="camera noise, 8-bit levels (default: 0)",
     )
     sim.add_argument("--overhead", action="store_true", help="also log an overhead camera")
     sim.add_argument(
         "--overhead-fps",
         type=positive_float,
-        default=5.0,
         help="overhead camera rate, Hz (default: %(default)s)",
     )
     add_output_options(sim, "recordings/<run id>.rrd")
@@ -347,22 +344,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     em.add_argument(
         "--link",
-        default="/tmp/vdc-robot",
         help="stable path (symlink) to the emulated port (default: %(default)s)",
     )
-    em.add_argument("--tf-hz", type=_non_negative_float, default=0.0, help="wall TF, Hz")
-    em.add_argument("--minutes", type=positive_float, default=1.0, help="run length")
-    em.add_argument("--seed", type=_seed, default=0, help="random seed")
+    em.add_argument("--tf-hz", type=_non_negative_float, help="wall TF, Hz")
+    em.add_argument("--minutes", type=positive_float, help="run length")
+    em.add_argument("--seed", type=_seed, help="random seed")
     em.add_argument(
         "--corrupt-rate",
         type=_non_negative_float,
-        default=0.0,
         help="share of packets corrupted, e.g. 0.01 (1-3 bits flipped in each)",
     )
     em.add_argument(
         "--drop-rate",
         type=_non_negative_float,
-        default=0.0,
         help="probability of dropping each packet",
     )
     em.add_argument(
@@ -373,17 +367,15 @@ def build_parser() -> argparse.ArgumentParser:
     em.add_argument(
         "--reconnect-after",
         type=positive_float,
-        default=1.0,
         help="seconds until the port reappears (default: %(default)s)",
     )
     em.add_argument(
-        "--decimation", type=int, default=1, help="send the image with every Nth frame (slow links)"
+        "--decimation", type=int, help="send the image with every Nth frame (slow links)"
     )
     em.add_argument("--fast", action="store_true", help="do not pace frames at 33 Hz")
     em.add_argument(
         "--wait",
         type=positive_float,
-        default=60.0,
         help="seconds to wait for the host (default: %(default)s)",
     )
     em.add_argument("--report", help="write what was injected to this JSON file")
@@ -413,11 +405,10 @@ def build_parser() -> argparse.ArgumentParser:
     ro.add_argument(
         "--camera-fps",
         type=positive_float,
-        default=10.0,
         help="pace of a video file or image sequence (default: %(default)s)",
     )
     tfr = ro.add_mutually_exclusive_group()
-    tfr.add_argument("--tf-hz", type=_non_negative_float, default=0.0, help="wall TF, Hz")
+    tfr.add_argument("--tf-hz", type=_non_negative_float, help="wall TF, Hz")
     tfr.add_argument(
         "--tf-schedule",
         metavar="S",
@@ -428,11 +419,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="save the tracker's homography (calibrated on the first frame)",
     )
-    ro.add_argument("--period-m", type=positive_float, default=0.1, help="wall period, m")
-    ro.add_argument("--scene", choices=["grating", "natural"], default="grating")
+    ro.add_argument("--period-m", type=positive_float, help="wall period, m")
+    ro.add_argument(
+        "--scene",
+        choices=["grating", "natural"],
+    )
     ro.add_argument("--wall-port", help="LED wall controller's serial port (line protocol)")
-    ro.add_argument("--baud", type=int, default=3_000_000, help="serial rate (default: 3000000)")
-    ro.add_argument("--model", default="avdm", help="the model running on the robot")
+    ro.add_argument("--baud", type=int, help="serial rate (default: 3000000)")
+    ro.add_argument("--model", help="the model running on the robot")
     add_output_options(ro, "recordings/robot-<time>.rrd")
     ro.set_defaults(func=cmd_robot)
 
@@ -472,21 +466,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     vi.add_argument(
         "--model",
-        default=FOOTAGE_MODEL,
         help="the model to run (default: %(default)s, the AVDM valid 1-300 deg/s on real "
         "footage; avdm is the paper's, valid up to about 1 px of motion per frame)",
     )
     vi.add_argument(
         "--repeat-tol",
         type=_non_negative_float,
-        default=0.5,
         help="a frame whose mean |difference| from the previous is at most this (8-bit "
         "levels) repeats it (default: %(default)s)",
     )
     vi.add_argument(
         "--max-repeats",
         type=int,
-        default=3,
         help="longer still stretches are a still scene, not repeats (default: %(default)s)",
     )
     add_output_options(vi, "recordings/video-<name>-<hash>.rrd")
@@ -522,6 +513,8 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
     add_executor_options(sw, "simulated runs")
     sw.set_defaults(func=cmd_sweep)
+    for name, target in SETTINGS.items():
+        bind_settings(sub.choices[name], load_settings_class(target))
     return parser
 
 

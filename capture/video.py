@@ -33,6 +33,7 @@ import numpy as np
 from avdm.true_time import repeat_flags
 from capture.device import Batch, Event
 from capture.run import RecordResult
+from vdc.cli_support import API_ONLY
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 
 
@@ -47,7 +48,7 @@ class VideoSettings:
     model: str = FOOTAGE_MODEL
     repeat_tol: float = 0.5  # mean |difference| (8-bit levels) under which a frame repeats
     max_repeats: int = 3  # longer still stretches are a still scene, not repeats
-    batch_frames: int = 128
+    batch_frames: int = dataclasses.field(default=128, metadata=API_ONLY)  # frames per batch
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.fov_deg) and 1.0 <= self.fov_deg <= 360.0):

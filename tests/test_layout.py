@@ -201,3 +201,71 @@ def test_the_cli_reference_page_is_current() -> None:
         'python -c \'from analysis.cli import *; open("docs/cli.md", "w").write(cli_reference())\''
     )
     assert page == cli_reference(), f"docs/cli.md is stale: regenerate it with {fix}"
+
+
+@pytest.mark.parametrize("side", ["capture", "analysis"])
+def test_every_settings_field_is_a_flag_with_the_same_name_and_default(side: str) -> None:
+    """One source of truth per command: each field of a command's settings dataclass is a flag
+    with the field's name (or is marked API-only), the parser holds no default of its own (an
+    unset flag takes the field's), and every "(default: X)" the help states is the field's."""
+    import argparse
+    import dataclasses
+    import importlib
+    import re
+
+    from vdc.cli_support import field_default, load_settings_class
+
+    cli = importlib.import_module(f"{side}.cli")
+    parser = cli.build_parser()
+    subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert set(cli.SETTINGS) <= set(subs.choices)
+    problems = []
+    for name, target in cli.SETTINGS.items():
+        cls = load_settings_class(target)
+        actions = {a.dest: a for a in subs.choices[name]._actions}
+        for f in dataclasses.fields(cls):
+            default = field_default(f)
+            act = actions.get(f.name)
+            if f.metadata.get("api_only") or not f.init:
+                assert act is None, f"{name}: {f.name} is marked API-only but has a flag"
+                continue
+            if act is None:
+                problems.append(f"{name}: field {f.name} has no flag --{f.name.replace('_', '-')}")
+                continue
+            if default is dataclasses.MISSING or isinstance(act, argparse._StoreTrueAction):
+                continue
+            if act.default is not None:
+                problems.append(f"{name} --{f.name}: the parser has a default of its own")
+            stated = re.search(r"\(default: ([^)]*)\)", act.help or "")
+            if stated and default is not None and not _agrees(stated.group(1), default):
+                problems.append(f"{name} --{f.name}: help says {stated.group(0)}, field {default}")
+    assert not problems, "\n".join(problems)
+
+
+def _agrees(stated: str, default: object) -> bool:
+    """Whether a help text's "(default: ...)" states ``default`` (numbers compared as numbers,
+    sizes written WIDTHxHEIGHT for (H, W) fields, lists comma-separated)."""
+    first = stated.split(";")[0].strip()
+    if (
+        isinstance(default, tuple)
+        and len(default) == 2
+        and all(isinstance(v, int) for v in default)
+    ):
+        return first == f"{default[1]}x{default[0]}"
+    values = default if isinstance(default, tuple) else (default,)
+    words = [w.strip() for w in first.split(",")]
+    if not isinstance(default, tuple):  # a scalar, then maybe a comment: "100.0, the paper's"
+        words = words[:1]
+    if len(words) != len(values):
+        return False
+    for word, value in zip(words, values, strict=True):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            if word != str(value):
+                return False
+        else:
+            try:
+                if float(word) != float(value):
+                    return False
+            except ValueError:
+                return False
+    return True

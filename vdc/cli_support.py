@@ -8,10 +8,15 @@ way.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
-from typing import NoReturn
+from typing import Any, NoReturn
 
 EXIT_BAD_INPUT = 2
+
+# dataclasses.field(metadata=API_ONLY): a settings field without a flag (set from Python only,
+# or through another flag); the layout test holds every other field to a flag of its name
+API_ONLY = {"api_only": True}
 
 
 class UserError(Exception):
@@ -98,3 +103,54 @@ def add_executor_options(p: argparse.ArgumentParser, what: str) -> None:
         help="an existing Dask cluster: tcp://HOST:PORT, tls://HOST:PORT or a scheduler file "
         "(implies --executor dask); without it, --executor dask starts one on 127.0.0.1",
     )
+
+
+def field_default(field: dataclasses.Field) -> Any:
+    """A dataclass field's default (calling its factory), or ``dataclasses.MISSING``."""
+    if field.default is not dataclasses.MISSING:
+        return field.default
+    if field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    return dataclasses.MISSING
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, tuple | list):
+        return ",".join(map(str, value))
+    return str(value)
+
+
+def bind_settings(parser: argparse.ArgumentParser, cls: type) -> None:
+    """Make the settings dataclass ``cls`` the one source of ``parser``'s defaults.
+
+    A flag whose ``dest`` is a field of ``cls`` is left unset by default (None: the settings'
+    own default applies, see :func:`settings_from_args`), and ``%(default)s`` in its help shows
+    the field's default. Switches (``store_true``) keep False, which their fields default to."""
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    for act in parser._actions:
+        f = fields.get(act.dest)
+        if f is None or isinstance(act, argparse._StoreTrueAction | argparse._HelpAction):
+            continue
+        default = field_default(f)
+        if default is dataclasses.MISSING:
+            continue
+        act.default = None
+        if act.help and "%(default)s" in act.help:
+            act.help = act.help.replace("%(default)s", _shown(default).replace("%", "%%"))
+
+
+def settings_from_args(cls: type, args: argparse.Namespace, **extra: Any) -> Any:
+    """The command's settings dataclass from the parsed flags (flag name = field name): flags
+    left unset take the dataclass's default; repeatable flags and lists become tuples."""
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    values = {k: getattr(args, k) for k in names if hasattr(args, k)}
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+    return cls(**{k: v for k, v in values.items() if v is not None}, **extra)
+
+
+def load_settings_class(target: str) -> type:
+    """``"package.module:ClassName"`` → the class (the command lines name their settings so)."""
+    import importlib
+
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)

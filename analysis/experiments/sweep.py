@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import matplotlib
@@ -22,6 +22,7 @@ from matplotlib.figure import Figure
 from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model, make_params, require_angular_velocity
 from avdm.stimuli import grating, omega_true_dps, period_px_from_sf
+from vdc.cli_support import API_ONLY
 from vdc.parquet_io import Files
 
 PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
@@ -307,7 +308,7 @@ class SweepSettings:
     fps: float = 300.0
     duration_s: float = 1.0
     contrast: float = 1.0
-    waveform: str = "sine"
+    waveform: str = field(default="sine", metadata=API_ONLY)  # flag: --square
 
     def __post_init__(self) -> None:
         if not 0 < self.contrast <= 1:
