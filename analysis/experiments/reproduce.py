@@ -21,7 +21,7 @@ import html
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -148,6 +148,26 @@ def profile_items(plan: ReproduceSettings, folder: Path) -> list[CaptureItem]:
 
 
 @dataclasses.dataclass
+class Quantity:
+    """One number behind a claim: a quantity under one condition, its mean and 95 % interval
+    across seeds, and the test the claim's verdict used (with its p-value, where it has one)."""
+
+    condition: str  # e.g. "grating TF 3 Hz", "tf3-adjusted"
+    quantity: str  # e.g. "frac_over_100", "success_rate" (in the table's units)
+    estimate: float
+    ci_low: float
+    ci_high: float
+    n_seeds: int
+    test: str = ""
+    p_value: float = math.nan
+
+    @classmethod
+    def of(cls, condition: str, quantity: str, e: Estimate, test: str = "", p: float = math.nan,
+           scale: float = 1.0) -> Quantity:  # fmt: skip
+        return cls(condition, quantity, e.mean * scale, e.low * scale, e.high * scale, e.n, test, p)
+
+
+@dataclasses.dataclass
 class Claim:
     claim: str
     paper: str
@@ -155,6 +175,36 @@ class Claim:
     verdict: str  # holds | partly | does not hold
     p_value: float = math.nan  # of the claim's trend test, where it has one
     seeds: int = 1  # runs per condition behind the numbers (1 for deterministic steps)
+    quantities: list[Quantity] = dataclasses.field(default_factory=list)
+
+
+CLAIM_COLUMNS = ("claim", "paper", "measured", "verdict", "seeds")
+
+
+def claims_frame(claims: Sequence[Claim]) -> pl.DataFrame:
+    """claims.parquet, in long form: one row per claim, condition and quantity (``estimate``,
+    ``ci_low``, ``ci_high``, ``n_seeds``, ``test``, ``p_value``) beside the claim's text and
+    verdict; a claim without numbers has one row with nulls. ``claim_index`` keeps the order."""
+    rows = []
+    for i, c in enumerate(claims):
+        base = {"claim_index": i, **{k: getattr(c, k) for k in CLAIM_COLUMNS}}
+        quantities = c.quantities or [None]
+        for q in quantities:
+            values = (
+                dataclasses.asdict(q)
+                if q is not None
+                else {f.name: None for f in dataclasses.fields(Quantity)}
+            )
+            if q is not None and not math.isfinite(q.p_value):
+                values["p_value"] = c.p_value if math.isfinite(c.p_value) else None
+            rows.append({**base, **values})
+    schema = {
+        "claim_index": pl.Int64, "claim": pl.String, "paper": pl.String, "measured": pl.String,
+        "verdict": pl.String, "seeds": pl.Int64, "condition": pl.String, "quantity": pl.String,
+        "estimate": pl.Float64, "ci_low": pl.Float64, "ci_high": pl.Float64,
+        "n_seeds": pl.Int64, "test": pl.String, "p_value": pl.Float64,
+    }  # fmt: skip
+    return pl.DataFrame(rows, schema=schema).with_columns(pl.col(pl.Float64).fill_nan(None))
 
 
 def _verdict(all_ok: bool, any_ok: bool = False) -> str:
@@ -272,7 +322,13 @@ def rise_claim(
         + f" (mean [95 % interval] over {table.height} seeds); {trend.text()}"
     )
     verdict = trend_verdict([e.mean for e in est], trend)
-    return Claim(claim, paper, measured, verdict, trend.p_value, table.height)
+    quantities = [
+        Quantity.of(
+            f"TF {tf:g} Hz", metric, e, f"rise with TF: {trend.method}", trend.p_value, scale
+        )
+        for tf, e in zip(_tfs(table), est, strict=True)
+    ]
+    return Claim(claim, paper, measured, verdict, trend.p_value, table.height, quantities)
 
 
 def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
@@ -282,6 +338,7 @@ def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
     claims = []
     ratios = []
     verdicts = []
+    ratio_q = []
     for scene, tf in PROFILE_CONDITIONS:
         t = per_seed(summary, scene, CALIBRATED, "all", "near_wall_centre_ratio")
         col = str(float(tf))  # polars names pivoted Float64 columns like "3.0"
@@ -290,6 +347,9 @@ def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
         est = mean_ci(t[col].to_numpy(), bounds=(0.0, math.inf))
         ratios.append(f"{scene} TF {tf:g}: {est.text('{:.2f}')}")
         verdicts.append(above_verdict(est, 1.0))
+        ratio_q.append(
+            Quantity.of(f"{scene} TF {tf:g} Hz", "near_wall_centre_ratio", est, "95 % interval > 1")
+        )
     n = int(summary["seed"].n_unique())
     claims.append(
         Claim(
@@ -299,6 +359,7 @@ def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
             combine(verdicts),
             math.nan,
             n,
+            ratio_q,
         )
     )
     paper = "more 'AVDM > 100' responses at higher TF (Fig. 6 histograms)"
@@ -351,6 +412,7 @@ def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
     nat.measured += "; near-wall / centre: " + ", ".join(
         r for r in ratios if r.startswith("natural")
     )
+    nat.quantities += [q for q in ratio_q if q.condition.startswith("natural")]
     claims.append(nat)
     return claims
 
@@ -369,6 +431,15 @@ def collision_claims(summary: pl.DataFrame) -> list[Claim]:
             f"{est(phase, 'avoidances_per_30min').text('{:.0f}')} avoidances and "
             f"{est(phase, 'crashes_per_30min').text('{:.1f}')} crashes per 30 min"
         )
+
+    def numbers(*names: str) -> list[Quantity]:
+        test = "95 % interval vs 90 % success"
+        return [
+            Quantity.of(p, q, est(p, q), test if q == "success_rate" else "")
+            for p in names
+            if p in phases
+            for q in ("success_rate", "avoidances_per_30min", "crashes_per_30min")
+        ]
 
     claims = []
     n = int(summary["seed"].n_unique()) if summary.height else 0
@@ -389,6 +460,7 @@ def collision_claims(summary: pl.DataFrame) -> list[Claim]:
                 combine([works, breaks, recovers]),
                 math.nan,
                 n,
+                numbers("tf0", "tf3", "tf3-adjusted"),
             )
         )
     if {"tf0", "tf3-adaptive"} <= set(phases):
@@ -409,6 +481,7 @@ def collision_claims(summary: pl.DataFrame) -> list[Claim]:
                 combine([ok_s, ok_n]),
                 math.nan,
                 n,
+                numbers("tf3-adaptive", "tf0", "tf0-adaptive"),
             )
         )
     return claims
@@ -668,7 +741,8 @@ class ReproduceResult:
 
     @property
     def claims_table(self) -> pl.DataFrame:
-        return pl.DataFrame([dataclasses.asdict(c) for c in self.claims])
+        """claims.parquet's rows: one per claim, condition and quantity (:func:`claims_frame`)."""
+        return claims_frame(self.claims)
 
     @property
     def files(self) -> Files:
@@ -749,7 +823,7 @@ def reproduce(
     log("report")
     claims = evaluate_claims(out)
     write_parquet(
-        pl.DataFrame([dataclasses.asdict(c) for c in claims]),
+        claims_frame(claims),
         out / "claims.parquet",
         {"plan": dataclasses.asdict(plan), "capture_provenance": capture_provenance(paths)},
     )

@@ -211,3 +211,21 @@ def test_collision_claims_from_constructed_runs() -> None:
         collision_claims(_collision({k: (10, 90) for k in ("tf0", "tf3-adaptive")}))[0].verdict
         == PARTLY
     )
+
+
+def test_claims_carry_their_numbers_in_long_form() -> None:
+    """claims.parquet rows: one per claim, condition and quantity, with the mean across seeds
+    and its interval as numbers (here checked against the constructed runs themselves)."""
+    from analysis.experiments.reproduce import claims_frame
+
+    runs = _collision({"tf0": (229, 2), "tf3": (100, 80), "tf3-adjusted": (233, 3)})
+    table = claims_frame(collision_claims(runs))
+    row = table.filter((pl.col("condition") == "tf0") & (pl.col("quantity") == "success_rate")).row(
+        0, named=True
+    )
+    seeds = runs.filter(pl.col("phase") == "tf0")
+    assert row["estimate"] == pytest.approx(float(seeds["success_rate"].mean()), rel=1e-12)
+    assert row["ci_low"] < row["estimate"] < row["ci_high"]
+    assert row["n_seeds"] == seeds.height and row["verdict"] in ("holds", "partly")
+    assert set(table["condition"]) == {"tf0", "tf3", "tf3-adjusted"}
+    assert set(table["quantity"]) == {"success_rate", "avoidances_per_30min", "crashes_per_30min"}

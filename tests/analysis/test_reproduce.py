@@ -53,7 +53,8 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64") == 5  # self-contained
     # the report's numbers are recomputed from the tables it ships with
-    claims = pl.read_parquet(out / "claims.parquet")
+    table = pl.read_parquet(out / "claims.parquet")  # long: claim x condition x quantity
+    claims = table.unique("claim_index", keep="first", maintain_order=True)
     again = evaluate_claims(out)
     assert claims["measured"].to_list() == [c.measured for c in again]
     assert claims["verdict"].to_list() == [c.verdict for c in again]
@@ -68,6 +69,17 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
     assert "numba_target_cpu" in html and "capture 1" in md
     assert claims.height == 9 and set(claims["verdict"]) <= {"holds", "partly", "does not hold"}
     assert (claims["seeds"] == [1, 1] + [2] * 7).all()
+    # the numbers behind the seed-based claims, as numbers a notebook can plot and test
+    numbers = table.filter(pl.col("seeds") == 2)
+    assert numbers["estimate"].null_count() == 0 and numbers["n_seeds"].max() == 2
+    ci = numbers.drop_nulls("ci_low")
+    assert ci.height > 0
+    assert (
+        (ci["ci_low"] <= ci["estimate"] + 1e-9) & (ci["estimate"] <= ci["ci_high"] + 1e-9)
+    ).all()
+    assert not numbers.select("claim_index", "condition", "quantity").is_duplicated().any()
+    ratios = numbers.filter(pl.col("quantity") == "near_wall_centre_ratio")
+    assert ratios.height >= 2 and (ratios["test"] == "95 % interval > 1").all()
     # every condition ran with both seeds, read in both units and split by the robot's turns
     prof = pl.read_parquet(out / "profiling" / "summary.parquet")
     assert sorted(prof["seed"].unique().to_list()) == [1, 2]
