@@ -1,0 +1,66 @@
+"""The reproduction's plan: durations, repeats, seeds and where the runs go."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar
+
+from analysis.experiments.collision_study import seed_list
+from vdc.executors import ExecutorSettings
+
+
+@dataclasses.dataclass(frozen=True)
+class ReproduceSettings(ExecutorSettings):
+    """``vdc-analyse reproduce``: durations and repeats. The defaults are the paper's plan;
+    :meth:`quick` is the preset that finishes in minutes (a settings object always is what its
+    report says: :attr:`plan_name` is read from the values, not from a flag).
+    The simulated runs go to the executor (``executor``, ``jobs``, ``scheduler``)."""
+
+    profile_minutes: float = 30.0
+    collision_minutes: float = 30.0
+    approach_repeats: int = 10
+    sweep_duration_s: float = 1.0
+    seed: int = 1  # the first seed
+    seeds: int = 5  # runs per closed-loop condition (the paper's claims are tested across them)
+    detector: str = "lgmd-plus-arena"
+    adjusted: str = "t_ffi=30"
+
+    QUICK: ClassVar[dict[str, Any]] = {
+        "profile_minutes": 3.0,
+        "collision_minutes": 3.0,
+        "approach_repeats": 3,
+        "sweep_duration_s": 0.5,
+        "seeds": 3,
+    }
+
+    @classmethod
+    def quick(cls, **overrides: Any) -> ReproduceSettings:
+        """The quick preset (3-minute runs, 3 seeds), then ``overrides``."""
+        return cls(**{**cls.QUICK, **{k: v for k, v in overrides.items() if v is not None}})
+
+    @classmethod
+    def make(cls, quick: bool, **kw: Any) -> ReproduceSettings:
+        """The command line's: the quick preset or the paper's plan, then the given flags."""
+        if quick:
+            return cls.quick(**kw)
+        return cls(**{k: v for k, v in kw.items() if v is not None})
+
+    @property
+    def plan_name(self) -> str:
+        """``quick`` or ``full`` when the durations are a preset's, else ``custom``."""
+        values = {k: getattr(self, k) for k in self.QUICK}
+        if values == self.QUICK:
+            return "quick"
+        defaults = {f.name: f.default for f in dataclasses.fields(self) if f.name in values}
+        if values == defaults:
+            return "full"
+        return "custom"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.seeds < 1:
+            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+
+    @property
+    def seed_list(self) -> list[int]:
+        return seed_list(self.seed, self.seeds)
