@@ -306,7 +306,9 @@ SETTINGS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser; ``command`` binds only that sub-command's settings (their modules load
+    then, not all of them: a command line starts faster), None binds every one, "" none."""
     parser = OneLineParser(
         prog=PROG,
         description=(
@@ -677,7 +679,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rp.set_defaults(func=cmd_reproduce)
     for name, target in SETTINGS.items():
-        bind_settings(sub.choices[name], load_settings_class(target))
+        if command is None or name == command:
+            bind_settings(sub.choices[name], load_settings_class(target))
     return parser
 
 
@@ -724,7 +727,9 @@ def cli_reference() -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    given = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in given if not a.startswith("-")), None)  # the sub-command
+    parser = build_parser(command if command in SETTINGS else "")  # "": bind none
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     try:

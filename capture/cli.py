@@ -230,7 +230,9 @@ SETTINGS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser; ``command`` binds only that sub-command's settings (their modules load
+    then, not all of them: a command line starts faster), None binds every one, "" none."""
     parser = OneLineParser(
         prog=PROG,
         description="Record runs of the arena as Rerun .rrd files (open them with `rerun FILE`).",
@@ -514,12 +516,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_executor_options(sw, "simulated runs")
     sw.set_defaults(func=cmd_sweep)
     for name, target in SETTINGS.items():
-        bind_settings(sub.choices[name], load_settings_class(target))
+        if command is None or name == command:
+            bind_settings(sub.choices[name], load_settings_class(target))
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    given = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in given if not a.startswith("-")), None)  # the sub-command
+    parser = build_parser(command if command in SETTINGS else "")  # "": bind none
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()

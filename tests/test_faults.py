@@ -469,8 +469,11 @@ def test_ctrl_c_while_the_command_loads_is_one_line(tmp_path: Path) -> None:
     time.sleep(0.15)  # still importing NumPy, Numba and the SDK
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
-    assert "Traceback" not in err and err.strip().splitlines()[-1].endswith("interrupted"), err
+    # 130, or death by SIGINT (-2) when the signal lands before Python hands control to vdc;
+    # a shell reports both as 130
+    assert proc.returncode in (130, -signal.SIGINT), err
+    assert "Traceback" not in err and "Error" not in err, err
+    assert not err.strip() or err.strip().splitlines()[-1].endswith("interrupted"), err
     assert not out.exists()
     assert_clean(tmp_path)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import base64
 import html
+import math
 from pathlib import Path
 
 import polars as pl
@@ -15,6 +16,7 @@ from analysis.experiments.claims import (
     RELEASED,
     Claim,
     bounds_of,
+    claims_frame,
     estimates,
     per_seed,
     tf_columns,
@@ -81,6 +83,30 @@ FIGURES = (
 )
 
 
+def _number(value: float | None, digits: int = 4) -> str:
+    return "-" if value is None or not math.isfinite(value) else f"{value:.{digits}g}"
+
+
+def numbers_markdown(table: pl.DataFrame) -> str:
+    """The claims' numbers, rendered from claims.parquet's rows (and nothing else): one line per
+    claim, condition and quantity with the mean across seeds and its 95 % interval (4
+    significant digits), the seeds, the test and its p-value."""
+    lines = [
+        "| claim | condition | quantity | mean | 95 % interval | seeds | test | p |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in table.drop_nulls("quantity").iter_rows(named=True):
+        interval = (
+            f"[{_number(r['ci_low'])}, {_number(r['ci_high'])}]" if r["ci_low"] is not None else "-"
+        )
+        lines.append(
+            f"| {r['claim_index'] + 1} | {r['condition']} | {r['quantity']} | "
+            f"{_number(r['estimate'])} | {interval} | {r['n_seeds']} | {r['test'] or '-'} | "
+            f"{_number(r['p_value'], 3)} |"
+        )
+    return "\n".join(lines)
+
+
 def write_report(
     out: Path, plan: ReproduceSettings, claims: list[Claim], elapsed_s: float
 ) -> list[Path]:
@@ -98,6 +124,7 @@ def write_report(
         "number comes from the tables in this folder."
     )
     sections = [
+        ("The numbers behind the claims", numbers_markdown(claims_frame(claims)).split("\n")),
         ("Fig. 6 across seeds (grating)", fig6_table_markdown(prof).split("\n")),
         (
             "Collision study across seeds",
@@ -116,11 +143,11 @@ def write_report(
         "|---|---|---|---|",
     ]
     md += [f"| {c.claim} | {c.paper} | {c.measured} | **{c.verdict}** |" for c in claims]
-    for title, lines in sections[:2]:
+    for title, lines in sections[:3]:
         md += ["", f"## {title}", "", *lines]
     md += ["", "## Figures", ""]
     md += [f"### {title}\n\n![{title}]({rel})\n" for title, rel in FIGURES if (out / rel).exists()]
-    md += ["## Environment", "", *sections[2][1], ""]
+    md += ["## Environment", "", *sections[3][1], ""]
     md_path = out / "report.md"
     md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
 
@@ -134,7 +161,7 @@ def write_report(
         f"<h3>{html.escape(t)}</h3>{_img(out / rel)}" for t, rel in FIGURES if (out / rel).exists()
     )
     tables = "".join(
-        f"<h2>{html.escape(title)}</h2>{_md_html(lines)}" for title, lines in sections[:2]
+        f"<h2>{html.escape(title)}</h2>{_md_html(lines)}" for title, lines in sections[:3]
     )
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>vdc reproduction</title>
 <style>body{{font-family:sans-serif;max-width:1200px;margin:2em auto}}
@@ -143,7 +170,7 @@ table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px;ve
 </style></head><body><h1>vdc: reproducing the paper</h1><p>{html.escape(head)}</p>
 <h2>Claims</h2><table><tr><th>claim</th><th>paper</th><th>measured</th><th>verdict</th></tr>
 {rows}</table>{tables}<h2>Figures</h2>{figs}
-<h2>Environment</h2>{_md_html(sections[2][1])}</body></html>"""
+<h2>Environment</h2>{_md_html(sections[3][1])}</body></html>"""
     html_path = out / "report.html"
     html_path.write_text(page, encoding="utf-8")
     return [md_path, html_path]

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import polars as pl
+import pytest
 
 from analysis.experiments.reproduce import evaluate_claims
 from tests.helpers import run_cli
@@ -80,6 +82,20 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
     assert not numbers.select("claim_index", "condition", "quantity").is_duplicated().any()
     ratios = numbers.filter(pl.col("quantity") == "near_wall_centre_ratio")
     assert ratios.height >= 2 and (ratios["test"] == "95 % interval > 1").all()
+    # the report's table of numbers is rendered from those rows: each of its numbers is there
+    section = md.split("## The numbers behind the claims")[1].split("\n## ")[0]
+    rows = [ln for ln in section.splitlines() if ln.startswith("| ") and ln[2].isdigit()]
+    assert len(rows) == table.drop_nulls("quantity").height
+    for line, r in zip(rows, table.drop_nulls("quantity").iter_rows(named=True), strict=True):
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        assert cells[1:3] == [r["condition"], r["quantity"]]
+        shown = [
+            float(x) for x in re.findall(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?", cells[3] + cells[4])
+        ]
+        table_values = [v for v in (r["estimate"], r["ci_low"], r["ci_high"]) if v is not None]
+        assert len(shown) == len(table_values)
+        for a, b in zip(shown, table_values, strict=True):
+            assert a == pytest.approx(b, rel=5e-4, abs=1e-12)  # printed to 4 significant digits
     # every condition ran with both seeds, read in both units and split by the robot's turns
     prof = pl.read_parquet(out / "profiling" / "summary.parquet")
     assert sorted(prof["seed"].unique().to_list()) == [1, 2]
