@@ -13,7 +13,8 @@ from vdc.cli_support import (
     OneLineParser,
     UserError,
     add_executor_options,
-    bind_settings,
+    bind_commands,
+    command_of,
     fail,
     field_default,
     load_settings_class,
@@ -307,8 +308,7 @@ SETTINGS = {
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The parser; ``command`` binds only that sub-command's settings (their modules load
-    then, not all of them: a command line starts faster), None binds every one, "" none."""
+    """The parser, with the settings of ``command`` bound (see ``bind_commands``)."""
     parser = OneLineParser(
         prog=PROG,
         description=(
@@ -678,9 +678,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         help="detector overrides of the 'adjusted threshold' phase (default: %(default)s)",
     )
     rp.set_defaults(func=cmd_reproduce)
-    for name, target in SETTINGS.items():
-        if command is None or name == command:
-            bind_settings(sub.choices[name], load_settings_class(target))
+    bind_commands(sub, SETTINGS, command)
     return parser
 
 
@@ -727,9 +725,7 @@ def cli_reference() -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    given = list(sys.argv[1:] if argv is None else argv)
-    command = next((a for a in given if not a.startswith("-")), None)  # the sub-command
-    parser = build_parser(command if command in SETTINGS else "")  # "": bind none
+    parser = build_parser(command_of(argv, SETTINGS))
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     try:

@@ -30,7 +30,7 @@ from analysis.ego_motion import turning_before
 from analysis.profile import safe_key
 from analysis.stats import Estimate, mean_ci, share_ci
 from analysis.tables import LoadedRecording, SummarySettings, events_table
-from vdc.parquet_io import Files
+from vdc.parquet_io import WroteFiles
 from vdc.recording import APP_ID
 
 # what the paper reports for its three phases (30 min each) [BRIEF]
@@ -314,7 +314,7 @@ def write_collision_rrd(
 
 
 @dataclasses.dataclass
-class CollisionResult:
+class CollisionResult(WroteFiles):
     """Per-recording (phase) metrics, every avoidance and crash, and the files written."""
 
     summary: pl.DataFrame
@@ -330,11 +330,6 @@ class CollisionResult:
     def markdown(self) -> str:
         """The per-phase table across seeds, then the per-recording table."""
         return phase_table_markdown(self.phases) + "\n\n" + collision_table_markdown(self.summary)
-
-    @property
-    def files(self) -> Files:
-        """The files written, by role (``vdc.parquet_io.Files``)."""
-        return Files.of(self.paths)
 
 
 def collision(

@@ -25,7 +25,7 @@ from analysis.tables import (
     summarise,
 )
 from avdm.registry import canonical_name, make_model
-from vdc.parquet_io import Files
+from vdc.parquet_io import WroteFiles
 
 
 def variant_statistics(
@@ -179,7 +179,7 @@ class CompareSettings(TablesSettings):
 
 
 @dataclasses.dataclass
-class CompareResult:
+class CompareResult(WroteFiles):
     """Every variant's outputs on the same frames, their statistics and correlations."""
 
     recording_id: str
@@ -199,11 +199,6 @@ class CompareResult:
             self.settings,
             f"{self.recording_id}: variants on identical frames",
         )
-
-    @property
-    def files(self) -> Files:
-        """The files written, by role (``vdc.parquet_io.Files``)."""
-        return Files.of(self.paths)
 
 
 def compare(

@@ -39,7 +39,7 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, repeat_flags
 from vdc.cli_support import API_ONLY
-from vdc.parquet_io import Files
+from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 
 METRICS = (
@@ -207,16 +207,11 @@ def complexity_of_frames(
 
 
 @dataclasses.dataclass
-class ComplexityResult:
+class ComplexityResult(WroteFiles):
     table: pl.DataFrame  # recording_id, frame, t_s, repeat, metrics...
     correlations: pl.DataFrame  # Spearman rank correlation of every pair, per recording
     paths: list[Path]
     notices: list[str]
-
-    @property
-    def files(self) -> Files:
-        """The files written, by role (``vdc.parquet_io.Files``)."""
-        return Files.of(self.paths)
 
 
 def complexity(

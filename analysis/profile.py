@@ -26,7 +26,7 @@ from analysis.segments import (  # noqa: F401 - the profile's data, re-exported
     segments_from_tables,
 )
 from analysis.tables import Notices, build_tables
-from vdc.parquet_io import Files
+from vdc.parquet_io import WroteFiles
 
 
 def _arena_outline(ax, hx: float, hy: float, z: float | None = None) -> None:
@@ -181,7 +181,7 @@ def plot_overview(segs: Sequence[Segment], s: ProfileSettings, path: Path) -> Pa
 
 
 @dataclasses.dataclass
-class ProfileResult:
+class ProfileResult(WroteFiles):
     """Profiles of every segment (or condition), their summary table, and the files written.
     ``figure(i)`` draws segment ``i`` as a matplotlib Figure."""
 
@@ -195,11 +195,6 @@ class ProfileResult:
 
     def figure(self, i: int = 0) -> Figure:
         return segment_figure(self.segments[i], self.settings)
-
-    @property
-    def files(self) -> Files:
-        """The files written, by role (``vdc.parquet_io.Files``)."""
-        return Files.of(self.paths)
 
 
 def profile(

@@ -33,7 +33,7 @@ from avdm.base import Model, primary_output_name
 from avdm.registry import canonical_name, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
 from vdc.cli_support import API_ONLY
-from vdc.parquet_io import Files, table_set, write_parquet
+from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from vdc.recording import (
     FRAME_TIMING,
     MODEL_ROOT,
@@ -612,7 +612,7 @@ def write_tables(
 
 
 @dataclasses.dataclass
-class TablesResult:
+class TablesResult(WroteFiles):
     """The four tables (polars DataFrames), their metadata, and the files written (if any)."""
 
     tables: dict[str, pl.DataFrame]
@@ -635,11 +635,6 @@ class TablesResult:
     @property
     def summary(self) -> pl.DataFrame:
         return self.tables["summary"]
-
-    @property
-    def files(self) -> Files:
-        """The files written, by role (``vdc.parquet_io.Files``)."""
-        return Files.of(self.paths)
 
 
 def tables(

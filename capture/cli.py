@@ -14,9 +14,9 @@ from vdc.cli_support import (
     OneLineParser,
     UserError,
     add_executor_options,
-    bind_settings,
+    bind_commands,
+    command_of,
     fail,
-    load_settings_class,
     positive_float,
     settings_from_args,
 )
@@ -231,8 +231,7 @@ SETTINGS = {
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The parser; ``command`` binds only that sub-command's settings (their modules load
-    then, not all of them: a command line starts faster), None binds every one, "" none."""
+    """The parser, with the settings of ``command`` bound (see ``bind_commands``)."""
     parser = OneLineParser(
         prog=PROG,
         description="Record runs of the arena as Rerun .rrd files (open them with `rerun FILE`).",
@@ -515,16 +514,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
     add_executor_options(sw, "simulated runs")
     sw.set_defaults(func=cmd_sweep)
-    for name, target in SETTINGS.items():
-        if command is None or name == command:
-            bind_settings(sub.choices[name], load_settings_class(target))
+    bind_commands(sub, SETTINGS, command)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    given = list(sys.argv[1:] if argv is None else argv)
-    command = next((a for a in given if not a.startswith("-")), None)  # the sub-command
-    parser = build_parser(command if command in SETTINGS else "")  # "": bind none
+    parser = build_parser(command_of(argv, SETTINGS))
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()

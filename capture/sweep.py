@@ -30,7 +30,7 @@ import polars as pl
 from avdm.registry import make_params
 from capture.sim import SimSettings
 from vdc.executors import ExecutorSettings, TaskOutcome, run_tasks
-from vdc.parquet_io import Files, write_parquet
+from vdc.parquet_io import WroteFiles, write_parquet
 
 RUNS = "runs"
 RECORDINGS = "recordings"
@@ -171,7 +171,7 @@ class CaptureSweepSettings(ExecutorSettings):
 
 
 @dataclasses.dataclass
-class CaptureSweepResult:
+class CaptureSweepResult(WroteFiles):
     runs: pl.DataFrame  # one row per finished run
     planned: int
     skipped: int  # finished by an earlier invocation
@@ -179,11 +179,6 @@ class CaptureSweepResult:
     failures: list[tuple[str, str]]  # (run key, error)
     paths: list[Path]
     elapsed_s: float
-
-    @property
-    def files(self) -> Files:
-        """The files written, by role (``vdc.parquet_io.Files``)."""
-        return Files.of(self.paths)
 
 
 def run_path(out: Path, key: str) -> Path:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from collections.abc import Sequence
 from typing import Any, NoReturn
 
 EXIT_BAD_INPUT = 2
@@ -154,3 +155,22 @@ def load_settings_class(target: str) -> type:
 
     module, _, name = target.partition(":")
     return getattr(importlib.import_module(module), name)
+
+
+def bind_commands(
+    subparsers: argparse._SubParsersAction, settings: dict[str, str], command: str | None
+) -> None:
+    """Bind each sub-command's settings class (``settings``: name -> ``"module:Class"``);
+    ``command`` binds only that one (its modules alone load: a command line starts faster),
+    None every one, "" none."""
+    for name, target in settings.items():
+        if command is None or name == command:
+            bind_settings(subparsers.choices[name], load_settings_class(target))
+
+
+def command_of(argv: Sequence[str] | None, settings: dict[str, str]) -> str:
+    """The sub-command named in ``argv`` (default: ``sys.argv``) if it has settings to bind,
+    else "": the first argument that is not an option (the parsers have no global options)."""
+    given = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in given if not a.startswith("-")), "")
+    return command if command in settings else ""

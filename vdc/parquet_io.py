@@ -16,6 +16,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from vdc.provenance import machine_info, package_versions
+from vdc.recording import pid_alive
 
 
 def write_parquet(df: pl.DataFrame, path: Path, meta: dict[str, Any]) -> Path:
@@ -44,21 +45,11 @@ def read_metadata(path: Path) -> dict[str, Any]:
 _STAGING = ".staging-"
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def _remove_stale_staging(out_dir: Path) -> None:
     """Staging folders of writers that died (SIGKILL leaves them): removed by the next one."""
     for old in out_dir.parent.glob(f".{out_dir.name}{_STAGING}*"):
         pid = old.name.rsplit("-", 1)[-1]
-        if pid.isdigit() and not _pid_alive(int(pid)):
+        if pid.isdigit() and not pid_alive(int(pid)):
             shutil.rmtree(old, ignore_errors=True)
 
 
@@ -124,6 +115,17 @@ def table_set(out_dir: Path) -> Iterator[Path]:
         _publish(stage, out_dir)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+class WroteFiles:
+    """A command's result that lists the files it wrote in ``paths``: ``files`` names them by
+    role (``result.files.summary``)."""
+
+    paths: list[Path]
+
+    @property
+    def files(self) -> Files:
+        return Files.of(self.paths)
 
 
 class Files(dict):

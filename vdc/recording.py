@@ -160,6 +160,17 @@ def lock_path(path: Path) -> Path:
     return path.with_name(f".{name}.lock")
 
 
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this pid runs (one of another user's counts as running)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def capture_writing(path: Path) -> int | None:
     """The pid of a live capture writing ``path`` (a final or partial name), else None."""
     try:
@@ -169,10 +180,4 @@ def capture_writing(path: Path) -> int | None:
     if not text or not text[0].isdigit():
         return None
     pid = int(text[0])
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return None  # a claim left by a killed capture
-    except PermissionError:
-        pass
-    return pid
+    return pid if pid_alive(pid) else None  # a dead pid: a claim left by a killed capture

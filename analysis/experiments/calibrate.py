@@ -18,7 +18,7 @@ from avdm.base import Params
 from avdm.calibration import CalibrationResult, fit_decoding, valid_periods_px, valid_tfs_hz
 from avdm.calibration_store import CALIBRATION_FILE
 from avdm.registry import canonical_name, make_params
-from vdc.parquet_io import Files
+from vdc.parquet_io import WroteFiles
 from vdc.provenance import package_versions
 
 
@@ -150,7 +150,7 @@ MIN_CALIBRATION_R2 = 0.9
 
 
 @dataclasses.dataclass
-class CalibrateResult:
+class CalibrateResult(WroteFiles):
     fit: CalibrationResult
     entry: dict[str, Any]  # what calibration.json holds
     paths: list[Path]
@@ -158,11 +158,6 @@ class CalibrateResult:
     @property
     def usable(self) -> bool:
         return bool(self.fit.r2 >= MIN_CALIBRATION_R2)
-
-    @property
-    def files(self) -> Files:
-        """The files written, by role (``vdc.parquet_io.Files``)."""
-        return Files.of(self.paths)
 
 
 def calibrate(

@@ -64,7 +64,7 @@ from analysis.profile import (
 from analysis.rrd_reader import Recording
 from analysis.tables import SummarySettings, build_tables, summary_rows
 from capture.sim import SimSettings
-from vdc.parquet_io import Files, write_parquet
+from vdc.parquet_io import WroteFiles, write_parquet
 
 
 def profile_items(plan: ReproduceSettings, folder: Path) -> list[CaptureItem]:
@@ -99,7 +99,7 @@ def with_motion_summaries(tables: dict[str, pl.DataFrame], s: SummarySettings) -
 
 
 @dataclasses.dataclass
-class ReproduceResult:
+class ReproduceResult(WroteFiles):
     claims: list[Claim]  # each paper claim, what was measured, and the verdict
     paths: list[Path]  # report.md, report.html
     elapsed_s: float
@@ -108,11 +108,6 @@ class ReproduceResult:
     def claims_table(self) -> pl.DataFrame:
         """claims.parquet's rows: one per claim, condition and quantity (:func:`claims_frame`)."""
         return claims_frame(self.claims)
-
-    @property
-    def files(self) -> Files:
-        """The files written, by role (``vdc.parquet_io.Files``)."""
-        return Files.of(self.paths)
 
 
 def reproduce(

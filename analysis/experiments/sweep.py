@@ -23,7 +23,7 @@ from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model, make_params, require_angular_velocity
 from avdm.stimuli import grating, omega_true_dps, period_px_from_sf
 from vdc.cli_support import API_ONLY
-from vdc.parquet_io import Files
+from vdc.parquet_io import WroteFiles
 
 PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
 PAPER_TF_HZ = (1.0, 5.0, 50.0)  # columns: response vs SF
@@ -339,15 +339,10 @@ class SweepSettings:
 
 
 @dataclass
-class SweepResult:
+class SweepResult(WroteFiles):
     table: pl.DataFrame  # one row per cell: sf_upc, tf_hz, ..., omega_dps, ...
     monotonicity: pl.DataFrame  # Spearman rho along every row and column
     paths: list[Path]
-
-    @property
-    def files(self) -> Files:
-        """The files written, by role (``vdc.parquet_io.Files``)."""
-        return Files.of(self.paths)
 
 
 def sweep(
