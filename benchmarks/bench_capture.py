@@ -16,7 +16,7 @@ from pathlib import Path
 from avdm.registry import make_model
 from capture.config import SimConfig, WallConfig
 from capture.recorder import Recorder, default_blueprint
-from capture.run import log_batch
+from capture.run import batch_bytes, log_batch
 from capture.sim import SimulatedRobot, recording_properties
 
 
@@ -40,7 +40,10 @@ def capture(minutes: float, out: Path, checkpoints_min: tuple[float, ...] = ()) 
     marks = list(checkpoints_min)
     with SimulatedRobot(cfg) as dev:
         while (batch := dev.read()) is not None:
+            # what run_capture does per batch: the disk check, the batch, the flush
+            rec.reserve(batch_bytes(batch))
             log_batch(rec, model, batch)
+            rec.end_batch()
             frames += len(batch)
             if marks and frames >= marks[0] * 60 * cfg.camera.fps:
                 rss_at[marks.pop(0)] = rss_mb()
