@@ -43,7 +43,8 @@ from analysis.tables import (
     write_tables,
 )
 from avdm.registry import canonical_name, parse_model_spec
-from vdc.executors import ExecutorSettings, TaskOutcome, run_tasks, usable_cpus
+from vdc.cli_support import option
+from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
 from vdc.parquet_io import read_metadata, write_parquet
 
 PARTS = "parts"
@@ -80,12 +81,18 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
 class BatchSettings(SummarySettings):
     """``vdc-analyse batch``: the summary settings, the variants, where tasks run, and which."""
 
-    models: tuple[str, ...] = ("avdm",)
-    executor: str = "local"
-    jobs: int = dataclasses.field(default_factory=usable_cpus)
-    scheduler: str | None = None
-    shard: str | None = None  # "I/N"; None = all tasks (or the SLURM array's share)
-    force: bool = False
+    models: tuple[str, ...] = option(
+        ("avdm",), "recompute this variant (repeatable)", flag="--model", metavar="MODEL"
+    )
+    executor: str = executor_field("executor")
+    jobs: int = executor_field("jobs")
+    scheduler: str | None = executor_field("scheduler")
+    shard: str | None = option(
+        None,
+        "I/N: run only tasks I, I+N, ... (0-based; default in a SLURM array: its own); then "
+        "`vdc-analyse summarise OUT`",
+    )
+    force: bool = option(False, "recompute finished parts")
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -30,6 +30,7 @@ from analysis.ego_motion import turning_before
 from analysis.profile import safe_key
 from analysis.stats import Estimate, mean_ci, share_ci
 from analysis.tables import LoadedRecording, SummarySettings, events_table
+from vdc.cli_support import option
 from vdc.parquet_io import WroteFiles
 from vdc.recording import APP_ID
 
@@ -44,8 +45,12 @@ COLLISION_ROOT = "/collision"
 
 @dataclasses.dataclass(frozen=True)
 class CollisionSettings:
-    false_alarm_m: float = 0.30
-    bin_m: float = 0.02
+    """``vdc-analyse collision``: what counts as a false alarm, and the density maps' bins."""
+
+    false_alarm_m: float = option(
+        0.30, "avoidance with the wall farther ahead than this = false alarm, m"
+    )
+    bin_m: float = option(0.02, "density-map bin, m (0.005-0.2)")
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.false_alarm_m) and self.false_alarm_m > 0):

@@ -25,6 +25,7 @@ from analysis.tables import (
     summarise,
 )
 from avdm.registry import canonical_name, make_model
+from vdc.cli_support import option
 from vdc.parquet_io import WroteFiles
 
 
@@ -168,6 +169,10 @@ def compare_figure(
 @dataclasses.dataclass(frozen=True)
 class CompareSettings(TablesSettings):
     """``vdc-analyse compare``: at least two distinct variants plus the summary settings."""
+
+    models: tuple[str, ...] = option(
+        (), "a variant to run (give at least two)", flag="--model", metavar="MODEL", required=True
+    )
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -38,7 +38,7 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, repeat_flags
-from vdc.cli_support import API_ONLY
+from vdc.cli_support import API_ONLY, option
 from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 
@@ -65,9 +65,15 @@ DIS_PRESETS = {
 class ComplexitySettings:
     """``vdc-analyse complexity``: the AVDM variant and the baselines' few free choices."""
 
-    model: str = FOOTAGE_MODEL  # the AVDM variant valid on real footage (1-300 deg/s)
-    flow_preset: str = "medium"  # DIS preset; "medium" keeps the finest scale on small frames
-    jpeg_quality: int = 75
+    model: str = option(
+        FOOTAGE_MODEL,
+        "the AVDM variant (default: {default}, valid 1-300 deg/s on real footage; avdm is the "
+        "paper's, valid up to about 1 px of motion per frame)",
+    )
+    flow_preset: str = option(  # "medium" keeps the finest scale on small frames
+        "medium", "DIS optic-flow preset", choices=("ultrafast", "fast", "medium")
+    )
+    jpeg_quality: int = option(75, "JPEG quality, 1-100")
     zlib_level: int = dataclasses.field(default=6, metadata=API_ONLY)
 
     def __post_init__(self) -> None:

@@ -14,16 +14,20 @@ import numpy as np
 import polars as pl
 
 from analysis.tables import SummarySettings, TablesSettings, summarise
-from vdc.cli_support import API_ONLY
+from vdc.cli_support import API_ONLY, option
 
 
 @dataclasses.dataclass(frozen=True)
 class ProfileSettings(TablesSettings):
     """``vdc-analyse profile``: the tables' settings plus how profiles are drawn."""
 
-    by: str = "recording"  # one profile per recording segment, or pooled per condition
-    bin_dps: float = 20.0  # histogram bin width above the threshold
-    cell_m: float = 0.05  # heat-map cell size
+    by: str = option(
+        "recording",
+        "one profile per recording segment, or pooled per scene/TF/model",
+        choices=("recording", "condition"),
+    )
+    bin_dps: float = option(20.0, "histogram bin width above the threshold, deg/s")
+    cell_m: float = option(0.05, "heat-map cell size, m")
     # circles drawn in a PNG 3D profile (all go to the .rrd)
     max_points: int = dataclasses.field(default=4000, metadata=API_ONLY)
 

@@ -32,7 +32,7 @@ from analysis.rrd_reader import Recording, RecordingError
 from avdm.base import Model, primary_output_name
 from avdm.registry import canonical_name, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
-from vdc.cli_support import API_ONLY
+from vdc.cli_support import API_ONLY, non_negative_int, option, positive_float
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from vdc.recording import (
     FRAME_TIMING,
@@ -48,16 +48,37 @@ from vdc.recording import (
 class SummarySettings:
     """How summaries are computed (stored in the Parquet metadata as ``settings``)."""
 
-    threshold_dps: float = 100.0  # "AVDM > 100" (paper)
-    near_wall_m: float = 0.15  # robot centre within this of a wall: "near the wall" (PROPOSED)
-    centre_m: float = 0.25  # farther than this from every wall: "centre" (PROPOSED)
+    threshold_dps: float = option(
+        100.0,
+        "response threshold, deg/s (default: {default}, the paper's)",
+        "--threshold",
+        type=positive_float,
+    )
+    near_wall_m: float = option(  # PROPOSED: the paper does not define "near the wall"
+        0.15, "'near the wall' = robot centre within this of a wall, m", type=positive_float
+    )
+    centre_m: float = option(
+        0.25, "'centre' = farther than this from every wall, m", type=positive_float
+    )
     # the models' first 2·Tw frames are left out of statistics
     warmup_frames: int = dataclasses.field(default=20, metadata=API_ONLY)
     # the robot's own turns (analysis/ego_motion.py): flagged in the frames table, and left
     # out of the summaries with exclude_turns
-    turn_threshold_dps: float = 30.0
-    turn_hold_frames: int = 10
-    exclude_turns: bool = False
+    turn_threshold_dps: float = option(
+        30.0, "the robot turns when its own yaw rate exceeds this, deg/s", type=positive_float
+    )
+    turn_hold_frames: int = option(
+        10,
+        "frames after a turn still counted as turning: the AVDM remembers a turn for its "
+        "10-frame window",
+        type=non_negative_int,
+    )
+    exclude_turns: bool = option(
+        False,
+        "summarise straight driving only: leave out frames where the robot turns (or turned "
+        "within --turn-hold-frames), so its own rotation is not counted as the scene's "
+        "complexity",
+    )
 
     def __post_init__(self) -> None:
         for name in ("threshold_dps", "near_wall_m", "centre_m", "turn_threshold_dps"):
@@ -85,7 +106,9 @@ class TablesSettings(SummarySettings):
     """``vdc-analyse tables``: the summary settings plus the models to recompute (none = the
     online model's logged outputs)."""
 
-    models: tuple[str, ...] = ()
+    models: tuple[str, ...] = option(
+        (), "recompute this variant (repeatable)", flag="--model", metavar="MODEL"
+    )
 
     def __post_init__(self) -> None:
         super().__post_init__()

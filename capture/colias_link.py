@@ -40,6 +40,7 @@ from capture.serial_protocol import (
     encode_frame,
 )
 from capture.sim_robot import SimulatedRobot
+from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
 
 
 @dataclasses.dataclass(frozen=True)
@@ -334,18 +335,24 @@ class SerialLink:
 class EmulateSettings:
     """``vdc-capture emulate-robot`` as a settings object (one field per flag, same names)."""
 
-    link: str = "/tmp/vdc-robot"
-    tf_hz: float = 0.0
-    minutes: float = 1.0
-    seed: int = 0
-    corrupt_rate: float = 0.0
-    drop_rate: float = 0.0
-    disconnect_after: float | None = None
-    reconnect_after: float = 1.0
-    decimation: int = 1
-    fast: bool = False
-    wait: float = 60.0
-    report: str | None = None
+    link: str = option("/tmp/vdc-robot", "stable path (symlink) to the emulated port")
+    tf_hz: float = option(0.0, "wall TF, Hz", type=non_negative_float)
+    minutes: float = option(1.0, "run length", type=positive_float)
+    seed: int = option(0, "random seed", type=non_negative_int)
+    corrupt_rate: float = option(
+        0.0,
+        "share of packets corrupted, e.g. 0.01 (1-3 bits flipped in each)",
+        type=non_negative_float,
+    )
+    drop_rate: float = option(0.0, "probability of dropping each packet", type=non_negative_float)
+    disconnect_after: float | None = option(
+        None, "close the port once, this many seconds after START", type=positive_float
+    )
+    reconnect_after: float = option(1.0, "seconds until the port reappears", type=positive_float)
+    decimation: int = option(1, "send the image with every Nth frame (slow links)")
+    fast: bool = option(False, "do not pace frames at 33 Hz")
+    wait: float = option(60.0, "seconds to wait for the host", type=positive_float)
+    report: str | None = option(None, "write what was injected to this JSON file")
 
 
 def emulate_robot(settings: EmulateSettings, announce: Callable[[str], None] | None = None) -> dict:

@@ -24,11 +24,12 @@ import serial
 
 from avdm.registry import make_model
 from capture.colias_link import SerialLink
-from capture.config import WallConfig
+from capture.config import SCENES, WallConfig
 from capture.device import Batch, Event
 from capture.run import RecordResult
 from capture.serial_protocol import TYPE_FRAME, FramePacket
 from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose
+from vdc.cli_support import non_negative_float, option, positive_float
 
 LINK_STATS = (
     "packets",
@@ -314,18 +315,31 @@ class WallController:
 class RobotSettings:
     """``vdc-capture robot`` as a settings object (one field per flag, same names)."""
 
-    port: str
-    camera: str  # overhead camera: a device index, a video file or an image sequence
-    calibration: str | None = None  # saved tracker homography
-    camera_fps: float = 10.0
-    tf_hz: float = 0.0
-    tf_schedule: str | None = None  # TF:DURATION,... or a file with one segment a line
-    save_calibration: str | None = None
-    period_m: float = 0.1
-    scene: str = "grating"
-    wall_port: str | None = None
-    baud: int = 3_000_000
-    model: str = "avdm"
+    port: str = option(help="the robot's serial device", required=True)
+    camera: str = option(
+        help="overhead camera: a device index, a video file or an image sequence such as "
+        "frames/%05d.png",
+        required=True,
+    )
+    calibration: str | None = option(
+        None, "saved tracker homography (default: calibrate on the first overhead frame)"
+    )
+    camera_fps: float = option(10.0, "pace of a video file or image sequence", type=positive_float)
+    tf_hz: float = option(0.0, "wall TF, Hz", type=non_negative_float, exclusive="tf")
+    tf_schedule: str | None = option(
+        None,
+        "e.g. 0:30m,3:30m, or a file with one TF:DURATION per line",
+        metavar="S",
+        exclusive="tf",
+    )
+    save_calibration: str | None = option(
+        None, "save the tracker's homography (calibrated on the first frame)", metavar="FILE"
+    )
+    period_m: float = option(0.1, "wall period, m", type=positive_float)
+    scene: str = option("grating", "what the walls show", choices=SCENES)
+    wall_port: str | None = option(None, "LED wall controller's serial port (line protocol)")
+    baud: int = option(3_000_000, "serial rate")
+    model: str = option("avdm", "the model running on the robot")
 
     def wall(self) -> WallConfig:
         from capture.config import parse_schedule

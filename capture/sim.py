@@ -17,9 +17,10 @@ import numpy as np
 
 from avdm import __version__
 from avdm.base import Model
-from capture.config import SimConfig
+from capture.config import SCENES, SimConfig
 from capture.run import RecordResult
 from capture.sim_robot import SimulatedRobot, load_wall_image, ring_turn_event  # noqa: F401
+from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
 from vdc.provenance import machine_info, package_versions
 
 
@@ -57,24 +58,59 @@ class SimSettings:
     ``tf_schedule`` (e.g. ``"0:30m,3:30m"``) replaces ``tf_hz``; ``minutes`` defaults to 30,
     or to the schedule's total."""
 
-    scene: str = "grating"
-    period_m: float = 0.1
-    tf_hz: float = 0.0
-    tf_schedule: str | None = None
-    minutes: float | None = None
-    seed: int = 0
-    behaviour: str = "profile"
-    model: str | None = None  # online model (default avdm); collision mode: the detector
-    profile_model: str = "avdm"  # collision mode: the complexity model running alongside
-    threshold: float | None = None  # collision mode: alert threshold in the detector's units
-    adaptive: bool = False
-    adaptive_gain: float = 1.0
-    phase: str | None = None
-    contrast: float = 1.0
-    image: str | None = None
-    noise_sd: float = 0.0
-    overhead: bool = False
-    overhead_fps: float = 5.0
+    scene: str = option("grating", "what the walls show", choices=SCENES)
+    period_m: float = option(
+        0.1,
+        "grating period along the wall, m; a natural scene drifts at TF x this",
+        type=positive_float,
+    )
+    tf_hz: float = option(
+        0.0, "wall drift temporal frequency, Hz", type=non_negative_float, exclusive="tf"
+    )
+    tf_schedule: str | None = option(
+        None,
+        "TF over time as TF:DURATION,... with s, m or h, e.g. 0:30m,3:30m (replaces --tf-hz)",
+        metavar="S",
+        exclusive="tf",
+    )
+    minutes: float | None = option(
+        None, "run length (default: 30, or the schedule's total)", type=positive_float
+    )
+    seed: int = option(0, "random seed", type=non_negative_int)
+    behaviour: str = option(
+        "profile",
+        "profile: ring turns, online AVDM; collision: the robot avoids walls with an on-board "
+        "LGMD detector, ring off, wall contact = crash",
+        choices=("profile", "collision"),
+    )
+    model: str | None = option(
+        None,
+        "online model (default: avdm); in collision mode the detector, lgmd-plus (default) "
+        "or lgmd-colias",
+    )
+    profile_model: str = option("avdm", "collision mode: the complexity model running alongside")
+    threshold: float | None = option(
+        None,
+        "collision mode: alert threshold in the detector's units (lgmd-plus: spikes/s, "
+        "default 56; lgmd-colias: consecutive spikes, default 4)",
+        type=positive_float,
+    )
+    adaptive: bool = option(
+        False,
+        "collision mode, lgmd-plus: let its FFI threshold T_ffi follow the on-board AVDM's "
+        "running mean response (beyond the paper)",
+    )
+    adaptive_gain: float = option(
+        1.0,
+        "collision mode: T_ffi = max(12, gain x mean AVDM deg/s over the last 60 s)",
+        type=non_negative_float,
+    )
+    phase: str | None = option(None, "collision mode: a label for the study's tables")
+    contrast: float = option(1.0, "wall pattern contrast, 0-1", type=positive_float)
+    image: str | None = option(None, "natural-scene wall from an image file", metavar="PATH")
+    noise_sd: float = option(0.0, "camera noise, 8-bit levels", type=non_negative_float)
+    overhead: bool = option(False, "also log an overhead camera")
+    overhead_fps: float = option(5.0, "overhead camera rate, Hz", type=positive_float)
 
     def to_config(self) -> SimConfig:
         from capture.config import (

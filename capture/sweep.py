@@ -29,6 +29,7 @@ import polars as pl
 
 from avdm.registry import make_params
 from capture.sim import SimSettings
+from vdc.cli_support import option
 from vdc.executors import ExecutorSettings, TaskOutcome, run_tasks
 from vdc.parquet_io import WroteFiles, write_parquet
 
@@ -137,8 +138,10 @@ class CaptureSweepSettings(ExecutorSettings):
     """``vdc-capture sweep``: the grid items, ``force`` to record finished runs again, and
     where the runs go (``executor``, ``jobs``, ``scheduler``)."""
 
-    grid: tuple[str, ...] = ()
-    force: bool = False
+    grid: tuple[str, ...] = option(
+        (), "FIELD=V1,V2,... (see above)", positional=True, metavar="GRID"
+    )
+    force: bool = option(False, "record finished runs again")
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -33,7 +33,13 @@ import numpy as np
 from avdm.true_time import repeat_flags
 from capture.device import Batch, Event
 from capture.run import RecordResult
-from vdc.cli_support import API_ONLY
+from vdc.cli_support import (
+    API_ONLY,
+    non_negative_float,
+    non_negative_int,
+    option,
+    positive_float,
+)
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 
 
@@ -41,13 +47,33 @@ from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 class VideoSettings:
     """``vdc-capture video``: one field per flag, same names and defaults."""
 
-    source: str  # a video file, an image-sequence pattern (frames/%05d.png) or a camera index
-    fov_deg: float  # the camera's horizontal field of view, degrees
-    fps: float | None = None  # image sequences (required) and cameras that do not report one
-    width: int | None = None  # working width, px (default: the robot camera's deg/px)
-    model: str = FOOTAGE_MODEL
-    repeat_tol: float = 0.5  # mean |difference| (8-bit levels) under which a frame repeats
-    max_repeats: int = 3  # longer still stretches are a still scene, not repeats
+    source: str = option(
+        help="a video file, an image sequence such as frames/%05d.png, or a camera index",
+        positional=True,
+    )
+    fov_deg: float = option(
+        help="the camera's horizontal field of view, degrees", type=positive_float, required=True
+    )
+    fps: float | None = option(
+        None, "frame rate of an image sequence (or a camera), Hz", type=positive_float
+    )
+    width: int | None = option(
+        None, "working width, px (default: fov / (70/99 deg), the robot camera's pitch)"
+    )
+    model: str = option(
+        FOOTAGE_MODEL,
+        "the model to run (default: {default}, the AVDM valid 1-300 deg/s on real footage; "
+        "avdm is the paper's, valid up to about 1 px of motion per frame)",
+    )
+    repeat_tol: float = option(
+        0.5,
+        "a frame whose mean |difference| from the previous is at most this (8-bit levels) "
+        "repeats it",
+        type=non_negative_float,
+    )
+    max_repeats: int = option(
+        3, "longer still stretches are a still scene, not repeats", type=non_negative_int
+    )
     batch_frames: int = dataclasses.field(default=128, metadata=API_ONLY)  # frames per batch
 
     def __post_init__(self) -> None:

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
-from collections.abc import Sequence
+import textwrap
+from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
 EXIT_BAD_INPUT = 2
@@ -29,6 +31,20 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def say(message: str) -> None:
+    """A line on stderr, at once (a command's log: progress notes beside its stdout results)."""
+    print(message, file=sys.stderr, flush=True)
+
+
+def progress_bar(total: int | None, desc: str, unit: str = "cell", quiet: bool = False) -> Any:
+    """A tqdm bar on stderr for long work: on terminals only (``disable=None`` keeps pipes and
+    CI logs clean), or never with ``quiet``."""
+    from tqdm import tqdm
+
+    disable = True if quiet else None
+    return tqdm(total=total, desc=desc, unit=unit, disable=disable, leave=False, file=sys.stderr)
 
 
 def fail(prog: str, message: str) -> NoReturn:
@@ -70,6 +86,36 @@ def parse_size(text: str) -> tuple[int, int]:
     return h, w
 
 
+def finite_float(text: str) -> float:
+    """argparse type: a finite number ("nan" and "inf" are refused)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
+def non_negative_float(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    v = finite_float(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (seeds, counts)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
+    return v
+
+
 def positive_float(text: str) -> float:
     """argparse type: a finite number > 0."""
     try:
@@ -81,29 +127,34 @@ def positive_float(text: str) -> float:
     return v
 
 
-def add_executor_options(p: argparse.ArgumentParser, what: str) -> None:
-    """``--executor``, ``--jobs`` and ``--scheduler``: where the command's independent
-    ``what`` (e.g. "analysis tasks", "simulated runs") run; fields of the same names in the
-    command's settings (``vdc.executors.ExecutorSettings``)."""
-    p.add_argument(
-        "--executor",
-        choices=("local", "dask"),
-        default="local",
-        help=f"where the {what} are done: local = a process pool on this machine (default); "
-        "dask = a Dask cluster (pip install -e '.[dask]')",
-    )
-    p.add_argument(
-        "--jobs",
-        type=int,
-        help="worker processes of the local pool or of a local Dask cluster "
-        "(default, and the local pool's cap: the cores this process may use; "
-        "VDC_OVERSUBSCRIBE=1 lifts the cap)",
-    )
-    p.add_argument(
-        "--scheduler",
-        help="an existing Dask cluster: tcp://HOST:PORT, tls://HOST:PORT or a scheduler file "
-        "(implies --executor dask); without it, --executor dask starts one on 127.0.0.1",
-    )
+@dataclasses.dataclass(frozen=True)
+class Flag:
+    """How a settings field appears on the command line (``option(...)`` puts it in the
+    field's metadata): the field is the flag, its name the flag's (``--near-wall-m`` for
+    ``near_wall_m``), its default the flag's default, shown in the help."""
+
+    help: str  # "{default}" is replaced by the field's default; else "(default: X)" is appended
+    aliases: tuple[str, ...] = ()  # older or shorter spellings that stay accepted
+    type: Callable[[str], Any] | None = None  # the parser type; default: from the annotation
+    choices: tuple[str, ...] | None = None
+    metavar: str | None = None
+    required: bool = False
+    exclusive: str | None = None  # flags of one group name exclude each other
+    positional: bool = False  # an argument, not a flag (a tuple field takes one or more)
+    flag: str | None = None  # the flag when it is not --field-name (e.g. --model for models)
+    shown: str | None = None  # the default as the help states it, when not str(default)
+
+
+def option(default: Any = dataclasses.MISSING, help: str = "", *aliases: str, **how: Any) -> Any:
+    """A settings field that is also a command-line flag (see :class:`Flag`)::
+
+        near_wall_m: float = option(0.15, "'near the wall' = within this of a wall, m")
+
+    ``default=dataclasses.MISSING`` makes a required field (and flag); a callable
+    ``factory=`` gives a default computed per object (shown only as the help words it)."""
+    factory = how.pop("factory", dataclasses.MISSING)
+    meta = {"flag": Flag(help, tuple(aliases), **how)}
+    return dataclasses.field(default=default, default_factory=factory, metadata=meta)
 
 
 def field_default(field: dataclasses.Field) -> Any:
@@ -115,38 +166,90 @@ def field_default(field: dataclasses.Field) -> Any:
     return dataclasses.MISSING
 
 
-def _shown(value: Any) -> str:
+def stated_default(field: dataclasses.Field) -> str:
+    """The default a field's help states ("" for none: None, False, empty, or computed per
+    object by a factory, which the help describes in words)."""
+    flag = field.metadata.get("flag")
+    if flag is not None and flag.shown is not None:
+        return flag.shown
+    value = field.default
+    if value is dataclasses.MISSING or value is None or value is False or value == ():
+        return ""
+    if flag is not None and flag.type is parse_size:
+        return f"{value[1]}x{value[0]}"  # (H, W) fields are written WIDTHxHEIGHT
     if isinstance(value, tuple | list):
         return ",".join(map(str, value))
     return str(value)
 
 
-def bind_settings(parser: argparse.ArgumentParser, cls: type) -> None:
-    """Make the settings dataclass ``cls`` the one source of ``parser``'s defaults.
+def _parser_type(field: dataclasses.Field, flag: Flag) -> Callable[[str], Any] | None:
+    """The parser type from the field's annotation (a string: modules use postponed
+    annotations): numbers must be finite, lists of numbers are comma-separated."""
+    if flag.type is not None:
+        return flag.type
+    hint = str(field.type).replace(" ", "")
+    if hint.startswith("tuple[float"):
+        return parse_float_list
+    if hint in ("float", "float|None"):
+        return finite_float
+    if hint in ("int", "int|None"):
+        return int
+    return None
 
-    A flag whose ``dest`` is a field of ``cls`` is left unset by default (None: the settings'
-    own default applies, see :func:`settings_from_args`), and ``%(default)s`` in its help shows
-    the field's default. Switches (``store_true``) keep False, which their fields default to."""
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    for act in parser._actions:
-        f = fields.get(act.dest)
-        if f is None or isinstance(act, argparse._StoreTrueAction | argparse._HelpAction):
+
+def add_settings_flags(parser: argparse.ArgumentParser, cls: type) -> None:
+    """Add a flag (or argument) for every field of the settings dataclass ``cls``, from the
+    :class:`Flag` in its metadata; fields marked :data:`API_ONLY` get none. Flags have no
+    default of their own: an unset flag is None and takes the field's default (see
+    :func:`settings_from_args`), so the dataclass is the one source of every default."""
+    groups: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        if not f.init or f.metadata.get("api_only"):
             continue
-        default = field_default(f)
-        if default is dataclasses.MISSING:
+        flag: Flag | None = f.metadata.get("flag")
+        if flag is None:
+            raise TypeError(f"{cls.__name__}.{f.name}: give it option(...) or API_ONLY metadata")
+        where: Any = parser
+        if flag.exclusive:
+            if flag.exclusive not in groups:
+                groups[flag.exclusive] = parser.add_mutually_exclusive_group()
+            where = groups[flag.exclusive]
+        shown = stated_default(f)
+        text = flag.help
+        if "{default}" in text:
+            text = text.replace("{default}", shown)
+        elif shown:
+            text += f" (default: {shown})"
+        kw: dict[str, Any] = {"help": text.replace("%", "%%"), "metavar": flag.metavar}
+        if flag.choices:
+            kw["choices"] = flag.choices
+        if flag.positional:
+            many = str(f.type).startswith("tuple")
+            where.add_argument(f.name, nargs="+" if many else None, **kw)
             continue
-        act.default = None
-        if act.help and "%(default)s" in act.help:
-            act.help = act.help.replace("%(default)s", _shown(default).replace("%", "%%"))
+        names = [flag.flag or "--" + f.name.replace("_", "-"), *flag.aliases]
+        if f.default is False:
+            where.add_argument(*names, dest=f.name, action="store_true", help=kw["help"])
+            continue
+        if str(f.type).startswith("tuple[str"):
+            kw["action"] = "append"  # repeatable: --model A --model B
+        else:
+            kw["type"] = _parser_type(f, flag)
+        where.add_argument(*names, dest=f.name, default=None, required=flag.required, **kw)
+
+
+def flag_values(cls: type, args: argparse.Namespace) -> dict[str, Any]:
+    """The fields of settings dataclass ``cls`` that the parsed flags set (flag name = field
+    name; an unset flag is None); repeatable flags and lists become tuples."""
+    names = [f.name for f in dataclasses.fields(cls) if f.init]
+    values = {k: getattr(args, k) for k in names if getattr(args, k, None) is not None}
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
 
 
 def settings_from_args(cls: type, args: argparse.Namespace, **extra: Any) -> Any:
-    """The command's settings dataclass from the parsed flags (flag name = field name): flags
-    left unset take the dataclass's default; repeatable flags and lists become tuples."""
-    names = {f.name for f in dataclasses.fields(cls) if f.init}
-    values = {k: getattr(args, k) for k in names if hasattr(args, k)}
-    values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
-    return cls(**{k: v for k, v in values.items() if v is not None}, **extra)
+    """The command's settings dataclass from the parsed flags: flags left unset take the
+    dataclass's default."""
+    return cls(**flag_values(cls, args), **extra)
 
 
 def load_settings_class(target: str) -> type:
@@ -157,20 +260,111 @@ def load_settings_class(target: str) -> type:
     return getattr(importlib.import_module(module), name)
 
 
-def bind_commands(
-    subparsers: argparse._SubParsersAction, settings: dict[str, str], command: str | None
-) -> None:
-    """Bind each sub-command's settings class (``settings``: name -> ``"module:Class"``);
-    ``command`` binds only that one (its modules alone load: a command line starts faster),
-    None every one, "" none."""
-    for name, target in settings.items():
-        if command is None or name == command:
-            bind_settings(subparsers.choices[name], load_settings_class(target))
+@dataclasses.dataclass(frozen=True)
+class Command:
+    """One sub-command: its settings dataclass (``"module:Class"``, whose fields are its
+    flags), the function that runs it on the parsed arguments, and its texts. ``inputs`` adds
+    what is not a setting (input paths, ``--out``, ...) before the settings' flags."""
+
+    settings: str | None
+    run: Callable[[argparse.Namespace], int]
+    help: str
+    description: str
+    epilog: str = ""
+    inputs: Callable[[argparse.ArgumentParser], None] | None = None
+    models: bool = False  # list the models (--model NAME:key=value) after the epilog
 
 
-def command_of(argv: Sequence[str] | None, settings: dict[str, str]) -> str:
-    """The sub-command named in ``argv`` (default: ``sys.argv``) if it has settings to bind,
-    else "": the first argument that is not an option (the parsers have no global options)."""
+def command_line(
+    prog: str, description: str, commands: dict[str, Command], command: str | None
+) -> OneLineParser:
+    """The parser of a command line. The flags of sub-command ``command`` are generated from
+    its settings (only its modules load, so a command line starts fast); None generates every
+    sub-command's (the CLI reference), "" none (the top-level help)."""
+    from avdm.registry import describe_models
+
+    parser = OneLineParser(
+        prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
+    for name, cmd in commands.items():
+        epilog = cmd.epilog
+        if cmd.models and command in (None, name):
+            epilog += ("\n\n" if epilog else "") + "models:\n" + describe_models()
+        p = sub.add_parser(
+            name,
+            help=cmd.help,
+            description=textwrap.fill(cmd.description, 88),
+            epilog=epilog or None,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        if cmd.inputs is not None:
+            cmd.inputs(p)
+        if cmd.settings and command in (None, name):
+            add_settings_flags(p, load_settings_class(cmd.settings))
+        p.set_defaults(func=cmd.run)
+    return parser
+
+
+def command_of(argv: Sequence[str] | None, commands: dict[str, Command]) -> str:
+    """The sub-command named in ``argv`` (default: ``sys.argv``), else "": the first argument
+    that is not an option (the parsers have no global options)."""
     given = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in given if not a.startswith("-")), "")
-    return command if command in settings else ""
+    return command if command in commands else ""
+
+
+def reference_page(
+    prog: str, parser: argparse.ArgumentParser, commands: dict[str, Command]
+) -> list[str]:
+    """Markdown for every sub-command of ``parser``: its description, then a table of its
+    arguments and flags with the default each states (a setting's from its field)."""
+    subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    lines: list[str] = []
+    for name, sub in subs.choices.items():
+        target = commands[name].settings
+        cls = load_settings_class(target) if target else None
+        fields = {f.name: f for f in dataclasses.fields(cls)} if cls else {}
+        lines += [f"## `{prog} {name}`", "", (sub.description or "").strip(), ""]
+        lines += ["| flag | default | meaning |", "|---|---|---|"]
+        for act in sub._actions:
+            if isinstance(act, argparse._HelpAction):
+                continue
+            flag = ", ".join(f"`{o}`" for o in act.option_strings) or f"`{act.dest.upper()}`"
+            text = (act.help or "").replace("%%", "%")
+            f = fields.get(act.dest)
+            if f is not None and "flag" in f.metadata:  # the default has a column of its own
+                default = stated_default(f)
+                text = f.metadata["flag"].help.replace("{default}", default)
+            else:  # a flag that is not a setting (e.g. --out)
+                default = "" if act.default in (None, False) else str(act.default)
+            text = text.replace("|", "\\|").replace("\n", " ")
+            lines.append(f"| {flag} | {f'`{default}`' if default else ''} | {text} |")
+        lines.append("")
+    return lines
+
+
+def run_command_line(
+    prog: str,
+    parser: argparse.ArgumentParser,
+    argv: Sequence[str] | None,
+    stopped: dict[type[Exception], str] | None = None,
+) -> int:
+    """Parse ``argv`` and run the sub-command. Bad input (:class:`UserError`, ValueError, an
+    OSError on a named file) is one line and exit status 2; an exception of a type in
+    ``stopped`` (work stopped with what was done kept) is its message plus that text, exit
+    1; Ctrl-C is exit 130. Anything else is a bug, and its traceback is kept."""
+    args = parser.parse_args(argv)
+    where = f"{prog} {args.command}"
+    try:
+        return int(args.func(args) or 0)
+    except (UserError, ValueError) as exc:
+        fail(where, str(exc))
+    except OSError as exc:
+        fail(where, f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": "))
+    except KeyboardInterrupt:
+        say(f"{prog}: interrupted")
+        return 130
+    except tuple(stopped or ()) as exc:
+        say(f"{where}: error: {exc}{next(t for k, t in stopped.items() if isinstance(exc, k))}")
+        return 1

@@ -31,6 +31,8 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
+from vdc.cli_support import option
+
 EXECUTORS = ("local", "dask")
 
 
@@ -42,14 +44,38 @@ def usable_cpus() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def executor_field(name: str) -> Any:
+    """The settings field (and flag) ``executor``, ``jobs`` or ``scheduler``: where a
+    command's independent tasks run."""
+    if name == "executor":
+        return option(
+            "local",
+            "where the tasks run: local = a process pool on this machine; dask = a Dask "
+            "cluster (pip install 'visual-dynamic-complexity[dask]')",
+            choices=EXECUTORS,
+        )
+    if name == "jobs":
+        return option(
+            factory=usable_cpus,
+            help="worker processes of the local pool or of a local Dask cluster (default, and "
+            "the local pool's cap: the cores this process may use; VDC_OVERSUBSCRIBE=1 lifts "
+            "the cap)",
+        )
+    return option(
+        None,
+        "an existing Dask cluster: tcp://HOST:PORT, tls://HOST:PORT or a scheduler file "
+        "(implies --executor dask); without it, --executor dask starts one on 127.0.0.1",
+    )
+
+
 @dataclasses.dataclass(frozen=True)
 class ExecutorSettings:
     """Where tasks run: ``executor`` local|dask, ``jobs`` workers (local pool, or a local Dask
     cluster), ``scheduler`` an existing Dask cluster's address or scheduler file."""
 
-    executor: str = "local"
-    jobs: int = dataclasses.field(default_factory=usable_cpus)
-    scheduler: str | None = None
+    executor: str = executor_field("executor")
+    jobs: int = executor_field("jobs")
+    scheduler: str | None = executor_field("scheduler")
 
     def __post_init__(self) -> None:
         if self.scheduler and self.executor == "local":

@@ -18,6 +18,7 @@ from avdm.base import Params
 from avdm.calibration import CalibrationResult, fit_decoding, valid_periods_px, valid_tfs_hz
 from avdm.calibration_store import CALIBRATION_FILE
 from avdm.registry import canonical_name, make_params
+from vdc.cli_support import option, parse_size, positive_float
 from vdc.parquet_io import WroteFiles
 from vdc.provenance import package_versions
 
@@ -109,13 +110,23 @@ def plot_calibration(result: CalibrationResult, path: Path) -> Path:
 class CalibrateSettings:
     """``vdc-analyse calibrate``: the geometry to fit (a, b) for and the gratings used."""
 
-    fps: float = 300.0
-    size: tuple[int, int] = (100, 100)  # (H, W) px
-    deg_per_px: float | None = None  # default: 360 / W, the offline-stimulus convention
-    model: str = "avdm"
-    contrasts: tuple[float, ...] = (0.5, 1.0)
-    name: str | None = None  # default: from fps and size
-    update_defaults: bool = False  # also store the fit as the shipped default
+    fps: float = option(300.0, "frame rate, Hz", type=positive_float)
+    size: tuple[int, int] = option(  # (H, W) px
+        (100, 100), "frame WIDTHxHEIGHT px", type=parse_size
+    )
+    deg_per_px: float | None = option(
+        None,
+        "degrees per pixel (default: 360/width, the offline-stimulus convention)",
+        type=positive_float,
+    )
+    model: str = option("avdm", "AVDM variant to calibrate")
+    contrasts: tuple[float, ...] = option((0.5, 1.0), "grating contrasts to include", "--contrast")
+    name: str | None = option(None, "name of this calibration (default: from fps and size)")
+    update_defaults: bool = option(
+        False,
+        "also store the fit as the shipped default for this fps and deg/px (edits "
+        "avdm/calibrations.json in an editable install)",
+    )
 
     @property
     def resolved_deg_per_px(self) -> float:

@@ -25,8 +25,13 @@ from analysis.collision import CollisionSettings, collision
 from analysis.experiments.captures import CaptureItem, run_captures
 from avdm.registry import parse_model_spec
 from capture.sim import SimSettings
+from vdc.cli_support import non_negative_int, option, positive_float
 from vdc.executors import ExecutorSettings
 
+SEEDS_HELP = (  # --seeds of the campaigns (collision-study, reproduce)
+    "runs per condition, seeds --seed, --seed+1, ...: every figure is given as a mean with its "
+    "95 % interval across them"
+)
 PAPER_NOTE = (
     "Paper: 229, 432 and 233 avoidances in three 30-min phases (TF 0, TF 3, TF 3 with the "
     "adjusted threshold), success > 90 % in each."
@@ -103,12 +108,18 @@ class CollisionStudySettings(ExecutorSettings):
     """``vdc-analyse collision-study``: phase length, detector, the adjusted phase's overrides;
     the runs go to the executor (``executor``, ``jobs``, ``scheduler``)."""
 
-    minutes: float = 30.0
-    detector: str = "lgmd-plus-arena"
-    adjusted: str = "t_ffi=30"
-    seed: int = 1  # the first seed
-    seeds: int = 5  # runs per phase, for the mean and 95 % interval of each figure
-    false_alarm_m: float = 0.30
+    minutes: float = option(
+        30.0, "length of each phase (default: {default}, the paper's)", type=positive_float
+    )
+    detector: str = option(
+        "lgmd-plus-arena",
+        "collision detector (default: {default}; lgmd-plus = released parameters, which never "
+        "alert on this arena's static walls)",
+    )
+    adjusted: str = option("t_ffi=30", "detector overrides of the 'adjusted threshold' phase")
+    seed: int = option(1, "first random seed", type=non_negative_int)
+    seeds: int = option(5, SEEDS_HELP, type=int)
+    false_alarm_m: float = option(0.30, "false-alarm distance, m", type=positive_float)
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -5,7 +5,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, ClassVar
 
-from analysis.experiments.collision_study import seed_list
+from analysis.experiments.collision_study import SEEDS_HELP, seed_list
+from vdc.cli_support import non_negative_int, option, positive_float
 from vdc.executors import ExecutorSettings
 
 
@@ -16,14 +17,22 @@ class ReproduceSettings(ExecutorSettings):
     report says: :attr:`plan_name` is read from the values, not from a flag).
     The simulated runs go to the executor (``executor``, ``jobs``, ``scheduler``)."""
 
-    profile_minutes: float = 30.0
-    collision_minutes: float = 30.0
-    approach_repeats: int = 10
-    sweep_duration_s: float = 1.0
-    seed: int = 1  # the first seed
-    seeds: int = 5  # runs per closed-loop condition (the paper's claims are tested across them)
-    detector: str = "lgmd-plus-arena"
-    adjusted: str = "t_ffi=30"
+    profile_minutes: float = option(
+        30.0, "profiling run length, min", type=positive_float, shown="30; 3 with --quick"
+    )
+    collision_minutes: float = option(
+        30.0, "collision phase length, min", type=positive_float, shown="30; 3 with --quick"
+    )
+    approach_repeats: int = option(
+        10, "approach repeats per TF", "--repeats", shown="10; 3 with --quick"
+    )
+    sweep_duration_s: float = option(
+        1.0, "seconds per sweep cell", type=positive_float, shown="1; 0.5 with --quick"
+    )
+    seed: int = option(1, "first random seed", type=non_negative_int)
+    seeds: int = option(5, SEEDS_HELP, shown="5; 3 with --quick")
+    detector: str = option("lgmd-plus-arena", "collision detector of the study")
+    adjusted: str = option("t_ffi=30", "detector overrides of the 'adjusted threshold' phase")
 
     QUICK: ClassVar[dict[str, Any]] = {
         "profile_minutes": 3.0,

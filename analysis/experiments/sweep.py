@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -22,13 +22,14 @@ from matplotlib.figure import Figure
 from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model, make_params, require_angular_velocity
 from avdm.stimuli import grating, omega_true_dps, period_px_from_sf
-from vdc.cli_support import API_ONLY
+from vdc.cli_support import option, parse_size, positive_float
 from vdc.parquet_io import WroteFiles
 
 PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
 PAPER_TF_HZ = (1.0, 5.0, 50.0)  # columns: response vs SF
 DEFAULT_TFS_HZ = (1, 2, 3, 5, 7, 10, 15, 20, 30, 40, 50, 60, 75, 100, 125, 150)
 DEFAULT_SFS_UPC = (1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 35, 40, 45, 50)
+WAVEFORMS = ("sine", "square")
 OUTPUT_COLUMNS = ("omega_dps", "lambda_px", "motion", "contrast")
 
 
@@ -301,19 +302,25 @@ class SweepSettings:
     """``vdc-analyse sweep``: the model, the cells (paper layout unless ``sf_upc`` or
     ``tf_hz`` lists are given: then their full grid) and the stimulus."""
 
-    model: str = "avdm"
-    sf_upc: tuple[float, ...] | None = None
-    tf_hz: tuple[float, ...] | None = None
-    size: tuple[int, int] = (100, 100)  # (H, W) px; W px stand for 360°
-    fps: float = 300.0
-    duration_s: float = 1.0
-    contrast: float = 1.0
-    waveform: str = field(default="sine", metadata=API_ONLY)  # flag: --square
+    model: str = option("avdm", "model variant")
+    sf_upc: tuple[float, ...] | None = option(None, "spatial frequencies, upc, e.g. 1,5,10", "--sf")
+    tf_hz: tuple[float, ...] | None = option(None, "temporal frequencies, Hz, e.g. 1,3,10", "--tf")
+    size: tuple[int, int] = option(  # (H, W) px; W px stand for 360°
+        (100, 100), "stimulus WIDTHxHEIGHT px; the width spans 360 deg", type=parse_size
+    )
+    fps: float = option(300.0, "frame rate, Hz", type=positive_float)
+    duration_s: float = option(
+        1.0, "seconds of stimulus per cell", "--duration", type=positive_float
+    )
+    contrast: float = option(
+        1.0, "Michelson contrast, peak-normalised, (0, 1]", type=positive_float
+    )
+    waveform: str = option("sine", "grating profile (--square: square)", choices=WAVEFORMS)
 
     def __post_init__(self) -> None:
         if not 0 < self.contrast <= 1:
             raise ValueError(f"--contrast must be in (0, 1], got {self.contrast:g}")
-        if self.waveform not in ("sine", "square"):
+        if self.waveform not in WAVEFORMS:
             raise ValueError(f"waveform must be sine or square, got {self.waveform!r}")
         if not self.grid and (self.size[1] < 100 or self.fps < 300):
             raise ValueError(
