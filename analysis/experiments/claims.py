@@ -11,12 +11,13 @@ from pathlib import Path
 
 import polars as pl
 
-from analysis.collision import phase_estimate, phase_statistics
+from analysis.collision import PHASE_STATISTICS, phase_estimate, phase_statistics
 from analysis.stats import (
     FAILS,
     HOLDS,
     PARTLY,
     Estimate,
+    Trend,
     above_verdict,
     below_verdict,
     combine,
@@ -86,8 +87,6 @@ def claims_frame(claims: Sequence[Claim]) -> pl.DataFrame:
                 if q is not None
                 else {f.name: None for f in dataclasses.fields(Quantity)}
             )
-            if q is not None and not math.isfinite(q.p_value):
-                values["p_value"] = c.p_value if math.isfinite(c.p_value) else None
             rows.append({**base, **values})
     schema = {
         "claim_index": pl.Int64, "claim": pl.String, "paper": pl.String, "measured": pl.String,
@@ -111,14 +110,26 @@ def evaluate_claims(out: Path) -> list[Claim]:
     valid_rows = tf_rows.filter(pl.col("fixed_value") < 50)
     ok_rows = bool((valid_rows["rho"] > 0.5).all())
     ok_cols = bool((sf_cols["rho"] < -0.5).all())
-    rho_txt = ", ".join(f"{r['fixed']}: ρ = {r['rho']:+.2f}" for r in mono.iter_rows(named=True))
     claims.append(
         Claim(
             "The AVDM response maps monotonically onto SF–TF (Fig. 3)",
             "monotonic: rises with TF, falls with SF",
-            f"Spearman ρ of ω̂ along each row/column: {rho_txt}. SF = 50 upc (2 px period, the "
-            "Nyquist limit: counter-phase flicker) is not a valid motion stimulus and is excluded.",
+            "Spearman ρ of ω̂ along each row (vs TF, at a fixed SF) and column (vs SF, at a "
+            "fixed TF). SF = 50 upc (2 px period, the Nyquist limit: counter-phase flicker) is "
+            "not a valid motion stimulus and is excluded.",
             _verdict(ok_rows and ok_cols, ok_rows or ok_cols),
+            quantities=[
+                Quantity(
+                    r["fixed"],
+                    f"spearman_rho_vs_{r['along']}",
+                    r["rho"],
+                    math.nan,
+                    math.nan,
+                    1,
+                    "ρ > 0.5" if r["along"] == "tf" else "ρ < -0.5",
+                )
+                for r in mono.iter_rows(named=True)
+            ],
         )
     )
 
@@ -139,18 +150,23 @@ def evaluate_claims(out: Path) -> list[Claim]:
     rises = bool((j["near"] > j["far"]).all())
     by_tf = ap.group_by("tf_hz").agg(pl.col("omega_dps").mean().alias("m")).sort("tf_hz")
     tf_up = bool((by_tf["m"].diff().drop_nulls() > 0).all())
+    approach = [
+        Quantity(f"TF {r['tf_hz']:g} Hz", name, r[col], math.nan, math.nan, 1)
+        for r in j.join(by_tf, on="tf_hz").iter_rows(named=True)
+        for name, col in (
+            ("omega_dps_far_over_40cm", "far"),
+            ("omega_dps_near_under_10cm", "near"),
+            ("omega_dps_whole_approach", "m"),
+        )
+    ]
     claims.append(
         Claim(
             "Approaching a wall raises the AVDM response, more so at higher wall TF (Fig. 4)",
             "response grows as the robot nears the wall, and with TF",
-            "mean ω̂ > 40 cm / < 10 cm from the wall: "
-            + ", ".join(
-                f"TF {r['tf_hz']:g}: {r['far']:.1f} → {r['near']:.1f} deg/s"
-                for r in j.iter_rows(named=True)
-            )
-            + "; whole-approach mean by TF: "
-            + ", ".join(f"{r['m']:.1f}" for r in by_tf.iter_rows(named=True)),
+            "mean ω̂ (deg/s) more than 40 cm and less than 10 cm from the wall, and over the "
+            "whole approach, per wall TF",
             _verdict(rises and tf_up, rises or tf_up),
+            quantities=approach,
         )
     )
 
@@ -189,35 +205,63 @@ def bounds_of(metric: str) -> tuple[float, float]:
     return (0.0, 1.0) if metric.startswith("frac_") else (0.0, math.inf)
 
 
+def reading(metric: str, model: str, motion: str, scale: float = 1.0) -> str:
+    """A profiling quantity's name in claims.parquet: the metric (a share scaled by 100 is a
+    ``pct_``), the model and the frames it covers, e.g. ``pct_over_100 · avdm · straight``."""
+    name = metric.replace("frac_", "pct_") if scale == 100.0 else metric
+    return f"{name} · {model} · {motion}"
+
+
+RISE_TEST = "rise with TF"  # the test column of rows that a trend test across TFs decides
+
+
+def rise_quantities(
+    table: pl.DataFrame, metric: str, name: str, scale: float = 1.0, scene: str = "grating",
+    supporting: bool = False,
+) -> tuple[list[Quantity], Trend, list[Estimate]]:  # fmt: skip
+    """The mean and 95 % interval per wall TF of a :func:`per_seed` table, as quantities
+    named ``name``, with the trend test across seeds (``supporting``: a reading shown beside a
+    claim that does not decide it)."""
+    est = estimates(table, bounds_of(metric))
+    trend = rising_trend(table.select([c for c in table.columns if c != "seed"]).to_numpy())
+    test = f"{RISE_TEST}{' (supporting)' if supporting else ''}: {trend.method}"
+    where = "" if scene == "grating" else f"{scene} "
+    quantities = [
+        Quantity.of(f"{where}TF {tf:g} Hz", name, e, test, trend.p_value, scale)
+        for tf, e in zip(tf_columns(table), est, strict=True)
+    ]
+    return quantities, trend, est
+
+
 def rise_claim(
     claim: str,
     paper: str,
-    table: pl.DataFrame,
-    metric: str,
+    summary: pl.DataFrame,
     what: str,
-    fmt: str,
+    metric: str,
+    model: str,
+    motion: str = "all",
     scale: float = 1.0,
+    scene: str = "grating",
 ) -> Claim:
-    """A claim that ``table`` (from :func:`per_seed`) rises with the wall TF: the mean and
-    95 % interval per TF and the trend test across seeds decide it."""
-    est = estimates(table, bounds_of(metric))
-    values = table.select([c for c in table.columns if c != "seed"]).to_numpy()
-    trend = rising_trend(values)
-    measured = (
-        f"{what}: "
-        + ", ".join(
-            f"TF {tf:g}: {e.text(fmt, scale)}" for tf, e in zip(tf_columns(table), est, strict=True)
-        )
-        + f" (mean [95 % interval] over {table.height} seeds); {trend.text()}"
-    )
+    """A claim that a profiling ``metric`` rises with the wall TF: the mean and 95 % interval
+    per TF and the trend test across seeds decide it."""
+    table = per_seed(summary, scene, model, motion, metric)
+    name = reading(metric, model, motion, scale)
+    quantities, trend, est = rise_quantities(table, metric, name, scale, scene)
+    measured = f"{what}: mean [95 % interval] per wall TF across seeds, and a trend test"
     verdict = trend_verdict([e.mean for e in est], trend)
-    quantities = [
-        Quantity.of(
-            f"TF {tf:g} Hz", metric, e, f"rise with TF: {trend.method}", trend.p_value, scale
-        )
-        for tf, e in zip(tf_columns(table), est, strict=True)
-    ]
     return Claim(claim, paper, measured, verdict, trend.p_value, table.height, quantities)
+
+
+def supporting(summary: pl.DataFrame, metric: str, model: str, motion: str, scale: float = 1.0):
+    """Quantities shown beside a claim (the Fig. 6 table's other readings), with their own
+    trend test."""
+    table = per_seed(summary, "grating", model, motion, metric)
+    if table.height == 0:
+        return []
+    name = reading(metric, model, motion, scale)
+    return rise_quantities(table, metric, name, scale, supporting=True)[0]
 
 
 def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
@@ -225,7 +269,6 @@ def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
     motion; columns scene, seed, wall_tf_hz, model, motion, frac_over_100, mean,
     near_wall_centre_ratio)."""
     claims = []
-    ratios = []
     verdicts = []
     ratio_q = []
     for scene, tf in PROFILE_CONDITIONS:
@@ -234,7 +277,6 @@ def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
         if col not in t.columns:
             continue
         est = mean_ci(t[col].to_numpy(), bounds=(0.0, math.inf))
-        ratios.append(f"{scene} TF {tf:g}: {est.text('{:.2f}')}")
         verdicts.append(above_verdict(est, 1.0))
         ratio_q.append(
             Quantity.of(f"{scene} TF {tf:g} Hz", "near_wall_centre_ratio", est, "95 % interval > 1")
@@ -244,7 +286,7 @@ def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
         Claim(
             "The response (visual dynamic complexity) is stronger near the walls (Figs. 6–7)",
             "higher near the walls than in the centre",
-            "near-wall / centre mean ω̂, mean [95 % interval] over seeds: " + ", ".join(ratios),
+            "near-wall / centre mean ω̂ per condition: mean [95 % interval] across seeds",
             combine(verdicts),
             math.nan,
             n,
@@ -257,50 +299,51 @@ def profiling_claims(summary: pl.DataFrame) -> list[Claim]:
             "The count of 'AVDM > 100' rises with the walls' TF (Fig. 6), in the released "
             "code's units",
             paper,
-            per_seed(summary, "grating", RELEASED, "all", "frac_over_100"),
-            "frac_over_100",
+            summary,
             f"% of frames over 100 with {RELEASED} (100·λ̂·√R̄), grating, all frames",
-            "{:.1f}",
-            100.0,
-        )
-    )
-    claims.append(
-        rise_claim(
-            "The same count in calibrated deg/s, all frames",
-            paper,
-            per_seed(summary, "grating", CALIBRATED, "all", "frac_over_100"),
             "frac_over_100",
-            "% of frames over 100 deg/s (calibrated ω̂), grating, all frames; in deg/s, 100 is "
-            "above the walls' drift and mostly counts the robot's own 120 °/s turns",
-            "{:.1f}",
-            100.0,
+            RELEASED,
+            scale=100.0,
         )
     )
-    claims.append(
-        rise_claim(
-            "Without the robot's own turns, the calibrated response rises with the walls' TF",
-            "complexity rises with TF",
-            per_seed(summary, "grating", CALIBRATED, "straight", "mean"),
-            "mean",
-            "mean ω̂ while driving straight (deg/s), grating",
-            "{:.1f}",
-        )
+    same = rise_claim(
+        "The same count in calibrated deg/s, all frames",
+        paper,
+        summary,
+        "% of frames over 100 deg/s (calibrated ω̂), grating, all frames; in deg/s, 100 is "
+        "above the walls' drift and mostly counts the robot's own 120 °/s turns (the rows for "
+        "straight driving and turning show it)",
+        "frac_over_100",
+        CALIBRATED,
+        scale=100.0,
     )
+    for motion in ("straight", "turning"):
+        same.quantities += supporting(summary, "frac_over_100", CALIBRATED, motion, 100.0)
+    claims.append(same)
+    straight = rise_claim(
+        "Without the robot's own turns, the calibrated response rises with the walls' TF",
+        "complexity rises with TF",
+        summary,
+        "mean ω̂ while driving straight (deg/s), grating (beside it, all frames)",
+        "mean",
+        CALIBRATED,
+        "straight",
+    )
+    straight.quantities += supporting(summary, "mean", CALIBRATED, "all")
+    claims.append(straight)
     nat = rise_claim(
         "A drifting natural scene behaves like the grating",
         "same trends: complexity rises with TF, stronger near walls",
-        per_seed(summary, "natural", CALIBRATED, "all", "mean"),
+        summary,
+        "natural scene, mean ω̂ (deg/s), all frames; and near-wall / centre",
         "mean",
-        "natural scene, mean ω̂ (deg/s), all frames",
-        "{:.1f}",
+        CALIBRATED,
+        scene="natural",
     )
     near = [
         v for (scene, _), v in zip(PROFILE_CONDITIONS, verdicts, strict=False) if scene == "natural"
     ]
     nat.verdict = combine([nat.verdict, *near])
-    nat.measured += "; near-wall / centre: " + ", ".join(
-        r for r in ratios if r.startswith("natural")
-    )
     nat.quantities += [q for q in ratio_q if q.condition.startswith("natural")]
     claims.append(nat)
     return claims
@@ -314,22 +357,19 @@ def collision_claims(summary: pl.DataFrame) -> list[Claim]:
     def est(phase: str, name: str) -> Estimate:
         return phase_estimate(phases[phase], name)
 
-    def txt(phase: str) -> str:
-        return (
-            f"success {est(phase, 'success_rate').text('{:.1f}', 100.0)} %, "
-            f"{est(phase, 'avoidances_per_30min').text('{:.0f}')} avoidances and "
-            f"{est(phase, 'crashes_per_30min').text('{:.1f}')} crashes per 30 min"
-        )
-
     def numbers(*names: str) -> list[Quantity]:
         test = "95 % interval vs 90 % success"
         return [
             Quantity.of(p, q, est(p, q), test if q == "success_rate" else "")
             for p in names
             if p in phases
-            for q in ("success_rate", "avoidances_per_30min", "crashes_per_30min")
+            for q in PHASE_STATISTICS
         ]
 
+    per_phase = (
+        "success rate, and avoidances, crashes and false alarms per 30 min, per phase: mean "
+        "[95 % interval] across seeds"
+    )
     claims = []
     n = int(summary["seed"].n_unique()) if summary.height else 0
     if {"tf0", "tf3", "tf3-adjusted"} <= set(phases):
@@ -342,10 +382,9 @@ def collision_claims(summary: pl.DataFrame) -> list[Claim]:
                 "recovers with an adjusted threshold (Fig. 8)",
                 "success > 90 % in all three phases; 229 → 432 avoidances at TF 3 (extra alerts), "
                 "233 with the adjusted threshold",
-                f"TF 0: {txt('tf0')}; TF 3: {txt('tf3')}; TF 3 adjusted: {txt('tf3-adjusted')} "
-                f"(mean [95 % interval] over {n} seeds). Works (TF 0 > 90 %): {works}; breaks "
-                f"down (TF 3 < 90 %): {breaks}; recovers (adjusted > 90 %): {recovers}. Our "
-                "breakdown is blindness (crashes) rather than extra avoidances; see README.",
+                f"{per_phase}. Works (TF 0 success > 90 %): {works}; breaks down (TF 3 < 90 %): "
+                f"{breaks}; recovers (adjusted > 90 %): {recovers}. Our breakdown is blindness "
+                "(crashes) rather than extra avoidances; see docs/analysis.md.",
                 combine([works, breaks, recovers]),
                 math.nan,
                 n,
@@ -364,9 +403,8 @@ def collision_claims(summary: pl.DataFrame) -> list[Claim]:
                 "Beyond the paper: the complexity-adaptive detector restores TF 0 performance at "
                 "TF 3 Hz without hand tuning",
                 "(not in the paper)",
-                f"TF 3 adaptive: {txt('tf3-adaptive')} vs TF 0: {txt('tf0')}"
-                + (f"; TF 0 adaptive: {txt('tf0-adaptive')}" if "tf0-adaptive" in phases else "")
-                + f". Success > 90 %: {ok_s}; avoidances within 25 % of TF 0's: {ok_n}.",
+                f"{per_phase} (TF 3 adaptive beside TF 0). Success > 90 %: {ok_s}; avoidances "
+                f"within 25 % of TF 0's: {ok_n}.",
                 combine([ok_s, ok_n]),
                 math.nan,
                 n,

@@ -10,63 +10,67 @@ from pathlib import Path
 
 import polars as pl
 
-from analysis.collision import phase_statistics, phase_table_markdown
-from analysis.experiments.claims import (
-    CALIBRATED,
-    RELEASED,
-    Claim,
-    bounds_of,
-    claims_frame,
-    estimates,
-    per_seed,
-    tf_columns,
-)
+from analysis.collision import PAPER, PHASE_STATISTICS
+from analysis.experiments.claims import RISE_TEST, Claim, claims_frame
 from analysis.experiments.plan import ReproduceSettings
-from analysis.stats import (
-    rising_trend,
-)
 from vdc.parquet_io import read_metadata
 
 
-def fig6_table_markdown(summary: pl.DataFrame) -> str:
-    """The Fig. 6 readings across seeds: rows are readings, columns the grating's wall TFs,
-    cells mean [95 % interval], and the trend test's p-value."""
-    readings = (
-        (f"% over 100, {RELEASED}, all frames", RELEASED, "all", "frac_over_100", 100.0),
-        ("% over 100 deg/s, calibrated, all frames", CALIBRATED, "all", "frac_over_100", 100.0),
-        (
-            "% over 100 deg/s, calibrated, straight driving",
-            CALIBRATED,
-            "straight",
-            "frac_over_100",
-            100.0,
-        ),
-        (
-            "% over 100 deg/s, calibrated, while turning",
-            CALIBRATED,
-            "turning",
-            "frac_over_100",
-            100.0,
-        ),
-        ("mean ω̂ (deg/s), calibrated, all frames", CALIBRATED, "all", "mean", 1.0),
-        ("mean ω̂ (deg/s), calibrated, straight driving", CALIBRATED, "straight", "mean", 1.0),
+def _cell(r: dict, digits: int = 4) -> str:
+    """A row's estimate with its 95 % interval, to ``digits`` significant digits."""
+    if r["ci_low"] is None:
+        return _number(r["estimate"], digits)
+    return f"{_number(r['estimate'], digits)} [{_number(r['ci_low'], digits)}, " + (
+        f"{_number(r['ci_high'], digits)}]"
     )
-    lines: list[str] = []
-    for label, model, motion, metric, scale in readings:
-        t = per_seed(summary, "grating", model, motion, metric)
-        if t.height == 0:
-            continue
-        if not lines:
-            tfs = tf_columns(t)
-            lines = [
-                "| reading | " + " | ".join(f"TF {tf:g} Hz" for tf in tfs) + " | trend test |",
-                "|---" * (len(tfs) + 2) + "|",
-            ]
-        trend = rising_trend(t.select([c for c in t.columns if c != "seed"]).to_numpy())
-        cells = " | ".join(e.text("{:.1f}", scale) for e in estimates(t, bounds_of(metric)))
-        lines.append(f"| {label} | {cells} | p = {trend.p_value:.3g} ({trend.method}) |")
-    n = int(summary["seed"].n_unique())
+
+
+def fig6_table_markdown(table: pl.DataFrame) -> str:
+    """The Fig. 6 readings across seeds, rendered from claims.parquet's rows (``table``): the
+    grating's rows decided or supported by a trend across wall TFs, one line per reading,
+    one column per TF, cells mean [95 % interval], and the reading's trend test."""
+    rows = table.filter(
+        pl.col("test").str.starts_with(RISE_TEST) & pl.col("condition").str.starts_with("TF ")
+    )
+    if rows.height == 0:
+        return "(no grating readings)"
+    tfs = rows["condition"].unique(maintain_order=True).to_list()
+    lines = [
+        "| reading | " + " | ".join(tfs) + " | trend test |",
+        "|---" * (len(tfs) + 2) + "|",
+    ]
+    for (name,), g in rows.group_by("quantity", maintain_order=True):
+        by_tf = {r["condition"]: r for r in g.iter_rows(named=True)}
+        cells = " | ".join(_cell(by_tf[tf]) if tf in by_tf else "-" for tf in tfs)
+        first = g.row(0, named=True)
+        method = first["test"].split(": ", 1)[-1]
+        lines.append(f"| {name} | {cells} | p = {_number(first['p_value'], 3)} ({method}) |")
+    n = int(rows["n_seeds"].max())
     return "\n".join(lines) + f"\n\nMean [95 % interval] over {n} seeds per condition."
+
+
+def phases_markdown(table: pl.DataFrame) -> str:
+    """The collision study per phase, rendered from claims.parquet's rows (``table``): mean
+    [95 % interval] across seeds of each phase statistic, beside the paper's figures."""
+    rows = table.filter(pl.col("quantity").is_in(PHASE_STATISTICS)).unique(
+        ["condition", "quantity"], keep="first", maintain_order=True
+    )
+    if rows.height == 0:
+        return "(no collision phases)"
+    names = [q for q in PHASE_STATISTICS if q in set(rows["quantity"])]
+    lines = [
+        "| phase | seeds | " + " | ".join(names) + " | paper: avoidances | paper: success |",
+        "|---" * (len(names) + 4) + "|",
+    ]
+    for (phase,), g in rows.group_by("condition", maintain_order=True):
+        by_q = {r["quantity"]: r for r in g.iter_rows(named=True)}
+        cells = " | ".join(_cell(by_q[q]) if q in by_q else "-" for q in names)
+        paper = PAPER.get(phase, {})
+        lines.append(
+            f"| {phase} | {g['n_seeds'].max()} | {cells} | "
+            f"{paper.get('paper_avoidances', '-')} | {paper.get('paper_success', '-')} |"
+        )
+    return "\n".join(lines) + "\n\nsuccess_rate is a share (0-1); the others are per 30 min."
 
 
 def _img(path: Path) -> str:
@@ -111,8 +115,7 @@ def write_report(
     out: Path, plan: ReproduceSettings, claims: list[Claim], elapsed_s: float
 ) -> list[Path]:
     """report.md and a self-contained report.html (figures embedded) in ``out``."""
-    col = pl.read_parquet(out / "collision" / "collision_summary.parquet")
-    prof = pl.read_parquet(out / "profiling" / "summary.parquet")
+    table = claims_frame(claims)
     mode = plan.plan_name
     head = (
         f"Mode: {mode} (profiling {plan.profile_minutes:g} min per condition, collision "
@@ -124,12 +127,9 @@ def write_report(
         "number comes from the tables in this folder."
     )
     sections = [
-        ("The numbers behind the claims", numbers_markdown(claims_frame(claims)).split("\n")),
-        ("Fig. 6 across seeds (grating)", fig6_table_markdown(prof).split("\n")),
-        (
-            "Collision study across seeds",
-            phase_table_markdown(phase_statistics(col)).split("\n"),
-        ),
+        ("The numbers behind the claims", numbers_markdown(table).split("\n")),
+        ("Fig. 6 across seeds (grating)", fig6_table_markdown(table).split("\n")),
+        ("Collision study across seeds", phases_markdown(table).split("\n")),
         ("Environment", environment_markdown(out)),
     ]
     md = [
@@ -139,10 +139,13 @@ def write_report(
         "",
         "## Claims",
         "",
-        "| claim | paper | measured | verdict |",
-        "|---|---|---|---|",
+        "| # | claim | paper | measured (numbers below) | verdict |",
+        "|---|---|---|---|---|",
     ]
-    md += [f"| {c.claim} | {c.paper} | {c.measured} | **{c.verdict}** |" for c in claims]
+    md += [
+        f"| {i} | {c.claim} | {c.paper} | {c.measured} | **{c.verdict}** |"
+        for i, c in enumerate(claims, 1)
+    ]
     for title, lines in sections[:3]:
         md += ["", f"## {title}", "", *lines]
     md += ["", "## Figures", ""]
@@ -152,10 +155,10 @@ def write_report(
     md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
 
     rows = "".join(
-        f"<tr><td>{html.escape(c.claim)}</td><td>{html.escape(c.paper)}</td>"
+        f"<tr><td>{i}</td><td>{html.escape(c.claim)}</td><td>{html.escape(c.paper)}</td>"
         f"<td>{html.escape(c.measured)}</td><td class='{c.verdict.replace(' ', '-')}'>"
         f"{html.escape(c.verdict)}</td></tr>"
-        for c in claims
+        for i, c in enumerate(claims, 1)
     )
     figs = "".join(
         f"<h3>{html.escape(t)}</h3>{_img(out / rel)}" for t, rel in FIGURES if (out / rel).exists()
@@ -168,7 +171,7 @@ def write_report(
 table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px;vertical-align:top}}
 .holds{{background:#d4f4d4}}.partly{{background:#fff3c4}}.does-not-hold{{background:#f8d0d0}}
 </style></head><body><h1>vdc: reproducing the paper</h1><p>{html.escape(head)}</p>
-<h2>Claims</h2><table><tr><th>claim</th><th>paper</th><th>measured</th><th>verdict</th></tr>
+<h2>Claims</h2><table><tr><th>#</th><th>claim</th><th>paper</th><th>measured</th><th>verdict</th></tr>
 {rows}</table>{tables}<h2>Figures</h2>{figs}
 <h2>Environment</h2>{_md_html(sections[3][1])}</body></html>"""
     html_path = out / "report.html"

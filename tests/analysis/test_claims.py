@@ -12,6 +12,7 @@ from analysis.experiments.reproduce import (
     CALIBRATED,
     PROFILE_CONDITIONS,
     RELEASED,
+    claims_frame,
     collision_claims,
     fig6_table_markdown,
     profiling_claims,
@@ -139,7 +140,10 @@ def test_profiling_claims_hold_partly_hold_or_fail_from_the_numbers() -> None:
         & (pl.col("wall_tf_hz") == 3)
         & (pl.col("scene") == "grating")
     )
-    assert f"TF 3: {100 * tf3['frac_over_100'].mean():.1f} [" in released.measured  # in %
+    row = next(q for q in released.quantities if q.condition == "TF 3 Hz")
+    # the same mean, scaled to % (one division and a sum of 5 values apart)
+    assert row.estimate == pytest.approx(100 * tf3["frac_over_100"].mean(), rel=1e-12)
+    assert row.quantity == f"pct_over_100 · {RELEASED} · all" and row.n_seeds == 5
 
     def mixed(scene, tf, model, motion, seed):
         # the means still rise, but two of five seeds rank the TFs backwards: not significant
@@ -159,9 +163,13 @@ def test_profiling_claims_hold_partly_hold_or_fail_from_the_numbers() -> None:
 
 
 def test_fig6_table_lists_every_reading_with_its_test() -> None:
-    md = fig6_table_markdown(_summary(lambda *a: (0.1 * a[1] + 0.01 * a[4], 5.0 + a[1], 1.2)))
+    """The report's Fig. 6 table is rendered from the claims' rows: the three readings that
+    decide claims and the three shown beside them, each with its own trend test."""
+    summary = _summary(lambda *a: (0.1 * a[1] + 0.01 * a[4], 5.0 + a[1], 1.2))
+    md = fig6_table_markdown(claims_frame(profiling_claims(summary)))
     assert md.count("Page's L test") == 6 and "| TF 0 Hz | TF 1 Hz | TF 3 Hz |" in md
-    assert "over 5 seeds" in md
+    assert "over 5 seeds" in md and f"pct_over_100 · {CALIBRATED} · turning" in md
+    assert "natural" not in md  # the grating's readings only
 
 
 def _collision(success: dict[str, tuple[int, int]], seeds: int = 5) -> pl.DataFrame:
@@ -198,7 +206,10 @@ def test_collision_claims_from_constructed_runs() -> None:
     }
     claims = collision_claims(_collision(paper_like))
     assert [c.verdict for c in claims] == [HOLDS, HOLDS]
-    assert "success 99.1 [" in claims[0].measured
+    tf0 = next(
+        q for q in claims[0].quantities if (q.condition, q.quantity) == ("tf0", "success_rate")
+    )
+    assert f"{100 * tf0.estimate:.1f}" == "99.1" and tf0.ci_low < tf0.estimate < tf0.ci_high
     # TF 3 does not break down: the protocol's claim is only partly reproduced
     no_break = {**paper_like, "tf3": (229, 2)}
     assert collision_claims(_collision(no_break))[0].verdict == PARTLY
@@ -228,4 +239,9 @@ def test_claims_carry_their_numbers_in_long_form() -> None:
     assert row["ci_low"] < row["estimate"] < row["ci_high"]
     assert row["n_seeds"] == seeds.height and row["verdict"] in ("holds", "partly")
     assert set(table["condition"]) == {"tf0", "tf3", "tf3-adjusted"}
-    assert set(table["quantity"]) == {"success_rate", "avoidances_per_30min", "crashes_per_30min"}
+    assert set(table["quantity"]) == {
+        "success_rate",
+        "avoidances_per_30min",
+        "crashes_per_30min",
+        "false_alarms_per_30min",
+    }

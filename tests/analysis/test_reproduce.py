@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
@@ -105,8 +106,32 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
     col = pl.read_parquet(out / "collision" / "collision_phases.parquet")
     tf0 = col.filter(pl.col("phase") == "tf0").row(0, named=True)
     assert tf0["seeds"] == 2
-    measured = claims.filter(pl.col("claim").str.contains("collision detector"))["measured"][0]
-    assert f"{tf0['avoidances_per_30min']:.0f} [" in measured
+    shown = md.split("## Collision study across seeds")[1].split("\n## ")[0]
+    assert f"| tf0 | 2 | {tf0['avoidances_per_30min']:.4g} [" in shown
+    # every number of the report's three tables is a value of claims.parquet's rows, as printed
+    # (4 significant digits, p-values 3); the claims' texts carry no measured numbers
+    values = table.select("estimate", "ci_low", "ci_high", "p_value").to_numpy().ravel()
+    values = [float(v) for v in values if v is not None and math.isfinite(v)]
+    printed = {f"{v:.{d}g}" for v in values for d in (3, 4)} | {str(n) for n in table["n_seeds"]}
+    for title, skip in (
+        ("The numbers behind the claims", 3),  # claim #, condition, quantity
+        ("Fig. 6 across seeds (grating)", 1),  # the reading's name
+        ("Collision study across seeds", 1),  # the phase; the paper's columns are not ours
+    ):
+        section = md.split(f"## {title}")[1].split("\n## ")[0].splitlines()
+        body = [ln for ln in section if ln.startswith("| ")][1:]  # below the header
+        assert body, title
+        for line in body:
+            cells = [c.strip() for c in line.strip("|").split("|")][skip:]
+            if title.startswith("Collision"):
+                cells = cells[:-2]
+            if title.startswith("The numbers"):
+                del cells[3]  # the test's name ("95 % interval > 1")
+            text = re.sub(r"\([^)]*\)", "", " ".join(cells))  # a test's name in brackets
+            for number in re.findall(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?", text):
+                assert number in printed, f"{title}: {number} in {line!r} is not in the table"
+    for c in again:
+        assert not re.search(r"\d\.\d", c.measured), c.measured
     # a rerun records nothing new
     rerun = run_cli("analysis", "reproduce", *ARGS, "--out", str(out), timeout=600)
     assert rerun.returncode == 0, rerun.stderr
