@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -182,30 +183,32 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
 
 
 def cmd_complexity(args: argparse.Namespace) -> int:
-    import polars as pl
+    from analysis.complexity import ComplexitySettings, complexity, expand_sources
 
-    from analysis.complexity import ComplexitySettings, complexity
-
-    with progress_bar(None, "complexity", "frame") as bar:
+    settings = settings_from_args(ComplexitySettings, args)
+    n = len(expand_sources(args.sources))
+    with (
+        progress_bar(None, "complexity", "frame") as frames,
+        progress_bar(n, "clips", "clip", quiet=n == 1) as clips,
+    ):
         res = complexity(
-            args.recordings,
-            settings_from_args(ComplexitySettings, args),
-            args.out,
-            progress=bar.update,
-            notice=_notice,
-        )
-    print(f"{res.table.height} frames -> " + ", ".join(str(p) for p in res.paths))
-    means = res.table.group_by("recording_id", maintain_order=True).mean()
-    for r in means.iter_rows(named=True):
+            args.sources, settings, args.out, progress=frames.update,
+            clip_progress=clips.update, notice=_notice, log=say,
+        )  # fmt: skip
+    files = res.files
+    print(
+        f"{res.clips.height} clip(s), {res.table.height} frames -> {files.complexity_parquet}, "
+        f"{files.clips}, {files.complexity_html}"
+    )
+    for r in res.clips.iter_rows(named=True):
         print(
-            f"  {r['recording_id']}: mean omega {r['omega_dps']:.1f} deg/s, flow "
-            f"{r['flow_dps']:.1f} deg/s, SI {r['si_p910']:.1f} / TI {r['ti_p910']:.2f} (P.910), "
-            f"SI {r['si_legacy']:.1f} / TI {r['ti_legacy']:.2f} (legacy)"
+            f"  {r['recording_id']}: {r['frames']} frames, mean omega {r['omega_dps_mean']:.1f} "
+            f"deg/s, flow {r['flow_dps_mean'] or math.nan:.1f} deg/s, SI {r['si_p910_mean']:.1f} "
+            f"/ TI {r['ti_p910_mean'] or math.nan:.2f} (P.910, {r['raster']} raster)"
         )
-    rho = res.correlations.filter(pl.col("metric_a") == "omega_dps")
-    for r in rho.iter_rows(named=True):
-        print(f"  rho(omega_dps, {r['metric_b']}) = {r['spearman']:+.2f}  [{r['recording_id']}]")
-    return 0
+    for source, error in res.failures:
+        print(f"FAILED {source}: {error}", file=sys.stderr)
+    return 1 if res.failures else 0
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -248,14 +251,19 @@ def cmd_summarise(args: argparse.Namespace) -> int:
     return 0
 
 
-def _inputs(out: str, recordings: str | None = ".rrd recordings", one: bool = False):
+def _inputs(
+    out: str,
+    recordings: str | None = ".rrd recordings",
+    one: bool = False,
+    dest: str = "recordings",
+):
     """The arguments that are not settings: the recordings (or one) and --out."""
 
     def add(p: argparse.ArgumentParser) -> None:
         if recordings and one:
             p.add_argument("recording", metavar="REC", help=recordings)
         elif recordings:
-            p.add_argument("recordings", nargs="+", metavar="REC", help=recordings)
+            p.add_argument(dest, nargs="+", metavar="REC", help=recordings)
         p.add_argument("--out", default=out, help="output folder (default: %(default)s)")
 
     return add
@@ -387,12 +395,22 @@ COMMANDS = {
         "analysis.complexity:ComplexitySettings",
         cmd_complexity,
         "the AVDM beside P.910 SI/TI, optic flow and compression, per frame",
-        "For any recording (video, arena, robot): per frame the AVDM's omega_dps, ITU-T P.910 "
-        "SI and TI (2022 and legacy, via siti-tools), mean absolute frame difference, DIS "
-        "optic-flow speed in deg/s, edge density, zlib and JPEG compression. Writes "
-        "complexity.parquet, complexity_correlations.parquet, and per recording a PNG and an "
-        ".rrd that opens beside the source (`rerun REC OUT/complexity_<id>.rrd`).",
-        inputs=_inputs("results/complexity"),
+        "For recordings (video, arena, robot), video files, image sequences and folders of "
+        "them: per frame the AVDM's omega_dps and DIS optic-flow speed in deg/s (on the model "
+        "raster), and ITU-T P.910 SI and TI (2022, as siti-tools; legacy, as FFmpeg's siti), "
+        "mean absolute frame difference, edge density, JPEG and codec bits per pixel on the "
+        "source's native frames. Each source is one task (--executor, --jobs) writing its own "
+        "part: a re-run resumes, a corrupt file is listed in failures.parquet. Writes "
+        "complexity.parquet, clips.parquet (per clip: mean, max, p95 of each metric), "
+        "complexity_collection.png and complexity.html; per clip (--rrd, always for one "
+        "source) a PNG and an .rrd that opens beside the source.",
+        "examples:\n"
+        "  vdc-analyse complexity recordings/clip.rrd\n"
+        "  vdc-analyse complexity footage/ --fov-deg 70 --jobs 2 --out results/footage\n"
+        "  vdc-analyse complexity 'shots/%05d.png' --fps 25 --fov-deg 90",
+        inputs=_inputs(
+            "results/complexity", "recordings, videos, image patterns or folders", dest="sources"
+        ),
     ),
     "reproduce": Command(
         "analysis.experiments.reproduce:ReproduceSettings",

@@ -1,69 +1,65 @@
-"""The AVDM beside established complexity measures, per frame (``vdc-analyse complexity``).
+"""``vdc-analyse complexity``: the AVDM beside the standard complexity measures, per frame
+and per clip, for one source or a whole collection.
 
-Columns (one per metric, unit or variant in the name; see shared reference
-complexity_metrics.md):
+A source is a recording (``.rrd``), a video file, an image-sequence pattern
+(``frames/%05d.png``) or a folder of them. Each source is decoded once, as one executor task
+(a process pool or Dask, as ``batch``), which writes its own atomic part
+``OUT/parts/<clip>-<hash>.parquet``: a re-run skips finished sources, and a source that fails
+(a corrupt file) is listed in ``failures.parquet`` without stopping the others. Then:
 
-* ``omega_dps``: the AVDM's angular velocity (deg/s), on new frames over true time;
-* ``si_p910`` / ``ti_p910``: ITU-T P.910 (07/2022+) SI and TI as siti-tools computes them
-  (full-range 8-bit luma → BT.1886 display, 300 cd/m² → PQ → ×255);
-* ``si_legacy`` / ``ti_legacy``: the pre-2022 definition on code values (siti-tools' legacy);
-* ``mafd``: mean absolute frame difference, 8-bit levels (VMAF-motion's family);
-* ``flow_dps``: mean horizontal dense optic-flow speed (OpenCV DIS), mean |u_x| in px/frame ×
-  deg/px ÷ the true time between new frames, deg/s. Horizontal because the AVDM's correlators
-  are horizontal, and because the vertical flow of vertically uniform patterns (gratings,
-  walls) is unconstrained (the aperture problem): DIS then returns noise-driven vertical flow
-  of tens of px/frame on codec-compressed gratings;
-* ``edge_density``: share of Canny edge pixels (thresholds 100/200 on 8-bit luma);
-* ``zlib_ratio``: zlib-compressed / raw size of the luma plane (level 6; higher = more complex);
-* ``jpeg_bpp``: bits per pixel of the frame as JPEG at quality 75 (OpenCV).
-
-Temporal metrics are null on a source's first frame. TI, MAFD and flow follow their standard
-definitions on every frame (a repeated frame gives TI = 0); ``flow_dps`` and ``omega_dps`` are
-computed between new frames and held over repeats, so both read true motion.
+* ``complexity.parquet``: one row per frame (columns: ``analysis.source_metrics``);
+* ``clips.parquet``: one row per clip: source, codec, resolution, fps, duration, repeated
+  and dropped frames, and each metric's mean, max and p95 (P.910 clause 7.8.4 recommends the
+  mean and the max per sequence);
+* ``complexity_correlations.parquet``: Spearman ρ of every pair of metrics per clip;
+* ``complexity_collection.png``: clips ranked by the AVDM and by TI, and the AVDM against TI
+  and SI; ``complexity.html``: that figure with the clip table;
+* per clip (``--rrd``; always for a single source): a figure of its metrics over time and an
+  ``.rrd`` with the source's recording id, which opens beside it in the viewer.
 """
 
 from __future__ import annotations
 
+import base64
 import dataclasses
+import hashlib
+import html
 import math
-import zlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import polars as pl
-from siti_tools.siti import ColorRange, SiTiCalculator
 
-from avdm.registry import make_model
-from avdm.true_time import TrueTimeModel, repeat_flags
-from vdc.cli_support import API_ONLY, option
-from vdc.parquet_io import WroteFiles
-from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
-
-METRICS = (
-    "omega_dps",
-    "si_p910",
-    "ti_p910",
-    "si_legacy",
-    "ti_legacy",
-    "mafd",
-    "flow_dps",
-    "edge_density",
-    "zlib_ratio",
-    "jpeg_bpp",
+from analysis.source_metrics import (
+    DIS_PRESETS,
+    METRICS,
+    RASTERS,
+    ComplexityMeter,
+    SourceMeasurement,
+    rank_correlations,
 )
-DIS_PRESETS = {
-    "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
-    "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
-    "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
-}
+from vdc.cli_support import (
+    API_ONLY,
+    non_negative_float,
+    non_negative_int,
+    option,
+    positive_float,
+)
+from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
+from vdc.parquet_io import WroteFiles
+from vdc.recording import FOOTAGE_MODEL
+from vdc.sources import source_name
+
+PARTS = "parts"
+CLIP_STATISTICS = ("mean", "max", "p95")
 
 
 @dataclasses.dataclass(frozen=True)
 class ComplexitySettings:
-    """``vdc-analyse complexity``: the AVDM variant and the baselines' few free choices."""
+    """``vdc-analyse complexity``: the AVDM variant, the baselines' few free choices, how
+    video sources are read (as ``vdc-capture video`` reads them), and where the sources run."""
 
     model: str = option(
         FOOTAGE_MODEL,
@@ -71,12 +67,46 @@ class ComplexitySettings:
         "paper's, valid up to about 1 px of motion per frame)",
     )
     flow_preset: str = option(  # "medium" keeps the finest scale on small frames
-        "medium", "DIS optic-flow preset", choices=("ultrafast", "fast", "medium")
+        "medium", "DIS optic-flow preset", choices=tuple(DIS_PRESETS)
     )
     jpeg_quality: int = option(75, "JPEG quality, 1-100")
     zlib_level: int = dataclasses.field(default=6, metadata=API_ONLY)
+    fov_deg: float | None = option(
+        None,
+        "video sources: the camera's horizontal field of view, degrees (needed for the AVDM "
+        "and the flow in deg/s)",
+        type=positive_float,
+    )
+    fps: float | None = option(
+        None, "image sequences: frame rate, Hz (videos state their own)", type=positive_float
+    )
+    width: int | None = option(
+        None, "video sources: working width, px (default: fov / (70/99 deg), the robot's pitch)"
+    )
+    repeat_tol: float = option(
+        0.5,
+        "video sources: a frame whose mean |difference| from the previous native frame is at "
+        "most this (8-bit levels) repeats it",
+        type=non_negative_float,
+    )
+    max_repeats: int = option(
+        3, "longer still stretches are a still scene, not repeats", type=non_negative_int
+    )
+    rrd: bool = option(
+        False,
+        "per clip, also a figure of its metrics over time and an .rrd that opens beside the "
+        "source (always for a single source)",
+    )
+    executor: str = executor_field("executor")
+    jobs: int = executor_field("jobs")
+    scheduler: str | None = executor_field("scheduler")
+    shard: str | None = option(
+        None, "I/N: measure only sources I, I+N, ... (0-based; default in a SLURM array: its own)"
+    )
+    force: bool = option(False, "measure finished sources again")
 
     def __post_init__(self) -> None:
+        from analysis.batch import parse_shard
         from avdm.registry import require_angular_velocity
 
         require_angular_velocity(self.model, "complexity")
@@ -86,94 +116,18 @@ class ComplexitySettings:
             raise ValueError(f"--jpeg-quality must be 1-100, got {self.jpeg_quality}")
         if not 0 <= self.zlib_level <= 9:
             raise ValueError(f"--zlib-level must be 0-9, got {self.zlib_level}")
+        if self.width is not None and not 8 <= self.width <= 4096:
+            raise ValueError(f"--width must be between 8 and 4096 px, got {self.width}")
+        self.executor_settings()
+        parse_shard(self.shard)
 
+    def executor_settings(self) -> ExecutorSettings:
+        return ExecutorSettings(self.executor, self.jobs, self.scheduler)
 
-class _SiTi:
-    """Per-frame SI and TI with siti-tools' own transforms, on full-range 8-bit luma."""
-
-    def __init__(self, legacy: bool) -> None:
-        self.calc = SiTiCalculator(color_range=ColorRange.FULL, legacy=legacy)
-        self.legacy = legacy
-        self.prev: np.ndarray | None = None
-
-    def domain(self, frame: np.ndarray) -> np.ndarray:
-        x = self.calc.normalize_between_0_1(frame.astype(np.float64))
-        if not self.legacy:
-            c = self.calc
-            x = SiTiCalculator.apply_display_model(
-                x, eotf_function=c.eotf_function, l_max=c.l_max, l_min=c.l_min, gamma=c.gamma
-            )
-            x = c.oetf_function(x, **c.oetf_function_kwargs)
-        return x
-
-    def __call__(self, frame: np.ndarray) -> tuple[float, float]:
-        x = self.domain(frame)
-        si = float(self.calc.normalize_to_original_si_range(SiTiCalculator.si(x)))
-        ti = (
-            math.nan
-            if self.prev is None
-            else float(self.calc.normalize_to_original_si_range(SiTiCalculator.ti(x, self.prev)))
-        )
-        self.prev = x
-        return si, ti
-
-
-class ComplexityMeter:
-    """Streams frames through every metric; ``update`` continues from earlier chunks.
-
-    frames (T, H, W) uint8 luma; t_s (T,) seconds; repeat (T,) bool (None: detect them)."""
-
-    def __init__(
-        self,
-        fps: float,
-        deg_per_px: float,
-        settings: ComplexitySettings = ComplexitySettings(),
-        context: dict[str, Any] | None = None,
-    ) -> None:
-        self.s = settings
-        self.fps = fps
-        self.deg_per_px = deg_per_px
-        ctx = context or {"fps": fps, "deg_per_px": deg_per_px}
-        self.model = TrueTimeModel(make_model(settings.model, **ctx))
-        self.siti = _SiTi(legacy=False)
-        self.siti_legacy = _SiTi(legacy=True)
-        self.dis = cv2.DISOpticalFlow_create(DIS_PRESETS[settings.flow_preset])
-        self.prev: np.ndarray | None = None  # the previous frame
-        self.prev_new: np.ndarray | None = None  # the previous new (non-repeated) frame
-        self.prev_new_t: float | None = None
-        self.flow_held = math.nan
-        self.run = 0
-
-    def update(
-        self, frames: np.ndarray, t_s: np.ndarray, repeat: np.ndarray | None = None
-    ) -> dict[str, np.ndarray]:
-        if repeat is None:
-            repeat = repeat_flags(frames, self.prev, self.run)
-            for r in repeat:
-                self.run = self.run + 1 if r else 0
-        out = {m: np.full(len(frames), np.nan) for m in METRICS}
-        out["omega_dps"] = self.model.run(frames, t_s, repeat)["omega_dps"]
-        for i, f in enumerate(frames):
-            out["si_p910"][i], out["ti_p910"][i] = self.siti(f)
-            out["si_legacy"][i], out["ti_legacy"][i] = self.siti_legacy(f)
-            if self.prev is not None:
-                out["mafd"][i] = float(np.abs(f.astype(np.int16) - self.prev).mean())
-            if not repeat[i]:
-                if self.prev_new is not None:
-                    flow = self.dis.calc(self.prev_new, f, None)
-                    px = float(np.abs(flow[..., 0]).mean())  # horizontal: the AVDM's axis
-                    dt = float(t_s[i]) - (self.prev_new_t or 0.0)
-                    dt = dt if dt > 0 else 1.0 / self.fps
-                    self.flow_held = px * self.deg_per_px / dt
-                self.prev_new, self.prev_new_t = f, float(t_s[i])
-            out["flow_dps"][i] = self.flow_held
-            out["edge_density"][i] = float((cv2.Canny(f, 100, 200) > 0).mean())
-            raw = f.tobytes()
-            out["zlib_ratio"][i] = len(zlib.compress(raw, self.s.zlib_level)) / len(raw)
-            ok, jpg = cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, self.s.jpeg_quality])
-            out["jpeg_bpp"][i] = 8.0 * len(jpg) / f.size if ok else math.nan
-            self.prev = f.astype(np.int16)
-        return out
+    def measured(self) -> dict[str, Any]:
+        """The settings a source's numbers depend on (not where or which it runs)."""
+        skip = {"executor", "jobs", "scheduler", "shard", "force", "rrd"}
+        return {k: v for k, v in dataclasses.asdict(self).items() if k not in skip}
 
 
 def complexity_of_frames(
@@ -181,126 +135,381 @@ def complexity_of_frames(
     fps: float,
     fov_deg: float,
     t_s: np.ndarray | None = None,
-    settings: ComplexitySettings = ComplexitySettings(),
+    settings: ComplexitySettings | None = None,
     width: int | None = None,
+    native: np.ndarray | None = None,
+    color_range: str = "full",
 ) -> pl.DataFrame:
-    """Every metric per frame of ``frames`` (T, H, W) uint8 luma at the source's resolution,
+    """Every metric per frame of ``frames`` (T, H, W) uint8 grey at the source's resolution,
     filmed at ``fps`` Hz (or at the times ``t_s``, seconds) by a camera whose horizontal field
     of view is ``fov_deg``.
 
-    The frames are area-resized to the working raster ``vdc-capture video`` uses (``width``
-    px, default the robot camera's angular pitch; ``vdc.recording.working_size``) and the
-    models are built with the same context, so this function and ``vdc-capture video`` then
-    ``vdc-analyse complexity`` give the same readings for the same decoded frames.
+    The source-raster metrics are computed on ``native`` (T, H, W) uint8 luma code values in
+    ``color_range`` (default: ``frames`` themselves, full range). The model-raster metrics
+    are computed after area-resizing ``frames`` to the working raster ``vdc-capture video``
+    uses (``width`` px, default the robot camera's angular pitch), with repeats judged on the
+    native frames, as ``vdc-analyse complexity`` does on a video file: given a file's decoded
+    grey frames and Y planes, this function gives that command's table.
 
     Returns a DataFrame: frame, t_s, repeat, then one column per metric (see the module)."""
+    import cv2
+
+    from avdm.true_time import repeats_of
+    from vdc.frame_metrics import NativeMeter
+    from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
+
+    settings = settings or ComplexitySettings()
     frames = np.asarray(frames)
     if frames.ndim != 3 or frames.dtype != np.uint8 or len(frames) == 0:
         raise ValueError(f"frames must be a non-empty (T, H, W) uint8 array, got {frames.shape}")
+    native = frames if native is None else np.asarray(native)
+    if native.shape[0] != frames.shape[0]:
+        raise ValueError("native must hold one image per frame")
     h, w = working_size(frames.shape[1], frames.shape[2], fov_deg, width)
-    if (h, w) != frames.shape[1:]:
-        frames = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
+    small = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
     t = np.arange(len(frames)) / fps if t_s is None else np.asarray(t_s, np.float64)
-    # whole nanoseconds, as a recording stores times: the true-time scaling then matches
-    t = np.rint(t * 1e9) / 1e9
+    t = np.rint(t * 1e9) / 1e9  # whole nanoseconds, as a recording stores times
     ctx = camera_model_context(w, h, fps, fov_deg)
-    meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx)
-    repeat = repeat_flags(frames)
-    out = meter.update(frames, t, repeat)
-    return pl.DataFrame(
-        {"frame": np.arange(len(frames), dtype=np.int64), "t_s": t, "repeat": repeat, **out}
-    ).with_columns(pl.col(*METRICS).fill_nan(None))
+    nm = NativeMeter(8, color_range, settings.jpeg_quality)
+    rows = np.stack([nm.row(f) for f in native])
+    mafd = rows[:, NATIVE_METRICS.index("mafd")]
+    repeat = repeats_of(mafd, 0, settings.repeat_tol, settings.max_repeats)
+    out = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx).update(small, t, repeat)
+    out |= {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
+    df = pl.DataFrame({"frame": np.arange(len(frames), dtype=np.int64), "t_s": t, "repeat": repeat})
+    return df.with_columns(*[pl.Series(m, out[m]).fill_nan(None) for m in METRICS])
+
+
+def expand_sources(items: Sequence[str | Path]) -> list[str]:
+    """Recordings, video files, image-sequence patterns and folders → the sources, in order:
+    a folder gives the recordings and videos in it and below, sorted. A folder without any,
+    a missing file or a pattern that matches nothing raises ValueError."""
+    from vdc.sources import VIDEO_SUFFIXES
+
+    sources: list[str] = []
+    for item in map(str, items):
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(
+                str(f)
+                for f in p.rglob("*")
+                if f.is_file()
+                and f.suffix.lower() in (*VIDEO_SUFFIXES, ".rrd")
+                and not f.name.endswith(".partial.rrd")
+                and PARTS not in f.relative_to(p).parts[:-1]
+            )
+            if not found:
+                raise ValueError(
+                    f"folder {item!r} holds no videos ({', '.join(VIDEO_SUFFIXES[:5])}, ...) "
+                    "or .rrd recordings"
+                )
+            sources += found
+        elif p.is_file():
+            sources.append(item)
+        elif "%" in item:
+            folder = p.parent if str(p.parent) else Path(".")
+            head = p.name.split("%")[0]
+            if not folder.is_dir() or not any(
+                f.name.startswith(head) for f in folder.iterdir() if f.is_file()
+            ):
+                raise ValueError(f"image sequence {item!r} matches no files")
+            sources.append(item)
+        else:
+            raise ValueError(f"{item!r}: no such file or folder")
+    return list(dict.fromkeys(sources))
+
+
+def _stamp(source: str) -> tuple:
+    """What identifies a source's content: its path and, for files, size and mtime."""
+    p = Path(source)
+    if p.is_file():
+        st = p.stat()
+        return (str(p.resolve()), st.st_size, st.st_mtime_ns)
+    return (source,)
+
+
+def plan_sources(sources: Sequence[str], settings: ComplexitySettings) -> list[dict[str, str]]:
+    """One task per source: its recording id (videos: from the file name, the parent folder
+    added where two share a name) and its part's key (the name and a hash of the content and
+    the settings, so a changed file or setting is measured again)."""
+    names = [source_name(s) for s in sources]
+    dup = {n for n in names if names.count(n) > 1}
+    tasks = []
+    for src, name in zip(sources, names, strict=True):
+        if name in dup:
+            name = f"{source_name(str(Path(src).parent))}-{name}"
+        digest = hashlib.sha1(repr((_stamp(src), settings.measured())).encode()).hexdigest()
+        rid = name if src.endswith(".rrd") else f"video-{name}"
+        tasks.append({"source": src, "recording_id": rid, "key": f"{name}-{digest[:8]}"})
+    keys = [t["key"] for t in tasks]
+    if len(set(keys)) != len(keys):  # the same name and content twice
+        raise ValueError("two sources are the same file; give each once")
+    return tasks
+
+
+def part_path(out: Path, key: str) -> Path:
+    return Path(out) / PARTS / f"{key}.parquet"
+
+
+def measure_source(
+    source: str,
+    recording_id: str,
+    settings: ComplexitySettings,
+    progress: Callable[[int], None] | None = None,
+) -> SourceMeasurement:
+    """One source measured (``analysis.source_metrics``): a recording's own id, a video's
+    ``recording_id``."""
+    from analysis.source_metrics import measure_recording, measure_video
+    from analysis.tables import load_recording
+
+    if source.endswith(".rrd"):
+        return measure_recording(load_recording(source), settings, progress)
+    return measure_video(source, settings, recording_id, progress)
+
+
+def complexity_task(source: str, recording_id: str, key: str, settings: dict, out: str) -> dict:
+    """One source as an executor task: measure it and write its part (the "done" mark)
+    atomically. Module-level, small arguments, a small result."""
+    from vdc.parquet_io import write_parquet
+
+    s = ComplexitySettings(**settings)
+    m = measure_source(source, recording_id, s)
+    meta = {"info": m.info, "settings": s.measured(), "source": source, "key": key}
+    write_parquet(m.table, part_path(Path(out), key), meta)
+    return {"frames": m.table.height}
+
+
+def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
+    """A clip's row of ``clips.parquet``: what the source is, then each metric's mean, max and
+    95th percentile over its frames (where defined)."""
+    row = {
+        "recording_id": table["recording_id"][0],
+        **{
+            k: info.get(k)
+            for k in (
+                "source", "kind", "codec", "width_px", "height_px", "fps", "duration_s",
+                "frames", "repeated_frames", "dropped_frames",
+            )
+        },
+        "raster": table["raster"][0],
+    }  # fmt: skip
+    for m in METRICS:
+        v = table[m].drop_nulls().cast(pl.Float64)
+        row[f"{m}_mean"] = float(v.mean()) if v.len() else None
+        row[f"{m}_max"] = float(v.max()) if v.len() else None
+        row[f"{m}_p95"] = float(v.quantile(0.95, "linear")) if v.len() else None
+    return row
 
 
 @dataclasses.dataclass
 class ComplexityResult(WroteFiles):
-    table: pl.DataFrame  # recording_id, frame, t_s, repeat, metrics...
-    correlations: pl.DataFrame  # Spearman rank correlation of every pair, per recording
+    table: pl.DataFrame  # recording_id, frame, t_s, repeat, metrics..., raster
+    clips: pl.DataFrame  # one row per clip (see clip_row)
+    correlations: pl.DataFrame  # Spearman rank correlation of every pair, per clip
+    failures: list[tuple[str, str]]  # (source, error)
     paths: list[Path]
     notices: list[str]
+    planned: int = 0
+    skipped: int = 0  # finished by an earlier run
+
+
+def _run_inline(
+    tasks: list[dict[str, str]],
+    settings: ComplexitySettings,
+    out: Path,
+    progress: Callable[[int], None] | None,
+) -> list[TaskOutcome]:
+    """One source on the local executor: measured here, with a progress bar over frames."""
+    from vdc.parquet_io import write_parquet
+
+    outcomes = []
+    for t in tasks:
+        try:
+            m = measure_source(t["source"], t["recording_id"], settings, progress)
+            meta = {"info": m.info, "settings": settings.measured(), "source": t["source"]}
+            write_parquet(m.table, part_path(out, t["key"]), {**meta, "key": t["key"]})
+            outcomes.append(TaskOutcome(t["source"], {"frames": m.table.height}, None))
+        except (ValueError, OSError) as exc:
+            if len(tasks) == 1:
+                raise  # a single bad source is bad input: one line, exit 2
+            outcomes.append(TaskOutcome(t["source"], None, f"{type(exc).__name__}: {exc}"))
+    return outcomes
 
 
 def complexity(
-    recordings: Sequence[str | Path],
+    sources: Sequence[str | Path],
     settings: ComplexitySettings = ComplexitySettings(),
-    out: str | Path | None = None,
+    out: str | Path = "results/complexity",
     *,
     progress: Callable[[int], None] | None = None,
+    clip_progress: Callable[[int], None] | None = None,
     notice: Callable[[str], None] | None = None,
+    log: Callable[[str], None] | None = None,
 ) -> ComplexityResult:
-    """``vdc-analyse complexity``: every metric per frame of any recording (video, arena,
-    robot). With ``out``: ``complexity.parquet`` (settings and versions in its metadata),
-    ``complexity_correlations.parquet``, and per recording a figure (metrics over time,
-    normalised, and their rank correlations) and an ``.rrd`` with the source's recording id
-    (open it beside the source: ``rerun REC OUT/complexity_<id>.rrd``)."""
-    from analysis.tables import DistinctRecordings, Notices, load_recording
-    from vdc.parquet_io import table_set, write_parquet
+    """``vdc-analyse complexity`` on recordings, video files, image sequences and folders
+    (see the module). ``progress`` counts frames (a single source), ``clip_progress`` sources
+    as they finish. A bad single source raises ValueError; in a collection, failed sources
+    are listed in ``result.failures`` and ``failures.parquet``."""
+    from analysis.batch import parse_shard, readable_part
+    from vdc.parquet_io import read_metadata, table_set, write_parquet
 
-    parts, corrs, paths, notes = [], [], [], Notices(notice)
-    distinct = DistinctRecordings()
-    for path in recordings:
-        loaded = load_recording(path)
-        distinct.add(loaded.recording_id, path)
-        notes.of(loaded)
-        ctx = loaded.camera_context()
-        cam = loaded.props.get("camera", {})
-        if not ctx or "width_px" not in cam:
-            raise ValueError(f"{str(path)!r} does not record its camera (fps, width, FOV)")
-        fps, deg_per_px = float(ctx["fps"]), float(ctx["deg_per_px"])
-        meter = ComplexityMeter(fps, deg_per_px, settings, ctx)
-        timing = loaded.frames.select("frame", "t_s", "repeat")
-        has_timing = timing["repeat"].null_count() < timing.height
-        rows = []
-        for chunk in loaded.rec.iter_frames():
-            sel = pl.DataFrame({"frame": chunk.frame.astype(np.int64)}).join(
-                timing, on="frame", how="left", maintain_order="left"
-            )
-            t = sel["t_s"].fill_null(strategy="forward").to_numpy()
-            rep = sel["repeat"].fill_null(False).to_numpy() if has_timing else None
-            res = meter.update(chunk.images, t, rep)
-            rows.append(pl.DataFrame({"frame": chunk.frame.astype(np.int64), "t_s": t, **res}))
-            if progress is not None:
-                progress(len(chunk.frame))
-        df = (
-            pl.concat(rows)
-            .with_columns(pl.lit(loaded.recording_id).alias("recording_id"))
-            .with_columns(pl.col(*METRICS).fill_nan(None))
-            .select("recording_id", "frame", "t_s", *METRICS)
+    out = Path(out)
+    listed = expand_sources(sources)
+    tasks = plan_sources(listed, settings)
+    shard = parse_shard(settings.shard)
+    mine = tasks if shard is None else tasks[shard[0] :: shard[1]]
+    todo = [t for t in mine if settings.force or not readable_part(part_path(out, t["key"]))]
+    notes: list[str] = []
+    say = notice or (lambda _m: None)
+    if len(mine) > len(todo):
+        say(f"{len(mine) - len(todo)} of {len(mine)} source(s) already measured in {out}")
+    if settings.executor == "local" and len(todo) == 1:
+        outcomes = _run_inline(todo, settings, out, progress)
+        if clip_progress is not None:
+            clip_progress(1)
+    else:
+        by_source = {t["source"]: t for t in todo}
+
+        def done(o: TaskOutcome) -> None:
+            if clip_progress is not None:
+                clip_progress(1)
+
+        args = [
+            (t["source"], (t["source"], t["recording_id"], t["key"], dataclasses.asdict(settings),
+                           str(out)))
+            for t in by_source.values()
+        ]  # fmt: skip
+        outcomes = run_tasks(
+            complexity_task, args, settings.executor_settings(), on_done=done, log=log,
+            shared_paths=[listed[0], out],
+        )  # fmt: skip
+    failures = [(o.key, o.error or "") for o in outcomes if o.error]
+    parts, infos = [], []
+    for t in tasks:
+        path = part_path(out, t["key"])
+        if readable_part(path):
+            parts.append(pl.read_parquet(path))
+            infos.append(read_metadata(path)["info"])
+    if not parts:
+        raise ValueError(
+            "no source could be measured: "
+            + "; ".join(f"{src}: {err}" for src, err in failures[:3])
         )
-        parts.append(df)
-        corrs.append(rank_correlations(df, loaded.recording_id))
-    table = pl.concat(parts)
-    corr = pl.concat(corrs)
-    if out is not None:
-        meta = {
-            "settings": dataclasses.asdict(settings),
-            "recordings": sorted(table["recording_id"].unique().to_list()),
-            "metrics": list(METRICS),
-        }
-        with table_set(Path(out)) as stage:  # published whole: never a mix of two runs
-            paths.append(write_parquet(table, stage / "complexity.parquet", meta))
-            paths.append(write_parquet(corr, stage / "complexity_correlations.parquet", meta))
-            for df, c in zip(parts, corrs, strict=True):
-                rid = df["recording_id"][0]
-                paths.append(plot_complexity(df, c, stage / f"complexity_{rid}.png"))
-                paths.append(write_complexity_rrd(df, rid, stage / f"complexity_{rid}.rrd"))
-        paths = [Path(out) / p.name for p in paths]
-    return ComplexityResult(table, corr, paths, list(notes))
+    pending = len(tasks) - len(parts) - len(failures)
+    if pending > 0:
+        notes.append(f"{pending} source(s) of other shards are not measured yet")
+        say(notes[-1])
+    table = pl.concat(parts, how="diagonal_relaxed")
+    clips = pl.DataFrame([clip_row(p, i) for p, i in zip(parts, infos, strict=True)])
+    corr = pl.concat([rank_correlations(p, p["recording_id"][0]) for p in parts])
+    paths: list[Path] = []
+    meta = {
+        "settings": settings.measured(),
+        "recordings": sorted(table["recording_id"].unique().to_list()),
+        "metrics": list(METRICS),
+        "rasters": RASTERS,
+        "raster_note": "model: the AVDM's working raster (70/99 deg per px); source: the "
+        "native frames where the source has them, else the camera's raster (column raster)",
+    }
+    per_clip = settings.rrd or len(tasks) == 1
+    with table_set(out) as stage:  # published whole: never a mix of two runs
+        paths.append(write_parquet(table, stage / "complexity.parquet", meta))
+        paths.append(write_parquet(clips, stage / "clips.parquet", meta))
+        paths.append(write_parquet(corr, stage / "complexity_correlations.parquet", meta))
+        fails = pl.DataFrame(failures, schema=["source", "error"], orient="row")
+        if failures:
+            paths.append(write_parquet(fails, stage / "failures.parquet", meta))
+        paths.append(plot_collection(clips, stage / "complexity_collection.png"))
+        paths.append(write_summary_html(clips, failures, stage / "complexity.html", paths[-1]))
+        if per_clip:
+            for p in parts:
+                rid = p["recording_id"][0]
+                c = corr.filter(pl.col("recording_id") == rid)
+                paths.append(plot_complexity(p, c, stage / f"complexity_{rid}.png"))
+                paths.append(write_complexity_rrd(p, rid, stage / f"complexity_{rid}.rrd"))
+    if not failures and (out / "failures.parquet").exists():
+        (out / "failures.parquet").unlink()  # an earlier run's failures are measured now
+    paths = [out / p.name for p in paths]
+    return ComplexityResult(
+        table, clips, corr, failures, paths, notes, len(mine), len(mine) - len(todo)
+    )
 
 
-def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
-    """Spearman ρ of every pair of metrics over the frames where both are defined."""
-    from analysis.stats import spearman
+def plot_collection(clips: pl.DataFrame, path: Path) -> Path:
+    """The collection at a glance: clips ranked by their mean AVDM response and by their mean
+    TI (P.910), and each clip's mean AVDM against its mean TI and SI."""
+    from matplotlib.figure import Figure
 
-    rows = []
-    for i, a in enumerate(METRICS):
-        for b in METRICS[i + 1 :]:
-            d = df.select(a, b).drop_nulls()
-            rho = spearman(d[a].to_numpy(), d[b].to_numpy()) if d.height > 2 else math.nan
-            rows.append(
-                {"recording_id": recording_id, "metric_a": a, "metric_b": b, "spearman": rho}
-            )
-    return pl.DataFrame(rows)
+    from analysis.profile import save_figure
+
+    n = clips.height
+    fig = Figure(figsize=(14, 6 + 0.15 * min(n, 60)), layout="constrained")
+    axes = fig.subplots(2, 2)
+    names = clips["recording_id"].to_list()
+    for ax, col, what in (
+        (axes[0, 0], "omega_dps_mean", "mean AVDM ω̂ (deg/s)"),
+        (axes[0, 1], "ti_p910_mean", "mean TI, P.910 (2022)"),
+    ):
+        v = clips[col].fill_null(np.nan).to_numpy()
+        order = np.argsort(np.nan_to_num(v, nan=-np.inf))[-60:]  # the 60 highest
+        ax.barh(range(len(order)), v[order], color="tab:blue" if "omega" in col else "tab:orange")
+        ax.set_yticks(range(len(order)), [names[i] for i in order], fontsize=7)
+        ax.set_xlabel(what)
+        ax.set_title(f"clips ranked by {what}" + (f" (top 60 of {n})" if n > 60 else ""))
+        ax.grid(axis="x", alpha=0.3)
+    omega = clips["omega_dps_mean"].fill_null(np.nan).to_numpy()
+    for ax, col, what in (
+        (axes[1, 0], "ti_p910_mean", "mean TI, P.910 (2022)"),
+        (axes[1, 1], "si_p910_mean", "mean SI, P.910 (2022)"),
+    ):
+        x = clips[col].fill_null(np.nan).to_numpy()
+        ax.scatter(x, omega, s=25)
+        for xi, yi, name in zip(x, omega, names, strict=True):
+            if n <= 40:
+                ax.annotate(name, (xi, yi), fontsize=6, xytext=(3, 2), textcoords="offset points")
+        ax.set_xlabel(what)
+        ax.set_ylabel("mean AVDM ω̂ (deg/s)")
+        ax.set_title(f"AVDM against {what.split(',')[0].replace('mean ', '')} ({n} clips)")
+        ax.grid(alpha=0.3)
+    fig.suptitle("complexity of the collection: one point or bar per clip, its mean over frames")
+    return save_figure(fig, path)
+
+
+def write_summary_html(
+    clips: pl.DataFrame, failures: list[tuple[str, str]], path: Path, figure: Path
+) -> Path:
+    """A self-contained page: the collection figure, then the clip table (means and maxima)."""
+    cols = [
+        "recording_id", "codec", "width_px", "height_px", "fps", "duration_s", "frames",
+        "repeated_frames", "dropped_frames", "raster", "omega_dps_mean", "omega_dps_max",
+        "si_p910_mean", "si_p910_max", "ti_p910_mean", "ti_p910_max", "flow_dps_mean",
+        "jpeg_bpp_mean", "codec_bpp_mean",
+    ]  # fmt: skip
+
+    def cell(v: Any) -> str:
+        if isinstance(v, float):
+            return "-" if not math.isfinite(v) else f"{v:.4g}"
+        return html.escape("-" if v is None else str(v))
+
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+    rows = "".join(
+        "<tr>" + "".join(f"<td>{cell(r.get(c))}</td>" for c in cols) + "</tr>"
+        for r in clips.iter_rows(named=True)
+    )
+    failed = "".join(f"<li>{html.escape(s)}: {html.escape(e)}</li>" for s, e in failures)
+    img = base64.b64encode(figure.read_bytes()).decode()
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>vdc complexity</title>
+<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse;font-size:12px}}
+td,th{{border:1px solid #ccc;padding:3px 6px;text-align:right}}</style></head><body>
+<h1>Complexity of {clips.height} clip(s)</h1>
+<p>Per clip, the mean and max over its frames. SI/TI follow ITU-T P.910 (2022) on the
+source's native frames (column raster); the AVDM and the flow are in deg/s on the model
+raster. Per-frame values: complexity.parquet; every statistic: clips.parquet.</p>
+<img src="data:image/png;base64,{img}" style="max-width:100%">
+<h2>Clips</h2><table><tr>{head}</tr>{rows}</table>
+{f"<h2>Failed</h2><ul>{failed}</ul>" if failures else ""}</body></html>"""
+    path.write_text(page, encoding="utf-8")
+    return path
 
 
 def _normalised(df: pl.DataFrame) -> dict[str, np.ndarray]:

@@ -37,6 +37,8 @@ from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from vdc.recording import (
     FRAME_TIMING,
     MODEL_ROOT,
+    NATIVE_METRICS,
+    NATIVE_METRICS_PATH,
     POSE,
     WALL_TF,
     camera_model_context,
@@ -125,6 +127,9 @@ class LoadedRecording:
     props: dict[str, dict[str, Any]]
     frames: pl.DataFrame
     logged: dict[str, pl.DataFrame]  # online model name → its logged outputs
+    # the standard metrics the capture measured on the source's native frames (frame, then
+    # one column per vdc.recording.NATIVE_METRICS name); None: a source without native frames
+    native: pl.DataFrame | None = None
 
     @property
     def recording_id(self) -> str:
@@ -237,7 +242,14 @@ def load_recording(
         pl.Series("robot_omega_dps", omega).fill_nan(None),
         pl.Series("turning", turning).fill_nan(None).cast(pl.Boolean),
     )
-    loaded = LoadedRecording(rec, props, frames, {})
+    native = None
+    if NATIVE_METRICS_PATH in sig:
+        nf, _, nv = sig[NATIVE_METRICS_PATH]
+        cols = {name: nv[:, k] for k, name in enumerate(NATIVE_METRICS) if k < nv.shape[1]}
+        native = pl.DataFrame({"frame": nf.astype(np.int64), **cols}).with_columns(
+            pl.col(*cols).fill_nan(None)
+        )
+    loaded = LoadedRecording(rec, props, frames, {}, native)
     hx, hy = loaded.arena_half_extent()
     loaded.frames = frames.with_columns(
         pl.lit(rec.recording_id).alias("recording_id"),

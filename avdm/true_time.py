@@ -43,14 +43,24 @@ def repeat_flags(
     frames: (T, H, W) uint8.
     """
     t = len(frames)
-    flags = np.zeros(t, dtype=bool)
     if t == 0:
-        return flags
+        return np.zeros(0, dtype=bool)
     f = frames.astype(np.int16)
     mad = np.empty(t)
     mad[0] = np.inf if previous is None else np.abs(f[0] - previous.astype(np.int16)).mean()
     if t > 1:
         mad[1:] = np.abs(np.diff(f, axis=0)).mean(axis=(1, 2))
+    return repeats_of(mad, run_before, tol, max_repeats)
+
+
+def repeats_of(
+    mad: np.ndarray, run_before: int = 0, tol: float = 0.5, max_repeats: int = 3
+) -> np.ndarray:
+    """:func:`repeat_flags` from each frame's mean absolute difference from the one before
+    (``mad`` (T,), 8-bit levels; inf or NaN where there is no previous frame): a source with
+    native frames measures it there, where real slow motion is not averaged away."""
+    t = len(mad)
+    flags = np.zeros(t, dtype=bool)
     run = run_before
     for i in range(t):
         if mad[i] <= tol and run < max_repeats:

@@ -54,6 +54,9 @@ class Batch:
     # timestamps say are missing just before each frame (None: a source with neither)
     repeat: np.ndarray | None = None
     dropped_before: np.ndarray | None = None
+    # sources with native frames: (N, len(NATIVE_METRICS)) float64, the standard metrics on
+    # each frame's native luma (vdc.frame_metrics; NaN where undefined)
+    native_metrics: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.frame)

@@ -46,6 +46,8 @@ from vdc.recording import (
     LINK_STATS,
     MODEL_ROOT,
     MODEL_VARIANTS_ROOT,
+    NATIVE_METRICS,
+    NATIVE_METRICS_PATH,
     OVERHEAD,
     POSE,
     POSE_NAMES,
@@ -410,6 +412,7 @@ class Recorder:
         self._closed = False
         self._link_names_logged = False
         self._timing_names_logged = False
+        self._native_names_logged = False
         self.frames_logged = 0  # camera frames written (the claim keeps a file that has any)
         self.write_error: str | None = None  # why the capture stopped writing, for the user
         self._raw_reserved = 0  # raw bytes of the batches reserved so far
@@ -598,6 +601,20 @@ class Recorder:
         )
         self.rec.send_columns(
             FRAME_TIMING,
+            indexes=_time_indexes(frame, t_s, None),
+            columns=rr.Scalars.columns(scalars=values),
+        )
+
+    def log_native_metrics(self, frame: np.ndarray, t_s: np.ndarray, values: np.ndarray) -> None:
+        """Per frame of a source with native frames: the standard metrics on its native luma,
+        (N, len(NATIVE_METRICS)), one series each (vdc.frame_metrics)."""
+        if not self._native_names_logged:
+            self.rec.log(
+                NATIVE_METRICS_PATH, rr.SeriesLines(names=list(NATIVE_METRICS)), static=True
+            )
+            self._native_names_logged = True
+        self.rec.send_columns(
+            NATIVE_METRICS_PATH,
             indexes=_time_indexes(frame, t_s, None),
             columns=rr.Scalars.columns(scalars=values),
         )

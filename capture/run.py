@@ -159,6 +159,8 @@ def log_batch(
         if len(dt) and prev_t_s is not None:
             dt[0] = batch.t_s[0] - prev_t_s
         recorder.log_frame_timing(batch.frame, batch.t_s, batch.repeat, dropped, dt)
+    if batch.native_metrics is not None:
+        recorder.log_native_metrics(batch.frame, batch.t_s, batch.native_metrics)
     for name, outputs in batch.onboard.items():
         recorder.log_model_outputs(name, batch.frame, batch.t_s, outputs, capture_ns=cap)
     if model is not None and model.name not in batch.onboard and len(batch.images):

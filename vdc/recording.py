@@ -45,6 +45,19 @@ CAMERA = "/robot/camera/image"
 # timestamps), seconds since the previous frame; video recordings only
 FRAME_TIMING = "/robot/camera/timing"
 FRAME_TIMING_NAMES = ("repeat", "dropped_before", "dt_s")
+# per frame of a source with native frames (video files, image sequences, cameras): the
+# standard metrics on its native luma (vdc.frame_metrics), one series per name
+NATIVE_METRICS_PATH = "/robot/camera/native_metrics"
+NATIVE_METRICS = (
+    "si_p910",
+    "ti_p910",
+    "si_legacy",
+    "ti_legacy",
+    "mafd",
+    "edge_density",
+    "jpeg_bpp",
+    "codec_bpp",
+)
 OVERHEAD = "/overhead/image"
 EVENTS = "/events"
 MODEL_ROOT = "/model"
@@ -78,7 +91,8 @@ PROPERTY_SECTIONS = {
     "detector_params": "collision mode: the detector's parameters",
     "link": "hardware runs: serial protocol and its counters",
     "provenance": "package versions, CPU model and Numba's compile target",
-    "video": "video sources: path, codec, nominal fps, source size, rotation, FOV",
+    "video": "video sources: path, codec, nominal fps, source size, rotation, FOV, bit depth "
+    "and colour range",
     "calibration": "the AVDM decoding fit in use: a, b, r2, rms_rel_error, source",
     "model_context": "what every model of this recording is built with: fps, deg_per_px, "
     "texture_row (capture, recomputation and complexity read this one section)",

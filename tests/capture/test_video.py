@@ -12,14 +12,16 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.complexity import METRICS, complexity, complexity_of_frames
+from analysis.complexity import ComplexitySettings, complexity, complexity_of_frames
 from analysis.rrd_reader import Recording
+from analysis.source_metrics import METRICS
 from analysis.tables import TablesSettings, tables
 from avdm import make_model
 from avdm.calibration_store import calibration_for
 from avdm.stimuli import grating
 from capture.video import VideoSettings, record_video
 from tests.helpers import assert_one_line_error, run_cli
+from vdc.frame_metrics import luma_plane
 
 FOV = 70.0
 TF_HZ, PERIOD_SRC = 2.0, 24.0  # the grating on the 198-px-wide source: 12 px after resizing
@@ -224,29 +226,44 @@ def test_calibration_for_any_camera_is_fitted_once_and_cached() -> None:
     assert (model.params.a, model.params.b) == (first["a"], first["b"])
 
 
-def test_complexity_of_a_video_recording_and_of_an_array(clips, tmp_path: Path) -> None:
+def test_complexity_of_a_video_recording_of_the_file_and_of_an_array(clips, tmp_path: Path) -> None:
+    """The standard metrics on the native frames, the AVDM and the flow on the model raster:
+    the same table from the recording, from the video file itself and from arrays."""
     rec = tmp_path / "o.rrd"
     record_video(VideoSettings(str(clips["original"]), FOV), rec)
     res = complexity([rec], out=tmp_path / "cx")
     df = pl.read_parquet(tmp_path / "cx" / "complexity.parquet")
-    assert df.columns == ["recording_id", "frame", "t_s", *METRICS]
-    assert df.height == 150
+    assert df.columns == [
+        "recording_id", "frame", "t_s", "repeat", *METRICS, "raster", "raster_width_px",
+        "raster_height_px",
+    ]  # fmt: skip
+    assert df.height == 150 and set(df["raster"]) == {"native"}
+    assert set(df["raster_width_px"]) == {198}  # the source's width, not the model's 99 px
     assert df["ti_p910"][0] is None and df["ti_p910"][1] is not None  # no TI on frame 0
     late = df.filter(pl.col("frame") >= 40)
     # both motion readings agree with the truth on a rigid horizontal drift
     for col in ("omega_dps", "flow_dps"):
         assert abs(late[col].mean() - TRUTH_DPS) / TRUTH_DPS < 0.25, col
     assert (late["si_legacy"] > late["si_p910"]).all()  # the two SI variants differ (~1.5-2x)
-    assert {p.suffix for p in res.paths} == {".parquet", ".png", ".rrd"}
+    assert {p.suffix for p in res.paths} == {".parquet", ".png", ".rrd", ".html"}
     merged = Recording(tmp_path / "cx" / f"complexity_{res.table['recording_id'][0]}.rrd")
     assert merged.recording_id == Recording(rec).recording_id  # opens beside the source
-    # the same on an array, in a notebook
-    frames = Recording(rec).read_frames().images
-    arr = complexity_of_frames(frames, fps=30.0, fov_deg=FOV)
-    assert arr.height == 150 and set(METRICS) <= set(arr.columns)
-    np.testing.assert_allclose(
-        arr["si_p910"].to_numpy(), df["si_p910"].to_numpy(), rtol=1e-12
-    )  # same frames, same code path: equal up to float summation order
+    # the video file itself, decoded once: the same numbers, bit for bit (one code path)
+    direct = complexity([clips["original"]], ComplexitySettings(fov_deg=FOV), tmp_path / "cf")
+    assert direct.table.drop("recording_id").equals(df.drop("recording_id"))
+    # the same on arrays, in a notebook: the decoded grey frames and their Y planes
+    with av.open(str(clips["original"])) as c:
+        decoded = list(c.decode(video=0))
+        grey = np.stack([f.to_ndarray(format="gray") for f in decoded])
+        planes = np.stack([luma_plane(f, 8) for f in decoded])
+    arr = complexity_of_frames(
+        grey, fps=30.0, fov_deg=FOV, native=planes, color_range="limited",
+        t_s=df["t_s"].to_numpy(),
+    )  # fmt: skip
+    for m in METRICS:
+        if m != "codec_bpp":  # arrays come without the codec's packets
+            assert arr[m].equals(df[m]), m
+    assert arr["codec_bpp"].null_count() == 150 and df["codec_bpp"].null_count() == 0
 
 
 def test_complexity_on_a_simulated_arena_recording(tmp_path: Path) -> None:

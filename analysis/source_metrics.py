@@ -1,0 +1,316 @@
+"""The AVDM beside the established complexity measures, per frame of one source.
+
+Columns (one per metric, its unit or variant in the name):
+
+* on the **model raster** (the working raster the AVDM's angular calibration holds on: the
+  robot camera's pitch, 70°/99 px):
+
+  * ``omega_dps``: the AVDM's angular velocity (deg/s), on new frames over true time;
+  * ``flow_dps``: mean horizontal dense optic-flow speed (OpenCV DIS), mean |u_x| in
+    px/frame × deg/px ÷ the true time between new frames, deg/s. Horizontal because the
+    AVDM's correlators are horizontal, and because the vertical flow of vertically uniform
+    patterns (gratings, walls) is unconstrained (the aperture problem);
+  * ``zlib_ratio``: zlib-compressed / raw size of the luma plane (level 6; higher = more
+    complex). Not native: zlib costs 190 ms per 1080p frame at level 6 (26 ms at level 1),
+    several frame intervals (docs/analysis.md);
+
+* on the **source raster** (``vdc.frame_metrics``: a video's native luma at its bit depth
+  and colour range; for the arena and the robot, which have no native frames, the camera's
+  own raster, 8-bit full range): ``si_p910``, ``ti_p910``, ``si_legacy``, ``ti_legacy``,
+  ``mafd``, ``edge_density``, ``jpeg_bpp``, ``codec_bpp``.
+
+The table's ``raster`` column says which source raster each row's baselines were computed on
+(``native`` or ``camera``) with its size (``raster_width_px``, ``raster_height_px``);
+:data:`RASTERS` says it per column, and the Parquet metadata carries it. Temporal metrics are
+null on a source's first frame. TI, MAFD and flow follow their definitions on every frame (a
+repeated frame gives TI = 0); ``flow_dps`` and ``omega_dps`` are computed between new frames
+and held over repeats, so both read true motion.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import zlib
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
+
+import cv2
+import numpy as np
+import polars as pl
+
+from avdm.registry import make_model
+from avdm.true_time import TrueTimeModel, repeat_flags
+from vdc.frame_metrics import NativeMeter
+from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
+
+if TYPE_CHECKING:
+    from analysis.tables import LoadedRecording
+
+
+class MeasureSettings(Protocol):
+    """What measuring a source needs of its settings (``analysis.complexity.ComplexitySettings``
+    has it all)."""
+
+    model: str
+    flow_preset: str
+    jpeg_quality: int
+    zlib_level: int
+    fov_deg: float | None
+    fps: float | None
+    width: int | None
+    repeat_tol: float
+    max_repeats: int
+
+
+MODEL_METRICS = ("omega_dps", "flow_dps", "zlib_ratio")
+METRICS = (
+    "omega_dps",
+    "si_p910",
+    "ti_p910",
+    "si_legacy",
+    "ti_legacy",
+    "mafd",
+    "flow_dps",
+    "edge_density",
+    "zlib_ratio",
+    "jpeg_bpp",
+    "codec_bpp",
+)
+# the raster each column is computed on: "model" (the AVDM's working raster) or "source"
+# (native frames where the source has them, else the camera's raster: the `raster` column)
+RASTERS = {m: "model" if m in MODEL_METRICS else "source" for m in METRICS}
+DIS_PRESETS = {
+    "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+    "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+    "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
+}
+
+
+class ComplexityMeter:
+    """Streams model-raster frames through the model-raster metrics; ``update`` continues from
+    earlier chunks. With ``camera_baselines`` it also measures the source-raster metrics on
+    these frames (8-bit, full range): sources without native frames.
+
+    frames (T, H, W) uint8 luma; t_s (T,) seconds; repeat (T,) bool (None: detect them)."""
+
+    def __init__(
+        self,
+        fps: float,
+        deg_per_px: float,
+        settings: MeasureSettings,
+        context: dict[str, Any] | None = None,
+        camera_baselines: bool = False,
+    ) -> None:
+        self.s = settings
+        self.fps = fps
+        self.deg_per_px = deg_per_px
+        ctx = context or {"fps": fps, "deg_per_px": deg_per_px}
+        self.model = TrueTimeModel(make_model(settings.model, **ctx))
+        self.dis = cv2.DISOpticalFlow_create(DIS_PRESETS[settings.flow_preset])
+        self.camera = NativeMeter(8, "full", settings.jpeg_quality) if camera_baselines else None
+        self.prev_new: np.ndarray | None = None  # the previous new (non-repeated) frame
+        self.prev_new_t: float | None = None
+        self.prev: np.ndarray | None = None
+        self.flow_held = math.nan
+        self.run = 0
+
+    def update(
+        self, frames: np.ndarray, t_s: np.ndarray, repeat: np.ndarray | None = None
+    ) -> dict[str, np.ndarray]:
+        if repeat is None:
+            repeat = repeat_flags(frames, self.prev, self.run)
+            for r in repeat:
+                self.run = self.run + 1 if r else 0
+        out = {m: np.full(len(frames), np.nan) for m in MODEL_METRICS}
+        out["omega_dps"] = self.model.run(frames, t_s, repeat)["omega_dps"]
+        if self.camera is not None:
+            rows = np.stack([self.camera.row(f) for f in frames])
+            out |= {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
+        for i, f in enumerate(frames):
+            if not repeat[i]:
+                if self.prev_new is not None:
+                    flow = self.dis.calc(self.prev_new, f, None)
+                    px = float(np.abs(flow[..., 0]).mean())  # horizontal: the AVDM's axis
+                    dt = float(t_s[i]) - (self.prev_new_t or 0.0)
+                    dt = dt if dt > 0 else 1.0 / self.fps
+                    self.flow_held = px * self.deg_per_px / dt
+                self.prev_new, self.prev_new_t = f, float(t_s[i])
+            out["flow_dps"][i] = self.flow_held
+            raw = f.tobytes()
+            out["zlib_ratio"][i] = len(zlib.compress(raw, self.s.zlib_level)) / len(raw)
+        self.prev = frames[-1] if len(frames) else self.prev
+        return out
+
+
+def _frame_table(
+    parts: list[pl.DataFrame], raster: str, size: tuple[int, int], recording_id: str
+) -> pl.DataFrame:
+    """The per-frame table of one source: recording_id, frame, t_s, repeat, the metrics in
+    :data:`METRICS` order, and the source raster's name and size."""
+    df = pl.concat(parts, how="diagonal_relaxed")
+    for m in METRICS:
+        if m not in df.columns:
+            df = df.with_columns(pl.lit(None, pl.Float64).alias(m))
+    return df.with_columns(
+        pl.lit(recording_id).alias("recording_id"),
+        pl.lit(raster).alias("raster"),
+        pl.lit(size[1], pl.Int64).alias("raster_width_px"),
+        pl.lit(size[0], pl.Int64).alias("raster_height_px"),
+        pl.col(*METRICS).cast(pl.Float64).fill_nan(None),
+    ).select(
+        "recording_id",
+        "frame",
+        "t_s",
+        "repeat",
+        *METRICS,
+        "raster",
+        "raster_width_px",
+        "raster_height_px",
+    )
+
+
+@dataclasses.dataclass
+class SourceMeasurement:
+    """One source measured: its per-frame table and what the clip table says about it."""
+
+    table: pl.DataFrame
+    info: dict[str, Any]  # source, kind, codec, width/height, fps, duration, repeats, drops
+
+
+def measure_recording(
+    loaded: LoadedRecording,
+    settings: MeasureSettings,
+    progress: Callable[[int], None] | None = None,
+) -> SourceMeasurement:
+    """Every metric per frame of a recording (video, arena, robot): the source-raster
+    metrics the capture logged on native frames where it did, else on the camera's frames."""
+    ctx = loaded.camera_context()
+    cam = loaded.props.get("camera", {})
+    path = loaded.rec.path
+    if not ctx or "width_px" not in cam:
+        raise ValueError(f"{str(path)!r} does not record its camera (fps, width, FOV)")
+    fps, deg_per_px = float(ctx["fps"]), float(ctx["deg_per_px"])
+    native = loaded.native
+    meter = ComplexityMeter(fps, deg_per_px, settings, ctx, camera_baselines=native is None)
+    timing = loaded.frames.select("frame", "t_s", "repeat")
+    has_timing = timing["repeat"].null_count() < timing.height
+    rows = []
+    for chunk in loaded.rec.iter_frames():
+        sel = pl.DataFrame({"frame": chunk.frame.astype(np.int64)}).join(
+            timing, on="frame", how="left", maintain_order="left"
+        )
+        t = sel["t_s"].fill_null(strategy="forward").to_numpy()
+        rep = sel["repeat"].fill_null(False).to_numpy() if has_timing else None
+        res = meter.update(chunk.images, t, rep)
+        flags = rep if rep is not None else np.zeros(len(t), bool)
+        rows.append(
+            pl.DataFrame({"frame": chunk.frame.astype(np.int64), "t_s": t, "repeat": flags, **res})
+        )
+        if progress is not None:
+            progress(len(chunk.frame))
+    df = pl.concat(rows)
+    src = loaded.props.get("video", {})
+    if native is not None:
+        df = df.join(native, on="frame", how="left", maintain_order="left")
+        size = (int(src.get("src_height_px", 0)), int(src.get("src_width_px", 0)))
+        raster = "native"
+    else:
+        size = (int(cam.get("height_px", 0)), int(cam["width_px"]))
+        raster = "camera"
+    table = _frame_table([df], raster, size, loaded.recording_id)
+    frames = loaded.frames
+    info = {
+        "source": str(path),
+        "kind": src.get("kind", loaded.props.get("run", {}).get("source", "recording")),
+        "codec": src.get("codec", "none (camera frames)"),
+        "width_px": size[1],
+        "height_px": size[0],
+        "fps": fps,
+        "duration_s": float(frames["t_s"].max() or 0.0) if frames.height else 0.0,
+        "frames": table.height,
+        "repeated_frames": int(frames["repeat"].fill_null(False).sum()),
+        "dropped_frames": int(frames["dropped_before"].fill_null(0).sum()),
+    }
+    return SourceMeasurement(table, info)
+
+
+def measure_video(
+    source: str,
+    settings: MeasureSettings,
+    recording_id: str,
+    progress: Callable[[int], None] | None = None,
+) -> SourceMeasurement:
+    """Every metric per frame of a video file, image sequence (``settings.fps``) or camera,
+    decoded once: the source-raster metrics on its native frames, the model-raster ones on
+    the working raster ``vdc-capture video`` uses (the same frames, times and repeat flags:
+    its recording then gives the same table)."""
+    from vdc.sources import FrameBatcher, open_reader
+
+    if settings.fov_deg is None:
+        raise ValueError(
+            f"{source!r} is a video: give --fov-deg (the camera's horizontal field of view) so "
+            "the AVDM and the flow read deg/s"
+        )
+    reader = open_reader(source, settings.fps)
+    try:
+        info = reader.info
+        fps = settings.fps or info["nominal_fps"]
+        if not (math.isfinite(fps) and fps > 0):
+            raise ValueError(f"{source!r} states no frame rate: pass --fps")
+        h, w = working_size(
+            info["src_height_px"], info["src_width_px"], settings.fov_deg, settings.width
+        )
+        ctx = camera_model_context(w, h, fps, settings.fov_deg)
+        batches = FrameBatcher(reader, (h, w), fps, 128, settings.repeat_tol, settings.max_repeats)
+        meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx)
+        parts = []
+        while (fb := batches.next_batch()) is not None:
+            res = meter.update(fb.images, fb.t_s, fb.repeat)
+            native = {n: fb.native_metrics[:, k] for k, n in enumerate(NATIVE_METRICS)}
+            parts.append(
+                pl.DataFrame(
+                    {"frame": fb.frame, "t_s": fb.t_s, "repeat": fb.repeat, **res, **native}
+                )
+            )
+            if progress is not None:
+                progress(len(fb.frame))
+        size = (int(info["src_height_px"]), int(info["src_width_px"]))
+        table = _frame_table(parts, "native", size, recording_id)
+        lost = reader.problems
+        meta = {
+            "source": source,
+            "kind": info["kind"],
+            "codec": info["codec"],
+            "width_px": size[1],
+            "height_px": size[0],
+            "fps": float(fps),
+            "duration_s": float(batches.last_t_s or 0.0),
+            "frames": table.height,
+            "repeated_frames": batches.repeats_total,
+            "dropped_frames": batches.dropped_total + lost,
+            "bit_depth": info["bit_depth"],
+            "color_range": info["color_range"],
+            "decode_error": reader.error,
+        }
+        return SourceMeasurement(table, meta)
+    finally:
+        reader.close()
+
+
+def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
+    """Spearman ρ of every pair of metrics over the frames where both are defined."""
+    from analysis.stats import spearman
+
+    rows = []
+    for i, a in enumerate(METRICS):
+        for b in METRICS[i + 1 :]:
+            d = df.select(a, b).drop_nulls()
+            rho = spearman(d[a].to_numpy(), d[b].to_numpy()) if d.height > 2 else math.nan
+            rows.append(
+                {"recording_id": recording_id, "metric_a": a, "metric_b": b, "spearman": rho}
+            )
+    return pl.DataFrame(rows, schema={
+        "recording_id": pl.String, "metric_a": pl.String, "metric_b": pl.String,
+        "spearman": pl.Float64,
+    })  # fmt: skip

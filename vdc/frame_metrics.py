@@ -1,0 +1,233 @@
+"""Per-frame complexity metrics on a source's native luma, as their standards define them.
+
+* ``si_p910`` / ``ti_p910``: ITU-T P.910 (07/2022 and later) SI and TI, as its reference
+  implementation siti-tools computes them: the luma code values of the stream's bit depth and
+  colour range normalised to [0, 1], through the BT.1886 display model (gamma 2.4, 0.1 to
+  300 cd/m²) and the PQ curve, then ×255; SI is the population standard deviation of the
+  Sobel magnitude over the interior (H−2)×(W−2), TI that of the frame difference;
+* ``si_legacy`` / ``ti_legacy``: the definition before 2022 on code values, as FFmpeg's
+  ``siti`` filter computes it (limited range stretched to full with FFmpeg's integer
+  arithmetic; 10-bit values kept on their 10-bit scale, as the filter does);
+* ``mafd``: mean absolute difference from the previous frame, in 8-bit levels;
+* ``edge_density``: share of Canny edge pixels (thresholds 100/200 on 8-bit luma);
+* ``jpeg_bpp``: bits per pixel of the frame as a JPEG at quality 75 (OpenCV);
+* ``codec_bpp``: bits per pixel the source's own codec spent on the frame (its packet), where
+  the source has packets.
+
+Temporal metrics are null on a source's first frame. A colour range the stream leaves
+unspecified is taken as limited (the MPEG default, as FFmpeg does). One fused Numba pass
+reads each pixel once for both SI/TI variants and the MAFD: the display and PQ curves are a
+lookup table over the 2^B code values (exactly siti-tools' float64 arithmetic, evaluated once
+per code value instead of once per pixel).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import cv2
+import numba
+import numpy as np
+
+from vdc.recording import NATIVE_METRICS
+
+TEMPORAL = ("ti_p910", "ti_legacy", "mafd")
+RANGES = ("limited", "full")
+
+# P.910 (2022) display model and PQ, as siti-tools' defaults (BT.1886, SDR)
+GAMMA, L_MAX, L_MIN = 2.4, 300.0, 0.1
+PQ_M1, PQ_M2 = 0.1593017578125, 78.84375
+PQ_C1, PQ_C2, PQ_C3 = 0.8359375, 18.8515625, 18.6875
+
+
+def p910_lut(bit_depth: int, color_range: str) -> np.ndarray:
+    """(2^B,) float64: each code value through P.910's chain, ×255 (the SI/TI scale). Codes
+    outside the limited range are clipped to it (siti-tools refuses such frames)."""
+    codes = np.arange(2**bit_depth, dtype=np.float64)
+    scale = 2 ** (bit_depth - 8)
+    if color_range == "limited":
+        y = (np.clip(codes, 16 * scale, 235 * scale) - 16 * scale) / (219 * scale)
+    else:
+        y = codes / (2**bit_depth - 1)
+    light = (L_MAX - L_MIN) * np.power(y, GAMMA) + L_MIN
+    p = np.power(light / 10000.0, PQ_M1)
+    v = np.power((PQ_C1 + PQ_C2 * p) / (1.0 + PQ_C3 * p), PQ_M2)
+    return v * 255.0
+
+
+def legacy_lut(bit_depth: int, color_range: str) -> np.ndarray:
+    """(2^B,) float64: FFmpeg ``siti``'s code values (limited range to full, integer floor)."""
+    codes = np.arange(2**bit_depth, dtype=np.int64)
+    if color_range != "limited":
+        return codes.astype(np.float64)
+    scale = 2 ** (bit_depth - 8)
+    top = (2**bit_depth - 1) if bit_depth > 8 else 255
+    full = (top * np.clip(codes - 16 * scale, 0, 219 * scale)) // (219 * scale)
+    return full.astype(np.float64)
+
+
+@numba.njit(cache=True, fastmath=True, nogil=True)
+def _map_row(codes, lut, out):  # pragma: no cover - compiled
+    for j in range(codes.shape[0]):
+        out[j] = lut[codes[j]]
+
+
+@numba.njit(cache=True, fastmath=True, nogil=True)
+def _sobel_row(r0, r1, r2, sums):  # pragma: no cover - compiled
+    """Add the interior Sobel magnitudes of the middle row to sums[0] (Σm) and sums[1] (Σm²)."""
+    s = 0.0
+    ss = 0.0
+    for j in range(1, r1.shape[0] - 1):
+        gx = (r0[j + 1] + 2.0 * r1[j + 1] + r2[j + 1]) - (r0[j - 1] + 2.0 * r1[j - 1] + r2[j - 1])
+        gy = (r2[j - 1] + 2.0 * r2[j] + r2[j + 1]) - (r0[j - 1] + 2.0 * r0[j] + r0[j + 1])
+        m = math.sqrt(gx * gx + gy * gy)
+        s += m
+        ss += m * m
+    sums[0] += s
+    sums[1] += ss
+
+
+@numba.njit(cache=True, fastmath=True, nogil=True)
+def _diff_row(a, b, sums):  # pragma: no cover - compiled
+    """Add Σd and Σd² of d = a − b to sums[0], sums[1]."""
+    s = 0.0
+    ss = 0.0
+    for j in range(a.shape[0]):
+        d = a[j] - b[j]
+        s += d
+        ss += d * d
+    sums[0] += s
+    sums[1] += ss
+
+
+@numba.njit(cache=True, fastmath=True, nogil=True)
+def _abs_diff_row(a, b):  # pragma: no cover - compiled
+    s = 0
+    for j in range(a.shape[0]):
+        d = np.int32(a[j]) - np.int32(b[j])
+        s += d if d >= 0 else -d
+    return s
+
+
+@numba.njit(cache=True, nogil=True)
+def frame_sums(y, prev, lut_a, lut_b, have_prev):  # pragma: no cover - compiled
+    """One pass over luma ``y`` (H, W) uint8/uint16 and the previous frame ``prev``:
+    (10,) float64 = Σm, Σm² of the interior Sobel magnitude and Σd, Σd² of the frame
+    difference in the domains of ``lut_a`` and ``lut_b``, then Σ|y − prev| and the interior
+    pixel count. Rows are looked up into three-row buffers that stay in the L1 cache: cheaper
+    than keeping the previous frame's values (measured: 3.3 against 6.7 ms at 720p)."""
+    h, w = y.shape
+    out = np.zeros(10)
+    rows_a = np.empty((3, w))
+    rows_b = np.empty((3, w))
+    prev_a = np.empty(w)
+    prev_b = np.empty(w)
+    sa = np.zeros(2)
+    sb = np.zeros(2)
+    ta = np.zeros(2)
+    tb = np.zeros(2)
+    mad = 0
+    for i in range(h):
+        k = i % 3
+        _map_row(y[i], lut_a, rows_a[k])
+        _map_row(y[i], lut_b, rows_b[k])
+        if have_prev:
+            _map_row(prev[i], lut_a, prev_a)
+            _map_row(prev[i], lut_b, prev_b)
+            _diff_row(rows_a[k], prev_a, ta)
+            _diff_row(rows_b[k], prev_b, tb)
+            mad += _abs_diff_row(y[i], prev[i])
+        if i >= 2:
+            r0, r1, r2 = (i - 2) % 3, (i - 1) % 3, k
+            _sobel_row(rows_a[r0], rows_a[r1], rows_a[r2], sa)
+            _sobel_row(rows_b[r0], rows_b[r1], rows_b[r2], sb)
+    out[0], out[1], out[2], out[3] = sa[0], sa[1], ta[0], ta[1]
+    out[4], out[5], out[6], out[7] = sb[0], sb[1], tb[0], tb[1]
+    out[8] = mad
+    out[9] = (h - 2) * (w - 2)
+    return out
+
+
+def _std(s: float, ss: float, n: float) -> float:
+    """Population standard deviation from Σx and Σx² (float64; the mean is small beside the
+    spread here, so no cancellation worth a second pass)."""
+    mean = s / n
+    return math.sqrt(max(ss / n - mean * mean, 0.0))
+
+
+@dataclasses.dataclass
+class NativeMeter:
+    """Streams native luma frames through :data:`NATIVE_METRICS`.
+
+    ``bit_depth`` 8 (uint8 frames) or 10/12 (uint16); ``color_range`` ``limited`` or
+    ``full`` as the stream declares it. ``update(y, packet_bytes)`` takes one frame (H, W)
+    and the size of its packet in the source (None: no ``codec_bpp``) and returns its
+    metrics (temporal ones NaN on the first frame)."""
+
+    bit_depth: int = 8
+    color_range: str = "limited"
+    jpeg_quality: int = 75
+
+    def __post_init__(self) -> None:
+        if self.bit_depth not in (8, 10, 12):
+            raise ValueError(f"bit depth must be 8, 10 or 12, got {self.bit_depth}")
+        if self.color_range not in RANGES:
+            raise ValueError(f"colour range must be limited or full, got {self.color_range!r}")
+        self._p910 = p910_lut(self.bit_depth, self.color_range)
+        self._legacy = legacy_lut(self.bit_depth, self.color_range)
+        self._prev: np.ndarray | None = None
+        self._mafd_scale = 1.0 / 2 ** (self.bit_depth - 8)  # to 8-bit levels
+
+    def row(self, y: np.ndarray, packet_bytes: int | None = None) -> np.ndarray:
+        """:meth:`update` as a (len(NATIVE_METRICS),) float64 row."""
+        m = self.update(y, packet_bytes)
+        return np.array([m[k] for k in NATIVE_METRICS])
+
+    def update(self, y: np.ndarray, packet_bytes: int | None = None) -> dict[str, float]:
+        want = np.uint8 if self.bit_depth == 8 else np.uint16
+        if y.ndim != 2 or y.dtype != want or min(y.shape) < 3:
+            raise ValueError(f"expected ({self.bit_depth}-bit) luma (H, W) {want.__name__}")
+        prev = self._prev
+        if prev is not None and prev.shape != y.shape:
+            raise ValueError(f"the frame size changed from {prev.shape} to {y.shape}")
+        have = prev is not None
+        s = frame_sums(y, prev if have else y, self._p910, self._legacy, have)
+        n_int, n_all = s[9], float(y.size)
+        nan = math.nan
+        y8 = y if self.bit_depth == 8 else (y >> (self.bit_depth - 8)).astype(np.uint8)
+        ok, jpg = cv2.imencode(".jpg", y8, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+        out = {
+            "si_p910": _std(s[0], s[1], n_int),
+            "ti_p910": _std(s[2], s[3], n_all) if have else nan,
+            "si_legacy": _std(s[4], s[5], n_int),
+            "ti_legacy": _std(s[6], s[7], n_all) if have else nan,
+            "mafd": s[8] / n_all * self._mafd_scale if have else nan,
+            "edge_density": float(np.count_nonzero(cv2.Canny(y8, 100, 200))) / n_all,
+            "jpeg_bpp": 8.0 * len(jpg) / n_all if ok else nan,
+            "codec_bpp": 8.0 * packet_bytes / n_all if packet_bytes else nan,
+        }
+        self._prev = y.copy()  # a decoder may reuse the buffer a plane views
+        return out
+
+
+def stream_format(frame: Any) -> dict[str, Any]:
+    """Bit depth and colour range a decoded PyAV video frame declares (an unspecified range
+    is limited, the MPEG default), and whether its luma can be read directly (a YUV or grey
+    format)."""
+    name = frame.format.name
+    depth = 10 if "10" in name else 12 if "12" in name else 8
+    full = name.startswith("yuvj") or int(getattr(frame, "color_range", 0) or 0) == 2
+    planar = name.startswith(("yuv", "gray", "nv12", "nv21"))
+    return {"bit_depth": depth, "color_range": "full" if full else "limited", "luma": planar}
+
+
+def luma_plane(frame: Any, bit_depth: int) -> np.ndarray:
+    """The Y plane of a decoded PyAV frame as (H, W) uint8/uint16, honouring the line size
+    (no copy for 8 bits)."""
+    plane = frame.planes[0]
+    dtype = np.uint8 if bit_depth == 8 else np.dtype("<u2")
+    per_line = plane.line_size // np.dtype(dtype).itemsize
+    rows = np.frombuffer(plane, dtype).reshape(-1, per_line)
+    return rows[: frame.height, : frame.width]

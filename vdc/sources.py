@@ -1,0 +1,455 @@
+"""Reading any video file, image sequence or camera, frame by frame, with true times.
+
+Files are decoded with PyAV (FFmpeg) packet by packet for their true presentation timestamps;
+image sequences (``frames/%05d.png``) are timed by their number and a frame rate; cameras (an
+index such as ``0``) are read with OpenCV and stamped with the host's clock. Each frame comes
+with its grey image as displayed (the models' input) and its native luma as coded (the
+standard metrics' input, ``vdc.frame_metrics``). Lost frames (bad packets, missing or
+unreadable images) are counted and named, never a silent end. Both ``vdc-capture video`` and
+``vdc-analyse complexity`` read sources here, so both see the same frames.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from vdc.frame_metrics import luma_plane, stream_format
+
+# images and camera frames: 8-bit grey, full range
+IMAGE_FORMAT = {"bit_depth": 8, "color_range": "full", "luma": True}
+VIDEO_SUFFIXES = (
+    ".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".ts", ".mts", ".y4m",
+    ".wmv", ".flv", ".3gp", ".ogv",
+)  # fmt: skip
+
+
+@dataclasses.dataclass
+class SourceFrame:
+    """One decoded frame.
+
+    ``luma`` (H, W) uint8: grey as displayed (rotation metadata applied), the models' input
+    before resizing; ``t_s``: seconds since the first frame; ``note``: what was lost just
+    before it, or None; ``native`` (H, W) uint8/uint16: the stream's own luma code values
+    (its Y plane, at its bit depth and colour range, unrotated); ``packet_bytes``: the size
+    the source's codec spent on it (None where unknown)."""
+
+    luma: np.ndarray
+    t_s: float
+    note: str | None
+    native: np.ndarray
+    packet_bytes: int | None = None
+
+
+class Reader:
+    """Frames and their times (s) from one source; ``info`` describes it. ``error``: why the
+    source ended early (None when it ended normally); ``problems``: frames lost inside it
+    (missing or unreadable images, packets that would not decode), counted."""
+
+    info: dict[str, Any]
+    error: str | None = None
+    problems: int = 0
+    first_problem: str | None = None
+
+    def frames(self) -> Iterator[SourceFrame]:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def _problem(self, text: str) -> str:
+        self.problems += 1
+        self.first_problem = self.first_problem or text
+        return text
+
+    def close(self) -> None:
+        pass
+
+
+class _PyAvReader(Reader):
+    def __init__(self, path: str) -> None:
+        import av
+
+        p = Path(path)
+        if not p.exists():
+            raise ValueError(f"video {path!r}: no such file")
+        if p.stat().st_size == 0:
+            raise ValueError(f"video {path!r} is empty")
+        try:
+            self.container = av.open(path)
+        except av.FFmpegError as exc:
+            raise ValueError(f"cannot read {path!r} as a video: {_ffmpeg_reason(exc)}") from None
+        if not self.container.streams.video:
+            self.container.close()
+            raise ValueError(f"{path!r} holds no video stream")
+        self.stream = self.container.streams.video[0]
+        self.stream.thread_type = "AUTO"
+        rate = self.stream.average_rate or self.stream.guessed_rate or self.stream.base_rate
+        self.info = {
+            "kind": "file",
+            "codec": self.stream.codec_context.name,
+            "nominal_fps": float(rate) if rate else float("nan"),
+            "src_width_px": self.stream.codec_context.width,
+            "src_height_px": self.stream.codec_context.height,
+            "n_frames_header": int(self.stream.frames or 0),
+            "rotation_deg": 0,
+            # what the container's header says (µs); a file cut short ends before it
+            "duration_s": (self.container.duration or 0) / 1e6,
+        }
+        self._frames = self._decode()
+        first = next(self._frames, None)  # a file with no decodable frame fails here
+        if first is None:
+            self.container.close()
+            why = f": {self.error}" if self.error else ""
+            raise ValueError(f"{path!r} holds no decodable video frame{why}")
+        self._first = first
+        self.info["src_height_px"], self.info["src_width_px"] = first.luma.shape[:2]
+
+    def _decode(self) -> Iterator[SourceFrame]:
+        """Packet by packet, so that one packet that will not decode costs its own frames
+        only: the error is noted on the next frame and decoding goes on (a whole-stream decode
+        stops at the first bad packet). A container that cannot be demuxed further ends here."""
+        import av
+
+        t0: float | None = None
+        i = 0
+        note: list[str] = []
+        sizes: dict[int, int] = {}  # packet size by pts: frames leave the decoder reordered
+        try:
+            for packet in self.container.demux(self.stream):
+                if packet.pts is not None and packet.size:
+                    sizes[packet.pts] = packet.size
+                try:
+                    decoded = packet.decode()
+                except av.FFmpegError as exc:
+                    note.append(self._problem(f"a packet would not decode: {_ffmpeg_reason(exc)}"))
+                    continue
+                for frame in decoded:
+                    t = frame.time
+                    if t is None:
+                        t = i / self.info["nominal_fps"]
+                    t0 = t if t0 is None else t0
+                    rot = round(float(getattr(frame, "rotation", 0) or 0))
+                    self.info["rotation_deg"] = rot
+                    if i == 0:
+                        self.info |= stream_format(frame)
+                    native = luma_plane(frame, self.info["bit_depth"])
+                    luma = display_grey(frame, native)
+                    if rot % 360:  # the display matrix's counter-clockwise angle
+                        luma = np.ascontiguousarray(np.rot90(luma, k=round(rot / 90)))
+                    size = sizes.pop(frame.pts, None) if frame.pts is not None else None
+                    yield SourceFrame(luma, float(t - t0), "; ".join(note) or None, native, size)
+                    note, i = [], i + 1
+        except av.FFmpegError as exc:  # a cut or corrupt container: keep what came before
+            self.error = _ffmpeg_reason(exc)
+
+    def frames(self) -> Iterator[SourceFrame]:
+        yield self._first
+        yield from self._frames
+
+    def close(self) -> None:
+        self.container.close()
+
+
+class _CameraReader(Reader):
+    """A camera by index, read with OpenCV and stamped with the host's clock."""
+
+    def __init__(self, source: str, fps: float | None) -> None:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        self.cap = cv2.VideoCapture(int(source))
+        if not self.cap.isOpened():
+            raise ValueError(f"camera {source} cannot be opened (no such camera)")
+        ok, first = self.cap.read()
+        if not ok or first is None:
+            self.cap.release()
+            raise ValueError(f"camera {source} gives no frame")
+        self.first = first
+        cam_fps = self.cap.get(cv2.CAP_PROP_FPS)
+        self.fps = fps or (cam_fps if cam_fps and cam_fps > 0 else 30.0)
+        h, w = first.shape[:2]
+        self.info = {
+            "kind": "camera",
+            "codec": "camera",
+            "nominal_fps": float(self.fps),
+            "src_width_px": w,
+            "src_height_px": h,
+            "n_frames_header": 0,
+            "rotation_deg": 0,
+            **IMAGE_FORMAT,
+        }
+
+    def frames(self) -> Iterator[SourceFrame]:
+        t0 = time.monotonic()
+        img = self.first
+        while img is not None:
+            grey = _luma(img)
+            yield SourceFrame(grey, time.monotonic() - t0, None, grey)
+            ok, img = self.cap.read()
+            img = img if ok else None
+
+    def close(self) -> None:
+        self.cap.release()
+
+
+def _luma(img: np.ndarray) -> np.ndarray:
+    return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+
+
+_PATTERN_FIELD = re.compile(r"%(0?)(\d*)d")
+
+
+def _jpeg_cut(path: Path) -> bool:
+    """A JPEG without its end-of-image marker was cut short (OpenCV decodes it anyway, with
+    the missing part grey); trailing padding after the marker is allowed."""
+    with path.open("rb") as fh:
+        fh.seek(max(0, path.stat().st_size - 4096))
+        tail = fh.read().rstrip(b"\x00")
+    return not tail.endswith(b"\xff\xd9")
+
+
+class _ImageSequenceReader(Reader):
+    """Numbered images (``frames/%05d.png``), timed by their number and ``fps``.
+
+    Every number from the first file to the last is a frame: a missing number, a file that
+    will not decode or a JPEG cut short is a lost frame, noted on the next good one (and so
+    recorded as a dropped frame with its reason), never a silent end of the sequence."""
+
+    def __init__(self, pattern: str, fps: float | None) -> None:
+        if fps is None:
+            raise ValueError("an image sequence needs --fps (its frame rate)")
+        fields = list(_PATTERN_FIELD.finditer(pattern))
+        if len(fields) != 1:
+            raise ValueError(
+                f"image sequence {pattern!r}: give one number field such as %05d "
+                "(a file with % in its name is read as a video when it exists)"
+            )
+        field = fields[0]
+        head, tail = pattern[: field.start()], pattern[field.end() :]
+        folder_text, _, prefix = head.rpartition("/")
+        folder, suffix = Path(folder_text or "."), tail
+        number = re.compile(re.escape(prefix) + r"(\d+)" + re.escape(suffix) + "$")
+        found: dict[int, Path] = {}
+        if folder.is_dir():
+            for entry in folder.iterdir():
+                m = number.match(entry.name)
+                if m and (not field.group(2) or len(m.group(1)) >= int(field.group(2))):
+                    found.setdefault(int(m.group(1)), entry)
+        if not found:
+            raise ValueError(f"image sequence {pattern!r} cannot be opened (no matching files)")
+        width = f"{field.group(1)}{field.group(2)}d"
+        self.name_of = lambda k: Path(head + format(k, width) + tail).name
+        self.paths = found
+        self.first_index, self.last_index = min(found), max(found)
+        self.fps = float(fps)
+        first = None
+        for k in range(self.first_index, self.last_index + 1):  # the first readable image
+            first = self._read(k)
+            if first is not None:
+                break
+        if first is None:
+            raise ValueError(f"image sequence {pattern!r}: no image in it can be read")
+        self.problems, self.first_problem = 0, None  # counted again when the frames are read
+        h, w = first.shape
+        self.info = {
+            "kind": "images",
+            "codec": "image files",
+            "nominal_fps": self.fps,
+            "src_width_px": w,
+            "src_height_px": h,
+            "n_frames_header": self.last_index - self.first_index + 1,
+            "rotation_deg": 0,
+            **IMAGE_FORMAT,
+        }
+        self.size = (h, w)
+
+    def _read(self, k: int) -> np.ndarray | None:
+        path = self.paths.get(k)
+        if path is None:
+            return None
+        if path.suffix.lower() in (".jpg", ".jpeg") and _jpeg_cut(path):
+            return None
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None or img.ndim not in (2, 3):
+            return None
+        if img.dtype != np.uint8:  # 16-bit PNG/TIFF: the top 8 bits
+            img = (img >> 8).astype(np.uint8) if img.dtype == np.uint16 else None
+            if img is None:
+                return None
+        if img.ndim == 3 and img.shape[2] == 4:
+            img = img[:, :, :3]
+        return _luma(img)
+
+    def frames(self) -> Iterator[SourceFrame]:
+        note: list[str] = []
+        k0: int | None = None  # the first image read: time 0
+        for k in range(self.first_index, self.last_index + 1):
+            img = self._read(k)
+            path = self.paths.get(k)
+            why = (
+                None
+                if img is not None and img.shape == self.size
+                else "missing"
+                if path is None
+                else "of another size"
+                if img is not None
+                else "unreadable or cut short"
+            )
+            if why is not None:
+                name = path.name if path is not None else self.name_of(k)
+                note.append(self._problem(f"image {name} {why}"))
+                continue
+            k0 = k if k0 is None else k0
+            assert img is not None and path is not None
+            size = path.stat().st_size  # the image file: its codec's bits
+            yield SourceFrame(img, (k - k0) / self.fps, "; ".join(note) or None, img, size)
+            note = []
+
+
+def _ffmpeg_reason(exc: Exception) -> str:
+    return str(getattr(exc, "strerror", None) or exc).strip().rstrip(".")
+
+
+# 8-bit limited-range luma to full-range grey, as FFmpeg's swscale converts it to "gray"
+# (round((Y - 16) * 255 / 219), clipped): checked equal for all 256 codes
+_LIMITED_TO_FULL = np.clip(np.rint((np.arange(256) - 16) * 255 / 219), 0, 255).astype(np.uint8)
+_PLANAR_8BIT = ("yuv420p", "yuv422p", "yuv444p", "yuv440p", "yuv411p", "yuv410p")
+
+
+def display_grey(frame: Any, native: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 full-range grey of a decoded frame, as ``frame.to_ndarray(format="gray")``
+    gives it, read from its Y plane ``native`` where that is exact (8-bit planar YUV: a
+    lookup, several times cheaper than a conversion of the whole frame), else converted."""
+    name = frame.format.name
+    if name.startswith("yuvj") and name[:3] + name[4:] in _PLANAR_8BIT:
+        return np.ascontiguousarray(native)  # full range already
+    if name in _PLANAR_8BIT and int(getattr(frame, "color_range", 0) or 0) != 2:
+        return cv2.LUT(np.ascontiguousarray(native), _LIMITED_TO_FULL)
+    return frame.to_ndarray(format="gray")
+
+
+def source_kind(source: str) -> str:
+    """``file`` (an existing file wins, even one named ``2024`` or ``clip 100%.mkv``),
+    ``camera`` (an index such as ``0``) or ``images`` (a pattern with ``%``)."""
+    if Path(source).is_file():
+        return "file"
+    if source.isdigit():
+        return "camera"
+    return "images" if "%" in source else "file"
+
+
+def source_name(source: str) -> str:
+    """A readable name for a source: its file's stem, a camera's ``camera<N>``, or for an
+    image sequence its folder and the prefix before the number (``take1/img_%05d.png`` →
+    ``take1-img``); only letters, digits and ``._-``."""
+    p = Path(source)
+    if source_kind(source) == "camera":
+        stem = f"camera{source}"
+    elif "%" in p.name and not p.is_file():
+        prefix = re.sub(r"[-_.]+$", "", p.name.split("%")[0])
+        stem = "-".join(x for x in (p.parent.name, prefix) if x) or "images"
+    else:
+        stem = p.stem
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", stem)[:60] or "clip"
+
+
+def open_reader(source: str, fps: float | None = None) -> Reader:
+    """The reader of ``source``: a video file, an image-sequence pattern (needs ``fps``) or a
+    camera index. A missing, empty or unreadable source raises ValueError."""
+    kind = source_kind(source)
+    if kind == "file":
+        return _PyAvReader(source)
+    if kind == "camera":
+        return _CameraReader(source, fps)
+    return _ImageSequenceReader(source, fps)
+
+
+@dataclasses.dataclass
+class FrameBatch:
+    """Consecutive frames of a source, ready for the models and the metrics.
+
+    frame (N,) int64 indices; t_s (N,) float64 seconds since the first frame, in whole
+    nanoseconds (as a recording stores them); images (N, h, w) uint8 grey on the working
+    raster; native_metrics (N, len(NATIVE_METRICS)) float64 on the native frames; repeat
+    (N,) bool (judged on the native frames); dropped_before (N,) int64 frames the timestamps
+    say are missing just before each; dt_s (N,) seconds since the previous frame (NaN for the
+    first); notes: what was lost inside the source just before each frame, or None."""
+
+    frame: np.ndarray
+    t_s: np.ndarray
+    images: np.ndarray
+    native_metrics: np.ndarray
+    repeat: np.ndarray
+    dropped_before: np.ndarray
+    dt_s: np.ndarray
+    notes: list[str | None]
+
+
+class FrameBatcher:
+    """A source's frames in batches of ``batch_frames``: resized by area to ``size`` (H, W)
+    for the models, measured on their native luma (``vdc.frame_metrics.NativeMeter``), with
+    repeats (a native mean |difference| from the previous frame of at most ``repeat_tol``
+    8-bit levels, at most ``max_repeats`` in a row) and dropped frames (a gap of more than 1.5
+    nominal intervals at ``fps``). ``vdc-capture video`` and ``vdc-analyse complexity`` both
+    read sources through it, so both see the same frames, times and flags."""
+
+    def __init__(
+        self,
+        reader: Reader,
+        size: tuple[int, int],
+        fps: float,
+        batch_frames: int = 128,
+        repeat_tol: float = 0.5,
+        max_repeats: int = 3,
+    ) -> None:
+        from vdc.frame_metrics import NativeMeter
+
+        self.reader, self.size, self.fps = reader, size, float(fps)
+        self.batch_frames, self.repeat_tol, self.max_repeats = batch_frames, repeat_tol, max_repeats
+        self.meter = NativeMeter(reader.info["bit_depth"], reader.info["color_range"])
+        self._it = reader.frames()
+        self._index = 0
+        self._run = 0
+        self._prev_t: float | None = None
+        self.dropped_total = 0
+        self.repeats_total = 0
+        self.last_t_s: float | None = None
+        self.ended = False
+
+    def next_batch(self) -> FrameBatch | None:
+        from avdm.true_time import repeats_of
+        from vdc.recording import NATIVE_METRICS
+
+        images, times, notes, native = [], [], [], []
+        h, w = self.size
+        for fr in self._it:
+            images.append(cv2.resize(fr.luma, (w, h), interpolation=cv2.INTER_AREA))
+            times.append(fr.t_s)
+            notes.append(fr.note)
+            native.append(self.meter.row(fr.native, fr.packet_bytes))
+            if len(images) >= self.batch_frames:
+                break
+        else:
+            self.ended = True
+        if not images:
+            return None
+        metrics = np.stack(native)
+        t_s = np.rint(np.asarray(times, dtype=np.float64) * 1e9) / 1e9
+        mafd = metrics[:, NATIVE_METRICS.index("mafd")]
+        repeat = repeats_of(mafd, self._run, self.repeat_tol, self.max_repeats)
+        for r in repeat:  # the run of repeats that ends this batch carries into the next
+            self._run = self._run + 1 if r else 0
+        dt = np.diff(np.concatenate(([np.nan if self._prev_t is None else self._prev_t], t_s)))
+        with np.errstate(invalid="ignore"):
+            missing = np.where(np.isfinite(dt), np.rint(dt * self.fps) - 1, 0)
+            # a gap of more than half a frame interval beyond the nominal one: dropped frames
+            dropped = np.where(dt * self.fps > 1.5, np.maximum(missing, 1), 0).astype(np.int64)
+        frame = np.arange(self._index, self._index + len(images), dtype=np.int64)
+        self._index += len(images)
+        self._prev_t = self.last_t_s = float(t_s[-1])
+        self.dropped_total += int(dropped.sum())
+        self.repeats_total += int(repeat.sum())
+        return FrameBatch(frame, t_s, np.stack(images), metrics, repeat, dropped, dt, notes)
