@@ -216,7 +216,7 @@ def expand_sources(items: Sequence[str | Path]) -> list[str]:
             sources.append(item)
         else:
             raise ValueError(f"{item!r}: no such file or folder")
-    return list(dict.fromkeys(sources))
+    return sources
 
 
 def _stamp(source: str) -> tuple:
@@ -229,17 +229,26 @@ def _stamp(source: str) -> tuple:
 
 
 def plan_sources(sources: Sequence[str], settings: ComplexitySettings) -> list[dict[str, str]]:
-    """One task per source: its recording id (videos: from the file name, the parent folder
-    added where two share a name) and its part's key (the name and a hash of the content and
-    the settings, so a changed file or setting is measured again)."""
+    """One task per source: its recording id (a recording's own, checked distinct; a video's
+    from its file name, the parent folder added where two share a name) and its part's key
+    (the name and a hash of the content and the settings, so a changed file or setting is
+    measured again)."""
+    from analysis.rrd_reader import Recording
+    from analysis.tables import DistinctRecordings
+
     names = [source_name(s) for s in sources]
     dup = {n for n in names if names.count(n) > 1}
+    distinct = DistinctRecordings()  # two files of one recording would mix their rows
     tasks = []
     for src, name in zip(sources, names, strict=True):
         if name in dup:
             name = f"{source_name(str(Path(src).parent))}-{name}"
         digest = hashlib.sha1(repr((_stamp(src), settings.measured())).encode()).hexdigest()
-        rid = name if src.endswith(".rrd") else f"video-{name}"
+        if src.endswith(".rrd"):
+            rid = Recording(src).recording_id
+            distinct.add(rid, src)
+        else:
+            rid = f"video-{name}"
         tasks.append({"source": src, "recording_id": rid, "key": f"{name}-{digest[:8]}"})
     keys = [t["key"] for t in tasks]
     if len(set(keys)) != len(keys):  # the same name and content twice
@@ -318,8 +327,11 @@ def _run_inline(
     settings: ComplexitySettings,
     out: Path,
     progress: Callable[[int], None] | None,
+    single: bool,
 ) -> list[TaskOutcome]:
-    """One source on the local executor: measured here, with a progress bar over frames."""
+    """One source on the local executor: measured here, with a progress bar over frames. The
+    only source of a command (``single``) that fails is bad input (one line, exit 2); one
+    source of a collection is listed as failed."""
     from vdc.parquet_io import write_parquet
 
     outcomes = []
@@ -330,8 +342,8 @@ def _run_inline(
             write_parquet(m.table, part_path(out, t["key"]), {**meta, "key": t["key"]})
             outcomes.append(TaskOutcome(t["source"], {"frames": m.table.height}, None))
         except (ValueError, OSError) as exc:
-            if len(tasks) == 1:
-                raise  # a single bad source is bad input: one line, exit 2
+            if single:
+                raise
             outcomes.append(TaskOutcome(t["source"], None, f"{type(exc).__name__}: {exc}"))
     return outcomes
 
@@ -364,7 +376,7 @@ def complexity(
     if len(mine) > len(todo):
         say(f"{len(mine) - len(todo)} of {len(mine)} source(s) already measured in {out}")
     if settings.executor == "local" and len(todo) == 1:
-        outcomes = _run_inline(todo, settings, out, progress)
+        outcomes = _run_inline(todo, settings, out, progress, single=len(tasks) == 1)
         if clip_progress is not None:
             clip_progress(1)
     else:

@@ -12,6 +12,7 @@ unreadable images) are counted and named, never a silent end. Both ``vdc-capture
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
 import time
 from collections.abc import Iterator
@@ -87,7 +88,9 @@ class _PyAvReader(Reader):
             self.container.close()
             raise ValueError(f"{path!r} holds no video stream")
         self.stream = self.container.streams.video[0]
-        self.stream.thread_type = "AUTO"
+        # FFmpeg's frame threads, except in a pool worker (one core each: vdc.executors)
+        single = os.environ.get("VDC_WORKER_THREADS") == "1"
+        self.stream.thread_type = "NONE" if single else "AUTO"
         rate = self.stream.average_rate or self.stream.guessed_rate or self.stream.base_rate
         self.info = {
             "kind": "file",

@@ -276,6 +276,9 @@ def test_complexity_on_a_simulated_arena_recording(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     df = pl.read_parquet(tmp_path / "cx" / "complexity.parquet")
     assert df.height == 198 and df["omega_dps"].null_count() == 0
+    # no native frames: the standard metrics on the camera's own raster, and the table says so
+    assert set(df["raster"]) == {"camera"} and set(df["raster_width_px"]) == {99}
+    assert df["si_p910"].null_count() == 0 and df["codec_bpp"].null_count() == 198
 
 
 def test_profile_and_compare_take_a_video_recording(clips, tmp_path: Path) -> None:
