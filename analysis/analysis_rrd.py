@@ -153,6 +153,8 @@ def write_variants_rrd(
     rec.save(str(path))
     # active, not just default: opened after the source recording, this layout must win
     rec.send_blueprint(blueprint, make_active=True, make_default=True)
+    # which model each /model_variants/<part> is (the catalog names its variants from this)
+    rec.send_property("model_variants", rr.AnyValues(**{entity_name(n): n for n in names}))
     batch = 20_000  # bounded send_columns batches (rerun.md §8)
     for name, df in outputs.items():
         frame = df["frame"].to_numpy()

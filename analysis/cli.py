@@ -14,7 +14,7 @@ from vdc.cli_support import (
     command_of,
     flag_values,
     progress_bar,
-    reference_page,
+    reference_markdown,
     run_command_line,
     say,
     settings_from_args,
@@ -24,18 +24,11 @@ from vdc.executors import TasksFailed
 PROG = "vdc-analyse"
 
 
-def _tf(v: float | None) -> str:
-    """A wall TF for printing; recordings of a video have none."""
-    return "no walls" if v is None else f"TF {v:g} Hz"
-
-
 def _notice(msg: str) -> None:
     print(f"{PROG}: note: {msg}", file=sys.stderr)
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    import polars as pl
-
     from analysis.experiments.sweep import SweepSettings, sweep
     from avdm.registry import canonical_name
 
@@ -43,18 +36,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     with progress_bar(len(settings.cells()), f"sweep {canonical_name(settings.model)}") as bar:
         res = sweep(settings, args.out, progress=bar.update)
     print(f"{res.table.height} cells -> {res.files.sweep_parquet}, {res.files.sweep_png}")
-    print("monotonicity of the response (Spearman rho of omega_dps):")
-    for r in res.monotonicity.iter_rows(named=True):
-        print(
-            f"  vs {r['along'].upper():<2} at {r['fixed']:<12} n={r['n']:<3} "
-            f"rho={r['rho']:+.3f}  {r['trend']}"
-        )
-    inc = res.monotonicity.filter(pl.col("along") == "tf")
-    dec = res.monotonicity.filter(pl.col("along") == "sf")
-    print(
-        f"summary: {int((inc['trend'] == 'increasing').sum())}/{inc.height} TF rows increasing, "
-        f"{int((dec['trend'] == 'decreasing').sum())}/{dec.height} SF columns decreasing"
-    )
+    print("\n".join(res.report()))
     return 0
 
 
@@ -64,29 +46,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     s = settings_from_args(CalibrateSettings, args)
     with progress_bar(s.n_cells(), "calibrate") as bar:
         res = calibrate(s, args.out, progress=bar.update)
-    fit, (h, w) = res.fit, s.size
-    print(
-        f"calibration {s.resolved_name}: fps={s.fps:g} Hz, "
-        f"{s.resolved_deg_per_px:.6g} deg/px, {w}x{h} px"
-    )
-    print(f"  a = {fit.a:.6g}   b = {fit.b:.6g}")
-    print(
-        f"  log-log R^2 = {fit.r2:.4f}; over {fit.n_points} valid cells the decoded "
-        f"omega is off by {100 * fit.rms_rel_error:.1f} % RMS, "
-        f"{100 * fit.max_rel_error:.1f} % at worst"
-    )
-    print(f"  wrote {res.files.calibration_json} and {res.files.calibration_png}")
+    print("\n".join(res.report(s)))
     if not res.usable:
-        print(
-            f"{PROG} calibrate: error: the fit is poor (R^2 {fit.r2:.2f} < {MIN_CALIBRATION_R2}):"
-            " not offered for use: over this geometry's narrow valid band the law explains too"
-            " little of the response (try a larger --size or a higher --fps)",
-            file=sys.stderr,
+        say(
+            f"{PROG} calibrate: error: the fit is poor (R^2 {res.fit.r2:.2f} < "
+            f"{MIN_CALIBRATION_R2}): not offered for use: over this geometry's narrow valid band "
+            "the law explains too little of the response (try a larger --size or a higher --fps)"
         )
         return 1
-    print(f"  use it as: --model {s.model.split(':')[0]}:a={fit.a:.6g},b={fit.b:.6g}")
-    if s.update_defaults:
-        print(f"  updated the shipped defaults in {res.files.calibrations}")
     return 0
 
 
@@ -105,8 +72,9 @@ def cmd_tables(args: argparse.Namespace) -> int:
         print(f"{name:<14} {df.height:>8} rows -> {path}")
     print("summary (primary output after warm-up):")
     for r in res.summary.iter_rows(named=True):
+        tf = "no walls" if r["wall_tf_hz"] is None else f"TF {r['wall_tf_hz']:g} Hz"
         print(
-            f"  {r['recording_id']}  {r['model']:<16} {_tf(r['wall_tf_hz'])}: "
+            f"  {r['recording_id']}  {r['model']:<16} {tf}: "
             f"mean {r['mean']:.1f}, p95 {r['p95']:.1f}, > 100: {100 * r['frac_over_100']:.1f} %, "
             f"near wall / centre {r['near_wall_centre_ratio']:.2f}"
         )
@@ -200,15 +168,37 @@ def cmd_complexity(args: argparse.Namespace) -> int:
         f"{res.clips.height} clip(s), {res.table.height} frames -> {files.complexity_parquet}, "
         f"{files.clips}, {files.complexity_html}"
     )
-    for r in res.clips.iter_rows(named=True):
+    top = res.clips.sort("omega_dps_mean", descending=True, nulls_last=True)
+    for r in top.head(10).iter_rows(named=True):
         print(
             f"  {r['recording_id']}: {r['frames']} frames, mean omega {r['omega_dps_mean']:.1f} "
-            f"deg/s, flow {r['flow_dps_mean'] or math.nan:.1f} deg/s, SI {r['si_p910_mean']:.1f} "
-            f"/ TI {r['ti_p910_mean'] or math.nan:.2f} (P.910, {r['raster']} raster)"
+            f"deg/s, SI {r['si_p910_mean']:.1f} / TI {r['ti_p910_mean'] or math.nan:.2f} "
+            f"(P.910, {r['raster']} raster)"
         )
+    if top.height > 10:
+        print(f"  ... and {top.height - 10} more (highest AVDM first): {files.complexity_html}")
     for source, error in res.failures:
         print(f"FAILED {source}: {error}", file=sys.stderr)
     return 1 if res.failures else 0
+
+
+def cmd_catalog(args: argparse.Namespace) -> int:
+    from analysis.catalog import CatalogSettings, query_to, serve
+
+    s = settings_from_args(CatalogSettings, args)
+    if args.action == "query":
+        for path, df in query_to(args.folders, s, args.out, notice=_notice):
+            print(f"{path.stem:<14} {df.height:>8} rows -> {path}")
+        return 0
+
+    def ready(cat, web: str | None) -> None:
+        print(f"dataset {cat.name}: {len(cat.found.segments)} segment(s), layers: base, "
+              + ", ".join(cat.found.layers))  # fmt: skip
+        print(f"open it: rerun {cat.url}" + (f"\nweb viewer: {web}" if web else ""))
+        print("serving until Ctrl-C", flush=True)
+
+    serve(args.folders, s, ready, notice=_notice)
+    return 0
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -283,6 +273,14 @@ def _sweep_inputs(p: argparse.ArgumentParser) -> None:
 def _reproduce_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true", help="the quick preset: 3-min runs, 3 seeds")
     _inputs("results/reproduce", None)(p)
+
+
+def _catalog_inputs(p: argparse.ArgumentParser) -> None:
+    p.add_argument("action", choices=("serve", "query"), help="serve the folders, or query them")
+    p.add_argument("folders", nargs="+", metavar="FOLDER", help="folders of recordings and outputs")
+    p.add_argument(
+        "--out", default="results/catalog-query", help="query: output folder (default: %(default)s)"
+    )
 
 
 def _summarise_inputs(p: argparse.ArgumentParser) -> None:
@@ -412,6 +410,20 @@ COMMANDS = {
             "results/complexity", "recordings, videos, image patterns or folders", dest="sources"
         ),
     ),
+    "catalog": Command(
+        "analysis.catalog:CatalogSettings",
+        cmd_catalog,
+        "browse and query many recordings as one Rerun dataset (a catalog server)",
+        "serve: every recording under the folders as a segment of one dataset (properties "
+        "as columns), the outputs of compare, batch and complexity as layers of their "
+        "source's segment, on a catalog server on 127.0.0.1 until Ctrl-C (open it with "
+        "`rerun URL`). query: the frames and model_outputs tables of the segments matching "
+        "--where, read in one call, as `tables` writes them.",
+        "examples:\n"
+        "  vdc-analyse catalog serve results/reproduce --web\n"
+        "  vdc-analyse catalog query results/campaign --where scene=natural --out results/q",
+        inputs=_catalog_inputs,
+    ),
     "reproduce": Command(
         "analysis.experiments.reproduce:ReproduceSettings",
         cmd_reproduce,
@@ -442,20 +454,10 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 def cli_reference() -> str:
     """docs/cli.md: every command and flag of ``vdc-capture`` and ``vdc-analyse``, rendered from
-    the parsers (generated from the settings dataclasses); a test keeps the file equal."""
+    the settings dataclasses; a test keeps the file equal."""
     import capture.cli
 
-    lines = [
-        "# CLI reference",
-        "",
-        "Generated from the settings dataclasses by `analysis.cli.cli_reference()`; "
-        "`tests/test_layout.py` keeps this page equal to it. Each flag is the field of the same "
-        "name of the command's settings dataclass (see the README's table of functions).",
-        "",
-    ]
-    for cli in (capture.cli, sys.modules[__name__]):
-        lines += reference_page(cli.PROG, cli.build_parser(), cli.COMMANDS)
-    return "\n".join(lines).rstrip() + "\n"
+    return reference_markdown([capture.cli, sys.modules[__name__]])
 
 
 def main(argv: Sequence[str] | None = None) -> int:

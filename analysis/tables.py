@@ -196,7 +196,20 @@ def load_recording(
     and ``dropped_before``. ``settings`` says what counts as a turn."""
     rec = Recording(path)
     props = rec.properties()
-    sig = rec.signals()
+    frames, logged, native = from_signals(rec.signals(), props, rec.recording_id, settings, path)
+    return LoadedRecording(rec, props, frames, logged, native)
+
+
+def from_signals(
+    sig: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+    props: dict[str, dict[str, Any]],
+    recording_id: str,
+    settings: SummarySettings = SummarySettings(),
+    path: str | Path = "",
+) -> tuple[pl.DataFrame, dict[str, pl.DataFrame], pl.DataFrame | None]:
+    """A recording's ``frames`` table, its online model's logged outputs and its native
+    metrics, from its scalar signals ``{entity: (frame (N,), t_s (N,), values (N, K))}`` and
+    its properties: the one construction behind ``tables`` and the catalog's queries."""
     if POSE in sig:
         f, t, pose = sig[POSE]
         frames = pl.DataFrame(
@@ -209,7 +222,7 @@ def load_recording(
             }
         )
     else:
-        f, t = _frame_index(rec, sig, path)
+        f, t = _frame_index(sig, path)
         nan = np.full(len(f), np.nan)
         frames = pl.DataFrame(
             {"frame": f, "t_s": t, "x_m": nan, "y_m": nan, "heading_rad": nan}
@@ -249,29 +262,39 @@ def load_recording(
         native = pl.DataFrame({"frame": nf.astype(np.int64), **cols}).with_columns(
             pl.col(*cols).fill_nan(None)
         )
-    loaded = LoadedRecording(rec, props, frames, {}, native)
-    hx, hy = loaded.arena_half_extent()
-    loaded.frames = frames.with_columns(
-        pl.lit(rec.recording_id).alias("recording_id"),
+    arena = props.get("arena", {})
+    hx, hy = float(arena.get("length_m", 1.4)) / 2, float(arena.get("width_m", 0.8)) / 2
+    frames = frames.with_columns(
+        pl.lit(recording_id).alias("recording_id"),
         pl.min_horizontal(hx - pl.col("x_m").abs(), hy - pl.col("y_m").abs()).alias("wall_gap_m"),
     ).select(*FRAMES_COLUMNS)
-    online = loaded.online_model
+    logged: dict[str, pl.DataFrame] = {}
+    online = props.get("model", {}).get("name")
     if online:
-        prefix = f"{MODEL_ROOT}/{entity_name(online)}/"
-        cols = {e[len(prefix) :]: v for e, v in sig.items() if e.startswith(prefix)}
-        if cols:
-            # a capture killed mid-write may have logged some outputs of its last frames and
-            # not others: every frame any output reached is kept, missing values are null
-            parts = [
-                pl.DataFrame({"frame": v[0].astype(np.int64), "t_s": v[1], name: v[2][:, 0]})
-                for name, v in cols.items()
-            ]
-            index = pl.concat([p.select("frame", "t_s") for p in parts]).unique("frame")
-            logged = index.sort("frame")
-            for p in parts:
-                logged = logged.join(p.drop("t_s"), on="frame", how="left")
-            loaded.logged[online] = logged
-    return loaded
+        out = signals_table(sig, f"{MODEL_ROOT}/{entity_name(online)}/")
+        if out is not None:
+            logged[online] = out
+    return frames, logged, native
+
+
+def signals_table(
+    sig: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], prefix: str
+) -> pl.DataFrame | None:
+    """The scalar entities under ``prefix`` (one model's outputs) as one table: frame, t_s,
+    then a column per output. A capture killed mid-write may have logged some outputs of its
+    last frames and not others: every frame any output reached is kept, missing values null."""
+    cols = {e[len(prefix) :]: v for e, v in sig.items() if e.startswith(prefix)}
+    if not cols:
+        return None
+    parts = [
+        pl.DataFrame({"frame": v[0].astype(np.int64), "t_s": v[1], name: v[2][:, 0]})
+        for name, v in cols.items()
+    ]
+    index = pl.concat([p.select("frame", "t_s") for p in parts]).unique("frame")
+    table = index.sort("frame")
+    for p in parts:
+        table = table.join(p.drop("t_s"), on="frame", how="left")
+    return table
 
 
 def recompute(
@@ -402,7 +425,7 @@ FRAMES_COLUMNS = (
 )
 
 
-def _frame_index(rec: Recording, sig: dict, path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+def _frame_index(sig: dict, path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Frame indices and times of a recording without poses: from its frame timing, else
     from its first logged model output."""
     for entity in (FRAME_TIMING, *sorted(e for e in sig if e.startswith(MODEL_ROOT + "/"))):

@@ -368,3 +368,19 @@ def run_command_line(
     except tuple(stopped or ()) as exc:
         say(f"{where}: error: {exc}{next(t for k, t in stopped.items() if isinstance(exc, k))}")
         return 1
+
+
+def reference_markdown(clis: Sequence[Any]) -> str:
+    """The CLI reference page of command-line modules (each with ``PROG``, ``COMMANDS`` and
+    ``build_parser``), rendered from their settings dataclasses."""
+    lines = [
+        "# CLI reference",
+        "",
+        "Generated from the settings dataclasses by `analysis.cli.cli_reference()`; "
+        "`tests/test_layout.py` keeps this page equal to it. Each flag is the field of the same "
+        "name of the command's settings dataclass (see the README's table of functions).",
+        "",
+    ]
+    for cli in clis:
+        lines += reference_page(cli.PROG, cli.build_parser(), cli.COMMANDS)
+    return "\n".join(lines).rstrip() + "\n"

@@ -170,6 +170,26 @@ class CalibrateResult(WroteFiles):
     def usable(self) -> bool:
         return bool(self.fit.r2 >= MIN_CALIBRATION_R2)
 
+    def report(self, s: CalibrateSettings) -> list[str]:
+        """The fit and how to use it, as lines for people (its quality first)."""
+        fit, (h, w) = self.fit, s.size
+        lines = [
+            f"calibration {s.resolved_name}: fps={s.fps:g} Hz, {s.resolved_deg_per_px:.6g} "
+            f"deg/px, {w}x{h} px",
+            f"  a = {fit.a:.6g}   b = {fit.b:.6g}",
+            f"  log-log R^2 = {fit.r2:.4f}; over {fit.n_points} valid cells the decoded omega "
+            f"is off by {100 * fit.rms_rel_error:.1f} % RMS, {100 * fit.max_rel_error:.1f} % "
+            "at worst",
+            f"  wrote {self.files.calibration_json} and {self.files.calibration_png}",
+        ]
+        if self.usable:
+            lines.append(
+                f"  use it as: --model {s.model.split(':')[0]}:a={fit.a:.6g},b={fit.b:.6g}"
+            )
+        if self.usable and s.update_defaults:
+            lines.append(f"  updated the shipped defaults in {self.files.calibrations}")
+        return lines
+
 
 def calibrate(
     settings: CalibrateSettings = CalibrateSettings(),

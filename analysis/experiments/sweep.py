@@ -351,6 +351,23 @@ class SweepResult(WroteFiles):
     monotonicity: pl.DataFrame  # Spearman rho along every row and column
     paths: list[Path]
 
+    def report(self) -> list[str]:
+        """The monotonicity of the response, as lines for people."""
+        lines = ["monotonicity of the response (Spearman rho of omega_dps):"]
+        for r in self.monotonicity.iter_rows(named=True):
+            lines.append(
+                f"  vs {r['along'].upper():<2} at {r['fixed']:<12} n={r['n']:<3} "
+                f"rho={r['rho']:+.3f}  {r['trend']}"
+            )
+        inc = self.monotonicity.filter(pl.col("along") == "tf")
+        dec = self.monotonicity.filter(pl.col("along") == "sf")
+        lines.append(
+            f"summary: {int((inc['trend'] == 'increasing').sum())}/{inc.height} TF rows "
+            f"increasing, {int((dec['trend'] == 'decreasing').sum())}/{dec.height} SF columns "
+            "decreasing"
+        )
+        return lines
+
 
 def sweep(
     settings: SweepSettings = SweepSettings(),

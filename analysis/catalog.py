@@ -1,0 +1,638 @@
+"""Many recordings as one Rerun dataset (``vdc-analyse catalog``): the only module that knows
+Rerun's catalog API (``rr.server``, ``rr.catalog``), pinned with the SDK to 0.41.
+
+* Every recording found under the folders is a **segment** of one dataset (its recording id is
+  the segment id), in the layer ``base``.
+* A small **summary layer** per segment (``summary``) adds the properties researchers filter
+  on as segment-table columns (``property:vdc:*``): source, scene, wall TF schedule, seed,
+  model, duration, frames, complete or repaired, and the headline numbers (mean ω̂, the share
+  over the threshold, a collision run's success rate). It is computed once per recording and
+  kept in the cache (``$VDC_CACHE_DIR/catalog``), keyed by the file's size and time.
+* The outputs of ``compare`` (``variants.rrd``), ``complexity`` (``complexity_<id>.rrd``) and
+  ``batch`` (its parts, written as ``.rrd`` layers into the cache) are **layers** of their
+  source's segment, each under its own entity paths. Two layers that log the same entity path
+  would merge silently (the newest row wins), so a second one is left out and listed.
+* A recording without a footer (a capture cut short) would be loaded whole into the server's
+  memory: it is rewritten first (``rerun rrd route --continue-on-error``, into the cache) and
+  marked ``repaired``. A file of another application, or whose ``frame`` timeline is of
+  another kind, is listed as unregistered with a one-line reason.
+
+Nothing persists in the server: the folders are the truth, and a restart registers them again.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import os
+import re
+import subprocess
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+from vdc.cli_support import UserError, non_negative_int, option
+from vdc.recording import (
+    APP_ID,
+    FRAME_TIMELINE,
+    MODEL_VARIANTS_ROOT,
+    PARTIAL_SUFFIX,
+    capture_writing,
+)
+
+BASE, SUMMARY_LAYER, SUMMARY = "base", "summary", "vdc"
+LOOPBACK = "127.0.0.1"
+CATALOG_EXTRA = "pip install 'visual-dynamic-complexity[catalog]'"
+
+
+@dataclasses.dataclass(frozen=True)
+class CatalogSettings:
+    """``vdc-analyse catalog serve``: the dataset's name and where the server listens."""
+
+    dataset: str | None = option(None, "the dataset's name (default: the first folder's name)")
+    host: str = option(
+        LOOPBACK, "the address the server and the web viewer listen on (default: this machine only)"
+    )
+    port: int = option(0, "the catalog server's port (0: a free one)", type=non_negative_int)
+    web: bool = option(False, "also serve the web viewer, on the same host")
+    web_port: int = option(0, "the web viewer's port (0: a free one)", type=non_negative_int)
+    where: tuple[str, ...] = option(
+        (), "query: only segments whose summary property KEY equals VALUE (repeatable)",
+        metavar="KEY=VALUE",
+    )  # fmt: skip
+    layers: tuple[str, ...] = option(
+        (), "query: the layers whose variants to include (repeatable; default: all)",
+        flag="--layer", metavar="LAYER",
+    )  # fmt: skip
+
+    def where_dict(self) -> dict[str, str]:
+        """``--where`` as ``{key: value}``; a malformed item raises UserError."""
+        out = {}
+        for item in self.where:
+            key, sep, value = item.partition("=")
+            if not sep or not key:
+                raise UserError(f"--where {item!r}: expected KEY=VALUE, e.g. seed=1")
+            out[key.strip()] = value.strip()
+        return out
+
+
+@dataclasses.dataclass
+class Segment:
+    recording_id: str
+    path: Path  # the file registered (a repaired copy for a recording without footer)
+    source: Path  # the file found
+    summary: dict[str, Any]  # the summary layer's properties
+
+
+@dataclasses.dataclass
+class Found:
+    """What a scan of the folders found: segments, layers ``{name: [(recording id, file)]}``
+    and files left out ``[(file, one-line reason)]``."""
+
+    segments: list[Segment]
+    layers: dict[str, list[tuple[str, Path]]]
+    unregistered: list[tuple[str, str]]
+    entities: dict[str, set[str]] = dataclasses.field(default_factory=dict)  # per layer
+
+
+def _cache(folder: Path) -> Path:
+    from avdm.calibration_store import cache_dir
+
+    key = hashlib.sha1(str(folder.resolve()).encode()).hexdigest()[:12]
+    return cache_dir() / "catalog" / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', folder.name)}-{key}"
+
+
+def _stamp(path: Path) -> str:
+    st = path.stat()
+    return hashlib.sha1(
+        repr((str(path.resolve()), st.st_size, st.st_mtime_ns)).encode()
+    ).hexdigest()[:12]
+
+
+def _rerun_binary() -> str:
+    """The ``rerun`` executable itself (the console script is a Python shim whose child
+    survives a signal to the shim)."""
+    import rerun_cli
+
+    return str(Path(rerun_cli.__file__).parent / "rerun")
+
+
+def repair(path: Path, out: Path) -> Path:
+    """A copy of a recording without footer (a capture cut short), with one: its complete
+    messages (``analysis.rrd_reader.complete_prefix``), rewritten by ``rerun rrd optimize``,
+    which writes the footer. ValueError if it fails."""
+    from analysis.rrd_reader import complete_prefix
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    good, count = complete_prefix(path)
+    if count == 0:
+        raise ValueError("could not be repaired: no complete message")
+    prefix = out.with_name(out.name + f".prefix-{os.getpid()}")
+    tmp = out.with_name(out.name + f".tmp-{os.getpid()}")
+    try:
+        with path.open("rb") as src, prefix.open("wb") as dst:
+            dst.write(src.read(good))
+        proc = subprocess.run(
+            [_rerun_binary(), "rrd", "optimize", str(prefix), "-o", str(tmp)],
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        if proc.returncode != 0 or not tmp.exists():
+            why = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
+            raise ValueError(f"could not be repaired: {why[0]}")
+        tmp.replace(out)
+    finally:
+        prefix.unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
+    return out
+
+
+def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
+    """The summary layer's properties of one recording: what it is, and the numbers of the
+    ``summary`` table (mean ω̂ and the share over 100 deg/s after the warm-up; success rate
+    of a collision run)."""
+    from analysis.tables import SummarySettings, events_table, load_recording, primary_output
+
+    loaded = load_recording(path)
+    props = loaded.props
+    run, wall, end = props.get("run", {}), props.get("wall", {}), props.get("run_end", {})
+    video = props.get("video", {})
+    s = SummarySettings()
+    out: dict[str, Any] = {
+        "source": run.get("source") or ("video" if video else "unknown"),
+        "behaviour": run.get("behaviour"),
+        "scene": wall.get("scene") or ("video" if video else None),
+        "tf_schedule": wall.get("tf_schedule_text"),
+        "seed": run.get("seed"),
+        "model": loaded.online_model,
+        "detector": props.get("collision", {}).get("detector"),
+        "phase": props.get("collision", {}).get("phase"),
+        "video": video.get("path"),
+        "frames": int(loaded.frames.height),
+        "duration_s": float(loaded.frames["t_s"].max() or 0.0),
+        "complete": bool(end.get("complete", False)),
+        "repaired": repaired or loaded.rec.notice is not None,
+    }
+    online = loaded.online_model
+    if online and online in loaded.logged:
+        df = loaded.logged[online]
+        main = primary_output(df)
+        v = df[main].cast(pl.Float64).to_numpy()[s.warmup_frames :]
+        v = v[np.isfinite(v)]
+        out["mean_" + main] = float(v.mean()) if len(v) else None
+        out["frac_over_100"] = float((v > 100.0).mean()) if len(v) else None
+    ev = events_table(loaded)
+    if out["behaviour"] == "collision":
+        a = int((ev["kind"] == "avoidance").sum())
+        c = int((ev["kind"] == "crash").sum())
+        out |= {"avoidances": a, "crashes": c, "success_rate": a / (a + c) if a + c else None}
+    return {k: v for k, v in out.items() if v is not None}
+
+
+def _write_summary_layer(recording_id: str, props: dict[str, Any], path: Path) -> None:
+    import rerun as rr
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + f".tmp-{os.getpid()}")
+    rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
+    rec.save(str(tmp))
+    rec.send_property(SUMMARY, rr.AnyValues(**props))
+    rec.flush()
+    rec.disconnect()
+    tmp.replace(path)
+
+
+def _read_summary(path: Path) -> dict[str, Any] | None:
+    from analysis.rrd_reader import Recording
+
+    try:
+        return Recording(path).properties().get(SUMMARY)
+    except Exception:  # an older or damaged cache file: computed again
+        return None
+
+
+def _frame_kind(rec: Any) -> str | None:
+    """The arrow type of the ``frame`` timeline in a recording's first chunk that has one."""
+    for _entity, rb in rec._batches("/**"):
+        if FRAME_TIMELINE in rb.schema.names:
+            return str(rb.schema.field(FRAME_TIMELINE).type)
+    return None
+
+
+def _batch_layers(folder: Path, cache: Path, segments: set[str]) -> Iterator[tuple[str, str, Path]]:
+    """``batch`` outputs as layers: each (recording, variant) part written once as an ``.rrd``
+    of its outputs under ``/model_variants/<variant>/...`` → (layer, recording id, file)."""
+    from analysis.analysis_rrd import write_variants_rrd
+
+    for part in sorted(folder.glob("parts/recording_id=*/model=*/model_outputs.parquet")):
+        df = pl.read_parquet(part)
+        if df.height == 0:
+            continue
+        rid, model = df["recording_id"][0], df["model"][0]
+        if rid not in segments:
+            continue
+        slug = part.parent.name.removeprefix("model=")
+        dest = cache / "batch" / _stamp(part) / f"{slug}.rrd"
+        if not dest.exists():
+            outs = df.drop("recording_id", "model").sort("frame")
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            write_variants_rrd(rid, {model: outs}, {}, dest, None)
+        yield f"batch-{slug}", rid, dest
+
+
+def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = None) -> Found:
+    """Find the recordings and the analysis outputs under ``folders`` (see the module)."""
+    from analysis.rrd_reader import Recording, RecordingError
+
+    say = notice or (lambda _m: None)
+    segments: dict[str, Segment] = {}
+    layers: dict[str, list[tuple[str, Path]]] = {}
+    left: list[tuple[str, str]] = []
+    outputs: list[tuple[str, Path]] = []
+    batch_folders: list[Path] = []
+    cache = _cache(Path(folders[0]))
+    for folder in map(Path, folders):
+        if not folder.is_dir():
+            raise UserError(f"{str(folder)!r} is not a folder")
+        for path in sorted(folder.rglob("*.rrd")):
+            if cache in path.parents:
+                continue
+            if path.name.endswith(PARTIAL_SUFFIX) and capture_writing(path) is not None:
+                left.append((str(path), "still being written by a capture"))
+                continue
+            try:
+                rec = Recording(path)
+                if rec.application_id != APP_ID:
+                    left.append(
+                        (str(path), f"a recording of another application ({rec.application_id})")
+                    )
+                    continue
+                props = rec.properties()
+                kind = _frame_kind(rec)
+                if kind is not None and kind != "int64":
+                    left.append((str(path), f"its frame timeline is {kind}, not a frame count"))
+                    continue
+            except RecordingError as exc:
+                left.append((str(path), str(exc)))
+                continue
+            if "run" in props:
+                rid = rec.recording_id
+                if rid in segments:
+                    first = segments[rid].source
+                    left.append((str(path), f"the same recording as {str(first)!r} (id {rid})"))
+                    continue
+                registered = path
+                if rec.notice is not None:  # no footer: the server would load it whole
+                    try:
+                        registered = repair(path, cache / "repaired" / f"{_stamp(path)}.rrd")
+                    except ValueError as exc:
+                        left.append((str(path), str(exc)))
+                        continue
+                segments[rid] = Segment(rid, registered, path, {})
+            elif path.name == "variants.rrd":
+                outputs.append((f"compare-{path.parent.name}", path))
+            elif path.name.startswith("complexity_"):
+                outputs.append((f"complexity-{path.parent.name}", path))
+        if (folder / "parts").is_dir():
+            batch_folders.append(folder)
+        batch_folders += [
+            p.parent for p in folder.rglob("parts") if p.is_dir() and p.parent != folder
+        ]
+    # summary layers: from the cache where the file has not changed
+    for seg in segments.values():
+        dest = cache / SUMMARY_LAYER / f"{_stamp(seg.source)}.rrd"
+        summary = _read_summary(dest) if dest.exists() else None
+        if summary is None:
+            summary = headline(seg.path, repaired=seg.path != seg.source)
+            _write_summary_layer(seg.recording_id, summary, dest)
+        seg.summary = summary
+        layers.setdefault(SUMMARY_LAYER, []).append((seg.recording_id, dest))
+    for name, path in outputs:
+        rid = Recording(path).recording_id
+        if rid not in segments:
+            left.append((str(path), f"its recording ({rid}) is not in these folders"))
+            continue
+        layers.setdefault(name, []).append((rid, path))
+    for folder in dict.fromkeys(batch_folders):
+        for name, rid, path in _batch_layers(folder, cache, set(segments)):
+            layers.setdefault(name, []).append((rid, path))
+    entities = _drop_colliding(layers, left)
+    for path, why in left:
+        say(f"not registered: {path}: {why}")
+    return Found(list(segments.values()), layers, left, entities)
+
+
+def _entities(path: Path) -> set[str]:
+    from analysis.rrd_reader import Recording
+
+    return set(Recording(path).signals())
+
+
+def _drop_colliding(
+    layers: dict[str, list[tuple[str, Path]]], left: list[tuple[str, str]]
+) -> dict[str, set[str]]:
+    """Keep, per segment, only layers whose entity paths no earlier layer logs (two layers
+    that log one path are merged by the server, the newest row winning); returns each
+    layer's entity paths."""
+    seen: dict[str, dict[str, str]] = {}  # segment → entity → layer
+    by_layer: dict[str, set[str]] = {}
+    for name in sorted(layers):
+        if name == SUMMARY_LAYER:
+            continue
+        kept = []
+        for rid, path in layers[name]:
+            ents = _entities(path)
+            mine = seen.setdefault(rid, {})
+            clash = sorted(e for e in ents if e in mine)
+            if clash:
+                left.append((str(path), f"logs {clash[0]} like layer {mine[clash[0]]}"))
+                continue
+            mine.update(dict.fromkeys(ents, name))
+            by_layer.setdefault(name, set()).update(ents)
+            kept.append((rid, path))
+        layers[name] = kept
+    return by_layer
+
+
+def dataset_name(folders: Sequence[str | Path], settings: CatalogSettings) -> str:
+    name = settings.dataset or Path(folders[0]).resolve().name or "vdc"
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+@dataclasses.dataclass
+class Catalog:
+    """A running catalog: the server's URL, the dataset and what was found."""
+
+    url: str
+    dataset: Any  # rerun.catalog.DatasetEntry
+    name: str
+    found: Found
+    client: Any
+
+
+def _require_catalog() -> Any:
+    try:
+        import datafusion  # noqa: F401 - the catalog's query engine
+        import rerun as rr
+    except ImportError:
+        raise UserError(f"the catalog needs its extra: {CATALOG_EXTRA}") from None
+    return rr
+
+
+@contextlib.contextmanager
+def open_catalog(
+    folders: Sequence[str | Path],
+    settings: CatalogSettings = CatalogSettings(),
+    notice: Callable[[str], None] | None = None,
+) -> Iterator[Catalog]:
+    """Start a catalog server on ``settings.host`` and register the folders (see the module);
+    the server stops when the block ends."""
+    rr = _require_catalog()
+    found = scan(folders, notice)
+    if not found.segments:
+        raise UserError(f"no vdc recording found under {', '.join(map(str, folders))}")
+    name = dataset_name(folders, settings)
+    with rr.server.Server(host=settings.host, port=settings.port or None) as srv:
+        client = srv.client()
+        ds = client.create_dataset(name)
+        ds.register([s.path.resolve().as_uri() for s in found.segments], layer_name=BASE).wait()
+        for layer, files in found.layers.items():
+            if files:
+                ds.register([p.resolve().as_uri() for _, p in files], layer_name=layer).wait()
+        yield Catalog(srv.url(), ds, name, found, client)
+
+
+def serve(
+    folders: Sequence[str | Path],
+    settings: CatalogSettings = CatalogSettings(),
+    ready: Callable[[Catalog, str | None], None] | None = None,
+    notice: Callable[[str], None] | None = None,
+    stop: Callable[[], bool] | None = None,
+) -> None:
+    """``vdc-analyse catalog serve``: register the folders and serve them until Ctrl-C or
+    SIGTERM (or ``stop()`` returns True); ``ready`` gets the catalog and the web viewer's
+    address (None without ``settings.web``). Every process started is ended on the way out."""
+    import signal
+
+    def end(signum: int, _frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, end)
+    web = None
+    try:
+        with open_catalog(folders, settings, notice) as cat:
+            web_url = None
+            if settings.web:
+                web, web_url = _web_viewer(cat.url, settings)
+            if ready is not None:
+                ready(cat, web_url)
+            while stop is None or not stop():
+                time.sleep(0.2)
+                if web is not None and web.poll() is not None:
+                    raise UserError("the web viewer ended unexpectedly")
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if web is not None:
+            _end(web)
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _free_port(host: str) -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def _web_viewer(url: str, settings: CatalogSettings) -> tuple[subprocess.Popen, str]:
+    """The web viewer (the ``rerun`` binary, in its own process group) onto the catalog,
+    bound to ``settings.host``; returns the process and the address to open."""
+    port = settings.web_port or _free_port(settings.host)
+    proc = subprocess.Popen(
+        [
+            _rerun_binary(),
+            "--serve-web",
+            "--bind",
+            settings.host,
+            "--web-viewer-port",
+            str(port),
+            url,
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 30
+    import socket
+
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise UserError(f"the web viewer did not start: {proc.stderr.read().decode()[-300:]}")
+        with contextlib.suppress(OSError), socket.create_connection((settings.host, port), 0.5):
+            break
+        time.sleep(0.2)
+    from urllib.parse import quote
+
+    return proc, f"http://{settings.host}:{port}/?url={quote(url, safe='')}"
+
+
+def _end(proc: subprocess.Popen) -> None:
+    import signal
+
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=5)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+# -- queries -------------------------------------------------------------------------------
+
+
+def segment_table(cat: Catalog) -> pl.DataFrame:
+    """One row per segment: its id, layers, and the summary properties as plain columns
+    (``source``, ``scene``, ``seed``, ``mean_omega_dps``, ...)."""
+    seg = pl.from_arrow(cat.dataset.segment_table().to_arrow_table())
+    prefix = f"property:{SUMMARY}:"
+    cols = [c for c in seg.columns if c.startswith(prefix)]
+    return seg.select(
+        pl.col("rerun_segment_id").alias("recording_id"),
+        pl.col("rerun_layer_names").alias("layers"),
+        *[pl.col(c).list.first().alias(c[len(prefix) :]) for c in cols],
+    ).sort("recording_id")
+
+
+def select_segments(table: pl.DataFrame, where: dict[str, Any] | None) -> list[str]:
+    """The segment ids whose summary properties equal every ``where`` value (compared as
+    text, so ``seed=1`` matches 1)."""
+    rows = table
+    for key, value in (where or {}).items():
+        if key not in rows.columns:
+            raise UserError(
+                f"--where {key}: no such property (known: {', '.join(sorted(table.columns[2:]))})"
+            )
+        rows = rows.filter(pl.col(key).cast(pl.String) == str(value))
+    return rows["recording_id"].to_list()
+
+
+def _signals_of(table: pl.DataFrame) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """One segment's rows of a reader table as ``Recording.signals()`` gives them: per scalar
+    entity, (frame, t_s, values (N, K)) over the frames where it was logged."""
+    out = {}
+    frame = table["frame"].to_numpy()
+    t = (
+        (table["time"].cast(pl.Int64).to_numpy() / 1e9)
+        if "time" in table.columns
+        else frame * np.nan
+    )
+    for col in table.columns:
+        if not col.endswith(":Scalars:scalars"):
+            continue
+        entity = col.split(":")[0]
+        values = table[col]
+        keep = values.is_not_null().to_numpy()
+        if not keep.any():
+            continue
+        arr = np.asarray(values.filter(pl.Series(keep)).to_list(), dtype=np.float64)
+        out[entity] = (frame[keep], t[keep], arr.reshape(len(arr), -1))
+    return out
+
+
+def query(
+    folders: Sequence[str | Path],
+    where: dict[str, Any] | None = None,
+    layers: Sequence[str] | None = None,
+    settings: CatalogSettings = CatalogSettings(),
+    notice: Callable[[str], None] | None = None,
+) -> dict[str, pl.DataFrame]:
+    """The ``frames`` and ``model_outputs`` tables of the segments whose summary properties
+    match ``where``, read in one ``reader()`` call over the catalog, with the variants of the
+    given ``layers`` (default: all) as models of their own: the tables ``tables`` writes for
+    the same recordings (and ``batch`` for the variants)."""
+    from analysis.rrd_reader import Recording
+    from analysis.tables import FRAMES_COLUMNS, from_signals, signals_table
+
+    with open_catalog(folders, settings, notice) as cat:
+        segs = segment_table(cat)
+        ids = select_segments(segs, where)
+        if not ids:
+            raise UserError(f"no segment matches {where}")
+        chosen = [BASE, *(layers if layers is not None else [n for n in cat.found.layers])]
+        unknown = [n for n in chosen if n != BASE and n not in cat.found.layers]
+        if unknown:
+            raise UserError(f"no layer {unknown[0]!r} (layers: {', '.join(cat.found.layers)})")
+        props = {s.recording_id: s for s in cat.found.segments}
+        names: dict[str, dict[str, str]] = {}  # segment → variant entity part → model name
+        for layer in chosen[1:]:
+            for rid, path in cat.found.layers.get(layer, []):
+                recorded = Recording(path).properties().get("model_variants", {})
+                names.setdefault(rid, {}).update(recorded)
+        # a layer left out: its entity paths are left out of the one read
+        hidden = sorted(
+            {e for n, ents in cat.found.entities.items() if n not in chosen for e in ents}
+        )
+        view = cat.dataset.filter_segments(ids).filter_contents(
+            ["+ /**", *[f"- {e}" for e in hidden]]
+        )
+        raw = pl.from_arrow(view.reader(index=FRAME_TIMELINE).to_arrow_table())
+    frames, outputs = [], []
+    scalar = [c for c in raw.columns if c.endswith(":Scalars:scalars")]
+    raw = raw.select(
+        "rerun_segment_id", FRAME_TIMELINE, *(["time"] if "time" in raw.columns else []), *scalar
+    )
+    for (rid,), part in raw.sort("rerun_segment_id", FRAME_TIMELINE).group_by(
+        "rerun_segment_id", maintain_order=True
+    ):
+        sig = _signals_of(part)
+        rec_props = Recording(props[rid].path).properties()
+        f, logged, _ = from_signals(sig, rec_props, rid)
+        frames.append(f)
+        models = dict(logged)
+        for entity in {e.split("/")[2] for e in sig if e.startswith(MODEL_VARIANTS_ROOT + "/")}:
+            df = signals_table(sig, f"{MODEL_VARIANTS_ROOT}/{entity}/")
+            name = names.get(rid, {}).get(entity, entity)
+            # a variant named like the online model recomputes its logged outputs (bit for
+            # bit): the logged ones stay
+            if df is not None and name not in models:
+                models[name] = df
+        for name, df in models.items():
+            outputs.append(
+                df.with_columns(
+                    pl.lit(rid).alias("recording_id"), pl.lit(name).alias("model")
+                ).select("recording_id", "model", pl.all().exclude("recording_id", "model"))
+            )
+    return {
+        "frames": pl.concat(frames).select(FRAMES_COLUMNS).sort("recording_id", "frame"),
+        "model_outputs": pl.concat(outputs, how="diagonal_relaxed").sort(
+            "recording_id", "model", "frame"
+        ),
+    }
+
+
+def query_to(
+    folders: Sequence[str | Path],
+    settings: CatalogSettings,
+    out: str | Path,
+    notice: Callable[[str], None] | None = None,
+) -> list[tuple[Path, pl.DataFrame]]:
+    """``vdc-analyse catalog query``: :func:`query` written to ``out`` as ``frames.parquet``
+    and ``model_outputs.parquet`` (published whole), with the selection in their metadata."""
+    from vdc.parquet_io import table_set, write_parquet
+
+    res = query(folders, settings.where_dict(), settings.layers or None, settings, notice)
+    meta = {"folders": [str(f) for f in folders], "where": settings.where_dict()}
+    with table_set(Path(out)) as stage:
+        for name, df in res.items():
+            write_parquet(df, stage / f"{name}.parquet", meta)
+    return [(Path(out) / f"{name}.parquet", df) for name, df in res.items()]

@@ -1,0 +1,176 @@
+"""Many recordings as one Rerun dataset: a real catalog server on 127.0.0.1, recordings as
+segments, analysis outputs as layers, one reader() call that gives the tables `tables` writes,
+files refused in one line, and a server that ends with its signal."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+import rerun as rr
+
+from analysis.batch import BatchSettings, batch
+from analysis.catalog import CatalogSettings, open_catalog, query, segment_table
+from analysis.compare import CompareSettings, compare
+from analysis.complexity import ComplexitySettings, complexity
+from analysis.tables import TablesSettings, tables
+from capture.sim import SimSettings, record_sim
+from tests.helpers import assert_one_line_error, run_cli, spawn
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory) -> dict[str, Path]:
+    """Two profiling runs, a collision run, a capture cut short, the outputs of compare,
+    batch and complexity on them, and two files that must be refused."""
+    root = tmp_path_factory.mktemp("campaign")
+    rec = root / "recordings"
+    paths = {
+        "tf0": record_sim(SimSettings(tf_hz=0.0, minutes=0.1, seed=1), rec / "tf0.rrd").path,
+        "tf3": record_sim(SimSettings(tf_hz=3.0, minutes=0.1, seed=2), rec / "tf3.rrd").path,
+        "crash": record_sim(
+            SimSettings(behaviour="collision", tf_hz=3.0, minutes=0.3, seed=3), rec / "col.rrd"
+        ).path,
+    }
+    cut = record_sim(SimSettings(tf_hz=1.0, minutes=0.1, seed=4), root / "whole.rrd").path
+    data = cut.read_bytes()
+    (rec / "cut.rrd").write_bytes(data[: int(len(data) * 0.6)])  # a copy that stopped early
+    cut.unlink()
+    profile = [paths["tf0"], paths["tf3"]]
+    compare(paths["tf3"], CompareSettings(models=("avdm", "avdm:beta=0.5")), root / "cmp")
+    batch(profile, BatchSettings(models=("avdm-on",), jobs=1), root / "bt")
+    complexity(profile, ComplexitySettings(rrd=True), root / "cx")
+    other = rr.RecordingStream("another_app", recording_id="theirs")
+    other.save(str(rec / "theirs.rrd"))
+    other.send_columns(
+        "/x", indexes=[rr.TimeColumn("frame", sequence=np.arange(5))],
+        columns=rr.Scalars.columns(scalars=np.arange(5.0)),
+    )  # fmt: skip
+    other.flush()
+    other.disconnect()
+    stamped = rr.RecordingStream("vdc", recording_id="stamped")
+    stamped.save(str(rec / "stamped.rrd"))
+    stamped.send_columns(
+        "/x", indexes=[rr.TimeColumn("frame", timestamp=np.arange(5) * 1e9)],
+        columns=rr.Scalars.columns(scalars=np.arange(5.0)),
+    )  # fmt: skip
+    stamped.flush()
+    stamped.disconnect()
+    return {"root": root, **paths}
+
+
+def test_segments_layers_and_what_is_refused(campaign) -> None:
+    with open_catalog([campaign["root"]]) as cat:
+        assert cat.url.startswith("rerun+http://127.0.0.1:")
+        seg = segment_table(cat)
+        names = rr.catalog.CatalogClient(cat.url).dataset_names()
+    assert cat.name in names
+    assert seg.height == 4  # three runs and the repaired copy
+    by_id = {r["recording_id"]: r for r in seg.iter_rows(named=True)}
+    cut = [r for r in by_id.values() if r["repaired"]]
+    assert len(cut) == 1 and not cut[0]["complete"] and cut[0]["frames"] > 0
+    col = next(r for r in by_id.values() if r["behaviour"] == "collision")
+    assert col["success_rate"] == col["avoidances"] / (col["avoidances"] + col["crashes"])
+    for r in by_id.values():
+        assert r["source"] == "simulation" and r["scene"] == "grating" and r["model"]
+    # the headline numbers are the `tables` summary's (one wall TF: one summary row)
+    t = tables([campaign["tf3"]], TablesSettings()).summary.row(0, named=True)
+    row = by_id[t["recording_id"]]
+    assert row["mean_omega_dps"] == pytest.approx(t["mean"], rel=1e-12)
+    assert row["frac_over_100"] == pytest.approx(t["frac_over_100"], abs=1e-12)
+    assert row["tf_schedule"] == "3:6s" and row["seed"] == 2
+    layers = set(row["layers"])
+    assert {"base", "summary", "compare-cmp", "complexity-cx", "batch-avdm-on"} <= layers
+    refused = dict(cat.found.unregistered)
+    assert "another application" in refused[str(campaign["root"] / "recordings" / "theirs.rrd")]
+    assert "not a frame count" in refused[str(campaign["root"] / "recordings" / "stamped.rrd")]
+
+
+def test_one_query_gives_the_tables_that_tables_and_batch_write(campaign) -> None:
+    q = query([campaign["root"]], where={"behaviour": "profile", "repaired": "false"})
+    runs = [campaign["tf0"], campaign["tf3"]]
+    ref = tables(runs, TablesSettings())
+    assert q["frames"].equals(ref.frames)  # poses, wall TF, turning flags: bit for bit
+    mo = q["model_outputs"]
+    online = mo.filter(pl.col("model") == "avdm").select(ref.model_outputs.columns)
+    assert online.equals(ref.model_outputs)
+    # batch's variant, as batch wrote it
+    bt = pl.read_parquet(campaign["root"] / "bt" / "model_outputs.parquet")
+    on = mo.filter(pl.col("model") == "avdm-on").select(bt.columns)
+    assert on.equals(bt.sort("recording_id", "model", "frame"))
+    # compare's variant of one recording: the recomputation `tables --model` writes
+    rec = tables([campaign["tf3"]], TablesSettings(models=("avdm:beta=0.5",)))
+    beta = mo.filter(pl.col("model") == "avdm:beta=0.5").select(rec.model_outputs.columns)
+    assert beta.equals(rec.model_outputs)
+    only = query([campaign["root"]], where={"seed": "2"}, layers=[])
+    assert set(only["frames"]["recording_id"]) == {ref.frames["recording_id"][-1]}
+    assert set(only["model_outputs"]["model"]) == {"avdm"}  # no layer: the online model only
+
+
+def _wait_for(proc, needle: str, timeout_s: float = 120.0) -> list[str]:
+    lines: list[str] = []
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line.strip())
+        if needle in line:
+            return lines
+    raise AssertionError(f"no {needle!r} in {lines}; stderr: {proc.stderr.read()[-2000:]}")
+
+
+def _listening(host: str, port: int) -> bool:
+    with socket.socket() as s:
+        return s.connect_ex((host, port)) == 0
+
+
+def test_serve_until_sigterm_on_loopback_only(campaign) -> None:
+    proc = spawn(
+        [sys.executable, "-m", "analysis", "catalog", "serve", str(campaign["root"]), "--web"],
+        stdout=-1, stderr=-1, text=True,
+    )  # fmt: skip
+    lines = _wait_for(proc, "serving until Ctrl-C")
+    url = next(ln.split()[-1] for ln in lines if ln.startswith("open it: rerun"))
+    web = next(ln.split()[-1] for ln in lines if ln.startswith("web viewer:"))
+    host, port = url.removeprefix("rerun+http://").split(":")
+    web_port = int(web.split(":")[2].split("/")[0])
+    assert host == "127.0.0.1" and _listening(host, int(port)) and _listening(host, web_port)
+    # loopback only: the machine's other addresses do not answer
+    other = socket.gethostbyname(socket.gethostname())
+    if other != "127.0.0.1" and not other.startswith("127."):
+        assert not _listening(other, int(port)) and not _listening(other, web_port)
+    client = rr.catalog.CatalogClient(url)
+    assert len(client.get_dataset(client.dataset_names()[0]).segment_ids()) == 4
+    os.kill(proc.pid, signal.SIGTERM)
+    assert proc.wait(timeout=20) == 0
+    assert not _listening(host, int(port)) and not _listening(host, web_port)
+
+
+def test_bad_catalog_input_is_one_line(tmp_path: Path) -> None:
+    proc = run_cli("analysis", "catalog", "serve", str(tmp_path / "missing"))
+    assert_one_line_error(proc, "is not a folder")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    proc = run_cli("analysis", "catalog", "query", str(empty))
+    assert_one_line_error(proc, "no vdc recording found")
+
+
+def test_a_where_that_names_no_property_is_one_line(campaign, tmp_path: Path) -> None:
+    proc = run_cli(
+        "analysis", "catalog", "query", str(campaign["root"]), "--where", "colour=blue",
+        "--out", str(tmp_path / "q"),
+    )  # fmt: skip
+    # the notes on the refused files come first; the error is one line, no traceback
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if ": error: " in ln]
+    assert len(errors) == 1 and "--where colour: no such property" in errors[0]
+    settings = CatalogSettings(where=("seed",))
+    with pytest.raises(Exception, match="KEY=VALUE"):
+        settings.where_dict()
