@@ -56,7 +56,9 @@ class CatalogSettings:
 
     dataset: str | None = option(None, "the dataset's name (default: the first folder's name)")
     host: str = option(
-        LOOPBACK, "the address the server and the web viewer listen on (default: this machine only)"
+        LOOPBACK,
+        "the address the server and the web viewer listen on (default: {default}, this "
+        "machine only)",
     )
     port: int = option(0, "the catalog server's port (0: a free one)", type=non_negative_int)
     web: bool = option(False, "also serve the web viewer, on the same host")
