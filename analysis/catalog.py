@@ -4,7 +4,7 @@ Rerun's catalog API (``rr.server``, ``rr.catalog``), pinned with the SDK to 0.41
 * Every recording found under the folders is a **segment** of one dataset (its recording id is
   the segment id), in the layer ``base``.
 * A small **summary layer** per segment (``summary``) adds the properties researchers filter
-  on as segment-table columns (``property:vdc:*``): source, scene, wall TF schedule, seed,
+  on as segment-table columns (``property:Summary:*``): source, scene, wall TF schedule, seed,
   model, duration, frames, complete or repaired, and the headline numbers (mean ω̂, the share
   over the threshold, a collision run's success rate). It is computed once per recording and
   kept in the cache (``$VDC_CACHE_DIR/catalog``), keyed by the file's size and time.
@@ -45,7 +45,9 @@ from vdc.recording import (
     capture_writing,
 )
 
-BASE, SUMMARY_LAYER, SUMMARY = "base", "summary", "vdc"
+# the summary layer's property section: capitalised, so that the viewer's segment table (which
+# orders sections by name, RecordingInfo first) shows it before the recordings' own sections
+BASE, SUMMARY_LAYER, SUMMARY = "base", "summary", "Summary"
 LOOPBACK = "127.0.0.1"
 CATALOG_EXTRA = "pip install 'visual-dynamic-complexity[catalog]'"
 
@@ -173,8 +175,12 @@ def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
         "tf_schedule": wall.get("tf_schedule_text"),
         "seed": run.get("seed"),
         "model": loaded.online_model,
-        "detector": props.get("collision", {}).get("detector"),
-        "phase": props.get("collision", {}).get("phase"),
+        # collision runs only: a profiling run records the (unused) detector's defaults too
+        **(
+            {k: props.get("collision", {}).get(k) for k in ("detector", "phase")}
+            if run.get("behaviour") == "collision"
+            else {}
+        ),
         "video": video.get("path"),
         "frames": int(loaded.frames.height),
         "duration_s": float(loaded.frames["t_s"].max() or 0.0),
@@ -362,6 +368,22 @@ def _drop_colliding(
     return by_layer
 
 
+def _blueprint_file(found: Found) -> Path:
+    """vdc's blueprint for the dataset's segments (the first segment's model: a video's for
+    video recordings, the arena's otherwise), as an ``.rbl`` in the cache."""
+    from avdm.registry import make_model
+    from vdc.blueprints import default_blueprint, video_blueprint
+
+    first = found.segments[0]
+    model = make_model(first.summary.get("model") or "avdm")
+    video = first.summary.get("source") == "video"
+    bp = (video_blueprint if video else default_blueprint)(model.name, model.outputs)
+    path = _cache(first.source.parent) / f"{'video' if video else 'arena'}-{model.name}.rbl"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    bp.save(APP_ID, str(path))
+    return path
+
+
 def dataset_name(folders: Sequence[str | Path], settings: CatalogSettings) -> str:
     name = settings.dataset or Path(folders[0]).resolve().name or "vdc"
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
@@ -407,6 +429,7 @@ def open_catalog(
         for layer, files in found.layers.items():
             if files:
                 ds.register([p.resolve().as_uri() for _, p in files], layer_name=layer).wait()
+        ds.register_blueprint(_blueprint_file(found).resolve().as_uri())
         yield Catalog(srv.url(), ds, name, found, client)
 
 
@@ -431,7 +454,7 @@ def serve(
         with open_catalog(folders, settings, notice) as cat:
             web_url = None
             if settings.web:
-                web, web_url = _web_viewer(cat.url, settings)
+                web, web_url = _web_viewer(dataset_url(cat), settings)
             if ready is not None:
                 ready(cat, web_url)
             while stop is None or not stop():
@@ -484,6 +507,12 @@ def _web_viewer(url: str, settings: CatalogSettings) -> tuple[subprocess.Popen, 
     from urllib.parse import quote
 
     return proc, f"http://{settings.host}:{port}/?url={quote(url, safe='')}"
+
+
+def dataset_url(cat: Catalog) -> str:
+    """The dataset's page on the running server (its id is new at every start: links in
+    reports name the dataset and segment instead)."""
+    return f"{cat.url}/dataset/{cat.dataset.id}"
 
 
 def _end(proc: subprocess.Popen) -> None:

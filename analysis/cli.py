@@ -183,7 +183,7 @@ def cmd_complexity(args: argparse.Namespace) -> int:
 
 
 def cmd_catalog(args: argparse.Namespace) -> int:
-    from analysis.catalog import CatalogSettings, query_to, serve
+    from analysis.catalog import CatalogSettings, dataset_url, query_to, serve
 
     s = settings_from_args(CatalogSettings, args)
     if args.action == "query":
@@ -194,7 +194,7 @@ def cmd_catalog(args: argparse.Namespace) -> int:
     def ready(cat, web: str | None) -> None:
         print(f"dataset {cat.name}: {len(cat.found.segments)} segment(s), layers: base, "
               + ", ".join(cat.found.layers))  # fmt: skip
-        print(f"open it: rerun {cat.url}" + (f"\nweb viewer: {web}" if web else ""))
+        print(f"open it: rerun {dataset_url(cat)}" + (f"\nweb viewer: {web}" if web else ""))
         print("serving until Ctrl-C", flush=True)
 
     serve(args.folders, s, ready, notice=_notice)

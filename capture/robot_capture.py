@@ -379,8 +379,9 @@ def record_robot(
 
     from capture.config import ArenaConfig, RobotConfig
     from capture.output import claim_output
-    from capture.recorder import Recorder, default_blueprint, spawn_viewer
+    from capture.recorder import Recorder, spawn_viewer
     from capture.run import finish_output, run_capture
+    from vdc.blueprints import default_blueprint
     from vdc.provenance import machine_info, package_versions
     from vdc.recording import LINK_STATS as LINK_STATS_ENTITY
 

@@ -196,8 +196,9 @@ def record_sim(
     from avdm.registry import make_model
     from capture.collision import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
     from capture.output import claim_output
-    from capture.recorder import Recorder, default_blueprint, spawn_viewer
+    from capture.recorder import Recorder, spawn_viewer
     from capture.run import finish_output, run_capture
+    from vdc.blueprints import default_blueprint
     from vdc.recording import model_path
 
     config = settings.to_config()

@@ -255,8 +255,9 @@ def record_video(
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel
     from capture.output import claim_output
-    from capture.recorder import Recorder, spawn_viewer, video_blueprint
+    from capture.recorder import Recorder, spawn_viewer
     from capture.run import finish_output, run_capture
+    from vdc.blueprints import video_blueprint
     from vdc.provenance import machine_info, package_versions
 
     rid = recording_id(settings, out)

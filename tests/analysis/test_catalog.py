@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import polars as pl
 import pytest
@@ -131,26 +132,40 @@ def _listening(host: str, port: int) -> bool:
         return s.connect_ex((host, port)) == 0
 
 
-def test_serve_until_sigterm_on_loopback_only(campaign) -> None:
+def test_serve_until_sigterm_on_loopback_only_and_the_web_viewer_shows_it(
+    campaign, tmp_path: Path
+) -> None:
+    """The command a user runs: the dataset in the web viewer (a real headless Chromium), both
+    servers on 127.0.0.1 only, and nothing left after SIGTERM."""
+    from urllib.parse import urlsplit
+
+    from tests.browser import screenshot
+
     proc = spawn(
         [sys.executable, "-m", "analysis", "catalog", "serve", str(campaign["root"]), "--web"],
         stdout=-1, stderr=-1, text=True,
     )  # fmt: skip
     lines = _wait_for(proc, "serving until Ctrl-C")
-    url = next(ln.split()[-1] for ln in lines if ln.startswith("open it: rerun"))
+    url = urlsplit(next(ln.split()[-1] for ln in lines if ln.startswith("open it: rerun")))
     web = next(ln.split()[-1] for ln in lines if ln.startswith("web viewer:"))
-    host, port = url.removeprefix("rerun+http://").split(":")
-    web_port = int(web.split(":")[2].split("/")[0])
-    assert host == "127.0.0.1" and _listening(host, int(port)) and _listening(host, web_port)
+    host, port, web_port = url.hostname, url.port, urlsplit(web).port
+    assert url.path.startswith("/dataset/")  # opens on the dataset's segment table
+    assert host == "127.0.0.1" and _listening(host, port) and _listening(host, web_port)
     # loopback only: the machine's other addresses do not answer
     other = socket.gethostbyname(socket.gethostname())
-    if other != "127.0.0.1" and not other.startswith("127."):
-        assert not _listening(other, int(port)) and not _listening(other, web_port)
-    client = rr.catalog.CatalogClient(url)
+    if not other.startswith("127."):
+        assert not _listening(other, port) and not _listening(other, web_port)
+    client = rr.catalog.CatalogClient(f"rerun+http://{host}:{port}")
     assert len(client.get_dataset(client.dataset_names()[0]).segment_ids()) == 4
+    shot = screenshot(web, tmp_path / "web.png")
+    img = cv2.imread(str(shot))
+    # not blank: the viewer drew its panels and the segment table (many distinct colours and
+    # strong contrast; a blank or loading page has a handful of greys)
+    assert img.shape[0] > 500 and img.std() > 20
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 200
     os.kill(proc.pid, signal.SIGTERM)
     assert proc.wait(timeout=20) == 0
-    assert not _listening(host, int(port)) and not _listening(host, web_port)
+    assert not _listening(host, port) and not _listening(host, web_port)
 
 
 def test_bad_catalog_input_is_one_line(tmp_path: Path) -> None:
