@@ -73,6 +73,43 @@ def phases_markdown(table: pl.DataFrame) -> str:
     return "\n".join(lines) + "\n\nsuccess_rate is a share (0-1); the others are per 30 min."
 
 
+def segments_markdown(out: Path) -> str:
+    """Where to watch each condition: the catalog's dataset (named after the report's folder,
+    ``vdc-analyse catalog serve OUT``) and, per condition, its segments (recording ids) and
+    their frames. Names, not server URLs: a URL changes at every start of the server."""
+    prof = pl.read_parquet(out / "profiling" / "summary.parquet")
+    col = pl.read_parquet(out / "collision" / "collision_summary.parquet")
+    frames = prof.group_by("recording_id").agg(pl.col("n_frames").max())
+    rows = (
+        prof.select("recording_id", "scene", "wall_tf_hz").unique()
+        .join(frames, on="recording_id")
+        .with_columns(
+            condition=pl.col("scene") + " TF " + pl.col("wall_tf_hz").cast(pl.String) + " Hz"
+        )
+        .select("condition", "recording_id", "n_frames")
+    )  # fmt: skip
+    cols = rows.vstack(
+        col.select(
+            pl.lit("collision ").add(pl.col("phase")).alias("condition"),
+            "recording_id",
+            pl.lit(None, pl.Int64).alias("n_frames"),
+        )
+    )
+    lines = [
+        f"Dataset `{out.resolve().name}`: `vdc-analyse catalog serve {out}` serves every run "
+        "below as a segment (open the printed URL with `rerun`, or add `--web`).",
+        "",
+        "| condition | segments (recording ids) |",
+        "|---|---|",
+    ]
+    for (cond,), g in cols.sort("condition", "recording_id").group_by(
+        "condition", maintain_order=True
+    ):
+        ids = ", ".join(f"`{r}`" for r in g["recording_id"])
+        lines.append(f"| {cond} | {ids} |")
+    return "\n".join(lines)
+
+
 def _img(path: Path) -> str:
     data = base64.b64encode(path.read_bytes()).decode()
     return f'<img src="data:image/png;base64,{data}" style="max-width:100%">'
@@ -130,6 +167,7 @@ def write_report(
         ("The numbers behind the claims", numbers_markdown(table).split("\n")),
         ("Fig. 6 across seeds (grating)", fig6_table_markdown(table).split("\n")),
         ("Collision study across seeds", phases_markdown(table).split("\n")),
+        ("Browse the runs", segments_markdown(out).split("\n")),
         ("Environment", environment_markdown(out)),
     ]
     md = [
@@ -146,11 +184,11 @@ def write_report(
         f"| {i} | {c.claim} | {c.paper} | {c.measured} | **{c.verdict}** |"
         for i, c in enumerate(claims, 1)
     ]
-    for title, lines in sections[:3]:
+    for title, lines in sections[:4]:
         md += ["", f"## {title}", "", *lines]
     md += ["", "## Figures", ""]
     md += [f"### {title}\n\n![{title}]({rel})\n" for title, rel in FIGURES if (out / rel).exists()]
-    md += ["## Environment", "", *sections[3][1], ""]
+    md += ["## Environment", "", *sections[4][1], ""]
     md_path = out / "report.md"
     md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
 
@@ -164,7 +202,7 @@ def write_report(
         f"<h3>{html.escape(t)}</h3>{_img(out / rel)}" for t, rel in FIGURES if (out / rel).exists()
     )
     tables = "".join(
-        f"<h2>{html.escape(title)}</h2>{_md_html(lines)}" for title, lines in sections[:3]
+        f"<h2>{html.escape(title)}</h2>{_md_html(lines)}" for title, lines in sections[:4]
     )
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>vdc reproduction</title>
 <style>body{{font-family:sans-serif;max-width:1200px;margin:2em auto}}
@@ -173,7 +211,7 @@ table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px;ve
 </style></head><body><h1>vdc: reproducing the paper</h1><p>{html.escape(head)}</p>
 <h2>Claims</h2><table><tr><th>#</th><th>claim</th><th>paper</th><th>measured</th><th>verdict</th></tr>
 {rows}</table>{tables}<h2>Figures</h2>{figs}
-<h2>Environment</h2>{_md_html(sections[3][1])}</body></html>"""
+<h2>Environment</h2>{_md_html(sections[4][1])}</body></html>"""
     html_path = out / "report.html"
     html_path.write_text(page, encoding="utf-8")
     return [md_path, html_path]

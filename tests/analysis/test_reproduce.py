@@ -103,6 +103,10 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
     assert set(prof["model"]) == {"avdm", "avdm-released-units"}
     assert set(prof["motion"]) == {"all", "straight", "turning"}
     assert "## Fig. 6 across seeds" in md and "## Collision study across seeds" in md
+    # every run is named where to watch it: the catalog's dataset and its segment ids
+    browse = md.split("## Browse the runs")[1].split("\n## ")[0]
+    assert f"catalog serve {out}" in browse and f"Dataset `{out.name}`" in browse
+    assert all(f"`{rid}`" in browse for rid in prof["recording_id"].unique())
     col = pl.read_parquet(out / "collision" / "collision_phases.parquet")
     tf0 = col.filter(pl.col("phase") == "tf0").row(0, named=True)
     assert tf0["seeds"] == 2
