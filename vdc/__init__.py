@@ -54,6 +54,10 @@ _API = {
     "ComplexitySettings": "analysis.complexity",
     "complexity": "analysis.complexity",
     "complexity_of_frames": "analysis.complexity",
+    # many recordings as one dataset, and inline viewing (extras: catalog, notebook)
+    "CatalogSettings": "analysis.catalog",
+    "open_catalog": "analysis.catalog",
+    "show": "analysis.notebook",
     "BatchSettings": "analysis.batch",
     "batch": "analysis.batch",
     "summarise": "analysis.batch",
@@ -80,7 +84,15 @@ __all__ = sorted(_API)
 __version__ = "0.1.0"
 
 
+# name -> a module of the API itself (``vdc.catalog.query(...)``)
+_MODULES = {"catalog": "analysis.catalog"}
+
+
 def __getattr__(name: str) -> Any:
+    if name in _MODULES:
+        value = importlib.import_module(_MODULES[name])
+        globals()[name] = value
+        return value
     module = _API.get(name)
     if module is None:
         raise AttributeError(f"module 'vdc' has no attribute {name!r}")
@@ -90,4 +102,4 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted([*globals(), *_API])
+    return sorted([*globals(), *_API, *_MODULES])
