@@ -27,6 +27,7 @@ import dataclasses
 import hashlib
 import os
 import re
+import shutil
 import subprocess
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -478,29 +479,25 @@ def _free_port(host: str) -> int:
 
 
 def _web_viewer(url: str, settings: CatalogSettings) -> tuple[subprocess.Popen, str]:
-    """The web viewer (the ``rerun`` binary, in its own process group) onto the catalog,
-    bound to ``settings.host``; returns the process and the address to open."""
-    port = settings.web_port or _free_port(settings.host)
-    proc = subprocess.Popen(
-        [
-            _rerun_binary(),
-            "--serve-web",
-            "--bind",
-            settings.host,
-            "--web-viewer-port",
-            str(port),
-            url,
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        start_new_session=True,
-    )
-    deadline = time.monotonic() + 30
+    """The web viewer (the ``rerun`` binary) onto the catalog, bound to ``settings.host``;
+    returns the process and the address to open. It is ended with this process however this
+    one ends: by :func:`serve` on the way out, and by the kernel (``setpriv --pdeathsig``,
+    where util-linux has it) if this process is killed outright."""
     import socket
+    import tempfile
 
+    port = settings.web_port or _free_port(settings.host)
+    cmd = [_rerun_binary(), "--serve-web", "--bind", settings.host, "--web-viewer-port",
+           str(port), url]  # fmt: skip
+    if shutil.which("setpriv"):
+        cmd = ["setpriv", "--pdeathsig", "SIGTERM", "--", *cmd]
+    log = tempfile.TemporaryFile()  # its messages, read only if it fails to start
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log)
+    deadline = time.monotonic() + 30
     while time.monotonic() < deadline:
         if proc.poll() is not None:
-            raise UserError(f"the web viewer did not start: {proc.stderr.read().decode()[-300:]}")
+            log.seek(0)
+            raise UserError(f"the web viewer did not start: {log.read().decode()[-300:]}")
         with contextlib.suppress(OSError), socket.create_connection((settings.host, port), 0.5):
             break
         time.sleep(0.2)
@@ -516,15 +513,11 @@ def dataset_url(cat: Catalog) -> str:
 
 
 def _end(proc: subprocess.Popen) -> None:
-    import signal
-
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(proc.pid, signal.SIGTERM)
+    proc.terminate()
     try:
         proc.wait(timeout=5)
     except subprocess.TimeoutExpired:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
+        proc.kill()
         proc.wait()
 
 
