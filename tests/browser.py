@@ -11,6 +11,7 @@ import subprocess
 import tempfile
 import time
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -22,9 +23,16 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def screenshot(url: str, out: Path, wait_s: float = 25.0, size: str = "1400,900") -> Path:
-    """Open ``url`` in headless Chromium (software WebGL; every host but 127.0.0.1 blocked),
-    wait ``wait_s`` seconds of real time, and save a PNG of the page to ``out``."""
+def screenshot(
+    url: str,
+    out: Path,
+    ready: Callable[[bytes], bool] = lambda _png: True,
+    wait_s: float = 45.0,
+    size: str = "1400,900",
+) -> Path:
+    """Open ``url`` in headless Chromium (software WebGL; every host but 127.0.0.1 blocked)
+    and save a PNG of the page to ``out``: the first screenshot, taken every 2 s, that
+    ``ready`` accepts, else the last one after ``wait_s`` seconds."""
     from websocket import create_connection
 
     assert CHROMIUM, "Chromium is not installed (Debian package chromium)"
@@ -54,14 +62,20 @@ def screenshot(url: str, out: Path, wait_s: float = 25.0, size: str = "1400,900"
                 time.sleep(0.3)
         ws = create_connection(page["webSocketDebuggerUrl"], timeout=60)
         ws.send(json.dumps({"id": 1, "method": "Page.navigate", "params": {"url": url}}))
-        time.sleep(wait_s)
-        ws.send(json.dumps({"id": 2, "method": "Page.captureScreenshot", "params": {}}))
+        end, n = time.monotonic() + wait_s, 2
         while True:
-            msg = json.loads(ws.recv())
-            if msg.get("id") == 2:
+            time.sleep(2.0)
+            n += 1
+            ws.send(json.dumps({"id": n, "method": "Page.captureScreenshot", "params": {}}))
+            while True:
+                msg = json.loads(ws.recv())
+                if msg.get("id") == n:
+                    break
+            png = base64.b64decode(msg["result"]["data"])
+            if ready(png) or time.monotonic() > end:
                 break
         ws.close()
-        out.write_bytes(base64.b64decode(msg["result"]["data"]))
+        out.write_bytes(png)
         return out
     finally:
         proc.terminate()

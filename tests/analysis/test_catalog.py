@@ -34,20 +34,20 @@ def campaign(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("campaign")
     rec = root / "recordings"
     paths = {
-        "tf0": record_sim(SimSettings(tf_hz=0.0, minutes=0.1, seed=1), rec / "tf0.rrd").path,
-        "tf3": record_sim(SimSettings(tf_hz=3.0, minutes=0.1, seed=2), rec / "tf3.rrd").path,
+        "tf0": record_sim(SimSettings(tf_hz=0.0, minutes=0.05, seed=1), rec / "tf0.rrd").path,
+        "tf3": record_sim(SimSettings(tf_hz=3.0, minutes=0.05, seed=2), rec / "tf3.rrd").path,
         "crash": record_sim(
             SimSettings(behaviour="collision", tf_hz=3.0, minutes=0.3, seed=3), rec / "col.rrd"
         ).path,
     }
-    cut = record_sim(SimSettings(tf_hz=1.0, minutes=0.1, seed=4), root / "whole.rrd").path
+    cut = record_sim(SimSettings(tf_hz=1.0, minutes=0.05, seed=4), root / "whole.rrd").path
     data = cut.read_bytes()
     (rec / "cut.rrd").write_bytes(data[: int(len(data) * 0.6)])  # a copy that stopped early
     cut.unlink()
     profile = [paths["tf0"], paths["tf3"]]
     compare(paths["tf3"], CompareSettings(models=("avdm", "avdm:beta=0.5")), root / "cmp")
     batch(profile, BatchSettings(models=("avdm-on",), jobs=1), root / "bt")
-    complexity(profile, ComplexitySettings(rrd=True), root / "cx")
+    complexity([paths["tf3"]], ComplexitySettings(), root / "cx")  # one source: its .rrd too
     other = rr.RecordingStream("another_app", recording_id="theirs")
     other.save(str(rec / "theirs.rrd"))
     other.send_columns(
@@ -86,7 +86,7 @@ def test_segments_layers_and_what_is_refused(campaign) -> None:
     row = by_id[t["recording_id"]]
     assert row["mean_omega_dps"] == pytest.approx(t["mean"], rel=1e-12)
     assert row["frac_over_100"] == pytest.approx(t["frac_over_100"], abs=1e-12)
-    assert row["tf_schedule"] == "3:6s" and row["seed"] == 2
+    assert row["tf_schedule"] == "3:3s" and row["seed"] == 2
     layers = set(row["layers"])
     assert {"base", "summary", "compare-cmp", "complexity-cx", "batch-avdm-on"} <= layers
     refused = dict(cat.found.unregistered)
@@ -170,13 +170,15 @@ def test_serve_until_sigterm_on_loopback_only(campaign) -> None:
 def test_the_web_viewer_shows_the_dataset_in_a_real_browser(campaign, tmp_path: Path) -> None:
     from tests.browser import screenshot
 
+    def drawn(png: bytes) -> bool:
+        """Not blank: the viewer drew its panels and the segment table (many distinct colours
+        and strong contrast; a blank or loading page has a handful of greys)."""
+        img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+        return img.std() > 20 and len(np.unique(img.reshape(-1, 3), axis=0)) > 200
+
     proc, _url, web = _serve(campaign)
-    shot = screenshot(web, tmp_path / "web.png")
-    img = cv2.imread(str(shot))
-    # not blank: the viewer drew its panels and the segment table (many distinct colours and
-    # strong contrast; a blank or loading page has a handful of greys)
-    assert img.shape[0] > 500 and img.std() > 20
-    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 200
+    shot = screenshot(web, tmp_path / "web.png", ready=drawn)
+    assert drawn(shot.read_bytes()) and cv2.imread(str(shot)).shape[0] > 500
     # killed outright (no clean-up of its own): the kernel ends its web viewer with it
     from urllib.parse import urlsplit
 
