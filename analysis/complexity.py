@@ -276,13 +276,20 @@ def measure_source(
     return measure_video(source, settings, recording_id, progress)
 
 
-def complexity_task(source: str, recording_id: str, key: str, settings: dict, out: str) -> dict:
+def complexity_task(
+    source: str,
+    recording_id: str,
+    key: str,
+    settings: dict,
+    out: str,
+    progress: Callable[[int], None] | None = None,
+) -> dict:
     """One source as an executor task: measure it and write its part (the "done" mark)
     atomically. Module-level, small arguments, a small result."""
     from vdc.parquet_io import write_parquet
 
     s = ComplexitySettings(**settings)
-    m = measure_source(source, recording_id, s)
+    m = measure_source(source, recording_id, s, progress)
     meta = {"info": m.info, "settings": s.measured(), "source": source, "key": key}
     write_parquet(m.table, part_path(Path(out), key), meta)
     return {"frames": m.table.height}
@@ -332,15 +339,12 @@ def _run_inline(
     """One source on the local executor: measured here, with a progress bar over frames. The
     only source of a command (``single``) that fails is bad input (one line, exit 2); one
     source of a collection is listed as failed."""
-    from vdc.parquet_io import write_parquet
-
     outcomes = []
     for t in tasks:
         try:
-            m = measure_source(t["source"], t["recording_id"], settings, progress)
-            meta = {"info": m.info, "settings": settings.measured(), "source": t["source"]}
-            write_parquet(m.table, part_path(out, t["key"]), {**meta, "key": t["key"]})
-            outcomes.append(TaskOutcome(t["source"], {"frames": m.table.height}, None))
+            args = (t["recording_id"], t["key"], dataclasses.asdict(settings), str(out))
+            done = complexity_task(t["source"], *args, progress=progress)
+            outcomes.append(TaskOutcome(t["source"], done, None))
         except (ValueError, OSError) as exc:
             if single:
                 raise
