@@ -150,6 +150,32 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_boundary(args: argparse.Namespace) -> int:
+    from analysis.boundary import BoundarySettings, boundary, describe_boundary
+
+    settings = settings_from_args(BoundarySettings, args)
+    with progress_bar(None, "boundary", "run") as bar:
+        res = boundary(settings, args.out, log=say, progress=bar.update)
+    for row in res.boundaries.iter_rows(named=True):
+        print(f"boundary at {settings.param} = {row[settings.param]:g}: {describe_boundary(row)}")
+    files = res.files
+    wrote = [files.boundary_md, files.boundary_png] + ([files.policy] if res.policy else [])
+    print("wrote " + ", ".join(str(p) for p in wrote))
+    return 0
+
+
+def cmd_adaptation(args: argparse.Namespace) -> int:
+    from analysis.adaptation import AdaptationSettings, adaptation
+
+    settings = settings_from_args(AdaptationSettings, args)
+    with progress_bar(None, "adaptation", "run") as bar:
+        res = adaptation(settings, args.out, log=say, progress=bar.update)
+    print(res.markdown)
+    print(f"verdict: {res.verdict}")
+    print(f"wrote {res.files.adaptation_md}, {res.files.adaptation_png}")
+    return 0
+
+
 def cmd_complexity(args: argparse.Namespace) -> int:
     from analysis.complexity import ComplexitySettings, complexity, expand_sources
 
@@ -367,6 +393,40 @@ COMMANDS = {
         "are reused. Writes the recordings, the collision analysis and collision_study.md "
         "with the paper's numbers beside ours.",
         inputs=_inputs("results/collision-study", None),
+    ),
+    "boundary": Command(
+        "analysis.boundary:BoundarySettings",
+        cmd_boundary,
+        "where a detector breaks as complexity rises (arena grid or labelled footage)",
+        "Arena: closed-loop collision runs over a grid of wall scene x TF x the detector's "
+        "--param values x seeds (on --executor, finished runs reused), each condition profiled "
+        "with the AVDM; success, avoidances and crashes per 30 min and distance to collision "
+        "per condition with 95 % intervals; the boundary (the complexity where success falls "
+        "below --target at 95 % confidence) per value; a policy fitted from the grid "
+        "(policy.csv: the parameter against the online complexity). Footage (--labels): hit "
+        "rate, false alarms and the time to collision of the first alert per clip and per "
+        "group of clips of similar complexity. Writes boundary.md, boundary.png and Parquet "
+        "tables into --out.",
+        "examples:\n"
+        "  vdc-analyse boundary --detector lgmd-plus-arena --param t_ffi --values 12,20,30,45\n"
+        "  vdc-analyse boundary --labels clips/labels.csv --fov-deg 60 "
+        "--detector examples.looming:Looming --param threshold --values 0.05,0.15",
+        inputs=_inputs("results/boundary", None),
+    ),
+    "adaptation": Command(
+        "analysis.adaptation:AdaptationSettings",
+        cmd_adaptation,
+        "test a learnt policy on held-out conditions against the hand-made controllers",
+        "Closed-loop runs of the detector on held-out wall TFs and scenes and on a TF "
+        "schedule that changes mid-run, with four controllers: fixed (the detector as is), "
+        "hand (the paper's adjusted threshold, --hand), adaptive (vdc's hand-made rule) and "
+        "policy (--policy, from vdc-analyse boundary, running online). Same seeds for every "
+        "controller; success, avoidances and crashes with 95 % intervals, the policy's paired "
+        "differences against each controller and a verdict computed from them. Writes "
+        "adaptation.md, adaptation.png and Parquet tables into --out.",
+        "example:\n  vdc-analyse adaptation --policy results/boundary/policy.csv --tf 2 "
+        "--schedule 0:5m,3:5m",
+        inputs=_inputs("results/adaptation", None),
     ),
     "batch": Command(
         "analysis.batch:BatchSettings",

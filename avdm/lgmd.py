@@ -305,6 +305,21 @@ class _LgmdBase:
         self._shape: tuple[int, int] | None = None
         self._is_u8: bool | None = None
 
+    # parameters that may change while the model runs (a policy's doing): name → index in _cfg
+    live_params: ClassVar[dict[str, int]] = {}
+
+    def set_param(self, name: str, value: float) -> None:
+        """Change parameter ``name`` from the next frame on, keeping all state (``params`` keep
+        the value the model was built with). Only ``live_params`` can change."""
+        if name not in self.live_params:
+            raise ValueError(
+                f"{self.name}: parameter {name!r} cannot change while it runs (these can: "
+                f"{', '.join(self.live_params)})"
+            )
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive number, got {value}")
+        self._cfg[self.live_params[name]] = float(value)
+
     def _allocate(self, h: int, w: int) -> None:
         self._shape = (h, w)
         self._lum = np.zeros((h, w))
@@ -350,6 +365,7 @@ class LgmdPlus(_LgmdBase):
 
     _n_bufs = 6
     _n_scal = 5
+    live_params: ClassVar[dict[str, int]] = {"t_ffi": 2, "t_sr": 22}
 
     def __init__(self, params: LgmdPlusParams, name: str = "lgmd-plus") -> None:
         p = params
@@ -392,9 +408,7 @@ class LgmdPlus(_LgmdBase):
     def set_t_ffi(self, t_ffi: float) -> None:
         """Change the FFI threshold T_ffi from the next frame on (closed-loop adaptation; the
         ``params`` keep the value the model was built with)."""
-        if not (math.isfinite(t_ffi) and t_ffi > 0):
-            raise ValueError(f"t_ffi must be a positive number, got {t_ffi}")
-        self._cfg[2] = t_ffi
+        self.set_param("t_ffi", t_ffi)
 
     def _kernel(self, frames: np.ndarray, is_u8: bool, out: np.ndarray) -> None:
         _lgmd_plus_kernel(
@@ -416,6 +430,7 @@ class LgmdColias(_LgmdBase):
 
     _n_bufs = 5
     _n_scal = 6
+    live_params: ClassVar[dict[str, int]] = {"t_pm": 2, "n_alert": 21}
 
     def __init__(self, params: LgmdColiasParams, name: str = "lgmd-colias") -> None:
         p = params

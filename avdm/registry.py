@@ -14,10 +14,19 @@ from typing import Any
 
 from avdm.avdm_model import Avdm, AvdmParams
 from avdm.avdm_multiscale import AvdmMultiScale, AvdmMultiScaleParams
+from avdm.base import PRIMARY_OUTPUT as PRIMARY_OUTPUT_NAME
 from avdm.base import Model, Params
 from avdm.calibration_store import calibration_for
 from avdm.lgmd import LgmdColias, LgmdPlus
 from avdm.lgmd_params import LgmdColiasParams, LgmdPlusParams
+from avdm.plugins import (
+    PluginParams,
+    build_plugin,
+    entry_point_models,
+    factory_parameters,
+    is_reference,
+    load_factory,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,23 +150,57 @@ def _parse_value(key: str, raw: str, typ: type) -> Any:
     return raw
 
 
-def parse_model_spec(spec: str) -> tuple[str, dict[str, Any]]:
-    """Split ``"name:key=value,key=value"`` into the variant name and typed overrides.
+# a key every model takes: the file of a learnt policy that sets one of its parameters from the
+# scene's profiled complexity as it runs (avdm.policy)
+POLICY_KEY = "policy"
 
-    Raises ``ValueError`` naming the problem: unknown variant, unknown parameter, a value of
-    the wrong type, or a malformed spec.
-    """
+
+def _split_spec(spec: str) -> tuple[str, str | None, str | None]:
+    """``(name, plug-in reference or None, override text or None)`` of a spec."""
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError("empty model spec: expected a name such as 'avdm' or 'avdm:beta=0.5'")
-    m = _SPEC_RE.match(spec.strip())
+    text = spec.strip()
+    parts = text.split(":", 2)
+    named = parts[0] in VARIANTS or parts[0] in entry_point_models()
+    if not named and len(parts) >= 2 and "=" not in parts[1] and is_reference(":".join(parts[:2])):
+        ref = f"{parts[0]}:{parts[1]}"
+        return ref, ref, parts[2] if len(parts) == 3 else None
+    m = _SPEC_RE.match(text)
     if m is None:
-        raise ValueError(f"malformed model spec {spec!r}: expected name or name:key=value,...")
+        raise ValueError(
+            f"malformed model spec {spec!r}: expected name, name:key=value,... or "
+            "package.module:factory[:key=value,...]"
+        )
     name = m.group("name")
-    if name not in VARIANTS:
-        raise ValueError(f"unknown model {name!r}: known models are {', '.join(sorted(VARIANTS))}")
-    types = KINDS[VARIANTS[name].kind].params_cls.field_types()
+    if name in VARIANTS:
+        return name, None, m.group("over")
+    installed = entry_point_models()
+    if name in installed:
+        return name, installed[name], m.group("over")
+    known = sorted(VARIANTS) + sorted(installed)
+    raise ValueError(
+        f"unknown model {name!r}: known models are {', '.join(known)} (or a plug-in, "
+        "package.module:factory)"
+    )
+
+
+def _param_types(name: str, ref: str | None) -> tuple[dict[str, type], bool]:
+    """The parameters a spec may override, with their types, and whether others are taken."""
+    if ref is None:
+        return KINDS[VARIANTS[name].kind].params_cls.field_types(), False
+    return factory_parameters(load_factory(ref))
+
+
+def parse_model_spec(spec: str) -> tuple[str, dict[str, Any]]:
+    """Split ``"name:key=value,key=value"`` (or ``"package.module:factory:key=value"``) into the
+    model's name and typed overrides.
+
+    Raises ``ValueError`` naming the problem: unknown variant or plug-in, unknown parameter, a
+    value of the wrong type, or a malformed spec.
+    """
+    name, ref, over = _split_spec(spec)
+    types, open_kw = _param_types(name, ref)
     overrides: dict[str, Any] = {}
-    over = m.group("over")
     if over is not None:
         if not over.strip():
             raise ValueError(f"model spec {spec!r} has ':' but no key=value overrides")
@@ -165,13 +208,21 @@ def parse_model_spec(spec: str) -> tuple[str, dict[str, Any]]:
             if "=" not in item:
                 raise ValueError(f"model override {item.strip()!r} in {spec!r} is not key=value")
             key, raw = (s.strip() for s in item.split("=", 1))
-            if key not in types:
+            if key == POLICY_KEY:
+                overrides[key] = _parse_value(key, raw, str)
+                continue
+            if key not in types and not open_kw:
                 raise ValueError(
                     f"unknown parameter {key!r} for model {name!r}: "
-                    f"known parameters are {', '.join(types)}"
+                    f"known parameters are {', '.join(types) or '(none)'}"
                 )
-            overrides[key] = _parse_value(key, raw, types[key])
+            overrides[key] = _parse_value(key, raw, types.get(key, float))
     return name, overrides
+
+
+def is_plugin(spec: str) -> bool:
+    """``spec`` names a model from outside vdc (a factory or an installed entry point)."""
+    return _split_spec(spec)[1] is not None
 
 
 def canonical_name(spec: str) -> str:
@@ -186,9 +237,15 @@ def make_params(spec: str, **context: Any) -> Params:
     """Fully resolved params for ``spec``.
 
     ``context`` carries camera facts the caller knows (``fps``, ``deg_per_px``); they apply
-    before the variant's and the user's overrides, which win.
+    before the variant's and the user's overrides, which win. A plug-in's params are the
+    keyword arguments its factory would be called with.
     """
     name, overrides = parse_model_spec(spec)
+    overrides.pop(POLICY_KEY, None)
+    _, ref, _ = _split_spec(spec)
+    if ref is not None:
+        types, _ = factory_parameters(load_factory(ref))
+        return PluginParams({**{k: v for k, v in context.items() if k in types}, **overrides})  # type: ignore[return-value]
     variant = VARIANTS[name]
     kind = KINDS[variant.kind]
     fields = kind.params_cls.field_types()
@@ -200,10 +257,22 @@ def make_params(spec: str, **context: Any) -> Params:
 
 
 def make_model(spec: str, **context: Any) -> Model:
-    """Build the model named by ``spec`` (e.g. ``"avdm"``, ``"avdm-on"``, ``"avdm:beta=0.5"``)."""
-    name, _ = parse_model_spec(spec)
-    params = make_params(spec, **context)
-    return KINDS[VARIANTS[name].kind].build(params, canonical_name(spec))
+    """Build the model named by ``spec`` (e.g. ``"avdm"``, ``"avdm-on"``, ``"avdm:beta=0.5"``,
+    ``"mypackage.detectors:make_detector:threshold=0.2"``, ``"lgmd-plus:policy=policy.csv"``)."""
+    name, overrides = parse_model_spec(spec)
+    policy = overrides.pop(POLICY_KEY, None)
+    _, ref, _ = _split_spec(spec)
+    full = canonical_name(spec)
+    if ref is not None:
+        model: Model = build_plugin(ref, full, overrides, context)  # type: ignore[assignment]
+    else:
+        params = make_params(spec, **context)
+        model = KINDS[VARIANTS[name].kind].build(params, full)
+    if policy is None:
+        return model
+    from avdm.policy import PolicyModel, load_policy
+
+    return PolicyModel(model, load_policy(policy), context)  # type: ignore[return-value]
 
 
 # the families whose models decode an angular velocity (output ``omega_dps``); the others are
@@ -215,7 +284,11 @@ def require_angular_velocity(spec: str, what: str) -> None:
     """ValueError, in one line, when ``spec`` is not a model with ``omega_dps`` (``what``: the
     command that needs one, e.g. ``"sweep"``)."""
     name, _ = parse_model_spec(spec)
-    if VARIANTS[name].kind not in ANGULAR_VELOCITY_KINDS:
+    if name not in VARIANTS:  # a plug-in: it must say it decodes an angular velocity
+        model = make_model(spec)
+        if PRIMARY_OUTPUT_NAME in {o.name for o in model.outputs}:
+            return
+    if name not in VARIANTS or VARIANTS[name].kind not in ANGULAR_VELOCITY_KINDS:
         avdms = sorted(n for n, v in VARIANTS.items() if v.kind in ANGULAR_VELOCITY_KINDS)
         raise ValueError(
             f"{what} needs a model's angular velocity (omega_dps); {name} is a collision "
@@ -224,5 +297,8 @@ def require_angular_velocity(spec: str, what: str) -> None:
 
 
 def describe_models() -> str:
-    """One line per registered variant, for ``--help`` texts."""
-    return "\n".join(f"  {n:<20} {v.description}" for n, v in sorted(VARIANTS.items()))
+    """One line per registered variant and installed plug-in, for ``--help`` texts."""
+    lines = [f"  {n:<20} {v.description}" for n, v in sorted(VARIANTS.items())]
+    lines += [f"  {n:<20} plug-in {ref}" for n, ref in sorted(entry_point_models().items())]
+    lines.append(f"  {'module:factory':<20} a model of your own (docs/models.md#your-own-model)")
+    return "\n".join(lines)

@@ -171,7 +171,12 @@ class ClosedLoopRobot(SimulatedRobot):
         super().__init__(config, batch_size)
         ctx = config.camera.model_context()
         self._detector_spec = config.collision.detector_spec()
-        make_model(self._detector_spec, **ctx)  # fail early on a bad spec
+        detector = make_model(self._detector_spec, **ctx)  # fail early on a bad spec
+        if "alert" not in {o.name for o in detector.outputs}:
+            raise ValueError(
+                f"detector {detector.name!r} has no 'alert' output (1 = collision ahead), so it "
+                "cannot drive the robot's avoidance: give its model an output named alert"
+            )
         make_model(config.model, **ctx)
 
     def _make_motion(self) -> CollisionMotion:
@@ -186,6 +191,7 @@ class ClosedLoopRobot(SimulatedRobot):
         p = self.detector.params
         self._base = float(getattr(p, "t_sr", getattr(p, "n_alert", 0)))
         self._t_ffi0 = float(getattr(p, "t_ffi", 0.0))
+        self._policy_param = getattr(getattr(self.detector, "policy", None), "param", None)
         window = max(1, round(c.collision.adaptive_window_s * c.camera.fps))
         self._omega_ring = np.zeros(window)  # AVDM ω̂ over the window (running mean)
         self._omega_sum = 0.0
@@ -230,6 +236,8 @@ class ClosedLoopRobot(SimulatedRobot):
                 t_ffi = max(self._t_ffi0, c.collision.adaptive_gain * mean_dps)
                 self.detector.set_t_ffi(t_ffi)  # type: ignore[attr-defined]
             d = self.detector.step(frame)
+            if self._policy_param == "t_ffi":  # a learnt policy set it for this frame
+                t_ffi = self.detector.value  # type: ignore[attr-defined]
             a = self.profiler.step(frame)
             omega = a.get("omega_dps", 0.0)
             slot = f % window
@@ -246,7 +254,11 @@ class ClosedLoopRobot(SimulatedRobot):
                 )
             else:
                 alert = d["alert"] > 0
-                detail = f"{self._base:g} consecutive spikes"
+                detail = (
+                    f"{self._base:g} consecutive spikes"
+                    if c.collision.base_detector == "lgmd-colias"
+                    else f"{self.detector.name} alert"
+                )
             for k, v in d.items():
                 det_out[k][i] = v
             for k, v in a.items():

@@ -236,21 +236,36 @@ class CollisionConfig:
     phase: str = ""  # a label for the study's tables, e.g. "TF 3 Hz, adjusted threshold"
 
     def __post_init__(self) -> None:
+        from avdm.registry import is_plugin
+
+        plugin = is_plugin(self.detector)  # a bad spec fails here, in one line
         _check(
-            self.base_detector in DETECTORS,
+            plugin or self.base_detector in DETECTORS,
             "detector",
             self.detector,
-            f"must be an LGMD detector ({', '.join(DETECTORS)}, lgmd-plus-arena; "
-            "optionally with :key=value overrides)",
+            f"must be a collision detector: {', '.join(DETECTORS)}, lgmd-plus-arena (optionally "
+            "with :key=value overrides), or a plug-in with an 'alert' output",
         )
         if not math.isnan(self.threshold):
+            _check(
+                not plugin,
+                "threshold",
+                self.threshold,
+                "applies to the LGMD detectors; set a plug-in's own parameter in its spec",
+            )
             hi = 2000.0 if self.base_detector == "lgmd-plus" else 100.0
             _in_range("collision threshold", self.threshold, 1.0, hi)
         _check(
-            not (self.adaptive and self.base_detector != "lgmd-plus"),
+            not (self.adaptive and (plugin or self.base_detector != "lgmd-plus")),
             "adaptive",
             self.adaptive,
             "the adaptive threshold needs a spike-rate detector (lgmd-plus)",
+        )
+        _check(
+            not (self.adaptive and ":policy=" in self.detector.replace(" ", "")),
+            "adaptive",
+            self.adaptive,
+            "a detector with a learnt policy adapts already: drop --adaptive",
         )
         _in_range("adaptive_gain", self.adaptive_gain, 0.0, 100.0)
         _in_range("adaptive_window_s", self.adaptive_window_s, 0.1, 600.0, " s")

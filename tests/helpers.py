@@ -9,7 +9,11 @@ import subprocess
 import sys
 import time
 from collections.abc import Sequence
+from fractions import Fraction
 from pathlib import Path
+
+import av
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -137,3 +141,33 @@ def kill_a_worker_mid_batch(
     assert killed is not None, "no worker was seen with a finished part"
     stdout, stderr = proc.communicate(timeout=300)
     return proc.returncode, stdout, stderr, killed
+
+
+def write_video(
+    path: Path,
+    frames: np.ndarray,
+    fps: float,
+    times_s: np.ndarray | None = None,
+    container: str | None = None,
+) -> Path:
+    """Encode grey frames (T, H, W) as H.264 (yuv420p, near-lossless CRF 12); ``times_s``
+    gives each frame's presentation time (variable frame rate)."""
+    out = av.open(str(path), "w", format=container)
+    stream = out.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
+    stream.width, stream.height = frames.shape[2], frames.shape[1]
+    stream.pix_fmt = "yuv420p"
+    stream.options = {"crf": "12", "bf": "0"}
+    if times_s is not None:
+        stream.time_base = Fraction(1, 1000)
+        stream.codec_context.time_base = Fraction(1, 1000)
+    for i, f in enumerate(frames):
+        frame = av.VideoFrame.from_ndarray(np.stack([f] * 3, axis=-1), format="rgb24")
+        if times_s is not None:
+            frame.pts = round(times_s[i] * 1000)
+            frame.time_base = Fraction(1, 1000)
+        for packet in stream.encode(frame):
+            out.mux(packet)
+    for packet in stream.encode():
+        out.mux(packet)
+    out.close()
+    return path

@@ -259,7 +259,7 @@ def test_a_gap_and_a_bad_image_in_a_sequence_are_flagged_not_a_cut(tmp_path: Pat
 
 
 def test_a_bad_packet_costs_its_own_frames_only(tmp_path: Path) -> None:
-    from tests.capture.test_video import write_video
+    from tests.helpers import write_video
 
     rng = np.random.default_rng(0)
     clip = write_video(
@@ -289,7 +289,7 @@ def test_a_bad_packet_costs_its_own_frames_only(tmp_path: Path) -> None:
 
 # -- input = output ----------------------------------------------------------------------------
 def test_a_video_given_as_its_own_output_is_refused_and_unchanged(tmp_path: Path) -> None:
-    from tests.capture.test_video import write_video
+    from tests.helpers import write_video
 
     clip = write_video(
         tmp_path / "v.rrd", np.zeros((10, 48, 64), np.uint8), 30.0, container="matroska"

@@ -20,42 +20,12 @@ from avdm import make_model
 from avdm.calibration_store import calibration_for
 from avdm.stimuli import grating
 from capture.video import VideoSettings, record_video
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error, run_cli, write_video
 from vdc.frame_metrics import luma_plane
 
 FOV = 70.0
 TF_HZ, PERIOD_SRC = 2.0, 24.0  # the grating on the 198-px-wide source: 12 px after resizing
 TRUTH_DPS = TF_HZ * PERIOD_SRC * FOV / 198  # deg/s: TF x period in degrees
-
-
-def write_video(
-    path: Path,
-    frames: np.ndarray,
-    fps: float,
-    times_s: np.ndarray | None = None,
-    container: str | None = None,
-) -> Path:
-    """Encode grey frames (T, H, W) as H.264 (yuv420p, near-lossless CRF 12); ``times_s``
-    gives each frame's presentation time (variable frame rate)."""
-    out = av.open(str(path), "w", format=container)
-    stream = out.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
-    stream.width, stream.height = frames.shape[2], frames.shape[1]
-    stream.pix_fmt = "yuv420p"
-    stream.options = {"crf": "12", "bf": "0"}
-    if times_s is not None:
-        stream.time_base = Fraction(1, 1000)
-        stream.codec_context.time_base = Fraction(1, 1000)
-    for i, f in enumerate(frames):
-        frame = av.VideoFrame.from_ndarray(np.stack([f] * 3, axis=-1), format="rgb24")
-        if times_s is not None:
-            frame.pts = round(times_s[i] * 1000)
-            frame.time_base = Fraction(1, 1000)
-        for packet in stream.encode(frame):
-            out.mux(packet)
-    for packet in stream.encode():
-        out.mux(packet)
-    out.close()
-    return path
 
 
 def source_grating(n: int, fps: float) -> np.ndarray:

@@ -1,0 +1,383 @@
+"""``vdc-analyse adaptation``: a learnt policy tested where it was not learnt.
+
+The policy (``policy.csv`` from ``vdc-analyse boundary``) sets the detector's parameter from
+the on-board AVDM's running mean as the robot drives. It is run in closed loop on held-out
+conditions (wall TFs and scenes the grid did not have, and a TF schedule that changes in the
+middle of a run) beside three controllers:
+
+* ``fixed``: the detector as it is (its default parameters);
+* ``hand``: the paper's hand-adjusted threshold (``--hand``, e.g. ``t_ffi=30``);
+* ``adaptive``: vdc's hand-made complexity-adaptive rule, T_ffi = max(T_ffi0, gain × mean ω̂)
+  (lgmd-plus kinds only);
+* ``policy``: the detector with ``policy=FILE``.
+
+Every controller sees the same seeds (the same starting poses and turn draws), so differences
+are paired by seed. Per condition and controller: success, avoidances and crashes per 30 min
+with 95 % intervals; per condition and comparison (policy against each other controller): the
+paired differences with 95 % intervals and a verdict computed from them:
+
+* **better**: the policy keeps the target (mean success ≥ target) and the other does not, or
+  both keep it and the policy avoids less (the difference's interval is above 0);
+* **worse**: the mirror image;
+* **no difference**: neither, at 95 %.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+from matplotlib.figure import Figure
+
+from analysis.boundary import (
+    condition_complexity,
+    condition_name,
+    condition_statistics,
+    interval,
+    markdown_table,
+    name_list,
+    number_list,
+    run_grid,
+)
+from analysis.stats import mean_ci
+from avdm.policy import load_policy
+from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.executors import ExecutorSettings
+from vdc.parquet_io import WroteFiles
+
+CONTROLLERS = ("fixed", "hand", "adaptive", "policy")
+BETTER, WORSE, SAME = "better", "worse", "no difference"
+
+
+@dataclasses.dataclass(frozen=True)
+class AdaptationSettings(ExecutorSettings):
+    """``vdc-analyse adaptation``: the policy, the held-out conditions, the controllers it is
+    compared with."""
+
+    policy: str | None = option(
+        None, "the policy file (policy.csv of vdc-analyse boundary)", metavar="FILE", required=True
+    )
+    detector: str = option("lgmd-plus-arena", "the detector the policy was fitted for")
+    tf: str = option("2", "held-out wall TFs, Hz, comma-separated")
+    scenes: str = option("grating,natural", "scenes of the held-out TFs, comma-separated")
+    schedule: str = option(
+        "0:5m,3:5m",
+        "a TF schedule that changes mid-run (grating walls), TF:DURATION,...; empty: none",
+    )
+    hand: str = option("t_ffi=30", "the paper's hand-adjusted threshold: detector overrides")
+    adaptive_gain: float = option(1.0, "the hand-made adaptive rule's gain", type=positive_float)
+    seed: int = option(101, "first random seed (other than the grid's)", type=non_negative_int)
+    seeds: int = option(5, "runs per condition and controller")
+    minutes: float = option(10.0, "length of each run at a constant TF", type=positive_float)
+    target: float = option(0.9, "the success rate to keep", type=positive_float)
+    false_alarm_m: float = option(0.30, "false-alarm distance, m", type=positive_float)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        from avdm.registry import parse_model_spec
+
+        if not self.policy:
+            raise ValueError("give the policy to test: --policy FILE (from vdc-analyse boundary)")
+        load_policy(self.policy)  # a bad policy file fails before anything runs
+        parse_model_spec(self.policy_spec())
+        parse_model_spec(self.hand_spec())
+        if not 0 < self.target < 1:
+            raise ValueError(f"--target must be between 0 and 1, got {self.target}")
+        if self.seeds < 1:
+            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+        self.conditions()
+
+    def policy_spec(self) -> str:
+        return _with(self.detector, f"policy={Path(self.policy).resolve()}")
+
+    def hand_spec(self) -> str:
+        return _with(self.detector, self.hand) if self.hand else self.detector
+
+    def adaptive_allowed(self) -> bool:
+        from capture.config import CollisionConfig
+
+        return CollisionConfig(detector=self.detector).base_detector == "lgmd-plus"
+
+    def conditions(self) -> list[tuple[str, str, float | None, str | None]]:
+        """(condition, scene, TF, schedule) of every held-out condition."""
+        out: list[tuple[str, str, float | None, str | None]] = [
+            (condition_name(scene, tf), scene, tf, None)
+            for scene in name_list(self.scenes, "scenes", ("grating", "natural"))
+            for tf in number_list(self.tf, "tf")
+        ]
+        if self.schedule:
+            from capture.config import parse_schedule
+
+            parse_schedule(self.schedule)
+            out.append(
+                (
+                    f"grating-schedule-{self.schedule.replace(':', '_')}",
+                    "grating",
+                    None,
+                    self.schedule,
+                )
+            )
+        if not out:
+            raise ValueError("no held-out condition: give --tf and --scenes or --schedule")
+        return out
+
+
+def _with(spec: str, overrides: str) -> str:
+    from avdm.registry import is_plugin
+
+    plain = ":" not in spec or (is_plugin(spec) and spec.count(":") == 1)
+    return f"{spec}{':' if plain else ','}{overrides}"
+
+
+def adaptation_items(s: AdaptationSettings, folder: Path) -> list[tuple[str, Any, Path, dict]]:
+    """One closed-loop run per (condition, controller, seed)."""
+    from capture.sim import SimSettings
+
+    controllers = [c for c in CONTROLLERS if c != "adaptive" or s.adaptive_allowed()]
+    specs = {
+        "fixed": s.detector,
+        "hand": s.hand_spec(),
+        "adaptive": s.detector,
+        "policy": s.policy_spec(),
+    }
+    items = []
+    for cond, scene, tf, schedule in s.conditions():
+        for ctrl in controllers:
+            for seed in range(s.seed, s.seed + s.seeds):
+                settings = SimSettings(
+                    behaviour="collision",
+                    model=specs[ctrl],
+                    scene=scene,
+                    tf_hz=tf if tf is not None else 0.0,
+                    tf_schedule=schedule,
+                    minutes=None if schedule else s.minutes,
+                    seed=seed,
+                    phase=f"{cond}-{ctrl}",
+                    adaptive=ctrl == "adaptive",
+                    adaptive_gain=s.adaptive_gain,
+                )
+                cols = {"condition": cond, "controller": ctrl, "seed": seed}
+                items.append(
+                    (
+                        f"{cond}-{ctrl}-seed{seed}",
+                        settings,
+                        folder / cond / ctrl / f"seed{seed}.rrd",
+                        cols,
+                    )
+                )
+    return items
+
+
+def compare_to(runs: pl.DataFrame, cond: str, other: str, target: float) -> dict[str, Any]:
+    """The policy against ``other`` on one condition, paired by seed (see the module)."""
+    g = runs.filter(pl.col("condition") == cond)
+    a = g.filter(pl.col("controller") == "policy").select(
+        "seed", "success_rate", "avoidances_per_30min"
+    )
+    b = g.filter(pl.col("controller") == other).select(
+        "seed", "success_rate", "avoidances_per_30min"
+    )
+    pair = a.join(b, on="seed", suffix="_other")
+    d_s = mean_ci((pair["success_rate"] - pair["success_rate_other"]).to_numpy())
+    d_a = mean_ci((pair["avoidances_per_30min_other"] - pair["avoidances_per_30min"]).to_numpy())
+    keeps_p = float(np.nanmean(pair["success_rate"].to_numpy())) >= target
+    keeps_o = float(np.nanmean(pair["success_rate_other"].to_numpy())) >= target
+    fewer = math.isfinite(d_a.low) and d_a.low > 0
+    more = math.isfinite(d_a.high) and d_a.high < 0
+    if (keeps_p and not keeps_o) or (keeps_p and keeps_o and fewer):
+        verdict = BETTER
+    elif (keeps_o and not keeps_p) or (keeps_p and keeps_o and more):
+        verdict = WORSE
+    else:
+        verdict = SAME
+    return {
+        "condition": cond,
+        "against": other,
+        "seeds": pair.height,
+        "success_diff": d_s.mean,
+        "success_diff_low": d_s.low,
+        "success_diff_high": d_s.high,
+        "avoidances_saved_per_30min": d_a.mean,
+        "avoidances_saved_per_30min_low": d_a.low,
+        "avoidances_saved_per_30min_high": d_a.high,
+        "policy_keeps_target": keeps_p,
+        "other_keeps_target": keeps_o,
+        "verdict": verdict,
+    }
+
+
+@dataclasses.dataclass
+class AdaptationResult(WroteFiles):
+    runs: pl.DataFrame  # one row per (condition, controller, seed)
+    conditions: pl.DataFrame  # per condition and controller, with 95 % intervals
+    comparisons: pl.DataFrame  # the policy against each controller, per condition
+    verdict: str  # one sentence, computed from the comparisons
+    notices: list[str]
+    paths: list[Path]
+    markdown: str
+
+
+def adaptation(
+    s: AdaptationSettings,
+    out: str | Path,
+    *,
+    log: Callable[[str], None] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> AdaptationResult:
+    """Run the held-out conditions with every controller; write ``adaptation.md``,
+    ``adaptation.png`` and the Parquet tables into ``out``."""
+    from vdc.parquet_io import table_set, write_parquet
+
+    say = log or (lambda _m: None)
+    out = Path(out)
+    policy = load_policy(s.policy)
+    fitted = set()
+    if policy.evidence is not None and "condition" in policy.evidence.columns:
+        fitted = set(policy.evidence["condition"].to_list())
+    notices = [
+        f"{cond} was in the policy's fit: it is not held out"
+        for cond, *_ in s.conditions()
+        if cond in fitted
+    ]
+    for n in notices:
+        say(f"note: {n}")
+    items = adaptation_items(s, out / "recordings")
+    say(f"adaptation: {len(s.conditions())} held-out condition(s), {len(items)} run(s)")
+    runs = run_grid(items, "collision", s, s.false_alarm_m, say, progress)
+    complexity = condition_complexity(runs, "online_dps")
+    conditions = condition_statistics(runs, complexity, ["condition", "controller"])
+    others = [c for c in runs["controller"].unique(maintain_order=True) if c != "policy"]
+    comparisons = pl.DataFrame(
+        [compare_to(runs, cond, other, s.target) for cond, *_ in s.conditions() for other in others]
+    )
+    verdict = overall_verdict(conditions, comparisons, s.target)
+    meta = {"settings": dataclasses.asdict(s)}
+    with table_set(out) as stage:
+        paths = [
+            write_parquet(runs, stage / "adaptation_runs.parquet", meta),
+            write_parquet(conditions, stage / "adaptation_conditions.parquet", meta),
+            write_parquet(comparisons, stage / "adaptation_comparisons.parquet", meta),
+            plot_adaptation(conditions, s.target, stage / "adaptation.png"),
+        ]
+        md = adaptation_report(s, conditions, comparisons, verdict, notices)
+        (stage / "adaptation.md").write_text(md, encoding="utf-8")
+        paths.append(stage / "adaptation.md")
+    paths = [out / p.name for p in paths]
+    return AdaptationResult(runs, conditions, comparisons, verdict, notices, paths, md)
+
+
+def overall_verdict(conditions: pl.DataFrame, comparisons: pl.DataFrame, target: float) -> str:
+    """One sentence from the numbers: where the policy keeps the target, and how its
+    comparisons came out."""
+    pol = conditions.filter(pl.col("controller") == "policy")
+    keeps = pol.filter(pl.col("success_rate") >= target).height
+    sure = pol.filter(pl.col("success_low") >= target).height
+    parts = [
+        f"the policy keeps success >= {100 * target:g} % on {keeps} of {pol.height} held-out "
+        f"condition(s) ({sure} at 95 % confidence)"
+    ]
+    for (other,), g in comparisons.group_by("against", maintain_order=True):
+        counts = {v: g.filter(pl.col("verdict") == v).height for v in (BETTER, WORSE, SAME)}
+        parts.append(
+            f"against {other}: better on {counts[BETTER]}, worse on {counts[WORSE]}, no "
+            f"difference at 95 % on {counts[SAME]}"
+        )
+    return "; ".join(parts) + "."
+
+
+def plot_adaptation(conditions: pl.DataFrame, target: float, path: Path) -> Path:
+    """Success and avoidances per 30 min per held-out condition, one bar per controller, 95 %
+    intervals as error bars."""
+    conds = conditions["condition"].unique(maintain_order=True).to_list()
+    ctrls = [c for c in CONTROLLERS if c in set(conditions["controller"].to_list())]
+    fig = Figure(figsize=(13, 5), layout="constrained")
+    axes = fig.subplots(1, 2)
+    width = 0.8 / len(ctrls)
+    x = np.arange(len(conds))
+    for ax, (name, scale, label) in zip(
+        axes,
+        (("success", 100.0, "success (%)"), ("avoidances_per_30min", 1.0, "avoidances per 30 min")),
+        strict=True,
+    ):
+        for i, ctrl in enumerate(ctrls):
+            g = conditions.filter(pl.col("controller") == ctrl)
+            by = {r["condition"]: r for r in g.iter_rows(named=True)}
+            mean_key = "success_rate" if name == "success" else name
+            m = np.array([by[c][mean_key] * scale if c in by else np.nan for c in conds])
+            lo = np.array([by[c][f"{name}_low"] * scale if c in by else np.nan for c in conds])
+            hi = np.array([by[c][f"{name}_high"] * scale if c in by else np.nan for c in conds])
+            err = np.nan_to_num(np.clip(np.vstack([m - lo, hi - m]), 0, None))
+            ax.bar(
+                x + (i - (len(ctrls) - 1) / 2) * width,
+                m,
+                width,
+                yerr=err,
+                capsize=3,
+                label=ctrl,
+                color=f"C{i}",
+            )
+        ax.set_xticks(x, conds, rotation=10)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3, axis="y")
+        ax.legend(fontsize=8)
+    axes[0].axhline(100 * target, color="k", ls=":", lw=1)
+    axes[0].set_ylim(0, 105)
+    fig.suptitle("held-out conditions: the learnt policy against the other controllers")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def adaptation_report(
+    s: AdaptationSettings,
+    conditions: pl.DataFrame,
+    comparisons: pl.DataFrame,
+    verdict: str,
+    notices: list[str],
+) -> str:
+    """``adaptation.md``."""
+    lines = [
+        "# The learnt policy on conditions it was not fitted on\n",
+        f"Policy `{s.policy}` on {s.detector}; controllers: fixed (as is), hand ({s.hand}), "
+        f"adaptive (gain {s.adaptive_gain:g}), policy. {s.seeds} seed(s) from {s.seed}; "
+        f"{s.minutes:g}-min runs (the schedule: its own length). Target success "
+        f"{100 * s.target:g} %. Intervals are 95 % across seeds, differences paired by seed.\n",
+        f"**Verdict:** {verdict}\n",
+        *(f"> Note: {n}\n" for n in notices),
+        "![held-out conditions](adaptation.png)\n",
+        "## Per condition and controller\n",
+    ]
+    table = pl.DataFrame(
+        [
+            {
+                "condition": r["condition"],
+                "controller": r["controller"],
+                "seeds": r["seeds"],
+                "online complexity (deg/s)": interval(r, "complexity"),
+                "success (%)": interval(r, "success", 100.0),
+                "avoidances / 30 min": interval(r, "avoidances_per_30min"),
+                "crashes / 30 min": interval(r, "crashes_per_30min"),
+            }
+            for r in conditions.iter_rows(named=True)
+        ]
+    )
+    lines += [markdown_table(table, table.columns), "## The policy against each controller\n"]
+    table = pl.DataFrame(
+        [
+            {
+                "condition": r["condition"],
+                "against": r["against"],
+                "success difference (points)": interval(r, "success_diff", 100.0),
+                "avoidances saved / 30 min": interval(r, "avoidances_saved_per_30min"),
+                "verdict": r["verdict"],
+            }
+            for r in comparisons.iter_rows(named=True)
+        ]
+    )
+    lines.append(markdown_table(table, table.columns))
+    return "\n".join(lines) + "\n"

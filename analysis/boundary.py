@@ -1,0 +1,716 @@
+"""``vdc-analyse boundary``: where a detector breaks as the scene's dynamic complexity rises.
+
+Arena mode runs a campaign over a grid (scene × wall TF × the detector's sensitivity parameter ×
+seeds) of closed-loop collision runs on the executors (finished runs are reused), profiles every
+condition with the AVDM and measures each run's collision performance (success rate, avoidances
+and crashes per 30 min, distance to collision). Footage mode (:mod:`analysis.footage`) does the
+same on a labelled collection of clips. Both give performance against complexity with 95 %
+intervals and **the boundary**: the complexity at which success falls below the target.
+
+The boundary, per parameter value, with conditions in order of complexity: the first condition
+whose success is below the target at 95 % confidence (the upper end of its interval is below
+it) is the first *failing* one; the boundary lies between the condition before it and it
+(``boundary_low_dps`` < boundary ≤ ``boundary_high_dps``), and the point estimate is where the
+mean success crosses the target by linear interpolation inside that interval. No failing
+condition: the boundary lies beyond the grid (``> boundary_low_dps``); the first condition
+fails: it lies at or below the grid's least complex condition.
+
+The complexity of a condition (``--complexity``):
+
+* ``profile`` (default): the AVDM's mean response while the robot drives straight, in the
+  profiling runs ``reproduce`` makes (ring turns, no detector), one per seed: a property of the
+  scene alone, the same whichever detector is studied;
+* ``online``: the mean of the on-board AVDM over the detector's own runs (all frames after the
+  warm-up), the measure a learnt policy reads as it runs.
+
+A policy is fitted from the grid (:func:`fit_policy`) and written as ``policy.csv``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+from matplotlib.figure import Figure
+
+from analysis.stats import mean_ci, share_ci
+from avdm.policy import Policy
+from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.executors import ExecutorSettings
+from vdc.parquet_io import WroteFiles
+
+TARGET_HELP = "the success rate a detector must keep (default: {default}, the paper's 90 %)"
+COMPLEXITY_MEASURES = ("profile", "online")
+WARMUP_FRAMES = 60  # the AVDM's and the running means' start-up, left out of every mean
+
+
+def number_list(text: str, name: str, *, minimum: float = 0.0) -> list[float]:
+    """``"0,1.5,3"`` → ``[0.0, 1.5, 3.0]``; ValueError naming ``--name`` otherwise."""
+    try:
+        values = [float(v) for v in str(text).split(",") if v.strip()]
+    except ValueError:
+        raise ValueError(f"--{name} must be numbers separated by commas, got {text!r}") from None
+    if not values or not all(math.isfinite(v) and v >= minimum for v in values):
+        raise ValueError(f"--{name} must be numbers >= {minimum:g}, comma-separated: {text!r}")
+    if len(set(values)) != len(values):
+        raise ValueError(f"--{name} repeats a value: {text!r}")
+    return values
+
+
+def name_list(text: str, name: str, allowed: Sequence[str]) -> list[str]:
+    values = [v.strip() for v in str(text).split(",") if v.strip()]
+    bad = [v for v in values if v not in allowed]
+    if not values or bad:
+        raise ValueError(f"--{name} must be some of {', '.join(allowed)}, got {text!r}")
+    return values
+
+
+def with_override(spec: str, key: str, value: Any) -> str:
+    """``spec`` with ``key=value`` added to its overrides."""
+    from avdm.registry import is_plugin
+
+    plain = ":" not in spec or (is_plugin(spec) and spec.count(":") == 1)
+    return f"{spec}{':' if plain else ','}{key}={value:g}"
+
+
+@dataclasses.dataclass(frozen=True)
+class BoundarySettings(ExecutorSettings):
+    """``vdc-analyse boundary``: the detector and its sensitivity parameter, the grid, the
+    target; with ``labels``, footage mode on a labelled collection instead of the arena."""
+
+    detector: str = option(
+        "lgmd-plus-arena",
+        "the detector (a model with an 'alert' output: a built-in LGMD or a plug-in, "
+        "package.module:factory[:key=value,...])",
+    )
+    param: str = option("t_ffi", "the detector's sensitivity parameter swept by the grid")
+    values: str = option("12,20,30,45", "arena: the parameter's values, comma-separated")
+    tf: str = option("0,1,3", "arena: wall TFs, Hz, comma-separated")
+    scenes: str = option("grating,natural", "arena: wall scenes, comma-separated")
+    seed: int = option(1, "first random seed", type=non_negative_int)
+    seeds: int = option(5, "arena: runs per condition and value (seeds --seed, --seed+1, ...)")
+    minutes: float = option(10.0, "arena: length of each run", type=positive_float)
+    target: float = option(0.9, TARGET_HELP, type=positive_float)
+    complexity: str = option(
+        "profile",
+        "arena: the complexity of a condition: profile = the AVDM's straight-driving response "
+        "in profiling runs (a property of the scene); online = the on-board AVDM's mean in the "
+        "detector's own runs (what a policy reads)",
+        choices=COMPLEXITY_MEASURES,
+    )
+    false_alarm_m: float = option(
+        0.30, "arena: an avoidance with the wall farther than this is a false alarm, m"
+    )
+    no_fit: bool = option(False, "arena: do not fit a policy (policy.csv) from the grid")
+    labels: str | None = option(
+        None,
+        "footage mode: a table (CSV or Parquet) of clip, label and collision_frame (empty: no "
+        "collision); clips relative to its folder",
+        metavar="FILE",
+    )
+    fov_deg: float | None = option(
+        None, "footage mode: the camera's horizontal field of view, degrees", type=positive_float
+    )
+    alert_window_s: float = option(
+        2.0,
+        "footage mode: an alert at most this long before the collision frame is a hit, an "
+        "earlier one a false alarm",
+        type=positive_float,
+    )
+    profile_model: str = option("avdm", "arena: the AVDM variant that profiles the conditions")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        from avdm.registry import parse_model_spec
+
+        parse_model_spec(self.detector)  # a bad detector or plug-in fails before anything runs
+        if not 0 < self.target < 1:
+            raise ValueError(f"--target must be between 0 and 1, got {self.target}")
+        if self.seeds < 1:
+            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+        if self.labels is None:
+            self.grid_values()
+            number_list(self.tf, "tf")
+            name_list(self.scenes, "scenes", ("grating", "natural"))
+            from analysis.collision import CollisionSettings
+
+            CollisionSettings(false_alarm_m=self.false_alarm_m)
+
+    def grid_values(self) -> list[float]:
+        values = number_list(self.values, "values")
+        from avdm.registry import parse_model_spec
+
+        for v in values:  # the parameter exists and takes these values
+            parse_model_spec(with_override(self.detector, self.param, v))
+        return values
+
+    def conditions(self) -> list[tuple[str, float]]:
+        """(scene, TF) of the grid, in the order given."""
+        return [
+            (scene, tf)
+            for scene in name_list(self.scenes, "scenes", ("grating", "natural"))
+            for tf in number_list(self.tf, "tf")
+        ]
+
+
+def condition_name(scene: str, tf_hz: float) -> str:
+    return f"{scene}-tf{tf_hz:g}"
+
+
+# --- one run: record it (unless it is there), then measure it ------------------------------
+
+
+def run_row(path: str | Path, kind: str, false_alarm_m: float = 0.30) -> dict[str, Any]:
+    """The measurements of one recorded run. ``kind`` "collision": the collision metrics
+    (``analysis.collision``) plus the on-board AVDM's mean over all frames after the warm-up
+    (``online_dps``) and over straight driving (``straight_dps``); "profile": the online AVDM's
+    mean over straight driving (``profile_dps``)."""
+    from analysis.collision import CollisionSettings, collision_metrics
+    from analysis.tables import load_recording
+
+    loaded = load_recording(path)
+    fr = loaded.frames.select("frame", "turning").filter(pl.col("frame") >= WARMUP_FRAMES)
+    row: dict[str, Any] = {"recording_id": loaded.recording_id}
+    if kind == "collision":
+        metrics, _ = collision_metrics(loaded, CollisionSettings(false_alarm_m=false_alarm_m))
+        row |= {k: v for k, v in metrics.items() if not k.startswith("paper_")}
+        profiler = loaded.props.get("model", {}).get("name", "avdm")
+    else:
+        profiler = loaded.online_model or "avdm"
+    omega = loaded.logged[profiler].select("frame", "omega_dps").join(fr, on="frame")
+    straight = omega.filter(pl.col("turning").not_())["omega_dps"]
+    if kind == "collision":
+        row["online_dps"] = float(omega["omega_dps"].mean() or math.nan)
+        row["straight_dps"] = float(straight.mean()) if straight.len() else math.nan
+    else:
+        row["profile_dps"] = float(straight.mean()) if straight.len() else math.nan
+    return row
+
+
+def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm_m: float) -> dict:
+    """An executor task: record the run unless a finished recording of the same configuration
+    is there, then measure it; the row is kept beside the recording (``.row.json``) so a
+    re-run neither records nor measures it again."""
+    from analysis.experiments.captures import is_done
+    from capture.sim import record_sim
+
+    path = Path(out)
+    run_id = settings.to_config().run_id()
+    cache = path.with_suffix(".row.json")
+    if is_done(path, run_id):
+        if cache.exists():
+            row = json.loads(cache.read_text())
+            if row.get("recording_id") == run_id:
+                return row | {"key": key, "reused": True}
+    else:
+        record_sim(settings, path, force=True)  # a partial file of a killed run is replaced
+    row = run_row(path, kind, false_alarm_m)
+    tmp = cache.with_suffix(".partial")
+    tmp.write_text(json.dumps(row))
+    tmp.replace(cache)
+    return row | {"key": key, "reused": False}
+
+
+def run_grid(
+    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
+    kind: str,
+    executor: ExecutorSettings,
+    false_alarm_m: float,
+    log: Callable[[str], None],
+    progress: Callable[[int], None] | None = None,
+) -> pl.DataFrame:
+    """Record and measure every ``(key, SimSettings, path, columns)`` on ``executor``; one row
+    per run with ``columns`` (its condition) first. A failed run does not stop the others:
+    they are kept and :class:`vdc.executors.TasksFailed` names the failed ones."""
+    from vdc.executors import TasksFailed, failure_report, run_tasks
+
+    by_key = {k: cols for k, _, _, cols in items}
+    tasks = []
+    for key, settings, path, _ in items:
+        settings.to_config()  # a bad configuration fails before any process starts
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tasks.append((key, (key, settings, str(path), kind, false_alarm_m)))
+    rows = []
+
+    def done(outcome: Any) -> None:
+        if progress is not None:
+            progress(1)
+        if outcome.error is not None:
+            log(f"  {outcome.key} FAILED: {outcome.error}")
+        else:
+            rows.append({**by_key[outcome.key], **outcome.result})
+
+    outcomes = run_tasks(
+        record_and_measure,
+        tasks,
+        executor.executor_settings(),
+        done,
+        log,
+        shared_paths=[items[0][2].parent] if items else [],
+    )
+    report = failure_report(outcomes, "run")
+    if report:
+        raise TasksFailed(report)
+    return pl.DataFrame(rows).sort("key")
+
+
+# --- performance against complexity, and the boundary -------------------------------------
+
+
+def condition_statistics(
+    runs: pl.DataFrame, complexity: pl.DataFrame, by: Sequence[str]
+) -> pl.DataFrame:
+    """One row per condition and parameter value (``by``): its complexity (from
+    ``complexity``: condition, complexity_dps, _low, _high), the success rate with its 95 %
+    interval across seeds (``analysis.stats.share_ci``), and the means with 95 % intervals of
+    avoidances and crashes per 30 min, false alarms per 30 min and the median distance to
+    collision."""
+    rows = []
+    for keys, g in runs.group_by(*by, maintain_order=True):
+        row = dict(zip(by, keys, strict=True)) | {"seeds": g.height}
+        est = share_ci(g["avoidances"].to_numpy(), (g["avoidances"] + g["crashes"]).to_numpy())
+        row |= {"success_rate": est.mean, "success_low": est.low, "success_high": est.high}
+        for name in (
+            "avoidances_per_30min",
+            "crashes_per_30min",
+            "false_alarms_per_30min",
+            "dtc_median_m",
+        ):
+            e = mean_ci(g[name].cast(pl.Float64).to_numpy(), bounds=(0.0, math.inf))
+            row |= {name: e.mean, f"{name}_low": e.low, f"{name}_high": e.high}
+        rows.append(row)
+    return (
+        pl.DataFrame(rows)
+        .join(complexity, on="condition", how="left")
+        .sort(by[-1], "complexity_dps")
+    )
+
+
+def condition_complexity(rows: pl.DataFrame, column: str) -> pl.DataFrame:
+    """Per condition: the mean of ``column`` across its runs with the 95 % interval."""
+    out = []
+    for (cond,), g in rows.group_by("condition", maintain_order=True):
+        e = mean_ci(g[column].cast(pl.Float64).to_numpy())
+        out.append(
+            {
+                "condition": cond,
+                "complexity_dps": e.mean,
+                "complexity_low": e.low,
+                "complexity_high": e.high,
+            }
+        )
+    return pl.DataFrame(out)
+
+
+def find_boundary(
+    complexity: Sequence[float],
+    success: Sequence[float],
+    success_high: Sequence[float],
+    target: float,
+) -> dict[str, Any]:
+    """The boundary of one curve (see the module): ``boundary_dps`` (point estimate),
+    ``boundary_low_dps`` < boundary ≤ ``boundary_high_dps``, and ``where``: "within" the
+    grid, "beyond" its most complex condition or "below" its least complex one."""
+    c = np.asarray(complexity, float)
+    s = np.asarray(success, float)
+    hi = np.asarray(success_high, float)
+    order = np.argsort(c)
+    c, s, hi = c[order], s[order], hi[order]
+    # a condition with no interval (one seed) fails when its success itself is below
+    failing = np.where(np.isfinite(hi), hi < target, s < target)
+    if not failing.any():
+        return {
+            "where": "beyond",
+            "boundary_dps": math.nan,
+            "boundary_low_dps": float(c[-1]),
+            "boundary_high_dps": math.inf,
+        }
+    k = int(np.argmax(failing))
+    if k == 0:
+        return {
+            "where": "below",
+            "boundary_dps": math.nan,
+            "boundary_low_dps": -math.inf,
+            "boundary_high_dps": float(c[0]),
+        }
+    c0, c1, s0, s1 = c[k - 1], c[k], s[k - 1], s[k]
+    if s0 <= target or s0 == s1:
+        point = c0
+    else:  # where the mean success crosses the target, inside the interval
+        point = c0 + (s0 - target) / (s0 - s1) * (c1 - c0)
+    point = float(min(max(point, c0), c1))
+    return {
+        "where": "within",
+        "boundary_dps": point,
+        "boundary_low_dps": float(c0),
+        "boundary_high_dps": float(c1),
+    }
+
+
+def boundaries(conditions: pl.DataFrame, by: str, target: float) -> pl.DataFrame:
+    """One boundary per value of ``by`` (the parameter) from :func:`condition_statistics`."""
+    rows = []
+    for (value,), g in conditions.group_by(by, maintain_order=True):
+        b = find_boundary(g["complexity_dps"], g["success_rate"], g["success_high"], target)
+        rows.append({by: value, "target": target, **b})
+    return pl.DataFrame(rows)
+
+
+def describe_boundary(row: dict[str, Any]) -> str:
+    """One boundary as a phrase: "31.2 deg/s (between 20.5 and 35.0)"."""
+    if row["where"] == "beyond":
+        return f"beyond the grid (> {row['boundary_low_dps']:.1f} deg/s)"
+    if row["where"] == "below":
+        return f"at or below the least complex condition (<= {row['boundary_high_dps']:.1f} deg/s)"
+    return (
+        f"{row['boundary_dps']:.1f} deg/s (between {row['boundary_low_dps']:.1f} and "
+        f"{row['boundary_high_dps']:.1f})"
+    )
+
+
+# --- the policy -----------------------------------------------------------------------------
+
+
+def fit_policy(
+    runs: pl.DataFrame,
+    param: str,
+    target: float,
+    profile_model: str = "avdm",
+    window_s: float = 60.0,
+) -> Policy:
+    """The parameter as a function of the online complexity, from a grid's runs (columns
+    condition, ``param``, success, avoidances, crashes, avoidances_per_30min, online_dps).
+
+    Per condition, among the values whose mean success across seeds keeps the target, the one
+    with the fewest avoidances per 30 min (none keeps it: the most successful); the row's
+    complexity is the online AVDM mean of that value's runs (what the policy will read when it
+    sets that value). Rows of equal complexity keep the larger value."""
+    rows = []
+    for (cond,), g in runs.group_by("condition", maintain_order=True):
+        per_value = (
+            g.group_by(param)
+            .agg(
+                pl.col("avoidances").sum().alias("a"),
+                pl.col("crashes").sum().alias("c"),
+                pl.col("avoidances_per_30min").mean(),
+                pl.col("online_dps").mean(),
+                pl.len().alias("n"),
+            )
+            .with_columns((pl.col("a") / (pl.col("a") + pl.col("c"))).alias("success_rate"))
+            .sort(param)
+        )
+        keeps = per_value.filter(pl.col("success_rate") >= target)
+        best = (
+            keeps.sort("avoidances_per_30min", param).row(0, named=True)
+            if keeps.height
+            else per_value.sort("success_rate", descending=True).row(0, named=True)
+        )
+        rows.append(
+            {
+                "complexity_dps": round(float(best["online_dps"]), 3),
+                param: float(best[param]),
+                "success_rate": round(float(best["success_rate"]), 4),
+                "avoidances_per_30min": round(float(best["avoidances_per_30min"]), 1),
+                "runs": int(best["n"]),
+                "condition": cond,
+                "keeps_target": bool(keeps.height),
+            }
+        )
+    df = pl.DataFrame(rows).sort("complexity_dps", param)
+    df = df.group_by("complexity_dps", maintain_order=True).agg(pl.all().last())  # larger value
+    return Policy(
+        param,
+        tuple(df["complexity_dps"].to_list()),
+        tuple(df[param].to_list()),
+        window_s,
+        profile_model,
+        df.drop("complexity_dps", param),
+    )
+
+
+# --- figures and report ---------------------------------------------------------------------
+
+
+def plot_boundary(
+    conditions: pl.DataFrame,
+    bounds: pl.DataFrame,
+    by: str,
+    target: float,
+    path: Path,
+    title: str,
+    x_label: str = "complexity: AVDM response (deg/s)",
+    energy: tuple[str, float, str] = (
+        "avoidances_per_30min",
+        1.0,
+        "avoidances per 30 min (energy spent turning)",
+    ),
+) -> Path:
+    """Success (with the target and each curve's boundary) and the energy spent avoiding
+    (avoidances per 30 min) against complexity, one curve per value of ``by``, 95 % intervals
+    as error bars."""
+    fig = Figure(figsize=(13, 5), layout="constrained")
+    ax_s, ax_e = fig.subplots(1, 2)
+    for i, ((value,), g) in enumerate(conditions.group_by(by, maintain_order=True)):
+        color = f"C{i % 10}"
+        x = g["complexity_dps"].to_numpy()
+        xerr = _err(x, g["complexity_low"], g["complexity_high"])
+        for ax, name, scale in ((ax_s, "success", 100.0), (ax_e, energy[0], energy[1])):
+            mean_col = "success_rate" if name == "success" else name
+            y = g[mean_col].to_numpy() * scale
+            yerr = _err(y, g[f"{name}_low"] * scale, g[f"{name}_high"] * scale)
+            ax.errorbar(
+                x,
+                y,
+                yerr=yerr,
+                xerr=xerr,
+                fmt="o-",
+                color=color,
+                capsize=3,
+                label=f"{by} = {value:g}",
+            )
+        b = bounds.filter(pl.col(by) == value).row(0, named=True)
+        if b["where"] == "within":
+            ax_s.axvspan(b["boundary_low_dps"], b["boundary_high_dps"], color=color, alpha=0.08)
+            ax_s.axvline(b["boundary_dps"], color=color, ls="--", lw=1)
+    ax_s.axhline(100 * target, color="k", ls=":", lw=1, label=f"target {100 * target:g} %")
+    ax_s.set_ylabel("success (%)")
+    ax_s.set_ylim(-2, 102)
+    ax_s.set_title("success: dashed = boundary, band = where it lies (95 %)")
+    ax_e.set_ylabel(energy[2])
+    ax_e.set_title(energy[2].split(" (")[0])
+    for ax in (ax_s, ax_e):
+        ax.set_xlabel(x_label)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def _err(y: np.ndarray, low: Any, high: Any) -> np.ndarray | None:
+    lo, hi = np.asarray(low, float), np.asarray(high, float)
+    err = np.vstack([y - lo, hi - y])
+    return np.nan_to_num(np.clip(err, 0, None)) if np.isfinite(err).any() else None
+
+
+def markdown_table(df: pl.DataFrame, columns: Sequence[str], digits: int = 2) -> str:
+    """A Markdown table of ``columns`` (numbers rounded)."""
+
+    def cell(v: Any) -> str:
+        if isinstance(v, float):
+            return "—" if math.isnan(v) else f"{v:.{digits}f}"
+        return str(v)
+
+    head = "| " + " | ".join(columns) + " |\n|" + "---|" * len(columns) + "\n"
+    body = "".join(
+        "| " + " | ".join(cell(r[c]) for c in columns) + " |\n" for r in df.iter_rows(named=True)
+    )
+    return head + body
+
+
+def interval(row: dict[str, Any], name: str, scale: float = 1.0, digits: int = 1) -> str:
+    """``mean [low, high]`` of ``name`` in a statistics row."""
+    mean_key = {"success": "success_rate", "complexity": "complexity_dps"}.get(name, name)
+    m, lo, hi = (row[mean_key], row[f"{name}_low"], row[f"{name}_high"])
+    if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
+        return f"{m * scale:.{digits}f}"
+    return f"{m * scale:.{digits}f} [{lo * scale:.{digits}f}, {hi * scale:.{digits}f}]"
+
+
+@dataclasses.dataclass
+class BoundaryResult(WroteFiles):
+    runs: pl.DataFrame  # one row per run (or clip, in footage mode)
+    conditions: pl.DataFrame  # performance per condition and parameter value, with intervals
+    boundaries: pl.DataFrame  # one row per parameter value
+    policy: Policy | None
+    paths: list[Path]
+    markdown: str
+
+
+def boundary(
+    settings: BoundarySettings,
+    out: str | Path,
+    *,
+    log: Callable[[str], None] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> BoundaryResult:
+    """Run the grid (arena) or the labelled clips (footage mode: ``settings.labels``) and
+    write the tables, the figure, the report and, in the arena, ``policy.csv`` into ``out``."""
+    if settings.labels is not None:
+        from analysis.footage import footage_boundary
+
+        return footage_boundary(settings, out, log=log, progress=progress)
+    return arena_boundary(settings, out, log=log, progress=progress)
+
+
+def grid_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+    """One closed-loop run per (scene, TF, value, seed)."""
+    from capture.sim import SimSettings
+
+    items = []
+    for scene, tf in s.conditions():
+        cond = condition_name(scene, tf)
+        for value in s.grid_values():
+            spec = with_override(s.detector, s.param, value)
+            for seed in range(s.seed, s.seed + s.seeds):
+                key = f"{cond}-{s.param}{value:g}-seed{seed}"
+                settings = SimSettings(
+                    behaviour="collision",
+                    model=spec,
+                    scene=scene,
+                    tf_hz=tf,
+                    minutes=s.minutes,
+                    seed=seed,
+                    phase=f"{cond}-{s.param}{value:g}",
+                    profile_model=s.profile_model,
+                )
+                cols = {
+                    "condition": cond,
+                    "scene": scene,
+                    "tf_hz": tf,
+                    s.param: value,
+                    "seed": seed,
+                }
+                items.append(
+                    (key, settings, folder / cond / f"{s.param}{value:g}" / f"seed{seed}.rrd", cols)
+                )
+    return items
+
+
+def profile_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+    """One profiling run (as ``reproduce`` profiles: ring turns, no detector) per (scene, TF,
+    seed)."""
+    from capture.sim import SimSettings
+
+    items = []
+    for scene, tf in s.conditions():
+        cond = condition_name(scene, tf)
+        for seed in range(s.seed, s.seed + s.seeds):
+            settings = SimSettings(
+                scene=scene, tf_hz=tf, minutes=s.minutes, seed=seed, model=s.profile_model
+            )
+            cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": seed}
+            items.append(
+                (
+                    f"profile-{cond}-seed{seed}",
+                    settings,
+                    folder / "profile" / cond / f"seed{seed}.rrd",
+                    cols,
+                )
+            )
+    return items
+
+
+def arena_boundary(
+    s: BoundarySettings,
+    out: str | Path,
+    *,
+    log: Callable[[str], None] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> BoundaryResult:
+    """Arena mode of :func:`boundary`."""
+    from vdc.parquet_io import table_set, write_parquet
+
+    say = log or (lambda _m: None)
+    out = Path(out)
+    rec = out / "recordings"
+    items = grid_items(s, rec)
+    prof = profile_items(s, rec) if s.complexity == "profile" else []
+    say(
+        f"boundary of {s.detector} over {s.param} = {s.values}: {len(s.conditions())} "
+        f"condition(s) x {len(s.grid_values())} value(s) x {s.seeds} seed(s) of "
+        f"{s.minutes:g} min = {len(items)} run(s)"
+        + (f", plus {len(prof)} profiling run(s)" if prof else "")
+    )
+    runs = run_grid(items, "collision", s, s.false_alarm_m, say, progress)
+    if prof:
+        profiles = run_grid(prof, "profile", s, s.false_alarm_m, say, progress)
+        complexity = condition_complexity(profiles, "profile_dps")
+    else:
+        profiles = None
+        complexity = condition_complexity(runs, "online_dps")
+    conditions = condition_statistics(runs, complexity, ["condition", s.param])
+    bounds = boundaries(conditions, s.param, s.target)
+    policy = fit_policy(runs, s.param, s.target, s.profile_model) if not s.no_fit else None
+    meta = {"settings": dataclasses.asdict(s)}
+    with table_set(out) as stage:
+        paths = [
+            write_parquet(runs, stage / "boundary_runs.parquet", meta),
+            write_parquet(conditions, stage / "boundary_conditions.parquet", meta),
+            write_parquet(bounds, stage / "boundary.parquet", meta),
+        ]
+        if profiles is not None:
+            paths.append(write_parquet(profiles, stage / "boundary_profiles.parquet", meta))
+        x_label = (
+            "complexity: AVDM straight-driving response, profiling runs (deg/s)"
+            if s.complexity == "profile"
+            else "complexity: on-board AVDM mean in the detector's runs (deg/s)"
+        )
+        paths.append(
+            plot_boundary(
+                conditions,
+                bounds,
+                s.param,
+                s.target,
+                stage / "boundary.png",
+                f"{s.detector}: success against complexity",
+                x_label,
+            )
+        )
+        if policy is not None:
+            paths.append(policy.save(stage / "policy.csv"))
+        md = arena_report(s, conditions, bounds, policy)
+        (stage / "boundary.md").write_text(md, encoding="utf-8")
+        paths.append(stage / "boundary.md")
+    paths = [out / p.name for p in paths]
+    return BoundaryResult(runs, conditions, bounds, policy, paths, md)
+
+
+def arena_report(
+    s: BoundarySettings, conditions: pl.DataFrame, bounds: pl.DataFrame, policy: Policy | None
+) -> str:
+    """``boundary.md``: the boundary per value, performance per condition, the policy."""
+    lines = [
+        f"# Where {s.detector} breaks\n",
+        f"Grid: scenes {s.scenes}; wall TF {s.tf} Hz; {s.param} = {s.values}; {s.seeds} "
+        f"seed(s) from {s.seed}; {s.minutes:g}-min closed-loop runs. Target success "
+        f"{100 * s.target:g} %. Complexity: {s.complexity} ({s.profile_model}). Intervals "
+        "are 95 % across seeds.\n",
+        "![success and energy against complexity](boundary.png)\n",
+        "## The boundary\n",
+    ]
+    for row in bounds.iter_rows(named=True):
+        lines.append(f"- {s.param} = {row[s.param]:g}: {describe_boundary(row)}")
+    lines += ["", "## Performance per condition\n"]
+    columns = {
+        "complexity (deg/s)": ("complexity", 1.0),
+        "success (%)": ("success", 100.0),
+        "avoidances / 30 min": ("avoidances_per_30min", 1.0),
+        "crashes / 30 min": ("crashes_per_30min", 1.0),
+        "median DTC (cm)": ("dtc_median_m", 100.0),
+    }
+    table = pl.DataFrame(
+        [
+            {"condition": r["condition"], s.param: r[s.param], "seeds": r["seeds"]}
+            | {label: interval(r, name, scale) for label, (name, scale) in columns.items()}
+            for r in conditions.iter_rows(named=True)
+        ]
+    )
+    lines.append(markdown_table(table, table.columns))
+    if policy is not None:
+        lines += [
+            "## The learnt policy (policy.csv)\n",
+            f"{s.param} against the on-board AVDM's running mean over {policy.window_s:g} s "
+            f"(interpolated between rows). Use it with `--model "
+            f"'{s.detector}:policy=policy.csv'`; test it on conditions it was not fitted on "
+            "with `vdc-analyse adaptation`.\n",
+            markdown_table(policy.table(), policy.table().columns),
+        ]
+    return "\n".join(lines) + "\n"

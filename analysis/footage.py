@@ -1,0 +1,430 @@
+"""Footage mode of ``vdc-analyse boundary``: a detector on a labelled collection of clips.
+
+The labels table (CSV or Parquet) has one row per clip:
+
+* ``clip``: the video file (or image-sequence pattern), relative to the table's folder;
+* ``label``: free text (what the clip shows, e.g. ``looming`` or ``background``);
+* ``collision_frame``: the source frame (0-based) at which the object reaches the camera, or
+  empty when nothing collides.
+
+Each clip is read as ``vdc-capture video`` reads it (the working raster, its true frame rate)
+and the detector runs on it; the clip's complexity is measured as ``vdc-analyse complexity``
+measures it (the AVDM and the baselines). Per clip:
+
+* a collision clip is a **hit** when the detector's first alert comes at most
+  ``alert_window_s`` before the collision frame (and not after it); an earlier first alert is a
+  **false alarm** (it would have turned away from nothing), none in time a **miss**;
+* a clip without a collision is a false alarm when the detector alerts at all;
+* **success** = the share of collision clips that are hits (as in the arena, where success is
+  avoidances among avoidances and crashes); a clip is **correct** when it is a hit, or has no
+  alert where nothing collides;
+* the **time to collision of the first alert** = (collision frame − first alert) / fps.
+
+Hit rate, false alarms and success come with exact 95 % intervals across clips, overall and in
+groups of clips of similar complexity; the boundary is found on those groups as in the arena.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+from analysis.boundary import (
+    BoundaryResult,
+    BoundarySettings,
+    boundaries,
+    describe_boundary,
+    interval,
+    markdown_table,
+    number_list,
+    plot_boundary,
+    with_override,
+)
+from analysis.stats import mean_ci, share_ci
+
+LABEL_COLUMNS = ("clip", "label", "collision_frame")
+COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg/s)
+
+
+def read_labels(path: str | Path) -> pl.DataFrame:
+    """The labels table with ``clip`` resolved against its folder (``source`` column).
+
+    ValueError, in one line, for a table that cannot be read, missing columns, a bad collision
+    frame, or clips that are not there."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"labels table {str(path)!r} not found")
+    try:
+        df = (
+            pl.read_parquet(path)
+            if path.suffix.lower() == ".parquet"
+            else pl.read_csv(path, infer_schema_length=None)
+        )
+    except Exception as exc:  # polars' many parse errors: one line for the user
+        raise ValueError(f"labels table {str(path)!r} cannot be read: {exc}") from None
+    missing = [c for c in LABEL_COLUMNS if c not in df.columns]
+    if missing:
+        raise ValueError(
+            f"labels table {str(path)!r} has no column {', '.join(missing)} (it needs "
+            f"{', '.join(LABEL_COLUMNS)}; collision_frame empty where nothing collides)"
+        )
+    if df.height == 0:
+        raise ValueError(f"labels table {str(path)!r} lists no clips")
+    try:
+        frames = df["collision_frame"].cast(pl.Float64)
+    except pl.exceptions.PolarsError:
+        raise ValueError(
+            f"labels table {str(path)!r}: collision_frame must be a frame number or empty"
+        ) from None
+    bad = frames.drop_nulls().filter((frames.drop_nulls() < 0) | (frames.drop_nulls() % 1 != 0))
+    if bad.len():
+        raise ValueError(
+            f"labels table {str(path)!r}: collision_frame must be a frame number >= 0 or "
+            f"empty, got {bad[0]:g}"
+        )
+    df = df.with_columns(
+        pl.col("clip").cast(pl.Utf8),
+        pl.col("label").cast(pl.Utf8),
+        frames.cast(pl.Int64).alias("collision_frame"),
+    )
+    if df["clip"].n_unique() != df.height:
+        dup = df.filter(pl.col("clip").is_duplicated())["clip"][0]
+        raise ValueError(f"labels table {str(path)!r} lists clip {dup!r} twice")
+    sources = [
+        str((path.parent / c).resolve()) if not Path(c).is_absolute() else c for c in df["clip"]
+    ]
+    unknown = [c for c, s in zip(df["clip"], sources, strict=True) if not Path(s).exists()]
+    if unknown:
+        more = f" (and {len(unknown) - 3} more)" if len(unknown) > 3 else ""
+        raise ValueError(
+            f"labels table {str(path)!r} names clips that are not there: "
+            f"{', '.join(unknown[:3])}{more} (clips are relative to the table's folder)"
+        )
+    return df.with_columns(pl.Series("source", sources))
+
+
+def detector_alerts(
+    source: str, spec: str, fov_deg: float, width: int | None = None
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The detector ``spec`` run on a clip as ``vdc-capture video`` would run it: the source
+    frames' numbers (T,) int64, its ``alert`` output (T,) float64 and the frame rate (Hz)."""
+    from avdm.registry import make_model
+    from vdc.recording import camera_model_context, working_size
+    from vdc.sources import FrameBatcher, open_reader
+
+    reader = open_reader(source)
+    try:
+        info = reader.info
+        fps = float(info["nominal_fps"])
+        if not (math.isfinite(fps) and fps > 0):
+            raise ValueError(f"{source!r} states no frame rate")
+        h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
+        model = make_model(spec, **camera_model_context(w, h, fps, fov_deg))
+        if "alert" not in {o.name for o in model.outputs}:
+            raise ValueError(f"detector {spec!r} has no 'alert' output (1 = collision ahead)")
+        batches = FrameBatcher(reader, (h, w), fps, 128, 0.5, 3)
+        frames, alerts = [], []
+        while (fb := batches.next_batch()) is not None:
+            frames.append(fb.frame)
+            alerts.append(model.run(fb.images)["alert"])
+    finally:
+        reader.close()
+    return np.concatenate(frames), np.concatenate(alerts), fps
+
+
+def judge_clip(
+    frames: np.ndarray,
+    alert: np.ndarray,
+    fps: float,
+    collision_frame: int | None,
+    window_s: float,
+) -> dict[str, Any]:
+    """Hit, miss or false alarm of one clip (see the module)."""
+    on = np.flatnonzero(alert > 0)
+    first = int(frames[on[0]]) if on.size else None
+    row: dict[str, Any] = {
+        "first_alert_frame": first,
+        "hit": False,
+        "false_alarm": False,
+        "ttc_first_alert_s": math.nan,
+    }
+    if collision_frame is None:
+        row["false_alarm"] = first is not None
+    elif first is not None and first <= collision_frame:
+        row["ttc_first_alert_s"] = (collision_frame - first) / fps
+        if row["ttc_first_alert_s"] <= window_s + 1e-9:
+            row["hit"] = True
+        else:
+            row["false_alarm"] = True
+    row["correct"] = row["hit"] or (collision_frame is None and not row["false_alarm"])
+    return row
+
+
+def clip_task(
+    source: str, spec: str, collision_frame: int | None, fov_deg: float, window_s: float
+) -> dict[str, Any]:
+    """An executor task: one clip judged (its complexity is measured separately, once)."""
+    frames, alert, fps = detector_alerts(source, spec, fov_deg)
+    return {
+        "fps": fps,
+        "frames": len(frames),
+        **judge_clip(frames, alert, fps, collision_frame, window_s),
+    }
+
+
+def clip_complexity(
+    labels: pl.DataFrame, fov_deg: float, window_s: float, executor: dict[str, Any], out: Path
+) -> pl.DataFrame:
+    """Each clip's complexity: the mean of every metric of ``vdc-analyse complexity`` over the
+    frames before the alert window (a collision clip) or over all frames (the scene the
+    detector faced, not the object on its way in). Columns: source, then one per metric."""
+    from analysis.complexity import ComplexitySettings, complexity
+    from analysis.source_metrics import METRICS
+
+    s = ComplexitySettings(fov_deg=fov_deg, **executor)
+    res = complexity(labels["source"].to_list(), s, out)
+    if res.failures:
+        src, err = res.failures[0]
+        raise ValueError(f"clip {src!r} cannot be measured: {err}")
+    ids = {
+        _key(r["source"]): (r["recording_id"], r["fps"]) for r in res.clips.iter_rows(named=True)
+    }
+    rows = []
+    for row in labels.iter_rows(named=True):
+        rid, fps = ids[_key(row["source"])]
+        frames = res.table.filter(pl.col("recording_id") == rid)
+        if row["collision_frame"] is not None:
+            end = row["collision_frame"] - round(window_s * fps)
+            frames = frames.filter(pl.col("frame") < end)
+            if frames.height == 0:
+                raise ValueError(
+                    f"clip {row['clip']!r} has no frame before its alert window ({window_s:g} s "
+                    "before the collision frame) to measure the scene on: use a longer clip or a "
+                    "shorter --alert-window-s"
+                )
+        means = {m: frames[m].cast(pl.Float64).mean() for m in METRICS}
+        rows.append({"source": row["source"], **means, "complexity_frames": frames.height})
+    return pl.DataFrame(rows)
+
+
+def _key(source: str) -> str:
+    return str(Path(source).resolve())
+
+
+def group_statistics(clips: pl.DataFrame, by: str, groups: int) -> pl.DataFrame:
+    """Per parameter value, clips in ``groups`` groups of similar complexity: complexity with
+    its 95 % interval, success, hit rate and false alarms with exact 95 % intervals."""
+    rows = []
+    for (value,), g in clips.group_by(by, maintain_order=True):
+        g = g.sort(COMPLEXITY)
+        for k, part in enumerate(np.array_split(np.arange(g.height), groups)):
+            sub = g[part.tolist()]
+            c = mean_ci(sub[COMPLEXITY].to_numpy(), bounds=(0.0, math.inf))
+            row = {
+                by: value,
+                "condition": f"group {k + 1}",
+                "clips": sub.height,
+                "complexity_dps": c.mean,
+                "complexity_low": c.low,
+                "complexity_high": c.high,
+            }
+            hits = sub.filter(pl.col("collision"))["hit"]
+            row |= share_row("success", hits) | share_row("hit_rate", hits)
+            row |= share_row("false_alarm_rate", sub["false_alarm"])
+            rows.append(row)
+    return pl.DataFrame(rows)
+
+
+def share_row(name: str, flags: pl.Series) -> dict[str, float]:
+    """A share of clips with its exact 95 % interval (``name``, ``_low``, ``_high``)."""
+    n = flags.len()
+    if n == 0:
+        return {name: math.nan, f"{name}_low": math.nan, f"{name}_high": math.nan}
+    e = share_ci(np.array([int(flags.sum())]), np.array([n]))
+    mean_key = "success_rate" if name == "success" else name
+    return {mean_key: e.mean, f"{name}_low": e.low, f"{name}_high": e.high}
+
+
+def footage_boundary(
+    s: BoundarySettings,
+    out: str | Path,
+    *,
+    log: Callable[[str], None] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> BoundaryResult:
+    """Footage mode of :func:`analysis.boundary.boundary`."""
+    from vdc.executors import TasksFailed, failure_report, run_tasks
+    from vdc.parquet_io import table_set, write_parquet
+
+    say = log or (lambda _m: None)
+    if s.fov_deg is None:
+        raise ValueError("footage mode needs --fov-deg (the camera's horizontal field of view)")
+    labels = read_labels(s.labels or "")
+    values = number_list(s.values, "values", minimum=-math.inf)
+    specs = {v: with_override(s.detector, s.param, v) for v in values}
+    from avdm.registry import make_model
+
+    for spec in specs.values():  # a factory that raises or a model without alert fails now
+        outputs = {o.name for o in make_model(spec, fps=30.0, deg_per_px=s.fov_deg / 99).outputs}
+        if "alert" not in outputs:
+            raise ValueError(f"detector {spec!r} has no 'alert' output (1 = collision ahead)")
+    out = Path(out)
+    say(f"footage: {labels.height} clip(s) x {len(values)} value(s) of {s.param}, {s.detector}")
+    complexity = clip_complexity(
+        labels,
+        s.fov_deg,
+        s.alert_window_s,
+        {"executor": s.executor, "jobs": s.jobs, "scheduler": s.scheduler},
+        out / "complexity",
+    )
+    tasks = [
+        (
+            f"{row['clip']} {s.param}={v:g}",
+            (row["source"], spec, row["collision_frame"], s.fov_deg, s.alert_window_s),
+        )
+        for v, spec in specs.items()
+        for row in labels.iter_rows(named=True)
+    ]
+    results: dict[str, dict] = {}
+
+    def done(outcome: Any) -> None:
+        if progress is not None:
+            progress(1)
+        if outcome.error is None:
+            results[outcome.key] = outcome.result
+
+    outcomes = run_tasks(clip_task, tasks, s.executor_settings(), done, say)
+    report = failure_report(outcomes, "clip")
+    if report:
+        raise TasksFailed(report)
+    by_source = {r["source"]: r for r in complexity.iter_rows(named=True)}
+    rows = []
+    for v in values:
+        for row in labels.iter_rows(named=True):
+            c = by_source[row["source"]]
+            rows.append(
+                {
+                    "clip": row["clip"],
+                    "label": row["label"],
+                    "collision_frame": row["collision_frame"],
+                    "collision": row["collision_frame"] is not None,
+                    s.param: v,
+                    **results[f"{row['clip']} {s.param}={v:g}"],
+                    **{k: v for k, v in c.items() if k != "source"},
+                }
+            )
+    clips = pl.DataFrame(rows)
+    groups = max(1, min(5, labels.height // 4))
+    stats = group_statistics(clips, s.param, groups)
+    bounds = boundaries(stats, s.param, s.target)
+    overall = [
+        {s.param: v, "clips": g.height}
+        | share_row("hit_rate", g.filter(pl.col("collision"))["hit"])
+        | share_row("false_alarm_rate", g["false_alarm"])
+        | share_row("correct", g["correct"])
+        | _ttc(g)
+        for (v,), g in clips.group_by(s.param, maintain_order=True)
+    ]
+    summary = pl.DataFrame(overall)
+    meta = {"settings": dataclasses.asdict(s)}
+    with table_set(out) as stage:
+        paths = [
+            write_parquet(clips, stage / "boundary_clips.parquet", meta),
+            write_parquet(stats, stage / "boundary_conditions.parquet", meta),
+            write_parquet(bounds, stage / "boundary.parquet", meta),
+            write_parquet(summary, stage / "boundary_summary.parquet", meta),
+            plot_boundary(
+                stats,
+                bounds,
+                s.param,
+                s.target,
+                stage / "boundary.png",
+                f"{s.detector} on {labels.height} labelled clips",
+                "complexity: AVDM mean response of the clips' group (deg/s)",
+                energy=("false_alarm_rate", 100.0, "false alarms (% of clips)"),
+            ),
+        ]
+        md = footage_report(s, summary, stats, bounds, clips)
+        (stage / "boundary.md").write_text(md, encoding="utf-8")
+        paths.append(stage / "boundary.md")
+    paths = [out / p.name for p in paths]
+    return BoundaryResult(clips, stats, bounds, None, paths, md)
+
+
+def _ttc(g: pl.DataFrame) -> dict[str, float]:
+    ttc = g.filter(pl.col("hit"))["ttc_first_alert_s"].to_numpy()
+    e = mean_ci(ttc, bounds=(0.0, math.inf))
+    return {
+        "ttc_first_alert_s": e.mean,
+        "ttc_first_alert_s_low": e.low,
+        "ttc_first_alert_s_high": e.high,
+    }
+
+
+def footage_report(
+    s: BoundarySettings,
+    summary: pl.DataFrame,
+    stats: pl.DataFrame,
+    bounds: pl.DataFrame,
+    clips: pl.DataFrame,
+) -> str:
+    """``boundary.md`` of footage mode."""
+    lines = [
+        f"# {s.detector} on labelled footage\n",
+        f"Labels: `{s.labels}`; a hit is a first alert at most {s.alert_window_s:g} s before "
+        f"the collision frame. Target success {100 * s.target:g} %. Intervals are exact 95 % "
+        "intervals across clips.\n",
+        "![success and false alarms against complexity](boundary.png)\n",
+        "## Overall\n",
+    ]
+    table = pl.DataFrame(
+        [
+            {
+                s.param: r[s.param],
+                "clips": r["clips"],
+                "hit rate (%)": interval(r, "hit_rate", 100.0),
+                "false alarms (% of clips)": interval(r, "false_alarm_rate", 100.0),
+                "correct clips (%)": interval(r, "correct", 100.0),
+                "TTC of the first alert (s)": interval(r, "ttc_first_alert_s", digits=2),
+            }
+            for r in summary.iter_rows(named=True)
+        ]
+    )
+    lines += [markdown_table(table, table.columns), "## The boundary\n"]
+    for row in bounds.iter_rows(named=True):
+        lines.append(f"- {s.param} = {row[s.param]:g}: {describe_boundary(row)}")
+    lines += ["", "## Per group of clips of similar complexity\n"]
+    table = pl.DataFrame(
+        [
+            {
+                s.param: r[s.param],
+                "group": r["condition"],
+                "clips": r["clips"],
+                "complexity (deg/s)": interval(r, "complexity"),
+                "success (%)": interval(r, "success", 100.0),
+                "hit rate (%)": interval(r, "hit_rate", 100.0),
+                "false alarms (%)": interval(r, "false_alarm_rate", 100.0),
+            }
+            for r in stats.iter_rows(named=True)
+        ]
+    )
+    lines += [markdown_table(table, table.columns), "## Per clip\n"]
+    cols = [
+        "clip",
+        "label",
+        "collision_frame",
+        s.param,
+        "first_alert_frame",
+        "hit",
+        "false_alarm",
+        "ttc_first_alert_s",
+        COMPLEXITY,
+    ]
+    lines.append(markdown_table(clips, [c for c in cols if c in clips.columns]))
+    return "\n".join(lines) + "\n"

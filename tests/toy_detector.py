@@ -1,0 +1,41 @@
+"""A toy plug-in detector with a constructed complexity boundary (used by the tests as a user
+would use a plug-in: ``--detector tests.toy_detector:BlindAbove``).
+
+It sees a looming object perfectly: the share of very dark pixels (the rendered object is
+level 20, the textured backgrounds never below 70) above ``dark_share`` is an alert. But it is
+blind, by construction, whenever the scene is too busy: once the running mean of the AVDM's
+response (``avdm-natural``, the model ``vdc-analyse complexity`` profiles clips with) over the
+frames so far exceeds ``blind_above_dps``, it never alerts. So its success falls from 100 % to
+0 % at ``blind_above_dps``: the truth its measured boundary is tested against.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from avdm.registry import make_model
+
+
+class BlindAbove:
+    outputs = (("dark_share", "1"), ("busy_dps", "deg/s"), ("alert", "1"))
+
+    def __init__(
+        self, blind_above_dps: float = 20.0, dark_share: float = 0.02, **camera: float
+    ) -> None:
+        self.blind_above_dps, self.dark_share = blind_above_dps, dark_share
+        self.avdm = make_model("avdm-natural", **camera)  # the camera vdc passes in
+        self.reset()
+
+    def reset(self) -> None:
+        self.avdm.reset()
+        self.total, self.seen = 0.0, 0
+
+    def step(self, frame: np.ndarray) -> dict[str, float]:
+        self.total += self.avdm.step(frame)["omega_dps"]
+        self.seen += 1
+        busy = self.total / self.seen
+        dark = (
+            float((frame < 45).mean()) if frame.dtype == np.uint8 else float((frame < 0.18).mean())
+        )
+        alert = dark > self.dark_share and busy <= self.blind_above_dps
+        return {"dark_share": dark, "busy_dps": busy, "alert": float(alert)}
