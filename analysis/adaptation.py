@@ -116,7 +116,7 @@ class AdaptationSettings(ExecutorSettings):
             parse_schedule(self.schedule)
             out.append(
                 (
-                    f"grating-schedule-{self.schedule.replace(':', '_')}",
+                    "grating-schedule",
                     "grating",
                     None,
                     self.schedule,

@@ -109,6 +109,23 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     return df.with_columns(pl.Series("source", sources))
 
 
+def clip_context(source: str, fov_deg: float, width: int | None = None) -> dict[str, Any]:
+    """The camera facts a model is built with for this clip (as ``vdc-capture video``)."""
+    from vdc.recording import camera_model_context, working_size
+    from vdc.sources import open_reader
+
+    reader = open_reader(source)
+    try:
+        info = reader.info
+    finally:
+        reader.close()
+    fps = float(info["nominal_fps"])
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"{source!r} states no frame rate")
+    h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
+    return camera_model_context(w, h, fps, fov_deg)
+
+
 def detector_alerts(
     source: str, spec: str, fov_deg: float, width: int | None = None
 ) -> tuple[np.ndarray, np.ndarray, float]:
@@ -265,14 +282,14 @@ def footage_boundary(
     say = log or (lambda _m: None)
     if s.fov_deg is None:
         raise ValueError("footage mode needs --fov-deg (the camera's horizontal field of view)")
-    labels = read_labels(s.labels or "")
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {v: with_override(s.detector, s.param, v) for v in values}
+    labels = read_labels(s.labels or "")
     from avdm.registry import make_model
 
+    ctx = clip_context(labels["source"][0], s.fov_deg)
     for spec in specs.values():  # a factory that raises or a model without alert fails now
-        outputs = {o.name for o in make_model(spec, fps=30.0, deg_per_px=s.fov_deg / 99).outputs}
-        if "alert" not in outputs:
+        if "alert" not in {o.name for o in make_model(spec, **ctx).outputs}:
             raise ValueError(f"detector {spec!r} has no 'alert' output (1 = collision ahead)")
     out = Path(out)
     say(f"footage: {labels.height} clip(s) x {len(values)} value(s) of {s.param}, {s.detector}")

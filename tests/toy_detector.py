@@ -20,10 +20,14 @@ class BlindAbove:
     outputs = (("dark_share", "1"), ("busy_dps", "deg/s"), ("alert", "1"))
 
     def __init__(
-        self, blind_above_dps: float = 20.0, dark_share: float = 0.02, **camera: float
+        self,
+        blind_above_dps: float = 20.0,
+        dark_share: float = 0.02,
+        profile_model: str = "avdm-natural",
+        **camera: float,
     ) -> None:
         self.blind_above_dps, self.dark_share = blind_above_dps, dark_share
-        self.avdm = make_model("avdm-natural", **camera)  # the camera vdc passes in
+        self.avdm = make_model(profile_model, **camera)  # the camera vdc passes in
         self.reset()
 
     def reset(self) -> None:
@@ -39,3 +43,20 @@ class BlindAbove:
         )
         alert = dark > self.dark_share and busy <= self.blind_above_dps
         return {"dark_share": dark, "busy_dps": busy, "alert": float(alert)}
+
+
+def broken(**_camera: float) -> BlindAbove:
+    """A factory that raises, as a user's broken plug-in would."""
+    raise RuntimeError("no camera calibration found for this detector")
+
+
+class NoAlert:
+    """A plug-in without an 'alert' output: it cannot drive the robot."""
+
+    outputs = (("brightness", "1"),)
+
+    def __init__(self, gain: float = 1.0) -> None:
+        self.gain = gain
+
+    def step(self, frame):
+        return {"brightness": self.gain * float(frame.mean())}

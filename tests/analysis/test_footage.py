@@ -1,0 +1,91 @@
+"""Footage mode of ``vdc-analyse boundary`` on labelled clips the tests render and encode
+themselves: a dark object looming over textured backgrounds drifting at known speeds, and the
+same backgrounds with nothing colliding."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+from analysis.boundary import BoundarySettings, boundary
+from tests.footage_clips import COLLISION_FRAME, FPS, write_collection
+from tests.helpers import assert_one_line_error, run_cli
+
+DRIFTS = (0.0, 0.5, 1.0, 2.0, 4.0)  # px per frame: five groups of clips, ever busier
+WINDOW_S = 1.0
+
+
+@pytest.fixture(scope="module")
+def labels(tmp_path_factory) -> Path:
+    return write_collection(tmp_path_factory.mktemp("clips"), DRIFTS)
+
+
+def settings(labels: Path, detector: str, param: str, values: str) -> BoundarySettings:
+    return BoundarySettings(labels=str(labels), fov_deg=60.0, detector=detector, param=param,
+                            values=values, alert_window_s=WINDOW_S, jobs=2)  # fmt: skip
+
+
+def test_the_toy_detectors_constructed_boundary_is_found(labels: Path, tmp_path: Path) -> None:
+    """The toy is blind once the AVDM's running mean exceeds ``blind_above_dps``: the boundary
+    found for each value brackets that value (the grid's spacing is the interval)."""
+    res = boundary(settings(labels, "tests.toy_detector:BlindAbove", "blind_above_dps", "6.5,12.5"),
+                   tmp_path)  # fmt: skip
+    groups = res.conditions.filter(pl.col("blind_above_dps") == 6.5).sort("complexity_dps")
+    assert groups.height == len(DRIFTS)  # clips of one drift speed make one group
+    assert (groups["complexity_dps"].diff().drop_nulls() > 2).all()  # busier, group by group
+    for row in res.boundaries.iter_rows(named=True):
+        truth = row["blind_above_dps"]
+        assert row["where"] == "within"
+        assert row["boundary_low_dps"] < truth <= row["boundary_high_dps"]
+    clips = res.runs
+    seen = clips.filter(pl.col("collision") & pl.col("hit"))
+    assert seen.height > 0 and (seen["ttc_first_alert_s"] > 0).all()
+    assert (seen["ttc_first_alert_s"] <= WINDOW_S).all()
+    assert not clips.filter(~pl.col("collision"))["false_alarm"].any()  # it never cries wolf
+    md = (tmp_path / "boundary.md").read_text()
+    assert "## Per clip" in md and "hit rate" in md
+    assert (tmp_path / "boundary.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_the_readme_looming_detector_breaks_on_busy_backgrounds(
+    labels: Path, tmp_path: Path
+) -> None:
+    res = boundary(settings(labels, "examples.looming:Looming", "threshold", "0.05"), tmp_path)
+    clips = res.runs
+    still = clips.filter(pl.col("clip").str.contains("drift0-"))
+    assert still.filter(pl.col("collision"))["hit"].all()  # on a still background it works
+    assert not still["false_alarm"].any()
+    busy = clips.filter(pl.col("clip").str.contains("drift4-"))
+    assert busy.filter(~pl.col("collision"))["false_alarm"].all()  # the drift excites it
+    assert not busy["hit"].any()  # and its alerts come long before the object does
+    summary = pl.read_parquet(tmp_path / "boundary_summary.parquet").row(0, named=True)
+    assert summary["hit_rate_low"] < summary["hit_rate"] < summary["hit_rate_high"]
+    assert summary["clips"] == 4 * len(DRIFTS)
+    b = res.boundaries.row(0, named=True)
+    assert b["where"] == "within"
+    hits = clips.filter(pl.col("hit"))
+    assert (hits["collision_frame"] == COLLISION_FRAME).all()
+    frames_ahead = hits["ttc_first_alert_s"].to_numpy() * FPS  # whole frames before the hit
+    assert np.allclose(frames_ahead, np.round(frames_ahead)) and (frames_ahead >= 0).all()
+    assert (frames_ahead <= WINDOW_S * FPS).all()
+
+
+@pytest.mark.parametrize(
+    ("table", "needles"),
+    [
+        ("clip,label\nx.mp4,looming\n", ["has no column collision_frame"]),
+        ("clip,label,collision_frame\nnothere.mp4,looming,10\n", ["not there: nothere.mp4"]),
+        ("clip,label,collision_frame\n{clip},looming,-3\n", ["collision_frame must be"]),
+    ],
+)
+def test_a_bad_labels_table_is_one_line(labels: Path, tmp_path: Path, table: str, needles) -> None:
+    clip = labels.parent / "bg-drift0-s1.mp4"
+    path = tmp_path / "labels.csv"
+    path.write_text(table.replace("{clip}", str(clip)))
+    proc = run_cli("analysis.cli", "boundary", "--labels", str(path), "--fov-deg", "60",
+                   "--detector", "examples.looming:Looming", "--param", "threshold",
+                   "--values", "0.1", "--out", str(tmp_path / "o"))  # fmt: skip
+    assert_one_line_error(proc, *needles)
