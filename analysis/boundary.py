@@ -24,14 +24,18 @@ The complexity of a condition (``--complexity``):
   warm-up), the measure a learnt policy reads as it runs.
 
 A policy is fitted from the grid (:func:`fit_policy`) and written as ``policy.csv``.
+
+This module holds the settings, the measurements and statistics, the boundary, the policy fit,
+the figure and the report; the campaign that records the arena's runs is
+:mod:`analysis.experiments.boundary` (the command's entry, :func:`boundary`), the footage mode
+:mod:`analysis.footage`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -47,13 +51,21 @@ from vdc.parquet_io import WroteFiles
 
 TARGET_HELP = "the success rate a detector must keep (default: {default}, the paper's 90 %)"
 COMPLEXITY_MEASURES = ("profile", "online")
+ROW_VERSION = 2  # what run_row measures; a cached row of another version is measured again
 WARMUP_FRAMES = 60  # the AVDM's and the running means' start-up, left out of every mean
 
 
-def number_list(text: str, name: str, *, minimum: float = 0.0) -> list[float]:
-    """``"0,1.5,3"`` → ``[0.0, 1.5, 3.0]``; ValueError naming ``--name`` otherwise."""
+def _items(given: Any) -> list[str]:
+    """A flag's list: a tuple of items, a comma-separated string, or both."""
+    parts = [given] if isinstance(given, str | int | float) else list(given)
+    return [w.strip() for p in parts for w in str(p).split(",") if w.strip()]
+
+
+def number_list(text: Any, name: str, *, minimum: float = 0.0) -> list[float]:
+    """``"0,1.5,3"`` or ``(0, 1.5, 3)`` → ``[0.0, 1.5, 3.0]``; ValueError naming ``--name``
+    otherwise."""
     try:
-        values = [float(v) for v in str(text).split(",") if v.strip()]
+        values = [float(v) for v in _items(text)]
     except ValueError:
         raise ValueError(f"--{name} must be numbers separated by commas, got {text!r}") from None
     if not values or not all(math.isfinite(v) and v >= minimum for v in values):
@@ -63,20 +75,25 @@ def number_list(text: str, name: str, *, minimum: float = 0.0) -> list[float]:
     return values
 
 
-def name_list(text: str, name: str, allowed: Sequence[str]) -> list[str]:
-    values = [v.strip() for v in str(text).split(",") if v.strip()]
+def name_list(text: Any, name: str, allowed: Sequence[str]) -> list[str]:
+    values = _items(text)
     bad = [v for v in values if v not in allowed]
     if not values or bad:
         raise ValueError(f"--{name} must be some of {', '.join(allowed)}, got {text!r}")
     return values
 
 
-def with_override(spec: str, key: str, value: Any) -> str:
-    """``spec`` with ``key=value`` added to its overrides."""
+def add_overrides(spec: str, overrides: str) -> str:
+    """``spec`` with ``overrides`` (``"key=value,..."``) added to its own."""
     from avdm.registry import is_plugin
 
     plain = ":" not in spec or (is_plugin(spec) and spec.count(":") == 1)
-    return f"{spec}{':' if plain else ','}{key}={value:g}"
+    return f"{spec}{':' if plain else ','}{overrides}"
+
+
+def with_override(spec: str, key: str, value: float) -> str:
+    """``spec`` with ``key=value`` added to its overrides."""
+    return add_overrides(spec, f"{key}={value:g}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,9 +107,13 @@ class BoundarySettings(ExecutorSettings):
         "package.module:factory[:key=value,...])",
     )
     param: str = option("t_ffi", "the detector's sensitivity parameter swept by the grid")
-    values: str = option("12,20,30,45", "arena: the parameter's values, comma-separated")
-    tf: str = option("0,1,3", "arena: wall TFs, Hz, comma-separated")
-    scenes: str = option("grating,natural", "arena: wall scenes, comma-separated")
+    values: tuple[float, ...] = option(
+        (12.0, 20.0, 30.0, 45.0), "the parameter's values, comma-separated"
+    )
+    tf: tuple[float, ...] = option((0.0, 1.0, 3.0), "arena: wall TFs, Hz, comma-separated")
+    scenes: tuple[str, ...] = option(
+        ("grating", "natural"), "arena: a wall scene (repeat the flag for several)"
+    )
     seed: int = option(1, "first random seed", type=non_negative_int)
     seeds: int = option(5, "arena: runs per condition and value (seeds --seed, --seed+1, ...)")
     minutes: float = option(10.0, "arena: length of each run", type=positive_float)
@@ -150,6 +171,9 @@ class BoundarySettings(ExecutorSettings):
             parse_model_spec(with_override(self.detector, self.param, v))
         return values
 
+    def scene_list(self) -> list[str]:
+        return name_list(self.scenes, "scenes", ("grating", "natural"))
+
     def conditions(self) -> list[tuple[str, float]]:
         """(scene, TF) of the grid, in the order given."""
         return [
@@ -159,11 +183,15 @@ class BoundarySettings(ExecutorSettings):
         ]
 
 
+def _join(values: Any) -> str:
+    return ", ".join(f"{v:g}" for v in number_list(values, "values", minimum=-math.inf))
+
+
 def condition_name(scene: str, tf_hz: float) -> str:
     return f"{scene}-tf{tf_hz:g}"
 
 
-# --- one run: record it (unless it is there), then measure it ------------------------------
+# --- one run measured ----------------------------------------------------------------------
 
 
 def run_row(path: str | Path, kind: str, false_alarm_m: float = 0.30) -> dict[str, Any]:
@@ -187,77 +215,11 @@ def run_row(path: str | Path, kind: str, false_alarm_m: float = 0.30) -> dict[st
     straight = omega.filter(pl.col("turning").not_())["omega_dps"]
     if kind == "collision":
         row["online_dps"] = float(omega["omega_dps"].mean() or math.nan)
+        row["online_median_dps"] = float(omega["omega_dps"].median() or math.nan)
         row["straight_dps"] = float(straight.mean()) if straight.len() else math.nan
     else:
         row["profile_dps"] = float(straight.mean()) if straight.len() else math.nan
     return row
-
-
-def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm_m: float) -> dict:
-    """An executor task: record the run unless a finished recording of the same configuration
-    is there, then measure it; the row is kept beside the recording (``.row.json``) so a
-    re-run neither records nor measures it again."""
-    from analysis.experiments.captures import is_done
-    from capture.sim import record_sim
-
-    path = Path(out)
-    run_id = settings.to_config().run_id()
-    cache = path.with_suffix(".row.json")
-    if is_done(path, run_id):
-        if cache.exists():
-            row = json.loads(cache.read_text())
-            if row.get("recording_id") == run_id:
-                return row | {"key": key, "reused": True}
-    else:
-        record_sim(settings, path, force=True)  # a partial file of a killed run is replaced
-    row = run_row(path, kind, false_alarm_m)
-    tmp = cache.with_suffix(".partial")
-    tmp.write_text(json.dumps(row))
-    tmp.replace(cache)
-    return row | {"key": key, "reused": False}
-
-
-def run_grid(
-    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
-    kind: str,
-    executor: ExecutorSettings,
-    false_alarm_m: float,
-    log: Callable[[str], None],
-    progress: Callable[[int], None] | None = None,
-) -> pl.DataFrame:
-    """Record and measure every ``(key, SimSettings, path, columns)`` on ``executor``; one row
-    per run with ``columns`` (its condition) first. A failed run does not stop the others:
-    they are kept and :class:`vdc.executors.TasksFailed` names the failed ones."""
-    from vdc.executors import TasksFailed, failure_report, run_tasks
-
-    by_key = {k: cols for k, _, _, cols in items}
-    tasks = []
-    for key, settings, path, _ in items:
-        settings.to_config()  # a bad configuration fails before any process starts
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tasks.append((key, (key, settings, str(path), kind, false_alarm_m)))
-    rows = []
-
-    def done(outcome: Any) -> None:
-        if progress is not None:
-            progress(1)
-        if outcome.error is not None:
-            log(f"  {outcome.key} FAILED: {outcome.error}")
-        else:
-            rows.append({**by_key[outcome.key], **outcome.result})
-
-    outcomes = run_tasks(
-        record_and_measure,
-        tasks,
-        executor.executor_settings(),
-        done,
-        log,
-        shared_paths=[items[0][2].parent] if items else [],
-    )
-    report = failure_report(outcomes, "run")
-    if report:
-        raise TasksFailed(report)
-    return pl.DataFrame(rows).sort("key")
 
 
 # --- performance against complexity, and the boundary -------------------------------------
@@ -385,41 +347,52 @@ def fit_policy(
     window_s: float = 60.0,
 ) -> Policy:
     """The parameter as a function of the online complexity, from a grid's runs (columns
-    condition, ``param``, success, avoidances, crashes, avoidances_per_30min, online_dps).
+    condition, ``param``, avoidances, crashes, avoidances_per_30min, online_median_dps).
 
-    Per condition, among the values whose mean success across seeds keeps the target, the one
-    with the fewest avoidances per 30 min (none keeps it: the most successful); the row's
-    complexity is the online AVDM mean of that value's runs (what the policy will read when it
-    sets that value). Rows of equal complexity keep the larger value."""
+    1. The **anchor** is the value that keeps the target (the lower end of the success
+       interval across seeds at or above it) on the most conditions; ties go to the fewest
+       avoidances over the grid.
+    2. Per condition, the anchor stays unless the evidence says otherwise at 95 %: where it does
+       not keep the target, the value with the best lower success bound replaces it; where it
+       does, a value that also keeps the target replaces it only if its avoidances' interval
+       lies wholly below the anchor's (fewer turns, for certain).
+    3. A row's complexity is the online complexity (the running **median** of the AVDM over the
+       window, which the robot's own turns, brief spikes of ω̂, barely move) of the runs with
+       that value: what the policy reads when it has set it. Rows of equal complexity keep the
+       larger value.
+
+    (A first design took, per condition, the value with the fewest mean avoidances among those
+    whose mean success kept the target, against the running mean: noisy choices on a measure
+    that the robot's turning, which the choice itself changes, dominated; see docs/boundary.md.)
+    """
+    stats = _value_statistics(runs, param)
+    keeps = stats.filter(pl.col("success_low") >= target)
+    counts = keeps.group_by(param).agg(pl.len().alias("kept"))
+    total = stats.group_by(param).agg(pl.col("avoidances_per_30min").sum().alias("turns"))
+    ranked = counts.join(total, on=param).sort(["kept", "turns"], descending=[True, False])
+    anchor = float(ranked[param][0]) if ranked.height else float(stats[param].min())
     rows = []
-    for (cond,), g in runs.group_by("condition", maintain_order=True):
-        per_value = (
-            g.group_by(param)
-            .agg(
-                pl.col("avoidances").sum().alias("a"),
-                pl.col("crashes").sum().alias("c"),
-                pl.col("avoidances_per_30min").mean(),
-                pl.col("online_dps").mean(),
-                pl.len().alias("n"),
-            )
-            .with_columns((pl.col("a") / (pl.col("a") + pl.col("c"))).alias("success_rate"))
-            .sort(param)
-        )
-        keeps = per_value.filter(pl.col("success_rate") >= target)
-        best = (
-            keeps.sort("avoidances_per_30min", param).row(0, named=True)
-            if keeps.height
-            else per_value.sort("success_rate", descending=True).row(0, named=True)
-        )
+    for (cond,), g in stats.group_by("condition", maintain_order=True):
+        a = g.filter(pl.col(param) == anchor).row(0, named=True)
+        best, why = a, "anchor"
+        ok = g.filter(pl.col("success_low") >= target)
+        if a["success_low"] < target:
+            best = g.sort("success_low", descending=True).row(0, named=True)
+            why = "keeps the target" if best["success_low"] >= target else "least bad"
+        else:
+            fewer = ok.filter(pl.col("avoidances_high") < a["avoidances_low"])
+            if fewer.height:
+                best, why = fewer.sort("avoidances_per_30min").row(0, named=True), "fewer turns"
         rows.append(
             {
-                "complexity_dps": round(float(best["online_dps"]), 3),
+                "complexity_dps": round(float(best["online_median_dps"]), 3),
                 param: float(best[param]),
                 "success_rate": round(float(best["success_rate"]), 4),
+                "success_low": round(float(best["success_low"]), 4),
                 "avoidances_per_30min": round(float(best["avoidances_per_30min"]), 1),
                 "runs": int(best["n"]),
                 "condition": cond,
-                "keeps_target": bool(keeps.height),
+                "why": why,
             }
         )
     df = pl.DataFrame(rows).sort("complexity_dps", param)
@@ -431,7 +404,26 @@ def fit_policy(
         window_s,
         profile_model,
         df.drop("complexity_dps", param),
+        statistic="median",
     )
+
+
+def _value_statistics(runs: pl.DataFrame, param: str) -> pl.DataFrame:
+    """Per condition and value: success with its interval, avoidances with theirs, the online
+    complexity (median) of those runs, and the number of runs."""
+    rows = []
+    for (cond, value), g in runs.group_by("condition", param, maintain_order=True):
+        s = share_ci(g["avoidances"].to_numpy(), (g["avoidances"] + g["crashes"]).to_numpy())
+        a = mean_ci(g["avoidances_per_30min"].cast(pl.Float64).to_numpy(), bounds=(0.0, math.inf))
+        low = s.low if math.isfinite(s.low) else s.mean  # one seed: no interval
+        rows.append(
+            {"condition": cond, param: value, "n": g.height, "success_rate": s.mean,
+             "success_low": low, "avoidances_per_30min": a.mean,
+             "avoidances_low": a.low if math.isfinite(a.low) else a.mean,
+             "avoidances_high": a.high if math.isfinite(a.high) else a.mean,
+             "online_median_dps": float(g["online_median_dps"].mean())}
+        )  # fmt: skip
+    return pl.DataFrame(rows)
 
 
 # --- figures and report ---------------------------------------------------------------------
@@ -469,11 +461,16 @@ def plot_boundary(
                 y,
                 yerr=yerr,
                 xerr=xerr,
-                fmt="o-",
+                fmt="-",
                 color=color,
                 capsize=3,
+                alpha=0.45,
                 label=f"{by} = {value:g}",
             )
+            for kind, marker in _MARKERS.items():  # the scene (or group) each point is
+                on = np.array([str(c).startswith(kind) for c in g["condition"]])
+                if on.any():
+                    ax.plot(x[on], y[on], marker, color=color, ms=7)
         b = bounds.filter(pl.col(by) == value).row(0, named=True)
         if b["where"] == "within":
             ax_s.axvspan(b["boundary_low_dps"], b["boundary_high_dps"], color=color, alpha=0.08)
@@ -481,7 +478,7 @@ def plot_boundary(
     ax_s.axhline(100 * target, color="k", ls=":", lw=1, label=f"target {100 * target:g} %")
     ax_s.set_ylabel("success (%)")
     ax_s.set_ylim(-2, 102)
-    ax_s.set_title("success: dashed = boundary, band = where it lies (95 %)")
+    ax_s.set_title("success: dashed = boundary, band = where it lies; o grating, ■ natural")
     ax_e.set_ylabel(energy[2])
     ax_e.set_title(energy[2].split(" (")[0])
     for ax in (ax_s, ax_e):
@@ -492,6 +489,9 @@ def plot_boundary(
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     return path
+
+
+_MARKERS = {"grating": "o", "natural": "s", "group": "D"}
 
 
 def _err(y: np.ndarray, low: Any, high: Any) -> np.ndarray | None:
@@ -533,144 +533,15 @@ class BoundaryResult(WroteFiles):
     paths: list[Path]
     markdown: str
 
-
-def boundary(
-    settings: BoundarySettings,
-    out: str | Path,
-    *,
-    log: Callable[[str], None] | None = None,
-    progress: Callable[[int], None] | None = None,
-) -> BoundaryResult:
-    """Run the grid (arena) or the labelled clips (footage mode: ``settings.labels``) and
-    write the tables, the figure, the report and, in the arena, ``policy.csv`` into ``out``."""
-    if settings.labels is not None:
-        from analysis.footage import footage_boundary
-
-        return footage_boundary(settings, out, log=log, progress=progress)
-    return arena_boundary(settings, out, log=log, progress=progress)
-
-
-def grid_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
-    """One closed-loop run per (scene, TF, value, seed)."""
-    from capture.sim import SimSettings
-
-    items = []
-    for scene, tf in s.conditions():
-        cond = condition_name(scene, tf)
-        for value in s.grid_values():
-            spec = with_override(s.detector, s.param, value)
-            for seed in range(s.seed, s.seed + s.seeds):
-                key = f"{cond}-{s.param}{value:g}-seed{seed}"
-                settings = SimSettings(
-                    behaviour="collision",
-                    model=spec,
-                    scene=scene,
-                    tf_hz=tf,
-                    minutes=s.minutes,
-                    seed=seed,
-                    phase=f"{cond}-{s.param}{value:g}",
-                    profile_model=s.profile_model,
-                )
-                cols = {
-                    "condition": cond,
-                    "scene": scene,
-                    "tf_hz": tf,
-                    s.param: value,
-                    "seed": seed,
-                }
-                items.append(
-                    (key, settings, folder / cond / f"{s.param}{value:g}" / f"seed{seed}.rrd", cols)
-                )
-    return items
-
-
-def profile_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
-    """One profiling run (as ``reproduce`` profiles: ring turns, no detector) per (scene, TF,
-    seed)."""
-    from capture.sim import SimSettings
-
-    items = []
-    for scene, tf in s.conditions():
-        cond = condition_name(scene, tf)
-        for seed in range(s.seed, s.seed + s.seeds):
-            settings = SimSettings(
-                scene=scene, tf_hz=tf, minutes=s.minutes, seed=seed, model=s.profile_model
-            )
-            cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": seed}
-            items.append(
-                (
-                    f"profile-{cond}-seed{seed}",
-                    settings,
-                    folder / "profile" / cond / f"seed{seed}.rrd",
-                    cols,
-                )
-            )
-    return items
-
-
-def arena_boundary(
-    s: BoundarySettings,
-    out: str | Path,
-    *,
-    log: Callable[[str], None] | None = None,
-    progress: Callable[[int], None] | None = None,
-) -> BoundaryResult:
-    """Arena mode of :func:`boundary`."""
-    from vdc.parquet_io import table_set, write_parquet
-
-    say = log or (lambda _m: None)
-    out = Path(out)
-    rec = out / "recordings"
-    items = grid_items(s, rec)
-    prof = profile_items(s, rec) if s.complexity == "profile" else []
-    say(
-        f"boundary of {s.detector} over {s.param} = {s.values}: {len(s.conditions())} "
-        f"condition(s) x {len(s.grid_values())} value(s) x {s.seeds} seed(s) of "
-        f"{s.minutes:g} min = {len(items)} run(s)"
-        + (f", plus {len(prof)} profiling run(s)" if prof else "")
-    )
-    runs = run_grid(items, "collision", s, s.false_alarm_m, say, progress)
-    if prof:
-        profiles = run_grid(prof, "profile", s, s.false_alarm_m, say, progress)
-        complexity = condition_complexity(profiles, "profile_dps")
-    else:
-        profiles = None
-        complexity = condition_complexity(runs, "online_dps")
-    conditions = condition_statistics(runs, complexity, ["condition", s.param])
-    bounds = boundaries(conditions, s.param, s.target)
-    policy = fit_policy(runs, s.param, s.target, s.profile_model) if not s.no_fit else None
-    meta = {"settings": dataclasses.asdict(s)}
-    with table_set(out) as stage:
-        paths = [
-            write_parquet(runs, stage / "boundary_runs.parquet", meta),
-            write_parquet(conditions, stage / "boundary_conditions.parquet", meta),
-            write_parquet(bounds, stage / "boundary.parquet", meta),
+    def report(self) -> list[str]:
+        """What the command line prints: the boundary per value, then the files."""
+        param = self.boundaries.columns[0]
+        lines = [
+            f"boundary at {param} = {r[param]:g}: {describe_boundary(r)}"
+            for r in self.boundaries.iter_rows(named=True)
         ]
-        if profiles is not None:
-            paths.append(write_parquet(profiles, stage / "boundary_profiles.parquet", meta))
-        x_label = (
-            "complexity: AVDM straight-driving response, profiling runs (deg/s)"
-            if s.complexity == "profile"
-            else "complexity: on-board AVDM mean in the detector's runs (deg/s)"
-        )
-        paths.append(
-            plot_boundary(
-                conditions,
-                bounds,
-                s.param,
-                s.target,
-                stage / "boundary.png",
-                f"{s.detector}: success against complexity",
-                x_label,
-            )
-        )
-        if policy is not None:
-            paths.append(policy.save(stage / "policy.csv"))
-        md = arena_report(s, conditions, bounds, policy)
-        (stage / "boundary.md").write_text(md, encoding="utf-8")
-        paths.append(stage / "boundary.md")
-    paths = [out / p.name for p in paths]
-    return BoundaryResult(runs, conditions, bounds, policy, paths, md)
+        wanted = ("boundary.md", "boundary.png", "policy.csv")
+        return [*lines, "wrote " + ", ".join(str(p) for p in self.paths if p.name in wanted)]
 
 
 def arena_report(
@@ -679,7 +550,8 @@ def arena_report(
     """``boundary.md``: the boundary per value, performance per condition, the policy."""
     lines = [
         f"# Where {s.detector} breaks\n",
-        f"Grid: scenes {s.scenes}; wall TF {s.tf} Hz; {s.param} = {s.values}; {s.seeds} "
+        f"Grid: scenes {', '.join(s.scene_list())}; wall TF {_join(s.tf)} Hz; {s.param} = "
+        f"{_join(s.values)}; {s.seeds} "
         f"seed(s) from {s.seed}; {s.minutes:g}-min closed-loop runs. Target success "
         f"{100 * s.target:g} %. Complexity: {s.complexity} ({s.profile_model}). Intervals "
         "are 95 % across seeds.\n",

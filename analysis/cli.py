@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import math
+import importlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from vdc.cli_support import (
@@ -13,6 +13,7 @@ from vdc.cli_support import (
     command_line,
     command_of,
     flag_values,
+    load_settings_class,
     progress_bar,
     reference_markdown,
     run_command_line,
@@ -68,16 +69,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
             progress=bar.update,
             notice=_notice,
         )
-    for path, (name, df) in zip(res.paths, res.tables.items(), strict=True):
-        print(f"{name:<14} {df.height:>8} rows -> {path}")
-    print("summary (primary output after warm-up):")
-    for r in res.summary.iter_rows(named=True):
-        tf = "no walls" if r["wall_tf_hz"] is None else f"TF {r['wall_tf_hz']:g} Hz"
-        print(
-            f"  {r['recording_id']}  {r['model']:<16} {tf}: "
-            f"mean {r['mean']:.1f}, p95 {r['p95']:.1f}, > 100: {100 * r['frac_over_100']:.1f} %, "
-            f"near wall / centre {r['near_wall_centre_ratio']:.2f}"
-        )
+    print("\n".join(res.report()))
     return 0
 
 
@@ -87,18 +79,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
     s = settings_from_args(ProfileSettings, args)
     with progress_bar(None, "profile", "frame") as bar:
         res = profile(args.recordings, s, args.out, progress=bar.update, notice=_notice)
-    files = res.files
-    pngs = [p for role, p in files.items() if role.startswith("profile_") and p.suffix == ".png"]
-    print(
-        f"{len(res.segments)} profile(s) by {s.by}: {len(pngs)} PNGs, {files.profiles_png}, "
-        f"{files.profiles_rrd}, {files.profile_summary}"
-    )
-    for r in res.summary.iter_rows(named=True):
-        print(
-            f"  {r['segment']:<44} n={r['n_frames']:>6}  > {s.threshold_dps:g}: "
-            f"{100 * r['frac_over_threshold']:5.1f} %  near wall {r['near_wall_mean']:.1f} / "
-            f"centre {r['centre_mean']:.1f}"
-        )
+    print("\n".join(res.report()))
     return 0
 
 
@@ -108,21 +89,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     s = settings_from_args(CompareSettings, args)
     with progress_bar(None, "compare", "frame") as bar:
         res = compare(args.recording, s, args.out, progress=bar.update, notice=_notice)
-    n_frames = res.outputs[next(iter(res.outputs))].height
-    files = res.files
-    print(f"{len(res.outputs)} variants on {n_frames} frames -> {files.compare}, {files.variants}")
-    for r in res.statistics.iter_rows(named=True):
-        print(
-            f"  {r['model']:<22} mean {r['mean']:8.2f}  p95 {r['p95']:8.2f}  "
-            f"> {s.threshold_dps:g}: {100 * r['frac_over_threshold']:5.1f} %  "
-            f"near wall / centre {r['near_wall_centre_ratio']:.2f}"
-        )
-    for r in res.correlations.iter_rows(named=True):
-        print(
-            f"  corr {r['model_a']} ~ {r['model_b']}: pearson {r['pearson']:.3f}, "
-            f"spearman {r['spearman']:.3f}"
-        )
-    print(f"view together: rerun {args.recording} {files.variants}")
+    print("\n".join(res.report(args.recording)))
     return 0
 
 
@@ -150,30 +117,20 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_boundary(args: argparse.Namespace) -> int:
-    from analysis.boundary import BoundarySettings, boundary, describe_boundary
+def _campaign(entry: str, unit: str) -> Callable[[argparse.Namespace], int]:
+    """A sub-command that runs ``module:function(settings, out, log=, progress=)`` with a
+    progress bar over its ``unit``s and prints the result's ``report()`` lines."""
 
-    settings = settings_from_args(BoundarySettings, args)
-    with progress_bar(None, "boundary", "run") as bar:
-        res = boundary(settings, args.out, log=say, progress=bar.update)
-    for row in res.boundaries.iter_rows(named=True):
-        print(f"boundary at {settings.param} = {row[settings.param]:g}: {describe_boundary(row)}")
-    files = res.files
-    wrote = [files.boundary_md, files.boundary_png] + ([files.policy] if res.policy else [])
-    print("wrote " + ", ".join(str(p) for p in wrote))
-    return 0
+    def run(args: argparse.Namespace) -> int:
+        module, name = entry.split(":")
+        fn = getattr(importlib.import_module(module), name)
+        with progress_bar(None, name, unit) as bar:
+            settings = settings_from_args(load_settings_class(args.settings_target), args)
+            res = fn(settings, args.out, log=say, progress=bar.update)
+        print("\n".join(res.report()))
+        return 0
 
-
-def cmd_adaptation(args: argparse.Namespace) -> int:
-    from analysis.adaptation import AdaptationSettings, adaptation
-
-    settings = settings_from_args(AdaptationSettings, args)
-    with progress_bar(None, "adaptation", "run") as bar:
-        res = adaptation(settings, args.out, log=say, progress=bar.update)
-    print(res.markdown)
-    print(f"verdict: {res.verdict}")
-    print(f"wrote {res.files.adaptation_md}, {res.files.adaptation_png}")
-    return 0
+    return run
 
 
 def cmd_complexity(args: argparse.Namespace) -> int:
@@ -189,20 +146,7 @@ def cmd_complexity(args: argparse.Namespace) -> int:
             args.sources, settings, args.out, progress=frames.update,
             clip_progress=clips.update, notice=_notice, log=say,
         )  # fmt: skip
-    files = res.files
-    print(
-        f"{res.clips.height} clip(s), {res.table.height} frames -> {files.complexity_parquet}, "
-        f"{files.clips}, {files.complexity_html}"
-    )
-    top = res.clips.sort("omega_dps_mean", descending=True, nulls_last=True)
-    for r in top.head(10).iter_rows(named=True):
-        print(
-            f"  {r['recording_id']}: {r['frames']} frames, mean omega {r['omega_dps_mean']:.1f} "
-            f"deg/s, SI {r['si_p910_mean']:.1f} / TI {r['ti_p910_mean'] or math.nan:.2f} "
-            f"(P.910, {r['raster']} raster)"
-        )
-    if top.height > 10:
-        print(f"  ... and {top.height - 10} more (highest AVDM first): {files.complexity_html}")
+    print("\n".join(res.report()))
     for source, error in res.failures:
         print(f"FAILED {source}: {error}", file=sys.stderr)
     return 1 if res.failures else 0
@@ -396,36 +340,26 @@ COMMANDS = {
     ),
     "boundary": Command(
         "analysis.boundary:BoundarySettings",
-        cmd_boundary,
+        _campaign("analysis.experiments.boundary:boundary", "run"),
         "where a detector breaks as complexity rises (arena grid or labelled footage)",
-        "Arena: closed-loop collision runs over a grid of wall scene x TF x the detector's "
-        "--param values x seeds (on --executor, finished runs reused), each condition profiled "
-        "with the AVDM; success, avoidances and crashes per 30 min and distance to collision "
-        "per condition with 95 % intervals; the boundary (the complexity where success falls "
-        "below --target at 95 % confidence) per value; a policy fitted from the grid "
-        "(policy.csv: the parameter against the online complexity). Footage (--labels): hit "
-        "rate, false alarms and the time to collision of the first alert per clip and per "
-        "group of clips of similar complexity. Writes boundary.md, boundary.png and Parquet "
-        "tables into --out.",
-        "examples:\n"
-        "  vdc-analyse boundary --detector lgmd-plus-arena --param t_ffi --values 12,20,30,45\n"
-        "  vdc-analyse boundary --labels clips/labels.csv --fov-deg 60 "
+        "Arena: closed-loop runs over scene x TF x --param values x seeds (finished runs "
+        "reused), each condition profiled with the AVDM; per condition, success, avoidances, "
+        "crashes and distance to collision with 95 % intervals; the boundary (where success "
+        "falls below --target at 95 % confidence) per value; a policy fitted from the grid "
+        "(policy.csv). Footage (--labels): hit rate, false alarms and the time to collision "
+        "of the first alert per clip and per group of clips of similar complexity.",
+        "example:\n  vdc-analyse boundary --labels clips/labels.csv --fov-deg 60 "
         "--detector examples.looming:Looming --param threshold --values 0.05,0.15",
         inputs=_inputs("results/boundary", None),
     ),
     "adaptation": Command(
-        "analysis.adaptation:AdaptationSettings",
-        cmd_adaptation,
+        "analysis.experiments.adaptation:AdaptationSettings",
+        _campaign("analysis.experiments.adaptation:adaptation", "run"),
         "test a learnt policy on held-out conditions against the hand-made controllers",
-        "Closed-loop runs of the detector on held-out wall TFs and scenes and on a TF "
-        "schedule that changes mid-run, with four controllers: fixed (the detector as is), "
-        "hand (the paper's adjusted threshold, --hand), adaptive (vdc's hand-made rule) and "
-        "policy (--policy, from vdc-analyse boundary, running online). Same seeds for every "
-        "controller; success, avoidances and crashes with 95 % intervals, the policy's paired "
-        "differences against each controller and a verdict computed from them. Writes "
-        "adaptation.md, adaptation.png and Parquet tables into --out.",
-        "example:\n  vdc-analyse adaptation --policy results/boundary/policy.csv --tf 2 "
-        "--schedule 0:5m,3:5m",
+        "Closed-loop runs on held-out wall TFs, scenes and a TF schedule changing mid-run, "
+        "with the detector as is, the paper's hand threshold (--hand), vdc's adaptive rule "
+        "and the policy (--policy, running online); the same seeds for all; the policy's "
+        "paired differences against each, and a verdict computed from them.",
         inputs=_inputs("results/adaptation", None),
     ),
     "batch": Command(

@@ -195,6 +195,25 @@ class CompareResult(WroteFiles):
     paths: list[Path]
     notices: list[str]
 
+    def report(self, source: str) -> list[str]:
+        """What the command line prints: statistics and correlations of the variants."""
+        n_frames = self.outputs[next(iter(self.outputs))].height
+        files, t = self.files, self.settings.threshold_dps
+        lines = [f"{len(self.outputs)} variants on {n_frames} frames -> {files.compare}, "
+                 f"{files.variants}"]  # fmt: skip
+        lines += [
+            f"  {r['model']:<22} mean {r['mean']:8.2f}  p95 {r['p95']:8.2f}  > {t:g}: "
+            f"{100 * r['frac_over_threshold']:5.1f} %  near wall / centre "
+            f"{r['near_wall_centre_ratio']:.2f}"
+            for r in self.statistics.iter_rows(named=True)
+        ]
+        lines += [
+            f"  corr {r['model_a']} ~ {r['model_b']}: pearson {r['pearson']:.3f}, "
+            f"spearman {r['spearman']:.3f}"
+            for r in self.correlations.iter_rows(named=True)
+        ]
+        return [*lines, f"view together: rerun {source} {files.variants}"]
+
     def figure(self) -> Figure:
         """Traces over the busiest minute, distributions and correlations (compare.png)."""
         return compare_figure(

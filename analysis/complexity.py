@@ -328,6 +328,26 @@ class ComplexityResult(WroteFiles):
     planned: int = 0
     skipped: int = 0  # finished by an earlier run
 
+    def report(self) -> list[str]:
+        """What the command line prints: the files, the ten clips of highest AVDM response."""
+        files = self.files
+        lines = [
+            f"{self.clips.height} clip(s), {self.table.height} frames -> "
+            f"{files.complexity_parquet}, {files.clips}, {files.complexity_html}"
+        ]
+        top = self.clips.sort("omega_dps_mean", descending=True, nulls_last=True)
+        lines += [
+            f"  {r['recording_id']}: {r['frames']} frames, mean omega {r['omega_dps_mean']:.1f} "
+            f"deg/s, SI {r['si_p910_mean']:.1f} / TI {r['ti_p910_mean'] or math.nan:.2f} "
+            f"(P.910, {r['raster']} raster)"
+            for r in top.head(10).iter_rows(named=True)
+        ]
+        if top.height > 10:
+            lines.append(
+                f"  ... and {top.height - 10} more (highest AVDM first): {files.complexity_html}"
+            )
+        return lines
+
 
 def _run_inline(
     tasks: list[dict[str, str]],

@@ -193,6 +193,24 @@ class ProfileResult(WroteFiles):
     paths: list[Path]
     notices: list[str]
 
+    def report(self) -> list[str]:
+        """What the command line prints: the files, then one line per profile."""
+        s, files = self.settings, self.files
+        pngs = [
+            p for role, p in files.items() if role.startswith("profile_") and p.suffix == ".png"
+        ]
+        lines = [
+            f"{len(self.segments)} profile(s) by {s.by}: {len(pngs)} PNGs, "
+            f"{files.get('profiles_png')}, {files.get('profiles_rrd')}, "
+            f"{files.get('profile_summary')}"
+        ]
+        return lines + [
+            f"  {r['segment']:<44} n={r['n_frames']:>6}  > {s.threshold_dps:g}: "
+            f"{100 * r['frac_over_threshold']:5.1f} %  near wall {r['near_wall_mean']:.1f} / "
+            f"centre {r['centre_mean']:.1f}"
+            for r in self.summary.iter_rows(named=True)
+        ]
+
     def figure(self, i: int = 0) -> Figure:
         return segment_figure(self.segments[i], self.settings)
 

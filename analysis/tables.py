@@ -678,6 +678,22 @@ class TablesResult(WroteFiles):
     paths: list[Path]
     notices: list[str]
 
+    def report(self) -> list[str]:
+        """What the command line prints: each table's rows and file, then the summary."""
+        lines = [
+            f"{name:<14} {df.height:>8} rows -> {path}"
+            for path, (name, df) in zip(self.paths, self.tables.items(), strict=True)
+        ]
+        lines.append("summary (primary output after warm-up):")
+        for r in self.summary.iter_rows(named=True):
+            tf = "no walls" if r["wall_tf_hz"] is None else f"TF {r['wall_tf_hz']:g} Hz"
+            lines.append(
+                f"  {r['recording_id']}  {r['model']:<16} {tf}: mean {r['mean']:.1f}, p95 "
+                f"{r['p95']:.1f}, > 100: {100 * r['frac_over_100']:.1f} %, near wall / centre "
+                f"{r['near_wall_centre_ratio']:.2f}"
+            )
+        return lines
+
     @property
     def frames(self) -> pl.DataFrame:
         return self.tables["frames"]

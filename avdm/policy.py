@@ -6,14 +6,17 @@ The policy is a small table a person can read and edit (CSV, ``# key: value`` li
     # param: t_ffi
     # profile_model: avdm
     # window_s: 60
+    # statistic: median
     complexity_dps,t_ffi,success_rate,avoidances_per_30min,conditions
     14.8,12,0.97,210.3,grating-tf0
     35.2,30,0.93,240.1,grating-tf3
 
-Online, the complexity is the running mean of the profile model's ``omega_dps`` (deg/s) over the
-last ``window_s`` seconds of frames (the frames before the current one; at the start, the frames
-so far), the measure the capture can compute anywhere; the parameter is interpolated linearly
-between the rows' ``complexity_dps`` and held at the end rows' values beyond them. Columns after
+Online, the complexity is the running ``statistic`` (median, default, or mean) of the profile
+model's ``omega_dps`` (deg/s) over the last ``window_s`` seconds of frames (the frames before the
+current one; at the start, the frames so far), the measure the capture can compute anywhere (the
+median is barely moved by the robot's own turns, brief spikes of ω̂); the parameter is
+interpolated linearly between the rows' ``complexity_dps`` and held at the end rows' values beyond
+them. Columns after
 the parameter are the evidence the row was chosen on (kept for the reader, not used).
 
 ``--model SPEC:policy=FILE`` (any model whose parameter can change while it runs) builds a
@@ -34,6 +37,7 @@ import polars as pl
 from avdm.base import Output, run_by_steps
 
 COMPLEXITY_COLUMN = "complexity_dps"
+STATISTICS = ("median", "mean")
 HEADER = "vdc policy"
 
 
@@ -47,6 +51,7 @@ class Policy:
     window_s: float = 60.0
     profile_model: str = "avdm"
     evidence: pl.DataFrame | None = dataclasses.field(default=None, compare=False)
+    statistic: str = "median"  # of the profile model's omega_dps over the window
 
     def __post_init__(self) -> None:
         x, y = np.asarray(self.complexity_dps, float), np.asarray(self.values, float)
@@ -56,6 +61,8 @@ class Policy:
             raise ValueError("a policy's complexities and values must be finite numbers")
         if len(x) > 1 and not (np.diff(x) > 0).all():
             raise ValueError("a policy's complexity_dps must increase from row to row")
+        if self.statistic not in STATISTICS:
+            raise ValueError(f"a policy's statistic must be one of {', '.join(STATISTICS)}")
         if not (math.isfinite(self.window_s) and self.window_s > 0):
             raise ValueError(f"a policy's window_s must be > 0 s, got {self.window_s}")
 
@@ -79,10 +86,10 @@ class Policy:
         path.parent.mkdir(parents=True, exist_ok=True)
         head = (
             f"# {HEADER}\n# param: {self.param}\n# profile_model: {self.profile_model}\n"
-            f"# window_s: {self.window_s:g}\n"
+            f"# window_s: {self.window_s:g}\n# statistic: {self.statistic}\n"
         )
         tmp = path.with_suffix(path.suffix + ".partial")
-        tmp.write_text(head + self.table().write_csv(float_precision=6), encoding="utf-8")
+        tmp.write_text(head + self.table().write_csv(), encoding="utf-8")
         tmp.replace(path)
         return path
 
@@ -124,6 +131,7 @@ def load_policy(path: str | Path) -> Policy:
             float(meta.get("window_s", 60.0)),
             meta.get("profile_model", "avdm"),
             df.drop(COMPLEXITY_COLUMN, param),
+            meta.get("statistic", "median"),
         )
     except (ValueError, pl.exceptions.PolarsError) as exc:
         raise ValueError(f"{where}: {exc}") from None
@@ -134,9 +142,9 @@ class PolicyModel:
 
     ``run`` equals repeated ``step`` bit for bit (it is repeated ``step``)."""
 
-    def __init__(self, inner: Any, policy: Policy, context: Mapping[str, Any]) -> None:
-        from avdm.registry import make_model
-
+    def __init__(
+        self, inner: Any, policy: Policy, profiler: Any, context: Mapping[str, Any]
+    ) -> None:
         if "fps" not in context:
             raise ValueError("a policy needs the camera's frame rate (fps) to size its window")
         if not callable(getattr(inner, "set_param", None)):
@@ -145,13 +153,13 @@ class PolicyModel:
         self.policy = policy
         self.name = inner.name
         self.params = inner.params
-        self.profiler = make_model(policy.profile_model, **context)
+        self.profiler = profiler  # policy.profile_model, built for the same camera
         if "omega_dps" not in {o.name for o in self.profiler.outputs}:
             raise ValueError(f"policy profile model {policy.profile_model!r} has no omega_dps")
         self.outputs = (
             *inner.outputs,
             Output("policy_value", "", f"{policy.param} set by the policy"),
-            Output("policy_complexity_dps", "deg/s", "the policy's running mean AVDM response"),
+            Output("policy_complexity_dps", "deg/s", "the policy's running AVDM statistic"),
         )
         self._names = tuple(o.name for o in self.outputs)
         self._ring = np.zeros(max(1, round(policy.window_s * float(context["fps"]))))
@@ -169,9 +177,17 @@ class PolicyModel:
         self._seen = 0
         self.value = self.policy.value(0.0)
 
+    def _complexity(self) -> float:
+        window = len(self._ring)
+        if self.policy.statistic == "mean":
+            return self._sum / min(max(self._seen, 1), window)
+        if self._seen == 0:
+            return 0.0
+        return float(np.median(self._ring[: min(self._seen, window)]))
+
     def step(self, frame: np.ndarray) -> dict[str, float]:
         window = len(self._ring)
-        complexity = self._sum / min(max(self._seen, 1), window)
+        complexity = self._complexity()
         self.value = self.policy.value(complexity)
         self.inner.set_param(self.policy.param, self.value)
         out = dict(self.inner.step(frame))

@@ -272,7 +272,9 @@ def make_model(spec: str, **context: Any) -> Model:
         return model
     from avdm.policy import PolicyModel, load_policy
 
-    return PolicyModel(model, load_policy(policy), context)  # type: ignore[return-value]
+    plan = load_policy(policy)
+    profiler = make_model(plan.profile_model, **context)
+    return PolicyModel(model, plan, profiler, context)  # type: ignore[return-value]
 
 
 # the families whose models decode an angular velocity (output ``omega_dps``); the others are

@@ -8,6 +8,10 @@ scratch, then again (every run reused: the resume path), and prints the wall-clo
 the recorded minutes per wall-clock minute. The plain reference measured in the same run: one
 of the grid's runs recorded alone in this process (the cost of one run without the executor),
 times the number of runs divided by the workers: the ideal the campaign is held against.
+
+``--scaling`` instead runs a smaller grid (``--minutes 2 --seeds 2`` unless given) from scratch
+on the local pool and on a local Dask cluster (127.0.0.1) with 1 and 2 workers and prints the
+times and speed-ups: how the campaign scales on a cluster.
 """
 
 from __future__ import annotations
@@ -17,7 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from analysis.boundary import BoundarySettings, boundary, grid_items
+from analysis.boundary import BoundarySettings
+from analysis.experiments.boundary import boundary, grid_items
 from capture.sim import record_sim
 
 
@@ -28,7 +33,11 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5, help="seeds (default: %(default)s)")
     ap.add_argument("--executor", default="local", choices=("local", "dask"))
     ap.add_argument("--out", default=None, help="keep the campaign here (default: a temp folder)")
+    ap.add_argument("--scaling", action="store_true", help="local and Dask, 1 and 2 workers")
     args = ap.parse_args()
+    if args.scaling:
+        scaling(args)
+        return
     s = BoundarySettings(
         minutes=args.minutes, seeds=args.seeds, jobs=args.jobs, executor=args.executor
     )
@@ -66,6 +75,26 @@ def main() -> None:
             f"  boundary at t_ffi={row['t_ffi']:g}: {row['where']} "
             f"{row['boundary_low_dps']:.1f}-{row['boundary_high_dps']:.1f} deg/s"
         )
+
+
+def scaling(args: argparse.Namespace) -> None:
+    minutes = args.minutes if args.minutes != 10.0 else 2.0
+    seeds = args.seeds if args.seeds != 5 else 2
+    base = {}
+    print(f"grid: 3 TF x 2 scenes x 4 T_ffi x {seeds} seeds of {minutes:g} min, plus profiling")
+    for executor in ("local", "dask"):
+        for jobs in (1, 2):
+            s = BoundarySettings(minutes=minutes, seeds=seeds, jobs=jobs, executor=executor)
+            with tempfile.TemporaryDirectory() as tmp:
+                t0 = time.perf_counter()
+                boundary(s, tmp)
+                secs = time.perf_counter() - t0
+            base.setdefault(executor, secs)
+            n = len(grid_items(s, Path("."))) * 5 // 4
+            print(
+                f"  {executor:5s} {jobs} worker(s): {secs:6.1f} s for {n} runs "
+                f"({base[executor] / secs:.2f}x of 1 worker)"
+            )
 
 
 if __name__ == "__main__":

@@ -44,13 +44,20 @@ def _report_write_error(rec: RecordResult) -> None:
         )
 
 
+def _noun(noun: str, n: int) -> str:
+    """``crash`` → ``crashes`` unless there is one."""
+    return noun if n == 1 else noun + ("es" if noun.endswith(("s", "sh", "ch")) else "s")
+
+
 def cmd_sim(args: argparse.Namespace) -> int:
     from capture.sim import SimSettings, record_sim
 
     res = record_sim(settings_from_args(SimSettings, args), args.out, **_recording_options(args))
     _report_write_error(res)
     if res.complete:
-        events = ", ".join(f"{n} {k.replace('_', ' ')}s" for k, n in sorted(res.events.items()))
+        events = ", ".join(
+            f"{n} {_noun(k.replace('_', ' '), n)}" for k, n in sorted(res.events.items())
+        )
         print(
             f"wrote {res.path} ({res.frames} frames, {events or 'no events'}, "
             f"{res.size_mb:.0f} MB, {res.wall_time_s:.1f} s)"

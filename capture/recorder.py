@@ -355,9 +355,20 @@ class Recorder:
 
     # -- static and metadata -------------------------------------------------------------
     def send_properties(self, sections: Mapping[str, Mapping[str, Any]]) -> None:
-        """One recording property per section, e.g. ``arena``, ``wall``, ``model_params``."""
+        """One recording property per section, e.g. ``arena``, ``wall``, ``model_params``.
+
+        The SDK types a field by its name across all sections (the first section to use a name
+        sets its type): a field whose name an earlier section used with text (e.g. the
+        collision section's ``threshold: default`` and a plug-in's ``threshold`` parameter) is
+        sent as text too, rather than dropped."""
+        text_names: set[str] = set()
         for name, values in sections.items():
-            clean = {k: v for k, v in values.items() if v is not None}
+            clean = {
+                k: (str(v) if k in text_names and not isinstance(v, str) else v)
+                for k, v in values.items()
+                if v is not None
+            }
+            text_names |= {k for k, v in clean.items() if isinstance(v, str)}
             self.rec.send_property(name, rr.AnyValues(**clean))
 
     def log_arena(self, arena: ArenaConfig, robot_radius_m: float) -> None:

@@ -216,20 +216,32 @@ def record_sim(
         live = spawn_viewer() if spawn else live_url
         if detector is not None:
             main = detector
-            extra = [
-                ("AVDM omega_dps (deg/s), on board", [model_path(model.name, "omega_dps")]),
-                (
-                    "spike rate and alert threshold (spikes/s)",
-                    [
-                        model_path(CONTROLLER, "threshold"),
-                        model_path(detector.name, "spike_rate_hz"),
-                    ],
-                ),
-                (
-                    "FFI and its threshold T_ffi in force",
-                    [model_path(CONTROLLER, "t_ffi"), model_path(detector.name, "ffi")],
-                ),
-            ]
+            names = {o.name for o in detector.outputs}
+            extra = [("AVDM omega_dps (deg/s), on board", [model_path(model.name, "omega_dps")])]
+            if "spike_rate_hz" in names:  # the LGMD detectors: rate against its threshold
+                extra.append(
+                    (
+                        "spike rate and alert threshold (spikes/s)",
+                        [
+                            model_path(CONTROLLER, "threshold"),
+                            model_path(detector.name, "spike_rate_hz"),
+                        ],
+                    )
+                )
+            if "ffi" in names:
+                extra.append(
+                    (
+                        "FFI and its threshold T_ffi in force",
+                        [model_path(CONTROLLER, "t_ffi"), model_path(detector.name, "ffi")],
+                    )
+                )
+            if "policy_complexity_dps" in names:  # a learnt policy: what it read
+                extra.append(
+                    (
+                        "the policy's complexity (deg/s)",
+                        [model_path(detector.name, "policy_complexity_dps")],
+                    )
+                )
         else:
             main, extra = model, []
         recorder = Recorder(

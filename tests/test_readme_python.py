@@ -46,3 +46,10 @@ def test_the_model_example_runs() -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert 160 < float(proc.stdout.split()[-1]) < 200  # ≈ 180 deg/s, as the comment says
+
+
+def test_the_readme_plugin_is_the_example_the_tests_use() -> None:
+    readme = (ROOT / "README.md").read_text()
+    section = readme[readme.index("## Your own detector") : readme.index("## Guides")]
+    (block,) = re.findall(r"```python\n(.*?)```", section, re.S)
+    assert block == (ROOT / "examples" / "looming.py").read_text()

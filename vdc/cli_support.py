@@ -299,7 +299,7 @@ def command_line(
             cmd.inputs(p)
         if cmd.settings and command in (None, name):
             add_settings_flags(p, load_settings_class(cmd.settings))
-        p.set_defaults(func=cmd.run)
+        p.set_defaults(func=cmd.run, settings_target=cmd.settings)
     return parser
 
 

@@ -11,8 +11,9 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.adaptation import AdaptationSettings, adaptation
-from analysis.boundary import BoundarySettings, boundary, find_boundary
+from analysis.boundary import BoundarySettings, find_boundary
+from analysis.experiments.adaptation import AdaptationSettings, adaptation
+from analysis.experiments.boundary import boundary
 from analysis.rrd_reader import Recording
 from avdm.policy import load_policy
 from tests.helpers import assert_one_line_error, run_cli, write_video

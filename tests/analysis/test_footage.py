@@ -10,7 +10,8 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.boundary import BoundarySettings, boundary
+from analysis.boundary import BoundarySettings
+from analysis.experiments.boundary import boundary
 from tests.footage_clips import COLLISION_FRAME, FPS, write_collection
 from tests.helpers import assert_one_line_error, run_cli
 

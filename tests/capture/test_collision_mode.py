@@ -148,7 +148,7 @@ def test_collision_recording_has_events_detector_and_controller(tmp_path: Path) 
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (["--behaviour", "collision", "--model", "avdm"], "must be an LGMD detector"),
+        (["--behaviour", "collision", "--model", "avdm"], "must be a collision detector"),
         (["--threshold", "80"], "belongs to --behaviour collision"),
         (["--adaptive"], "belongs to --behaviour collision"),
         (["--behaviour", "collision", "--model", "lgmd-colias", "--adaptive"], "spike-rate"),

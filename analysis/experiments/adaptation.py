@@ -16,8 +16,9 @@ are paired by seed. Per condition and controller: success, avoidances and crashe
 with 95 % intervals; per condition and comparison (policy against each other controller): the
 paired differences with 95 % intervals and a verdict computed from them:
 
-* **better**: the policy keeps the target (mean success ≥ target) and the other does not, or
-  both keep it and the policy avoids less (the difference's interval is above 0);
+* **better**: the policy keeps the target (mean success ≥ target) and the other does not; or
+  both keep it and the policy avoids less (the difference's interval is above 0); or neither
+  keeps it and the policy succeeds more (that difference's interval is above 0);
 * **worse**: the mirror image;
 * **no difference**: neither, at 95 %.
 """
@@ -35,6 +36,7 @@ import polars as pl
 from matplotlib.figure import Figure
 
 from analysis.boundary import (
+    add_overrides,
     condition_complexity,
     condition_name,
     condition_statistics,
@@ -42,8 +44,8 @@ from analysis.boundary import (
     markdown_table,
     name_list,
     number_list,
-    run_grid,
 )
+from analysis.experiments.boundary import run_grid
 from analysis.stats import mean_ci
 from avdm.policy import load_policy
 from vdc.cli_support import non_negative_int, option, positive_float
@@ -63,11 +65,14 @@ class AdaptationSettings(ExecutorSettings):
         None, "the policy file (policy.csv of vdc-analyse boundary)", metavar="FILE", required=True
     )
     detector: str = option("lgmd-plus-arena", "the detector the policy was fitted for")
-    tf: str = option("2", "held-out wall TFs, Hz, comma-separated")
-    scenes: str = option("grating,natural", "scenes of the held-out TFs, comma-separated")
+    tf: tuple[float, ...] = option((2.0,), "held-out wall TFs, Hz, comma-separated")
+    scenes: tuple[str, ...] = option(
+        ("grating", "natural"), "a scene of the held-out TFs (repeat the flag for several)"
+    )
     schedule: str = option(
         "0:5m,3:5m",
-        "a TF schedule that changes mid-run (grating walls), TF:DURATION,...; empty: none",
+        "a TF schedule that changes mid-run (grating walls), TF:DURATION,...; by default "
+        "{default}; empty: none",
     )
     hand: str = option("t_ffi=30", "the paper's hand-adjusted threshold: detector overrides")
     adaptive_gain: float = option(1.0, "the hand-made adaptive rule's gain", type=positive_float)
@@ -93,10 +98,10 @@ class AdaptationSettings(ExecutorSettings):
         self.conditions()
 
     def policy_spec(self) -> str:
-        return _with(self.detector, f"policy={Path(self.policy).resolve()}")
+        return add_overrides(self.detector, f"policy={Path(self.policy).resolve()}")
 
     def hand_spec(self) -> str:
-        return _with(self.detector, self.hand) if self.hand else self.detector
+        return add_overrides(self.detector, self.hand) if self.hand else self.detector
 
     def adaptive_allowed(self) -> bool:
         from capture.config import CollisionConfig
@@ -125,13 +130,6 @@ class AdaptationSettings(ExecutorSettings):
         if not out:
             raise ValueError("no held-out condition: give --tf and --scenes or --schedule")
         return out
-
-
-def _with(spec: str, overrides: str) -> str:
-    from avdm.registry import is_plugin
-
-    plain = ":" not in spec or (is_plugin(spec) and spec.count(":") == 1)
-    return f"{spec}{':' if plain else ','}{overrides}"
 
 
 def adaptation_items(s: AdaptationSettings, folder: Path) -> list[tuple[str, Any, Path, dict]]:
@@ -189,12 +187,14 @@ def compare_to(runs: pl.DataFrame, cond: str, other: str, target: float) -> dict
     keeps_o = float(np.nanmean(pair["success_rate_other"].to_numpy())) >= target
     fewer = math.isfinite(d_a.low) and d_a.low > 0
     more = math.isfinite(d_a.high) and d_a.high < 0
-    if (keeps_p and not keeps_o) or (keeps_p and keeps_o and fewer):
-        verdict = BETTER
-    elif (keeps_o and not keeps_p) or (keeps_p and keeps_o and more):
-        verdict = WORSE
-    else:
-        verdict = SAME
+    safer = math.isfinite(d_s.low) and d_s.low > 0
+    riskier = math.isfinite(d_s.high) and d_s.high < 0
+    if keeps_p != keeps_o:  # one keeps the target and the other does not
+        verdict = BETTER if keeps_p else WORSE
+    elif keeps_p:  # both keep it: fewer avoidances (turns) is better
+        verdict = BETTER if fewer else WORSE if more else SAME
+    else:  # neither keeps it: more success is better
+        verdict = BETTER if safer else WORSE if riskier else SAME
     return {
         "condition": cond,
         "against": other,
@@ -220,6 +220,12 @@ class AdaptationResult(WroteFiles):
     notices: list[str]
     paths: list[Path]
     markdown: str
+
+    def report(self) -> list[str]:
+        """What the command line prints: the report, the verdict, the files."""
+        wanted = ("adaptation.md", "adaptation.png")
+        wrote = ", ".join(str(p) for p in self.paths if p.name in wanted)
+        return [self.markdown, f"verdict: {self.verdict}", f"wrote {wrote}"]
 
 
 def adaptation(

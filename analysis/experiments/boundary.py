@@ -1,0 +1,237 @@
+"""The arena campaign of ``vdc-analyse boundary`` (see :mod:`analysis.boundary`): closed-loop
+runs over the grid and the profiling runs, recorded on the executors and reused when finished,
+each measured once; and :func:`boundary`, the command's entry, which sends a labelled collection
+to footage mode (:mod:`analysis.footage`) instead."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import polars as pl
+
+from analysis.boundary import (
+    ROW_VERSION,
+    BoundaryResult,
+    BoundarySettings,
+    arena_report,
+    boundaries,
+    condition_complexity,
+    condition_name,
+    condition_statistics,
+    fit_policy,
+    plot_boundary,
+    run_row,
+    with_override,
+)
+from vdc.executors import ExecutorSettings
+
+
+def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm_m: float) -> dict:
+    """An executor task: record the run unless a finished recording of the same configuration
+    is there, then measure it; the row is kept beside the recording (``.row.json``) so a
+    re-run neither records nor measures it again."""
+    from analysis.experiments.captures import is_done
+    from capture.sim import record_sim
+
+    path = Path(out)
+    run_id = settings.to_config().run_id()
+    cache = path.with_suffix(".row.json")
+    if is_done(path, run_id):
+        if cache.exists():
+            row = json.loads(cache.read_text())
+            # a row measured by an older vdc lacks a measurement: measure again, not record
+            if row.get("recording_id") == run_id and row.get("row_version") == ROW_VERSION:
+                return row | {"key": key, "reused": True}
+    else:
+        record_sim(settings, path, force=True)  # a partial file of a killed run is replaced
+    row = run_row(path, kind, false_alarm_m) | {"row_version": ROW_VERSION}
+    tmp = cache.with_suffix(".partial")
+    tmp.write_text(json.dumps(row))
+    tmp.replace(cache)
+    return row | {"key": key, "reused": False}
+
+
+def run_grid(
+    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
+    kind: str,
+    executor: ExecutorSettings,
+    false_alarm_m: float,
+    log: Callable[[str], None],
+    progress: Callable[[int], None] | None = None,
+) -> pl.DataFrame:
+    """Record and measure every ``(key, SimSettings, path, columns)`` on ``executor``; one row
+    per run with ``columns`` (its condition) first. A failed run does not stop the others:
+    they are kept and :class:`vdc.executors.TasksFailed` names the failed ones."""
+    from vdc.executors import TasksFailed, failure_report, run_tasks
+
+    by_key = {k: cols for k, _, _, cols in items}
+    tasks = []
+    for key, settings, path, _ in items:
+        settings.to_config()  # a bad configuration fails before any process starts
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tasks.append((key, (key, settings, str(path), kind, false_alarm_m)))
+    rows = []
+
+    def done(outcome: Any) -> None:
+        if progress is not None:
+            progress(1)
+        if outcome.error is not None:
+            log(f"  {outcome.key} FAILED: {outcome.error}")
+        else:
+            rows.append({**by_key[outcome.key], **outcome.result})
+
+    outcomes = run_tasks(
+        record_and_measure,
+        tasks,
+        executor.executor_settings(),
+        done,
+        log,
+        shared_paths=[items[0][2].parent] if items else [],
+    )
+    report = failure_report(outcomes, "run")
+    if report:
+        raise TasksFailed(report)
+    return pl.DataFrame(rows).sort("key")
+
+
+def boundary(
+    settings: BoundarySettings,
+    out: str | Path,
+    *,
+    log: Callable[[str], None] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> BoundaryResult:
+    """Run the grid (arena) or the labelled clips (footage mode: ``settings.labels``) and
+    write the tables, the figure, the report and, in the arena, ``policy.csv`` into ``out``."""
+    if settings.labels is not None:
+        from analysis.footage import footage_boundary
+
+        return footage_boundary(settings, out, log=log, progress=progress)
+    return arena_boundary(settings, out, log=log, progress=progress)
+
+
+def grid_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+    """One closed-loop run per (scene, TF, value, seed)."""
+    from capture.sim import SimSettings
+
+    items = []
+    for scene, tf in s.conditions():
+        cond = condition_name(scene, tf)
+        for value in s.grid_values():
+            spec = with_override(s.detector, s.param, value)
+            for seed in range(s.seed, s.seed + s.seeds):
+                key = f"{cond}-{s.param}{value:g}-seed{seed}"
+                settings = SimSettings(
+                    behaviour="collision",
+                    model=spec,
+                    scene=scene,
+                    tf_hz=tf,
+                    minutes=s.minutes,
+                    seed=seed,
+                    phase=f"{cond}-{s.param}{value:g}",
+                    profile_model=s.profile_model,
+                )
+                cols = {
+                    "condition": cond,
+                    "scene": scene,
+                    "tf_hz": tf,
+                    s.param: value,
+                    "seed": seed,
+                }
+                items.append(
+                    (key, settings, folder / cond / f"{s.param}{value:g}" / f"seed{seed}.rrd", cols)
+                )
+    return items
+
+
+def profile_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+    """One profiling run (as ``reproduce`` profiles: ring turns, no detector) per (scene, TF,
+    seed)."""
+    from capture.sim import SimSettings
+
+    items = []
+    for scene, tf in s.conditions():
+        cond = condition_name(scene, tf)
+        for seed in range(s.seed, s.seed + s.seeds):
+            settings = SimSettings(
+                scene=scene, tf_hz=tf, minutes=s.minutes, seed=seed, model=s.profile_model
+            )
+            cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": seed}
+            items.append(
+                (
+                    f"profile-{cond}-seed{seed}",
+                    settings,
+                    folder / "profile" / cond / f"seed{seed}.rrd",
+                    cols,
+                )
+            )
+    return items
+
+
+def arena_boundary(
+    s: BoundarySettings,
+    out: str | Path,
+    *,
+    log: Callable[[str], None] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> BoundaryResult:
+    """Arena mode of :func:`boundary`."""
+    from vdc.parquet_io import table_set, write_parquet
+
+    say = log or (lambda _m: None)
+    out = Path(out)
+    rec = out / "recordings"
+    items = grid_items(s, rec)
+    prof = profile_items(s, rec) if s.complexity == "profile" else []
+    say(
+        f"boundary of {s.detector} over {s.param} = {list(s.grid_values())}: {len(s.conditions())} "
+        f"condition(s) x {len(s.grid_values())} value(s) x {s.seeds} seed(s) of "
+        f"{s.minutes:g} min = {len(items)} run(s)"
+        + (f", plus {len(prof)} profiling run(s)" if prof else "")
+    )
+    runs = run_grid(items, "collision", s, s.false_alarm_m, say, progress)
+    if prof:
+        profiles = run_grid(prof, "profile", s, s.false_alarm_m, say, progress)
+        complexity = condition_complexity(profiles, "profile_dps")
+    else:
+        profiles = None
+        complexity = condition_complexity(runs, "online_dps")
+    conditions = condition_statistics(runs, complexity, ["condition", s.param])
+    bounds = boundaries(conditions, s.param, s.target)
+    policy = fit_policy(runs, s.param, s.target, s.profile_model) if not s.no_fit else None
+    meta = {"settings": dataclasses.asdict(s)}
+    with table_set(out) as stage:
+        paths = [
+            write_parquet(runs, stage / "boundary_runs.parquet", meta),
+            write_parquet(conditions, stage / "boundary_conditions.parquet", meta),
+            write_parquet(bounds, stage / "boundary.parquet", meta),
+        ]
+        if profiles is not None:
+            paths.append(write_parquet(profiles, stage / "boundary_profiles.parquet", meta))
+        x_label = (
+            "complexity: AVDM straight-driving response, profiling runs (deg/s)"
+            if s.complexity == "profile"
+            else "complexity: on-board AVDM mean in the detector's runs (deg/s)"
+        )
+        paths.append(
+            plot_boundary(
+                conditions,
+                bounds,
+                s.param,
+                s.target,
+                stage / "boundary.png",
+                f"{s.detector}: success against complexity",
+                x_label,
+            )
+        )
+        if policy is not None:
+            paths.append(policy.save(stage / "policy.csv"))
+        md = arena_report(s, conditions, bounds, policy)
+        (stage / "boundary.md").write_text(md, encoding="utf-8")
+        paths.append(stage / "boundary.md")
+    paths = [out / p.name for p in paths]
+    return BoundaryResult(runs, conditions, bounds, policy, paths, md)

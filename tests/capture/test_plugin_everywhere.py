@@ -1,0 +1,107 @@
+"""A user's model runs everywhere a built-in one does: online in ``vdc-capture sim`` and
+``vdc-capture video``, as the detector that steers the robot in the closed loop, and
+recomputed from the frames by ``tables``, ``compare`` and ``batch`` (on a process pool whose
+workers import it), all from the command line as a user runs them, in the folder that holds
+the plug-in (here: the README's OpenCV example, ``examples/looming.py``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+from analysis.rrd_reader import Recording
+from tests.helpers import ROOT, assert_one_line_error, run_cli, write_video
+
+LOOMING = "examples.looming:Looming"
+
+
+def _outputs(folder: Path, model: str) -> pl.DataFrame:
+    df = pl.read_parquet(folder / "model_outputs.parquet")
+    return df.filter(pl.col("model") == model).sort("frame")
+
+
+@pytest.fixture(scope="module")
+def online(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("plugin") / "online.rrd"
+    proc = run_cli("capture", "sim", "--tf-hz", "3", "--minutes", "0.1", "--model", LOOMING,
+                   "--out", str(out), "--quiet")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+def test_online_in_sim_and_recomputed_by_tables_alike(online: Path, tmp_path: Path) -> None:
+    props = Recording(online).properties()
+    assert props["model"]["name"] == LOOMING
+    assert json.loads(props["model"]["outputs"]) == {"excitation": "1", "alert": "1"}
+    logged, again = tmp_path / "logged", tmp_path / "again"
+    assert run_cli("analysis.cli", "tables", str(online), "--out", str(logged)).returncode == 0
+    proc = run_cli("analysis.cli", "tables", str(online), "--model", LOOMING, "--out", str(again))
+    assert proc.returncode == 0, proc.stderr
+    a, b = _outputs(logged, LOOMING), _outputs(again, LOOMING)
+    assert a.height == 198 and a["excitation"].max() > 0.1
+    np.testing.assert_array_equal(a["excitation"].to_numpy(), b["excitation"].to_numpy())
+    np.testing.assert_array_equal(a["alert"].to_numpy(), b["alert"].to_numpy())
+
+
+def test_compare_and_batch_recompute_a_plugin(online: Path, tmp_path: Path) -> None:
+    spec = f"{LOOMING}:threshold=0.3"
+    proc = run_cli("analysis.cli", "compare", str(online), "--model", "avdm", "--model", spec,
+                   "--out", str(tmp_path / "cmp"))  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    stats = pl.read_parquet(tmp_path / "cmp" / "compare_summary.parquet")
+    assert set(stats["model"]) == {"avdm", spec}
+    proc = run_cli("analysis.cli", "batch", str(online), "--model", spec, "--model", "avdm",
+                   "--jobs", "2", "--out", str(tmp_path / "batch"))  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    batch = _outputs(tmp_path / "batch", spec)
+    assert batch.height == 198
+    alone = run_cli("analysis.cli", "tables", str(online), "--model", spec, "--out",
+                    str(tmp_path / "alone"))  # fmt: skip
+    assert alone.returncode == 0
+    np.testing.assert_array_equal(
+        batch["alert"].to_numpy(), _outputs(tmp_path / "alone", spec)["alert"].to_numpy()
+    )
+
+
+def test_a_plugin_detector_steers_the_robot_in_the_closed_loop(tmp_path: Path) -> None:
+    out = tmp_path / "loop.rrd"
+    spec = f"{LOOMING}:threshold=0.05"
+    proc = run_cli("capture", "sim", "--behaviour", "collision", "--model", spec, "--minutes",
+                   "1", "--seed", "2", "--out", str(out), "--quiet")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    rec = Recording(out)
+    assert rec.properties()["detector"]["name"] == spec
+    avoid = rec.events().filter(pl.col("kind") == "avoidance")
+    assert avoid.height > 3  # its alerts turned the robot
+    assert all(f"({spec} alert)" in t for t in avoid["text"])
+
+
+def test_online_in_video_capture(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    frames = np.clip(rng.normal(128, 40, (30, 72, 96)), 0, 255).astype(np.uint8)
+    clip = write_video(tmp_path / "noise.mp4", frames, 25.0)
+    out = tmp_path / "clip.rrd"
+    proc = run_cli("capture", "video", str(clip), "--fov-deg", "60", "--model", LOOMING,
+                   "--out", str(out), "--quiet")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert Recording(out).properties()["model"]["name"] == LOOMING
+
+
+@pytest.mark.parametrize(
+    ("cmd", "needle"),
+    [
+        (["capture", "sim", "--model", "nosuch_pkg.mod:make"], "no module named 'nosuch_pkg.mod'"),
+        (["capture", "sim", "--model", "tests.toy_detector:broken"], "failed to build"),
+        (["capture", "sim", "--behaviour", "collision", "--model", "tests.toy_detector:NoAlert"],
+         "has no 'alert' output"),
+        (["analysis.cli", "tables", "x.rrd", "--model", "examples.looming:Nope"], "has no 'Nope'"),
+    ],
+)  # fmt: skip
+def test_a_bad_plugin_is_one_line_and_exit_2(tmp_path: Path, cmd: list[str], needle: str) -> None:
+    extra = ["--out", str(tmp_path / "o.rrd")] if cmd[1] == "sim" else []
+    proc = run_cli(*cmd, *extra, cwd=ROOT)
+    assert_one_line_error(proc, needle)
