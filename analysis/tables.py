@@ -338,7 +338,9 @@ def recompute(
     for m in models:
         cols = {o.name: np.concatenate([p[o.name] for p in outs[m.name]]) for o in m.outputs}
         df = pl.DataFrame({"frame": frame.astype(np.int64), **cols})
-        result[m.name] = df.join(t, on="frame", how="left").select("frame", "t_s", *cols)
+        # a snapshot of a recording still being written may hold a batch's images before the
+        # same batch's poses: the tables keep the frames the frames table has, and no others
+        result[m.name] = df.join(t, on="frame", how="inner").select("frame", "t_s", *cols)
     return result
 
 

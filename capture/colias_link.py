@@ -339,6 +339,11 @@ class EmulateSettings:
     tf_hz: float = option(0.0, "wall TF, Hz", type=non_negative_float)
     minutes: float = option(1.0, "run length", type=positive_float)
     seed: int = option(0, "random seed", type=non_negative_int)
+    model: str = option(
+        "avdm",
+        "the model the emulated robot runs on board (any model, a plug-in too); give "
+        "vdc-capture robot the same --model",
+    )
     corrupt_rate: float = option(
         0.0,
         "share of packets corrupted, e.g. 0.01 (1-3 bits flipped in each)",
@@ -375,6 +380,7 @@ def emulate_robot(settings: EmulateSettings, announce: Callable[[str], None] | N
         camera=CameraConfig(),
         duration_s=settings.minutes * 60,
         seed=settings.seed,
+        model=settings.model,
     )
     robot = RobotEmulator(
         sim, emu, Path(settings.link), Path(settings.report) if settings.report else None

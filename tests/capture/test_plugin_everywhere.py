@@ -105,3 +105,32 @@ def test_a_bad_plugin_is_one_line_and_exit_2(tmp_path: Path, cmd: list[str], nee
     extra = ["--out", str(tmp_path / "o.rrd")] if cmd[1] == "sim" else []
     proc = run_cli(*cmd, *extra, cwd=ROOT)
     assert_one_line_error(proc, needle)
+
+
+def test_online_on_the_robot_over_its_serial_link(tmp_path: Path) -> None:
+    """The emulated Colias-IV runs the plug-in on board and sends its outputs over the pty;
+    ``vdc-capture robot --model`` records them; recomputing on the recorded frames gives the
+    same floats, to the link's float32 (online = offline through the serial link)."""
+    from tests.capture.test_serial_link import render_overhead, start_emulator
+
+    seconds = 4.0
+    render_overhead(tmp_path / "overhead", seconds, seed=5)
+    link, out = tmp_path / "robot", tmp_path / "robot.rrd"
+    emu = start_emulator(link, tmp_path / "report.json", "--minutes", str(seconds / 60),
+                         "--tf-hz", "3", "--model", LOOMING, "--seed", "5")  # fmt: skip
+    proc = run_cli("capture", "robot", "--port", str(link), "--camera",
+                   str(tmp_path / "overhead" / "%05d.png"), "--model", LOOMING, "--out",
+                   str(out), "--quiet", timeout=120)  # fmt: skip
+    emu.wait(timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    again = tmp_path / "again"
+    assert run_cli("analysis.cli", "tables", str(out), "--out", str(tmp_path / "t")).returncode == 0
+    proc = run_cli("analysis.cli", "tables", str(out), "--model", LOOMING, "--out", str(again))
+    assert proc.returncode == 0, proc.stderr
+    onboard, host = _outputs(tmp_path / "t", LOOMING), _outputs(again, LOOMING)
+    assert onboard.height > 100 and onboard["excitation"].max() > 0.05
+    # the link carries float32: the robot's values are the host's rounded to float32, exactly
+    np.testing.assert_array_equal(
+        onboard["excitation"].to_numpy().astype(np.float32),
+        host["excitation"].to_numpy().astype(np.float32),
+    )
