@@ -71,6 +71,13 @@ _API = {
     "collision_study": "analysis.experiments.collision_study",
     "ReproduceSettings": "analysis.experiments.reproduce",
     "reproduce": "analysis.experiments.reproduce",
+    # where a detector breaks, and a learnt policy tested where it was not learnt
+    "BoundarySettings": "analysis.boundary",
+    "boundary": "analysis.experiments.boundary",
+    "AdaptationSettings": "analysis.experiments.adaptation",
+    "adaptation": "analysis.experiments.adaptation",
+    "Policy": "avdm.policy",
+    "load_policy": "avdm.policy",
     # models
     "make_model": "avdm.registry",
     "make_params": "avdm.registry",
