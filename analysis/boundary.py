@@ -83,16 +83,10 @@ def name_list(text: Any, name: str, allowed: Sequence[str]) -> list[str]:
     return values
 
 
-def add_overrides(spec: str, overrides: str) -> str:
-    """``spec`` with ``overrides`` (``"key=value,..."``) added to its own."""
-    from avdm.registry import is_plugin
-
-    plain = ":" not in spec or (is_plugin(spec) and spec.count(":") == 1)
-    return f"{spec}{':' if plain else ','}{overrides}"
-
-
 def with_override(spec: str, key: str, value: float) -> str:
     """``spec`` with ``key=value`` added to its overrides."""
+    from avdm.registry import add_overrides
+
     return add_overrides(spec, f"{key}={value:g}")
 
 
@@ -225,14 +219,11 @@ def run_row(path: str | Path, kind: str, false_alarm_m: float = 0.30) -> dict[st
 # --- performance against complexity, and the boundary -------------------------------------
 
 
-def condition_statistics(
-    runs: pl.DataFrame, complexity: pl.DataFrame, by: Sequence[str]
-) -> pl.DataFrame:
-    """One row per condition and parameter value (``by``): its complexity (from
-    ``complexity``: condition, complexity_dps, _low, _high), the success rate with its 95 %
-    interval across seeds (``analysis.stats.share_ci``), and the means with 95 % intervals of
-    avoidances and crashes per 30 min, false alarms per 30 min and the median distance to
-    collision."""
+def run_statistics(runs: pl.DataFrame, by: Sequence[str]) -> pl.DataFrame:
+    """One row per group of runs (``by``: e.g. condition and parameter value): the number of
+    seeds, the success rate with its 95 % interval across seeds (``analysis.stats.share_ci``),
+    and the means with 95 % intervals of avoidances and crashes per 30 min, false alarms per
+    30 min and the median distance to collision."""
     rows = []
     for keys, g in runs.group_by(*by, maintain_order=True):
         row = dict(zip(by, keys, strict=True)) | {"seeds": g.height}
@@ -247,8 +238,16 @@ def condition_statistics(
             e = mean_ci(g[name].cast(pl.Float64).to_numpy(), bounds=(0.0, math.inf))
             row |= {name: e.mean, f"{name}_low": e.low, f"{name}_high": e.high}
         rows.append(row)
+    return pl.DataFrame(rows)
+
+
+def condition_statistics(
+    runs: pl.DataFrame, complexity: pl.DataFrame, by: Sequence[str]
+) -> pl.DataFrame:
+    """:func:`run_statistics` per condition and parameter value (``by``), with the condition's
+    complexity (from ``complexity``: condition, complexity_dps, _low, _high)."""
     return (
-        pl.DataFrame(rows)
+        run_statistics(runs, by)
         .join(complexity, on="condition", how="left")
         .sort(by[-1], "complexity_dps")
     )
@@ -380,7 +379,7 @@ def fit_policy(
             best = g.sort("success_low", descending=True).row(0, named=True)
             why = "keeps the target" if best["success_low"] >= target else "least bad"
         else:
-            fewer = ok.filter(pl.col("avoidances_high") < a["avoidances_low"])
+            fewer = ok.filter(pl.col("avoidances_per_30min_high") < a["avoidances_per_30min_low"])
             if fewer.height:
                 best, why = fewer.sort("avoidances_per_30min").row(0, named=True), "fewer turns"
         rows.append(
@@ -390,7 +389,7 @@ def fit_policy(
                 "success_rate": round(float(best["success_rate"]), 4),
                 "success_low": round(float(best["success_low"]), 4),
                 "avoidances_per_30min": round(float(best["avoidances_per_30min"]), 1),
-                "runs": int(best["n"]),
+                "runs": int(best["seeds"]),
                 "condition": cond,
                 "why": why,
             }
@@ -409,21 +408,16 @@ def fit_policy(
 
 
 def _value_statistics(runs: pl.DataFrame, param: str) -> pl.DataFrame:
-    """Per condition and value: success with its interval, avoidances with theirs, the online
-    complexity (median) of those runs, and the number of runs."""
-    rows = []
-    for (cond, value), g in runs.group_by("condition", param, maintain_order=True):
-        s = share_ci(g["avoidances"].to_numpy(), (g["avoidances"] + g["crashes"]).to_numpy())
-        a = mean_ci(g["avoidances_per_30min"].cast(pl.Float64).to_numpy(), bounds=(0.0, math.inf))
-        low = s.low if math.isfinite(s.low) else s.mean  # one seed: no interval
-        rows.append(
-            {"condition": cond, param: value, "n": g.height, "success_rate": s.mean,
-             "success_low": low, "avoidances_per_30min": a.mean,
-             "avoidances_low": a.low if math.isfinite(a.low) else a.mean,
-             "avoidances_high": a.high if math.isfinite(a.high) else a.mean,
-             "online_median_dps": float(g["online_median_dps"].mean())}
-        )  # fmt: skip
-    return pl.DataFrame(rows)
+    """:func:`run_statistics` per condition and value, with the online complexity (median) of
+    those runs; with one seed (no interval) an interval's ends are its mean."""
+    median = runs.group_by("condition", param).agg(pl.col("online_median_dps").mean())
+    stats = run_statistics(runs, ["condition", param]).join(median, on=["condition", param])
+    ends = ["success_low", "avoidances_per_30min_low", "avoidances_per_30min_high"]
+    means = ["success_rate", "avoidances_per_30min", "avoidances_per_30min"]
+    return stats.with_columns(
+        pl.when(pl.col(e).is_nan()).then(pl.col(m)).otherwise(pl.col(e)).alias(e)
+        for e, m in zip(ends, means, strict=True)
+    )
 
 
 # --- figures and report ---------------------------------------------------------------------

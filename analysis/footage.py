@@ -47,6 +47,7 @@ from analysis.boundary import (
     with_override,
 )
 from analysis.stats import mean_ci, share_ci
+from avdm.base import require_alert
 
 LABEL_COLUMNS = ("clip", "label", "collision_frame")
 COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg/s)
@@ -109,43 +110,48 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     return df.with_columns(pl.Series("source", sources))
 
 
-def clip_context(source: str, fov_deg: float, width: int | None = None) -> dict[str, Any]:
-    """The camera facts a model is built with for this clip (as ``vdc-capture video``)."""
+def _working_camera(
+    info: dict[str, Any], source: str, fov_deg: float, width: int | None
+) -> tuple[tuple[int, int], float, dict[str, Any]]:
+    """The clip's working raster (H, W), frame rate and model context, as ``vdc-capture
+    video`` derives them from the source's own facts."""
     from vdc.recording import camera_model_context, working_size
-    from vdc.sources import open_reader
 
-    reader = open_reader(source)
-    try:
-        info = reader.info
-    finally:
-        reader.close()
     fps = float(info["nominal_fps"])
     if not (math.isfinite(fps) and fps > 0):
         raise ValueError(f"{source!r} states no frame rate")
     h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
-    return camera_model_context(w, h, fps, fov_deg)
+    return (h, w), fps, camera_model_context(w, h, fps, fov_deg)
+
+
+def clip_context(source: str, fov_deg: float, width: int | None = None) -> dict[str, Any]:
+    """The camera facts a model is built with for this clip (as ``vdc-capture video``)."""
+    from vdc.sources import open_reader
+
+    reader = open_reader(source)
+    try:
+        return _working_camera(reader.info, source, fov_deg, width)[2]
+    finally:
+        reader.close()
 
 
 def detector_alerts(
     source: str, spec: str, fov_deg: float, width: int | None = None
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    """The detector ``spec`` run on a clip as ``vdc-capture video`` would run it: the source
-    frames' numbers (T,) int64, its ``alert`` output (T,) float64 and the frame rate (Hz)."""
+    """The detector ``spec`` run on a clip as ``vdc-capture video`` would run it (its repeat
+    rules too): the source frames' numbers (T,) int64, its ``alert`` output (T,) float64 and
+    the frame rate (Hz)."""
+    from analysis.complexity import ComplexitySettings
     from avdm.registry import make_model
-    from vdc.recording import camera_model_context, working_size
     from vdc.sources import FrameBatcher, open_reader
 
     reader = open_reader(source)
     try:
-        info = reader.info
-        fps = float(info["nominal_fps"])
-        if not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"{source!r} states no frame rate")
-        h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
-        model = make_model(spec, **camera_model_context(w, h, fps, fov_deg))
-        if "alert" not in {o.name for o in model.outputs}:
-            raise ValueError(f"detector {spec!r} has no 'alert' output (1 = collision ahead)")
-        batches = FrameBatcher(reader, (h, w), fps, 128, 0.5, 3)
+        shape, fps, ctx = _working_camera(reader.info, source, fov_deg, width)
+        model = make_model(spec, **ctx)
+        require_alert(model)
+        video = ComplexitySettings  # the repeat rules vdc-capture video reads sources with
+        batches = FrameBatcher(reader, shape, fps, 128, video.repeat_tol, video.max_repeats)
         frames, alerts = [], []
         while (fb := batches.next_batch()) is not None:
             frames.append(fb.frame)
@@ -289,8 +295,7 @@ def footage_boundary(
 
     ctx = clip_context(labels["source"][0], s.fov_deg)
     for spec in specs.values():  # a factory that raises or a model without alert fails now
-        if "alert" not in {o.name for o in make_model(spec, **ctx).outputs}:
-            raise ValueError(f"detector {spec!r} has no 'alert' output (1 = collision ahead)")
+        require_alert(make_model(spec, **ctx))
     out = Path(out)
     say(f"footage: {labels.height} clip(s) x {len(values)} value(s) of {s.param}, {s.detector}")
     complexity = clip_complexity(

@@ -84,6 +84,16 @@ class Model(Protocol):
     def run(self, frames: np.ndarray) -> dict[str, np.ndarray]: ...
 
 
+def require_alert(model: Model) -> None:
+    """ValueError, in one line, unless ``model`` is a detector: it has an ``alert`` output (1 =
+    collision ahead), what drives the robot's avoidance and what footage is scored on."""
+    if "alert" not in {o.name for o in model.outputs}:
+        raise ValueError(
+            f"detector {model.name!r} has no 'alert' output (1 = collision ahead): give its "
+            "model an output named alert"
+        )
+
+
 def output_units(outputs: tuple[Output, ...]) -> Mapping[str, str]:
     """``{name: unit}`` for a model's outputs."""
     return {o.name: o.unit for o in outputs}

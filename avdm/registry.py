@@ -225,6 +225,13 @@ def is_plugin(spec: str) -> bool:
     return _split_spec(spec)[1] is not None
 
 
+def add_overrides(spec: str, overrides: str) -> str:
+    """``spec`` with ``overrides`` (``"key=value,..."``) added to its own: after ``:`` for a
+    bare name or factory, after ``,`` where the spec has overrides already."""
+    plain = ":" not in spec or (is_plugin(spec) and spec.count(":") == 1)
+    return f"{spec}{':' if plain else ','}{overrides}"
+
+
 def canonical_name(spec: str) -> str:
     """The spec as it is stored in tables: ``name`` or ``name:k=v,...`` with keys sorted."""
     name, overrides = parse_model_spec(spec)

@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from avdm.base import require_alert
 from avdm.registry import make_model
 from capture.config import CollisionConfig, SimConfig
 from capture.device import Batch, Event
@@ -171,12 +172,7 @@ class ClosedLoopRobot(SimulatedRobot):
         super().__init__(config, batch_size)
         ctx = config.camera.model_context()
         self._detector_spec = config.collision.detector_spec()
-        detector = make_model(self._detector_spec, **ctx)  # fail early on a bad spec
-        if "alert" not in {o.name for o in detector.outputs}:
-            raise ValueError(
-                f"detector {detector.name!r} has no 'alert' output (1 = collision ahead), so it "
-                "cannot drive the robot's avoidance: give its model an output named alert"
-            )
+        require_alert(make_model(self._detector_spec, **ctx))  # fail early on a bad spec
         make_model(config.model, **ctx)
 
     def _make_motion(self) -> CollisionMotion:

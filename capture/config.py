@@ -290,10 +290,11 @@ class CollisionConfig:
         """The registry spec of the detector with its threshold applied."""
         if math.isnan(self.threshold):
             return self.detector
-        sep = "," if ":" in self.detector else ":"
+        from avdm.registry import add_overrides
+
         if self.base_detector == "lgmd-plus":  # a spike-rate threshold
-            return f"{self.detector}{sep}t_sr={self.threshold:g}"
-        return f"{self.detector}{sep}n_alert={round(self.threshold)}"
+            return add_overrides(self.detector, f"t_sr={self.threshold:g}")
+        return add_overrides(self.detector, f"n_alert={round(self.threshold)}")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -36,7 +36,6 @@ import polars as pl
 from matplotlib.figure import Figure
 
 from analysis.boundary import (
-    add_overrides,
     condition_complexity,
     condition_name,
     condition_statistics,
@@ -48,6 +47,7 @@ from analysis.boundary import (
 from analysis.experiments.boundary import run_grid
 from analysis.stats import mean_ci
 from avdm.policy import load_policy
+from avdm.registry import add_overrides
 from vdc.cli_support import non_negative_int, option, positive_float
 from vdc.executors import ExecutorSettings
 from vdc.parquet_io import WroteFiles

@@ -23,7 +23,7 @@ import polars as pl
 
 from analysis.collision import CollisionSettings, collision
 from analysis.experiments.captures import CaptureItem, run_captures
-from avdm.registry import parse_model_spec
+from avdm.registry import add_overrides, parse_model_spec
 from capture.sim import SimSettings
 from vdc.cli_support import non_negative_int, option, positive_float
 from vdc.executors import ExecutorSettings
@@ -47,8 +47,7 @@ class Phase:
 
 
 def study_phases(detector: str, adjusted: str) -> list[Phase]:
-    sep = "," if ":" in detector else ":"
-    tuned = f"{detector}{sep}{adjusted}" if adjusted else detector
+    tuned = add_overrides(detector, adjusted) if adjusted else detector
     return [
         Phase("tf0", 0.0, detector),
         Phase("tf3", 3.0, detector),
@@ -127,7 +126,7 @@ class CollisionStudySettings(ExecutorSettings):
             raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
         parse_model_spec(self.detector)  # a bad detector fails before anything runs
         if self.adjusted:
-            parse_model_spec(f"{self.detector.split(':')[0]}:{self.adjusted}")
+            parse_model_spec(add_overrides(self.detector, self.adjusted))
         CollisionSettings(false_alarm_m=self.false_alarm_m)
 
 
