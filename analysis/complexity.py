@@ -53,7 +53,6 @@ from vdc.recording import FOOTAGE_MODEL
 from vdc.sources import source_name
 
 PARTS = "parts"
-CLIP_STATISTICS = ("mean", "max", "p95")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -32,6 +32,7 @@ from analysis.rrd_reader import Recording, RecordingError
 from avdm.base import Model, primary_output_name
 from avdm.registry import canonical_name, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
+from vdc.arena_geometry import distance_to_wall_along
 from vdc.cli_support import API_ONLY, non_negative_int, option, positive_float
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from vdc.recording import (
@@ -359,18 +360,6 @@ def model_outputs_table(loaded: LoadedRecording, outputs: dict[str, pl.DataFrame
         for name, df in outputs.items()
     ]
     return pl.concat(parts, how="diagonal_relaxed") if parts else pl.DataFrame()
-
-
-def distance_to_wall_along(
-    x: np.ndarray, y: np.ndarray, heading: np.ndarray, hx: float, hy: float
-) -> np.ndarray:
-    """Distance (m) from (x, y) along ``heading`` to the rectangle's wall (inf never occurs
-    from inside the arena)."""
-    dx, dy = np.cos(heading), np.sin(heading)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tx = np.where(dx > 1e-12, (hx - x) / dx, np.where(dx < -1e-12, (-hx - x) / dx, np.inf))
-        ty = np.where(dy > 1e-12, (hy - y) / dy, np.where(dy < -1e-12, (-hy - y) / dy, np.inf))
-    return np.minimum(tx, ty)
 
 
 def events_table(loaded: LoadedRecording) -> pl.DataFrame:

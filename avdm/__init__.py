@@ -12,8 +12,7 @@
 from avdm.avdm_model import AVDM_OUTPUTS, Avdm, AvdmParams
 from avdm.base import Model, Output, Params
 from avdm.registry import canonical_name, make_model, make_params, parse_model_spec
-
-__version__ = "0.1.0"
+from avdm.version import __version__
 
 __all__ = [
     "AVDM_OUTPUTS",

@@ -13,7 +13,7 @@ A model is built from a frozen params dataclass and keeps its own state:
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
@@ -92,11 +92,6 @@ def require_alert(model: Model) -> None:
             f"detector {model.name!r} has no 'alert' output (1 = collision ahead): give its "
             "model an output named alert"
         )
-
-
-def output_units(outputs: tuple[Output, ...]) -> Mapping[str, str]:
-    """``{name: unit}`` for a model's outputs."""
-    return {o.name: o.unit for o in outputs}
 
 
 def run_by_steps(

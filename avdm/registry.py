@@ -114,18 +114,6 @@ _TRUE = {"1", "true", "yes", "on"}
 _FALSE = {"0", "false", "no", "off"}
 
 
-def register_kind(name: str, kind: Kind) -> None:
-    """Add a model family (used by the LGMD models)."""
-    KINDS[name] = kind
-
-
-def register_variant(name: str, variant: Variant) -> None:
-    """Add a named variant of an existing kind."""
-    if variant.kind not in KINDS:
-        raise ValueError(f"unknown model kind {variant.kind!r}")
-    VARIANTS[name] = variant
-
-
 def _parse_value(key: str, raw: str, typ: type) -> Any:
     raw = raw.strip()
     if raw == "":

@@ -29,6 +29,7 @@ from avdm.registry import make_model
 from capture.config import CollisionConfig, SimConfig
 from capture.device import Batch, Event
 from capture.sim_robot import SimulatedRobot
+from vdc.arena_geometry import distance_ahead
 
 FORWARD, AVOIDING, CRASH_TURN = 0, 1, 2
 CONTROLLER = "controller"  # on-board outputs of the decision itself
@@ -40,14 +41,6 @@ CONTROLLER_OUTPUTS = {
 }
 _WALL_NAMES = ("+x", "-x", "+y", "-y")
 _NORMALS = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
-
-
-def distance_ahead(x: float, y: float, heading: float, hx: float, hy: float) -> float:
-    """Distance from (x, y) along ``heading`` to the arena wall (m)."""
-    dx, dy = math.cos(heading), math.sin(heading)
-    tx = (hx - x) / dx if dx > 1e-12 else ((-hx - x) / dx if dx < -1e-12 else math.inf)
-    ty = (hy - y) / dy if dy > 1e-12 else ((-hy - y) / dy if dy < -1e-12 else math.inf)
-    return min(tx, ty)
 
 
 class CollisionMotion:

@@ -47,7 +47,6 @@ class OutputClaim:
         self.partial = partial_path(path)
         self.force = force
         self._fd: int | None = fd
-        self.published = False
 
     def finish(self, keep: bool) -> None:
         """Publish the partial file under the final name (``keep``) or remove it (nothing of
@@ -68,7 +67,6 @@ class OutputClaim:
                             f"as {str(self.partial)!r}"
                         ) from None
                     self.partial.unlink()
-                self.published = True
         finally:
             self.release()
 

@@ -172,10 +172,6 @@ class LiveView:
         self.stream = rr.RecordingStream(APP_ID, recording_id=recording_id)
         self.stream.set_sinks(rr.GrpcSink(url), default_blueprint=blueprint)
 
-    @property
-    def alive(self) -> bool:
-        return self.stream is not None
-
     def check(self) -> None:
         """Probe the viewer at most every ``probe_s``; drop the stream if it has gone."""
         if self.stream is None or time.monotonic() - self._last_probe < self.probe_s:

@@ -21,28 +21,11 @@ import numba
 import numpy as np
 
 from capture.config import ArenaConfig, CameraConfig, WallConfig
+from vdc.arena_geometry import ray_to_wall
 
 TEXTURE_SUBCOLS = 4
 TEXTURE_SUBROWS = 2
 FLOOR_SUBROWS = 4
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _ray_to_wall(x, y, dx, dy, hx, hy):
-    """Horizontal distance from (x, y) along (dx, dy) to the rectangle wall, and the wall
-    coordinate s (m, counter-clockwise from the (−hx, −hy) corner)."""
-    big = 1e30
-    tx = (hx - x) / dx if dx > 1e-12 else ((-hx - x) / dx if dx < -1e-12 else big)
-    ty = (hy - y) / dy if dy > 1e-12 else ((-hy - y) / dy if dy < -1e-12 else big)
-    if tx < ty:
-        d = tx
-        yh = y + d * dy
-        s = 2 * hx + (yh + hy) if dx > 0 else 4 * hx + 2 * hy + (hy - yh)
-    else:
-        d = ty
-        xh = x + d * dx
-        s = xh + hx if dy < 0 else 2 * hx + 2 * hy + (hx - xh)
-    return max(d, 1e-6), s
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -101,7 +84,8 @@ def render_grating_frames(poses, offsets, geom, cam, grating, out):
                 u = j + (k + 0.5) / n_sub - w / 2.0
                 lk = math.sqrt(f * f + u * u)
                 phi = hd + math.atan2(-u, f)
-                d, s = _ray_to_wall(x, y, math.cos(phi), math.sin(phi), hx, hy)
+                d, s = ray_to_wall(x, y, math.cos(phi), math.sin(phi), hx, hy)
+                d = max(d, 1e-6)  # a camera touching the wall divides by nothing
                 val = mean + amp * math.sin(two_pi * (s - off) / period)
                 vt = -(wall_h - cam_h) * lk / d
                 vb = cam_h * lk / d
@@ -119,7 +103,8 @@ def render_grating_frames(poses, offsets, geom, cam, grating, out):
             phc = hd + math.atan2(-uc, f)
             dxc = math.cos(phc)
             dyc = math.sin(phc)
-            dc, _ = _ray_to_wall(x, y, dxc, dyc, hx, hy)
+            dc, _ = ray_to_wall(x, y, dxc, dyc, hx, hy)
+            dc = max(dc, 1e-6)
             vb_c = cam_h * lc / dc
             for i in range(h):
                 r0 = i - h / 2.0
@@ -162,7 +147,8 @@ def render_texture_frames(poses, offsets, geom, cam, texture, perimeter, out):
                 u = j + (k + 0.5) / TEXTURE_SUBCOLS - w / 2.0
                 sub_l[k] = math.sqrt(f * f + u * u)
                 phi = hd + math.atan2(-u, f)
-                d, s = _ray_to_wall(x, y, math.cos(phi), math.sin(phi), hx, hy)
+                d, s = ray_to_wall(x, y, math.cos(phi), math.sin(phi), hx, hy)
+                d = max(d, 1e-6)  # a camera touching the wall divides by nothing
                 sub_d[k] = d
                 sub_c[k] = ((s - off) % perimeter) / perimeter * wt
             uc = j + 0.5 - w / 2.0
@@ -170,7 +156,8 @@ def render_texture_frames(poses, offsets, geom, cam, texture, perimeter, out):
             phc = hd + math.atan2(-uc, f)
             dxc = math.cos(phc)
             dyc = math.sin(phc)
-            dc, _ = _ray_to_wall(x, y, dxc, dyc, hx, hy)
+            dc, _ = ray_to_wall(x, y, dxc, dyc, hx, hy)
+            dc = max(dc, 1e-6)
             vb_c = cam_h * lc / dc
             for i in range(h):
                 acc = 0.0

@@ -173,10 +173,6 @@ class SimSettings:
             collision=col,
         )
 
-    def default_path(self) -> Path:
-        """``recordings/<run id>.rrd``: the run id is a function of the configuration."""
-        return Path("recordings") / f"{self.to_config().run_id()}.rrd"
-
 
 def record_sim(
     settings: SimSettings,

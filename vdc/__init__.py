@@ -28,6 +28,7 @@ The package also holds what capture and analysis agree on (neither imports the o
 from __future__ import annotations
 
 import importlib
+from importlib.metadata import version as _version
 from typing import Any
 
 # name -> module that defines it
@@ -88,7 +89,7 @@ _API = {
 }
 
 __all__ = sorted(_API)
-__version__ = "0.1.0"
+__version__ = _version("visual-dynamic-complexity")  # written once, in pyproject.toml
 
 
 # name -> a module of the API itself (``vdc.catalog.query(...)``)

@@ -33,7 +33,6 @@ import numpy as np
 
 from vdc.recording import NATIVE_METRICS
 
-TEMPORAL = ("ti_p910", "ti_legacy", "mafd")
 RANGES = ("limited", "full")
 
 # P.910 (2022) display model and PQ, as siti-tools' defaults (BT.1886, SDR)

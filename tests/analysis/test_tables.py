@@ -10,10 +10,10 @@ import polars as pl
 import pytest
 
 from analysis.rrd_reader import Recording
-from analysis.tables import distance_to_wall_along
 from capture.output import partial_path
 from capture.recorder import Recorder
 from tests.helpers import assert_one_line_error, run_cli, start_long_capture
+from vdc.arena_geometry import distance_to_wall_along
 from vdc.parquet_io import read_metadata
 
 FRAMES_COLUMNS = [
