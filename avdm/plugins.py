@@ -16,7 +16,8 @@ A detector that drives the robot's avoidance in the closed loop has an output na
 Two ways to name one on the command line:
 
 * ``--model mypackage.detectors:make_detector`` or ``...:make_detector:threshold=0.2`` (the
-  module is imported from ``sys.path``, then from the current folder);
+  module is imported from ``sys.path``, then from the current folder, which is not added to
+  ``sys.path``: the process's imports stay as they were);
 * an installed package's entry point in the ``vdc.models`` group
   (``[project.entry-points."vdc.models"] looming = "mypackage.detectors:make_detector"``), then
   ``--model looming:threshold=0.2``.
@@ -31,6 +32,8 @@ from __future__ import annotations
 
 import functools
 import importlib
+import importlib.machinery
+import importlib.util
 import inspect
 import os
 import re
@@ -58,20 +61,49 @@ def entry_point_models() -> dict[str, str]:
     return {ep.name: ep.value.replace(" ", "") for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
-def _import_module(module: str, ref: str):
+def _from_current_folder(module: str) -> Any:
+    """``module`` found in the current folder (a plug-in beside the user's data, as ``python -m``
+    would find it), loaded without adding the folder to ``sys.path`` for the whole process: only
+    its top-level package or module is looked up there; its submodules follow its own path."""
+    top = module.partition(".")[0]
+    if top not in sys.modules:
+        spec = importlib.machinery.PathFinder.find_spec(top, [os.getcwd()])
+        if spec is None or spec.loader is None:
+            return None
+        loaded = importlib.util.module_from_spec(spec)
+        sys.modules[top] = loaded
+        try:
+            spec.loader.exec_module(loaded)
+        except BaseException:
+            del sys.modules[top]
+            raise
+    return importlib.import_module(module)
+
+
+class _Missing(Exception):
+    """The module is neither importable nor in the current folder."""
+
+
+def _import_here_or_beside(module: str) -> Any:
     try:
         return importlib.import_module(module)
     except ModuleNotFoundError as exc:
         if exc.name is None or not module.startswith(exc.name):
-            raise ValueError(f"model plug-in {ref!r}: importing {module!r} failed: {exc}") from None
-        cwd = os.getcwd()
-        if cwd in sys.path:
-            raise ValueError(
-                f"model plug-in {ref!r}: no module named {module!r} (install its package, or run "
-                "from the folder that holds it, or add that folder to PYTHONPATH)"
-            ) from None
-        sys.path.append(cwd)  # a plug-in beside the user's data, as `python -m` would find it
-        return _import_module(module, ref)
+            raise  # the plug-in itself imports something that is not installed
+        found = _from_current_folder(module)
+        if found is None:
+            raise _Missing from None
+        return found
+
+
+def _import_module(module: str, ref: str) -> Any:
+    try:
+        return _import_here_or_beside(module)
+    except _Missing:
+        raise ValueError(
+            f"model plug-in {ref!r}: no module named {module!r} (install its package, or run "
+            "from the folder that holds it, or add that folder to PYTHONPATH)"
+        ) from None
     except Exception as exc:  # the user's module: say what broke, in one line
         raise ValueError(
             f"model plug-in {ref!r}: importing {module!r} failed: {type(exc).__name__}: {exc}"

@@ -93,7 +93,7 @@ __version__ = _version("visual-dynamic-complexity")  # written once, in pyprojec
 
 
 # name -> a module of the API itself (``vdc.catalog.query(...)``)
-_MODULES = {"catalog": "analysis.catalog"}
+_MODULES = {"catalog": "vdc.catalog"}
 
 
 def __getattr__(name: str) -> Any:

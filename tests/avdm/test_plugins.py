@@ -101,3 +101,23 @@ def test_an_installed_entry_point_is_a_model_name(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split() == ["looming:threshold=0.3", "0.3", "True"]
     assert "module:factory" in describe_models()  # the help says how to bring your own
+
+
+def test_a_plugin_in_the_current_folder_loads_without_changing_sys_path(tmp_path: Path) -> None:
+    """As a console script runs (the current folder not on ``sys.path``: ``python -P``), a
+    plug-in beside the user's data is found there, and the process's ``sys.path`` stays as it
+    was: a module of the same name elsewhere cannot be shadowed for the rest of the run."""
+    (tmp_path / "beside_data_det.py").write_text(
+        "from examples.looming import Looming as make\n"  # a real detector under a new name
+    )
+    code = (
+        "import os, sys; before = list(sys.path); "
+        "assert os.getcwd() not in sys.path and '' not in sys.path; "
+        "from avdm import make_model; m = make_model('beside_data_det:make'); "
+        "assert sys.path == before, sys.path; print(m.name)"
+    )
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
+    proc = subprocess.run([sys.executable, "-P", "-c", code], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "beside_data_det:make"
