@@ -9,9 +9,9 @@ Items with one value apply to every run; the runs are the product of the others 
 3 x 3 x 5 = 45). Each run records ``OUT/recordings/<key>.rrd`` and then writes its row of the
 runs table, ``OUT/runs/<key>.parquet``, atomically: that row is the run's "done" mark, so a
 re-run after a crash, a signal or a killed worker records only the runs without one. At the
-end the rows are concatenated into ``OUT/runs.parquet`` (one row per run: the varied fields,
-the recording, frames, how it ended, event counts), ready for ``vdc-analyse collision`` or
-``vdc-analyse batch OUT/recordings/*.rrd``.
+end the rows are concatenated into ``OUT/runs.parquet`` (one row per run: every setting of the
+run, varied or the same for all, the recording, frames, how it ended, event counts), ready
+for ``vdc-analyse collision`` or ``vdc-analyse batch OUT/recordings/*.rrd``.
 """
 
 from __future__ import annotations
@@ -188,6 +188,16 @@ def run_path(out: Path, key: str) -> Path:
     return Path(out) / RUNS / f"{key}.parquet"
 
 
+def _settings_columns(settings: SimSettings, exclude: dict[str, Any]) -> dict[str, Any]:
+    """Every field of a run's settings as a column value (a tuple or mapping as its text)."""
+    cols = {}
+    for f in dataclasses.fields(settings):
+        if f.name not in exclude:
+            v = getattr(settings, f.name)
+            cols[f.name] = v if v is None or isinstance(v, (bool, int, float, str)) else str(v)
+    return cols
+
+
 def record_run(key: str, values: dict[str, Any], settings: SimSettings, out: str) -> dict[str, Any]:
     """One run of the grid, as an executor task: record it, then write its row (the done
     mark) atomically. Module-level, small arguments, a small result."""
@@ -198,7 +208,8 @@ def record_run(key: str, values: dict[str, Any], settings: SimSettings, out: str
     row = {
         "run": key,
         **values,
-        "recording": str(rec),
+        **_settings_columns(settings, exclude=values),  # the constant ones too: the table
+        "recording": str(rec),  # describes its runs whole
         "recording_id": res.recording_id,
         "frames": res.frames,
         "expected_frames": res.expected_frames,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -74,10 +75,15 @@ def test_a_collision_grid_records_every_run_once_and_resumes(tmp_path: Path) -> 
     assert set(zip(runs["threshold"], runs["tf_hz"], strict=True)) == {
         (20.0, 0.0), (20.0, 3.0), (60.0, 0.0), (60.0, 3.0)
     }  # fmt: skip
+    # the settings every run shares are columns too: each row rebuilds its run's settings
+    assert (runs["behaviour"] == "collision").all() and (runs["minutes"] == 0.1).all()
+    assert (runs["scene"] == SimSettings().scene).all()  # a default nobody gave, stated
     for row in runs.iter_rows(named=True):
         settings = SimSettings(
             behaviour="collision", minutes=0.1, threshold=row["threshold"], tf_hz=row["tf_hz"]
         )
+        fields = {f.name for f in dataclasses.fields(SimSettings)}
+        assert SimSettings(**{k: row[k] for k in fields}) == settings
         rec = Recording(row["recording"])
         # the recording is the run a single `vdc-capture sim` with these settings makes
         assert rec.recording_id == row["recording_id"] == settings.to_config().run_id()
