@@ -269,13 +269,37 @@ def from_signals(
         pl.lit(recording_id).alias("recording_id"),
         pl.min_horizontal(hx - pl.col("x_m").abs(), hy - pl.col("y_m").abs()).alias("wall_gap_m"),
     ).select(*FRAMES_COLUMNS)
+    return frames, logged_outputs(sig, props), native
+
+
+def logged_outputs(
+    sig: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], props: dict[str, dict[str, Any]]
+) -> dict[str, pl.DataFrame]:
+    """Every model the capture logged online, ``{name: frame, t_s, outputs...}``: the online
+    model, a collision run's detector and its controller, each under ``/model/<name>/``. A name
+    is the spec the properties give for that entity (``model``, ``detector``), else the entity's
+    own name (``controller``)."""
+    specs = {
+        entity_name(name): name
+        for section in ("model", "detector")
+        if (name := props.get(section, {}).get("name"))
+    }
+    roots = {e[len(MODEL_ROOT) + 1 :].split("/")[0] for e in sig if e.startswith(MODEL_ROOT + "/")}
     logged: dict[str, pl.DataFrame] = {}
-    online = props.get("model", {}).get("name")
-    if online:
-        out = signals_table(sig, f"{MODEL_ROOT}/{entity_name(online)}/")
+    for root in sorted(roots, key=lambda r: (r not in specs, r)):  # the online model first
+        out = signals_table(sig, f"{MODEL_ROOT}/{root}/")
         if out is not None:
-            logged[online] = out
-    return frames, logged, native
+            logged[specs.get(root, root)] = out
+    return logged
+
+
+def logged_params(props: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """``{name: params}`` of the models a capture logged (the online model, the detector)."""
+    return {
+        name: dict(props.get(f"{section}_params", {}))
+        for section in ("model", "detector")
+        if (name := props.get(section, {}).get("name"))
+    }
 
 
 def signals_table(
@@ -619,9 +643,7 @@ def build_tables(
                     f"{str(path)!r} has no logged model outputs: pass --model to recompute one"
                 )
             outs = loaded.logged
-            params[loaded.recording_id] = {
-                loaded.online_model: loaded.props.get("model_params", {})  # type: ignore[dict-item]
-            }
+            params[loaded.recording_id] = logged_params(loaded.props)
             if progress is not None:
                 progress(loaded.frames.height)
         arenas[loaded.recording_id] = loaded.arena_half_extent()

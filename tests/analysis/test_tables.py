@@ -225,3 +225,22 @@ def test_outputs_cut_unevenly_by_a_crash_keep_every_frame_they_reached(tmp_path:
     assert logged["frame"].to_list() == list(range(12))
     assert logged["omega_dps"].to_list() == [1.0] * 10 + [2.0, 2.0]
     assert logged["motion"].null_count() == 2
+
+
+def test_every_model_a_collision_run_logged_is_in_model_outputs(tmp_path: Path) -> None:
+    """The detector and its controller, logged online on every frame, land in the tables
+    without --model, one ``model`` each, equal to what the recording holds."""
+    rec = tmp_path / "col.rrd"
+    proc = run_cli("capture", "sim", "--behaviour", "collision", "--minutes", "0.05",
+                   "--model", "lgmd-plus-arena", "--out", str(rec), "--quiet")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    proc = run_cli("analysis", "tables", str(rec), "--out", str(tmp_path / "t"))
+    assert proc.returncode == 0, proc.stderr
+    mo = pl.read_parquet(tmp_path / "t" / "model_outputs.parquet")
+    models = set(mo["model"].unique())
+    assert {"avdm", "lgmd-plus-arena", "controller"} <= models, models
+    lgmd = mo.filter(pl.col("model") == "lgmd-plus-arena")
+    logged = Recording(rec).model_outputs("lgmd-plus-arena", ["alert"])
+    np.testing.assert_array_equal(lgmd.sort("frame")["alert"].to_numpy(), logged["alert"])
+    meta = read_metadata(tmp_path / "t" / "model_outputs.parquet")
+    assert "lgmd-plus-arena" in next(iter(meta["params"].values()))
