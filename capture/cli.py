@@ -148,7 +148,7 @@ def cmd_video(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from capture.sweep import CaptureSweepSettings, capture_sweep
+    from capture.campaign import CaptureSweepSettings, capture_sweep
 
     settings = settings_from_args(CaptureSweepSettings, args)
     total = len(settings.runs())
@@ -245,7 +245,7 @@ COMMANDS = {
         inputs=lambda p: add_output_options(p, "recordings/video-<name>-<hash>.rrd"),
     ),
     "sweep": Command(
-        "capture.sweep:CaptureSweepSettings",
+        "capture.campaign:CaptureSweepSettings",
         cmd_sweep,
         "a grid of simulated runs (a campaign), on all cores or a Dask cluster",
         "Record one simulated run per point of a grid over `vdc-capture sim`'s settings. Each "

@@ -190,7 +190,7 @@ def record_sim(
     bar on stderr; ``log`` gets a one-line description before the run starts. Ctrl-C or SIGTERM
     (in the main thread) ends the run cleanly: the result says so and the file is valid."""
     from avdm.registry import make_model
-    from capture.collision import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
+    from capture.closed_loop import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
     from capture.output import claim_output
     from capture.recorder import Recorder, spawn_viewer
     from capture.run import finish_output, run_capture

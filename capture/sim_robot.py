@@ -1,5 +1,5 @@
 """The simulated robot in the arena as a capture device: the renderer, the robot's motion and
-the ring turns, batch by batch (``capture.sim`` records it; ``capture.collision`` closes its
+the ring turns, batch by batch (``capture.sim`` records it; ``capture.closed_loop`` closes its
 loop with a collision detector)."""
 
 from __future__ import annotations

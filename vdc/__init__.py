@@ -40,8 +40,8 @@ _API = {
     "record_video": "capture.video",
     "RobotSettings": "capture.robot_capture",
     "record_robot": "capture.robot_capture",
-    "CaptureSweepSettings": "capture.sweep",
-    "capture_sweep": "capture.sweep",
+    "CaptureSweepSettings": "capture.campaign",
+    "capture_sweep": "capture.campaign",
     # reading recordings
     "Recording": "analysis.rrd_reader",
     "load_recording": "analysis.tables",

@@ -10,7 +10,7 @@ import pytest
 
 from analysis.rrd_reader import Recording
 from avdm import make_model
-from capture.collision import ClosedLoopRobot, CollisionMotion
+from capture.closed_loop import ClosedLoopRobot, CollisionMotion
 from capture.config import (
     ArenaConfig,
     CameraConfig,

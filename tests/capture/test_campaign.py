@@ -12,8 +12,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from analysis.rrd_reader import Recording
+from capture.campaign import CaptureSweepSettings, parse_grid
 from capture.sim import SimSettings
-from capture.sweep import CaptureSweepSettings, parse_grid
 from tests.helpers import assert_one_line_error, run_cli
 
 
