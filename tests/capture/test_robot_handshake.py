@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import pty
+import re
 import subprocess
 import sys
 import threading
@@ -19,6 +20,7 @@ import pytest
 
 from analysis.rrd_reader import Recording
 from analysis.tables import load_recording, recompute
+from avdm.registry import make_model
 from capture.robot_capture import ColiasRobotDevice, RobotCaptureConfig
 from capture.serial_protocol import (
     TYPE_ANNOUNCE,
@@ -32,12 +34,7 @@ from capture.serial_protocol import (
 from capture.tracker import save_calibration
 from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn
 
-AVDM_OUTPUTS = (
-    ("omega_dps", "deg/s"),
-    ("motion", "intensity"),
-    ("texture", "intensity"),
-    ("contrast", "1"),
-)
+AVDM_OUTPUTS = tuple((o.name, o.unit) for o in make_model("avdm").outputs)
 
 
 def test_announce_round_trip_and_malformed_payloads() -> None:
@@ -114,7 +111,11 @@ def fake_robot(master: int, announcement: Announcement, seen: list[tuple[int, by
 
 @pytest.mark.parametrize(
     ("outputs", "needle"),
-    [(AVDM_OUTPUTS[:3], "sends 3 outputs"), ((*AVDM_OUTPUTS[:3], ("speed", "1")), "speed [1]")],
+    [
+        (AVDM_OUTPUTS[:-1], f"sends {len(AVDM_OUTPUTS) - 1} outputs"),
+        ((*AVDM_OUTPUTS[:-1], ("speed", "1")), "speed [1]"),
+        (AVDM_OUTPUTS, None),  # the control: the model's own outputs are accepted
+    ],
 )
 def test_outputs_that_differ_from_the_model_are_refused(tmp_path: Path, outputs, needle) -> None:
     master, slave = pty.openpty()
@@ -130,9 +131,14 @@ def test_outputs_that_differ_from_the_model_are_refused(tmp_path: Path, outputs,
     )
     device = ColiasRobotDevice(cfg)
     try:
-        with pytest.raises(ValueError, match=needle.replace("[", r"\[")) as err:
+        if needle is None:
             device.connect()
-        assert "\n" not in str(err.value)
+            assert device.announced is not None and device.announced.outputs == AVDM_OUTPUTS
+            device.disconnect()
+        else:
+            with pytest.raises(ValueError, match=re.escape(needle)) as err:
+                device.connect()
+            assert "\n" not in str(err.value)
     finally:
         robot.join(timeout=30)
         os.close(master)
@@ -154,6 +160,7 @@ def test_a_silent_robot_is_recorded_as_unverified(tmp_path: Path) -> None:
     # the host's defaults, said to be so: the robot's camera is not known
     assert props["model_context"]["width_px"] == 99 and props["model_context"]["fps"] == 33.0
     assert props["camera"]["announced"] is False
+    assert "UNVERIFIED" in (Recording(out).description() or "")
     assert len(Recording(out).read_frames().frame) == json.loads(report.read_text())["frames"]
 
 
@@ -179,6 +186,10 @@ def test_the_robots_announced_camera_and_asked_model_are_recorded(tmp_path: Path
     assert props["camera"]["hfov_deg"] == pytest.approx(60.0, rel=1e-12)  # 0.75 x 80
     frames = rec.read_frames()
     assert frames.images.shape[1:] == (60, 80)
+    text = rec.description() or ""
+    for needle in ("`avdm:beta=0.5` (run on board; the robot announced it)",
+                   "80 x 60 px at 20 Hz, 0.75 deg/px (60 deg wide), texture row 30"):  # fmt: skip
+        assert needle in text, text
     # recomputed from the recorded context, the model gives the floats the robot sent (as f32)
     loaded = load_recording(out)
     again = recompute(loaded, ["avdm:beta=0.5"])["avdm:beta=0.5"]
