@@ -28,6 +28,7 @@ import rerun as rr
 
 from vdc.recording import (
     CAMERA,
+    DESCRIPTION,
     EVENTS,
     MODEL_ROOT,
     PARTIAL_SUFFIX,
@@ -254,6 +255,16 @@ class Recording:
                     values[name.split(":")[-1]] = v[0] if isinstance(v, list) and len(v) == 1 else v
             self._props = props
         return self._props
+
+    def description(self) -> str | None:
+        """The capture's description of the recording (markdown: what, model, camera, how to
+        analyse it), or None for a recording that has none (an older one)."""
+        text = None
+        for _, rb in self._batches(DESCRIPTION):
+            if "TextDocument:text" in rb.schema.names:
+                v = rb.column("TextDocument:text").to_pylist()[-1]
+                text = v[0] if isinstance(v, list) else v
+        return text
 
     # -- frames ----------------------------------------------------------------------------
     def iter_frames(self, entity: str = CAMERA) -> Iterator[FrameChunk]:

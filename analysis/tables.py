@@ -143,7 +143,8 @@ class LoadedRecording:
     def camera_context(self) -> dict[str, float | int]:
         """The camera facts a model needs (fps, deg/px, texture row): the recording's own
         ``model_context`` section, which the capture built its online model with, else (older
-        recordings) derived from its camera properties as the capture derived them."""
+        recordings) derived from its camera properties as the capture derived them. Nothing
+        is assumed: a recording with neither raises RecordingError naming what it lacks."""
         recorded = self.props.get("model_context", {})
         if "fps" in recorded and "deg_per_px" in recorded:
             ctx: dict[str, float | int] = {
@@ -155,18 +156,39 @@ class LoadedRecording:
                     ctx[key] = int(recorded[key])
             return ctx
         cam = self.props.get("camera", {})
-        if "fps" not in cam:
-            return {}
+        _require(self.rec.path, "camera", cam, ("fps", "width_px", "height_px", "hfov_deg"))
         return camera_model_context(
-            int(cam.get("width_px", 99)),
-            int(cam.get("height_px", 72)),
-            float(cam["fps"]),
-            float(cam.get("hfov_deg", 70.0)),
+            int(cam["width_px"]), int(cam["height_px"]), float(cam["fps"]), float(cam["hfov_deg"])
         )
 
     def arena_half_extent(self) -> tuple[float, float]:
-        arena = self.props.get("arena", {})
-        return float(arena.get("length_m", 1.4)) / 2, float(arena.get("width_m", 0.8)) / 2
+        """Half the arena's length and width, m; NaN for a recording without poses (a video),
+        RecordingError for one with poses that does not record its arena."""
+        has_poses = self.frames["x_m"].drop_nulls().len() > 0
+        return _arena_half_extent(self.props, has_poses, self.rec.path)
+
+
+def _require(path: str | Path, section: str, values: dict[str, Any], keys: Sequence[str]) -> None:
+    """RecordingError in one line unless the property ``section`` holds every key of ``keys``:
+    analysis assumes no camera and no arena."""
+    missing = [k for k in keys if k not in values]
+    if missing:
+        raise RecordingError(
+            f"{str(path)!r} is an old or foreign recording: it lacks "
+            + ("a model_context section and " if section == "camera" else "")
+            + f"the {section} propert{'ies' if len(missing) > 1 else 'y'} "
+            f"{', '.join(missing)}, and analysis assumes none; record it again with this vdc"
+        )
+
+
+def _arena_half_extent(
+    props: dict[str, dict[str, Any]], has_poses: bool, path: str | Path
+) -> tuple[float, float]:
+    if not has_poses:
+        return math.nan, math.nan  # no position, no wall gap: the arena does not matter
+    arena = props.get("arena", {})
+    _require(path, "arena", arena, ("length_m", "width_m"))
+    return float(arena["length_m"]) / 2, float(arena["width_m"]) / 2
 
 
 class Notices(list):
@@ -263,8 +285,7 @@ def from_signals(
         native = pl.DataFrame({"frame": nf.astype(np.int64), **cols}).with_columns(
             pl.col(*cols).fill_nan(None)
         )
-    arena = props.get("arena", {})
-    hx, hy = float(arena.get("length_m", 1.4)) / 2, float(arena.get("width_m", 0.8)) / 2
+    hx, hy = _arena_half_extent(props, POSE in sig, path)
     frames = frames.with_columns(
         pl.lit(recording_id).alias("recording_id"),
         pl.min_horizontal(hx - pl.col("x_m").abs(), hy - pl.col("y_m").abs()).alias("wall_gap_m"),

@@ -1,12 +1,16 @@
 """The serial link to a Colias-IV: the host side (pyserial, reconnecting) and a robot emulator.
 
 ``RobotEmulator`` opens a pseudo-terminal, keeps a stable symlink to it, and speaks the protocol
-of ``capture.serial_protocol`` with frames and on-board AVDM outputs from the simulator; it can
-corrupt bytes, drop packets and disconnect (closing its pty; after a pause it opens a new one
-behind the same symlink, as a robot that is power-cycled or a cable that is re-plugged).
+of ``capture.serial_protocol`` with frames and on-board model outputs from the simulator: it runs
+the model the host's PARAMS asks for (or a model of its own, fixed, so tests can make the two
+ends disagree), announces it with its camera after each START (unless it plays older firmware
+that never does), and can corrupt bytes, drop packets and disconnect (closing its pty; after a
+pause it opens a new one behind the same symlink, as a robot that is power-cycled or a cable
+that is re-plugged).
 
-``SerialLink`` is the host side: it opens the port (through the symlink), sends START, turns the
-byte stream into packets, and reopens the port after it disappears.
+``SerialLink`` is the host side: it opens the port (through the symlink), sends PARAMS and START,
+waits for the robot's ANNOUNCE (:meth:`SerialLink.handshake`), turns the byte stream into
+packets, and reopens the port after it disappears.
 """
 
 from __future__ import annotations
@@ -26,17 +30,21 @@ from pathlib import Path
 import numpy as np
 import serial
 
-from avdm.registry import make_model
+from avdm.registry import canonical_name, make_model
 from capture.config import SimConfig
 from capture.serial_protocol import (
+    TYPE_ANNOUNCE,
     TYPE_END,
     TYPE_FRAME,
     TYPE_PARAMS,
     TYPE_START,
     TYPE_STOP,
+    Announcement,
     PacketParser,
+    decode_announce,
     decode_frame,
     encode,
+    encode_announce,
     encode_frame,
 )
 from capture.sim_robot import SimulatedRobot
@@ -52,6 +60,10 @@ class EmulatorConfig:
     decimation: int = 1  # send the image with every Nth frame
     realtime: bool = True  # pace frames at the camera rate
     seed: int = 0
+    # the model it runs: "" = the one the host's PARAMS asks for (avdm if it sends none);
+    # a spec = that model whatever the host asks (so tests can make the two ends disagree)
+    fixed_model: str = ""
+    silent: bool = False  # older firmware: ignores PARAMS and never sends ANNOUNCE
 
     def __post_init__(self) -> None:
         for name in ("corrupt_rate", "drop_rate"):
@@ -124,12 +136,18 @@ class RobotEmulator:
         self._master = self._slave = None
 
     def _write(self, data: bytes) -> bool:
-        """Write all of ``data`` (waits while the pty buffer is full); False if the port closed."""
+        """Write all of ``data`` (waits while the pty buffer is full, reading the host's packets
+        meanwhile); False if the port closed or the host sent STOP."""
         view = memoryview(data)
         while view:
             try:
                 n = os.write(self._master, view)  # type: ignore[arg-type]
             except BlockingIOError:
+                # a host that stopped reading may be waiting for us to read its STOP
+                if TYPE_STOP in self._read_host():
+                    self.stopped = True
+                if self.stopped:
+                    return False
                 time.sleep(0.001)
                 continue
             except OSError:
@@ -152,12 +170,17 @@ class RobotEmulator:
             time.sleep(0.005)
 
     def _read_host(self) -> list[int]:
-        """Packet types the host sent since the last call."""
+        """Packet types the host sent since the last call (a PARAMS is kept as asked for)."""
         try:
             data = os.read(self._master, 4096)  # type: ignore[arg-type]
         except (BlockingIOError, OSError):
             return []
-        return [t for t, _ in self._parser.feed(data)]
+        types = []
+        for t, payload in self._parser.feed(data):
+            if t == TYPE_PARAMS:
+                self.asked = payload.decode("utf-8", "replace")
+            types.append(t)
+        return types
 
     def _wait_for_start(self, deadline: float) -> bool:
         while time.monotonic() < deadline:
@@ -166,18 +189,58 @@ class RobotEmulator:
             time.sleep(0.01)
         return False
 
+    def _model_spec(self) -> str:
+        """What this robot runs: its fixed model, else the host's PARAMS (older firmware
+        ignores PARAMS), else the AVDM."""
+        if self.emu.fixed_model:
+            return self.emu.fixed_model
+        if self.asked and not self.emu.silent:
+            return self.asked
+        return "avdm"
+
+    def announcement(self, model) -> Announcement:
+        """The ANNOUNCE this robot sends for ``model`` on its camera."""
+        ctx = self.sim.camera.model_context()
+        return Announcement(
+            model=self.spec,
+            outputs=tuple((o.name, o.unit) for o in model.outputs),
+            fps=float(ctx["fps"]),
+            width_px=int(ctx["width_px"]),
+            height_px=int(ctx["height_px"]),
+            deg_per_px=float(ctx["deg_per_px"]),
+            texture_row=int(ctx["texture_row"]),
+        )
+
+    def _announce(self, model) -> None:
+        if not self.emu.silent:
+            self._write(encode_announce(self.announcement(model)))
+
     # -- the run ----------------------------------------------------------------------------
     def run(self, wait_for_host_s: float = 60.0, announce=None) -> dict:
         sim = self.sim
-        model = make_model(sim.model, **sim.camera.model_context())
         shape = (sim.camera.height_px, sim.camera.width_px)
         self._parser = PacketParser()
+        self.asked = ""
+        self.stopped = False  # the host sent STOP
+        # warm up (compile) a model now, so that the one the host asks for is built, and
+        # announced, soon after its START, as a firmware would
+        make_model(self.emu.fixed_model or "avdm", **sim.camera.model_context())
         name = self.open_port()
         if announce is not None:
             announce(name)
         if not self._wait_for_start(time.monotonic() + wait_for_host_s):
             self.close_port()
             raise TimeoutError("no host sent START")
+        self.spec = self._model_spec()
+        try:
+            model = make_model(self.spec, **sim.camera.model_context())
+            self.spec = canonical_name(self.spec)
+        except ValueError as exc:  # a robot cannot run what it does not know: it says nothing
+            self._finish()
+            raise ValueError(f"the host asked for a model this robot cannot run: {exc}") from None
+        self.report["model"] = self.spec
+        self._model = model
+        self._announce(model)
         started = time.monotonic()
         disconnect_at = self.emu.disconnect_after_s
         period = 1.0 / sim.camera.fps
@@ -193,7 +256,7 @@ class RobotEmulator:
                     if not np.isnan(disconnect_at) and time.monotonic() - started >= disconnect_at:
                         disconnect_at = float("nan")
                         self._disconnect(batch, outputs, i)
-                    if TYPE_STOP in self._read_host():
+                    if self.stopped or TYPE_STOP in self._read_host():
                         self._finish()
                         return self.report
                     self.report["frames"] += 1
@@ -215,6 +278,10 @@ class RobotEmulator:
                             packet[k] ^= 1 << int(self.rng.integers(8))
                     (self.report["corrupted"] if corrupt else self.report["intact"]).append(f)
                     if not self._write(bytes(packet)):
+                        (self.report["corrupted"] if corrupt else self.report["intact"]).pop()
+                        if self.stopped:
+                            self._finish()
+                            return self.report
                         break
         self._finish()
         return self.report
@@ -232,7 +299,8 @@ class RobotEmulator:
         time.sleep(max(0.0, self.emu.reconnect_after_s - (time.monotonic() - gone)))
         self._parser = PacketParser()
         self.open_port()
-        self._wait_for_start(time.monotonic() + 30.0)
+        if self._wait_for_start(time.monotonic() + 30.0):
+            self._announce(self._model)  # the firmware announces after every START
 
     def _finish(self) -> None:
         self._write(encode(TYPE_END))
@@ -247,7 +315,10 @@ class LinkLost(Exception):
 
 
 class SerialLink:
-    """Host side of the link: packets in, START/STOP/PARAMS out, reconnecting on loss."""
+    """Host side of the link: packets in, PARAMS/START/STOP out, reconnecting on loss.
+
+    ``params`` (a model spec) goes to the robot before every START; :meth:`handshake` waits for
+    the robot's ANNOUNCE. Packets read meanwhile are kept for :meth:`packets`."""
 
     def __init__(
         self, port: str, baud: int = 3_000_000, reconnect_timeout_s: float = 30.0, params: str = ""
@@ -261,10 +332,53 @@ class SerialLink:
         self.ended = False
         self._ser: serial.Serial | None = None
         self._last_data = time.monotonic()
+        self._pending: list[tuple[int, object]] = []  # read during the handshake
+        self.announcements: list[Announcement] = []  # every ANNOUNCE, in order
+
+    def _decoded(self, data: bytes) -> list[tuple[int, object]]:
+        """(type, FramePacket | Announcement | None) of the whole packets in ``data``; a FRAME
+        or ANNOUNCE whose payload does not match its header is counted as bad_length."""
+        out: list[tuple[int, object]] = []
+        for ptype, payload in self.parser.feed(data):
+            try:
+                if ptype == TYPE_FRAME:
+                    out.append((ptype, decode_frame(payload)))
+                elif ptype == TYPE_ANNOUNCE:
+                    a = decode_announce(payload)
+                    self.announcements.append(a)
+                    out.append((ptype, a))
+                elif ptype == TYPE_END:
+                    out.append((ptype, None))
+            except ValueError:
+                self.parser.stats.bad_length += 1
+        return out
+
+    def handshake(self, timeout_s: float) -> Announcement | None:
+        """The robot's ANNOUNCE after the START that :meth:`open` sent, or None when it does
+        not come within ``timeout_s`` or a FRAME or END comes first (firmware that never
+        announces)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and self._ser is not None:
+            waiting = self._ser.in_waiting
+            got = self._decoded(self._ser.read(waiting or 1))
+            for k, (ptype, obj) in enumerate(got):
+                if ptype == TYPE_ANNOUNCE:
+                    self._pending += got[k + 1 :]
+                    return obj  # type: ignore[return-value]
+                if ptype in (TYPE_FRAME, TYPE_END):
+                    self._pending += got[k:]
+                    return None
+        return None
 
     def open(self) -> None:
         """Open the port and ask the robot to start; raises serial.SerialException."""
         self._ser = serial.Serial(self.port, self.baud, timeout=0.05)
+        self._send_start()
+
+    def _send_start(self) -> None:
+        """PARAMS (the model the host asks for), then START."""
+        if self._ser is None:
+            return
         if self.params:
             self._ser.write(encode(TYPE_PARAMS, self.params.encode()))
         self._ser.write(encode(TYPE_START))
@@ -300,8 +414,14 @@ class SerialLink:
         )
 
     def packets(self) -> Iterator[tuple[int, object]]:
-        """(type, FramePacket or payload) as they arrive; ends when the robot sends END.
+        """(type, FramePacket or Announcement) as they arrive; ends when the robot sends END.
         Yields (0, None) about every 50 ms while the line is quiet, so callers can stop."""
+        while self._pending and not self.ended:
+            ptype, obj = self._pending.pop(0)
+            if ptype == TYPE_END:
+                self.ended = True
+                return
+            yield (ptype, obj)
         while not self.ended:
             try:
                 # read only what is waiting: a read that spans the moment the port vanishes
@@ -315,20 +435,16 @@ class SerialLink:
             if not data:
                 if time.monotonic() - self._last_data > 2.0 and self._ser is not None:
                     # silent for 2 s: a START may have been lost; asking again is harmless
-                    self._ser.write(encode(TYPE_START))
+                    self._send_start()
                     self._last_data = time.monotonic()
                 yield (0, None)
                 continue
             self._last_data = time.monotonic()
-            for ptype, payload in self.parser.feed(data):
-                if ptype == TYPE_FRAME:
-                    try:
-                        yield (ptype, decode_frame(payload))
-                    except ValueError:
-                        self.parser.stats.bad_length += 1
-                elif ptype == TYPE_END:
+            for ptype, obj in self._decoded(data):
+                if ptype == TYPE_END:
                     self.ended = True
                     return
+                yield (ptype, obj)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -339,11 +455,19 @@ class EmulateSettings:
     tf_hz: float = option(0.0, "wall TF, Hz", type=non_negative_float)
     minutes: float = option(1.0, "run length", type=positive_float)
     seed: int = option(0, "random seed", type=non_negative_int)
-    model: str = option(
-        "avdm",
-        "the model the emulated robot runs on board (any model, a plug-in too); give "
-        "vdc-capture robot the same --model",
+    model: str | None = option(
+        None,
+        "run this model on board whatever the host asks for (any model, a plug-in too); "
+        "default: the model the host's PARAMS asks for, as the firmware does",
     )
+    silent: bool = option(
+        False,
+        "play older firmware: ignore PARAMS, run --model (default avdm) and never announce",
+    )
+    fps: float = option(33.0, "the robot camera's frame rate, Hz", type=positive_float)
+    width_px: int = option(99, "the robot camera's width, px (at most 255)")
+    height_px: int = option(72, "the robot camera's height, px (at most 255)")
+    hfov_deg: float = option(70.0, "the robot camera's horizontal field of view, deg")
     corrupt_rate: float = option(
         0.0,
         "share of packets corrupted, e.g. 0.01 (1-3 bits flipped in each)",
@@ -374,13 +498,24 @@ def emulate_robot(settings: EmulateSettings, announce: Callable[[str], None] | N
         decimation=settings.decimation,
         realtime=not settings.fast,
         seed=settings.seed,
+        fixed_model=settings.model or "",
+        silent=settings.silent,
     )
+    if not (settings.width_px <= 255 and settings.height_px <= 255):
+        raise ValueError("--width-px and --height-px are at most 255 (a FRAME's u8 fields)")
+    if settings.model:
+        make_model(settings.model)  # an unknown model fails before the port opens
     sim = SimConfig(
         wall=WallConfig(tf_schedule=((settings.tf_hz, settings.minutes * 60),)),
-        camera=CameraConfig(),
+        camera=CameraConfig(
+            width_px=settings.width_px,
+            height_px=settings.height_px,
+            fps=settings.fps,
+            hfov_deg=settings.hfov_deg,
+        ),
         duration_s=settings.minutes * 60,
         seed=settings.seed,
-        model=settings.model,
+        model=settings.model or "avdm",
     )
     robot = RobotEmulator(
         sim, emu, Path(settings.link), Path(settings.report) if settings.report else None

@@ -33,6 +33,22 @@ def _in_range(name: str, v: Any, lo: float, hi: float, unit: str = "") -> None:
     _check(_finite(v) and lo <= v <= hi, name, v, f"must be between {lo:g} and {hi:g}{unit}")
 
 
+def _plain(v: Any, declared: str, name: str = "") -> Any:
+    """A config value as a recording property: tuples as JSON, NaN as its meaning."""
+    if isinstance(v, tuple):
+        return json.dumps(v)
+    if isinstance(v, float) and math.isnan(v):
+        return "random" if name.startswith("start_") else "default"
+    if declared == "float" and isinstance(v, int) and not isinstance(v, bool):
+        return float(v)  # one Arrow type per property, whatever the caller passed
+    return v
+
+
+def config_section(obj: Any) -> dict[str, Any]:
+    """One config dataclass (``ArenaConfig``, ``CameraConfig``, ...) as a property section."""
+    return {f.name: _plain(getattr(obj, f.name), str(f.type)) for f in dataclasses.fields(obj)}
+
+
 @dataclasses.dataclass(frozen=True)
 class ArenaConfig:
     """Rectangular arena centred on the origin; x along the long side (docs/architecture.md)."""
@@ -345,28 +361,13 @@ class SimConfig:
 
     def to_sections(self) -> dict[str, dict[str, Any]]:
         """``{section: {field: value}}`` with JSON-friendly values (for recording properties)."""
-
-        def plain(v: Any, declared: str, name: str = "") -> Any:
-            if isinstance(v, tuple):
-                return json.dumps(v)
-            if isinstance(v, float) and math.isnan(v):
-                return "random" if name.startswith("start_") else "default"
-            if declared == "float" and isinstance(v, int) and not isinstance(v, bool):
-                return float(v)  # one Arrow type per property, whatever the caller passed
-            return v
-
-        def section(obj: Any) -> dict[str, Any]:
-            return {
-                f.name: plain(getattr(obj, f.name), str(f.type)) for f in dataclasses.fields(obj)
-            }
-
         out: dict[str, dict[str, Any]] = {}
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
             if dataclasses.is_dataclass(v):
-                out[f.name] = section(v)
+                out[f.name] = config_section(v)
             else:
-                out.setdefault("run", {})[f.name] = plain(v, str(f.type))
+                out.setdefault("run", {})[f.name] = _plain(v, str(f.type))
         out["wall"]["tf_schedule_text"] = format_schedule(self.wall.tf_schedule)
         return out
 

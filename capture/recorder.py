@@ -37,6 +37,8 @@ from vdc.recording import (
     ARENA_WALLS,
     CAMERA,
     CAPTURE_TIME_TIMELINE,
+    DESCRIPTION,
+    EVENT_KINDS,
     FRAME_TIMELINE,
     FRAME_TIMING,
     FRAME_TIMING_NAMES,
@@ -47,6 +49,7 @@ from vdc.recording import (
     OVERHEAD,
     POSE,
     POSE_NAMES,
+    PROPERTY_SECTIONS,
     ROBOT,
     ROBOT_BODY,
     ROBOT_HEADING,
@@ -356,7 +359,14 @@ class Recorder:
         The SDK types a field by its name across all sections (the first section to use a name
         sets its type): a field whose name an earlier section used with text (e.g. the
         collision section's ``threshold: default`` and a plug-in's ``threshold`` parameter) is
-        sent as text too, rather than dropped."""
+        sent as text too, rather than dropped. A section the contract does not know
+        (``vdc.recording.PROPERTY_SECTIONS``) is refused with ValueError, before any is sent."""
+        unknown = [name for name in sections if name not in PROPERTY_SECTIONS]
+        if unknown:
+            raise ValueError(
+                f"property section(s) {', '.join(map(repr, unknown))} are not in the recording "
+                f"contract; allowed: {', '.join(PROPERTY_SECTIONS)} (vdc.recording)"
+            )
         text_names: set[str] = set()
         for name, values in sections.items():
             clean = {
@@ -366,6 +376,13 @@ class Recorder:
             }
             text_names |= {k for k, v in clean.items() if isinstance(v, str)}
             self.rec.send_property(name, rr.AnyValues(**clean))
+
+    def log_description(self, markdown: str) -> None:
+        """The recording's description (what, model, camera, how to analyse), static, as a
+        markdown text document at ``vdc.recording.DESCRIPTION``."""
+        self.rec.log(
+            DESCRIPTION, rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True
+        )
 
     def log_arena(self, arena: ArenaConfig, robot_radius_m: float) -> None:
         hx, hy = arena.half_extent
@@ -570,7 +587,12 @@ class Recorder:
         capture_ns: np.ndarray | None = None,
     ) -> None:
         """Sparse events of one ``kind``; those with a known arena position (N, 2) are also
-        drawn there."""
+        drawn there. A ``kind`` outside ``vdc.recording.EVENT_KINDS`` is refused (ValueError)."""
+        if kind not in EVENT_KINDS:
+            raise ValueError(
+                f"event kind {kind!r} is not in the recording contract; allowed: "
+                f"{', '.join(EVENT_KINDS)} (vdc.recording)"
+            )
         if len(frame) == 0:
             return
         level = EVENT_LEVELS.get(kind, "INFO")

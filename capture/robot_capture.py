@@ -7,12 +7,18 @@ gets the host's receive time (``capture_time``); its pose is the tracker sample 
 time if one lies within ``max_gap_s``, otherwise none (a gap, logged as ``tracker_lost``; a pose
 is never invented). Repeated frame indices are dropped (each frame is logged once), missing ones
 are counted as lost and logged as ``link_error`` events with the parser's counts.
+
+The handshake: the host sends the model it was given (PARAMS) with START, and the robot answers
+with what it runs (ANNOUNCE: the model spec, its outputs and units, its camera). A robot running
+another model, or sending other outputs, is refused before any file is written; a robot that
+never announces (older firmware) is recorded with its model marked unverified.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import time
 from collections import deque
 from collections.abc import Callable
@@ -22,14 +28,15 @@ import cv2
 import numpy as np
 import serial
 
-from avdm.registry import make_model
+from avdm.registry import canonical_name, make_model
 from capture.colias_link import SerialLink
 from capture.config import SCENES, WallConfig
 from capture.device import Batch, Event
 from capture.run import RecordResult
-from capture.serial_protocol import TYPE_FRAME, FramePacket
+from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
 from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose
 from vdc.cli_support import non_negative_float, option, positive_float
+from vdc.recording import camera_model_context
 
 LINK_STATS = (
     "packets",
@@ -52,9 +59,15 @@ class RobotCaptureConfig:
     wall: WallConfig = dataclasses.field(
         default_factory=lambda: WallConfig(tf_schedule=((0.0, 48 * 3600.0),))
     )
-    model: str = "avdm"  # the on-board model whose outputs the robot sends
+    model: str = "avdm"  # the on-board model the host asks for (PARAMS) and expects
+    # the camera assumed for a robot that does not announce its own (older firmware)
     fps: float = 33.0
-    deg_per_px: float = 70 / 99
+    width_px: int = 99
+    height_px: int = 72
+    hfov_deg: float = 70.0
+    # how long the host waits for the robot's ANNOUNCE after START (older firmware is found
+    # out at once by a FRAME that comes first; this bounds a robot that sends nothing)
+    announce_timeout_s: float = 5.0
     max_gap_s: float = 0.25
     batch_s: float = 0.5
     reconnect_timeout_s: float = 30.0
@@ -85,17 +98,27 @@ class ColiasRobotDevice:
         self.cfg = config
         self.on_wall_tf = on_wall_tf  # e.g. a WallController driving the LED walls
         self._connected = False
-        model = make_model(config.model, fps=config.fps, deg_per_px=config.deg_per_px)
+        # until the robot announces its own: the host's model on the default camera
+        self.model_context = camera_model_context(
+            config.width_px, config.height_px, config.fps, config.hfov_deg
+        )
+        model = make_model(config.model, **self.model_context)  # a bad spec fails here
         self.model_name = model.name
         self.output_names = [o.name for o in model.outputs]
+        self.output_units = [o.unit for o in model.outputs]
+        self.announced: Announcement | None = None  # what the robot said it runs
         self.h = None if not config.calibration else load_calibration(Path(config.calibration))
 
     def connect(self) -> None:
-        """Open the port (sends START) and the camera; a second call does nothing."""
+        """Open the port (sends PARAMS and START), wait for the robot's ANNOUNCE and check it,
+        open the camera; a second call does nothing. ValueError (before any file is written)
+        when the port or camera cannot open, or the robot runs another model."""
         if self._connected:
             return
         cfg = self.cfg
-        self.link = SerialLink(cfg.port, cfg.baud, cfg.reconnect_timeout_s)
+        self.link = SerialLink(
+            cfg.port, cfg.baud, cfg.reconnect_timeout_s, params=canonical_name(cfg.model)
+        )
         try:
             self.link.open()
         except (serial.SerialException, OSError) as exc:
@@ -103,7 +126,16 @@ class ColiasRobotDevice:
                 f"cannot open the robot's serial port {cfg.port!r}: "
                 f"{getattr(exc, 'strerror', None) or exc}"
             ) from None
-        self.cam = open_camera(cfg.camera)
+        try:
+            self.cam = open_camera(cfg.camera)
+            announced = self.link.handshake(cfg.announce_timeout_s)
+            if announced is not None:
+                self._accept(announced)
+        except BaseException:
+            self.link.close(stop=True)  # the robot stops too
+            if hasattr(self, "cam"):
+                self.cam.release()
+            raise
         self._video = not cfg.camera.isdigit()
         self.t0_ns = time.time_ns()
         self._cam_next = 0  # next video frame index (files are paced at camera_fps)
@@ -117,6 +149,38 @@ class ColiasRobotDevice:
         self._reported = dict.fromkeys(LINK_STATS, 0)
         self._disconnect_events: list[str] = []
         self._connected = True
+
+    def _accept(self, a: Announcement) -> None:
+        """Take the robot's word for its model, outputs and camera if it is the model the host
+        was given (same canonical spec, same output names and units in the same order); else
+        ValueError in one line."""
+        want = canonical_name(self.cfg.model)
+        try:
+            got = canonical_name(a.model)
+        except ValueError:
+            got = a.model  # a model this host does not know: it cannot be --model's
+        robot_outputs = [f"{n} [{u}]" for n, u in a.outputs]
+        if got != want:
+            raise ValueError(
+                f"the robot runs {a.model} (outputs {', '.join(robot_outputs) or 'none'}), not "
+                f"--model {self.cfg.model}: give --model {a.model}, or load {want} on the robot"
+            )
+        try:
+            host = make_model(want, **a.model_context())
+        except ValueError as exc:
+            raise ValueError(f"the robot's announced camera does not fit {want}: {exc}") from None
+        host_outputs = [f"{o.name} [{o.unit}]" for o in host.outputs]
+        if robot_outputs != host_outputs:
+            raise ValueError(
+                f"the robot's {a.model} sends {len(robot_outputs)} outputs "
+                f"({', '.join(robot_outputs) or 'none'}) but {want} has {len(host_outputs)} "
+                f"({', '.join(host_outputs)}): the robot's firmware and vdc disagree on the model"
+            )
+        self.announced = a
+        self.model_context = a.model_context()
+        self.model_name = host.name
+        self.output_names = [n for n, _ in a.outputs]
+        self.output_units = [u for _, u in a.outputs]
 
     def calibrate_tracker(self) -> np.ndarray | None:
         """Read the overhead frames due by now and return the tracker's homography (3, 3)
@@ -162,6 +226,15 @@ class ColiasRobotDevice:
             self._poll_camera()
             if ptype == 0 and obj == "disconnect":
                 self._disconnect_events.append("serial port lost; reconnecting")
+            elif ptype == TYPE_ANNOUNCE and obj != self.announced:
+                # after a reconnection (a power cycle?) the robot says it runs something else
+                a: Announcement = obj  # type: ignore[assignment]
+                self._disconnect_events.append(
+                    f"mid-run the robot announces {a.model} on a {a.width_px}x{a.height_px} "
+                    f"camera at {a.fps:g} Hz; its outputs are still recorded as "
+                    f"{self.model_name}'s"
+                )
+                self.announced = obj  # type: ignore[assignment]
             elif ptype == TYPE_FRAME:
                 pkt: FramePacket = obj  # type: ignore[assignment]
                 if pkt.index <= self.last_index:
@@ -311,6 +384,10 @@ class WallController:
             self.last = tf_hz
 
 
+def _warn(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
 @dataclasses.dataclass(frozen=True)
 class RobotSettings:
     """``vdc-capture robot`` as a settings object (one field per flag, same names)."""
@@ -339,7 +416,11 @@ class RobotSettings:
     scene: str = option("grating", "what the walls show", choices=SCENES)
     wall_port: str | None = option(None, "LED wall controller's serial port (line protocol)")
     baud: int = option(3_000_000, "serial rate")
-    model: str = option("avdm", "the model running on the robot")
+    model: str = option(
+        "avdm",
+        "the model the robot is to run: sent to it (PARAMS) with START; a robot that announces "
+        "another model is refused",
+    )
 
     def wall(self) -> WallConfig:
         from capture.config import parse_schedule
@@ -371,15 +452,19 @@ def record_robot(
     spawn: bool = False,
     progress: bool = False,
     log: Callable[[str], None] | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> RobotRecordResult:
     """Record a real Colias-IV until it ends its run, the link is lost for good, or a signal
-    (default ``recordings/robot-<time>-<hash>.rrd``). A missing port or camera raises
-    ValueError before the file exists."""
+    (default ``recordings/robot-<time>-<hash>.rrd``). A missing port or camera, or a robot that
+    announces another model than ``settings.model`` (or other outputs), raises ValueError
+    before the file exists. A robot that does not announce itself is recorded with
+    ``model.verified`` false, and ``warn`` (default: stderr) says so in one line."""
     import hashlib
 
-    from capture.config import ArenaConfig, RobotConfig
+    from capture.config import ArenaConfig, RobotConfig, config_section
     from capture.output import claim_output
-    from capture.recorder import Recorder, spawn_viewer
+    from capture.recorder import spawn_viewer
+    from capture.recording_start import camera_line, start_recording
     from capture.run import finish_output, run_capture
     from vdc.blueprints import default_blueprint
     from vdc.provenance import machine_info, package_versions
@@ -405,20 +490,46 @@ def record_robot(
     claim = claim_output(path, force)  # exclusive from here; bad folders fail here
     recorder = None
     try:
-        device.connect()  # a missing port or camera fails here, before the file exists
+        # a missing port or camera, or a robot running another model, fails here: no file yet
+        device.connect()
+        verified = device.announced is not None
+        context = device.model_context  # the robot's announced camera, else the defaults
+        if not verified:
+            (warn or _warn)(
+                f"warning: the robot did not announce its model within "
+                f"{cfg.announce_timeout_s:g} s (older firmware?): recording its outputs as "
+                f"{settings.model}'s on a {camera_line(context)} camera, marked unverified"
+            )
         live = spawn_viewer() if spawn else live_url
-        model = make_model(settings.model, fps=cfg.fps, deg_per_px=cfg.deg_per_px)
-        recorder = Recorder(
+        model = make_model(device.model_name, **context)
+        arena = ArenaConfig()
+        recorder = start_recording(
             claim.partial,
             rid,
             live_url=live,
             blueprint=default_blueprint(
                 model.name, model.outputs, [("serial link counts", [LINK_STATS_ENTITY])]
             ),
-        )
-        recorder.log_arena(ArenaConfig(), RobotConfig().radius_m)
-        recorder.send_properties(
-            {
+            model=model,
+            context=context,
+            model_fields={"on_board": True, "verified": verified},
+            model_note=(
+                "run on board; the robot announced it"
+                if verified
+                else "run on board; UNVERIFIED: the robot did not announce its model"
+            ),
+            what=(
+                f"a Colias-IV robot on {settings.port} ({settings.wall_port or 'no'} wall "
+                f"controller), its camera frames and on-board model outputs over the serial "
+                f"link, poses from the overhead camera {settings.camera}; wall "
+                f"{wall.scene}, TF schedule {','.join(f'{t:g}:{d:g}s' for t, d in schedule)}"
+            ),
+            analyse=[
+                "vdc-analyse tables REC --out results/tables",
+                "vdc-analyse profile REC --out results/profile",
+                "vdc-analyse complexity REC --out results/complexity",
+            ],
+            sections={
                 "run": {
                     "recording_id": rid,
                     "source": "robot",
@@ -432,14 +543,23 @@ def record_robot(
                     "period_m": wall.period_m,
                     "tf_schedule_text": ",".join(f"{t:g}:{d:g}s" for t, d in schedule),
                 },
-                "camera": {"fps": cfg.fps, "width_px": 99, "height_px": 72, "hfov_deg": 70.0},
-                "model": {"name": model.name, "on_board": True},
-                "model_params": model.params.to_dict(),
-                "link": {"protocol": "vdc serial v1 (see README)", "stats": ",".join(LINK_STATS)},
+                "arena": config_section(arena),
+                "camera": {
+                    "fps": float(context["fps"]),
+                    "width_px": int(context["width_px"]),
+                    "height_px": int(context["height_px"]),
+                    "hfov_deg": float(context["deg_per_px"]) * int(context["width_px"]),
+                    "announced": verified,
+                },
+                "link": {
+                    "protocol": "vdc serial v1 (docs/robot.md)",
+                    "stats": ",".join(LINK_STATS),
+                    "announce": "received" if verified else "none (older firmware?)",
+                },
                 "provenance": {**package_versions(), **machine_info()},
-            }
+            },
         )
-        recorder.log_model_meta(model.name, model.outputs)
+        recorder.log_arena(arena, RobotConfig().radius_m)
         if settings.save_calibration:
             from capture.tracker import save_calibration
 

@@ -16,7 +16,17 @@ Robot → host, type 0x01 FRAME (payload)::
     width × height × u8 raw grey image (only if bit 0 is set)
 
 Robot → host, type 0x02 END (no payload): the run is over.
-Host → robot: 0x10 START, 0x11 STOP (no payload), 0x12 PARAMS (UTF-8 ``name:key=value,...``).
+
+Robot → host, type 0x03 ANNOUNCE (payload), once after every START and before the first FRAME:
+what the robot runs (the handshake; firmware that never sends it is recorded as unverified)::
+
+    u8 version (1), f64 camera fps (Hz), u16 width px, u16 height px,
+    f64 deg/px at the image centre, u16 texture row, u8 n outputs,
+    u8 S, S bytes UTF-8 model spec (e.g. ``avdm`` or ``lgmd-plus:t_sr=80``),
+    n × (u8 N, N bytes UTF-8 output name, u8 U, U bytes UTF-8 unit), in FRAME's output order
+
+Host → robot: 0x10 START, 0x11 STOP (no payload), 0x12 PARAMS (UTF-8 ``name:key=value,...``:
+the model the host asks the robot to run; sent just before every START).
 
 Raw 99×72 frames at 33 Hz are 7,152 bytes a packet, 236 kB/s: at 8N1 that needs at least
 2.4 Mbaud (3,000,000 is the nearest standard rate). Slower links send the image every Nth frame
@@ -36,21 +46,26 @@ import numpy as np
 SYNC = b"\xaa\x55"
 TYPE_FRAME = 0x01
 TYPE_END = 0x02  # robot → host: the run is over (no payload; a real robot may never send it)
+TYPE_ANNOUNCE = 0x03  # robot → host: what it runs (model, outputs, camera), after each START
 TYPE_START = 0x10
 TYPE_STOP = 0x11
 TYPE_PARAMS = 0x12
-KNOWN_TYPES = {TYPE_FRAME, TYPE_END, TYPE_START, TYPE_STOP, TYPE_PARAMS}
+KNOWN_TYPES = {TYPE_FRAME, TYPE_END, TYPE_ANNOUNCE, TYPE_START, TYPE_STOP, TYPE_PARAMS}
 # allowed type + payload lengths per type: checked as soon as the header is in, so a false sync
 # word in noise is dropped at once instead of stalling the packets behind it
 LENGTH_RANGE = {
     TYPE_FRAME: (1 + 16, 1 + 16 + 4 * 255 + 255 * 255),
     TYPE_END: (1, 1),
+    TYPE_ANNOUNCE: (1 + 25, 1 + 25 + 255 + 255 * 512),
     TYPE_START: (1, 1),
     TYPE_STOP: (1, 1),
     TYPE_PARAMS: (1, 1 + 4096),
 }
 FLAG_IMAGE = 0x01
 _FRAME_HEAD = struct.Struct("<IQBBBB")  # index, time µs, flags, width, height, n outputs
+ANNOUNCE_VERSION = 1
+# version, fps, width, height, deg/px, texture row, n outputs, spec length
+_ANNOUNCE_HEAD = struct.Struct("<BdHHdHBB")
 
 
 def crc16(data: bytes) -> int:
@@ -110,6 +125,89 @@ def decode_frame(payload: bytes) -> FramePacket:
         start = _FRAME_HEAD.size + 4 * n
         image = np.frombuffer(payload, np.uint8, w * h, start).reshape(h, w).copy()
     return FramePacket(index, t_us, tuple(float(v) for v in outputs), image, w, h)
+
+
+@dataclasses.dataclass(frozen=True)
+class Announcement:
+    """What the robot says it runs (the ANNOUNCE packet): its model, the model's outputs in
+    FRAME order with their units, and its camera."""
+
+    model: str  # the model spec, e.g. "avdm" or "lgmd-plus:t_sr=80"
+    outputs: tuple[tuple[str, str], ...]  # (name, unit) per output, in FRAME order
+    fps: float  # camera frame rate, Hz
+    width_px: int
+    height_px: int
+    deg_per_px: float  # angular pitch at the image centre
+    texture_row: int  # the image row the AVDM counts texture on
+
+    def model_context(self) -> dict[str, float | int]:
+        """The robot's camera as ``vdc.recording.camera_model_context`` gives a camera's:
+        what the host builds (and analysis rebuilds) the model with."""
+        return {
+            "fps": self.fps,
+            "deg_per_px": self.deg_per_px,
+            "texture_row": self.texture_row,
+            "width_px": self.width_px,
+            "height_px": self.height_px,
+        }
+
+
+def _short_text(text: str, what: str) -> bytes:
+    raw = text.encode("utf-8")
+    if len(raw) > 255:
+        raise ValueError(f"{what} {text!r} is longer than 255 bytes")
+    return bytes([len(raw)]) + raw
+
+
+def encode_announce(a: Announcement) -> bytes:
+    """An ANNOUNCE packet carrying ``a``."""
+    if len(a.outputs) > 255:
+        raise ValueError("more than 255 outputs")
+    spec = a.model.encode("utf-8")
+    if len(spec) > 255:
+        raise ValueError(f"model spec {a.model!r} is longer than 255 bytes")
+    payload = _ANNOUNCE_HEAD.pack(
+        ANNOUNCE_VERSION,
+        a.fps,
+        a.width_px,
+        a.height_px,
+        a.deg_per_px,
+        a.texture_row,
+        len(a.outputs),
+        len(spec),
+    )
+    payload += spec
+    for name, unit in a.outputs:
+        payload += _short_text(name, "output name") + _short_text(unit, "unit")
+    return encode(TYPE_ANNOUNCE, payload)
+
+
+def decode_announce(payload: bytes) -> Announcement:
+    """Parse an ANNOUNCE payload; ValueError if it is malformed or of another version."""
+    if len(payload) < _ANNOUNCE_HEAD.size:
+        raise ValueError("ANNOUNCE payload shorter than its header")
+    version, fps, w, h, dpp, row, n, s = _ANNOUNCE_HEAD.unpack_from(payload)
+    if version != ANNOUNCE_VERSION:
+        raise ValueError(f"ANNOUNCE version {version}, this host reads {ANNOUNCE_VERSION}")
+    pos = _ANNOUNCE_HEAD.size
+
+    def text() -> str:
+        nonlocal pos
+        if pos >= len(payload) or pos + 1 + payload[pos] > len(payload):
+            raise ValueError("ANNOUNCE payload ends inside a text field")
+        k = payload[pos]
+        out = payload[pos + 1 : pos + 1 + k].decode("utf-8")
+        pos += 1 + k
+        return out
+
+    if pos + s > len(payload):
+        raise ValueError("ANNOUNCE payload ends inside the model spec")
+    spec = payload[pos : pos + s].decode("utf-8")
+    pos += s
+    outputs = tuple((text(), text()) for _ in range(n))
+    if pos != len(payload):
+        raise ValueError(f"ANNOUNCE payload has {len(payload) - pos} bytes after its outputs")
+    return Announcement(spec, outputs, float(fps), w, h, float(dpp), row)
 
 
 @dataclasses.dataclass

@@ -18,6 +18,7 @@ import numpy as np
 from avdm import __version__
 from avdm.base import Model
 from capture.config import SCENES, SimConfig
+from capture.recording_start import model_sections
 from capture.run import RecordResult
 from capture.sim_robot import SimulatedRobot, load_wall_image, ring_turn_event  # noqa: F401
 from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
@@ -36,11 +37,7 @@ def recording_properties(
         numpy_version=np.__version__,
     )
     sections["provenance"] = {**package_versions(), **machine_info()}
-    sections["model"] = {
-        "name": model.name,
-        "outputs": json.dumps({o.name: o.unit for o in model.outputs}),
-    }
-    sections["model_params"] = {k: v for k, v in model.params.to_dict().items() if v is not None}
+    sections.update(model_sections(model, config.camera.model_context()))
     if detector is not None:
         sections["detector"] = {
             "name": detector.name,
@@ -192,7 +189,8 @@ def record_sim(
     from avdm.registry import make_model
     from capture.closed_loop import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
     from capture.output import claim_output
-    from capture.recorder import Recorder, spawn_viewer
+    from capture.recorder import spawn_viewer
+    from capture.recording_start import start_recording
     from capture.run import finish_output, run_capture
     from vdc.blueprints import default_blueprint
     from vdc.recording import model_path
@@ -240,15 +238,34 @@ def record_sim(
                 )
         else:
             main, extra = model, []
-        recorder = Recorder(
+        schedule = config.to_sections()["wall"]["tf_schedule_text"]
+        what = (
+            f"a simulated Colias-IV in the {config.arena.length_m:g} x {config.arena.width_m:g} m "
+            f"arena ({config.behaviour}), {config.wall.scene} walls, TF schedule {schedule}, "
+            f"{config.duration_s / 60:g} min ({config.n_frames} frames), seed {config.seed}"
+        )
+        analyse = [
+            "vdc-analyse tables REC --out results/tables",
+            "vdc-analyse profile REC --out results/profile",
+            "vdc-analyse complexity REC --out results/complexity",
+        ]
+        if detector is not None:
+            what += f"; closed loop with the collision detector {detector.name}"
+            analyse.insert(0, "vdc-analyse collision REC --out results/collision")
+        else:
+            analyse.append(f"vdc-analyse compare REC --model {model.name} --out results/compare")
+        recorder = start_recording(
             claim.partial,
             run_id,
             blueprint=default_blueprint(main.name, main.outputs, extra),
             live_url=live,
+            sections=recording_properties(config, model, detector),
+            model=model,
+            context=ctx,
+            what=what,
+            analyse=analyse,
         )
-        recorder.send_properties(recording_properties(config, model, detector))
         recorder.log_arena(config.arena, config.robot.radius_m)
-        recorder.log_model_meta(model.name, model.outputs)
         if detector is not None:
             from avdm.base import Output
 
@@ -263,7 +280,6 @@ def record_sim(
                 if detector
                 else f"model {model.name}"
             )
-            schedule = config.to_sections()["wall"]["tf_schedule_text"]
             log(
                 f"recording {run_id}: {config.wall.scene} walls, TF schedule "
                 f"{schedule}, {config.duration_s / 60:g} min "

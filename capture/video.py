@@ -255,7 +255,8 @@ def record_video(
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel
     from capture.output import claim_output
-    from capture.recorder import Recorder, spawn_viewer
+    from capture.recorder import spawn_viewer
+    from capture.recording_start import start_recording
     from capture.run import finish_output, run_capture
     from vdc.blueprints import video_blueprint
     from vdc.provenance import machine_info, package_versions
@@ -282,12 +283,28 @@ def record_video(
         )
         model = TrueTimeModel(built)
         live = spawn_viewer() if spawn else live_url
-        recorder = Recorder(
-            claim.partial, rid, blueprint=video_blueprint(model.name, model.outputs), live_url=live
-        )
         info = device.info
-        recorder.send_properties(
-            {
+        recorder = start_recording(
+            claim.partial,
+            rid,
+            blueprint=video_blueprint(model.name, model.outputs),
+            live_url=live,
+            model=model,
+            context=context,
+            model_fields={"true_time": True},
+            model_note="run on the new frames over true time: repeats are held, not re-counted",
+            what=(
+                f"the {settings.kind} {settings.source} ({info['codec']}, "
+                f"{info['src_width_px']}x{info['src_height_px']}, {device.fps:.6g} fps, "
+                f"{settings.fov_deg:g} deg wide) as {w}x{h} px luma; per frame its timing "
+                "(repeats, drops) and the standard metrics on the native frames"
+            ),
+            analyse=[
+                "vdc-analyse complexity REC --out results/complexity",
+                "vdc-analyse tables REC --out results/tables",
+                f"vdc-analyse compare REC --model {model.name} --model avdm --out results/compare",
+            ],
+            sections={
                 "run": {"recording_id": rid, "source": "video", "behaviour": "video"},
                 "video": {
                     "path": settings.source,
@@ -309,9 +326,6 @@ def record_video(
                     "height_px": h,
                     "hfov_deg": settings.fov_deg,
                 },
-                "model": {"name": model.name, "true_time": True},
-                "model_context": dict(context),
-                "model_params": {k: v for k, v in model.params.to_dict().items() if v is not None},
                 "calibration": {
                     k: cal[k]
                     for k in (
@@ -326,9 +340,8 @@ def record_video(
                     if k in cal
                 },
                 "provenance": {**package_versions(), **machine_info()},
-            }
+            },
         )
-        recorder.log_model_meta(model.name, model.outputs)
         if log is not None:
             log(
                 f"recording {rid}: {settings.source} ({info['codec']}, {info['src_width_px']}x"

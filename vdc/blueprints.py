@@ -13,6 +13,7 @@ from vdc.recording import (
     ARENA,
     CAMERA,
     COMPLEXITY_ROOT,
+    DESCRIPTION,
     EVENTS,
     FRAME_TIMELINE,
     FRAME_TIMING,
@@ -59,6 +60,7 @@ def default_blueprint(
                 rrb.Tabs(
                     rrb.Spatial2DView(name="robot camera", origin=CAMERA),
                     rrb.Spatial2DView(name="overhead camera", origin=OVERHEAD),
+                    rrb.TextDocumentView(name="about this recording", origin=DESCRIPTION),
                 ),
                 rrb.Spatial3DView(
                     name="arena, top-down (30 s trail)",
@@ -116,7 +118,10 @@ def video_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Blueprint
         rrb.Horizontal(
             rrb.Vertical(
                 rrb.Spatial2DView(name="camera (luma, working size)", origin=CAMERA),
-                rrb.TextLogView(name="events (drops, decode errors)", origin=EVENTS),
+                rrb.Tabs(
+                    rrb.TextLogView(name="events (drops, decode errors)", origin=EVENTS),
+                    rrb.TextDocumentView(name="about this recording", origin=DESCRIPTION),
+                ),
                 row_shares=[2, 1],
             ),
             rrb.Vertical(

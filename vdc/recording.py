@@ -13,6 +13,7 @@
 | ``/events/<kind>``          | TextLog + Points3D                | ring_turn, avoidance, crash... |
 | ``/overhead/image``         | Image                             | optional overhead frames       |
 | ``/link/stats``             | Scalars (hardware runs)           | serial link counts             |
+| ``/description`` (static)   | TextDocument (markdown)           | what, model, camera, analyse   |
 
 Timelines: ``frame`` (camera frame index) and ``time`` (duration since the run started);
 hardware runs add ``capture_time``. Recording properties are sections of flat key-value pairs
@@ -64,6 +65,9 @@ MODEL_ROOT = "/model"
 MODEL_VARIANTS_ROOT = "/model_variants"
 COMPLEXITY_ROOT = "/complexity"  # baselines written by `vdc-analyse complexity` (same id)
 LINK_STATS = "/link/stats"
+# every capture's description of itself: what was recorded, with which model and camera, and
+# the vdc-analyse commands that read it (markdown, static)
+DESCRIPTION = "/description"
 POSE_NAMES = ("x_m", "y_m", "heading_rad")
 
 EVENT_KINDS = (
@@ -85,7 +89,8 @@ PROPERTY_SECTIONS = {
     "camera": "width_px, height_px, fps, hfov_deg, height_m, noise_sd",
     "overhead": "the optional overhead camera",
     "collision": "collision mode: detector spec, threshold, adaptive rule, phase",
-    "model": "name and output units of the online model",
+    "model": "name and output units of the online model; robot runs: verified (the robot "
+    "announced it) and on_board",
     "model_params": "the online model's parameters",
     "detector": "collision mode: name and output units of the detector",
     "detector_params": "collision mode: the detector's parameters",

@@ -1,0 +1,201 @@
+"""The robot handshake on a real pty: the host sends its model (PARAMS) with START, the robot
+announces what it runs and its camera (ANNOUNCE); the host refuses a robot running another model
+before writing anything, records a silent one as unverified, and records the robot's camera."""
+
+from __future__ import annotations
+
+import json
+import os
+import pty
+import re
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from analysis.rrd_reader import Recording
+from analysis.tables import load_recording, recompute
+from avdm.registry import make_model
+from capture.robot_capture import ColiasRobotDevice, RobotCaptureConfig
+from capture.serial_protocol import (
+    TYPE_ANNOUNCE,
+    TYPE_PARAMS,
+    TYPE_START,
+    Announcement,
+    PacketParser,
+    decode_announce,
+    encode_announce,
+)
+from capture.tracker import save_calibration
+from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn
+
+AVDM_OUTPUTS = tuple((o.name, o.unit) for o in make_model("avdm").outputs)
+
+
+def test_announce_round_trip_and_malformed_payloads() -> None:
+    a = Announcement("lgmd-plus:t_sr=80", (("spike_rate_hz", "1/s"), ("ffi", "")), 20.0, 80, 60,
+                     0.75, 30)  # fmt: skip
+    ((ptype, payload),) = list(PacketParser().feed(encode_announce(a)))
+    assert ptype == TYPE_ANNOUNCE and decode_announce(payload) == a
+    assert a.model_context() == {
+        "fps": 20.0, "deg_per_px": 0.75, "texture_row": 30, "width_px": 80, "height_px": 60,
+    }  # fmt: skip
+    for bad in (payload[:-1], payload + b"\0", b"\x02" + payload[1:], payload[:10]):
+        with pytest.raises(ValueError):
+            decode_announce(bad)
+
+
+def overhead_frames(folder: Path, n: int = 3) -> Path:
+    """A few blank overhead frames and a saved calibration beside them: the tracker finds no
+    robot (poses are not tested here)."""
+    folder.mkdir()
+    for k in range(n):
+        cv2.imwrite(str(folder / f"{k:05d}.png"), np.full((120, 200), 128, np.uint8))
+    save_calibration(np.eye(3), folder / "calibration.json")
+    return folder / "%05d.png"
+
+
+def emulator(link: Path, report: Path, *extra: str) -> subprocess.Popen:
+    proc = spawn(
+        [sys.executable, "-m", "capture", "emulate-robot", "--link", str(link),
+         "--report", str(report), "--wait", "60", *extra],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and not link.is_symlink() and proc.poll() is None:
+        time.sleep(0.05)
+    assert link.is_symlink(), proc.communicate()[1] if proc.poll() is not None else "no port"
+    return proc
+
+
+def capture(link: Path, camera: Path, out: Path, model: str) -> subprocess.CompletedProcess:
+    return run_cli(
+        "capture", "robot", "--port", str(link), "--camera", str(camera), "--camera-fps", "50",
+        "--calibration", str(camera.parent / "calibration.json"), "--model", model,
+        "--out", str(out), "--quiet", timeout=120,
+    )  # fmt: skip
+
+
+def test_a_robot_running_another_model_is_refused_before_any_file(tmp_path: Path) -> None:
+    link, report = tmp_path / "robot", tmp_path / "report.json"
+    emu = emulator(link, report, "--model", "lgmd-plus", "--minutes", "0.05", "--fast")
+    out = tmp_path / "rec.rrd"
+    proc = capture(link, overhead_frames(tmp_path / "overhead"), out, "avdm")
+    emu.communicate(timeout=60)  # the host's STOP ends the emulated run
+    assert_one_line_error(proc, "the robot runs lgmd-plus", "--model avdm")
+    assert not list(tmp_path.glob("*.rrd")) and not list(tmp_path.glob(".*lock"))
+    assert json.loads(report.read_text())["model"] == "lgmd-plus"
+
+
+def fake_robot(master: int, announcement: Announcement, seen: list[tuple[int, bytes]]) -> None:
+    """Answer the host's START with ``announcement`` (what a firmware would send)."""
+    parser = PacketParser()
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        try:
+            data = os.read(master, 4096)
+        except BlockingIOError:
+            time.sleep(0.01)
+            continue
+        for ptype, payload in parser.feed(data):
+            seen.append((ptype, payload))
+            if ptype == TYPE_START:
+                os.write(master, encode_announce(announcement))
+                return
+
+
+@pytest.mark.parametrize(
+    ("outputs", "needle"),
+    [
+        (AVDM_OUTPUTS[:-1], f"sends {len(AVDM_OUTPUTS) - 1} outputs"),
+        ((*AVDM_OUTPUTS[:-1], ("speed", "1")), "speed [1]"),
+        (AVDM_OUTPUTS, None),  # the control: the model's own outputs are accepted
+    ],
+)
+def test_outputs_that_differ_from_the_model_are_refused(tmp_path: Path, outputs, needle) -> None:
+    master, slave = pty.openpty()
+    os.set_blocking(master, False)
+    seen: list[tuple[int, bytes]] = []
+    robot = threading.Thread(
+        target=fake_robot,
+        args=(master, Announcement("avdm", outputs, 33.0, 99, 72, 70 / 99, 36), seen),
+    )
+    robot.start()
+    cfg = RobotCaptureConfig(
+        port=os.ttyname(slave), camera=str(overhead_frames(tmp_path / "o")), model="avdm"
+    )
+    device = ColiasRobotDevice(cfg)
+    try:
+        if needle is None:
+            device.connect()
+            assert device.announced is not None and device.announced.outputs == AVDM_OUTPUTS
+            device.disconnect()
+        else:
+            with pytest.raises(ValueError, match=re.escape(needle)) as err:
+                device.connect()
+            assert "\n" not in str(err.value)
+    finally:
+        robot.join(timeout=30)
+        os.close(master)
+        os.close(slave)
+    # the host asked for its model before START
+    assert [t for t, _ in seen[:2]] == [TYPE_PARAMS, TYPE_START] and seen[0][1] == b"avdm"
+
+
+def test_a_silent_robot_is_recorded_as_unverified(tmp_path: Path) -> None:
+    link, report, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
+    emu = emulator(link, report, "--silent", "--minutes", "0.05", "--fast")
+    proc = capture(link, overhead_frames(tmp_path / "overhead"), out, "avdm")
+    emu.communicate(timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if "announce" in ln or "verified" in ln]
+    assert len(lines) == 1 and "did not announce" in lines[0] and "unverified" in lines[0], lines
+    props = Recording(out).properties()
+    assert props["model"]["verified"] is False and props["model"]["name"] == "avdm"
+    # the host's defaults, said to be so: the robot's camera is not known
+    assert props["model_context"]["width_px"] == 99 and props["model_context"]["fps"] == 33.0
+    assert props["camera"]["announced"] is False
+    assert "UNVERIFIED" in (Recording(out).description() or "")
+    assert len(Recording(out).read_frames().frame) == json.loads(report.read_text())["frames"]
+
+
+def test_the_robots_announced_camera_and_asked_model_are_recorded(tmp_path: Path) -> None:
+    link, report, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
+    # a camera unlike the host's defaults (99 x 72 px, 33 Hz, 70 deg): the robot's must win
+    emu = emulator(link, report, "--minutes", "0.05", "--fast", "--fps", "20", "--width-px",
+                   "80", "--height-px", "60", "--hfov-deg", "60")  # fmt: skip
+    proc = capture(link, overhead_frames(tmp_path / "overhead"), out, "avdm:beta=0.5")
+    emu.communicate(timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "warning" not in proc.stderr and "unverified" not in proc.stderr  # no notice
+    assert json.loads(report.read_text())["model"] == "avdm:beta=0.5"  # PARAMS reached it
+    rec = Recording(out)
+    props = rec.properties()
+    assert props["model"]["name"] == "avdm:beta=0.5" and props["model"]["verified"] is True
+    assert props["model_params"]["beta"] == 0.5
+    assert props["model_context"] == {
+        "fps": 20.0, "deg_per_px": 0.75, "texture_row": 30, "width_px": 80, "height_px": 60,
+    }  # fmt: skip
+    assert props["model_params"]["texture_row"] == 30 and props["model_params"]["fps"] == 20.0
+    assert (props["camera"]["width_px"], props["camera"]["height_px"]) == (80, 60)
+    assert props["camera"]["hfov_deg"] == pytest.approx(60.0, rel=1e-12)  # 0.75 x 80
+    frames = rec.read_frames()
+    assert frames.images.shape[1:] == (60, 80)
+    text = rec.description() or ""
+    for needle in ("`avdm:beta=0.5` (run on board; the robot announced it)",
+                   "80 x 60 px at 20 Hz, 0.75 deg/px (60 deg wide), texture row 30"):  # fmt: skip
+        assert needle in text, text
+    # recomputed from the recorded context, the model gives the floats the robot sent (as f32)
+    loaded = load_recording(out)
+    again = recompute(loaded, ["avdm:beta=0.5"])["avdm:beta=0.5"]
+    logged = loaded.logged["avdm:beta=0.5"]
+    assert again.height == logged.height == len(frames.frame)
+    # the link carries f32: equal to float32 rounding (relative 2^-24 ~ 6e-8)
+    np.testing.assert_allclose(
+        logged["omega_dps"].to_numpy(), again["omega_dps"].to_numpy(), rtol=1e-6, atol=1e-9
+    )
