@@ -277,7 +277,6 @@ def measure_video(
                 progress(len(fb.frame))
         size = (int(info["src_height_px"]), int(info["src_width_px"]))
         table = _frame_table(parts, "native", size, recording_id)
-        lost = reader.problems
         meta = {
             "source": source,
             "kind": info["kind"],
@@ -288,7 +287,9 @@ def measure_video(
             "duration_s": float(batches.last_t_s or 0.0),
             "frames": table.height,
             "repeated_frames": batches.repeats_total,
-            "dropped_frames": batches.dropped_total + lost,
+            # each lost frame once: a bad packet's or a late frame's cost is a gap in the times
+            "dropped_frames": batches.dropped_total,
+            "source_problems": reader.problems,
             "bit_depth": info["bit_depth"],
             "color_range": info["color_range"],
             "decode_error": reader.error,
