@@ -12,6 +12,7 @@ unreadable images) are counted and named, never a silent end. Both ``vdc-capture
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import re
 import time
@@ -383,6 +384,35 @@ def display_grey(frame: Any, native: np.ndarray) -> np.ndarray:
     if name in _PLANAR_8BIT and int(getattr(frame, "color_range", 0) or 0) != 2:
         return cv2.LUT(np.ascontiguousarray(native), _LIMITED_TO_FULL)
     return frame.to_ndarray(format="gray")
+
+
+def header_shortfall(
+    header_duration_s: float | None, last_t_s: float | None, fps: float
+) -> float | None:
+    """Seconds of a file its header states but its frames do not reach: the header's
+    duration less the last frame's time and one frame interval (``1 / fps``), 0.0 for a
+    whole file (frames that end within two intervals of the header's duration), None where
+    no header states a duration (image sequences, cameras) or no frame was read."""
+    stated = float(header_duration_s or 0.0)
+    if stated <= 0 or last_t_s is None or not (math.isfinite(fps) and fps > 0):
+        return None
+    if last_t_s + 2.0 / fps >= stated:
+        return 0.0
+    return stated - (last_t_s + 1.0 / fps)
+
+
+def cut_short_note(
+    header_duration_s: float | None, last_t_s: float | None, fps: float
+) -> str | None:
+    """The one line ``vdc-capture video`` and ``vdc-analyse complexity`` say about a file
+    that ends well before the duration its header states (see :func:`header_shortfall`),
+    else None."""
+    if not header_shortfall(header_duration_s, last_t_s, fps):
+        return None
+    return (
+        f"the file ends at {last_t_s:.2f} s but its header says {header_duration_s:.2f} s "
+        "(cut short?)"
+    )
 
 
 def source_kind(source: str) -> str:

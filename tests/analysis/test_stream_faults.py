@@ -116,6 +116,7 @@ def test_a_damaged_stream_is_read_in_time_order_and_counted_once(damaged, tmp_pa
     # the AVDM reads the scene's motion, not frames out of order (the issue's +74 %)
     whole = complexity([damaged["clean"]], s, tmp_path / "clean").clips.row(0, named=True)
     assert whole["dropped_frames"] == 0 and whole["frames"] == N_FRAMES
+    assert whole["missing_s"] == 0.0 and whole["header_duration_s"] == pytest.approx(2.0)
     rel = clip["omega_dps_mean"] / whole["omega_dps_mean"] - 1
     # measured: 17.76 against 16.64 deg/s (+6.7 %): the frames next to the damage are the
     # decoder's concealment (blocks of the wrong picture), which the AVDM reads as some extra
@@ -138,3 +139,39 @@ def test_a_frame_after_a_later_one_is_dropped_and_counted(damaged, monkeypatch) 
     assert (np.diff(times) > 0).all(), times
     assert reader.late_frames >= 1
     assert frames + batches.dropped_total == N_FRAMES
+
+
+CUT_NOTE = re.compile(r"the file ends at (\d+\.\d\d) s but its header says 2\.00 s \(cut short\?\)")
+
+
+def test_a_cut_clip_is_noted_and_its_row_says_how_much_is_missing(tmp_path: Path) -> None:
+    whole = write_pan(tmp_path / "whole.mkv")
+    data = whole.read_bytes()
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    cut = clips / "cut.mkv"
+    cut.write_bytes(data[: len(data) // 2])  # Matroska's header (2.00 s) is at the start
+    cap = run_cli("capture", "video", str(cut), "--fov-deg", str(FOV), "--model", MODEL,
+                  "--out", str(tmp_path / "cut.rrd"), "--quiet")  # fmt: skip
+    assert cap.returncode == 0, cap.stderr
+    said = CUT_NOTE.search(cap.stderr)
+    assert said, cap.stderr
+    # the command on the file: the same note, one line
+    cli = run_cli("analysis", "complexity", str(cut), "--fov-deg", str(FOV), "--model", MODEL,
+                  "--out", str(tmp_path / "one"))  # fmt: skip
+    assert cli.returncode == 0, cli.stderr
+    notes = [ln for ln in cli.stderr.splitlines() if CUT_NOTE.search(ln)]
+    assert len(notes) == 1 and said.group(0) in notes[0], cli.stderr
+    # on a folder holding it, through the API: the note and the row
+    seen: list[str] = []
+    res = complexity([clips], ComplexitySettings(model=MODEL, fov_deg=FOV), tmp_path / "dir",
+                     notice=seen.append)  # fmt: skip
+    assert any(said.group(0) in n for n in seen), seen
+    row = pl.read_parquet(tmp_path / "dir" / "clips.parquet").row(0, named=True)
+    assert row["missing_s"] == res.clips["missing_s"][0]
+    ends_s = float(said.group(1))
+    assert row["frames"] < N_FRAMES and row["header_duration_s"] == pytest.approx(2.0)
+    # what the frames do not reach: the header's 2 s less the last frame and one interval
+    # (the note's time is rounded to 0.01 s)
+    assert row["missing_s"] == pytest.approx(2.0 - ends_s - 1 / FPS, abs=0.006)
+    assert row["missing_s"] > 0.5  # half the file is gone
