@@ -303,7 +303,7 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
             k: info.get(k)
             for k in (
                 "source", "kind", "codec", "width_px", "height_px", "fps", "duration_s",
-                "frames", "repeated_frames", "dropped_frames",
+                "frames", "repeated_frames", "dropped_frames", "header_duration_s", "missing_s",
             )
         },
         "raster": table["raster"][0],
@@ -435,7 +435,13 @@ def complexity(
         notes.append(f"{pending} source(s) of other shards are not measured yet")
         say(notes[-1])
     table = pl.concat(parts, how="diagonal_relaxed")
+    for info in infos:  # a file cut short (or that stops decoding) is not a whole clip
+        if info.get("cut_note") or info.get("decode_error"):
+            why = info.get("cut_note") or f"decoding stopped ({info['decode_error']})"
+            notes.append(f"{info['source']}: {why}; its row covers {info['frames']} frames")
+            say(notes[-1])
     clips = pl.DataFrame([clip_row(p, i) for p, i in zip(parts, infos, strict=True)])
+    clips = clips.with_columns(pl.col("header_duration_s", "missing_s").cast(pl.Float64))
     corr = pl.concat([rank_correlations(p, p["recording_id"][0]) for p in parts])
     paths: list[Path] = []
     meta = {

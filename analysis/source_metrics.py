@@ -43,6 +43,7 @@ from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, repeat_flags
 from vdc.frame_metrics import NativeMeter
 from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
+from vdc.sources import cut_short_note, header_shortfall
 
 if TYPE_CHECKING:
     from analysis.tables import LoadedRecording
@@ -220,6 +221,8 @@ def measure_recording(
         raster = "camera"
     table = _frame_table([df], raster, size, loaded.recording_id)
     frames = loaded.frames
+    last_t = float(frames["t_s"].max() or 0.0) if frames.height else None
+    header_s = src.get("header_duration_s")  # a video recording's file, as its header said
     info = {
         "source": str(path),
         "kind": src.get("kind", loaded.props.get("run", {}).get("source", "recording")),
@@ -231,6 +234,9 @@ def measure_recording(
         "frames": table.height,
         "repeated_frames": int(frames["repeat"].fill_null(False).sum()),
         "dropped_frames": int(frames["dropped_before"].fill_null(0).sum()),
+        "header_duration_s": header_s,
+        "missing_s": header_shortfall(header_s, last_t, fps),
+        "cut_note": cut_short_note(header_s, last_t, fps),
     }
     return SourceMeasurement(table, info)
 
@@ -277,7 +283,6 @@ def measure_video(
                 progress(len(fb.frame))
         size = (int(info["src_height_px"]), int(info["src_width_px"]))
         table = _frame_table(parts, "native", size, recording_id)
-        lost = reader.problems
         meta = {
             "source": source,
             "kind": info["kind"],
@@ -288,10 +293,15 @@ def measure_video(
             "duration_s": float(batches.last_t_s or 0.0),
             "frames": table.height,
             "repeated_frames": batches.repeats_total,
-            "dropped_frames": batches.dropped_total + lost,
+            # each lost frame once: a bad packet's or a late frame's cost is a gap in the times
+            "dropped_frames": batches.dropped_total,
+            "source_problems": reader.problems,
             "bit_depth": info["bit_depth"],
             "color_range": info["color_range"],
             "decode_error": reader.error,
+            "header_duration_s": info.get("duration_s") or None,
+            "missing_s": header_shortfall(info.get("duration_s"), batches.last_t_s, fps),
+            "cut_note": cut_short_note(info.get("duration_s"), batches.last_t_s, fps),
         }
         return SourceMeasurement(table, meta)
     finally:

@@ -130,8 +130,9 @@ def cmd_video(args: argparse.Namespace) -> int:
         return rec.exit_status
     if res.lost:
         say(
-            f"{PROG} video: note: {res.lost} frame(s) lost inside the source (first: "
-            f"{res.first_loss}); each is a decode_error event in the recording"
+            f"{PROG} video: note: frames lost inside the source ({res.lost} problem(s), "
+            f"first: {res.first_loss}); each is a decode_error event in the recording, the "
+            f"frames they cost counted once among the {res.dropped} dropped"
         )
     if res.decode_error:
         say(

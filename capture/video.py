@@ -36,7 +36,14 @@ from vdc.cli_support import (
     positive_float,
 )
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
-from vdc.sources import FrameBatcher, Reader, open_reader, source_kind, source_name
+from vdc.sources import (
+    FrameBatcher,
+    Reader,
+    cut_short_note,
+    open_reader,
+    source_kind,
+    source_name,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -315,6 +322,8 @@ def record_video(
                     "src_height_px": info["src_height_px"],
                     "fov_deg": settings.fov_deg,
                     "rotation_deg": info["rotation_deg"],
+                    # the duration the file's header states (s): a cut file ends before it
+                    "header_duration_s": info.get("duration_s") or None,
                     "bit_depth": info["bit_depth"],
                     "color_range": info["color_range"],
                     "repeat_tol": settings.repeat_tol,
@@ -353,15 +362,10 @@ def record_video(
     finally:
         finish_output(claim, recorder)
     error = getattr(device.reader, "error", None)
-    stated = float(info.get("duration_s") or 0.0)
     finished = result.stop_reason == "finished"  # a signal or a full disk is not a cut file
-    if error is None and finished and stated > 0 and device.last_t_s is not None:
+    if error is None and finished:
         # the frames end well before the duration the header states: the file was cut
-        if device.last_t_s + 2.0 / device.fps < stated:
-            error = (
-                f"the file ends at {device.last_t_s:.2f} s but its header says {stated:.2f} s "
-                "(cut short?)"
-            )
+        error = cut_short_note(info.get("duration_s"), device.last_t_s, device.fps)
     return VideoRecordResult(
         RecordResult.of(path, rid, result, total),
         info,

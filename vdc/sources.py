@@ -12,6 +12,7 @@ unreadable images) are counted and named, never a silent end. Both ``vdc-capture
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import re
 import time
@@ -26,6 +27,8 @@ from vdc.frame_metrics import luma_plane, stream_format
 
 # images and camera frames: 8-bit grey, full range
 IMAGE_FORMAT = {"bit_depth": 8, "color_range": "full", "luma": True}
+# frames held back to reorder a codec's output when it does not state its delay
+REORDER_DEPTH_UNKNOWN = 16
 VIDEO_SUFFIXES = (
     ".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".ts", ".mts", ".y4m",
     ".wmv", ".flv", ".3gp", ".ogv",
@@ -50,14 +53,18 @@ class SourceFrame:
 
 
 class Reader:
-    """Frames and their times (s) from one source; ``info`` describes it. ``error``: why the
-    source ended early (None when it ended normally); ``problems``: frames lost inside it
-    (missing or unreadable images, packets that would not decode), counted."""
+    """Frames and their times (s) from one source, in presentation order (times strictly
+    increasing); ``info`` describes it. ``error``: why the source ended early (None when it
+    ended normally); ``problems``: what went wrong inside it (missing or unreadable images,
+    packets that would not decode, frames out of time order), counted. The frames these cost
+    show as gaps in the times, where :class:`FrameBatcher` counts them as dropped, once; a
+    problem is the reason, not a second count."""
 
     info: dict[str, Any]
     error: str | None = None
     problems: int = 0
     first_problem: str | None = None
+    late_frames: int = 0  # frames the decoder handed over after a later one: dropped
 
     def frames(self) -> Iterator[SourceFrame]:  # pragma: no cover - interface
         raise NotImplementedError
@@ -103,6 +110,7 @@ class _PyAvReader(Reader):
             # what the container's header says (µs); a file cut short ends before it
             "duration_s": (self.container.duration or 0) / 1e6,
         }
+        self._sizes: dict[int, int] = {}  # packet size by pts: frames leave the decoder reordered
         self._frames = self._decode()
         first = next(self._frames, None)  # a file with no decodable frame fails here
         if first is None:
@@ -112,43 +120,87 @@ class _PyAvReader(Reader):
         self._first = first
         self.info["src_height_px"], self.info["src_width_px"] = first.luma.shape[:2]
 
-    def _decode(self) -> Iterator[SourceFrame]:
-        """Packet by packet, so that one packet that will not decode costs its own frames
-        only: the error is noted on the next frame and decoding goes on (a whole-stream decode
-        stops at the first bad packet). A container that cannot be demuxed further ends here."""
+    def _decoded(self, note: list[str]) -> Iterator[Any]:
+        """The decoder's frames in the order it hands them over, packet by packet, so that
+        one packet that will not decode costs its own frames only: its error is appended to
+        ``note`` and decoding goes on (a whole-stream decode stops at the first bad packet). A
+        container that cannot be demuxed further ends here (``error``)."""
         import av
 
-        t0: float | None = None
-        i = 0
-        note: list[str] = []
-        sizes: dict[int, int] = {}  # packet size by pts: frames leave the decoder reordered
         try:
             for packet in self.container.demux(self.stream):
                 if packet.pts is not None and packet.size:
-                    sizes[packet.pts] = packet.size
+                    self._sizes[packet.pts] = packet.size
                 try:
                     decoded = packet.decode()
                 except av.FFmpegError as exc:
                     note.append(self._problem(f"a packet would not decode: {_ffmpeg_reason(exc)}"))
                     continue
-                for frame in decoded:
-                    t = frame.time
-                    if t is None:
-                        t = i / self.info["nominal_fps"]
-                    t0 = t if t0 is None else t0
-                    rot = round(float(getattr(frame, "rotation", 0) or 0))
-                    self.info["rotation_deg"] = rot
-                    if i == 0:
-                        self.info |= stream_format(frame)
-                    native = luma_plane(frame, self.info["bit_depth"])
-                    luma = display_grey(frame, native)
-                    if rot % 360:  # the display matrix's counter-clockwise angle
-                        luma = np.ascontiguousarray(np.rot90(luma, k=round(rot / 90)))
-                    size = sizes.pop(frame.pts, None) if frame.pts is not None else None
-                    yield SourceFrame(luma, float(t - t0), "; ".join(note) or None, native, size)
-                    note, i = [], i + 1
+                yield from decoded
         except av.FFmpegError as exc:  # a cut or corrupt container: keep what came before
             self.error = _ffmpeg_reason(exc)
+
+    def reorder_depth(self) -> int:
+        """Frames held back to put them in presentation order: the codec's own reorder delay
+        (FFmpeg's ``has_b_frames``: 2 for libx264's default B-pyramid; it can grow while
+        decoding), at least 1; :data:`REORDER_DEPTH_UNKNOWN` where the codec does not say."""
+        depth = getattr(self.stream.codec_context, "reorder_depth", None)
+        return REORDER_DEPTH_UNKNOWN if depth is None else max(int(depth), 1)
+
+    def _decode(self) -> Iterator[SourceFrame]:
+        """The frames in presentation order. A decoder hands frames over in its own order,
+        and a damaged stream can make it hand over a later frame before an earlier one (pts
+        24, 33, 25, 34, ...): a reorder buffer as deep as the codec's delay puts them back in
+        order; a frame that comes after a later one was delivered (or a second frame at the
+        same time) is dropped, counted (``late_frames``, a problem) and never delivered, so
+        time never runs backwards. What a frame cost shows as a gap in the times (the
+        batcher's dropped frames): each lost frame is counted there, once."""
+        import heapq
+
+        note: list[str] = []
+        held: list[tuple[float, int, Any]] = []  # (time, arrival, frame): a min-heap
+        fps = self.info["nominal_fps"]
+        last_t: float | None = None  # the time of the last frame delivered
+        t0: float | None = None
+        arrival = 0
+
+        def deliver(t: float, frame: Any) -> SourceFrame:
+            nonlocal t0
+            t0 = t if t0 is None else t0
+            rot = round(float(getattr(frame, "rotation", 0) or 0))
+            self.info["rotation_deg"] = rot
+            if "bit_depth" not in self.info:
+                self.info |= stream_format(frame)
+            native = luma_plane(frame, self.info["bit_depth"])
+            luma = display_grey(frame, native)
+            if rot % 360:  # the display matrix's counter-clockwise angle
+                luma = np.ascontiguousarray(np.rot90(luma, k=round(rot / 90)))
+            size = self._sizes.pop(frame.pts, None) if frame.pts is not None else None
+            return SourceFrame(luma, float(t - t0), "; ".join(note) or None, native, size)
+
+        for frame in self._decoded(note):
+            t = frame.time
+            if t is None:  # no timestamp: the decoder's order is all there is
+                t = (last_t + 1 / fps) if last_t is not None else arrival / fps
+            if last_t is not None and t <= last_t:
+                self.late_frames += 1
+                note.append(
+                    self._problem(
+                        f"a frame at {t:.3f} s came after a later one (out of time order): dropped"
+                    )
+                )
+                continue
+            heapq.heappush(held, (float(t), arrival, frame))
+            arrival += 1
+            while len(held) > self.reorder_depth():
+                t_next, _, first = heapq.heappop(held)
+                yield deliver(t_next, first)
+                note.clear()
+                last_t = t_next
+        while held:  # the end: the frames still held, in order
+            t_next, _, first = heapq.heappop(held)
+            yield deliver(t_next, first)
+            note.clear()
 
     def frames(self) -> Iterator[SourceFrame]:
         yield self._first
@@ -332,6 +384,35 @@ def display_grey(frame: Any, native: np.ndarray) -> np.ndarray:
     if name in _PLANAR_8BIT and int(getattr(frame, "color_range", 0) or 0) != 2:
         return cv2.LUT(np.ascontiguousarray(native), _LIMITED_TO_FULL)
     return frame.to_ndarray(format="gray")
+
+
+def header_shortfall(
+    header_duration_s: float | None, last_t_s: float | None, fps: float
+) -> float | None:
+    """Seconds of a file its header states but its frames do not reach: the header's
+    duration less the last frame's time and one frame interval (``1 / fps``), 0.0 for a
+    whole file (frames that end within two intervals of the header's duration), None where
+    no header states a duration (image sequences, cameras) or no frame was read."""
+    stated = float(header_duration_s or 0.0)
+    if stated <= 0 or last_t_s is None or not (math.isfinite(fps) and fps > 0):
+        return None
+    if last_t_s + 2.0 / fps >= stated:
+        return 0.0
+    return stated - (last_t_s + 1.0 / fps)
+
+
+def cut_short_note(
+    header_duration_s: float | None, last_t_s: float | None, fps: float
+) -> str | None:
+    """The one line ``vdc-capture video`` and ``vdc-analyse complexity`` say about a file
+    that ends well before the duration its header states (see :func:`header_shortfall`),
+    else None."""
+    if not header_shortfall(header_duration_s, last_t_s, fps):
+        return None
+    return (
+        f"the file ends at {last_t_s:.2f} s but its header says {header_duration_s:.2f} s "
+        "(cut short?)"
+    )
 
 
 def source_kind(source: str) -> str:
