@@ -41,8 +41,9 @@ from typing import Any
 
 import numpy as np
 import polars as pl
-from matplotlib.figure import Figure
 
+from analysis.boundary_plot import plot_boundary as plot_boundary  # re-exported: its old home
+from analysis.report_tables import interval, markdown_table
 from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy
 from vdc.cli_support import non_negative_int, option, positive_float
@@ -51,6 +52,7 @@ from vdc.parquet_io import WroteFiles
 
 TARGET_HELP = "the success rate a detector must keep (default: {default}, the paper's 90 %)"
 COMPLEXITY_MEASURES = ("profile", "online")
+DESIGNS = ("grid", "adaptive")
 ROW_VERSION = 2  # what run_row measures; a cached row of another version is measured again
 WARMUP_FRAMES = 60  # the AVDM's and the running means' start-up, left out of every mean
 
@@ -139,6 +141,22 @@ class BoundarySettings(ExecutorSettings):
         type=positive_float,
     )
     profile_model: str = option("avdm", "arena: the AVDM variant that profiles the conditions")
+    design: str = option(
+        "grid",
+        "arena: grid = every --tf x seed; adaptive = batches of runs along --tf-range placed "
+        "where the boundary is most uncertain (analysis.experiments.adaptive)",
+        choices=DESIGNS,
+    )
+    budget: int = option(12, "adaptive: detector runs per parameter value at most")
+    tf_range: str = option("0:3", "adaptive: the wall TFs the design may visit, LO:HI Hz")
+    precision: float = option(
+        2.0,
+        "adaptive: a value stops once its boundary's 95 % interval is narrower, deg/s",
+        type=positive_float,
+    )
+    groups: int | None = option(
+        None, "footage mode: clips in N groups of similar complexity (default: up to 5 of 4)"
+    )
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -149,7 +167,12 @@ class BoundarySettings(ExecutorSettings):
             raise ValueError(f"--target must be between 0 and 1, got {self.target}")
         if self.seeds < 1:
             raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+        if self.budget < 2 or (self.groups is not None and self.groups < 1):
+            raise ValueError("--budget must be at least 2 and --groups at least 1")
+        if self.design == "adaptive" and (self.complexity != "profile" or self.labels):
+            raise ValueError("--design adaptive is for the arena with --complexity profile")
         if self.labels is None:
+            self.tf_bounds()
             self.grid_values()
             number_list(self.tf, "tf")
             name_list(self.scenes, "scenes", ("grating", "natural"))
@@ -164,6 +187,19 @@ class BoundarySettings(ExecutorSettings):
         for v in values:  # the parameter exists and takes these values
             parse_model_spec(with_override(self.detector, self.param, v))
         return values
+
+    def tf_bounds(self) -> tuple[float, float]:
+        """``--tf-range LO:HI`` as (LO, HI), Hz."""
+        lo, _, hi = str(self.tf_range).partition(":")
+        try:
+            bounds = float(lo), float(hi)
+        except ValueError:
+            bounds = (math.nan, math.nan)
+        if not (0 <= bounds[0] < bounds[1] < math.inf):
+            raise ValueError(
+                f"--tf-range must be LO:HI Hz with 0 <= LO < HI, got {self.tf_range!r}"
+            )
+        return bounds
 
     def scene_list(self) -> list[str]:
         return name_list(self.scenes, "scenes", ("grating", "natural"))
@@ -324,7 +360,12 @@ def boundaries(conditions: pl.DataFrame, by: str, target: float) -> pl.DataFrame
 
 
 def describe_boundary(row: dict[str, Any]) -> str:
-    """One boundary as a phrase: "31.2 deg/s (between 20.5 and 35.0)"."""
+    """One boundary as a phrase: "31.2 deg/s (between 20.5 and 35.0)"; a row with the fitted
+    columns (``analysis.boundary_fit``) as the fitted boundary with its 95 % interval."""
+    if "fit_state" in row:
+        from analysis.boundary_fit import describe_fitted
+
+        return describe_fitted(row)
     if row["where"] == "beyond":
         return f"beyond the grid (> {row['boundary_low_dps']:.1f} deg/s)"
     if row["where"] == "below":
@@ -423,101 +464,6 @@ def _value_statistics(runs: pl.DataFrame, param: str) -> pl.DataFrame:
 # --- figures and report ---------------------------------------------------------------------
 
 
-def plot_boundary(
-    conditions: pl.DataFrame,
-    bounds: pl.DataFrame,
-    by: str,
-    target: float,
-    path: Path,
-    title: str,
-    x_label: str = "complexity: AVDM response (deg/s)",
-    energy: tuple[str, float, str] = (
-        "avoidances_per_30min",
-        1.0,
-        "avoidances per 30 min (energy spent turning)",
-    ),
-) -> Path:
-    """Success (with the target and each curve's boundary) and the energy spent avoiding
-    (avoidances per 30 min) against complexity, one curve per value of ``by``, 95 % intervals
-    as error bars."""
-    fig = Figure(figsize=(13, 5), layout="constrained")
-    ax_s, ax_e = fig.subplots(1, 2)
-    for i, ((value,), g) in enumerate(conditions.group_by(by, maintain_order=True)):
-        color = f"C{i % 10}"
-        x = g["complexity_dps"].to_numpy()
-        xerr = _err(x, g["complexity_low"], g["complexity_high"])
-        for ax, name, scale in ((ax_s, "success", 100.0), (ax_e, energy[0], energy[1])):
-            mean_col = "success_rate" if name == "success" else name
-            y = g[mean_col].to_numpy() * scale
-            yerr = _err(y, g[f"{name}_low"] * scale, g[f"{name}_high"] * scale)
-            ax.errorbar(
-                x,
-                y,
-                yerr=yerr,
-                xerr=xerr,
-                fmt="-",
-                color=color,
-                capsize=3,
-                alpha=0.45,
-                label=f"{by} = {value:g}",
-            )
-            for kind, marker in _MARKERS.items():  # the scene (or group) each point is
-                on = np.array([str(c).startswith(kind) for c in g["condition"]])
-                if on.any():
-                    ax.plot(x[on], y[on], marker, color=color, ms=7)
-        b = bounds.filter(pl.col(by) == value).row(0, named=True)
-        if b["where"] == "within":
-            ax_s.axvspan(b["boundary_low_dps"], b["boundary_high_dps"], color=color, alpha=0.08)
-            ax_s.axvline(b["boundary_dps"], color=color, ls="--", lw=1)
-    ax_s.axhline(100 * target, color="k", ls=":", lw=1, label=f"target {100 * target:g} %")
-    ax_s.set_ylabel("success (%)")
-    ax_s.set_ylim(-2, 102)
-    ax_s.set_title("success: dashed = boundary, band = where it lies; o grating, ■ natural")
-    ax_e.set_ylabel(energy[2])
-    ax_e.set_title(energy[2].split(" (")[0])
-    for ax in (ax_s, ax_e):
-        ax.set_xlabel(x_label)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.suptitle(title)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    return path
-
-
-_MARKERS = {"grating": "o", "natural": "s", "group": "D"}
-
-
-def _err(y: np.ndarray, low: Any, high: Any) -> np.ndarray | None:
-    lo, hi = np.asarray(low, float), np.asarray(high, float)
-    err = np.vstack([y - lo, hi - y])
-    return np.nan_to_num(np.clip(err, 0, None)) if np.isfinite(err).any() else None
-
-
-def markdown_table(df: pl.DataFrame, columns: Sequence[str], digits: int = 2) -> str:
-    """A Markdown table of ``columns`` (numbers rounded)."""
-
-    def cell(v: Any) -> str:
-        if isinstance(v, float):
-            return "—" if math.isnan(v) else f"{v:.{digits}f}"
-        return str(v)
-
-    head = "| " + " | ".join(columns) + " |\n|" + "---|" * len(columns) + "\n"
-    body = "".join(
-        "| " + " | ".join(cell(r[c]) for c in columns) + " |\n" for r in df.iter_rows(named=True)
-    )
-    return head + body
-
-
-def interval(row: dict[str, Any], name: str, scale: float = 1.0, digits: int = 1) -> str:
-    """``mean [low, high]`` of ``name`` in a statistics row."""
-    mean_key = {"success": "success_rate", "complexity": "complexity_dps"}.get(name, name)
-    m, lo, hi = (row[mean_key], row[f"{name}_low"], row[f"{name}_high"])
-    if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
-        return f"{m * scale:.{digits}f}"
-    return f"{m * scale:.{digits}f} [{lo * scale:.{digits}f}, {hi * scale:.{digits}f}]"
-
-
 @dataclasses.dataclass
 class BoundaryResult(WroteFiles):
     runs: pl.DataFrame  # one row per run (or clip, in footage mode)
@@ -542,15 +488,24 @@ def arena_report(
     s: BoundarySettings, conditions: pl.DataFrame, bounds: pl.DataFrame, policy: Policy | None
 ) -> str:
     """``boundary.md``: the boundary per value, performance per condition, the policy."""
+    from analysis.boundary_fit import fit_section
+
+    design = (
+        f"Grid: scenes {', '.join(s.scene_list())}; wall TF {_join(s.tf)} Hz; {s.param} = "
+        f"{_join(s.values)}; {s.seeds} seed(s) from {s.seed}"
+        if s.design == "grid"
+        else f"Adaptive design: scenes {', '.join(s.scene_list())}; wall TF {s.tf_range} Hz; "
+        f"{s.param} = {_join(s.values)}; at most {s.budget} runs per value, stopping at a 95 % "
+        f"interval narrower than {s.precision:g} deg/s"
+    )
     lines = [
         f"# Where {s.detector} breaks\n",
-        f"Grid: scenes {', '.join(s.scene_list())}; wall TF {_join(s.tf)} Hz; {s.param} = "
-        f"{_join(s.values)}; {s.seeds} "
-        f"seed(s) from {s.seed}; {s.minutes:g}-min closed-loop runs. Target success "
+        f"{design}; {s.minutes:g}-min closed-loop runs. Target success "
         f"{100 * s.target:g} %. Complexity: {s.complexity} ({s.profile_model}). Intervals "
         "are 95 % across seeds.\n",
         "![success and energy against complexity](boundary.png)\n",
         "## The boundary\n",
+        *fit_section(bounds, s.param),
     ]
     for row in bounds.iter_rows(named=True):
         lines.append(f"- {s.param} = {row[s.param]:g}: {describe_boundary(row)}")

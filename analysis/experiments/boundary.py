@@ -27,6 +27,7 @@ from analysis.boundary import (
     run_row,
     with_override,
 )
+from analysis.boundary_fit import grid_fits, with_fit
 from vdc.executors import ExecutorSettings
 
 
@@ -111,6 +112,10 @@ def boundary(
         from analysis.footage import footage_boundary
 
         return footage_boundary(settings, out, log=log, progress=progress)
+    if settings.design == "adaptive":
+        from analysis.experiments.adaptive import adaptive_boundary
+
+        return adaptive_boundary(settings, out, log=log, progress=progress)
     return arena_boundary(settings, out, log=log, progress=progress)
 
 
@@ -201,7 +206,8 @@ def arena_boundary(
         profiles = None
         complexity = condition_complexity(runs, "online_dps")
     conditions = condition_statistics(runs, complexity, ["condition", s.param])
-    bounds = boundaries(conditions, s.param, s.target)
+    fitted, fits = grid_fits(runs, complexity, s.param, s.target)
+    bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "grid")
     policy = fit_policy(runs, s.param, s.target, s.profile_model) if not s.no_fit else None
     meta = {"settings": dataclasses.asdict(s)}
     with table_set(out) as stage:
@@ -226,6 +232,7 @@ def arena_boundary(
                 stage / "boundary.png",
                 f"{s.detector}: success against complexity",
                 x_label,
+                fits=fits,
             )
         )
         if policy is not None:

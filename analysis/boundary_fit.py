@@ -1,0 +1,380 @@
+"""The boundary as a fitted crossing with a 95 % interval (issue #34).
+
+Success against complexity is modelled, per parameter value, as a **monotone logistic curve**
+that falls as complexity rises (a psychometric function without lapses)::
+
+    logit p(x) = logit(target) - b * (x - t) / span,     b >= 0
+
+so ``t`` *is* the boundary (the complexity where the curve crosses the target) and ``b`` the
+steepness (log-odds per span of the data). Each run contributes its counts (``k`` successes of
+``n`` trials: avoidances of avoidances + crashes in the arena, one hit or miss per clip in
+footage mode), a binomial likelihood.
+
+* **The fit** is exact on a grid: ``t`` on 401 points over the design's range widened by half
+  its span on each side, ``b`` on 0 and 90 log-spaced steepnesses up to a step (500 log-odds
+  per span), every likelihood evaluated in NumPy (``scipy.special`` for the stable logs).
+  Seeds of one condition often differ by more than binomial noise (a run's approaches are not
+  independent): the likelihood is divided by the Pearson dispersion ``phi`` (at least 1) of
+  the runs about the best fit, the quasi-likelihood correction (runs with one trial each, as
+  clips, have none); with ``phi`` estimated, the cut-offs below are F quantiles with
+  ``runs - 2`` degrees of freedom in place of chi2's.
+* **The 95 % interval** is the profile-likelihood interval of ``t``: every ``t`` whose best
+  curve is within ``chi2(1, 0.95) / 2`` (deviance 3.84, scaled by ``phi``) of the best one.
+  Where that set reaches an edge of the widened range, that side is unbounded.
+* **The band** drawn with the curve is the range of every curve in the joint 95 % set of
+  ``(t, b)`` (deviance 5.99): pointwise, at most as wide as a simultaneous band.
+* **States.** ``within``: the interval is bounded on both sides; ``beyond``: its lower end lies
+  above the design's most complex point (success is above the target at 95 % confidence
+  everywhere on it); ``below``: its upper end lies below the least complex point; else
+  ``undetermined`` ("more seeds or runs needed", with the interval as far as it goes). A flat
+  curve at the target (``b = 0``) fits every ``t`` equally, so data that cannot tell a
+  crossing from no crossing leave the interval unbounded: undetermined, never "beyond".
+* **Where to run next** (:meth:`CrossingFit.sample`): ``t`` drawn from the normalised
+  likelihood over the grid (flat prior on ``t`` and on log ``b``), i.e. runs go where the
+  crossing still plausibly is, in proportion to how plausible.
+
+Why scipy and not scikit-learn or a Bayesian package: scipy is already a dependency; a
+two-parameter monotone curve on one axis needs no more than a likelihood on a grid, which is
+exact (no Laplace approximation, as scikit-learn's GP classifier uses) and takes milliseconds;
+scikit-learn's ``LogisticRegression`` cannot constrain the slope's sign and gives no interval
+for the crossing; AEPsych would bring PyTorch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import polars as pl
+import scipy.special
+import scipy.stats
+
+N_T = 401  # boundary candidates over the widened range
+SLOPES = np.concatenate([[0.0], np.geomspace(0.05, 500.0, 90)])  # log-odds per span
+WIDEN = 0.5  # the widened range: half the design's span on each side
+DEVIANCE_1 = float(scipy.stats.chi2.ppf(0.95, 1))  # 3.84: the boundary's interval
+DEVIANCE_2 = float(scipy.stats.chi2.ppf(0.95, 2))  # 5.99: the band of curves
+UNDETERMINED = "undetermined: more seeds or runs needed"
+UNDETERMINED_STATE = "undetermined"
+
+
+@dataclasses.dataclass(frozen=True)
+class CrossingFit:
+    """One fitted curve. Complexity in the caller's units (deg/s or Hz)."""
+
+    state: str  # "within", "beyond", "below" or "undetermined"
+    boundary: float  # the best fit's crossing (NaN when nothing was fitted)
+    low: float  # the 95 % interval's ends; -inf / inf where unbounded
+    high: float
+    domain: tuple[float, float]  # the design's range
+    dispersion: float  # phi, >= 1
+    runs: int
+    t_grid: np.ndarray  # (N_T,) candidate crossings
+    weights: np.ndarray  # (N_T,) normalised likelihood of each (sums to 1)
+    curve_x: np.ndarray  # (M,) the curve drawn over the domain
+    curve_p: np.ndarray  # (M,) the best fit's success
+    band_low: np.ndarray  # (M,) the 95 % band
+    band_high: np.ndarray
+
+    @property
+    def width(self) -> float:
+        return self.high - self.low
+
+    def sample(self, rng: np.random.Generator, size: int) -> np.ndarray:
+        """``size`` crossings drawn from the normalised likelihood, clipped to the domain:
+        where the next runs go."""
+        t = rng.choice(self.t_grid, size=size, p=self.weights)
+        return np.clip(t, *self.domain)
+
+    def success(self, x: np.ndarray | float) -> np.ndarray:
+        """The best fit's success at complexity ``x``."""
+        return np.interp(x, self.curve_x, self.curve_p)
+
+
+def fit_crossing(
+    x: Sequence[float] | np.ndarray,
+    k: Sequence[float] | np.ndarray,
+    n: Sequence[float] | np.ndarray,
+    target: float,
+    domain: tuple[float, float] | None = None,
+) -> CrossingFit:
+    """Fit the monotone logistic curve to runs at complexity ``x`` (R,) with ``k`` successes of
+    ``n`` trials each and find where it crosses ``target``; ``domain`` is the range the design
+    could visit (default: the runs' own range). Runs with no trial are left out."""
+    x, k, n = (np.asarray(v, float).ravel() for v in (x, k, n))
+    keep = (n > 0) & np.isfinite(x) & np.isfinite(k)
+    x, k, n = x[keep], k[keep], n[keep]
+    lo, hi = domain if domain is not None else ((x.min(), x.max()) if x.size else (0.0, 1.0))
+    lo, hi = float(min(lo, hi)), float(max(lo, hi))
+    span = hi - lo if hi > lo else max(abs(hi), 1.0)
+    t_grid = np.linspace(lo - WIDEN * span, hi + WIDEN * span, N_T)
+    curve_x = np.linspace(lo, hi, 101)
+    if x.size == 0 or np.ptp(x) == 0:  # nothing, or one complexity: no slope to fit
+        flat = np.full(curve_x.shape, float(k.sum() / n.sum()) if n.size else math.nan)
+        return CrossingFit(
+            UNDETERMINED_STATE, math.nan, -math.inf, math.inf, (lo, hi), 1.0, int(x.size),
+            t_grid, np.full(N_T, 1.0 / N_T), curve_x, flat, np.zeros_like(flat),
+            np.ones_like(flat),
+        )  # fmt: skip
+    u = (x - lo) / span
+    tu = (t_grid - lo) / span
+    base = scipy.special.logit(target)
+    ll = np.empty((N_T, SLOPES.size))
+    for j, b in enumerate(SLOPES):  # (N_T, R) per steepness keeps the memory small
+        eta = base - b * (u[None, :] - tu[:, None])
+        log_p, log_q = scipy.special.log_expit(eta), scipy.special.log_expit(-eta)
+        ll[:, j] = (k * log_p + (n - k) * log_q).sum(axis=1)
+    best = np.unravel_index(np.argmax(ll), ll.shape)
+    p_best = scipy.special.expit(base - SLOPES[best[1]] * (u - tu[best[0]]))
+    phi = 1.0
+    if x.size > 2 and (n > 1).any():  # Pearson dispersion of the runs about the best fit
+        pearson = ((k - n * p_best) ** 2 / np.maximum(n * p_best * (1 - p_best), 1e-12)).sum()
+        phi = max(1.0, float(pearson / (x.size - 2)))
+        # phi is estimated: the F quantiles in place of chi2's (the quasi-likelihood test)
+        cut_1 = float(scipy.stats.f.ppf(0.95, 1, x.size - 2))
+        cut_2 = 2.0 * float(scipy.stats.f.ppf(0.95, 2, x.size - 2))
+    else:
+        cut_1, cut_2 = DEVIANCE_1, DEVIANCE_2
+    dev = 2.0 * (ll.max() - ll) / phi  # (N_T, S)
+    profile = dev.min(axis=1)
+    inside = np.flatnonzero(profile <= cut_1)
+    low = -math.inf if inside[0] == 0 else float(t_grid[inside[0]])
+    high = math.inf if inside[-1] == N_T - 1 else float(t_grid[inside[-1]])
+    plateau = np.flatnonzero(profile <= profile.min() + 1e-9)  # a step leaves a flat optimum
+    boundary = float(t_grid[plateau].mean())
+    w = np.exp(-0.5 * dev).sum(axis=1)
+    weights = w / w.sum()
+    if low > hi:
+        state = "beyond"
+    elif high < lo:
+        state = "below"
+    elif math.isinf(low) or math.isinf(high):
+        state = UNDETERMINED_STATE
+    else:
+        state = "within"
+    cu = (curve_x - lo) / span
+    curve_p = scipy.special.expit(base - SLOPES[best[1]] * (cu - tu[best[0]]))
+    band_low, band_high = np.ones_like(cu), np.zeros_like(cu)
+    ti, sj = np.nonzero(dev <= cut_2)
+    for start in range(0, ti.size, 4096):  # every curve of the joint 95 % set
+        sl = slice(start, start + 4096)
+        p = scipy.special.expit(base - SLOPES[sj[sl], None] * (cu[None, :] - tu[ti[sl], None]))
+        band_low = np.minimum(band_low, p.min(0))
+        band_high = np.maximum(band_high, p.max(0))
+    return CrossingFit(
+        state, boundary, low, high, (lo, hi), phi, int(x.size), t_grid, weights, curve_x,
+        curve_p, band_low, band_high,
+    )  # fmt: skip
+
+
+# --- units: wall TF <-> profile ------------------------------------------------------------
+
+
+def tf_to_dps(tf_hz: Any, profile_tf: Sequence[float], profile_dps: Sequence[float]) -> Any:
+    """The profile's complexity (deg/s) at wall TF ``tf_hz``: linear interpolation between
+    the measured profile points (one scene), extrapolated linearly past its ends."""
+    tf, dps = _monotone(profile_tf, profile_dps)
+    x = np.asarray(tf_hz, float)
+    if tf.size == 1:
+        return np.full_like(x, dps[0]) if x.ndim else float(dps[0])
+    out = np.interp(x, tf, dps)
+    lo_slope = (dps[1] - dps[0]) / (tf[1] - tf[0])
+    hi_slope = (dps[-1] - dps[-2]) / (tf[-1] - tf[-2])
+    out = np.where(x < tf[0], dps[0] + lo_slope * (x - tf[0]), out)
+    out = np.where(x > tf[-1], dps[-1] + hi_slope * (x - tf[-1]), out)
+    return float(out) if np.ndim(out) == 0 else out
+
+
+def dps_to_tf(dps_value: Any, profile_tf: Sequence[float], profile_dps: Sequence[float]) -> Any:
+    """The wall TF (Hz) at which the profile reaches ``dps_value``: the inverse of
+    :func:`tf_to_dps` (the profile made non-decreasing first); NaN for a flat profile; ±inf
+    stay ±inf."""
+    tf, dps = _monotone(profile_tf, profile_dps)
+    v = np.asarray(dps_value, float)
+    if tf.size < 2 or dps[-1] <= dps[0]:
+        out = np.full(v.shape, math.nan)
+    else:
+        dense_tf = np.linspace(tf[0] - 10 * (tf[-1] - tf[0]), tf[-1] + 10 * (tf[-1] - tf[0]), 4001)
+        dense = np.maximum.accumulate(tf_to_dps(dense_tf, tf, dps))
+        out = np.interp(v, dense, dense_tf)
+        out = np.where(np.isinf(v), v, out)
+    return float(out) if np.ndim(out) == 0 else out
+
+
+def _monotone(tf: Sequence[float], dps: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Profile points sorted by TF, repeated TFs averaged, made non-decreasing (a running
+    maximum: noise between close TFs must not fold the map back)."""
+    tf_a, dps_a = np.asarray(tf, float), np.asarray(dps, float)
+    ok = np.isfinite(tf_a) & np.isfinite(dps_a)
+    tf_a, dps_a = tf_a[ok], dps_a[ok]
+    uniq = np.unique(tf_a)
+    mean = np.array([dps_a[tf_a == v].mean() for v in uniq])
+    return uniq, np.maximum.accumulate(mean) if mean.size else mean
+
+
+# --- the boundary table's columns and phrase -------------------------------------------------
+
+
+def fit_columns(fit: CrossingFit, to_tf: Any = None) -> dict[str, Any]:
+    """The fitted boundary as ``boundary.parquet`` columns: ``fit_state``, ``boundary_dps``
+    with ``boundary_dps_low``/``_high`` (±inf where unbounded), the same in wall TF
+    (``boundary_tf_hz``, ``boundary_tf_low``, ``boundary_tf_high``; NaN without a profile
+    map ``to_tf``: deg/s → Hz), ``fit_runs`` and ``fit_dispersion``."""
+    row = {
+        "fit_state": fit.state,
+        "boundary_dps": fit.boundary,
+        "boundary_dps_low": fit.low,
+        "boundary_dps_high": fit.high,
+    }
+    names = ("boundary_tf_hz", "boundary_tf_low", "boundary_tf_high")
+    for name, v in zip(names, (fit.boundary, fit.low, fit.high), strict=True):
+        row[name] = float(to_tf(v)) if to_tf is not None and not math.isnan(v) else math.nan
+    return row | {"fit_runs": fit.runs, "fit_dispersion": fit.dispersion}
+
+
+def describe_fit(row: dict[str, Any]) -> str:
+    """The fitted boundary as a phrase: "9.1 deg/s [7.9, 10.4] (wall TF 0.42 Hz [0.2, 0.7])",
+    "beyond the design's range (95 %: > 28.6 deg/s)" or "undetermined: more seeds or runs
+    needed (95 %: > 6.0 deg/s)"."""
+    state = row["fit_state"]
+    dps = _span(row["boundary_dps_low"], row["boundary_dps_high"], "deg/s", 1)
+    tf = _span(row.get("boundary_tf_low", math.nan), row.get("boundary_tf_high", math.nan), "Hz", 2)
+    if state == "within":
+        text = f"{row['boundary_dps']:.1f} deg/s [{dps}]"
+        if _finite(row.get("boundary_tf_hz")):
+            text += f" (wall TF {row['boundary_tf_hz']:.2f} Hz [{tf}])"
+        return text
+    interval_text = f"95 %: {dps}" + (f"; wall TF {tf}" if tf else "")
+    if state == "beyond":
+        return f"beyond the design's range ({interval_text})"
+    if state == "below":
+        return f"below the design's least complex point ({interval_text})"
+    return f"{UNDETERMINED} ({interval_text})"
+
+
+def _finite(v: Any) -> bool:
+    return v is not None and isinstance(v, float | int) and math.isfinite(v)
+
+
+def _span(low: Any, high: Any, unit: str, digits: int) -> str:
+    lo_ok, hi_ok = _finite(low), _finite(high)
+    if lo_ok and hi_ok:
+        return f"{low:.{digits}f}, {high:.{digits}f} {unit}"
+    if lo_ok:
+        return f"> {low:.{digits}f} {unit}"
+    if hi_ok:
+        return f"< {high:.{digits}f} {unit}"
+    return "unbounded" if unit == "deg/s" else ""
+
+
+def with_fit(bounds: pl.DataFrame, fitted: pl.DataFrame, by: str, design: str) -> pl.DataFrame:
+    """The bracketing boundaries (:func:`analysis.boundary.boundaries`: ``where``,
+    ``boundary_low_dps``, ``boundary_high_dps``; its interpolated point renamed
+    ``bracket_dps``) with the fitted columns (:func:`fit_columns`) beside them, and the
+    ``design``."""
+    return (
+        bounds.rename({"boundary_dps": "bracket_dps"})
+        .join(fitted, on=by, how="left")
+        .with_columns(pl.lit(design).alias("design"))
+    )
+
+
+def grid_fits(
+    runs: pl.DataFrame,
+    complexity: pl.DataFrame,
+    by: str,
+    target: float,
+    scene: str | None = None,
+) -> tuple[pl.DataFrame, dict[float, CrossingFit]]:
+    """The fitted boundary per value of ``by`` from a grid's runs (condition, ``by``,
+    avoidances, crashes; scene and tf_hz for the TF columns) and its conditions' complexity
+    (condition, complexity_dps): each run at its condition's complexity. The TF columns map
+    deg/s to wall TF through ``scene``'s conditions (default: the first scene's)."""
+    data = runs.join(complexity.select("condition", "complexity_dps"), on="condition", how="left")
+    domain = (float(data["complexity_dps"].min()), float(data["complexity_dps"].max()))
+    to_tf = None
+    if "scene" in data.columns and "tf_hz" in data.columns:
+        scene = scene or str(data["scene"][0])
+        prof = data.filter(pl.col("scene") == scene).unique("condition")
+        tf_pts, dps_pts = prof["tf_hz"].to_numpy(), prof["complexity_dps"].to_numpy()
+        if np.unique(tf_pts).size >= 2:
+
+            def to_tf(d: float) -> float:
+                return float(dps_to_tf(d, tf_pts, dps_pts))
+
+    rows, fits = [], {}
+    for (value,), g in data.group_by(by, maintain_order=True):
+        f = fit_crossing(
+            g["complexity_dps"].to_numpy(),
+            g["avoidances"].to_numpy(),
+            (g["avoidances"] + g["crashes"]).to_numpy(),
+            target,
+            domain,
+        )
+        fits[value] = f
+        rows.append({by: value} | fit_columns(f, to_tf))
+    return pl.DataFrame(rows), fits
+
+
+def describe_fitted(row: dict[str, Any]) -> str:
+    """A boundary row with the fitted columns: the fitted phrase (:func:`describe_fit`) and,
+    for a grid, the conditions it lies between."""
+    text = describe_fit(row)
+    if row.get("design") != "grid":
+        return text
+    where = row.get("where")
+    if where == "within":
+        grid = (
+            f"between the conditions at {row['boundary_low_dps']:.1f} and "
+            f"{row['boundary_high_dps']:.1f} deg/s"
+        )
+    elif where == "below":
+        grid = "the least complex condition already fails"
+    else:
+        grid = "no condition fails at 95 %"
+    return f"{text}; grid: {grid}"
+
+
+FIT_NOTE = (
+    "The boundary is where a monotone logistic curve of success against complexity, fitted "
+    "to every run (binomial counts; overdispersion between seeds corrected), crosses the "
+    "target; its 95 % interval is the profile-likelihood interval (`analysis/boundary_fit.py`). "
+    "*Undetermined*: the runs cannot place it (the interval is unbounded); *beyond the "
+    "design's range* only where success is above the target at 95 % confidence everywhere on it."
+)
+
+
+def fit_section(bounds: pl.DataFrame, by: str) -> list[str]:
+    """``boundary.md``'s table of the fitted boundaries (deg/s and wall TF, 95 %)."""
+    if "fit_state" not in bounds.columns:
+        return []
+    head = f"| {by} | state | boundary (deg/s) | 95 % | wall TF (Hz) | 95 % | runs |"
+    lines = [FIT_NOTE, "", head]
+    lines.append("|---|---|---|---|---|---|---|")
+    for r in bounds.iter_rows(named=True):
+        dps = _span(r["boundary_dps_low"], r["boundary_dps_high"], "", 1).strip() or "—"
+        tf = _span(r["boundary_tf_low"], r["boundary_tf_high"], "", 2).strip() or "—"
+        point = f"{r['boundary_dps']:.1f}" if _finite(r["boundary_dps"]) else "—"
+        tf_point = f"{r['boundary_tf_hz']:.2f}" if _finite(r["boundary_tf_hz"]) else "—"
+        lines.append(
+            f"| {r[by]:g} | {r['fit_state']} | {point} | {dps} | {tf_point} | {tf} | "
+            f"{r['fit_runs']} |"
+        )
+    return [*lines, ""]
+
+
+def draw_fit(ax: Any, fit: CrossingFit, color: str) -> None:
+    """The fitted curve (success, %) with its 95 % band and the boundary's interval (shaded,
+    to the edge of the axis where unbounded) and estimate (dashed) on a matplotlib axis."""
+    ax.plot(fit.curve_x, 100 * fit.curve_p, color=color, lw=2)
+    ax.fill_between(fit.curve_x, 100 * fit.band_low, 100 * fit.band_high, color=color, alpha=0.12)
+    lo, hi = fit.domain
+    a = max(fit.low, lo - 0.5 * (hi - lo))
+    b = min(fit.high, hi + 0.5 * (hi - lo))
+    if a < b:
+        ax.axvspan(a, b, ymin=0.0, ymax=0.04, color=color, alpha=0.5)
+    if fit.state == "within":
+        ax.axvline(fit.boundary, color=color, ls="--", lw=1)

@@ -1,0 +1,320 @@
+"""``vdc-analyse boundary --design adaptive``: find each value's boundary in few runs.
+
+Instead of every wall TF × seed of a grid, the runs of each parameter value go along a
+continuous TF range (``--tf-range LO:HI``), in batches, where the boundary is still uncertain:
+
+1. **The profile.** Profiling runs (as the grid's: ring turns, no detector, seed ``--seed``) at
+   the range's ends and middle, per scene, measure the AVDM's straight-driving response; a TF
+   in between is mapped to its complexity (deg/s) by linear interpolation
+   (:func:`analysis.boundary_fit.tf_to_dps`), and back.
+2. **The first batch** per value: 4 runs at TFs evenly spread over the range (scenes in turn).
+3. **Each next batch** (``max(2, --jobs)`` runs per value): the success curve is fitted to the
+   value's runs so far (:func:`analysis.boundary_fit.fit_crossing`: a monotone logistic curve
+   of success against complexity, the boundary's 95 % profile-likelihood interval), and the
+   batch's complexities are drawn from the normalised likelihood of the crossing: runs go
+   where the crossing plausibly is, more where it is more plausible. Each is made a TF of a
+   scene whose range reaches it (the scene used least so far, on a tie), within the range.
+4. **A value stops** when its interval is narrower than ``--precision`` (deg/s), when the
+   boundary is placed beyond or below the range at 95 %, or at ``--budget`` runs.
+
+Runs are recorded and measured on the executors exactly as the grid's
+(:func:`analysis.experiments.boundary.run_grid`: finished runs reused). The placement draws
+from a generator seeded by ``--seed`` and reused runs give the same rows, so a re-run places the
+same runs and records only what is missing. Each run is its own condition
+(``<scene>-tf<TF>``) with its own seed (``--seed`` + its index among the value's runs).
+
+:func:`design_runs` is the loop alone, with the runs made by a function it is given: the
+benchmark's coverage check drives it with simulated detectors of known boundary.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+from analysis.boundary import (
+    BoundaryResult,
+    BoundarySettings,
+    arena_report,
+    boundaries,
+    condition_name,
+    condition_statistics,
+    plot_boundary,
+    with_override,
+)
+from analysis.boundary_fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
+from analysis.experiments.boundary import run_grid
+
+FIRST_BATCH = 4
+PROFILE_POINTS = 3  # profiling TFs per scene: the range's ends and middle
+
+
+@dataclasses.dataclass(frozen=True)
+class ProfileMap:
+    """Wall TF ↔ complexity (deg/s) per scene, from profiling runs (scene, tf_hz,
+    profile_dps)."""
+
+    points: dict[str, tuple[np.ndarray, np.ndarray]]  # scene -> (TFs, deg/s)
+
+    @classmethod
+    def from_runs(cls, profiles: pl.DataFrame) -> ProfileMap:
+        pts = {}
+        for (scene,), g in profiles.group_by("scene", maintain_order=True):
+            pts[scene] = (g["tf_hz"].to_numpy(), g["profile_dps"].to_numpy())
+        return cls(pts)
+
+    def to_dps(self, scene: str, tf_hz: Any) -> Any:
+        return tf_to_dps(tf_hz, *self.points[scene])
+
+    def to_tf(self, scene: str, dps: Any) -> Any:
+        return dps_to_tf(dps, *self.points[scene])
+
+
+def sample_runs(
+    fit: CrossingFit,
+    rng: np.random.Generator,
+    size: int,
+    scenes: Sequence[str],
+    profile: ProfileMap,
+    tf_range: tuple[float, float],
+    used: dict[str, int],
+) -> list[tuple[str, float]]:
+    """``size`` (scene, TF) drawn where ``fit``'s crossing plausibly is (see the module);
+    ``used`` counts each scene's runs so far (updated)."""
+    out = []
+    lo, hi = tf_range
+    for dps in fit.sample(rng, size):
+        reach = {s: (profile.to_dps(s, lo), profile.to_dps(s, hi)) for s in scenes}
+        fits = [s for s in scenes if reach[s][0] <= dps <= reach[s][1]]
+        if not fits:  # no scene's range reaches it: the scene whose end is nearest
+            fits = [min(scenes, key=lambda s: min(abs(dps - reach[s][0]), abs(dps - reach[s][1])))]
+        scene = min(fits, key=lambda s: (used[s], scenes.index(s)))
+        used[scene] += 1
+        tf = float(np.clip(profile.to_tf(scene, dps), lo, hi))
+        out.append((scene, round(tf, 2)))
+    return out
+
+
+def design_runs(
+    values: Sequence[float],
+    scenes: Sequence[str],
+    profile: ProfileMap,
+    tf_range: tuple[float, float],
+    run_batch: Callable[[list[dict[str, Any]]], list[dict[str, Any]]],
+    *,
+    target: float,
+    budget: int,
+    precision_dps: float,
+    batch: int,
+    seed: int,
+    log: Callable[[str], None] = lambda _m: None,
+) -> tuple[list[dict[str, Any]], dict[float, CrossingFit]]:
+    """The adaptive loop (see the module). ``run_batch`` gets the batch's runs (value, scene,
+    tf_hz, seed, batch, complexity_dps) and returns one row per run with those keys and the
+    run's ``avoidances`` and ``crashes``. Returns every row and the last fit per value."""
+    rng = np.random.default_rng(seed)
+    lo, hi = tf_range
+    domain = (
+        min(profile.to_dps(s, lo) for s in scenes),
+        max(profile.to_dps(s, hi) for s in scenes),
+    )
+    rows: dict[float, list[dict[str, Any]]] = {v: [] for v in values}
+    used = {v: dict.fromkeys(scenes, 0) for v in values}
+    fits: dict[float, CrossingFit] = {}
+    active = list(values)
+    round_no = 0
+    while active:
+        placed = []
+        for v in active:
+            if round_no == 0:
+                n_first = min(FIRST_BATCH, budget)
+                tfs = np.linspace(lo, hi, n_first)
+                where = [(scenes[i % len(scenes)], round(float(t), 2)) for i, t in enumerate(tfs)]
+                for sc, _ in where:
+                    used[v][sc] += 1
+            else:
+                size = min(batch, budget - len(rows[v]))
+                where = sample_runs(fits[v], rng, size, scenes, profile, tf_range, used[v])
+            for scene, tf in where:
+                placed.append(
+                    {
+                        "value": v,
+                        "scene": scene,
+                        "tf_hz": tf,
+                        "seed": seed + len(rows[v]) + sum(p["value"] == v for p in placed),
+                        "batch": round_no,
+                        "complexity_dps": float(profile.to_dps(scene, tf)),
+                    }
+                )
+        for r in run_batch(placed):
+            rows[r["value"]].append(r)
+        still = []
+        for v in active:
+            g = rows[v]
+            k = [r["avoidances"] for r in g]
+            n = [r["avoidances"] + r["crashes"] for r in g]
+            fits[v] = fit_crossing([r["complexity_dps"] for r in g], k, n, target, domain)
+            f = fits[v]
+            log(
+                f"  value {v:g}, batch {round_no}: {len(g)} run(s), boundary {f.boundary:.1f} "
+                f"deg/s, 95 % [{f.low:.1f}, {f.high:.1f}] ({f.state})"
+            )
+            settled = f.state in ("beyond", "below") or (
+                f.state == "within" and f.width < precision_dps
+            )
+            if not settled and len(g) < budget:
+                still.append(v)
+        active = still
+        round_no += 1
+    return [r for v in values for r in rows[v]], fits
+
+
+def profile_runs(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+    """The profiling runs: per scene, ``PROFILE_POINTS`` TFs over the range, seed ``--seed``."""
+    from capture.sim import SimSettings
+
+    lo, hi = s.tf_bounds()
+    items = []
+    for scene in s.scene_list():
+        for tf in np.linspace(lo, hi, PROFILE_POINTS):
+            tf = round(float(tf), 2)
+            cond = condition_name(scene, tf)
+            settings = SimSettings(
+                scene=scene, tf_hz=tf, minutes=s.minutes, seed=s.seed, model=s.profile_model
+            )
+            cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": s.seed}
+            path = folder / "profile" / cond / f"seed{s.seed}.rrd"
+            items.append((f"profile-{cond}-seed{s.seed}", settings, path, cols))
+    return items
+
+
+def run_items(
+    s: BoundarySettings, placed: list[dict[str, Any]], folder: Path
+) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+    """Closed-loop runs for the placed (value, scene, TF, seed)s, as the grid records them."""
+    from capture.sim import SimSettings
+
+    items = []
+    for p in placed:
+        value, scene, tf, seed = p["value"], p["scene"], p["tf_hz"], p["seed"]
+        cond = condition_name(scene, tf)
+        settings = SimSettings(
+            behaviour="collision",
+            model=with_override(s.detector, s.param, value),
+            scene=scene,
+            tf_hz=tf,
+            minutes=s.minutes,
+            seed=seed,
+            phase=f"{cond}-{s.param}{value:g}",
+            profile_model=s.profile_model,
+        )
+        cols = {"condition": cond, s.param: value} | p
+        path = folder / cond / f"{s.param}{value:g}" / f"seed{seed}.rrd"
+        items.append((f"{cond}-{s.param}{value:g}-seed{seed}", settings, path, cols))
+    return items
+
+
+def adaptive_boundary(
+    s: BoundarySettings,
+    out: str | Path,
+    *,
+    log: Callable[[str], None] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> BoundaryResult:
+    """Arena mode with ``--design adaptive``: the profile, the batches, the fits; writes the
+    same files as the grid (``boundary.md``, ``boundary.png``, ``boundary_runs.parquet``: one
+    row per run the design placed, ``boundary.parquet`` with the fitted columns,
+    ``boundary_profiles.parquet``, ``policy.csv``)."""
+    from analysis.boundary_fit import fit_columns, with_fit
+    from vdc.parquet_io import table_set, write_parquet
+
+    say = log or (lambda _m: None)
+    out = Path(out)
+    rec = out / "recordings"
+    scenes, values = s.scene_list(), s.grid_values()
+    prof_items = profile_runs(s, rec)
+    say(
+        f"adaptive boundary of {s.detector} over {s.param} = {values}: up to {s.budget} run(s) "
+        f"per value along wall TF {s.tf_range} Hz ({', '.join(scenes)}), plus "
+        f"{len(prof_items)} profiling run(s)"
+    )
+    profiles = run_grid(prof_items, "profile", s, s.false_alarm_m, say, progress)
+    pmap = ProfileMap.from_runs(profiles)
+
+    def run_batch(placed: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        done = run_grid(run_items(s, placed, rec), "collision", s, s.false_alarm_m, say, progress)
+        return done.to_dicts()
+
+    rows, fits = design_runs(
+        values, scenes, pmap, s.tf_bounds(), run_batch, target=s.target, budget=s.budget,
+        precision_dps=s.precision, batch=max(2, s.jobs), seed=s.seed, log=say,
+    )  # fmt: skip
+    runs = pl.DataFrame(rows).drop("value").sort(s.param, "batch", "seed")
+    complexity = runs.select(
+        "condition",
+        "complexity_dps",
+        pl.col("complexity_dps").alias("complexity_low"),
+        pl.col("complexity_dps").alias("complexity_high"),
+    ).unique("condition", maintain_order=True)
+    conditions = condition_statistics(
+        runs.drop("complexity_dps"), complexity, ["condition", s.param]
+    )
+    first = scenes[0]
+    fitted = pl.DataFrame(
+        [{s.param: v} | fit_columns(f, lambda d: pmap.to_tf(first, d)) for v, f in fits.items()]
+    )
+    bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "adaptive")
+    policy = None
+    if not s.no_fit:
+        policy = policy_from_campaign(runs, s)
+    meta = {"settings": dataclasses.asdict(s)}
+    with table_set(out) as stage:
+        paths = [
+            write_parquet(runs, stage / "boundary_runs.parquet", meta),
+            write_parquet(conditions, stage / "boundary_conditions.parquet", meta),
+            write_parquet(bounds, stage / "boundary.parquet", meta),
+            write_parquet(profiles, stage / "boundary_profiles.parquet", meta),
+            plot_boundary(
+                conditions,
+                bounds,
+                s.param,
+                s.target,
+                stage / "boundary.png",
+                f"{s.detector}: adaptive design, {runs.height} runs",
+                "complexity: AVDM straight-driving response, profile interpolated (deg/s)",
+                fits=fits,
+            ),
+        ]
+        if policy is not None:
+            paths.append(policy.save(stage / "policy.csv"))
+        md = arena_report(s, conditions, bounds, policy)
+        (stage / "boundary.md").write_text(md, encoding="utf-8")
+        paths.append(stage / "boundary.md")
+    paths = [out / p.name for p in paths]
+    return BoundaryResult(runs, conditions, bounds, policy, paths, md)
+
+
+def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3) -> Any:
+    """The policy (:func:`analysis.boundary.fit_policy`) from an adaptive campaign's runs: each
+    scene's TF range cut in ``bins`` equal parts, the runs of a part pooled as one condition
+    (``<scene>-tf<LO>-<HI>``); parts where some value has no run are left out (the policy
+    compares the values on the same conditions). None when no part has every value."""
+    from analysis.boundary import fit_policy
+
+    lo, hi = s.tf_bounds()
+    edges = np.linspace(lo, hi, bins + 1)
+    part = np.clip(np.searchsorted(edges, runs["tf_hz"].to_numpy(), side="right") - 1, 0, bins - 1)
+    names = [f"tf{edges[i]:.2g}-{edges[i + 1]:.2g}" for i in part]
+    binned = runs.with_columns((pl.col("scene") + "-" + pl.Series(names)).alias("condition"))
+    n_values = len(s.grid_values())
+    full = binned.group_by("condition").agg(pl.col(s.param).n_unique().alias("n"))
+    keep = full.filter(pl.col("n") == n_values)["condition"]
+    binned = binned.filter(pl.col("condition").is_in(keep.implode()))
+    if binned.height == 0:
+        return None
+    return fit_policy(binned, s.param, s.target, s.profile_model)
