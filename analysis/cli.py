@@ -137,13 +137,14 @@ def cmd_complexity(args: argparse.Namespace) -> int:
     from analysis.complexity import ComplexitySettings, complexity, expand_sources
 
     settings = settings_from_args(ComplexitySettings, args)
-    n = len(expand_sources(args.sources))
+    sources = expand_sources(args.sources)  # walked once: complexity() takes the files
+    n = len(sources)
     with (
         progress_bar(None, "complexity", "frame") as frames,
         progress_bar(n, "clips", "clip", quiet=n == 1) as clips,
     ):
         res = complexity(
-            args.sources, settings, args.out, progress=frames.update,
+            sources, settings, args.out, progress=frames.update,
             clip_progress=clips.update, notice=_notice, log=say,
         )  # fmt: skip
     print("\n".join(res.report()))

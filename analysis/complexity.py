@@ -33,11 +33,15 @@ import numpy as np
 import polars as pl
 
 from analysis.source_metrics import (
+    ANGULAR_METRICS,
+    DEFAULT_METRICS,
     DIS_PRESETS,
     METRICS,
     RASTERS,
     ComplexityMeter,
     SourceMeasurement,
+    fov_free,
+    parse_metrics,
     rank_correlations,
 )
 from vdc.cli_support import (
@@ -60,6 +64,12 @@ class ComplexitySettings:
     """``vdc-analyse complexity``: the AVDM variant, the baselines' few free choices, how
     video sources are read (as ``vdc-capture video`` reads them), and where the sources run."""
 
+    metrics: str = option(
+        ",".join(DEFAULT_METRICS),
+        "the metrics to compute, comma-separated column names, or all: "
+        + ", ".join(METRICS)
+        + " (default: {default}; docs/video.md says why)",
+    )
     model: str = option(
         FOOTAGE_MODEL,
         "the AVDM variant (default: {default}, valid 1-300 deg/s on real footage; avdm is the "
@@ -73,7 +83,7 @@ class ComplexitySettings:
     fov_deg: float | None = option(
         None,
         "video sources: the camera's horizontal field of view, degrees (needed for the AVDM "
-        "and the flow in deg/s)",
+        "and the flow in deg/s; without it a video gives the other metrics)",
         type=positive_float,
     )
     fps: float | None = option(
@@ -109,6 +119,7 @@ class ComplexitySettings:
         from avdm.registry import require_angular_velocity
 
         require_angular_velocity(self.model, "complexity")
+        parse_metrics(self.metrics)
         if self.flow_preset not in DIS_PRESETS:
             raise ValueError(f"--flow-preset must be one of {', '.join(DIS_PRESETS)}")
         if not 1 <= self.jpeg_quality <= 100:
@@ -120,13 +131,18 @@ class ComplexitySettings:
         self.executor_settings()
         parse_shard(self.shard)
 
+    def metric_names(self) -> tuple[str, ...]:
+        """``metrics`` as column names, in the tables' order."""
+        return parse_metrics(self.metrics)
+
     def executor_settings(self) -> ExecutorSettings:
         return ExecutorSettings(self.executor, self.jobs, self.scheduler)
 
     def measured(self) -> dict[str, Any]:
         """The settings a source's numbers depend on (not where or which it runs)."""
         skip = {"executor", "jobs", "scheduler", "shard", "force", "rrd"}
-        return {k: v for k, v in dataclasses.asdict(self).items() if k not in skip}
+        out = {k: v for k, v in dataclasses.asdict(self).items() if k not in skip}
+        return out | {"metrics": ",".join(self.metric_names())}
 
 
 def complexity_of_frames(
@@ -150,9 +166,11 @@ def complexity_of_frames(
     native frames, as ``vdc-analyse complexity`` does on a video file: given a file's decoded
     grey frames and Y planes, this function gives that command's table.
 
-    Returns a DataFrame: frame, t_s, repeat, then one column per metric (see the module)."""
+    Returns a DataFrame: frame, t_s, repeat, then one column per metric of
+    ``settings.metrics`` (see the module)."""
     import cv2
 
+    from analysis.source_metrics import MODEL_METRICS
     from avdm.true_time import repeats_of
     from vdc.frame_metrics import NativeMeter
     from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
@@ -164,19 +182,23 @@ def complexity_of_frames(
     native = frames if native is None else np.asarray(native)
     if native.shape[0] != frames.shape[0]:
         raise ValueError("native must hold one image per frame")
+    metrics = settings.metric_names()
     h, w = working_size(frames.shape[1], frames.shape[2], fov_deg, width)
-    small = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
     t = np.arange(len(frames)) / fps if t_s is None else np.asarray(t_s, np.float64)
     t = np.rint(t * 1e9) / 1e9  # whole nanoseconds, as a recording stores times
     ctx = camera_model_context(w, h, fps, fov_deg)
-    nm = NativeMeter(8, color_range, settings.jpeg_quality)
+    native_names = (*(m for m in NATIVE_METRICS if m in metrics), "mafd")
+    nm = NativeMeter(8, color_range, settings.jpeg_quality, native_names)
     rows = np.stack([nm.row(f) for f in native])
     mafd = rows[:, NATIVE_METRICS.index("mafd")]
     repeat = repeats_of(mafd, 0, settings.repeat_tol, settings.max_repeats)
-    out = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx).update(small, t, repeat)
-    out |= {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
+    out = {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
+    if any(m in metrics for m in MODEL_METRICS):
+        small = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
+        meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics)
+        out |= meter.update(small, t, repeat)
     df = pl.DataFrame({"frame": np.arange(len(frames), dtype=np.int64), "t_s": t, "repeat": repeat})
-    return df.with_columns(*[pl.Series(m, out[m]).fill_nan(None) for m in METRICS])
+    return df.with_columns(*[pl.Series(m, out[m]).fill_nan(None) for m in metrics])
 
 
 def expand_sources(items: Sequence[str | Path]) -> list[str]:
@@ -216,6 +238,31 @@ def expand_sources(items: Sequence[str | Path]) -> list[str]:
         else:
             raise ValueError(f"{item!r}: no such file or folder")
     return sources
+
+
+def without_fov(sources: Sequence[str], settings: ComplexitySettings) -> str | None:
+    """What a run without ``--fov-deg`` leaves out, as one note (None: nothing). A video's
+    angular metrics need its camera's field of view (a recording states its own); the others
+    are measured. Only angular metrics asked of videos alone raise ValueError."""
+    videos = [s for s in sources if not s.endswith(".rrd")]
+    if settings.fov_deg is not None or not videos:
+        return None
+    chosen = settings.metric_names()
+    kept = fov_free(chosen, settings.width)
+    left = [m for m in chosen if m not in kept]
+    if not left:
+        return None
+    if not kept and len(videos) == len(sources):
+        raise ValueError(
+            f"{', '.join(left)} need the camera's field of view: give --fov-deg (the horizontal "
+            "field of view, degrees) or ask for pixel metrics (--metrics)"
+        )
+    why = "deg/s" if set(left) <= set(ANGULAR_METRICS) else "deg/s, or the model raster"
+    return (
+        f"no --fov-deg: {', '.join(left)} left out for the {len(videos)} video source(s) "
+        f"(they need the camera's horizontal field of view for {why}); "
+        f"{', '.join(kept) or 'nothing else'} measured"
+    )
 
 
 def _stamp(source: str) -> tuple:
@@ -294,6 +341,11 @@ def complexity_task(
     return {"frames": m.table.height}
 
 
+def present(df: pl.DataFrame, suffix: str = "") -> list[str]:
+    """The metrics (:data:`METRICS` order) a table has columns for (``m + suffix``)."""
+    return [m for m in METRICS if m + suffix in df.columns]
+
+
 def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
     """A clip's row of ``clips.parquet``: what the source is, then each metric's mean, max and
     95th percentile over its frames (where defined)."""
@@ -308,7 +360,7 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
         },
         "raster": table["raster"][0],
     }  # fmt: skip
-    for m in METRICS:
+    for m in present(table):
         v = table[m].drop_nulls().cast(pl.Float64)
         row[f"{m}_mean"] = float(v.mean()) if v.len() else None
         row[f"{m}_max"] = float(v.max()) if v.len() else None
@@ -334,16 +386,25 @@ class ComplexityResult(WroteFiles):
             f"{self.clips.height} clip(s), {self.table.height} frames -> "
             f"{files.complexity_parquet}, {files.clips}, {files.complexity_html}"
         ]
-        top = self.clips.sort("omega_dps_mean", descending=True, nulls_last=True)
+        rank = _ranking(self.clips)
+        top = self.clips.sort(f"{rank[0]}_mean", descending=True, nulls_last=True)
+        shown = [m for m in ("omega_dps", "si_p910", "ti_p910") if m in rank] or rank[:3]
+        unit = {"omega_dps": " deg/s", "flow_dps": " deg/s"}
+
+        def value(r: dict, m: str) -> str:
+            v = r[f"{m}_mean"]
+            return f"{m} {math.nan if v is None else v:.4g}{unit.get(m, '')}"
+
         lines += [
-            f"  {r['recording_id']}: {r['frames']} frames, mean omega {r['omega_dps_mean']:.1f} "
-            f"deg/s, SI {r['si_p910_mean']:.1f} / TI {r['ti_p910_mean'] or math.nan:.2f} "
-            f"(P.910, {r['raster']} raster)"
+            f"  {r['recording_id']}: {r['frames']} frames, mean "
+            + ", ".join(value(r, m) for m in shown)
+            + f" ({r['raster']} raster)"
             for r in top.head(10).iter_rows(named=True)
         ]
         if top.height > 10:
             lines.append(
-                f"  ... and {top.height - 10} more (highest AVDM first): {files.complexity_html}"
+                f"  ... and {top.height - 10} more (highest {rank[0]} first): "
+                f"{files.complexity_html}"
             )
         return lines
 
@@ -390,12 +451,16 @@ def complexity(
 
     out = Path(out)
     listed = expand_sources(sources)
+    notes: list[str] = []
+    say = notice or (lambda _m: None)
+    without = without_fov(listed, settings)  # before any decoding
+    if without:
+        notes.append(without)
+        say(without)
     tasks = plan_sources(listed, settings)
     shard = parse_shard(settings.shard)
     mine = tasks if shard is None else tasks[shard[0] :: shard[1]]
     todo = [t for t in mine if settings.force or not readable_part(part_path(out, t["key"]))]
-    notes: list[str] = []
-    say = notice or (lambda _m: None)
     if len(mine) > len(todo):
         say(f"{len(mine) - len(todo)} of {len(mine)} source(s) already measured in {out}")
     if settings.executor == "local" and len(todo) == 1:
@@ -440,15 +505,16 @@ def complexity(
             why = info.get("cut_note") or f"decoding stopped ({info['decode_error']})"
             notes.append(f"{info['source']}: {why}; its row covers {info['frames']} frames")
             say(notes[-1])
-    clips = pl.DataFrame([clip_row(p, i) for p, i in zip(parts, infos, strict=True)])
+    rows = [clip_row(p, i) for p, i in zip(parts, infos, strict=True)]
+    clips = pl.DataFrame(rows, infer_schema_length=None)  # sources may differ in metrics
     clips = clips.with_columns(pl.col("header_duration_s", "missing_s").cast(pl.Float64))
     corr = pl.concat([rank_correlations(p, p["recording_id"][0]) for p in parts])
     paths: list[Path] = []
     meta = {
         "settings": settings.measured(),
         "recordings": sorted(table["recording_id"].unique().to_list()),
-        "metrics": list(METRICS),
-        "rasters": RASTERS,
+        "metrics": present(table),
+        "rasters": {m: RASTERS[m] for m in present(table)},
         "raster_note": "model: the AVDM's working raster (70/99 deg per px); source: the "
         "native frames where the source has them, else the camera's raster (column raster)",
     }
@@ -476,6 +542,22 @@ def complexity(
     )
 
 
+_LABELS = {
+    "omega_dps": "AVDM ω̂ (deg/s)",
+    "ti_p910": "TI, P.910 (2022)",
+    "si_p910": "SI, P.910 (2022)",
+    "flow_dps": "DIS flow (deg/s)",
+}
+# what the collection figure and the report rank clips by, the first measured
+_RANK_ORDER = ("omega_dps", "ti_p910", "si_p910", "flow_dps", *METRICS)
+
+
+def _ranking(clips: pl.DataFrame) -> list[str]:
+    """The measured metrics in the order the figure and the report rank clips by."""
+    have = present(clips, "_mean")
+    return list(dict.fromkeys(m for m in _RANK_ORDER if m in have))
+
+
 def plot_collection(clips: pl.DataFrame, path: Path) -> Path:
     """The collection at a glance: clips ranked by their mean AVDM response and by their mean
     TI (P.910), and each clip's mean AVDM against its mean TI and SI."""
@@ -487,9 +569,12 @@ def plot_collection(clips: pl.DataFrame, path: Path) -> Path:
     fig = Figure(figsize=(14, 6 + 0.15 * min(n, 60)), layout="constrained")
     axes = fig.subplots(2, 2)
     names = clips["recording_id"].to_list()
+    rank = _ranking(clips)
+    first, second = rank[0], rank[1 % len(rank)]
+    x_a, x_b = (rank[1:] + rank[:1] * 2)[:2]
     for ax, col, what in (
-        (axes[0, 0], "omega_dps_mean", "mean AVDM ω̂ (deg/s)"),
-        (axes[0, 1], "ti_p910_mean", "mean TI, P.910 (2022)"),
+        (axes[0, 0], f"{first}_mean", f"mean {_LABELS.get(first, first)}"),
+        (axes[0, 1], f"{second}_mean", f"mean {_LABELS.get(second, second)}"),
     ):
         v = clips[col].fill_null(np.nan).to_numpy()
         order = np.argsort(np.nan_to_num(v, nan=-np.inf))[-60:]  # the 60 highest
@@ -498,10 +583,10 @@ def plot_collection(clips: pl.DataFrame, path: Path) -> Path:
         ax.set_xlabel(what)
         ax.set_title(f"clips ranked by {what}" + (f" (top 60 of {n})" if n > 60 else ""))
         ax.grid(axis="x", alpha=0.3)
-    omega = clips["omega_dps_mean"].fill_null(np.nan).to_numpy()
+    omega = clips[f"{first}_mean"].fill_null(np.nan).to_numpy()
     for ax, col, what in (
-        (axes[1, 0], "ti_p910_mean", "mean TI, P.910 (2022)"),
-        (axes[1, 1], "si_p910_mean", "mean SI, P.910 (2022)"),
+        (axes[1, 0], f"{x_a}_mean", f"mean {_LABELS.get(x_a, x_a)}"),
+        (axes[1, 1], f"{x_b}_mean", f"mean {_LABELS.get(x_b, x_b)}"),
     ):
         x = clips[col].fill_null(np.nan).to_numpy()
         ax.scatter(x, omega, s=25)
@@ -509,8 +594,11 @@ def plot_collection(clips: pl.DataFrame, path: Path) -> Path:
             if n <= 40:
                 ax.annotate(name, (xi, yi), fontsize=6, xytext=(3, 2), textcoords="offset points")
         ax.set_xlabel(what)
-        ax.set_ylabel("mean AVDM ω̂ (deg/s)")
-        ax.set_title(f"AVDM against {what.split(',')[0].replace('mean ', '')} ({n} clips)")
+        ax.set_ylabel(f"mean {_LABELS.get(first, first)}")
+        ax.set_title(
+            f"{_LABELS.get(first, first).split(' (')[0].split(',')[0]} against "
+            f"{what.split(',')[0].replace('mean ', '')} ({n} clips)"
+        )
         ax.grid(alpha=0.3)
     fig.suptitle("complexity of the collection: one point or bar per clip, its mean over frames")
     return save_figure(fig, path)
@@ -526,6 +614,8 @@ def write_summary_html(
         "si_p910_mean", "si_p910_max", "ti_p910_mean", "ti_p910_max", "flow_dps_mean",
         "jpeg_bpp_mean", "codec_bpp_mean",
     ]  # fmt: skip
+
+    cols = [c for c in cols if c in clips.columns]
 
     def cell(v: Any) -> str:
         if isinstance(v, float):
@@ -556,7 +646,7 @@ raster. Per-frame values: complexity.parquet; every statistic: clips.parquet.</p
 def _normalised(df: pl.DataFrame) -> dict[str, np.ndarray]:
     """Each metric divided by its 99th percentile (so all share one axis)."""
     out = {}
-    for m in METRICS:
+    for m in present(df):
         v = df[m].cast(pl.Float64).fill_null(np.nan).to_numpy()
         top = np.nanpercentile(v, 99) if np.isfinite(v).any() else np.nan
         out[m] = v / top if top and np.isfinite(top) and top > 0 else v * np.nan
@@ -572,25 +662,26 @@ def plot_complexity(df: pl.DataFrame, corr: pl.DataFrame, path: Path) -> Path:
     t = df["t_s"].to_numpy()
     fig = Figure(figsize=(16, 5.5), layout="constrained")
     (ax, axc) = fig.subplots(1, 2, gridspec_kw={"width_ratios": [2.2, 1]})
-    for m in METRICS:
+    metrics = present(df)
+    for m in metrics:
         ax.plot(t, norm[m], lw=1.6 if m == "omega_dps" else 0.8, label=m, alpha=0.9)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("metric / its 99th percentile")
     ax.set_title("complexity metrics over time (normalised)")
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3)
-    n = len(METRICS)
+    n = len(metrics)
     mat = np.eye(n)
     for r in corr.iter_rows(named=True):
-        i, j = METRICS.index(r["metric_a"]), METRICS.index(r["metric_b"])
+        i, j = metrics.index(r["metric_a"]), metrics.index(r["metric_b"])
         mat[i, j] = mat[j, i] = r["spearman"]
     im = axc.imshow(mat, vmin=-1, vmax=1, cmap="RdBu_r")
     for i in range(n):
         for j in range(n):
             if np.isfinite(mat[i, j]):
                 axc.text(j, i, f"{mat[i, j]:.2f}", ha="center", va="center", fontsize=6)
-    axc.set_xticks(range(n), METRICS, rotation=45, ha="right", fontsize=7)
-    axc.set_yticks(range(n), METRICS, fontsize=7)
+    axc.set_xticks(range(n), metrics, rotation=45, ha="right", fontsize=7)
+    axc.set_yticks(range(n), metrics, fontsize=7)
     axc.set_title("Spearman rank correlation over frames")
     fig.colorbar(im, ax=axc, shrink=0.8)
     fig.suptitle(str(df["recording_id"][0]))
@@ -615,7 +706,7 @@ def write_complexity_rrd(df: pl.DataFrame, recording_id: str, path: Path) -> Pat
             duration=np.rint(df["t_s"].to_numpy() * 1e9).astype("timedelta64[ns]"),
         ),
     ]
-    for m in METRICS:
+    for m in present(df):
         entity = f"{COMPLEXITY_ROOT}/{m}"
         rec.log(entity, rr.SeriesLines(names=[f"{m} (normalised)"]), static=True)
         rec.send_columns(entity, indexes=idx, columns=rr.Scalars.columns(scalars=norm[m]))

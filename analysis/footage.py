@@ -210,7 +210,7 @@ def clip_complexity(
     from analysis.complexity import ComplexitySettings, complexity
     from analysis.source_metrics import METRICS
 
-    s = ComplexitySettings(fov_deg=fov_deg, **executor)
+    s = ComplexitySettings(fov_deg=fov_deg, metrics="all", **executor)
     res = complexity(labels["source"].to_list(), s, out)
     if res.failures:
         src, err = res.failures[0]

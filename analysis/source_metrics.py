@@ -42,7 +42,7 @@ import polars as pl
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, repeat_flags
 from vdc.frame_metrics import NativeMeter
-from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
+from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context, working_size
 from vdc.sources import cut_short_note, header_shortfall
 
 if TYPE_CHECKING:
@@ -62,9 +62,12 @@ class MeasureSettings(Protocol):
     width: int | None
     repeat_tol: float
     max_repeats: int
+    metrics: str  # --metrics: comma-separated column names, or all
 
 
 MODEL_METRICS = ("omega_dps", "flow_dps", "zlib_ratio")
+# in deg/s: a video source needs its camera's field of view for these
+ANGULAR_METRICS = ("omega_dps", "flow_dps")
 METRICS = (
     "omega_dps",
     "si_p910",
@@ -78,6 +81,12 @@ METRICS = (
     "jpeg_bpp",
     "codec_bpp",
 )
+# what ``--metrics`` gives unless told (docs/video.md says why): the AVDM and the flow (the
+# motion it reads, and the independent check of it), P.910 SI/TI (the standard), the MAFD (free:
+# repeats are judged on it) and the codec's own bits (free: the packet sizes). Left out: the
+# legacy SI/TI (superseded in 2022; a second pass), edge density (Canny) and JPEG (a second
+# encoder) at native resolution, and zlib: together more than half the per-frame cost.
+DEFAULT_METRICS = ("omega_dps", "si_p910", "ti_p910", "mafd", "flow_dps", "codec_bpp")
 # the raster each column is computed on: "model" (the AVDM's working raster) or "source"
 # (native frames where the source has them, else the camera's raster: the `raster` column)
 RASTERS = {m: "model" if m in MODEL_METRICS else "source" for m in METRICS}
@@ -88,10 +97,32 @@ DIS_PRESETS = {
 }
 
 
+def parse_metrics(text: str | tuple[str, ...] | list[str]) -> tuple[str, ...]:
+    """``--metrics``: comma-separated column names (or a sequence of them), or ``all``
+    → the names in :data:`METRICS` order. An unknown or missing name raises ValueError."""
+    names = [n.strip() for n in (text.split(",") if isinstance(text, str) else text)]
+    names = [n for n in names if n]
+    if names == ["all"]:
+        return METRICS
+    unknown = [n for n in names if n not in METRICS]
+    if unknown or not names:
+        raise ValueError(
+            f"--metrics: {'unknown ' + ', '.join(unknown) if unknown else 'no metric named'}; "
+            f"choose from {', '.join(METRICS)} (or all)"
+        )
+    return tuple(m for m in METRICS if m in names)
+
+
+def chosen_metrics(settings: Any) -> tuple[str, ...]:
+    """The metrics a settings object asks for (its ``metrics``; all where it has none)."""
+    return parse_metrics(getattr(settings, "metrics", "all"))
+
+
 class ComplexityMeter:
     """Streams model-raster frames through the model-raster metrics; ``update`` continues from
     earlier chunks. With ``camera_baselines`` it also measures the source-raster metrics on
-    these frames (8-bit, full range): sources without native frames.
+    these frames (8-bit, full range): sources without native frames. Only the metrics in
+    ``metrics`` (default: the settings') are computed; the others are NaN.
 
     frames (T, H, W) uint8 luma; t_s (T,) seconds; repeat (T,) bool (None: detect them)."""
 
@@ -102,14 +133,25 @@ class ComplexityMeter:
         settings: MeasureSettings,
         context: dict[str, Any] | None = None,
         camera_baselines: bool = False,
+        metrics: tuple[str, ...] | None = None,
     ) -> None:
         self.s = settings
         self.fps = fps
         self.deg_per_px = deg_per_px
+        self.metrics = chosen_metrics(settings) if metrics is None else metrics
         ctx = context or {"fps": fps, "deg_per_px": deg_per_px}
-        self.model = TrueTimeModel(make_model(settings.model, **ctx))
-        self.dis = cv2.DISOpticalFlow_create(DIS_PRESETS[settings.flow_preset])
-        self.camera = NativeMeter(8, "full", settings.jpeg_quality) if camera_baselines else None
+        want_omega = "omega_dps" in self.metrics
+        self.model = TrueTimeModel(make_model(settings.model, **ctx)) if want_omega else None
+        want_flow = "flow_dps" in self.metrics
+        self.dis = (
+            cv2.DISOpticalFlow_create(DIS_PRESETS[settings.flow_preset]) if want_flow else None
+        )
+        native = tuple(m for m in NATIVE_METRICS if m in self.metrics)
+        self.camera = (
+            NativeMeter(8, "full", settings.jpeg_quality, (*native, "mafd"))
+            if camera_baselines
+            else None
+        )
         self.prev_new: np.ndarray | None = None  # the previous new (non-repeated) frame
         self.prev_new_t: float | None = None
         self.prev: np.ndarray | None = None
@@ -124,33 +166,48 @@ class ComplexityMeter:
             for r in repeat:
                 self.run = self.run + 1 if r else 0
         out = {m: np.full(len(frames), np.nan) for m in MODEL_METRICS}
-        out["omega_dps"] = self.model.run(frames, t_s, repeat)["omega_dps"]
+        if self.model is not None:
+            out["omega_dps"] = self.model.run(frames, t_s, repeat)["omega_dps"]
         if self.camera is not None:
             rows = np.stack([self.camera.row(f) for f in frames])
             out |= {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
+        want_zlib = "zlib_ratio" in self.metrics
         for i, f in enumerate(frames):
-            if not repeat[i]:
-                if self.prev_new is not None:
-                    flow = self.dis.calc(self.prev_new, f, None)
-                    px = float(np.abs(flow[..., 0]).mean())  # horizontal: the AVDM's axis
-                    dt = float(t_s[i]) - (self.prev_new_t or 0.0)
-                    dt = dt if dt > 0 else 1.0 / self.fps
-                    self.flow_held = px * self.deg_per_px / dt
-                self.prev_new, self.prev_new_t = f, float(t_s[i])
-            out["flow_dps"][i] = self.flow_held
-            raw = f.tobytes()
-            out["zlib_ratio"][i] = len(zlib.compress(raw, self.s.zlib_level)) / len(raw)
+            if self.dis is not None:
+                if not repeat[i]:
+                    if self.prev_new is not None:
+                        flow = self.dis.calc(self.prev_new, f, None)
+                        px = float(np.abs(flow[..., 0]).mean())  # horizontal: the AVDM's axis
+                        dt = float(t_s[i]) - (self.prev_new_t or 0.0)
+                        dt = dt if dt > 0 else 1.0 / self.fps
+                        self.flow_held = px * self.deg_per_px / dt
+                    self.prev_new, self.prev_new_t = f, float(t_s[i])
+                out["flow_dps"][i] = self.flow_held
+            if want_zlib:
+                raw = f.tobytes()
+                out["zlib_ratio"][i] = len(zlib.compress(raw, self.s.zlib_level)) / len(raw)
         self.prev = frames[-1] if len(frames) else self.prev
         return out
 
 
+def fov_free(metrics: tuple[str, ...], width: int | None = None) -> tuple[str, ...]:
+    """The ``metrics`` a video can give without its field of view: all but the angular ones
+    (deg/s), and but zlib_ratio unless ``width`` sets the model raster (else the FOV does)."""
+    need = ANGULAR_METRICS if width else MODEL_METRICS
+    return tuple(m for m in metrics if m not in need)
+
+
 def _frame_table(
-    parts: list[pl.DataFrame], raster: str, size: tuple[int, int], recording_id: str
+    parts: list[pl.DataFrame],
+    raster: str,
+    size: tuple[int, int],
+    recording_id: str,
+    metrics: tuple[str, ...] = METRICS,
 ) -> pl.DataFrame:
-    """The per-frame table of one source: recording_id, frame, t_s, repeat, the metrics in
-    :data:`METRICS` order, and the source raster's name and size."""
+    """The per-frame table of one source: recording_id, frame, t_s, repeat, the ``metrics``
+    in :data:`METRICS` order, and the source raster's name and size."""
     df = pl.concat(parts, how="diagonal_relaxed")
-    for m in METRICS:
+    for m in metrics:
         if m not in df.columns:
             df = df.with_columns(pl.lit(None, pl.Float64).alias(m))
     return df.with_columns(
@@ -158,13 +215,13 @@ def _frame_table(
         pl.lit(raster).alias("raster"),
         pl.lit(size[1], pl.Int64).alias("raster_width_px"),
         pl.lit(size[0], pl.Int64).alias("raster_height_px"),
-        pl.col(*METRICS).cast(pl.Float64).fill_nan(None),
+        pl.col(*metrics).cast(pl.Float64).fill_nan(None),
     ).select(
         "recording_id",
         "frame",
         "t_s",
         "repeat",
-        *METRICS,
+        *metrics,
         "raster",
         "raster_width_px",
         "raster_height_px",
@@ -219,7 +276,7 @@ def measure_recording(
     else:
         size = (int(cam.get("height_px", 0)), int(cam["width_px"]))
         raster = "camera"
-    table = _frame_table([df], raster, size, loaded.recording_id)
+    table = _frame_table([df], raster, size, loaded.recording_id, meter.metrics)
     frames = loaded.frames
     last_t = float(frames["t_s"].max() or 0.0) if frames.height else None
     header_s = src.get("header_duration_s")  # a video recording's file, as its header said
@@ -251,44 +308,58 @@ def measure_video(
     decoded once: the source-raster metrics on its native frames, the model-raster ones on
     the working raster ``vdc-capture video`` uses (the same frames, times and repeat flags:
     its recording then gives the same table)."""
+    from vdc.pipeline import usable_threads
     from vdc.sources import FrameBatcher, open_reader
 
-    if settings.fov_deg is None:
-        raise ValueError(
-            f"{source!r} is a video: give --fov-deg (the camera's horizontal field of view) so "
-            "the AVDM and the flow read deg/s"
-        )
+    metrics = chosen_metrics(settings)
+    if settings.fov_deg is None:  # the pixel metrics only (complexity notes it, once)
+        metrics = fov_free(metrics, settings.width)
+        if not metrics:
+            raise ValueError(
+                f"{source!r} is a video: give --fov-deg (the camera's horizontal field of view) "
+                "for the AVDM and the flow in deg/s, or ask for pixel metrics (--metrics)"
+            )
+    model_metrics = tuple(m for m in MODEL_METRICS if m in metrics)
     reader = open_reader(source, settings.fps)
+    batches = None
     try:
         info = reader.info
         fps = settings.fps or info["nominal_fps"]
         if not (math.isfinite(fps) and fps > 0):
             raise ValueError(f"{source!r} states no frame rate: pass --fps")
-        h, w = working_size(
-            info["src_height_px"], info["src_width_px"], settings.fov_deg, settings.width
-        )
-        ctx = camera_model_context(w, h, fps, settings.fov_deg)
-        batches = FrameBatcher(reader, (h, w), fps, 128, settings.repeat_tol, settings.max_repeats)
-        meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx)
+        size = ctx = meter = None
+        if model_metrics:
+            fov = settings.fov_deg or float(settings.width or 0) * ROBOT_DEG_PER_PX
+            size = working_size(info["src_height_px"], info["src_width_px"], fov, settings.width)
+            ctx = camera_model_context(size[1], size[0], fps, fov)
+        native = tuple(m for m in NATIVE_METRICS if m in metrics)
+        batches = FrameBatcher(
+            reader, size, fps, 128, settings.repeat_tol, settings.max_repeats, native,
+            usable_threads(), settings.jpeg_quality,
+        )  # fmt: skip
+        if ctx is not None:
+            meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics)
         parts = []
         while (fb := batches.next_batch()) is not None:
-            res = meter.update(fb.images, fb.t_s, fb.repeat)
-            native = {n: fb.native_metrics[:, k] for k, n in enumerate(NATIVE_METRICS)}
+            res = meter.update(fb.images, fb.t_s, fb.repeat) if meter is not None else {}
+            res = {m: v for m, v in res.items() if m in metrics}
+            values = {n: fb.native_metrics[:, k] for k, n in enumerate(NATIVE_METRICS)}
+            values = {n: v for n, v in values.items() if n in metrics}
             parts.append(
                 pl.DataFrame(
-                    {"frame": fb.frame, "t_s": fb.t_s, "repeat": fb.repeat, **res, **native}
+                    {"frame": fb.frame, "t_s": fb.t_s, "repeat": fb.repeat, **res, **values}
                 )
             )
             if progress is not None:
                 progress(len(fb.frame))
-        size = (int(info["src_height_px"]), int(info["src_width_px"]))
-        table = _frame_table(parts, "native", size, recording_id)
+        src_size = (int(info["src_height_px"]), int(info["src_width_px"]))
+        table = _frame_table(parts, "native", src_size, recording_id, metrics)
         meta = {
             "source": source,
             "kind": info["kind"],
             "codec": info["codec"],
-            "width_px": size[1],
-            "height_px": size[0],
+            "width_px": src_size[1],
+            "height_px": src_size[0],
             "fps": float(fps),
             "duration_s": float(batches.last_t_s or 0.0),
             "frames": table.height,
@@ -305,16 +376,20 @@ def measure_video(
         }
         return SourceMeasurement(table, meta)
     finally:
+        if batches is not None:
+            batches.close()
         reader.close()
 
 
 def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
-    """Spearman ρ of every pair of metrics over the frames where both are defined."""
+    """Spearman ρ of every pair of metrics (of those in ``df``) over the frames where both
+    are defined."""
     from analysis.stats import spearman
 
     rows = []
-    for i, a in enumerate(METRICS):
-        for b in METRICS[i + 1 :]:
+    present = [m for m in METRICS if m in df.columns]
+    for i, a in enumerate(present):
+        for b in present[i + 1 :]:
             d = df.select(a, b).drop_nulls()
             rho = spearman(d[a].to_numpy(), d[b].to_numpy()) if d.height > 2 else math.nan
             rows.append(

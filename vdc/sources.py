@@ -478,23 +478,42 @@ class FrameBatcher:
     repeats (a native mean |difference| from the previous frame of at most ``repeat_tol``
     8-bit levels, at most ``max_repeats`` in a row) and dropped frames (a gap of more than 1.5
     nominal intervals at ``fps``). ``vdc-capture video`` and ``vdc-analyse complexity`` both
-    read sources through it, so both see the same frames, times and flags."""
+    read sources through it, so both see the same frames, times and flags.
+
+    ``metrics``: the native metrics to compute (default all; the MAFD always, for the
+    repeats); ``size`` None: no working raster (``images`` then (N, 0, 0)). ``threads`` > 1:
+    decoding, the native metrics and the resize run as a pipeline of threads
+    (``vdc.pipeline``), with the same results bit for bit; call :meth:`close` (or read to the
+    end) to stop them."""
 
     def __init__(
         self,
         reader: Reader,
-        size: tuple[int, int],
+        size: tuple[int, int] | None,
         fps: float,
         batch_frames: int = 128,
         repeat_tol: float = 0.5,
         max_repeats: int = 3,
+        metrics: tuple[str, ...] | None = None,
+        threads: int = 1,
+        jpeg_quality: int = 75,
     ) -> None:
         from vdc.frame_metrics import NativeMeter
+        from vdc.recording import NATIVE_METRICS
 
         self.reader, self.size, self.fps = reader, size, float(fps)
         self.batch_frames, self.repeat_tol, self.max_repeats = batch_frames, repeat_tol, max_repeats
-        self.meter = NativeMeter(reader.info["bit_depth"], reader.info["color_range"])
-        self._it = reader.frames()
+        native = NATIVE_METRICS if metrics is None else (*metrics, "mafd")
+        self.meter = NativeMeter(
+            reader.info["bit_depth"], reader.info["color_range"], jpeg_quality, tuple(native)
+        )
+        if threads > 1:
+            from vdc.pipeline import pipelined
+
+            stages = [self._measure] if size is None else [self._measure, self._resize]
+            self._it: Iterator[tuple] = pipelined(reader.frames(), stages)
+        else:
+            self._it = (self._resize(self._measure(fr)) for fr in reader.frames())
         self._index = 0
         self._run = 0
         self._prev_t: float | None = None
@@ -503,17 +522,34 @@ class FrameBatcher:
         self.last_t_s: float | None = None
         self.ended = False
 
+    def _measure(self, fr: SourceFrame) -> tuple[SourceFrame, np.ndarray]:
+        """A frame's native metrics (one frame after another: the meter keeps the previous)."""
+        return fr, self.meter.row(fr.native, fr.packet_bytes)
+
+    def _resize(self, item: tuple[SourceFrame, np.ndarray]) -> tuple:
+        """(working-raster image or None, t_s, note, native metrics): the large planes let go."""
+        fr, row = item
+        if self.size is None:
+            return None, fr.t_s, fr.note, row
+        h, w = self.size
+        return cv2.resize(fr.luma, (w, h), interpolation=cv2.INTER_AREA), fr.t_s, fr.note, row
+
+    def close(self) -> None:
+        """Stop the pipeline's threads (the reader is the caller's to close)."""
+        close = getattr(self._it, "close", None)
+        if close is not None:
+            close()
+
     def next_batch(self) -> FrameBatch | None:
         from avdm.true_time import repeats_of
         from vdc.recording import NATIVE_METRICS
 
         images, times, notes, native = [], [], [], []
-        h, w = self.size
-        for fr in self._it:
-            images.append(cv2.resize(fr.luma, (w, h), interpolation=cv2.INTER_AREA))
-            times.append(fr.t_s)
-            notes.append(fr.note)
-            native.append(self.meter.row(fr.native, fr.packet_bytes))
+        for small, t, note, row in self._it:
+            images.append(small)
+            times.append(t)
+            notes.append(note)
+            native.append(row)
             if len(images) >= self.batch_frames:
                 break
         else:
@@ -536,4 +572,7 @@ class FrameBatcher:
         self._prev_t = self.last_t_s = float(t_s[-1])
         self.dropped_total += int(dropped.sum())
         self.repeats_total += int(repeat.sum())
-        return FrameBatch(frame, t_s, np.stack(images), metrics, repeat, dropped, dt, notes)
+        stacked = (
+            np.stack(images) if self.size is not None else np.zeros((len(images), 0, 0), np.uint8)
+        )
+        return FrameBatch(frame, t_s, stacked, metrics, repeat, dropped, dt, notes)

@@ -183,9 +183,28 @@ def test_names_come_from_the_file_not_the_pattern() -> None:
     assert source_name("frames/%05d.png") == "frames"
 
 
-def test_a_video_needs_its_field_of_view(coded, tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="--fov-deg"):
-        complexity([coded["full"]], ComplexitySettings(), tmp_path / "o")
+def test_a_folder_without_its_field_of_view_gives_the_pixel_metrics(coded, tmp_path: Path) -> None:
+    """No --fov-deg: the pixel metrics of every clip, the angular ones left out with one note
+    before any decoding; asking only for angular ones of videos is one line, exit 2."""
+    folder = tmp_path / "footage"
+    folder.mkdir()
+    for r, p in coded.items():
+        (folder / f"{r}.mp4").write_bytes(p.read_bytes())
+    notes: list[str] = []
+    res = complexity([folder], ComplexitySettings(), tmp_path / "o", notice=notes.append)
+    assert len(notes) == 1 and "omega_dps, flow_dps left out for the 2 video" in notes[0]
+    assert res.table.height == 48 and not res.failures
+    assert {"si_p910", "ti_p910", "mafd", "codec_bpp"} <= set(res.table.columns)
+    assert "omega_dps" not in res.table.columns and "flow_dps" not in res.table.columns
+    assert res.clips["si_p910_mean"].min() > 0
+    out = tmp_path / "o2"
+    proc = run_cli(
+        "analysis", "complexity", str(folder), "--metrics", "omega_dps", "--out", str(out)
+    )
+    assert_one_line_error(proc, "--fov-deg")
+    assert not out.exists()  # refused before anything was decoded or written
+    proc = run_cli("analysis", "complexity", str(folder), "--metrics", "si_p910,nope")
+    assert_one_line_error(proc, "unknown nope")
     reader = open_reader(str(coded["full"]))
     assert reader.info["color_range"] == "full" and reader.info["bit_depth"] == 8
     reader.close()

@@ -201,7 +201,7 @@ def test_complexity_of_a_video_recording_of_the_file_and_of_an_array(clips, tmp_
     the same table from the recording, from the video file itself and from arrays."""
     rec = tmp_path / "o.rrd"
     record_video(VideoSettings(str(clips["original"]), FOV), rec)
-    res = complexity([rec], out=tmp_path / "cx")
+    res = complexity([rec], ComplexitySettings(metrics="all"), tmp_path / "cx")
     df = pl.read_parquet(tmp_path / "cx" / "complexity.parquet")
     assert df.columns == [
         "recording_id", "frame", "t_s", "repeat", *METRICS, "raster", "raster_width_px",
@@ -219,7 +219,8 @@ def test_complexity_of_a_video_recording_of_the_file_and_of_an_array(clips, tmp_
     merged = Recording(tmp_path / "cx" / f"complexity_{res.table['recording_id'][0]}.rrd")
     assert merged.recording_id == Recording(rec).recording_id  # opens beside the source
     # the video file itself, decoded once: the same numbers, bit for bit (one code path)
-    direct = complexity([clips["original"]], ComplexitySettings(fov_deg=FOV), tmp_path / "cf")
+    every = ComplexitySettings(fov_deg=FOV, metrics="all")
+    direct = complexity([clips["original"]], every, tmp_path / "cf")
     assert direct.table.drop("recording_id").equals(df.drop("recording_id"))
     # the same on arrays, in a notebook: the decoded grey frames and their Y planes
     with av.open(str(clips["original"])) as c:
@@ -228,7 +229,7 @@ def test_complexity_of_a_video_recording_of_the_file_and_of_an_array(clips, tmp_
         planes = np.stack([luma_plane(f, 8) for f in decoded])
     arr = complexity_of_frames(
         grey, fps=30.0, fov_deg=FOV, native=planes, color_range="limited",
-        t_s=df["t_s"].to_numpy(),
+        t_s=df["t_s"].to_numpy(), settings=every,
     )  # fmt: skip
     for m in METRICS:
         if m != "codec_bpp":  # arrays come without the codec's packets
