@@ -57,7 +57,11 @@ CATALOG_EXTRA = "pip install 'visual-dynamic-complexity[catalog]'"
 class CatalogSettings:
     """``vdc-analyse catalog serve``: the dataset's name and where the server listens."""
 
-    dataset: str | None = option(None, "the dataset's name (default: the first folder's name)")
+    dataset: str | None = option(
+        None,
+        "the dataset's name (default: the first folder's name; querying a catalog URL: which of "
+        "its datasets, needed when it serves several)",
+    )
     host: str = option(
         LOOPBACK,
         "the address the server and the web viewer listen on (default: {default}, this "
@@ -446,6 +450,9 @@ def serve(
     address (None without ``settings.web``). Every process started is ended on the way out."""
     import signal
 
+    if any(is_catalog_url(f) for f in folders):
+        raise UserError("serve registers folders; a catalog URL is served already (query it)")
+
     def end(signum: int, _frame: Any) -> None:
         raise KeyboardInterrupt
 
@@ -527,7 +534,11 @@ def _end(proc: subprocess.Popen) -> None:
 def segment_table(cat: Catalog) -> pl.DataFrame:
     """One row per segment: its id, layers, and the summary properties as plain columns
     (``source``, ``scene``, ``seed``, ``mean_omega_dps``, ...)."""
-    seg = pl.from_arrow(cat.dataset.segment_table().to_arrow_table())
+    return _summary_columns(pl.from_arrow(cat.dataset.segment_table().to_arrow_table()))
+
+
+def _summary_columns(seg: pl.DataFrame) -> pl.DataFrame:
+    """A dataset's segment table reduced to the id, the layers and the summary properties."""
     prefix = f"property:{SUMMARY}:"
     cols = [c for c in seg.columns if c.startswith(prefix)]
     return seg.select(
@@ -573,8 +584,121 @@ def _signals_of(table: pl.DataFrame) -> dict[str, tuple[np.ndarray, np.ndarray, 
     return out
 
 
+def is_catalog_url(text: str | Path) -> bool:
+    """``text`` names a running catalog (``rerun+http://host:port``), not a folder."""
+    return str(text).startswith(("rerun+http://", "rerun+https://"))
+
+
+@dataclasses.dataclass
+class _Selection:
+    """What one query reads: the dataset view, each segment's properties and its variants'
+    model names ``{segment: {entity part: model name}}``."""
+
+    view: Any
+    props: dict[str, dict[str, dict[str, Any]]]
+    variant_names: dict[str, dict[str, str]]
+
+
+def _property_key(entity: str) -> str:
+    """A variant's entity part as a property field's name reads in a segment table (the
+    server spells ``avdm_beta_0.5`` as ``avdm_beta_0_5``): one key for both readings."""
+    return re.sub(r"[^A-Za-z0-9_]", "_", entity)
+
+
+def _properties_from_segment_table(seg: pl.DataFrame) -> dict[str, dict[str, dict[str, Any]]]:
+    """``{segment: {section: {field: value}}}`` from a segment table's ``property:S:F``
+    columns, decoded as ``Recording.properties()`` decodes a file's."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    cols = [c for c in seg.columns if c.startswith("property:") and c.count(":") >= 2]
+    for row in seg.select("rerun_segment_id", *cols).iter_rows(named=True):
+        props: dict[str, dict[str, Any]] = {}
+        for c in cols:
+            v = row[c]
+            if v is None:
+                continue
+            _, section, field = c.split(":", 2)
+            props.setdefault(section, {})[field] = (
+                v[0] if isinstance(v, list) and len(v) == 1 else v
+            )
+        out[row["rerun_segment_id"]] = props
+    return out
+
+
+@contextlib.contextmanager
+def _remote_dataset(url: str, settings: CatalogSettings) -> Iterator[tuple[Any, str]]:
+    """The dataset of a catalog already serving at ``url`` (``settings.dataset``, or its only
+    one); nothing is started or registered."""
+    rr = _require_catalog()
+    try:
+        client = rr.catalog.CatalogClient(url)
+        names = list(client.dataset_names())
+    except Exception as exc:  # connection refused, a wrong scheme, a server of another kind
+        raise UserError(f"no catalog answers at {url}: {str(exc).splitlines()[0][:200]}") from None
+    name = settings.dataset or (names[0] if len(names) == 1 else None)
+    if name is None or name not in names:
+        raise UserError(
+            f"the catalog at {url} serves {', '.join(names) or 'no dataset'}: "
+            + ("name one with --dataset" if name is None else f"no dataset {name!r}")
+        )
+    yield client.get_dataset(name), name
+
+
+@contextlib.contextmanager
+def _select(
+    sources: Sequence[str | Path],
+    where: dict[str, Any] | None,
+    layers: Sequence[str] | None,
+    settings: CatalogSettings,
+    notice: Callable[[str], None] | None,
+) -> Iterator[_Selection]:
+    """The segments matching ``where`` with the chosen layers, from folders (a catalog started
+    for the query) or from one catalog URL (a running server, as a lab's shared one)."""
+    from analysis.rrd_reader import Recording
+
+    urls = [s for s in sources if is_catalog_url(s)]
+    if urls:
+        if len(sources) != 1:
+            raise UserError("give either folders or one catalog URL (rerun+http://HOST:PORT)")
+        if layers:
+            raise UserError("from a catalog URL every layer's variants are read: leave out --layer")
+        with _remote_dataset(str(urls[0]), settings) as (ds, _name):
+            seg = pl.from_arrow(ds.segment_table().to_arrow_table())
+            ids = select_segments(_summary_columns(seg), where)
+            if not ids:
+                raise UserError(f"no segment matches {where}")
+            props = _properties_from_segment_table(seg)
+            names = {
+                rid: {_property_key(k): v for k, v in p.get("model_variants", {}).items()}
+                for rid, p in props.items()
+            }
+            yield _Selection(ds.filter_segments(ids), props, names)
+        return
+    with open_catalog(sources, settings, notice) as cat:
+        ids = select_segments(segment_table(cat), where)
+        if not ids:
+            raise UserError(f"no segment matches {where}")
+        chosen = [BASE, *(layers if layers is not None else [n for n in cat.found.layers])]
+        unknown = [n for n in chosen if n != BASE and n not in cat.found.layers]
+        if unknown:
+            raise UserError(f"no layer {unknown[0]!r} (layers: {', '.join(cat.found.layers)})")
+        names: dict[str, dict[str, str]] = {}
+        for layer in chosen[1:]:
+            for rid, path in cat.found.layers.get(layer, []):
+                recorded = Recording(path).properties().get("model_variants", {})
+                names.setdefault(rid, {}).update({_property_key(k): v for k, v in recorded.items()})
+        # a layer left out: its entity paths are left out of the one read
+        hidden = sorted(
+            {e for n, ents in cat.found.entities.items() if n not in chosen for e in ents}
+        )
+        view = cat.dataset.filter_segments(ids).filter_contents(
+            ["+ /**", *[f"- {e}" for e in hidden]]
+        )
+        props = {s.recording_id: Recording(s.path).properties() for s in cat.found.segments}
+        yield _Selection(view, props, names)
+
+
 def query(
-    folders: Sequence[str | Path],
+    folders: Sequence[str | Path] | str,
     where: dict[str, Any] | None = None,
     layers: Sequence[str] | None = None,
     settings: CatalogSettings = CatalogSettings(),
@@ -583,33 +707,16 @@ def query(
     """The ``frames`` and ``model_outputs`` tables of the segments whose summary properties
     match ``where``, read in one ``reader()`` call over the catalog, with the variants of the
     given ``layers`` (default: all) as models of their own: the tables ``tables`` writes for
-    the same recordings (and ``batch`` for the variants)."""
-    from analysis.rrd_reader import Recording
+    the same recordings (and ``batch`` for the variants).
+
+    ``folders`` are folders of recordings (a catalog is started for the query and stopped
+    after it), or one catalog URL, ``"rerun+http://HOST:PORT"``: a catalog already serving
+    (``vdc-analyse catalog serve``, a lab's shared server), read as it is."""
     from analysis.tables import FRAMES_COLUMNS, from_signals, signals_table
 
-    with open_catalog(folders, settings, notice) as cat:
-        segs = segment_table(cat)
-        ids = select_segments(segs, where)
-        if not ids:
-            raise UserError(f"no segment matches {where}")
-        chosen = [BASE, *(layers if layers is not None else [n for n in cat.found.layers])]
-        unknown = [n for n in chosen if n != BASE and n not in cat.found.layers]
-        if unknown:
-            raise UserError(f"no layer {unknown[0]!r} (layers: {', '.join(cat.found.layers)})")
-        props = {s.recording_id: s for s in cat.found.segments}
-        names: dict[str, dict[str, str]] = {}  # segment → variant entity part → model name
-        for layer in chosen[1:]:
-            for rid, path in cat.found.layers.get(layer, []):
-                recorded = Recording(path).properties().get("model_variants", {})
-                names.setdefault(rid, {}).update(recorded)
-        # a layer left out: its entity paths are left out of the one read
-        hidden = sorted(
-            {e for n, ents in cat.found.entities.items() if n not in chosen for e in ents}
-        )
-        view = cat.dataset.filter_segments(ids).filter_contents(
-            ["+ /**", *[f"- {e}" for e in hidden]]
-        )
-        raw = pl.from_arrow(view.reader(index=FRAME_TIMELINE).to_arrow_table())
+    sources = [folders] if isinstance(folders, (str, Path)) else list(folders)
+    with _select(sources, where, layers, settings, notice) as sel:
+        raw = pl.from_arrow(sel.view.reader(index=FRAME_TIMELINE).to_arrow_table())
     frames, outputs = [], []
     scalar = [c for c in raw.columns if c.endswith(":Scalars:scalars")]
     raw = raw.select(
@@ -619,13 +726,12 @@ def query(
         "rerun_segment_id", maintain_order=True
     ):
         sig = _signals_of(part)
-        rec_props = Recording(props[rid].path).properties()
-        f, logged, _ = from_signals(sig, rec_props, rid)
+        f, logged, _ = from_signals(sig, sel.props[rid], rid)
         frames.append(f)
         models = dict(logged)
         for entity in {e.split("/")[2] for e in sig if e.startswith(MODEL_VARIANTS_ROOT + "/")}:
             df = signals_table(sig, f"{MODEL_VARIANTS_ROOT}/{entity}/")
-            name = names.get(rid, {}).get(entity, entity)
+            name = sel.variant_names.get(rid, {}).get(_property_key(entity), entity)
             # a variant named like the online model recomputes its logged outputs (bit for
             # bit): the logged ones stay
             if df is not None and name not in models:

@@ -248,7 +248,11 @@ def _reproduce_inputs(p: argparse.ArgumentParser) -> None:
 
 def _catalog_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("action", choices=("serve", "query"), help="serve the folders, or query them")
-    p.add_argument("folders", nargs="+", metavar="FOLDER", help="folders of recordings and outputs")
+    p.add_argument(
+        "folders", nargs="+", metavar="FOLDER",
+        help="folders of recordings and outputs; query also takes one running catalog's URL, "
+        "rerun+http://HOST:PORT (a lab's shared server)",
+    )  # fmt: skip
     p.add_argument(
         "--out", default="results/catalog-query", help="query: output folder (default: %(default)s)"
     )

@@ -191,6 +191,38 @@ def test_the_web_viewer_shows_the_dataset_in_a_real_browser(campaign, tmp_path: 
     assert not _listening("127.0.0.1", web_port)
 
 
+def test_a_catalog_already_serving_is_queried_by_its_url(campaign, tmp_path: Path) -> None:
+    """A lab's shared server: ``catalog serve`` in one process, ``catalog query URL`` (and
+    ``vdc.catalog.query(URL)``) in another give the tables a query by folder gives."""
+    import vdc.catalog
+
+    where = {"behaviour": "profile", "repaired": "false"}
+    by_folder = query([campaign["root"]], where=where)
+    proc = spawn(
+        [sys.executable, "-m", "analysis", "catalog", "serve", str(campaign["root"])],
+        stdout=-1, stderr=-1, text=True,
+    )  # fmt: skip
+    try:
+        lines = _wait_for(proc, "serving until Ctrl-C")
+        dataset = next(ln.split()[-1] for ln in lines if ln.startswith("open it: rerun"))
+        url = dataset.split("/dataset/")[0]
+        by_url = vdc.catalog.query(url, where=where)
+        assert by_url["frames"].equals(by_folder["frames"])
+        cols = by_folder["model_outputs"].columns
+        assert by_url["model_outputs"].select(cols).equals(by_folder["model_outputs"])
+        out = tmp_path / "q"
+        cli = run_cli("analysis", "catalog", "query", url, "--where", "seed=2", "--out", str(out))
+        assert cli.returncode == 0, cli.stderr
+        assert pl.read_parquet(out / "frames.parquet")["recording_id"].n_unique() >= 1
+        bad = run_cli("analysis", "catalog", "query", url, "--layer", "bt", "--out", str(out))
+        assert_one_line_error(bad, "--layer")
+    finally:
+        os.kill(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=20)
+    gone = run_cli("analysis", "catalog", "query", url, "--out", str(tmp_path / "g"))
+    assert_one_line_error(gone, "no catalog answers at")
+
+
 def test_bad_catalog_input_is_one_line(tmp_path: Path) -> None:
     proc = run_cli("analysis", "catalog", "serve", str(tmp_path / "missing"))
     assert_one_line_error(proc, "is not a folder")
