@@ -323,8 +323,18 @@ def boundaries(conditions: pl.DataFrame, by: str, target: float) -> pl.DataFrame
     return pl.DataFrame(rows)
 
 
+def _finite(value: Any) -> bool:
+    return isinstance(value, int | float) and math.isfinite(value)
+
+
 def describe_boundary(row: dict[str, Any]) -> str:
-    """One boundary as a phrase: "31.2 deg/s (between 20.5 and 35.0)"."""
+    """One boundary as a phrase: "31.2 deg/s (between 20.5 and 35.0)"; never a number that is
+    not one (a phrase with "nan" in it is no verdict)."""
+    needed = {"beyond": ["boundary_low_dps"], "below": ["boundary_high_dps"]}.get(
+        row["where"], ["boundary_dps", "boundary_low_dps", "boundary_high_dps"]
+    )
+    if not all(_finite(row.get(k)) for k in needed):
+        return "not placed: the complexity of its conditions could not be measured"
     if row["where"] == "beyond":
         return f"beyond the grid (> {row['boundary_low_dps']:.1f} deg/s)"
     if row["where"] == "below":
@@ -513,6 +523,8 @@ def interval(row: dict[str, Any], name: str, scale: float = 1.0, digits: int = 1
     """``mean [low, high]`` of ``name`` in a statistics row."""
     mean_key = {"success": "success_rate", "complexity": "complexity_dps"}.get(name, name)
     m, lo, hi = (row[mean_key], row[f"{name}_low"], row[f"{name}_high"])
+    if not _finite(m):
+        return "—"  # not measured: never "nan" in a report
     if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
         return f"{m * scale:.{digits}f}"
     return f"{m * scale:.{digits}f} [{lo * scale:.{digits}f}, {hi * scale:.{digits}f}]"
