@@ -238,13 +238,20 @@ def _frame_kind(rec: Any) -> str | None:
     return None
 
 
-def _batch_layers(folder: Path, cache: Path, segments: set[str]) -> Iterator[tuple[str, str, Path]]:
+def _batch_layers(
+    folder: Path, cache: Path, segments: set[str], left: list[tuple[str, str]]
+) -> Iterator[tuple[str, str, Path]]:
     """``batch`` outputs as layers: each (recording, variant) part written once as an ``.rrd``
-    of its outputs under ``/model_variants/<variant>/...`` → (layer, recording id, file)."""
+    of its outputs under ``/model_variants/<variant>/...`` → (layer, recording id, file); a
+    part that cannot be read is added to ``left``."""
     from analysis.analysis_rrd import write_variants_rrd
 
     for part in sorted(folder.glob("parts/recording_id=*/model=*/model_outputs.parquet")):
-        df = pl.read_parquet(part)
+        try:
+            df = pl.read_parquet(part)
+        except Exception as exc:  # a damaged part leaves the others be
+            left.append((str(part), _without_path(exc, part)))
+            continue
         if df.height == 0:
             continue
         rid, model = df["recording_id"][0], df["model"][0]
@@ -259,12 +266,55 @@ def _batch_layers(folder: Path, cache: Path, segments: set[str]) -> Iterator[tup
         yield f"batch-{slug}", rid, dest
 
 
+def _without_path(exc: Exception, *paths: Path) -> str:
+    """An error about one file as a note's reason: without the file's name in front (the note
+    names it), and naming the user's file where it named a repaired copy."""
+    msg = str(exc) if isinstance(exc, ValueError | OSError) else f"{type(exc).__name__}: {exc}"
+    msg = msg.splitlines()[0] if msg else type(exc).__name__
+    for path in paths:
+        if msg.startswith(f"{str(path)!r} "):
+            msg = msg[len(f"{str(path)!r} ") :]
+    return msg.replace(str(paths[0]), str(paths[-1])) if len(paths) > 1 else msg
+
+
+def _preference(item: tuple[Path, Any, dict[str, Any]]) -> tuple[bool, bool, int]:
+    """Between files of one recording id, the complete one first: with a footer, then a run
+    that ended, then the larger file."""
+    path, rec, props = item
+    finished = bool(props.get("run_end", {}).get("complete", False))
+    return (rec.notice is not None, not finished, -path.stat().st_size)
+
+
+def _register(path: Path, rec: Any, cache: Path, say: Callable[[str], None]) -> Segment:
+    """One recording checked and made ready to register: repaired into the cache if it has no
+    footer (with a note), its summary computed (or read from the cache). ValueError (or the
+    reader's error) if it cannot be served."""
+    rid = rec.recording_id
+    registered = path
+    if rec.notice is not None:  # no footer: the server would load it whole
+        registered = repair(path, cache / "repaired" / f"{_stamp(path)}.rrd")
+    dest = cache / SUMMARY_LAYER / f"{_stamp(path)}.rrd"
+    summary = _read_summary(dest) if dest.exists() else None
+    if summary is None:
+        summary = headline(registered, repaired=registered != path)
+        _write_summary_layer(rid, summary, dest)
+    if registered != path:
+        say(
+            f"{path} has no footer (the capture was cut short): registered a repaired copy of "
+            "its complete messages (marked repaired)"
+        )
+    return Segment(rid, registered, path, summary)
+
+
 def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = None) -> Found:
-    """Find the recordings and the analysis outputs under ``folders`` (see the module)."""
+    """Find the recordings and the analysis outputs under ``folders`` (see the module). A file
+    that cannot be served is left out with a one-line reason, never taking the others down;
+    between files of one recording id the complete one is registered, whatever their names."""
     from analysis.rrd_reader import Recording, RecordingError
 
     say = notice or (lambda _m: None)
     segments: dict[str, Segment] = {}
+    runs: dict[str, list[tuple[Path, Any, dict[str, Any]]]] = {}  # recording id → files
     layers: dict[str, list[tuple[str, Path]]] = {}
     left: list[tuple[str, str]] = []
     outputs: list[tuple[str, Path]] = []
@@ -291,23 +341,11 @@ def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = N
                 if kind is not None and kind != "int64":
                     left.append((str(path), f"its frame timeline is {kind}, not a frame count"))
                     continue
-            except RecordingError as exc:
-                left.append((str(path), str(exc)))
+            except (RecordingError, OSError) as exc:
+                left.append((str(path), _without_path(exc, path)))
                 continue
             if "run" in props:
-                rid = rec.recording_id
-                if rid in segments:
-                    first = segments[rid].source
-                    left.append((str(path), f"the same recording as {str(first)!r} (id {rid})"))
-                    continue
-                registered = path
-                if rec.notice is not None:  # no footer: the server would load it whole
-                    try:
-                        registered = repair(path, cache / "repaired" / f"{_stamp(path)}.rrd")
-                    except ValueError as exc:
-                        left.append((str(path), str(exc)))
-                        continue
-                segments[rid] = Segment(rid, registered, path, {})
+                runs.setdefault(rec.recording_id, []).append((path, rec, props))
             elif path.name == "variants.rrd":
                 outputs.append((f"compare-{path.parent.name}", path))
             elif path.name.startswith("complexity_"):
@@ -317,23 +355,37 @@ def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = N
         batch_folders += [
             p.parent for p in folder.rglob("parts") if p.is_dir() and p.parent != folder
         ]
-    # summary layers: from the cache where the file has not changed
+    # each recording id: its most complete file that can be served (summary layers from the
+    # cache where the file has not changed)
+    for rid, files in runs.items():
+        for path, rec, _props in sorted(files, key=_preference):
+            if rid in segments:
+                first = segments[rid].source
+                left.append((str(path), f"the same recording as {str(first)!r} (id {rid})"))
+                continue
+            repaired = cache / "repaired" / f"{_stamp(path)}.rrd"
+            try:
+                segments[rid] = _register(path, rec, cache, say)
+            except Exception as exc:  # one file that cannot be served leaves the others be
+                reason = _without_path(exc, repaired, path)
+                if rec.notice is not None:
+                    reason += " (it has no footer: the capture was cut short)"
+                left.append((str(path), reason))
     for seg in segments.values():
         dest = cache / SUMMARY_LAYER / f"{_stamp(seg.source)}.rrd"
-        summary = _read_summary(dest) if dest.exists() else None
-        if summary is None:
-            summary = headline(seg.path, repaired=seg.path != seg.source)
-            _write_summary_layer(seg.recording_id, summary, dest)
-        seg.summary = summary
         layers.setdefault(SUMMARY_LAYER, []).append((seg.recording_id, dest))
     for name, path in outputs:
-        rid = Recording(path).recording_id
+        try:
+            rid = Recording(path).recording_id
+        except (RecordingError, OSError) as exc:
+            left.append((str(path), _without_path(exc, path)))
+            continue
         if rid not in segments:
             left.append((str(path), f"its recording ({rid}) is not in these folders"))
             continue
         layers.setdefault(name, []).append((rid, path))
     for folder in dict.fromkeys(batch_folders):
-        for name, rid, path in _batch_layers(folder, cache, set(segments)):
+        for name, rid, path in _batch_layers(folder, cache, set(segments), left):
             layers.setdefault(name, []).append((rid, path))
     entities = _drop_colliding(layers, left)
     for path, why in left:
@@ -360,7 +412,11 @@ def _drop_colliding(
             continue
         kept = []
         for rid, path in layers[name]:
-            ents = _entities(path)
+            try:
+                ents = _entities(path)
+            except ValueError as exc:  # a damaged layer leaves the others be
+                left.append((str(path), _without_path(exc, path)))
+                continue
             mine = seen.setdefault(rid, {})
             clash = sorted(e for e in ents if e in mine)
             if clash:
@@ -423,6 +479,8 @@ def open_catalog(
     """Start a catalog server on ``settings.host`` and register the folders (see the module);
     the server stops when the block ends."""
     rr = _require_catalog()
+    if settings.port:
+        _require_free_port(settings.host, settings.port, "--port")
     found = scan(folders, notice)
     if not found.segments:
         raise UserError(f"no vdc recording found under {', '.join(map(str, folders))}")
@@ -456,6 +514,8 @@ def serve(
     def end(signum: int, _frame: Any) -> None:
         raise KeyboardInterrupt
 
+    if settings.web and settings.web_port:  # said before anything starts or is announced
+        _require_free_port(settings.host, settings.web_port, "--web-port")
     previous = signal.signal(signal.SIGTERM, end)
     web = None
     try:
@@ -477,6 +537,21 @@ def serve(
         signal.signal(signal.SIGTERM, previous)
 
 
+def _require_free_port(host: str, port: int, flag: str) -> None:
+    """UserError, in one line, if another process holds ``port`` on ``host`` (checked before
+    anything is started or announced)."""
+    import socket
+
+    with socket.socket() as s:
+        try:
+            s.bind((host, port))
+        except OSError as exc:
+            raise UserError(
+                f"{flag} {port}: the port is taken on {host} ({exc.strerror or exc}); choose "
+                "another, or 0 for a free one"
+            ) from None
+
+
 def _free_port(host: str) -> int:
     import socket
 
@@ -493,6 +568,8 @@ def _web_viewer(url: str, settings: CatalogSettings) -> tuple[subprocess.Popen, 
     import socket
     import tempfile
 
+    if settings.web_port:
+        _require_free_port(settings.host, settings.web_port, "--web-port")
     port = settings.web_port or _free_port(settings.host)
     cmd = [_rerun_binary(), "--serve-web", "--bind", settings.host, "--web-viewer-port",
            str(port), url]  # fmt: skip

@@ -47,7 +47,7 @@ from analysis.boundary import (
     with_override,
 )
 from analysis.stats import mean_ci, share_ci
-from avdm.base import require_alert
+from avdm.base import check_detector, require_alert
 
 LABEL_COLUMNS = ("clip", "label", "collision_frame")
 COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg/s)
@@ -124,13 +124,17 @@ def _working_camera(
     return (h, w), fps, camera_model_context(w, h, fps, fov_deg)
 
 
-def clip_context(source: str, fov_deg: float, width: int | None = None) -> dict[str, Any]:
-    """The camera facts a model is built with for this clip (as ``vdc-capture video``)."""
+def clip_camera(
+    source: str, fov_deg: float, width: int | None = None
+) -> tuple[tuple[int, int], dict[str, Any]]:
+    """The clip's working raster (H, W) and the camera facts a model is built with for it (as
+    ``vdc-capture video``)."""
     from vdc.sources import open_reader
 
     reader = open_reader(source)
     try:
-        return _working_camera(reader.info, source, fov_deg, width)[2]
+        shape, _fps, ctx = _working_camera(reader.info, source, fov_deg, width)
+        return shape, ctx
     finally:
         reader.close()
 
@@ -291,11 +295,12 @@ def footage_boundary(
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {v: with_override(s.detector, s.param, v) for v in values}
     labels = read_labels(s.labels or "")
-    from avdm.registry import make_model
 
-    ctx = clip_context(labels["source"][0], s.fov_deg)
-    for spec in specs.values():  # a factory that raises or a model without alert fails now
-        require_alert(make_model(spec, **ctx))
+    # each value built and stepped on one frame of the clips' raster, before any clip runs: a
+    # factory that raises, a model without alert or one whose step cannot give it fails now
+    shape, ctx = clip_camera(labels["source"][0], s.fov_deg)
+    for spec in specs.values():
+        check_detector(spec, ctx, shape)
     out = Path(out)
     say(f"footage: {labels.height} clip(s) x {len(values)} value(s) of {s.param}, {s.detector}")
     complexity = clip_complexity(

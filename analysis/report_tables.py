@@ -28,6 +28,8 @@ def interval(row: dict[str, Any], name: str, scale: float = 1.0, digits: int = 1
     """``mean [low, high]`` of ``name`` in a statistics row."""
     mean_key = {"success": "success_rate", "complexity": "complexity_dps"}.get(name, name)
     m, lo, hi = (row[mean_key], row[f"{name}_low"], row[f"{name}_high"])
+    if not (isinstance(m, int | float) and math.isfinite(m)):
+        return "—"  # not measured: never "nan" in a report
     if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
         return f"{m * scale:.{digits}f}"
     return f"{m * scale:.{digits}f} [{lo * scale:.{digits}f}, {hi * scale:.{digits}f}]"

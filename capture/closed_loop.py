@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from avdm.base import require_alert
+from avdm.base import check_detector
 from avdm.registry import make_model
 from capture.config import CollisionConfig, SimConfig
 from capture.device import Batch, Event
@@ -165,7 +165,9 @@ class ClosedLoopRobot(SimulatedRobot):
         super().__init__(config, batch_size)
         ctx = config.camera.model_context()
         self._detector_spec = config.collision.detector_spec()
-        require_alert(make_model(self._detector_spec, **ctx))  # fail early on a bad spec
+        # built and stepped once on the camera's raster: a bad spec or plug-in fails early
+        cam = config.camera
+        check_detector(self._detector_spec, ctx, (cam.height_px, cam.width_px))
         make_model(config.model, **ctx)
 
     def _make_motion(self) -> CollisionMotion:

@@ -253,6 +253,9 @@ def adaptation(
     for n in notices:
         say(f"note: {n}")
     items = adaptation_items(s, out / "recordings")
+    from analysis.experiments.captures import check_detectors
+
+    check_detectors(st.to_config() for _, st, _, _ in items)  # one line before any run
     say(f"adaptation: {len(s.conditions())} held-out condition(s), {len(items)} run(s)")
     runs = run_grid(items, "collision", s, s.false_alarm_m, say, progress)
     complexity = condition_complexity(runs, "online_dps")

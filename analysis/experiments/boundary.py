@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ import polars as pl
 
 from analysis.boundary import (
     ROW_VERSION,
+    WARMUP_FRAMES,
     BoundaryResult,
     BoundarySettings,
     arena_report,
@@ -67,9 +69,12 @@ def run_grid(
     """Record and measure every ``(key, SimSettings, path, columns)`` on ``executor``; one row
     per run with ``columns`` (its condition) first. A failed run does not stop the others:
     they are kept and :class:`vdc.executors.TasksFailed` names the failed ones."""
+    from analysis.experiments.captures import check_detectors
     from vdc.executors import TasksFailed, failure_report, run_tasks
 
     by_key = {k: cols for k, _, _, cols in items}
+    # a detector that cannot be one: one line before the first run, not one failure per run
+    check_detectors(settings.to_config() for _, settings, _, _ in items)
     tasks = []
     for key, settings, path, _ in items:
         settings.to_config()  # a bad configuration fails before any process starts
@@ -93,10 +98,52 @@ def run_grid(
         log,
         shared_paths=[items[0][2].parent] if items else [],
     )
+    reused = sum(bool(r.get("reused")) for r in rows)
+    if reused:
+        log(f"reused {reused} of {len(items)} {kind} run(s) that an earlier run finished")
     report = failure_report(outcomes, "run")
     if report:
         raise TasksFailed(report)
     return pl.DataFrame(rows).sort("key")
+
+
+def _shortest_run(s: BoundarySettings, sim: Any) -> str:
+    """How long runs need to be, as the end of a sentence (``sim``: one run's SimSettings,
+    whose arena, robot and camera say how soon a robot can meet a wall and how long the
+    warm-up of every measurement is)."""
+    c = sim.to_config()
+    warmup_s = WARMUP_FRAMES / c.camera.fps
+    # from the arena's centre the robot meets a wall in half its length at most
+    first_s = c.arena.length_m / 2 / c.robot.speed_mps + warmup_s
+    return (
+        f"a run meets a wall {first_s:.0f} s in at the earliest ({c.arena.length_m:g}-m arena "
+        f"at {c.robot.speed_mps:g} m/s, after the {warmup_s:.1f}-s warm-up of every measure), "
+        f"so runs need --minutes {math.ceil(first_s / 6) / 10:g} at the very least, and "
+        f"several minutes for a success rate (the default is 10; these were {s.minutes:g})"
+    )
+
+
+def require_evidence(
+    runs: pl.DataFrame, complexity: pl.DataFrame | None, s: BoundarySettings, sim: Any
+) -> None:
+    """UserError, in one line, where the runs hold no evidence to place a boundary on (or fit
+    a policy to): no run had an avoidance or a crash, or (``complexity`` given) a condition's
+    complexity could not be measured. The line says how long runs need to be."""
+    from vdc.cli_support import UserError
+
+    if not runs.height or int(runs["avoidances"].sum() + runs["crashes"].sum()) == 0:
+        raise UserError(
+            f"no run had an avoidance or a crash ({runs.height} run(s)): there is no evidence "
+            f"to place a boundary on; {_shortest_run(s, sim)}"
+        )
+    if complexity is not None:
+        bad = complexity.filter(~pl.col("complexity_dps").is_finite())["condition"].to_list()
+        if bad:
+            raise UserError(
+                f"the complexity of {', '.join(bad)} could not be measured (no frame after "
+                f"the warm-up): there is no evidence to place a boundary on; "
+                f"{_shortest_run(s, sim)}"
+            )
 
 
 def boundary(
@@ -192,6 +239,9 @@ def arena_boundary(
     rec = out / "recordings"
     items = grid_items(s, rec)
     prof = profile_items(s, rec) if s.complexity == "profile" else []
+    from analysis.experiments.captures import check_detectors
+
+    check_detectors(settings.to_config() for _, settings, _, _ in items[:1])  # before a word
     say(
         f"boundary of {s.detector} over {s.param} = {list(s.grid_values())}: {len(s.conditions())} "
         f"condition(s) x {len(s.grid_values())} value(s) x {s.seeds} seed(s) of "
@@ -199,12 +249,14 @@ def arena_boundary(
         + (f", plus {len(prof)} profiling run(s)" if prof else "")
     )
     runs = run_grid(items, "collision", s, s.false_alarm_m, say, progress)
+    require_evidence(runs, None, s, items[0][1])  # never a verdict from no evidence
     if prof:
         profiles = run_grid(prof, "profile", s, s.false_alarm_m, say, progress)
         complexity = condition_complexity(profiles, "profile_dps")
     else:
         profiles = None
         complexity = condition_complexity(runs, "online_dps")
+    require_evidence(runs, complexity, s, items[0][1])
     conditions = condition_statistics(runs, complexity, ["condition", s.param])
     fitted, fits = grid_fits(runs, complexity, s.param, s.target)
     bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "grid")

@@ -9,8 +9,9 @@ of fresh processes, or a Dask cluster), so a campaign of many long runs spreads 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 from analysis.rrd_reader import Recording, RecordingError
 from capture.sim import SimSettings, record_sim
@@ -38,6 +39,26 @@ def is_done(path: Path, recording_id: str) -> bool:
     return rec.recording_id == recording_id and bool(end.get("complete"))
 
 
+def check_detectors(configs: Iterable[Any]) -> None:
+    """Every collision run's detector (each distinct one once: spec and camera), built and
+    stepped on one frame of the camera's raster (:func:`avdm.base.check_detector`), before any
+    run: a detector that cannot be one is a ValueError in one line, not one failure per run.
+    ``configs``: :class:`capture.config.SimConfig` items."""
+    from avdm.base import check_detector
+
+    seen = set()
+    for config in configs:
+        if config.behaviour != "collision":
+            continue
+        cam = config.camera
+        spec, ctx = config.collision.detector_spec(), cam.model_context()
+        shape = (cam.height_px, cam.width_px)
+        key = (spec, shape, tuple(sorted(ctx.items())))
+        if key not in seen:
+            seen.add(key)
+            check_detector(spec, ctx, shape)
+
+
 def _record(key: str, settings: SimSettings, out: str) -> dict:
     """One run, as an executor task (module-level, small arguments, small result)."""
     t0 = time.perf_counter()
@@ -53,6 +74,7 @@ def run_captures(
     A failed run does not stop the others: they finish and are kept, then
     :class:`TasksFailed` names the failed ones (a re-run records only those)."""
     todo, paths = [], {}
+    check_detectors(settings.to_config() for _, settings, _ in items)
     for key, settings, out in items:
         run_id = settings.to_config().run_id()  # a bad configuration fails before any process
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -22,7 +22,7 @@ from pathlib import Path
 import polars as pl
 
 from analysis.collision import CollisionSettings, collision
-from analysis.experiments.captures import CaptureItem, run_captures
+from analysis.experiments.captures import CaptureItem, check_detectors, run_captures
 from avdm.registry import add_overrides, parse_model_spec
 from capture.sim import SimSettings
 from vdc.cli_support import non_negative_int, option, positive_float
@@ -151,6 +151,8 @@ def collision_study(
     out = Path(out)
     say = log or (lambda _m: None)
     phases = study_phases(settings.detector, settings.adjusted)
+    # every phase's detector, once, before a word or a run (one line if one cannot be one)
+    check_detectors(phase_settings(p, settings.minutes, settings.seed).to_config() for p in phases)
     say(
         f"collision study: {len(phases)} phases x {settings.seeds} seed(s) of "
         f"{settings.minutes:g} min, detector {settings.detector}, adjusted threshold "

@@ -244,3 +244,66 @@ def test_a_where_that_names_no_property_is_one_line(campaign, tmp_path: Path) ->
     settings = CatalogSettings(where=("seed",))
     with pytest.raises(Exception, match="KEY=VALUE"):
         settings.where_dict()
+
+
+@pytest.fixture(scope="module")
+def intact_and_cut(tmp_path_factory) -> tuple[Path, bytes]:
+    """A 30-s profiling run and its first 60 % (a copy that stopped early): the cut part holds
+    no poses yet, so it cannot be served at all."""
+    root = tmp_path_factory.mktemp("cutcopy")
+    run = record_sim(SimSettings(tf_hz=1.0, minutes=0.5, seed=4), root / "run.rrd").path
+    data = run.read_bytes()
+    return run, data[: int(len(data) * 0.6)]
+
+
+@pytest.mark.parametrize("cut_name", ["a_cut.rrd", "z_cut.rrd"])  # sorts first, then last
+def test_a_cut_copy_never_sinks_the_intact_recording(intact_and_cut, cut_name, tmp_path) -> None:
+    run, cut_bytes = intact_and_cut
+    folder = tmp_path / "runs"
+    folder.mkdir()
+    intact = folder / "run.rrd"
+    intact.write_bytes(run.read_bytes())
+    (folder / cut_name).write_bytes(cut_bytes)
+    notes: list[str] = []
+    q = query([folder], notice=notes.append)
+    whole = tables([intact], TablesSettings())
+    assert q["frames"].equals(whole.frames)  # the intact recording is served, all of it
+    assert notes == [
+        f"not registered: {folder / cut_name}: the same recording as {str(intact)!r} "
+        f"(id {whole.frames['recording_id'][0]})"
+    ]
+    # the cut copy alone: left out in one note naming the user's file, not a cache copy
+    intact.unlink()
+    proc = run_cli("analysis", "catalog", "query", str(folder), "--out", str(tmp_path / "q"))
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 2 and "cache" not in proc.stderr, proc.stderr
+    assert lines[0].endswith(
+        f"not registered: {folder / cut_name}: holds neither poses nor frame timing nor model "
+        "outputs (it has no footer: the capture was cut short)"
+    )
+    assert "no vdc recording found" in lines[1]
+
+
+def test_query_says_it_repaired_a_recording_without_footer(campaign) -> None:
+    notes: list[str] = []
+    q = query([campaign["root"]], where={"repaired": "true"}, layers=[], notice=notes.append)
+    assert q["frames"].height > 0
+    repaired = [n for n in notes if "has no footer" in n]
+    assert repaired == [
+        f"{campaign['root'] / 'recordings' / 'cut.rrd'} has no footer (the capture was cut "
+        "short): registered a repaired copy of its complete messages (marked repaired)"
+    ]
+
+
+def test_a_web_port_another_process_holds_is_said_before_anything_starts(campaign) -> None:
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        proc = run_cli(
+            "analysis", "catalog", "serve", str(campaign["root"]), "--web",
+            "--web-port", str(port), timeout=120,
+        )  # fmt: skip
+    assert_one_line_error(proc, f"--web-port {port}: the port is taken on 127.0.0.1")
+    assert "web viewer:" not in proc.stdout  # never announced
