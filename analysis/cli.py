@@ -154,7 +154,9 @@ def cmd_complexity(args: argparse.Namespace) -> int:
 
 
 def cmd_catalog(args: argparse.Namespace) -> int:
-    from analysis.catalog import CatalogSettings, dataset_url, query_to, serve
+    from analysis.catalog import CatalogSettings
+    from analysis.catalog_query import query_to
+    from analysis.catalog_server import dataset_url, serve
 
     s = settings_from_args(CatalogSettings, args)
     if args.action == "query":

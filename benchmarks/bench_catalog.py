@@ -18,7 +18,8 @@ from pathlib import Path
 
 import rerun as rr
 
-from analysis.catalog import CatalogSettings, open_catalog, scan
+from analysis.catalog import CatalogSettings, scan
+from analysis.catalog_server import open_catalog
 from capture.sim import SimSettings, record_sim
 
 

@@ -8,18 +8,9 @@
 Importing it loads Rerun and polars: ``import vdc`` alone stays light.
 """
 
-from analysis.catalog import (
-    Catalog,
-    CatalogSettings,
-    dataset_url,
-    open_catalog,
-    query,
-    query_to,
-    scan,
-    segment_table,
-    select_segments,
-    serve,
-)
+from analysis.catalog import CatalogSettings, scan
+from analysis.catalog_query import query, query_to, segment_table, select_segments
+from analysis.catalog_server import Catalog, dataset_url, open_catalog, serve
 
 __all__ = [
     "Catalog",

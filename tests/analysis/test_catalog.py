@@ -18,7 +18,9 @@ import pytest
 import rerun as rr
 
 from analysis.batch import BatchSettings, batch
-from analysis.catalog import CatalogSettings, open_catalog, query, segment_table
+from analysis.catalog import CatalogSettings
+from analysis.catalog_query import query, segment_table
+from analysis.catalog_server import open_catalog
 from analysis.compare import CompareSettings, compare
 from analysis.complexity import ComplexitySettings, complexity
 from analysis.tables import TablesSettings, tables
