@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -87,32 +87,52 @@ def sfa_step(smp: float, smp_prev: float, sfa_prev: float, h: float, t_sfa: floa
     return max(0.5, h * (sfa_prev + d)) if d <= t_sfa else max(0.5, h * smp)
 
 
-class LgmdPlusReference:
-    """LGMD+ one frame at a time (float64 NumPy)."""
+class _ReferenceBase:
+    """What both references share: the output names, the spike window, the first frame's
+    layers at 0, and ``run`` as a sequence of steps."""
 
     outputs: ClassVar[tuple[Output, ...]] = LGMD_OUTPUTS
 
-    def __init__(self, params: LgmdPlusParams, name: str = "lgmd-plus-reference") -> None:
+    def __init__(self, params: Any, name: str) -> None:
         self.name = name
         self.params = params
         self.reset()
 
     def reset(self) -> None:
         self._prev: dict[str, np.ndarray] | None = None
-        self._f = 0.0
         self._smp = 0.0
         self._sfa = 0.0
         self._spikes: deque[int] = deque([0] * self.params.n_ts, maxlen=self.params.n_ts)
 
+    def _begin(
+        self, frame: np.ndarray, layers: tuple[str, ...], dtype: type
+    ) -> tuple[np.ndarray, float, dict[str, np.ndarray]]:
+        """The frame as levels, the frame interval (ms) and the previous frame's layers (before
+        the first frame: the same frame, every layer at 0)."""
+        lum = to_levels(check_frames(np.asarray(frame)[None], min_h=1, min_w=1)[0])
+        if self._prev is None:
+            z = np.zeros(lum.shape, dtype=dtype)
+            self._prev = {"lum": lum, **{k: z for k in layers}}
+        return lum, frame_interval_ms(self.params.fps), self._prev
+
+    def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
+        return run_by_steps(self.step, frames, LGMD_OUTPUT_NAMES, min_h=1, min_w=1)
+
+
+class LgmdPlusReference(_ReferenceBase):
+    """LGMD+ one frame at a time (float64 NumPy)."""
+
+    def __init__(self, params: LgmdPlusParams, name: str = "lgmd-plus-reference") -> None:
+        super().__init__(params, name)
+
+    def reset(self) -> None:
+        super().reset()
+        self._f = 0.0
+
     def step(self, frame: np.ndarray) -> dict[str, float]:
         p = self.params
-        lum = to_levels(check_frames(np.asarray(frame)[None], min_h=1, min_w=1)[0])
+        lum, dt, prev = self._begin(frame, ("on", "off", "g"), np.float64)
         h, w = lum.shape
-        dt = frame_interval_ms(p.fps)
-        if self._prev is None:  # before the first frame: the same frame, all layers at 0
-            z = np.zeros((h, w))
-            self._prev = {"lum": lum, "on": z, "off": z, "g": z}
-        prev = self._prev
         photo = lum - prev["lum"]  # 1. photoreceptors (integer)
         blurred = gaussian_blur_truncated(photo, p.blur_truncate)  # 2.
         f_raw = float(np.abs(photo).mean())  # 3. feed-forward inhibition
@@ -152,37 +172,22 @@ class LgmdPlusReference:
         values = (rate, float(rate >= p.t_sr), float(spikes), mp, smp, self._sfa, self._f)
         return dict(zip(LGMD_OUTPUT_NAMES, values, strict=True))
 
-    def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
-        return run_by_steps(self.step, frames, LGMD_OUTPUT_NAMES, min_h=1, min_w=1)
 
-
-class LgmdColiasReference:
+class LgmdColiasReference(_ReferenceBase):
     """The Colias firmware "LGMD-Plus" port one frame at a time (integer layers as on the MCU)."""
 
-    outputs: ClassVar[tuple[Output, ...]] = LGMD_OUTPUTS
-
     def __init__(self, params: LgmdColiasParams, name: str = "lgmd-colias-reference") -> None:
-        self.name = name
-        self.params = params
-        self.reset()
+        super().__init__(params, name)
 
     def reset(self) -> None:
-        self._prev: dict[str, np.ndarray] | None = None
+        super().reset()
         self._f_raw_prev = 0.0
-        self._smp = 0.0
-        self._sfa = 0.0
         self._count = 0
-        self._spikes: deque[int] = deque([0] * self.params.n_ts, maxlen=self.params.n_ts)
 
     def step(self, frame: np.ndarray) -> dict[str, float]:
         p = self.params
-        lum = to_levels(check_frames(np.asarray(frame)[None], min_h=1, min_w=1)[0])
+        lum, dt, prev = self._begin(frame, ("on", "off"), np.int64)
         h, w = lum.shape
-        dt = frame_interval_ms(p.fps)
-        if self._prev is None:
-            z = np.zeros((h, w), dtype=np.int64)
-            self._prev = {"lum": lum, "on": z, "off": z}
-        prev = self._prev
         photo = np.clip(np.floor_divide(lum - prev["lum"], 2), -127, 127)  # 1.
         f_raw = float(np.abs(photo).mean())  # 2.
         a2 = lowpass_alpha(dt, p.tau_pm_ms)
@@ -226,6 +231,3 @@ class LgmdColiasReference:
         self._prev = {"lum": lum, "on": on, "off": off}
         values = (rate, alert, float(spikes), mp, smp, self._sfa, f)
         return dict(zip(LGMD_OUTPUT_NAMES, values, strict=True))
-
-    def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
-        return run_by_steps(self.step, frames, LGMD_OUTPUT_NAMES, min_h=1, min_w=1)
