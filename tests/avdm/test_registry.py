@@ -85,20 +85,22 @@ AVDM_VARIANTS = sorted(n for n, v in VARIANTS.items() if v.kind == "avdm")
 LGMD_VARIANTS = sorted(n for n, v in VARIANTS.items() if v.kind.startswith("lgmd"))
 
 
+def _overrides_hold(name: str, values: dict[str, float | int]) -> None:
+    """``name:k=v,...`` builds params with those values and its canonical name parses back."""
+    spec = f"{name}:" + ",".join(f"{k}={v!r}" for k, v in values.items())
+    p = make_params(spec)
+    assert all(getattr(p, k) == v for k, v in values.items())
+    assert parse_model_spec(canonical_name(spec)) == parse_model_spec(spec)
+
+
 @given(st.sampled_from(LGMD_VARIANTS), st.floats(1.0, 500.0), st.integers(1, 50))
 def test_any_lgmd_variant_accepts_valid_overrides(name: str, fps: float, n_ts: int) -> None:
-    spec = f"{name}:fps={fps!r},n_ts={n_ts}"
-    p = make_params(spec)
-    assert p.fps == fps and p.n_ts == n_ts
-    assert parse_model_spec(canonical_name(spec)) == parse_model_spec(spec)
+    _overrides_hold(name, {"fps": fps, "n_ts": n_ts})
 
 
 @given(st.sampled_from(AVDM_VARIANTS), st.floats(0.0, 1.0), st.integers(1, 50))
 def test_any_variant_accepts_valid_overrides(name: str, beta: float, tw: int) -> None:
-    spec = f"{name}:beta={beta!r},tw={tw}"
-    p = make_params(spec)
-    assert p.beta == beta and p.tw == tw
-    assert parse_model_spec(canonical_name(spec)) == parse_model_spec(spec)
+    _overrides_hold(name, {"beta": beta, "tw": tw})
 
 
 def test_released_units_variant_decodes_as_the_released_code_on_a_grating() -> None:

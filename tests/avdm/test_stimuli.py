@@ -116,27 +116,11 @@ def test_clutter_is_seeded_periodic_and_close_to_one_over_f() -> None:
 
 def test_natural_scene_drifts_at_tf_times_nominal_period() -> None:
     # 2 Hz · 10 px = 20 px/s = 1 px per frame at 20 fps: frame k is frame 0 rolled by k px
-    frames = natural_scene(
-        size=(30, 60),
-        fps=20.0,
-        tf_hz=2.0,
-        nominal_period_px=10.0,
-        n_frames=4,
-        seed=1,
-        dtype=np.float64,
-    )
+    scene = {"size": (30, 60), "fps": 20.0, "tf_hz": 2.0, "nominal_period_px": 10.0}
+    frames = natural_scene(**scene, n_frames=4, seed=1, dtype=np.float64)
     for k in range(1, 4):
         np.testing.assert_allclose(frames[k], np.roll(frames[0], k, axis=1), atol=1e-9)
-    again = natural_scene(
-        size=(30, 60),
-        fps=20.0,
-        tf_hz=2.0,
-        nominal_period_px=10.0,
-        n_frames=4,
-        seed=1,
-        dtype=np.float64,
-    )
-    assert np.array_equal(frames, again)
+    assert np.array_equal(frames, natural_scene(**scene, n_frames=4, seed=1, dtype=np.float64))
 
 
 def test_user_image_is_resized_and_drifted() -> None:
