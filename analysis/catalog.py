@@ -17,8 +17,10 @@ modules that know Rerun's catalog API (``rr.server``, ``rr.catalog``), pinned wi
   would merge silently (the newest row wins), so a second one is left out and listed.
 * A recording without a footer (a capture cut short) would be loaded whole into the server's
   memory: it is rewritten first (``rerun rrd route --continue-on-error``, into the cache) and
-  marked ``repaired``. A file of another application, or whose ``frame`` timeline is of
-  another kind, is listed as unregistered with a one-line reason.
+  marked ``repaired`` (with a note). A file of another application, whose ``frame`` timeline
+  is of another kind, or that cannot be served (each is checked before it is registered), is
+  listed as unregistered with a one-line reason naming the user's file; of two files with one
+  recording id the complete one is registered, whatever the names.
 
 Nothing persists in the server: the folders are the truth, and a restart registers them again.
 """

@@ -47,7 +47,7 @@ from analysis.boundary import (
     with_override,
 )
 from analysis.stats import mean_ci, share_ci
-from avdm.base import check_detector, require_alert
+from avdm.base import require_alert
 
 LABEL_COLUMNS = ("clip", "label", "collision_frame")
 COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg/s)
@@ -295,6 +295,8 @@ def footage_boundary(
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {v: with_override(s.detector, s.param, v) for v in values}
     labels = read_labels(s.labels or "")
+
+    from avdm.registry import check_detector
 
     # each value built and stepped on one frame of the clips' raster, before any clip runs: a
     # factory that raises, a model without alert or one whose step cannot give it fails now

@@ -13,7 +13,7 @@ A model is built from a frozen params dataclass and keeps its own state:
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
@@ -94,35 +94,6 @@ def require_alert(model: Model) -> None:
         )
 
 
-def check_detector(spec: str, context: Mapping[str, Any], shape: tuple[int, int]) -> None:
-    """The one check of a detector, before any run that takes it: build ``spec`` with the
-    camera ``context`` (what ``make_model`` is given), require an ``alert`` output
-    (:func:`require_alert`), and step a fresh instance on one mid-grey ``shape`` (H, W) uint8
-    frame, the raster it will be given: it must return ``alert`` as a finite number or a bool.
-    ValueError in one line naming the detector otherwise (a plug-in that fails to build, has no
-    ``step``, returns other keys or a NaN alert, or raises on a frame)."""
-    from avdm.registry import make_model
-
-    model = make_model(spec, **context)
-    require_alert(model)
-    h, w = shape
-    try:
-        out = model.step(np.full((h, w), 128, dtype=np.uint8))
-        alert = out["alert"] if isinstance(out, Mapping) and "alert" in out else None
-    except Exception as exc:  # the user's code: one line
-        first = str(exc).splitlines()[0] if str(exc) else ""
-        why = first if isinstance(exc, ValueError) else f"{type(exc).__name__}: {first}"
-        raise ValueError(
-            f"detector {model.name!r} cannot run on a {h}x{w} frame (HxW): {why}"
-        ) from None
-    finite = isinstance(alert, bool | np.bool_) or (
-        isinstance(alert, int | float | np.integer | np.floating) and np.isfinite(alert)
-    )
-    if not finite:
-        raise ValueError(
-            f"detector {model.name!r} returned alert={alert!r} on a {h}x{w} frame (HxW): it "
-            "must be a finite number (1 = collision ahead, 0 = not) or a bool"
-        )
 
 
 def run_by_steps(

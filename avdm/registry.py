@@ -12,10 +12,12 @@ import re
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import numpy as np
+
 from avdm.avdm_model import Avdm, AvdmParams
 from avdm.avdm_multiscale import AvdmMultiScale, AvdmMultiScaleParams
 from avdm.base import PRIMARY_OUTPUT as PRIMARY_OUTPUT_NAME
-from avdm.base import Model, Params
+from avdm.base import Model, Params, require_alert
 from avdm.calibration_store import calibration_for
 from avdm.lgmd import LgmdColias, LgmdPlus
 from avdm.lgmd_params import LgmdColiasParams, LgmdPlusParams
@@ -299,3 +301,33 @@ def describe_models() -> str:
     lines += [f"  {n:<20} plug-in {ref}" for n, ref in sorted(entry_point_models().items())]
     lines.append(f"  {'module:factory':<20} a model of your own (docs/models.md#your-own-model)")
     return "\n".join(lines)
+
+
+def check_detector(spec: str, context: Mapping[str, Any], shape: tuple[int, int]) -> None:
+    """The one check of a detector, before any run that takes it: build ``spec`` with the
+    camera ``context`` (what ``make_model`` is given), require an ``alert`` output
+    (:func:`avdm.base.require_alert`), and step a fresh instance on one mid-grey ``shape``
+    (H, W) uint8 frame, the raster it will be given: it must return ``alert`` as a finite
+    number or a bool. ValueError in one line naming the detector otherwise (a plug-in that
+    fails to build, has no ``step``, returns other keys or a NaN alert, or raises on a
+    frame)."""
+    model = make_model(spec, **context)
+    require_alert(model)
+    h, w = shape
+    try:
+        out = model.step(np.full((h, w), 128, dtype=np.uint8))
+        alert = out["alert"] if isinstance(out, Mapping) and "alert" in out else None
+    except Exception as exc:  # the user's code: one line
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        why = first if isinstance(exc, ValueError) else f"{type(exc).__name__}: {first}"
+        raise ValueError(
+            f"detector {model.name!r} cannot run on a {h}x{w} frame (HxW): {why}"
+        ) from None
+    finite = isinstance(alert, bool | np.bool_) or (
+        isinstance(alert, int | float | np.integer | np.floating) and np.isfinite(alert)
+    )
+    if not finite:
+        raise ValueError(
+            f"detector {model.name!r} returned alert={alert!r} on a {h}x{w} frame (HxW): it "
+            "must be a finite number (1 = collision ahead, 0 = not) or a bool"
+        )

@@ -24,8 +24,7 @@ import math
 
 import numpy as np
 
-from avdm.base import check_detector
-from avdm.registry import make_model
+from avdm.registry import check_detector, make_model
 from capture.config import CollisionConfig, SimConfig
 from capture.device import Batch, Event
 from capture.sim_robot import SimulatedRobot

@@ -41,10 +41,10 @@ def is_done(path: Path, recording_id: str) -> bool:
 
 def check_detectors(configs: Iterable[Any]) -> None:
     """Every collision run's detector (each distinct one once: spec and camera), built and
-    stepped on one frame of the camera's raster (:func:`avdm.base.check_detector`), before any
+    stepped on one frame of the camera's raster (:func:`avdm.registry.check_detector`), before any
     run: a detector that cannot be one is a ValueError in one line, not one failure per run.
     ``configs``: :class:`capture.config.SimConfig` items."""
-    from avdm.base import check_detector
+    from avdm.registry import check_detector
 
     seen = set()
     for config in configs:

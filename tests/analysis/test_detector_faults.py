@@ -19,7 +19,7 @@ import pytest
 from analysis.boundary import BoundarySettings, describe_boundary, interval
 from analysis.experiments.boundary import boundary
 from analysis.experiments.captures import run_captures
-from avdm.base import check_detector
+from avdm.registry import check_detector
 from capture.sim import SimSettings
 from tests.helpers import ROOT, assert_one_line_error, write_video
 from vdc.cli_support import UserError
