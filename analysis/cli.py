@@ -137,7 +137,7 @@ def cmd_complexity(args: argparse.Namespace) -> int:
     from analysis.complexity import ComplexitySettings, complexity, expand_sources
 
     settings = settings_from_args(ComplexitySettings, args)
-    n = len(expand_sources(args.sources))
+    n = len(expand_sources(args.sources))  # its notes are said once, by complexity()
     with (
         progress_bar(None, "complexity", "frame") as frames,
         progress_bar(n, "clips", "clip", quiet=n == 1) as clips,
