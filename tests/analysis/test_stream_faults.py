@@ -175,3 +175,34 @@ def test_a_cut_clip_is_noted_and_its_row_says_how_much_is_missing(tmp_path: Path
     # (the note's time is rounded to 0.01 s)
     assert row["missing_s"] == pytest.approx(2.0 - ends_s - 1 / FPS, abs=0.006)
     assert row["missing_s"] > 0.5  # half the file is gone
+
+
+def test_a_rerun_skips_its_own_outputs_and_says_what_it_skipped(tmp_path: Path) -> None:
+    """``complexity clips --rrd --out clips/res`` twice: the second run does not take the
+    first's ``complexity_*.rrd`` as sources; a dangling link and an output copied out of its
+    folder are skipped too, each said in one line."""
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    write_pan(clips / "pan.mp4", n=12)
+    (clips / "lost.mp4").symlink_to(tmp_path / "moved-away.mp4")  # a clip that is gone
+    s = ComplexitySettings(model=MODEL, fov_deg=FOV, rrd=True)
+    seen: list[str] = []
+    first = complexity([clips], s, clips / "res", notice=seen.append)
+    assert first.clips.height == 1 and not first.failures
+    assert [n for n in seen if "skipped 1 entry: 1 dangling link" in n], seen
+    assert list((clips / "res").glob("complexity_*.rrd"))
+    again = run_cli("analysis", "complexity", str(clips), "--rrd", "--model", MODEL,
+                    "--fov-deg", str(FOV), "--out", str(clips / "res"))  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    assert not (clips / "res" / "failures.parquet").exists()
+    notes = [ln for ln in again.stderr.splitlines() if "skipped" in ln]
+    assert len(notes) == 1, again.stderr  # one line: the link and the outputs, with why
+    assert "1 dangling link" in notes[0] and "output(s) vdc wrote itself" in notes[0]
+    assert pl.read_parquet(clips / "res" / "clips.parquet").height == 1
+    # an output copied away from its folder's manifest is still known by its property
+    rrd = next((clips / "res").glob("complexity_*.rrd"))
+    (clips / "copied.rrd").write_bytes(rrd.read_bytes())
+    seen.clear()
+    third = complexity([clips], s, clips / "res", notice=seen.append)
+    assert third.clips.height == 1 and not third.failures
+    assert [n for n in seen if "skipped 1 recording(s) vdc derived" in n], seen
