@@ -206,3 +206,41 @@ def test_a_rerun_skips_its_own_outputs_and_says_what_it_skipped(tmp_path: Path) 
     third = complexity([clips], s, clips / "res", notice=seen.append)
     assert third.clips.height == 1 and not third.failures
     assert [n for n in seen if "skipped 1 recording(s) vdc derived" in n], seen
+
+
+NAN_PLUGIN = '''
+import math
+
+
+class NanAlert:
+    """A detector whose alert is undefined (NaN) on every other frame, never 1."""
+
+    outputs = (("alert", "1"),)
+
+    def __init__(self, gain: float = 1.0, **camera: float) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.i = 0
+
+    def step(self, frame):
+        self.i += 1
+        return {"alert": math.nan if self.i % 2 else 0.0}
+'''
+
+
+def test_a_nan_alert_is_counted_and_said_not_read_silently_as_none(tmp_path, monkeypatch):
+    from analysis.footage import clip_task, nan_alert_note
+
+    (tmp_path / "nan_alert_plugin.py").write_text(NAN_PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    clip = write_pan(tmp_path / "pan.mp4", n=12)
+    spec = "nan_alert_plugin:NanAlert"
+    row = clip_task(str(clip), spec, None, FOV, 0.5)
+    assert row["frames"] == 12 and row["alert_nan_frames"] == 6  # every other frame
+    assert row["first_alert_frame"] is None and not row["false_alarm"]
+    note = nan_alert_note(pl.DataFrame([{"clip": "pan.mp4", **row}]), spec)
+    assert note is not None and "NaN on 6 frame(s) of 1 clip run(s)" in note, note
+    whole = clip_task(str(clip), "lgmd-plus", None, FOV, 0.5)  # a detector with defined alerts
+    assert whole["alert_nan_frames"] == 0
+    assert nan_alert_note(pl.DataFrame([{"clip": "pan.mp4", **whole}]), "lgmd-plus") is None
