@@ -97,4 +97,4 @@ def scan_folder(
                 skipped[UNFINISHED] = skipped.get(UNFINISHED, 0) + 1
             else:
                 found.append(path)
-    return FolderScan(sorted(found), skipped)
+    return FolderScan(sorted(found, key=str), skipped)
