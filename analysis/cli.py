@@ -137,7 +137,8 @@ def cmd_complexity(args: argparse.Namespace) -> int:
     from analysis.complexity import ComplexitySettings, complexity, expand_sources
 
     settings = settings_from_args(ComplexitySettings, args)
-    sources = expand_sources(args.sources)  # walked once: complexity() takes the files
+    # walked once, its skip notes said here: complexity() then takes the files themselves
+    sources = expand_sources(args.sources, _notice)
     n = len(sources)
     with (
         progress_bar(None, "complexity", "frame") as frames,
