@@ -429,7 +429,10 @@ class FrameBatcher:
         if threads > 1:
             from vdc.pipeline import pipelined
 
-            stages = [self._measure] if size is None else [self._measure, self._resize]
+            if size is None:  # no resize: the metrics are the only stage after decoding
+                stages = [lambda fr: self._resize(self._measure(fr))]
+            else:
+                stages = [self._measure, self._resize]
             self._it: Iterator[tuple] = pipelined(reader.frames(), stages)
         else:
             self._it = (self._resize(self._measure(fr)) for fr in reader.frames())
