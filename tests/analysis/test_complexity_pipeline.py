@@ -23,7 +23,7 @@ def clip(tmp_path_factory) -> Path:
 
 
 def test_the_pipeline_gives_the_plain_loops_table_bit_for_bit(clip, monkeypatch) -> None:
-    every = ComplexitySettings(fov_deg=FOV, metrics="all")
+    every = ComplexitySettings(fov_deg=FOV, metrics="all", model="avdm")
     tables = {}
     for threads in ("1", "3"):  # 1: the plain loop; 3: decoding, metrics, resize in threads
         monkeypatch.setenv("VDC_WORKER_THREADS", threads)
