@@ -169,12 +169,11 @@ def complexity_of_frames(
 
     Returns a DataFrame: frame, t_s, repeat, then one column per metric of
     ``settings.metrics`` (see the module)."""
-    import cv2
-
     from analysis.source_metrics import MODEL_METRICS
     from avdm.true_time import repeats_of
     from vdc.frame_metrics import NativeMeter
     from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
+    from vdc.resize import area_resize
 
     settings = settings or ComplexitySettings()
     frames = np.asarray(frames)
@@ -195,7 +194,7 @@ def complexity_of_frames(
     repeat = repeats_of(mafd, 0, settings.repeat_tol, settings.max_repeats)
     out = {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
     if any(m in metrics for m in MODEL_METRICS):
-        small = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
+        small = np.stack([area_resize(f, (h, w)) for f in frames])  # as FrameBatcher
         meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics)
         out |= meter.update(small, t, repeat)
     df = pl.DataFrame({"frame": np.arange(len(frames), dtype=np.int64), "t_s": t, "repeat": repeat})

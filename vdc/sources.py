@@ -393,11 +393,12 @@ class FrameBatch:
 
 class FrameBatcher:
     """A source's frames in batches of ``batch_frames``: resized by area to ``size`` (H, W)
-    for the models, measured on their native luma (``vdc.frame_metrics.NativeMeter``), with
-    repeats (a native mean |difference| from the previous frame of at most ``repeat_tol``
-    8-bit levels, at most ``max_repeats`` in a row) and dropped frames (a gap of more than 1.5
-    nominal intervals at ``fps``). ``vdc-capture video`` and ``vdc-analyse complexity`` both
-    read sources through it, so both see the same frames, times and flags.
+    for the models (``vdc.resize.area_resize``), measured on their native luma
+    (``vdc.frame_metrics.NativeMeter``), with repeats (a native mean |difference| from the
+    previous frame of at most ``repeat_tol`` 8-bit levels, at most ``max_repeats`` in a row)
+    and dropped frames (a gap of more than 1.5 nominal intervals at ``fps``). ``vdc-capture
+    video`` and ``vdc-analyse complexity`` both read sources through it, so both see the same
+    frames, times and flags.
 
     ``metrics``: the native metrics to compute (default all; the MAFD always, for the
     repeats); ``size`` None: no working raster (``images`` then (N, 0, 0)). ``threads`` > 1:
@@ -453,8 +454,9 @@ class FrameBatcher:
         fr, row = item
         if self.size is None:
             return None, fr.t_s, fr.note, row
-        h, w = self.size
-        return cv2.resize(fr.luma, (w, h), interpolation=cv2.INTER_AREA), fr.t_s, fr.note, row
+        from vdc.resize import area_resize  # OpenCV's INTER_AREA within a level, 9x cheaper
+
+        return area_resize(fr.luma, self.size), fr.t_s, fr.note, row
 
     def close(self) -> None:
         """Stop the pipeline's threads (the reader is the caller's to close)."""
