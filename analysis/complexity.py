@@ -67,9 +67,9 @@ class ComplexitySettings:
 
     metrics: str = option(
         ",".join(DEFAULT_METRICS),
-        "the metrics to compute, comma-separated column names, or all: "
+        "the metrics to compute: comma-separated column names ("
         + ", ".join(METRICS)
-        + " (default: {default}; docs/video.md says why)",
+        + ") or all (default: {default}, for need and speed: docs/video.md)",
     )
     model: str = option(
         FOOTAGE_MODEL,
