@@ -69,7 +69,7 @@ class ComplexitySettings:
         ",".join(DEFAULT_METRICS),
         "the metrics to compute: comma-separated column names ("
         + ", ".join(METRICS)
-        + ") or all (default: {default}, for need and speed: docs/video.md)",
+        + ") or all; the default set is chosen for need and speed (docs/video.md)",
     )
     model: str = option(
         FOOTAGE_MODEL,
