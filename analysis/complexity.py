@@ -7,7 +7,8 @@ A source is a recording (``.rrd``), a video file, an image-sequence pattern
 ``OUT/parts/<clip>-<hash>.parquet``: a re-run skips finished sources, and a source that fails
 (a corrupt file) is listed in ``failures.parquet`` without stopping the others. Then:
 
-* ``complexity.parquet``: one row per frame (columns: ``analysis.source_metrics``);
+* ``complexity.parquet``: one row per frame (columns: ``analysis.source_metrics``; only the
+  metrics ``--metrics`` asks for, and without ``--fov-deg`` a video's angular ones left out);
 * ``clips.parquet``: one row per clip: source, codec, resolution, fps, duration, repeated
   and dropped frames, and each metric's mean, max and p95 (P.910 clause 7.8.4 recommends the
   mean and the max per sequence);
