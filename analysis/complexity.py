@@ -7,7 +7,8 @@ A source is a recording (``.rrd``), a video file, an image-sequence pattern
 ``OUT/parts/<clip>-<hash>.parquet``: a re-run skips finished sources, and a source that fails
 (a corrupt file) is listed in ``failures.parquet`` without stopping the others. Then:
 
-* ``complexity.parquet``: one row per frame (columns: ``analysis.source_metrics``);
+* ``complexity.parquet``: one row per frame (columns: ``analysis.source_metrics``; only the
+  metrics ``--metrics`` asks for, and without ``--fov-deg`` a video's angular ones left out);
 * ``clips.parquet``: one row per clip: source, codec, resolution, fps, duration, repeated
   and dropped frames, and each metric's mean, max and p95 (P.910 clause 7.8.4 recommends the
   mean and the max per sequence);
@@ -67,9 +68,9 @@ class ComplexitySettings:
 
     metrics: str = option(
         ",".join(DEFAULT_METRICS),
-        "the metrics to compute, comma-separated column names, or all: "
+        "the metrics to compute: comma-separated column names ("
         + ", ".join(METRICS)
-        + " (default: {default}; docs/video.md says why)",
+        + ") or all; the default set is chosen for need and speed (docs/video.md)",
     )
     model: str = option(
         FOOTAGE_MODEL,
@@ -169,12 +170,11 @@ def complexity_of_frames(
 
     Returns a DataFrame: frame, t_s, repeat, then one column per metric of
     ``settings.metrics`` (see the module)."""
-    import cv2
-
     from analysis.source_metrics import MODEL_METRICS
     from avdm.true_time import repeats_of
     from vdc.frame_metrics import NativeMeter
     from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
+    from vdc.resize import area_resize
 
     settings = settings or ComplexitySettings()
     frames = np.asarray(frames)
@@ -195,7 +195,7 @@ def complexity_of_frames(
     repeat = repeats_of(mafd, 0, settings.repeat_tol, settings.max_repeats)
     out = {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
     if any(m in metrics for m in MODEL_METRICS):
-        small = np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
+        small = np.stack([area_resize(f, (h, w)) for f in frames])  # as FrameBatcher
         meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics)
         out |= meter.update(small, t, repeat)
     df = pl.DataFrame({"frame": np.arange(len(frames), dtype=np.int64), "t_s": t, "repeat": repeat})

@@ -277,6 +277,8 @@ def _agrees(stated: str, default: object) -> bool:
     """Whether a help text's "(default: ...)" states ``default`` (numbers compared as numbers,
     sizes written WIDTHxHEIGHT for (H, W) fields, lists comma-separated)."""
     first = stated.split(";")[0].strip()
+    if isinstance(default, str) and "," in default:  # a comma-separated list in one string
+        return first == default
     if (
         isinstance(default, tuple)
         and len(default) == 2

@@ -150,7 +150,7 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
     return Client(cluster), cluster
 
 
-def _die_with_parent(parent_pid: int) -> None:
+def _die_with_parent(parent_pid: int, threads: int = 1) -> None:
     """Pool worker start-up: end this worker when the process that started it ends, by any
     signal, SIGKILL included, and undo the signal handling it may have inherited.
 
@@ -180,7 +180,7 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, name="vdc-parent-watch", daemon=True).start()
-    one_thread_per_worker()
+    one_thread_per_worker(threads)
 
 
 # set in pool workers: a worker is one core's worth of work (the pool has one per core), so its
@@ -188,11 +188,13 @@ def _die_with_parent(parent_pid: int) -> None:
 SINGLE_THREAD_ENV = "VDC_WORKER_THREADS"
 
 
-def one_thread_per_worker() -> None:
+def one_thread_per_worker(threads: int = 1) -> None:
     """Keep this process to one thread of computation: the pool has a worker per core, and
     OpenCV's and FFmpeg's own threads would otherwise compete for the same cores (measured:
-    8 clips on 2 workers ran only 1.19x faster than on one worker that used both cores)."""
-    os.environ[SINGLE_THREAD_ENV] = "1"
+    8 clips on 2 workers ran only 1.19x faster than on one worker that used both cores).
+    ``threads`` > 1: the cores the pool leaves this worker (fewer workers than cores), which
+    vdc's own pipelines may use (``vdc.pipeline.usable_threads``)."""
+    os.environ[SINGLE_THREAD_ENV] = str(max(1, threads))
     try:
         import cv2
 
@@ -218,11 +220,12 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
     Local pool workers end with the process that started them, however it ends."""
     if settings.executor == "local":
         ctx = multiprocessing.get_context("spawn")
+        workers = pool_size(settings.jobs, n_tasks)
         pool = cf.ProcessPoolExecutor(
-            pool_size(settings.jobs, n_tasks),
+            workers,
             mp_context=ctx,
             initializer=_die_with_parent,
-            initargs=(os.getpid(),),
+            initargs=(os.getpid(), max(1, usable_cpus() // workers)),
         )
         try:
             yield pool, None
