@@ -168,10 +168,19 @@ class RobotEmulator:
         except OSError:
             return 0
 
-    def _drain(self, timeout_s: float = 2.0) -> None:
-        """Wait until the host has read everything written so far (or ``timeout_s``)."""
+    def _drain(self, timeout_s: float = 2.0, settle_s: float = 0.1) -> None:
+        """Wait until the host has read everything written so far (or ``timeout_s``): nothing
+        pending for ``settle_s`` on end, as bytes still in the pty's flip buffer are not yet
+        counted as pending."""
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline and self._pending_bytes() > 0:
+        empty_since = None
+        while time.monotonic() < deadline:
+            if self._pending_bytes() > 0:
+                empty_since = None
+            elif empty_since is None:
+                empty_since = time.monotonic()
+            elif time.monotonic() - empty_since >= settle_s:
+                return
             time.sleep(0.005)
 
     def _read_host(self) -> list[int]:
