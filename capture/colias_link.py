@@ -357,6 +357,7 @@ class SerialLink:
         self._last_data = time.monotonic()
         self._pending: list[tuple[int, object]] = []  # read during the handshake
         self.announcements: list[Announcement] = []  # every ANNOUNCE, in order
+        self.no_announce = ""  # why the handshake got no ANNOUNCE
 
     def _decoded(self, data: bytes) -> list[tuple[int, object]]:
         """(type, FramePacket | Announcement | None) of the whole packets in ``data``; a FRAME
@@ -379,8 +380,9 @@ class SerialLink:
     def handshake(self, timeout_s: float) -> Announcement | None:
         """The robot's ANNOUNCE after the START that :meth:`open` sent, or None when it does
         not come within ``timeout_s`` or a FRAME or END comes first (firmware that never
-        announces)."""
+        announces); ``no_announce`` then says which."""
         deadline = time.monotonic() + timeout_s
+        self.no_announce = f"no answer within {timeout_s:g} s of START"
         while time.monotonic() < deadline and self._ser is not None:
             waiting = self._ser.in_waiting
             got = self._decoded(self._ser.read(waiting or 1))
@@ -390,6 +392,7 @@ class SerialLink:
                     return obj  # type: ignore[return-value]
                 if ptype in (TYPE_FRAME, TYPE_END):
                     self._pending += got[k:]
+                    self.no_announce = "it sent frames without announcing"
                     return None
         return None
 
