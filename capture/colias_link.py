@@ -24,6 +24,7 @@ import struct
 import termios
 import time
 import tty
+from collections import deque
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -55,7 +56,9 @@ from vdc.cli_support import non_negative_float, non_negative_int, option, positi
 class EmulatorConfig:
     corrupt_rate: float = 0.0  # share of packets corrupted (1–3 bits flipped past the sync word)
     drop_rate: float = 0.0  # probability of not sending a packet
-    disconnect_after_s: float = float("nan")  # close the port once, this long after START
+    # close the port once, at this robot time after START (the frame at disconnect_after_s x
+    # fps): at the same frame whatever the load, though a host that reads late sees it sooner
+    disconnect_after_s: float = float("nan")
     reconnect_after_s: float = 1.0  # the port reappears this long after a disconnect
     decimation: int = 1  # send the image with every Nth frame
     realtime: bool = True  # pace frames at the camera rate
@@ -99,6 +102,9 @@ class RobotEmulator:
         self._master: int | None = None
         self._slave: int | None = None
         self._lost: set[int] = set()
+        # the last packets written: (frame, bytes, report list), to tell which a disconnect
+        # cut off before the host read them
+        self._sent: deque[tuple[int, int, str]] = deque(maxlen=256)
 
     # -- the port ---------------------------------------------------------------------------
     def _check_link(self) -> None:
@@ -155,17 +161,25 @@ class RobotEmulator:
             view = view[n:]
         return True
 
-    def _drain(self, timeout_s: float = 2.0) -> None:
-        """Wait until the host has read everything written so far (or ``timeout_s``)."""
+    def _pending_bytes(self) -> int:
+        """Bytes written that the host has not read yet."""
+        try:
+            return struct.unpack("i", fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0"))[0]
+        except OSError:
+            return 0
+
+    def _drain(self, timeout_s: float = 2.0, settle_s: float = 0.1) -> None:
+        """Wait until the host has read everything written so far (or ``timeout_s``): nothing
+        pending for ``settle_s`` on end, as bytes still in the pty's flip buffer are not yet
+        counted as pending."""
         deadline = time.monotonic() + timeout_s
+        empty_since = None
         while time.monotonic() < deadline:
-            try:
-                pending = struct.unpack(
-                    "i", fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
-                )[0]
-            except OSError:
-                return
-            if pending == 0:
+            if self._pending_bytes() > 0:
+                empty_since = None
+            elif empty_since is None:
+                empty_since = time.monotonic()
+            elif time.monotonic() - empty_since >= settle_s:
                 return
             time.sleep(0.005)
 
@@ -253,7 +267,7 @@ class RobotEmulator:
                         delay = started + f * period - time.monotonic()
                         if delay > 0:
                             time.sleep(delay)
-                    if not np.isnan(disconnect_at) and time.monotonic() - started >= disconnect_at:
+                    if not np.isnan(disconnect_at) and f >= disconnect_at * sim.camera.fps:
                         disconnect_at = float("nan")
                         self._disconnect(batch, outputs, i)
                     if self.stopped or TYPE_STOP in self._read_host():
@@ -276,9 +290,11 @@ class RobotEmulator:
                             2, len(packet), size=int(self.rng.integers(1, 4))
                         ):
                             packet[k] ^= 1 << int(self.rng.integers(8))
-                    (self.report["corrupted"] if corrupt else self.report["intact"]).append(f)
+                    kind = "corrupted" if corrupt else "intact"
+                    self.report[kind].append(f)
+                    self._sent.append((f, len(packet), kind))
                     if not self._write(bytes(packet)):
-                        (self.report["corrupted"] if corrupt else self.report["intact"]).pop()
+                        self.report[kind].pop()
                         if self.stopped:
                             self._finish()
                             return self.report
@@ -290,12 +306,19 @@ class RobotEmulator:
         """Close the port, stay away for reconnect_after_s, reopen behind the same link."""
         self.report["disconnects"] += 1
         self._drain()  # what was sent before the cable "comes out" reaches the host
+        unread = self._pending_bytes()
         self.close_port()
+        lost_unread = []  # frames the host had not read when the cable "came out"
+        while unread > 0 and self._sent:
+            f, size, kind = self._sent.pop()
+            self.report[kind].remove(f)
+            lost_unread.append(f)
+            unread -= size
         gone = time.monotonic()
         frames_away = round(self.emu.reconnect_after_s * self.sim.camera.fps)
         first = int(batch.frame[i])
         self._lost = set(range(first, first + frames_away))
-        self.report["lost_in_disconnect"] = sorted(self._lost)
+        self.report["lost_in_disconnect"] = sorted(self._lost | set(lost_unread))
         time.sleep(max(0.0, self.emu.reconnect_after_s - (time.monotonic() - gone)))
         self._parser = PacketParser()
         self.open_port()
@@ -334,6 +357,7 @@ class SerialLink:
         self._last_data = time.monotonic()
         self._pending: list[tuple[int, object]] = []  # read during the handshake
         self.announcements: list[Announcement] = []  # every ANNOUNCE, in order
+        self.no_announce = ""  # why the handshake got no ANNOUNCE
 
     def _decoded(self, data: bytes) -> list[tuple[int, object]]:
         """(type, FramePacket | Announcement | None) of the whole packets in ``data``; a FRAME
@@ -356,8 +380,9 @@ class SerialLink:
     def handshake(self, timeout_s: float) -> Announcement | None:
         """The robot's ANNOUNCE after the START that :meth:`open` sent, or None when it does
         not come within ``timeout_s`` or a FRAME or END comes first (firmware that never
-        announces)."""
+        announces); ``no_announce`` then says which."""
         deadline = time.monotonic() + timeout_s
+        self.no_announce = f"no answer within {timeout_s:g} s of START"
         while time.monotonic() < deadline and self._ser is not None:
             waiting = self._ser.in_waiting
             got = self._decoded(self._ser.read(waiting or 1))
@@ -367,6 +392,7 @@ class SerialLink:
                     return obj  # type: ignore[return-value]
                 if ptype in (TYPE_FRAME, TYPE_END):
                     self._pending += got[k:]
+                    self.no_announce = "it sent frames without announcing"
                     return None
         return None
 
@@ -475,11 +501,14 @@ class EmulateSettings:
     )
     drop_rate: float = option(0.0, "probability of dropping each packet", type=non_negative_float)
     disconnect_after: float | None = option(
-        None, "close the port once, this many seconds after START", type=positive_float
+        None,
+        "close the port once, at this robot time after START (s): at the same frame whatever "
+        "the load",
+        type=positive_float,
     )
     reconnect_after: float = option(1.0, "seconds until the port reappears", type=positive_float)
     decimation: int = option(1, "send the image with every Nth frame (slow links)")
-    fast: bool = option(False, "do not pace frames at 33 Hz")
+    fast: bool = option(False, "do not pace frames at the camera rate")
     wait: float = option(60.0, "seconds to wait for the host", type=positive_float)
     report: str | None = option(None, "write what was injected to this JSON file")
 

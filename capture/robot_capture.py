@@ -496,8 +496,8 @@ def record_robot(
         context = device.model_context  # the robot's announced camera, else the defaults
         if not verified:
             (warn or _warn)(
-                f"warning: the robot did not announce its model within "
-                f"{cfg.announce_timeout_s:g} s (older firmware?): recording its outputs as "
+                f"warning: the robot did not announce its model ({device.link.no_announce}; "
+                f"older firmware?): recording its outputs as "
                 f"{settings.model}'s on a {camera_line(context)} camera, marked unverified"
             )
         live = spawn_viewer() if spawn else live_url

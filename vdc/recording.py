@@ -86,7 +86,8 @@ PROPERTY_SECTIONS = {
     "arena": "geometry of the arena (ArenaConfig)",
     "wall": "scene, period_m, contrast, tf_schedule_text, image_path",
     "robot": "the robot body and motion (RobotConfig)",
-    "camera": "width_px, height_px, fps, hfov_deg, height_m, noise_sd",
+    "camera": "width_px, height_px, fps, hfov_deg, height_m, noise_sd; robot runs: announced "
+    "(the robot's own camera, from its ANNOUNCE, else the host's defaults)",
     "overhead": "the optional overhead camera",
     "collision": "collision mode: detector spec, threshold, adaptive rule, phase",
     "model": "name and output units of the online model; robot runs: verified (the robot "

@@ -165,6 +165,12 @@ def test_bad_files_give_one_line_and_exit_2(recordings, tmp_path: Path) -> None:
     empty.write_bytes(b"")
     no_frames = tmp_path / "no_frames.rrd"
     rec = Recorder(no_frames, "no-frames")
+    rec.send_properties(  # what analysis needs besides the frames: nothing is assumed
+        {
+            "arena": {"length_m": 1.4, "width_m": 0.8},
+            "camera": {"fps": 33.0, "width_px": 99, "height_px": 72, "hfov_deg": 70.0},
+        }
+    )
     rec.log_poses(np.arange(5), np.arange(5) / 33, np.zeros((5, 3)))
     rec.close(frames=5, stop_reason="finished", complete=True)
     cases = [
@@ -213,7 +219,7 @@ def test_outputs_cut_unevenly_by_a_crash_keep_every_frame_they_reached(tmp_path:
 
     path = tmp_path / "uneven.rrd"
     rec = Recorder(path, "uneven")
-    rec.send_properties({"model": {"name": "avdm"}})
+    rec.send_properties({"model": {"name": "avdm"}, "arena": {"length_m": 1.4, "width_m": 0.8}})
     f = np.arange(12)
     rec.log_poses(f, f / 33, np.zeros((12, 3)))
     rec.log_model_outputs(

@@ -154,7 +154,8 @@ def test_a_silent_robot_is_recorded_as_unverified(tmp_path: Path) -> None:
     emu.communicate(timeout=60)
     assert proc.returncode == 0, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if "announce" in ln or "verified" in ln]
-    assert len(lines) == 1 and "did not announce" in lines[0] and "unverified" in lines[0], lines
+    assert len(lines) == 1 and "unverified" in lines[0], lines
+    assert "did not announce its model (it sent frames without announcing" in lines[0]
     props = Recording(out).properties()
     assert props["model"]["verified"] is False and props["model"]["name"] == "avdm"
     # the host's defaults, said to be so: the robot's camera is not known
@@ -199,3 +200,21 @@ def test_the_robots_announced_camera_and_asked_model_are_recorded(tmp_path: Path
     np.testing.assert_allclose(
         logged["omega_dps"].to_numpy(), again["omega_dps"].to_numpy(), rtol=1e-6, atol=1e-9
     )
+
+
+def test_a_robot_that_says_nothing_is_given_up_on_after_the_timeout(tmp_path: Path) -> None:
+    master, slave = pty.openpty()
+    cfg = RobotCaptureConfig(
+        port=os.ttyname(slave),
+        camera=str(overhead_frames(tmp_path / "o")),
+        announce_timeout_s=0.3,
+    )
+    device = ColiasRobotDevice(cfg)
+    try:
+        device.connect()  # nobody answers: no refusal, no announcement
+        assert device.announced is None and "no answer within 0.3 s" in device.link.no_announce
+        assert device.model_context["width_px"] == 99  # the host's defaults, marked as such
+        device.disconnect()
+    finally:
+        os.close(master)
+        os.close(slave)
