@@ -235,13 +235,9 @@ def _inputs(
 
 def _sweep_inputs(p: argparse.ArgumentParser) -> None:
     _inputs("results/sweep", None)(p)
-    p.add_argument(  # the older spelling of --waveform square
-        "--square",
-        dest="waveform",
-        action="store_const",
-        const="square",
-        help="square-wave instead of sine gratings",
-    )
+    # the older spelling of --waveform square
+    p.add_argument("--square", dest="waveform", action="store_const", const="square",
+                   help="square-wave instead of sine gratings")  # fmt: skip
 
 
 def _reproduce_inputs(p: argparse.ArgumentParser) -> None:
@@ -251,14 +247,10 @@ def _reproduce_inputs(p: argparse.ArgumentParser) -> None:
 
 def _catalog_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("action", choices=("serve", "query"), help="serve the folders, or query them")
-    p.add_argument(
-        "folders", nargs="+", metavar="FOLDER",
-        help="folders of recordings and outputs; query also takes one running catalog's URL, "
-        "rerun+http://HOST:PORT (a lab's shared server)",
-    )  # fmt: skip
-    p.add_argument(
-        "--out", default="results/catalog-query", help="query: output folder (default: %(default)s)"
-    )
+    p.add_argument("folders", nargs="+", metavar="FOLDER", help="folders of recordings and "
+                   "outputs; query also takes a catalog's URL, rerun+http://HOST:PORT")  # fmt: skip
+    p.add_argument("--out", default="results/catalog-query",
+                   help="query: output folder (default: %(default)s)")  # fmt: skip
 
 
 def _summarise_inputs(p: argparse.ArgumentParser) -> None:

@@ -57,7 +57,7 @@ _API = {
     "complexity_of_frames": "analysis.complexity",
     # many recordings as one dataset, and inline viewing (extras: catalog, notebook)
     "CatalogSettings": "analysis.catalog",
-    "open_catalog": "analysis.catalog",
+    "open_catalog": "analysis.catalog_server",
     "show": "analysis.notebook",
     "BatchSettings": "analysis.batch",
     "batch": "analysis.batch",
