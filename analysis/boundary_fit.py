@@ -321,9 +321,9 @@ def grid_fits(
 
 def describe_fitted(row: dict[str, Any]) -> str:
     """A boundary row with the fitted columns: the fitted phrase (:func:`describe_fit`) and,
-    for a grid, the conditions it lies between."""
+    for a grid (or footage's groups of clips), the conditions it lies between."""
     text = describe_fit(row)
-    if row.get("design") != "grid":
+    if row.get("design") not in ("grid", "groups"):
         return text
     where = row.get("where")
     if where == "within":
@@ -335,7 +335,7 @@ def describe_fitted(row: dict[str, Any]) -> str:
         grid = "the least complex condition already fails"
     else:
         grid = "no condition fails at 95 %"
-    return f"{text}; grid: {grid}"
+    return f"{text}; {row['design']}: {grid}"
 
 
 FIT_NOTE = (
