@@ -30,6 +30,7 @@ benchmark's coverage check drives it with simulated detectors of known boundary.
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -309,7 +310,7 @@ def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3)
     lo, hi = s.tf_bounds()
     edges = np.linspace(lo, hi, bins + 1)
     part = np.clip(np.searchsorted(edges, runs["tf_hz"].to_numpy(), side="right") - 1, 0, bins - 1)
-    names = [f"tf{edges[i]:.2g}-{edges[i + 1]:.2g}" for i in part]
+    names = [f"tf{round(edges[i], 2):g}-{round(edges[i + 1], 2):g}" for i in part]
     binned = runs.with_columns((pl.col("scene") + "-" + pl.Series(names)).alias("condition"))
     n_values = len(s.grid_values())
     full = binned.group_by("condition").agg(pl.col(s.param).n_unique().alias("n"))
@@ -318,3 +319,15 @@ def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3)
     if binned.height == 0:
         return None
     return fit_policy(binned, s.param, s.target, s.profile_model)
+
+
+def in_fitted_range(scene: str, tf_hz: float | None, fitted: set[str]) -> bool:
+    """Whether (scene, TF) lies in a TF range an adaptive campaign's policy was fitted on (its
+    evidence's conditions ``<scene>-tf<LO>-<HI>``, :func:`policy_from_campaign`)."""
+    if tf_hz is None:
+        return False
+    for name in fitted:
+        m = re.fullmatch(r"(\w+)-tf([\d.]+)-([\d.]+)", name)
+        if m and m[1] == scene and float(m[2]) <= tf_hz <= float(m[3]):
+            return True
+    return False

@@ -13,7 +13,9 @@ import pytest
 import scipy.special
 
 from analysis.boundary_fit import describe_fit, dps_to_tf, fit_columns, fit_crossing, tf_to_dps
-from analysis.experiments.adaptive import ProfileMap, design_runs
+from analysis.experiments.adaptation import AdaptationSettings
+from analysis.experiments.adaptive import ProfileMap, design_runs, in_fitted_range
+from avdm.policy import load_policy
 from tests.helpers import assert_one_line_error, run_cli
 
 TARGET = 0.9
@@ -119,7 +121,7 @@ def test_a_tiny_adaptive_campaign_end_to_end(tmp_path: Path) -> None:
     out = tmp_path / "adaptive"
     args = ["analysis.cli", "boundary", "--design", "adaptive", "--budget", "5", "--values",
             "12", "--scenes", "grating", "--tf-range", "0:3", "--minutes", "0.2", "--jobs",
-            "2", "--no-fit", "--out", str(out)]  # fmt: skip
+            "2", "--out", str(out)]  # fmt: skip
     proc = run_cli(*args)
     assert proc.returncode == 0, proc.stderr
     assert "boundary at t_ffi = 12: " in proc.stdout
@@ -143,6 +145,13 @@ def test_a_tiny_adaptive_campaign_end_to_end(tmp_path: Path) -> None:
     md = (out / "boundary.md").read_text()
     assert "Adaptive design" in md and "| t_ffi | state | boundary (deg/s)" in md
     assert (out / "boundary.png").read_bytes()[:4] == b"\x89PNG"
+    # the policy fitted from the campaign (its TF range in thirds) is what adaptation reads
+    policy = load_policy(out / "policy.csv")
+    assert policy.param == "t_ffi" and set(policy.values) == {12.0}
+    assert set(policy.evidence["condition"]) <= {"grating-tf0-1", "grating-tf1-2", "grating-tf2-3"}
+    AdaptationSettings(policy=str(out / "policy.csv"))  # accepted as a grid's policy is
+    fitted = set(policy.evidence["condition"])
+    assert in_fitted_range("grating", 2.0, fitted) != in_fitted_range("natural", 2.0, fitted)
     again = run_cli(*args)  # a re-run places the same runs and records none
     assert again.returncode == 0, again.stderr
     assert pl.read_parquet(out / "boundary_runs.parquet")["reused"].all()
