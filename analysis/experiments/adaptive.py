@@ -18,7 +18,7 @@ continuous TF range (``--tf-range LO:HI``), in batches, where the boundary is st
    boundary is placed beyond or below the range at 95 %, or at ``--budget`` runs.
 
 Runs are recorded and measured on the executors exactly as the grid's
-(:func:`analysis.experiments.boundary.run_grid`: finished runs reused). The placement draws
+(``analysis.experiments.boundary.run_grid``: finished runs reused). The placement draws
 from a generator seeded by ``--seed`` and reused runs give the same rows, so a re-run places the
 same runs and records only what is missing. Each run is its own condition
 (``<scene>-tf<TF>``) with its own seed (``--seed`` + its index among the value's runs).
@@ -49,7 +49,6 @@ from analysis.boundary import (
     with_override,
 )
 from analysis.boundary_fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
-from analysis.experiments.boundary import run_grid
 
 FIRST_BATCH = 4
 PROFILE_POINTS = 3  # profiling TFs per scene: the range's ends and middle
@@ -223,11 +222,14 @@ def run_items(
 def adaptive_boundary(
     s: BoundarySettings,
     out: str | Path,
+    run_grid: Callable[..., pl.DataFrame],
     *,
     log: Callable[[str], None] | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> BoundaryResult:
-    """Arena mode with ``--design adaptive``: the profile, the batches, the fits; writes the
+    """Arena mode with ``--design adaptive``, recording with the grid's ``run_grid``
+    (:func:`analysis.experiments.boundary.run_grid`, passed in by the command's entry, which
+    imports this module): the profile, the batches, the fits; writes the
     same files as the grid (``boundary.md``, ``boundary.png``, ``boundary_runs.parquet``: one
     row per run the design placed, ``boundary.parquet`` with the fitted columns,
     ``boundary_profiles.parquet``, ``policy.csv``)."""
