@@ -3,16 +3,19 @@
 Success against complexity is modelled, per parameter value, as a **monotone logistic curve**
 that falls as complexity rises (a psychometric function without lapses)::
 
-    logit p(x) = logit(target) - b * (x - t) / span,     b >= 0
+    p(x) = f + (1 - f) * expit(logit((target - f) / (1 - f)) - b * (x - t) / span),   b >= 0
 
-so ``t`` *is* the boundary (the complexity where the curve crosses the target) and ``b`` the
-steepness (log-odds per span of the data). Each run contributes its counts (``k`` successes of
-``n`` trials: avoidances of avoidances + crashes in the arena, one hit or miss per clip in
-footage mode), a binomial likelihood.
+so ``t`` *is* the boundary (the complexity where the curve crosses the target), ``b`` the
+steepness (log-odds per span of the data) and ``f`` a floor the success falls to and not below
+(LGMD+ keeps avoiding some approaches on the busiest walls: without a floor a steep fall to a
+plateau of 50 % is fitted as a shallow fall to 0, and misplaced). Each run contributes its
+counts (``k`` successes of ``n`` trials: avoidances of avoidances + crashes in the arena, one
+hit or miss per clip in footage mode), a binomial likelihood.
 
 * **The fit** is exact on a grid: ``t`` on 401 points over the design's range widened by half
-  its span on each side, ``b`` on 0 and 90 log-spaced steepnesses up to a step (500 log-odds
-  per span), every likelihood evaluated in NumPy (``scipy.special`` for the stable logs).
+  its span on each side, ``b`` on 0 and 60 log-spaced steepnesses up to a step (500 log-odds
+  per span), ``f`` on 0 to 0.75 (below the target) in steps of 0.15, profiled out as ``b``
+  is; every likelihood evaluated in NumPy (``scipy.special`` for the stable logs).
   Seeds of one condition often differ by more than binomial noise (a run's approaches are not
   independent): the likelihood is divided by the Pearson dispersion ``phi`` (at least 1) of
   the runs about the best fit, the quasi-likelihood correction (runs with one trial each, as
@@ -22,7 +25,7 @@ footage mode), a binomial likelihood.
   curve is within ``chi2(1, 0.95) / 2`` (deviance 3.84, scaled by ``phi``) of the best one.
   Where that set reaches an edge of the widened range, that side is unbounded.
 * **The band** drawn with the curve is the range of every curve in the joint 95 % set of
-  ``(t, b)`` (deviance 5.99): pointwise, at most as wide as a simultaneous band.
+  ``(t, b, f)`` (deviance 5.99): pointwise, at most as wide as a simultaneous band.
 * **States.** ``within``: the interval is bounded on both sides; ``beyond``: its lower end lies
   above the design's most complex point (success is above the target at 95 % confidence
   everywhere on it); ``below``: its upper end lies below the least complex point; else
@@ -53,7 +56,8 @@ import scipy.special
 import scipy.stats
 
 N_T = 401  # boundary candidates over the widened range
-SLOPES = np.concatenate([[0.0], np.geomspace(0.05, 500.0, 90)])  # log-odds per span
+SLOPES = np.concatenate([[0.0], np.geomspace(0.05, 500.0, 60)])  # log-odds per span
+FLOORS = np.array([0.0, 0.15, 0.3, 0.45, 0.6, 0.75])  # the success complexity cannot lower
 WIDEN = 0.5  # the widened range: half the design's span on each side
 DEVIANCE_1 = float(scipy.stats.chi2.ppf(0.95, 1))  # 3.84: the boundary's interval
 DEVIANCE_2 = float(scipy.stats.chi2.ppf(0.95, 2))  # 5.99: the band of curves
@@ -121,14 +125,20 @@ def fit_crossing(
         )  # fmt: skip
     u = (x - lo) / span
     tu = (t_grid - lo) / span
-    base = scipy.special.logit(target)
-    ll = np.empty((N_T, SLOPES.size))
-    for j, b in enumerate(SLOPES):  # (N_T, R) per steepness keeps the memory small
-        eta = base - b * (u[None, :] - tu[:, None])
-        log_p, log_q = scipy.special.log_expit(eta), scipy.special.log_expit(-eta)
+    floors = FLOORS[FLOORS < target - 0.05]
+    floor_of = np.repeat(floors, SLOPES.size)  # (S,) every (floor, steepness) pair
+    slope_of = np.tile(SLOPES, floors.size)
+    ll = np.empty((N_T, slope_of.size))
+    for j, (g, b) in enumerate(zip(floor_of, slope_of, strict=True)):  # (N_T, R) per pair
+        e = _eta(target, g, b, u[None, :], tu[:, None])
+        log_q = math.log1p(-g) + scipy.special.log_expit(-e)
+        log_p = np.logaddexp(
+            math.log(g) if g > 0 else -np.inf, math.log1p(-g) + scipy.special.log_expit(e)
+        )
         ll[:, j] = (k * log_p + (n - k) * log_q).sum(axis=1)
     best = np.unravel_index(np.argmax(ll), ll.shape)
-    p_best = scipy.special.expit(base - SLOPES[best[1]] * (u - tu[best[0]]))
+    p_best = _curve(target, floor_of[best[1]], slope_of[best[1]], u, tu[best[0]])
+    p_best = np.clip(p_best, 0.01, 0.99)  # a step's 1 - 1e-9 would make one crash a 'misfit'
     phi = 1.0
     if x.size > 2 and (n > 1).any():  # Pearson dispersion of the runs about the best fit
         pearson = ((k - n * p_best) ** 2 / np.maximum(n * p_best * (1 - p_best), 1e-12)).sum()
@@ -156,18 +166,29 @@ def fit_crossing(
     else:
         state = "within"
     cu = (curve_x - lo) / span
-    curve_p = scipy.special.expit(base - SLOPES[best[1]] * (cu - tu[best[0]]))
+    curve_p = _curve(target, floor_of[best[1]], slope_of[best[1]], cu, tu[best[0]])
     band_low, band_high = np.ones_like(cu), np.zeros_like(cu)
     ti, sj = np.nonzero(dev <= cut_2)
     for start in range(0, ti.size, 4096):  # every curve of the joint 95 % set
         sl = slice(start, start + 4096)
-        p = scipy.special.expit(base - SLOPES[sj[sl], None] * (cu[None, :] - tu[ti[sl], None]))
+        g, b = floor_of[sj[sl], None], slope_of[sj[sl], None]
+        p = _curve(target, g, b, cu[None, :], tu[ti[sl], None])
         band_low = np.minimum(band_low, p.min(0))
         band_high = np.maximum(band_high, p.max(0))
     return CrossingFit(
         state, boundary, low, high, (lo, hi), phi, int(x.size), t_grid, weights, curve_x,
         curve_p, band_low, band_high,
     )  # fmt: skip
+
+
+def _eta(target: float, floor: Any, slope: Any, u: Any, t: Any) -> Any:
+    """The logistic part's log-odds: it makes floor + (1 - floor) expit(eta) = target at t."""
+    return scipy.special.logit((target - floor) / (1 - floor)) - slope * (u - t)
+
+
+def _curve(target: float, floor: Any, slope: Any, u: Any, t: Any) -> Any:
+    """Success at ``u`` (the complexity in spans from the domain's start) of one curve."""
+    return floor + (1 - floor) * scipy.special.expit(_eta(target, floor, slope, u, t))
 
 
 # --- units: wall TF <-> profile ------------------------------------------------------------
@@ -321,9 +342,9 @@ def grid_fits(
 
 def describe_fitted(row: dict[str, Any]) -> str:
     """A boundary row with the fitted columns: the fitted phrase (:func:`describe_fit`) and,
-    for a grid, the conditions it lies between."""
+    for a grid (or footage's groups of clips), the conditions it lies between."""
     text = describe_fit(row)
-    if row.get("design") != "grid":
+    if row.get("design") not in ("grid", "groups"):
         return text
     where = row.get("where")
     if where == "within":
@@ -335,7 +356,7 @@ def describe_fitted(row: dict[str, Any]) -> str:
         grid = "the least complex condition already fails"
     else:
         grid = "no condition fails at 95 %"
-    return f"{text}; grid: {grid}"
+    return f"{text}; {row['design']}: {grid}"
 
 
 FIT_NOTE = (

@@ -21,7 +21,10 @@ measures it (the AVDM and the baselines). Per clip:
 * the **time to collision of the first alert** = (collision frame − first alert) / fps.
 
 Hit rate, false alarms and success come with exact 95 % intervals across clips, overall and in
-groups of clips of similar complexity; the boundary is found on those groups as in the arena.
+groups of clips of similar complexity (``--groups N``; by default up to 5 groups of at least 4
+clips). The boundary is the crossing of a monotone logistic curve fitted to the collision clips
+themselves, each a hit or a miss at its complexity, with its 95 % interval
+(:mod:`analysis.boundary_fit`); the groups' bracket is given beside it.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ from analysis.boundary import (
     plot_boundary,
     with_override,
 )
+from analysis.boundary_fit import fit_columns, fit_crossing, fit_section, with_fit
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
 
@@ -370,9 +374,10 @@ def footage_boundary(
     note = nan_alert_note(clips, s.detector)
     if note:
         say(note)
-    groups = max(1, min(5, labels.height // 4))
+    groups = s.groups or max(1, min(5, labels.height // 4))
     stats = group_statistics(clips, s.param, groups)
-    bounds = boundaries(stats, s.param, s.target)
+    fitted, fits = clip_fits(clips, s.param, s.target)
+    bounds = with_fit(boundaries(stats, s.param, s.target), fitted, s.param, "groups")
     overall = [
         {s.param: v, "clips": g.height}
         | share_row("hit_rate", g.filter(pl.col("collision"))["hit"])
@@ -398,6 +403,7 @@ def footage_boundary(
                 f"{s.detector} on {labels.height} labelled clips",
                 "complexity: AVDM mean response of the clips' group (deg/s)",
                 energy=("false_alarm_rate", 100.0, "false alarms (% of clips)"),
+                fits=fits,
             ),
         ]
         md = footage_report(s, summary, stats, bounds, clips)
@@ -405,6 +411,20 @@ def footage_boundary(
         paths.append(stage / "boundary.md")
     paths = [out / p.name for p in paths]
     return BoundaryResult(clips, stats, bounds, None, paths, md)
+
+
+def clip_fits(clips: pl.DataFrame, by: str, target: float) -> tuple[pl.DataFrame, dict[float, Any]]:
+    """The fitted boundary per value over the collision clips themselves (each a hit or a
+    miss at its complexity, ``analysis.boundary_fit``), not over groups; no wall TF."""
+    rows, fits = [], {}
+    hit = clips.filter(pl.col("collision"))
+    domain = (float(clips[COMPLEXITY].min()), float(clips[COMPLEXITY].max()))
+    for (value,), g in clips.group_by(by, maintain_order=True):
+        g = hit.filter(pl.col(by) == value)
+        f = fit_crossing(g[COMPLEXITY], g["hit"].cast(pl.Int64), [1] * g.height, target, domain)
+        fits[value] = f
+        rows.append({by: value} | fit_columns(f))
+    return pl.DataFrame(rows), fits
 
 
 def _ttc(g: pl.DataFrame) -> dict[str, float]:
@@ -447,6 +467,7 @@ def footage_report(
         ]
     )
     lines += [markdown_table(table, table.columns), "## The boundary\n"]
+    lines += fit_section(bounds, s.param)
     for row in bounds.iter_rows(named=True):
         lines.append(f"- {s.param} = {row[s.param]:g}: {describe_boundary(row)}")
     lines += ["", "## Per group of clips of similar complexity\n"]

@@ -9,6 +9,20 @@ the recorded minutes per wall-clock minute. The plain reference measured in the 
 of the grid's runs recorded alone in this process (the cost of one run without the executor),
 times the number of runs divided by the workers: the ideal the campaign is held against.
 
+``--coverage`` checks the adaptive design's 95 % interval (issue #34) on simulated detectors of
+known boundary: a detector whose success is a known function of the wall TF it is given
+(logit success = logit 0.9 - slope x (complexity - truth), complexity the profile of
+``docs/boundary.md``'s grid, a random effect between runs of sd 0.3 on the logit, 20-80
+approaches per run), run through the design's own loop (``design_runs``: the placement, the
+fits, the stopping) with the default budget and precision, 20 repeats with different seeds and
+true boundaries; it prints how many intervals cover the truth (target: >= 18).
+
+``--economy --grid DIR`` compares an adaptive campaign (LGMD+ at T_ffi 12 and 45, the default
+budget, kept in ``--out``) with a finished default grid in DIR (``vdc-analyse boundary --out
+DIR``): each value's boundary and how many runs each design spent (target: the adaptive one
+within one grid step, the span between the grid's conditions around its boundary, of the
+grid's, with <= 40 % of the grid's runs for those values).
+
 ``--scaling`` instead runs a smaller grid (``--minutes 2 --seeds 2`` unless given) from scratch
 on the local pool and on a local Dask cluster (127.0.0.1) with 1 and 2 workers and prints the
 times and speed-ups: how the campaign scales on a cluster.
@@ -34,7 +48,16 @@ def main() -> None:
     ap.add_argument("--executor", default="local", choices=("local", "dask"))
     ap.add_argument("--out", default=None, help="keep the campaign here (default: a temp folder)")
     ap.add_argument("--scaling", action="store_true", help="local and Dask, 1 and 2 workers")
+    ap.add_argument("--coverage", action="store_true", help="the adaptive interval's coverage")
+    ap.add_argument("--economy", action="store_true", help="adaptive against a finished grid")
+    ap.add_argument("--grid", default=None, help="--economy: the finished default grid's folder")
     args = ap.parse_args()
+    if args.coverage:
+        coverage()
+        return
+    if args.economy:
+        economy(args)
+        return
     if args.scaling:
         scaling(args)
         return
@@ -95,6 +118,110 @@ def scaling(args: argparse.Namespace) -> None:
                 f"  {executor:5s} {jobs} worker(s): {secs:6.1f} s for {n} runs "
                 f"({base[executor] / secs:.2f}x of 1 worker)"
             )
+
+
+# the default grid's measured profile (docs/boundary.md): wall TF (Hz) -> deg/s per scene
+PROFILE = {"grating": ([0.0, 1.0, 3.0], [6.7, 12.0, 28.5]),
+           "natural": ([0.0, 1.0, 3.0], [10.9, 13.0, 18.5])}  # fmt: skip
+
+
+def coverage(repeats: int = 20, spread: float = 0.3, slope: float = 0.5) -> None:
+    import numpy as np
+    import scipy.special
+
+    from analysis.experiments.adaptive import ProfileMap, design_runs
+
+    s = BoundarySettings(design="adaptive")
+    profile = ProfileMap({k: (np.array(a), np.array(b)) for k, (a, b) in PROFILE.items()})
+    covered, spent, widths = 0, [], []
+    for r in range(repeats):
+        rng = np.random.default_rng(2000 + r)
+        truth = float(rng.uniform(9.0, 24.0))  # deg/s, inside the design's range
+
+        def run_batch(placed: list[dict], truth=truth, rng=rng) -> list[dict]:
+            out = []
+            for p in placed:  # success a known function of the run's TF (through the profile)
+                x = float(profile.to_dps(p["scene"], p["tf_hz"]))
+                eta = scipy.special.logit(s.target) - slope * (x - truth) + rng.normal(0, spread)
+                n = int(rng.integers(20, 80))
+                k = int(rng.binomial(n, scipy.special.expit(eta)))
+                out.append(p | {"avoidances": k, "crashes": n - k})
+            return out
+
+        rows, fits = design_runs(
+            [1.0], ["grating", "natural"], profile, s.tf_bounds(), run_batch, target=s.target,
+            budget=s.budget, precision_dps=s.precision, batch=2, seed=r,
+        )  # fmt: skip
+        f = fits[1.0]
+        hit = f.low <= truth <= f.high
+        covered += hit
+        spent.append(len(rows))
+        widths.append(f.width)
+        print(
+            f"  repeat {r + 1:2d}: truth {truth:5.1f} deg/s, boundary {f.boundary:5.1f} "
+            f"[{f.low:.1f}, {f.high:.1f}] ({f.state}), {len(rows)} runs: "
+            f"{'covers' if hit else 'MISSES'}"
+        )
+    print(
+        f"coverage: the 95 % interval covers the true boundary in {covered} of {repeats} "
+        f"repeats (target >= 18); median {float(np.median(spent)):.0f} runs, median width "
+        f"{float(np.median(widths)):.1f} deg/s -> {'holds' if covered >= 18 else 'FAILS'}"
+    )
+
+
+def economy(args: argparse.Namespace) -> None:
+    import math
+
+    import polars as pl
+
+    from analysis.boundary import condition_complexity
+    from analysis.boundary_fit import grid_fits
+
+    if not args.grid:
+        raise SystemExit("--economy needs --grid DIR (a finished default grid)")
+    grid_dir = Path(args.grid)
+    runs = pl.read_parquet(grid_dir / "boundary_runs.parquet")
+    prof = pl.read_parquet(grid_dir / "boundary_profiles.parquet")
+    complexity = condition_complexity(prof, "profile_dps")
+    values = (12.0, 45.0)
+    runs = runs.filter(pl.col("t_ffi").is_in(values))
+    fitted, _ = grid_fits(runs, complexity, "t_ffi", 0.9)
+    from analysis.boundary import boundaries, condition_statistics
+
+    bracket = boundaries(
+        condition_statistics(runs, complexity, ["condition", "t_ffi"]), "t_ffi", 0.9
+    )
+    grid_runs = runs.height + prof.height * len(values) // 4  # its share of the profiling runs
+    s = BoundarySettings(design="adaptive", values=values, jobs=args.jobs, executor=args.executor)
+    out = Path(args.out or "/tmp/bench-adaptive")
+    t0 = time.perf_counter()
+    res = boundary(s, out)
+    secs = time.perf_counter() - t0
+    adaptive_runs = res.runs.height + len(s.scene_list()) * 3
+    print(
+        f"runs: adaptive {adaptive_runs} ({res.runs.height} + {len(s.scene_list()) * 3} "
+        f"profiling) against the grid's {grid_runs} for T_ffi 12 and 45 ({runs.height} + "
+        f"{prof.height * len(values) // 4}, its share of the profiling runs): "
+        f"{100 * adaptive_runs / grid_runs:.0f} % (target <= 40 %); campaign {secs / 60:.1f} min"
+    )
+    within = 0
+    for v in values:
+        a = res.boundaries.filter(pl.col("t_ffi") == v).row(0, named=True)
+        g = fitted.filter(pl.col("t_ffi") == v).row(0, named=True)
+        b = bracket.filter(pl.col("t_ffi") == v).row(0, named=True)
+        step = b["boundary_high_dps"] - b["boundary_low_dps"]
+        grid_point = g["boundary_dps"] if g["fit_state"] == "within" else b["boundary_dps"]
+        ok = math.isfinite(step) and abs(a["boundary_dps"] - grid_point) <= step
+        within += ok
+        print(
+            f"  T_ffi {v:g}: adaptive {a['boundary_dps']:.1f} deg/s "
+            f"[{a['boundary_dps_low']:.1f}, {a['boundary_dps_high']:.1f}] ({a['fit_state']}); "
+            f"grid fitted {g['boundary_dps']:.1f} [{g['boundary_dps_low']:.1f}, "
+            f"{g['boundary_dps_high']:.1f}] ({g['fit_state']}), bracket {b['where']} "
+            f"{b['boundary_low_dps']:.1f}-{b['boundary_high_dps']:.1f}; one grid step "
+            f"{step:.1f} deg/s: {'within' if ok else 'NOT within'}"
+        )
+    print(f"economy: {within} of {len(values)} values within one grid step")
 
 
 if __name__ == "__main__":

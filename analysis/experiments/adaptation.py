@@ -1,9 +1,9 @@
 """``vdc-analyse adaptation``: a learnt policy tested where it was not learnt.
 
-The policy (``policy.csv`` from ``vdc-analyse boundary``) sets the detector's parameter from
-the on-board AVDM's running mean as the robot drives. It is run in closed loop on held-out
-conditions (wall TFs and scenes the grid did not have, and a TF schedule that changes in the
-middle of a run) beside three controllers:
+The policy (``policy.csv`` from ``vdc-analyse boundary``, a grid or an adaptive campaign) sets
+the detector's parameter from the on-board AVDM's running mean as the robot drives. It is run
+in closed loop on held-out conditions (wall TFs and scenes the fit did not have, and a TF
+schedule that changes in the middle of a run) beside three controllers:
 
 * ``fixed``: the detector as it is (its default parameters);
 * ``hand``: the paper's hand-adjusted threshold (``--hand``, e.g. ``t_ffi=30``);
@@ -245,10 +245,12 @@ def adaptation(
     fitted = set()
     if policy.evidence is not None and "condition" in policy.evidence.columns:
         fitted = set(policy.evidence["condition"].to_list())
+    from analysis.experiments.adaptive import in_fitted_range
+
     notices = [
         f"{cond} was in the policy's fit: it is not held out"
-        for cond, *_ in s.conditions()
-        if cond in fitted
+        for cond, scene, tf, _ in s.conditions()
+        if cond in fitted or in_fitted_range(scene, tf, fitted)  # a grid's or a TF range's
     ]
     for n in notices:
         say(f"note: {n}")

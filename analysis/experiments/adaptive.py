@@ -18,7 +18,7 @@ continuous TF range (``--tf-range LO:HI``), in batches, where the boundary is st
    boundary is placed beyond or below the range at 95 %, or at ``--budget`` runs.
 
 Runs are recorded and measured on the executors exactly as the grid's
-(:func:`analysis.experiments.boundary.run_grid`: finished runs reused). The placement draws
+(``analysis.experiments.boundary.run_grid``: finished runs reused). The placement draws
 from a generator seeded by ``--seed`` and reused runs give the same rows, so a re-run places the
 same runs and records only what is missing. Each run is its own condition
 (``<scene>-tf<TF>``) with its own seed (``--seed`` + its index among the value's runs).
@@ -30,6 +30,7 @@ benchmark's coverage check drives it with simulated detectors of known boundary.
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -48,7 +49,6 @@ from analysis.boundary import (
     with_override,
 )
 from analysis.boundary_fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
-from analysis.experiments.boundary import run_grid
 
 FIRST_BATCH = 4
 PROFILE_POINTS = 3  # profiling TFs per scene: the range's ends and middle
@@ -222,11 +222,14 @@ def run_items(
 def adaptive_boundary(
     s: BoundarySettings,
     out: str | Path,
+    run_grid: Callable[..., pl.DataFrame],
     *,
     log: Callable[[str], None] | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> BoundaryResult:
-    """Arena mode with ``--design adaptive``: the profile, the batches, the fits; writes the
+    """Arena mode with ``--design adaptive``, recording with the grid's ``run_grid``
+    (:func:`analysis.experiments.boundary.run_grid`, passed in by the command's entry, which
+    imports this module): the profile, the batches, the fits; writes the
     same files as the grid (``boundary.md``, ``boundary.png``, ``boundary_runs.parquet``: one
     row per run the design placed, ``boundary.parquet`` with the fitted columns,
     ``boundary_profiles.parquet``, ``policy.csv``)."""
@@ -309,7 +312,7 @@ def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3)
     lo, hi = s.tf_bounds()
     edges = np.linspace(lo, hi, bins + 1)
     part = np.clip(np.searchsorted(edges, runs["tf_hz"].to_numpy(), side="right") - 1, 0, bins - 1)
-    names = [f"tf{edges[i]:.2g}-{edges[i + 1]:.2g}" for i in part]
+    names = [f"tf{round(edges[i], 2):g}-{round(edges[i + 1], 2):g}" for i in part]
     binned = runs.with_columns((pl.col("scene") + "-" + pl.Series(names)).alias("condition"))
     n_values = len(s.grid_values())
     full = binned.group_by("condition").agg(pl.col(s.param).n_unique().alias("n"))
@@ -318,3 +321,15 @@ def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3)
     if binned.height == 0:
         return None
     return fit_policy(binned, s.param, s.target, s.profile_model)
+
+
+def in_fitted_range(scene: str, tf_hz: float | None, fitted: set[str]) -> bool:
+    """Whether (scene, TF) lies in a TF range an adaptive campaign's policy was fitted on (its
+    evidence's conditions ``<scene>-tf<LO>-<HI>``, :func:`policy_from_campaign`)."""
+    if tf_hz is None:
+        return False
+    for name in fitted:
+        m = re.fullmatch(r"(\w+)-tf([\d.]+)-([\d.]+)", name)
+        if m and m[1] == scene and float(m[2]) <= tf_hz <= float(m[3]):
+            return True
+    return False

@@ -162,7 +162,7 @@ def boundary(
     if settings.design == "adaptive":
         from analysis.experiments.adaptive import adaptive_boundary
 
-        return adaptive_boundary(settings, out, log=log, progress=progress)
+        return adaptive_boundary(settings, out, run_grid, log=log, progress=progress)
     return arena_boundary(settings, out, log=log, progress=progress)
 
 

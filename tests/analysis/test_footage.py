@@ -41,6 +41,9 @@ def test_the_toy_detectors_constructed_boundary_is_found(labels: Path, tmp_path:
         truth = row["blind_above_dps"]
         assert row["where"] == "within"
         assert row["boundary_low_dps"] < truth <= row["boundary_high_dps"]
+        # the curve fitted over the clips themselves: its 95 % interval covers the truth
+        assert row["fit_state"] == "within", row
+        assert row["boundary_dps_low"] <= truth <= row["boundary_dps_high"], row
     clips = res.runs
     seen = clips.filter(pl.col("collision") & pl.col("hit"))
     assert seen.height > 0 and (seen["ttc_first_alert_s"] > 0).all()

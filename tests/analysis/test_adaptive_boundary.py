@@ -1,0 +1,170 @@
+"""The fitted boundary with its 95 % interval (``analysis.boundary_fit``) against constructed
+truth, its undetermined and beyond-the-range states, the adaptive loop on simulated detectors
+of known boundary, and a tiny real adaptive campaign through the command line."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+import scipy.special
+
+from analysis.boundary_fit import describe_fit, dps_to_tf, fit_columns, fit_crossing, tf_to_dps
+from analysis.experiments.adaptation import AdaptationSettings
+from analysis.experiments.adaptive import ProfileMap, design_runs, in_fitted_range
+from avdm.policy import load_policy
+from tests.helpers import assert_one_line_error, run_cli
+
+TARGET = 0.9
+
+
+def simulated_runs(rng, truth, x, slope=0.6, trials=(20, 60), spread=0.0):
+    """Runs of a simulated detector whose success crosses ``TARGET`` at ``truth`` (deg/s):
+    logit p = logit(target) - slope (x - truth), plus a per-run random effect of sd
+    ``spread`` on the logit (seeds that differ more than binomially)."""
+    x = np.asarray(x, float)
+    n = rng.integers(*trials, size=x.size)
+    eta = scipy.special.logit(TARGET) - slope * (x - truth) + rng.normal(0, spread, x.size)
+    return rng.binomial(n, scipy.special.expit(eta)), n
+
+
+def test_the_fit_finds_a_constructed_crossing_and_its_interval_covers_it() -> None:
+    rng = np.random.default_rng(1)  # one draw: a 95 % interval misses 1 in 20 of them
+    x = np.linspace(4, 30, 10)
+    k, n = simulated_runs(rng, 14.0, x)
+    fit = fit_crossing(x, k, n, TARGET, (4, 30))
+    assert fit.state == "within"
+    # 10 runs of 20-60 approaches place a 0.6 log-odds/(deg/s) curve's crossing to ~1-2 deg/s
+    assert abs(fit.boundary - 14.0) < 2.5
+    assert fit.low < 14.0 < fit.high and fit.width < 8
+    assert fit.band_low.min() >= 0 and fit.band_high.max() <= 1
+    assert (fit.band_low <= fit.curve_p + 1e-12).all() and (
+        fit.curve_p <= fit.band_high + 1e-12
+    ).all()
+    assert fit.success(14.0) == pytest.approx(TARGET, abs=0.1)  # the curve crosses there
+
+
+def test_the_interval_covers_the_truth_in_at_least_18_of_20_repeats() -> None:
+    """Coverage at the fitting level: 20 repeats of 12 runs with overdispersion between runs
+    (the quasi-likelihood correction must keep the 95 % interval honest)."""
+    covered = 0
+    for seed in range(20):
+        rng = np.random.default_rng(100 + seed)
+        x = rng.uniform(4, 30, 12)
+        k, n = simulated_runs(rng, 16.0, x, spread=0.4)
+        fit = fit_crossing(x, k, n, TARGET, (4, 30))
+        covered += fit.low <= 16.0 <= fit.high
+    assert covered >= 18, covered
+
+
+def test_runs_that_cannot_place_the_boundary_say_undetermined_never_beyond() -> None:
+    # the issue's case: success around the target everywhere with few approaches per run
+    x = np.array([6.0, 11.0, 18.0, 28.0])
+    k, n = np.array([3, 4, 5, 4]), np.array([4, 5, 5, 5])
+    fit = fit_crossing(x, k, n, TARGET)
+    assert fit.state == "undetermined"
+    assert math.isinf(fit.low) or math.isinf(fit.high)
+    text = describe_fit(fit_columns(fit))
+    assert text.startswith("undetermined: more seeds or runs needed (95 %: ")
+    assert "beyond" not in text
+    assert fit_crossing([5.0], [3], [4], TARGET).state == "undetermined"  # one point, no slope
+
+
+def test_beyond_the_range_only_when_success_is_above_the_target_everywhere() -> None:
+    x = np.linspace(5, 25, 8)
+    fit = fit_crossing(x, np.full(8, 200), np.full(8, 200), TARGET)
+    assert fit.state == "beyond" and fit.low > 25 and math.isinf(fit.high)
+    assert describe_fit(fit_columns(fit)).startswith("beyond the design's range (95 %: > ")
+    below = fit_crossing(x, np.full(8, 20), np.full(8, 200), TARGET)
+    assert below.state == "below" and below.high < 5
+
+
+def test_the_profile_maps_wall_tf_to_deg_s_and_back() -> None:
+    tf, dps = [0.0, 1.5, 3.0], [6.0, 15.0, 28.0]
+    assert tf_to_dps(0.75, tf, dps) == pytest.approx(10.5)
+    assert dps_to_tf(21.5, tf, dps) == pytest.approx(2.25)
+    assert dps_to_tf(tf_to_dps(3.5, tf, dps), tf, dps) == pytest.approx(3.5)  # extrapolated
+    assert dps_to_tf(math.inf, tf, dps) == math.inf
+
+
+def test_the_adaptive_loop_places_runs_near_the_boundary_and_stops_at_the_precision() -> None:
+    """The loop alone on a simulated detector (run_batch draws binomial counts): two scenes
+    with different profiles, a known boundary of 15 deg/s."""
+    rng = np.random.default_rng(3)
+    profile = ProfileMap({"grating": (np.array([0.0, 3.0]), np.array([6.0, 28.0])),
+                          "natural": (np.array([0.0, 3.0]), np.array([11.0, 19.0]))})  # fmt: skip
+
+    def run_batch(placed):
+        out = []
+        for p in placed:
+            k, n = simulated_runs(rng, 15.0, [p["complexity_dps"]], slope=0.8)
+            out.append(p | {"avoidances": int(k[0]), "crashes": int(n[0] - k[0])})
+        return out
+
+    rows, fits = design_runs([1.0], ["grating", "natural"], profile, (0.0, 3.0), run_batch,
+                             target=TARGET, budget=30, precision_dps=4.0, batch=2,
+                             seed=1)  # fmt: skip
+    fit = fits[1.0]
+    assert fit.state == "within" and fit.width < 4.0 and len(rows) < 30  # stopped early
+    assert fit.low <= 15.0 <= fit.high
+    later = [r["complexity_dps"] for r in rows if r["batch"] > 0]
+    # the placed runs concentrate near the crossing, not spread over 6-28 deg/s
+    assert abs(np.median(later) - 15.0) < 4
+    assert {r["scene"] for r in rows} == {"grating", "natural"}
+    assert len({r["seed"] for r in rows}) == len(rows)  # every run its own seed
+
+
+def test_a_tiny_adaptive_campaign_end_to_end(tmp_path: Path) -> None:
+    out = tmp_path / "adaptive"
+    args = ["analysis.cli", "boundary", "--design", "adaptive", "--budget", "5", "--values",
+            "12", "--scenes", "grating", "--tf-range", "0:3", "--minutes", "0.2", "--jobs",
+            "2", "--out", str(out)]  # fmt: skip
+    proc = run_cli(*args)
+    assert proc.returncode == 0, proc.stderr
+    assert "boundary at t_ffi = 12: " in proc.stdout
+    bounds = pl.read_parquet(out / "boundary.parquet")
+    for col in ("boundary_dps", "boundary_dps_low", "boundary_dps_high", "boundary_tf_hz",
+                "boundary_tf_low", "boundary_tf_high", "where", "boundary_low_dps"):  # fmt: skip
+        assert col in bounds.columns
+    row = bounds.row(0, named=True)
+    assert row["design"] == "adaptive" and row["fit_runs"] == 5
+    assert row["boundary_dps_low"] <= row["boundary_dps_high"]
+    runs = pl.read_parquet(out / "boundary_runs.parquet")
+    assert runs.height == 5  # every run the design placed: 4 spread, then 1 placed
+    assert runs["batch"].to_list() == [0, 0, 0, 0, 1]
+    assert runs.filter(pl.col("batch") == 0)["tf_hz"].to_list() == [0.0, 1.0, 2.0, 3.0]
+    assert ((runs["tf_hz"] >= 0) & (runs["tf_hz"] <= 3)).all()
+    profiles = pl.read_parquet(out / "boundary_profiles.parquet")
+    assert sorted(profiles["tf_hz"].to_list()) == [0.0, 1.5, 3.0]
+    # each run's complexity is the measured profile interpolated at its TF
+    expect = tf_to_dps(runs["tf_hz"].to_numpy(), profiles["tf_hz"], profiles["profile_dps"])
+    np.testing.assert_allclose(runs["complexity_dps"].to_numpy(), expect)
+    md = (out / "boundary.md").read_text()
+    assert "Adaptive design" in md and "| t_ffi | state | boundary (deg/s)" in md
+    assert (out / "boundary.png").read_bytes()[:4] == b"\x89PNG"
+    # the policy fitted from the campaign (its TF range in thirds) is what adaptation reads
+    policy = load_policy(out / "policy.csv")
+    assert policy.param == "t_ffi" and set(policy.values) == {12.0}
+    assert set(policy.evidence["condition"]) <= {"grating-tf0-1", "grating-tf1-2", "grating-tf2-3"}
+    AdaptationSettings(policy=str(out / "policy.csv"))  # accepted as a grid's policy is
+    fitted = set(policy.evidence["condition"])
+    assert in_fitted_range("grating", 2.0, fitted) != in_fitted_range("natural", 2.0, fitted)
+    again = run_cli(*args)  # a re-run places the same runs and records none
+    assert again.returncode == 0, again.stderr
+    assert pl.read_parquet(out / "boundary_runs.parquet")["reused"].all()
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--design", "adaptive", "--tf-range", "3:1"], "--tf-range must be LO:HI"),
+        (["--design", "adaptive", "--complexity", "online"], "--design adaptive is for"),
+        (["--design", "adaptive", "--budget", "1"], "--budget must be at least 2"),
+    ],
+)
+def test_bad_adaptive_input_is_one_line(tmp_path: Path, args, needle) -> None:
+    proc = run_cli("analysis.cli", "boundary", *args, "--out", str(tmp_path))
+    assert_one_line_error(proc, needle)
