@@ -41,7 +41,7 @@ import polars as pl
 
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, repeat_flags
-from vdc.frame_metrics import NativeMeter
+from vdc.frame_metrics import NativeMeter, decide_ranges
 from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
 
 if TYPE_CHECKING:
@@ -61,6 +61,7 @@ class MeasureSettings(Protocol):
     width: int | None
     repeat_tol: float
     max_repeats: int
+    color_range: str
 
 
 MODEL_METRICS = ("omega_dps", "flow_dps", "zlib_ratio")
@@ -231,8 +232,24 @@ def measure_recording(
         "frames": table.height,
         "repeated_frames": int(frames["repeat"].fill_null(False).sum()),
         "dropped_frames": int(frames["dropped_before"].fill_null(0).sum()),
+        **recorded_ranges(src if native is not None else None),
     }
     return SourceMeasurement(table, info)
+
+
+def recorded_ranges(video: dict[str, Any] | None) -> dict[str, str | None]:
+    """The colour ranges of a recording's SI/TI (``clips.parquet``'s range columns): camera
+    frames (``video`` None) are 8-bit full-range grey, as the recording states them; a video
+    recording's native metrics read the ranges its capture recorded (None where an older
+    recording did not record one)."""
+    if video is None:
+        return decide_ranges("full")
+    keys = ("color_range_p910", "color_range_p910_source")
+    keys += ("color_range_legacy", "color_range_legacy_source")
+    out = {k: video.get(k) for k in keys}
+    if out["color_range_legacy"] is None:  # a recording that states only FFmpeg's range
+        out["color_range_legacy"] = video.get("color_range")
+    return out
 
 
 def measure_video(
@@ -262,7 +279,10 @@ def measure_video(
             info["src_height_px"], info["src_width_px"], settings.fov_deg, settings.width
         )
         ctx = camera_model_context(w, h, fps, settings.fov_deg)
-        batches = FrameBatcher(reader, (h, w), fps, 128, settings.repeat_tol, settings.max_repeats)
+        batches = FrameBatcher(
+            reader, (h, w), fps, 128, settings.repeat_tol, settings.max_repeats,
+            settings.color_range,
+        )  # fmt: skip
         meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx)
         parts = []
         while (fb := batches.next_batch()) is not None:
@@ -276,7 +296,9 @@ def measure_video(
             if progress is not None:
                 progress(len(fb.frame))
         size = (int(info["src_height_px"]), int(info["src_width_px"]))
-        table = _frame_table(parts, "native", size, recording_id)
+        table = with_p910_corrections(
+            _frame_table(parts, "native", size, recording_id), batches.p910_late_corrections()
+        )
         lost = reader.problems
         meta = {
             "source": source,
@@ -290,12 +312,30 @@ def measure_video(
             "repeated_frames": batches.repeats_total,
             "dropped_frames": batches.dropped_total + lost,
             "bit_depth": info["bit_depth"],
-            "color_range": info["color_range"],
+            "color_range_tag": info.get("color_range_tag"),
+            **batches.color_ranges(),
             "decode_error": reader.error,
         }
         return SourceMeasurement(table, meta)
     finally:
         reader.close()
+
+
+def with_p910_corrections(table: pl.DataFrame, fix: np.ndarray) -> pl.DataFrame:
+    """``table`` with ``si_p910``, ``ti_p910`` of its first len(``fix``) frames replaced by
+    ``fix`` (K, 2) (``vdc.sources.FrameBatcher.p910_late_corrections``)."""
+    if not len(fix):
+        return table
+    k = len(fix)
+    first = pl.int_range(pl.len()) < k
+    pad = np.full(table.height - k, np.nan)
+    return table.with_columns(
+        pl.when(first)
+        .then(pl.Series(np.concatenate([fix[:, j], pad])).fill_nan(None))
+        .otherwise(pl.col(name))
+        .alias(name)
+        for j, name in enumerate(("si_p910", "ti_p910"))
+    )
 
 
 def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:

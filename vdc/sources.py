@@ -25,7 +25,7 @@ import numpy as np
 from vdc.frame_metrics import luma_plane, stream_format
 
 # images and camera frames: 8-bit grey, full range
-IMAGE_FORMAT = {"bit_depth": 8, "color_range": "full", "luma": True}
+IMAGE_FORMAT = {"bit_depth": 8, "color_range": "full", "color_range_tag": "full", "luma": True}
 VIDEO_SUFFIXES = (
     ".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".ts", ".mts", ".y4m",
     ".wmv", ".flv", ".3gp", ".ogv",
@@ -397,7 +397,12 @@ class FrameBatcher:
     repeats (a native mean |difference| from the previous frame of at most ``repeat_tol``
     8-bit levels, at most ``max_repeats`` in a row) and dropped frames (a gap of more than 1.5
     nominal intervals at ``fps``). ``vdc-capture video`` and ``vdc-analyse complexity`` both
-    read sources through it, so both see the same frames, times and flags."""
+    read sources through it, so both see the same frames, times and flags.
+
+    ``color_range`` (``auto``, ``limited``, ``full``) decides the range of the SI/TI variants
+    (``vdc.frame_metrics.decide_ranges``). In an untagged stream the P.910 variant is limited
+    until a frame's luma leaves that range: a batch's own earlier frames are then corrected
+    before it is returned, and :meth:`p910_late_corrections` gives those of earlier batches."""
 
     def __init__(
         self,
@@ -407,12 +412,18 @@ class FrameBatcher:
         batch_frames: int = 128,
         repeat_tol: float = 0.5,
         max_repeats: int = 3,
+        color_range: str = "auto",
     ) -> None:
-        from vdc.frame_metrics import NativeMeter
+        from vdc.frame_metrics import NativeMeter, decide_ranges
 
         self.reader, self.size, self.fps = reader, size, float(fps)
         self.batch_frames, self.repeat_tol, self.max_repeats = batch_frames, repeat_tol, max_repeats
-        self.meter = NativeMeter(reader.info["bit_depth"], reader.info["color_range"])
+        self._tag = reader.info.get("color_range_tag", reader.info["color_range"])
+        self.requested_range = color_range
+        ranges = decide_ranges(self._tag, color_range)
+        p910 = ranges["color_range_p910"] or "detect"
+        legacy = ranges["color_range_legacy"]
+        self.meter = NativeMeter(reader.info["bit_depth"], legacy, p910_range=p910)
         self._it = reader.frames()
         self._index = 0
         self._run = 0
@@ -440,6 +451,7 @@ class FrameBatcher:
         if not images:
             return None
         metrics = np.stack(native)
+        self._correct_p910(metrics, self._index)
         t_s = np.rint(np.asarray(times, dtype=np.float64) * 1e9) / 1e9
         mafd = metrics[:, NATIVE_METRICS.index("mafd")]
         repeat = repeats_of(mafd, self._run, self.repeat_tol, self.max_repeats)
@@ -456,3 +468,27 @@ class FrameBatcher:
         self.dropped_total += int(dropped.sum())
         self.repeats_total += int(repeat.sum())
         return FrameBatch(frame, t_s, np.stack(images), metrics, repeat, dropped, dt, notes)
+
+    def _correct_p910(self, metrics: np.ndarray, first: int) -> None:
+        """Full-range P.910 values for this batch's frames that were measured in limited
+        range before a later frame of the batch left it (in place)."""
+        from vdc.recording import NATIVE_METRICS
+
+        fix = self.meter.p910_corrections()
+        k = np.arange(first, min(len(fix), first + len(metrics)))
+        if len(k):
+            metrics[k - first, NATIVE_METRICS.index("si_p910")] = fix[k, 0]
+            metrics[k - first, NATIVE_METRICS.index("ti_p910")] = fix[k, 1]
+
+    def p910_late_corrections(self) -> np.ndarray:
+        """(K, 2) float64 ``si_p910``, ``ti_p910`` in full range for frames 0..K-1 returned in
+        earlier batches in limited range (an untagged stream whose luma left the limited
+        range only after them); K = 0 when none need it."""
+        return self.meter.p910_corrections()
+
+    def color_ranges(self) -> dict[str, str | None]:
+        """The range each SI/TI variant read and how it was decided
+        (``vdc.frame_metrics.decide_ranges``), once the frames so far are seen."""
+        from vdc.frame_metrics import decide_ranges
+
+        return decide_ranges(self._tag, self.requested_range, self.meter.left_limited_range)
