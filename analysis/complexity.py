@@ -328,7 +328,7 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
             k: info.get(k)
             for k in (
                 "source", "kind", "codec", "width_px", "height_px", "fps", "duration_s",
-                "frames", "repeated_frames", "dropped_frames", *RANGE_COLUMNS,
+                "frames", "repeated_frames", "dropped_frames", "model_fps", *RANGE_COLUMNS,
             )
         },
         "raster": table["raster"][0],

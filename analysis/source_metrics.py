@@ -106,8 +106,10 @@ class ComplexityMeter:
         self.s = settings
         self.fps = fps
         self.deg_per_px = deg_per_px
-        ctx = context or {"fps": fps, "deg_per_px": deg_per_px}
-        self.model = TrueTimeModel(make_model(settings.model, **ctx))
+        self.context = dict(context or {"fps": fps, "deg_per_px": deg_per_px})
+        # built on the first batch, at the rate of its new frames (new_frame_rate)
+        self.model: TrueTimeModel | None = None
+        self.model_fps: float | None = None
         self.dis = cv2.DISOpticalFlow_create(DIS_PRESETS[settings.flow_preset])
         self.camera = NativeMeter(8, "full", settings.jpeg_quality) if camera_baselines else None
         self.prev_new: np.ndarray | None = None  # the previous new (non-repeated) frame
@@ -124,6 +126,10 @@ class ComplexityMeter:
             for r in repeat:
                 self.run = self.run + 1 if r else 0
         out = {m: np.full(len(frames), np.nan) for m in MODEL_METRICS}
+        if self.model is None:
+            self.model_fps = new_frame_rate(self.fps, repeat)
+            ctx = self.context | {"fps": self.model_fps}
+            self.model = TrueTimeModel(make_model(self.s.model, **ctx))
         out["omega_dps"] = self.model.run(frames, t_s, repeat)["omega_dps"]
         if self.camera is not None:
             rows = np.stack([self.camera.row(f) for f in frames])
@@ -142,6 +148,27 @@ class ComplexityMeter:
             out["zlib_ratio"][i] = len(zlib.compress(raw, self.s.zlib_level)) / len(raw)
         self.prev = frames[-1] if len(frames) else self.prev
         return out
+
+
+def new_frame_rate(fps: float, repeat: np.ndarray) -> float:
+    """The rate of new frames in a stream at ``fps`` Hz whose frames ``repeat`` (T,) bool
+    flags (its first batch): the rate the models are built for, whatever the container says.
+
+    A clip whose every frame is shown k times at k times the rate (k = 2, 3, ...; also 2.5,
+    3:2 pulldown) brings a new frame every k container frames: its models run at fps / k,
+    and so see what they see on the original (docs/video.md: repeated frames). Sporadic
+    repeats (fewer than one frame in three: a camera that now and then delivers a frame
+    twice) leave the rate at ``fps``; :class:`avdm.true_time.TrueTimeModel` then scales the
+    angular outputs by the true time between new frames."""
+    n = len(repeat)
+    new = n - int(np.count_nonzero(repeat))
+    if n < 4 or new == 0:
+        return float(fps)
+    ratio = n / new
+    k = round(ratio * 2) / 2  # whole and half repeats per new frame (3:2 pulldown: 2.5)
+    if k < 1.5 or abs(ratio - k) > 0.1:
+        return float(fps)
+    return float(fps) / k
 
 
 def _frame_table(
@@ -232,6 +259,7 @@ def measure_recording(
         "frames": table.height,
         "repeated_frames": int(frames["repeat"].fill_null(False).sum()),
         "dropped_frames": int(frames["dropped_before"].fill_null(0).sum()),
+        "model_fps": meter.model_fps,
         **recorded_ranges(src if native is not None else None),
     }
     return SourceMeasurement(table, info)
@@ -311,6 +339,7 @@ def measure_video(
             "frames": table.height,
             "repeated_frames": batches.repeats_total,
             "dropped_frames": batches.dropped_total + lost,
+            "model_fps": meter.model_fps,
             "bit_depth": info["bit_depth"],
             "color_range_tag": info.get("color_range_tag"),
             **batches.color_ranges(),
