@@ -40,7 +40,7 @@ import numpy as np
 import polars as pl
 
 from avdm.registry import make_model
-from avdm.true_time import TrueTimeModel, repeat_flags
+from avdm.true_time import TrueTimeModel, new_frame_rate, repeat_flags
 from vdc.frame_metrics import NativeMeter, decide_ranges
 from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
 
@@ -127,7 +127,7 @@ class ComplexityMeter:
                 self.run = self.run + 1 if r else 0
         out = {m: np.full(len(frames), np.nan) for m in MODEL_METRICS}
         if self.model is None:
-            self.model_fps = new_frame_rate(self.fps, repeat)
+            self.model_fps = new_frame_rate(self.fps, repeat, self.s.max_repeats)
             ctx = self.context | {"fps": self.model_fps}
             self.model = TrueTimeModel(make_model(self.s.model, **ctx))
         out["omega_dps"] = self.model.run(frames, t_s, repeat)["omega_dps"]
@@ -148,27 +148,6 @@ class ComplexityMeter:
             out["zlib_ratio"][i] = len(zlib.compress(raw, self.s.zlib_level)) / len(raw)
         self.prev = frames[-1] if len(frames) else self.prev
         return out
-
-
-def new_frame_rate(fps: float, repeat: np.ndarray) -> float:
-    """The rate of new frames in a stream at ``fps`` Hz whose frames ``repeat`` (T,) bool
-    flags (its first batch): the rate the models are built for, whatever the container says.
-
-    A clip whose every frame is shown k times at k times the rate (k = 2, 3, ...; also 2.5,
-    3:2 pulldown) brings a new frame every k container frames: its models run at fps / k,
-    and so see what they see on the original (docs/video.md: repeated frames). Sporadic
-    repeats (fewer than one frame in three: a camera that now and then delivers a frame
-    twice) leave the rate at ``fps``; :class:`avdm.true_time.TrueTimeModel` then scales the
-    angular outputs by the true time between new frames."""
-    n = len(repeat)
-    new = n - int(np.count_nonzero(repeat))
-    if n < 4 or new == 0:
-        return float(fps)
-    ratio = n / new
-    k = round(ratio * 2) / 2  # whole and half repeats per new frame (3:2 pulldown: 2.5)
-    if k < 1.5 or abs(ratio - k) > 0.1:
-        return float(fps)
-    return float(fps) / k
 
 
 def _frame_table(

@@ -16,8 +16,8 @@ import pytest
 from skimage import data
 
 from analysis.complexity import ComplexitySettings, complexity, complexity_of_frames
-from analysis.source_metrics import new_frame_rate
 from avdm.stimuli import panned_image
+from avdm.true_time import new_frame_rate
 from vdc.frame_metrics import luma_plane
 
 FOV, FPS, N_NEW, WARM = 70.0, 25.0, 36, 8  # 70 deg over 396 px: the robot's 99x72 raster
@@ -101,3 +101,7 @@ def test_the_rate_of_new_frames() -> None:
     sporadic[::10] = True  # a webcam that now and then delivers a frame twice
     assert new_frame_rate(30.0, sporadic) == 30.0
     assert new_frame_rate(30.0, np.zeros(128, bool)) == 30.0
+    # a still scene: runs of max_repeats (3), then a frame called new; not 4x repetition
+    still = np.tile([False, True, True, True], 32)
+    assert new_frame_rate(30.0, still, max_repeats=3) == 30.0
+    assert new_frame_rate(120.0, still, max_repeats=4) == 30.0  # allowed longer runs: 4x
