@@ -53,12 +53,19 @@ from vdc.cli_support import (
     positive_float,
 )
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
+from vdc.frame_metrics import RANGE_CHOICES
 from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL
 from vdc.sources import source_name
 
 PARTS = "parts"
 OUTPUT_MARKER = "vdc_output"  # the property that marks a recording vdc derived from another
+# clips.parquet: the colour range each SI/TI variant read and how it was decided
+# (vdc.frame_metrics.decide_ranges: tagged, detected, assumed or user)
+RANGE_COLUMNS = (
+    "color_range_p910", "color_range_p910_source", "color_range_legacy",
+    "color_range_legacy_source",
+)  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,6 +110,13 @@ class ComplexitySettings:
     max_repeats: int = option(
         3, "longer still stretches are a still scene, not repeats", type=non_negative_int
     )
+    color_range: str = option(
+        "auto",
+        "video sources: the luma's colour range for SI/TI; auto: the stream's tag, else as "
+        "each reference tool reads it (P.910: full if the luma leaves 16-235, as siti-tools; "
+        "legacy: limited, as FFmpeg's siti)",
+        choices=RANGE_CHOICES,
+    )
     rrd: bool = option(
         False,
         "per clip, also a figure of its metrics over time and an .rrd that opens beside the "
@@ -130,6 +144,9 @@ class ComplexitySettings:
             raise ValueError(f"--zlib-level must be 0-9, got {self.zlib_level}")
         if self.width is not None and not 8 <= self.width <= 4096:
             raise ValueError(f"--width must be between 8 and 4096 px, got {self.width}")
+        if self.color_range not in RANGE_CHOICES:
+            choices = ", ".join(RANGE_CHOICES)
+            raise ValueError(f"--color-range must be one of {choices}, got {self.color_range!r}")
         self.executor_settings()
         parse_shard(self.shard)
 
@@ -155,14 +172,16 @@ def complexity_of_frames(
     settings: ComplexitySettings | None = None,
     width: int | None = None,
     native: np.ndarray | None = None,
-    color_range: str = "full",
+    color_range: str | None = "full",
 ) -> pl.DataFrame:
     """Every metric per frame of ``frames`` (T, H, W) uint8 grey at the source's resolution,
     filmed at ``fps`` Hz (or at the times ``t_s``, seconds) by a camera whose horizontal field
     of view is ``fov_deg``.
 
     The source-raster metrics are computed on ``native`` (T, H, W) uint8 luma code values in
-    ``color_range`` (default: ``frames`` themselves, full range). The model-raster metrics
+    ``color_range``, the range their stream tags (default: ``frames`` themselves, full range;
+    None: unspecified, decided as ``vdc.frame_metrics.decide_ranges`` says, with
+    ``settings.color_range``). The model-raster metrics
     are computed after area-resizing ``frames`` to the working raster ``vdc-capture video``
     uses (``width`` px, default the robot camera's angular pitch), with repeats judged on the
     native frames, as ``vdc-analyse complexity`` does on a video file: given a file's decoded
@@ -172,7 +191,7 @@ def complexity_of_frames(
     ``settings.metrics`` (see the module)."""
     from analysis.source_metrics import MODEL_METRICS
     from avdm.true_time import repeats_of
-    from vdc.frame_metrics import NativeMeter
+    from vdc.frame_metrics import NativeMeter, decide_ranges, leaves_limited
     from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
     from vdc.resize import area_resize
 
@@ -189,7 +208,12 @@ def complexity_of_frames(
     t = np.rint(t * 1e9) / 1e9  # whole nanoseconds, as a recording stores times
     ctx = camera_model_context(w, h, fps, fov_deg)
     native_names = (*(m for m in NATIVE_METRICS if m in metrics), "mafd")
-    nm = NativeMeter(8, color_range, settings.jpeg_quality, native_names)
+    leaves = any(leaves_limited(f, 8) for f in native) if color_range is None else None
+    ranges = decide_ranges(color_range, settings.color_range, leaves)
+    nm = NativeMeter(
+        8, str(ranges["color_range_legacy"]), settings.jpeg_quality, native_names,
+        p910_range=str(ranges["color_range_p910"]),
+    )  # fmt: skip
     rows = np.stack([nm.row(f) for f in native])
     mafd = rows[:, NATIVE_METRICS.index("mafd")]
     repeat = repeats_of(mafd, 0, settings.repeat_tol, settings.max_repeats)
@@ -383,6 +407,7 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
             for k in (
                 "source", "kind", "codec", "width_px", "height_px", "fps", "duration_s",
                 "frames", "repeated_frames", "dropped_frames", "header_duration_s", "missing_s",
+                "model_fps", *RANGE_COLUMNS,
             )
         },
         "raster": table["raster"][0],

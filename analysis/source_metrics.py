@@ -40,8 +40,8 @@ import numpy as np
 import polars as pl
 
 from avdm.registry import make_model
-from avdm.true_time import TrueTimeModel, repeat_flags
-from vdc.frame_metrics import NativeMeter
+from avdm.true_time import TrueTimeModel, new_frame_rate, repeat_flags
+from vdc.frame_metrics import NativeMeter, decide_ranges
 from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context, working_size
 from vdc.sources import cut_short_note, header_shortfall
 
@@ -63,6 +63,7 @@ class MeasureSettings(Protocol):
     repeat_tol: float
     max_repeats: int
     metrics: str  # --metrics: comma-separated column names, or all
+    color_range: str
 
 
 MODEL_METRICS = ("omega_dps", "flow_dps", "zlib_ratio")
@@ -139,9 +140,11 @@ class ComplexityMeter:
         self.fps = fps
         self.deg_per_px = deg_per_px
         self.metrics = chosen_metrics(settings) if metrics is None else metrics
-        ctx = context or {"fps": fps, "deg_per_px": deg_per_px}
-        want_omega = "omega_dps" in self.metrics
-        self.model = TrueTimeModel(make_model(settings.model, **ctx)) if want_omega else None
+        self.context = dict(context or {"fps": fps, "deg_per_px": deg_per_px})
+        # built on the first batch, at the rate of its new frames (new_frame_rate)
+        self.want_omega = "omega_dps" in self.metrics
+        self.model: TrueTimeModel | None = None
+        self.model_fps: float | None = None
         want_flow = "flow_dps" in self.metrics
         self.dis = (
             cv2.DISOpticalFlow_create(DIS_PRESETS[settings.flow_preset]) if want_flow else None
@@ -166,7 +169,11 @@ class ComplexityMeter:
             for r in repeat:
                 self.run = self.run + 1 if r else 0
         out = {m: np.full(len(frames), np.nan) for m in MODEL_METRICS}
-        if self.model is not None:
+        if self.want_omega:
+            if self.model is None:
+                self.model_fps = new_frame_rate(self.fps, repeat, self.s.max_repeats)
+                ctx = self.context | {"fps": self.model_fps}
+                self.model = TrueTimeModel(make_model(self.s.model, **ctx))
             out["omega_dps"] = self.model.run(frames, t_s, repeat)["omega_dps"]
         if self.camera is not None:
             rows = np.stack([self.camera.row(f) for f in frames])
@@ -294,8 +301,25 @@ def measure_recording(
         "header_duration_s": header_s,
         "missing_s": header_shortfall(header_s, last_t, fps),
         "cut_note": cut_short_note(header_s, last_t, fps),
+        "model_fps": meter.model_fps,
+        **recorded_ranges(src if native is not None else None),
     }
     return SourceMeasurement(table, info)
+
+
+def recorded_ranges(video: dict[str, Any] | None) -> dict[str, str | None]:
+    """The colour ranges of a recording's SI/TI (``clips.parquet``'s range columns): camera
+    frames (``video`` None) are 8-bit full-range grey, as the recording states them; a video
+    recording's native metrics read the ranges its capture recorded (None where an older
+    recording did not record one)."""
+    if video is None:
+        return decide_ranges("full")
+    keys = ("color_range_p910", "color_range_p910_source")
+    keys += ("color_range_legacy", "color_range_legacy_source")
+    out = {k: video.get(k) for k in keys}
+    if out["color_range_legacy"] is None:  # a recording that states only FFmpeg's range
+        out["color_range_legacy"] = video.get("color_range")
+    return out
 
 
 def measure_video(
@@ -335,7 +359,7 @@ def measure_video(
         native = tuple(m for m in NATIVE_METRICS if m in metrics)
         batches = FrameBatcher(
             reader, size, fps, 128, settings.repeat_tol, settings.max_repeats, native,
-            usable_threads(), settings.jpeg_quality,
+            usable_threads(), settings.jpeg_quality, settings.color_range,
         )  # fmt: skip
         if ctx is not None:
             meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics)
@@ -353,7 +377,10 @@ def measure_video(
             if progress is not None:
                 progress(len(fb.frame))
         src_size = (int(info["src_height_px"]), int(info["src_width_px"]))
-        table = _frame_table(parts, "native", src_size, recording_id, metrics)
+        table = with_p910_corrections(
+            _frame_table(parts, "native", src_size, recording_id, metrics),
+            batches.p910_late_corrections(),
+        )
         meta = {
             "source": source,
             "kind": info["kind"],
@@ -367,8 +394,10 @@ def measure_video(
             # each lost frame once: a bad packet's or a late frame's cost is a gap in the times
             "dropped_frames": batches.dropped_total,
             "source_problems": reader.problems,
+            "model_fps": meter.model_fps if meter is not None else None,
             "bit_depth": info["bit_depth"],
-            "color_range": info["color_range"],
+            "color_range_tag": info.get("color_range_tag"),
+            **batches.color_ranges(),
             "decode_error": reader.error,
             "header_duration_s": info.get("duration_s") or None,
             "missing_s": header_shortfall(info.get("duration_s"), batches.last_t_s, fps),
@@ -379,6 +408,24 @@ def measure_video(
         if batches is not None:
             batches.close()
         reader.close()
+
+
+def with_p910_corrections(table: pl.DataFrame, fix: np.ndarray) -> pl.DataFrame:
+    """``table`` with ``si_p910``, ``ti_p910`` of its first len(``fix``) frames replaced by
+    ``fix`` (K, 2) (``vdc.sources.FrameBatcher.p910_late_corrections``)."""
+    if not len(fix) or not {"si_p910", "ti_p910"} & set(table.columns):
+        return table
+    k = len(fix)
+    first = pl.int_range(pl.len()) < k
+    pad = np.full(table.height - k, np.nan)
+    return table.with_columns(
+        pl.when(first)
+        .then(pl.Series(np.concatenate([fix[:, j], pad])).fill_nan(None))
+        .otherwise(pl.col(name))
+        .alias(name)
+        for j, name in enumerate(("si_p910", "ti_p910"))
+        if name in table.columns  # --metrics may ask for one of the two
+    )
 
 
 def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:

@@ -71,6 +71,28 @@ def repeats_of(
     return flags
 
 
+def new_frame_rate(fps: float, repeat: np.ndarray, max_repeats: int = 3) -> float:
+    """The rate of new frames in a stream at ``fps`` Hz whose frames ``repeat`` (T,) bool
+    flags (its first batch): the rate the models are built for, whatever the container says.
+
+    A clip whose every frame is shown k times at k times the rate (k = 2, 3, ...; also 2.5,
+    3:2 pulldown) brings a new frame every k container frames: its models run at fps / k,
+    and so see what they see on the original (docs/video.md: repeated frames). The rate stays
+    ``fps`` for sporadic repeats (a camera that now and then delivers a frame twice:
+    :class:`TrueTimeModel` then scales the angular outputs by the true time between new
+    frames), for a mix that is no regular pattern, and where the runs reach ``max_repeats``
+    (a still scene, whose frames :func:`repeat_flags` calls new after that many)."""
+    n = len(repeat)
+    new = n - int(np.count_nonzero(repeat))
+    if n < 4 or new == 0:
+        return float(fps)
+    ratio = n / new
+    k = round(ratio * 2) / 2  # whole and half repeats per new frame (3:2 pulldown: 2.5)
+    if k < 1.5 or abs(ratio - k) > 0.1 or k - 1 >= max_repeats:
+        return float(fps)
+    return float(fps) / k
+
+
 class TrueTimeModel:
     """A model that sees only new frames and reports angular outputs in true deg/s.
 

@@ -14,8 +14,13 @@
 * ``codec_bpp``: bits per pixel the source's own codec spent on the frame (its packet), where
   the source has packets.
 
-Temporal metrics are null on a source's first frame. A colour range the stream leaves
-unspecified is taken as limited (the MPEG default, as FFmpeg does). One fused Numba pass
+Temporal metrics are null on a source's first frame. Each SI/TI variant reads the colour
+range as its reference tool does (:func:`decide_ranges`): a range the stream tags (or a
+``yuvj`` format) is used by both; where the stream leaves it unspecified, the legacy variant
+takes limited (FFmpeg's ``siti``), and the P.910 variant takes full if any frame's luma
+leaves the limited range (below 16 or above 235 at 8 bits: siti-tools refuses limited range
+on such input, "Input appears to be full range"), else limited. A range the user gives wins
+for both. One fused Numba pass
 reads each pixel once for both SI/TI variants and the MAFD: the display and PQ curves are a
 lookup table over the 2^B code values (exactly siti-tools' float64 arithmetic, evaluated once
 per code value instead of once per pixel).
@@ -34,11 +39,71 @@ import numpy as np
 from vdc.recording import NATIVE_METRICS
 
 RANGES = ("limited", "full")
+RANGE_CHOICES = ("auto", *RANGES)  # --color-range
+# how a variant's range was decided: the stream's tag, detected from the luma (P.910 in an
+# untagged stream), assumed as FFmpeg does (legacy in an untagged stream: limited), or given
+RANGE_SOURCES = ("tagged", "detected", "assumed", "user")
 
 # P.910 (2022) display model and PQ, as siti-tools' defaults (BT.1886, SDR)
 GAMMA, L_MAX, L_MIN = 2.4, 300.0, 0.1
 PQ_M1, PQ_M2 = 0.1593017578125, 78.84375
 PQ_C1, PQ_C2, PQ_C3 = 0.8359375, 18.8515625, 18.6875
+
+
+def leaves_limited(y: np.ndarray, bit_depth: int) -> bool:
+    """Whether luma ``y`` (code values at ``bit_depth``) has a value outside the limited range
+    (16..235 scaled to the bit depth): siti-tools' test, frame by frame, before it refuses
+    limited range ("Input appears to be full range ... Specify the range as full instead")."""
+    scale = 2 ** (bit_depth - 8)
+    lo, hi = float(y.min()), float(y.max())  # numpy's SIMD reductions: ~0.1 ms at 720p
+    return lo < 16 * scale or hi > 235 * scale
+
+
+def decide_ranges(
+    tagged: str | None, requested: str = "auto", leaves_limited_range: bool | None = None
+) -> dict[str, str | None]:
+    """The colour range each SI/TI variant reads, and how it was decided.
+
+    ``tagged``: the range the stream declares (``limited``, ``full``; None: unspecified);
+    ``requested``: ``--color-range`` (``auto``, ``limited``, ``full``);
+    ``leaves_limited_range``: whether any frame's luma left the limited range (None: not
+    known yet). Returns ``color_range_p910``, ``color_range_p910_source``,
+    ``color_range_legacy``, ``color_range_legacy_source`` (sources: :data:`RANGE_SOURCES`);
+    the P.910 range is None while an untagged stream's luma is not fully seen.
+
+    * user: the requested range for both variants (FFmpeg after ``setparams=range=...``;
+      siti-tools' ``--color-range``);
+    * tagged: the tag for both;
+    * unspecified: legacy limited (FFmpeg's ``siti``: an unspecified range is limited unless
+      the format is ``yuvj``); P.910 full when the luma leaves the limited range (the only
+      range siti-tools then accepts), else limited (siti-tools' default)."""
+    if requested not in RANGE_CHOICES:
+        raise ValueError(
+            f"colour range must be one of {', '.join(RANGE_CHOICES)}, got {requested!r}"
+        )
+    if tagged not in (None, *RANGES):
+        raise ValueError(f"a stream's colour range is limited, full or None, got {tagged!r}")
+    if requested != "auto":
+        return {
+            "color_range_p910": requested,
+            "color_range_p910_source": "user",
+            "color_range_legacy": requested,
+            "color_range_legacy_source": "user",
+        }
+    if tagged is not None:
+        return {
+            "color_range_p910": tagged,
+            "color_range_p910_source": "tagged",
+            "color_range_legacy": tagged,
+            "color_range_legacy_source": "tagged",
+        }
+    p910 = None if leaves_limited_range is None else "full" if leaves_limited_range else "limited"
+    return {
+        "color_range_p910": p910,
+        "color_range_p910_source": "detected",
+        "color_range_legacy": "limited",
+        "color_range_legacy_source": "assumed",
+    }
 
 
 def p910_lut(bit_depth: int, color_range: str) -> np.ndarray:
@@ -189,23 +254,36 @@ class NativeMeter:
     """Streams native luma frames through :data:`NATIVE_METRICS`.
 
     ``bit_depth`` 8 (uint8 frames) or 10/12 (uint16); ``color_range`` ``limited`` or
-    ``full`` as the stream declares it. ``update(y, packet_bytes)`` takes one frame (H, W)
-    and the size of its packet in the source (None: no ``codec_bpp``) and returns its
-    metrics (temporal ones NaN on the first frame). Only the names in ``metrics`` are
-    computed (the others are NaN); the MAFD always is (repeats are judged on it), and a
+    ``full``: the legacy variant's (and the P.910 variant's unless ``p910_range`` says
+    otherwise); ``p910_range`` ``limited``, ``full``, None (= ``color_range``) or ``detect``
+    (an untagged stream with ``--color-range auto``: limited until a frame's luma leaves the
+    limited range, full from that frame on, as siti-tools accepts it; :meth:`p910_corrections`
+    then gives the earlier frames' values in full range). ``update(y, packet_bytes)`` takes
+    one frame (H, W) and the size of its packet in the source (None: no ``codec_bpp``) and
+    returns its metrics (temporal ones NaN on the first frame). Only the names in ``metrics``
+    are computed (the others are NaN); the MAFD always is (repeats are judged on it), and a
     metric's value is the same bits whichever others are computed beside it."""
 
     bit_depth: int = 8
     color_range: str = "limited"
     jpeg_quality: int = 75
     metrics: tuple[str, ...] = NATIVE_METRICS
+    p910_range: str | None = None
 
     def __post_init__(self) -> None:
         if self.bit_depth not in (8, 10, 12):
             raise ValueError(f"bit depth must be 8, 10 or 12, got {self.bit_depth}")
         if self.color_range not in RANGES:
             raise ValueError(f"colour range must be limited or full, got {self.color_range!r}")
-        self._p910 = p910_lut(self.bit_depth, self.color_range)
+        if self.p910_range not in (None, "detect", *RANGES):
+            raise ValueError(
+                f"P.910 range must be limited, full or detect, got {self.p910_range!r}"
+            )
+        self._detect = self.p910_range == "detect"
+        # the P.910 range in use: while detecting, limited until the luma leaves it
+        self.p910_now = "limited" if self._detect else (self.p910_range or self.color_range)
+        self._p910 = p910_lut(self.bit_depth, self.p910_now)
+        self._p910_full = p910_lut(self.bit_depth, "full") if self._detect else None
         self._legacy = legacy_lut(self.bit_depth, self.color_range)
         unknown = set(self.metrics) - set(NATIVE_METRICS)
         if unknown:
@@ -214,6 +292,21 @@ class NativeMeter:
         self._want_legacy = bool({"si_legacy", "ti_legacy"} & set(self.metrics))
         self._prev: np.ndarray | None = None
         self._mafd_scale = 1.0 / 2 ** (self.bit_depth - 8)  # to 8-bit levels
+        self.frames_seen = 0
+        self.left_limited_at: int | None = None  # detect: the first frame outside it
+        self._full_alt: list[tuple[float, float]] = []  # detect: (si, ti) in full range
+
+    @property
+    def left_limited_range(self) -> bool | None:
+        """Detecting: whether a frame so far left the limited range; else None."""
+        return (self.left_limited_at is not None) if self._detect else None
+
+    def p910_corrections(self) -> np.ndarray:
+        """(K, 2) float64: ``si_p910``, ``ti_p910`` in full range of the first K frames,
+        which were given in limited range before frame K left it (K = 0: none to correct)."""
+        if self.left_limited_at is None:
+            return np.zeros((0, 2))
+        return np.array(self._full_alt[: self.left_limited_at], dtype=np.float64).reshape(-1, 2)
 
     def row(self, y: np.ndarray, packet_bytes: int | None = None) -> np.ndarray:
         """:meth:`update` as a (len(NATIVE_METRICS),) float64 row."""
@@ -229,9 +322,20 @@ class NativeMeter:
             raise ValueError(f"the frame size changed from {prev.shape} to {y.shape}")
         have = prev is not None
         want_a, want_b = self._want_p910, self._want_legacy
-        s = chosen_sums(y, prev if have else y, self._p910, self._legacy, have, want_a, want_b)
-        n_int, n_all = s[9], float(y.size)
+        n_int, n_all = (y.shape[0] - 2) * (y.shape[1] - 2), float(y.size)
         nan = math.nan
+        if want_a and self._detect and self.left_limited_at is None:
+            if leaves_limited(y, self.bit_depth):  # full from here on, as siti-tools reads it
+                self.left_limited_at = self.frames_seen
+                self.p910_now = "full"
+                self._p910 = self._p910_full
+            else:  # keep the full-range values in case a later frame leaves the range
+                full = self._p910_full
+                a = chosen_sums(y, prev if have else y, full, full, have, True, False)
+                self._full_alt.append(
+                    (_std(a[0], a[1], n_int), _std(a[2], a[3], n_all) if have else nan)
+                )
+        s = chosen_sums(y, prev if have else y, self._p910, self._legacy, have, want_a, want_b)
         y8 = y if self.bit_depth == 8 else (y >> (self.bit_depth - 8)).astype(np.uint8)
         out = {
             "si_p910": _std(s[0], s[1], n_int) if want_a else nan,
@@ -251,18 +355,30 @@ class NativeMeter:
         if "codec_bpp" in self.metrics and packet_bytes:
             out["codec_bpp"] = 8.0 * packet_bytes / n_all
         self._prev = y.copy()  # a decoder may reuse the buffer a plane views
+        self.frames_seen += 1
         return out
 
 
 def stream_format(frame: Any) -> dict[str, Any]:
-    """Bit depth and colour range a decoded PyAV video frame declares (an unspecified range
-    is limited, the MPEG default), and whether its luma can be read directly (a YUV or grey
-    format)."""
+    """Bit depth and colour range a decoded PyAV video frame declares, and whether its luma
+    can be read directly (a YUV or grey format).
+
+    ``color_range_tag``: the range the frame tags (``full`` also for an untagged ``yuvj``
+    format, as FFmpeg reads it), None where unspecified; ``color_range``: the range FFmpeg's
+    ``siti`` reads (an unspecified one is limited, the MPEG default)."""
     name = frame.format.name
     depth = 10 if "10" in name else 12 if "12" in name else 8
-    full = name.startswith("yuvj") or int(getattr(frame, "color_range", 0) or 0) == 2
+    code = int(getattr(frame, "color_range", 0) or 0)  # AVColorRange: 1 MPEG, 2 JPEG
+    tag = "full" if code == 2 else "limited" if code == 1 else None
+    if tag is None and name.startswith("yuvj"):
+        tag = "full"
     planar = name.startswith(("yuv", "gray", "nv12", "nv21"))
-    return {"bit_depth": depth, "color_range": "full" if full else "limited", "luma": planar}
+    return {
+        "bit_depth": depth,
+        "color_range": tag or "limited",
+        "color_range_tag": tag,
+        "luma": planar,
+    }
 
 
 def luma_plane(frame: Any, bit_depth: int) -> np.ndarray:

@@ -26,7 +26,7 @@ import numpy as np
 from vdc.frame_metrics import luma_plane, stream_format
 
 # images and camera frames: 8-bit grey, full range
-IMAGE_FORMAT = {"bit_depth": 8, "color_range": "full", "luma": True}
+IMAGE_FORMAT = {"bit_depth": 8, "color_range": "full", "color_range_tag": "full", "luma": True}
 # frames held back to reorder a codec's output when it does not state its delay
 REORDER_DEPTH_UNKNOWN = 16
 VIDEO_SUFFIXES = (
@@ -488,7 +488,12 @@ class FrameBatcher:
     repeats); ``size`` None: no working raster (``images`` then (N, 0, 0)). ``threads`` > 1:
     decoding, the native metrics and the resize run as a pipeline of threads
     (``vdc.pipeline``), with the same results bit for bit; call :meth:`close` (or read to the
-    end) to stop them."""
+    end) to stop them.
+
+    ``color_range`` (``auto``, ``limited``, ``full``) decides the range of the SI/TI variants
+    (``vdc.frame_metrics.decide_ranges``). In an untagged stream the P.910 variant is limited
+    until a frame's luma leaves that range: a batch's own earlier frames are then corrected
+    before it is returned, and :meth:`p910_late_corrections` gives those of earlier batches."""
 
     def __init__(
         self,
@@ -501,16 +506,21 @@ class FrameBatcher:
         metrics: tuple[str, ...] | None = None,
         threads: int = 1,
         jpeg_quality: int = 75,
+        color_range: str = "auto",
     ) -> None:
-        from vdc.frame_metrics import NativeMeter
+        from vdc.frame_metrics import NativeMeter, decide_ranges
         from vdc.recording import NATIVE_METRICS
 
         self.reader, self.size, self.fps = reader, size, float(fps)
         self.batch_frames, self.repeat_tol, self.max_repeats = batch_frames, repeat_tol, max_repeats
+        self._tag = reader.info.get("color_range_tag", reader.info["color_range"])
+        self.requested_range = color_range
+        ranges = decide_ranges(self._tag, color_range)
         native = NATIVE_METRICS if metrics is None else (*metrics, "mafd")
         self.meter = NativeMeter(
-            reader.info["bit_depth"], reader.info["color_range"], jpeg_quality, tuple(native)
-        )
+            reader.info["bit_depth"], ranges["color_range_legacy"], jpeg_quality, tuple(native),
+            p910_range=ranges["color_range_p910"] or "detect",
+        )  # fmt: skip
         reader.grey = size is not None  # no working raster: no grey conversion (0.3 ms at 720p)
         if threads > 1:
             from vdc.pipeline import pipelined
@@ -566,6 +576,7 @@ class FrameBatcher:
         if not images:
             return None
         metrics = np.stack(native)
+        self._correct_p910(metrics, self._index)
         t_s = np.rint(np.asarray(times, dtype=np.float64) * 1e9) / 1e9
         mafd = metrics[:, NATIVE_METRICS.index("mafd")]
         repeat = repeats_of(mafd, self._run, self.repeat_tol, self.max_repeats)
@@ -585,3 +596,27 @@ class FrameBatcher:
             np.stack(images) if self.size is not None else np.zeros((len(images), 0, 0), np.uint8)
         )
         return FrameBatch(frame, t_s, stacked, metrics, repeat, dropped, dt, notes)
+
+    def _correct_p910(self, metrics: np.ndarray, first: int) -> None:
+        """Full-range P.910 values for this batch's frames that were measured in limited
+        range before a later frame of the batch left it (in place)."""
+        from vdc.recording import NATIVE_METRICS
+
+        fix = self.meter.p910_corrections()
+        k = np.arange(first, min(len(fix), first + len(metrics)))
+        if len(k):
+            metrics[k - first, NATIVE_METRICS.index("si_p910")] = fix[k, 0]
+            metrics[k - first, NATIVE_METRICS.index("ti_p910")] = fix[k, 1]
+
+    def p910_late_corrections(self) -> np.ndarray:
+        """(K, 2) float64 ``si_p910``, ``ti_p910`` in full range for frames 0..K-1 returned in
+        earlier batches in limited range (an untagged stream whose luma left the limited
+        range only after them); K = 0 when none need it."""
+        return self.meter.p910_corrections()
+
+    def color_ranges(self) -> dict[str, str | None]:
+        """The range each SI/TI variant read and how it was decided
+        (``vdc.frame_metrics.decide_ranges``), once the frames so far are seen."""
+        from vdc.frame_metrics import decide_ranges
+
+        return decide_ranges(self._tag, self.requested_range, self.meter.left_limited_range)

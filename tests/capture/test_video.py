@@ -228,7 +228,7 @@ def test_complexity_of_a_video_recording_of_the_file_and_of_an_array(clips, tmp_
         grey = np.stack([f.to_ndarray(format="gray") for f in decoded])
         planes = np.stack([luma_plane(f, 8) for f in decoded])
     arr = complexity_of_frames(
-        grey, fps=30.0, fov_deg=FOV, native=planes, color_range="limited",
+        grey, fps=30.0, fov_deg=FOV, native=planes, color_range=None,  # untagged
         t_s=df["t_s"].to_numpy(), settings=every,
     )  # fmt: skip
     for m in METRICS:
