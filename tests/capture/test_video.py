@@ -356,7 +356,8 @@ def test_complexity_of_frames_equals_the_cli_on_a_real_clip(natural_clip, tmp_pa
     """The Python function on decoded native-resolution frames gives the readings that
     `vdc-capture video` then `vdc-analyse complexity` give: same raster, same context."""
     rec = tmp_path / "nat.rrd"
-    assert run_cli("capture", "video", str(natural_clip), "--fov-deg", "70", "--out", str(rec))
+    proc = run_cli("capture", "video", str(natural_clip), "--fov-deg", "70", "--out", str(rec))
+    assert proc.returncode == 0, proc.stderr
     proc = run_cli("analysis", "complexity", str(rec), "--out", str(tmp_path / "cx"))
     assert proc.returncode == 0, proc.stderr
     cli = pl.read_parquet(tmp_path / "cx" / "complexity.parquet")
