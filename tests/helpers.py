@@ -60,10 +60,11 @@ def end_background_processes(grace_s: float = 5.0) -> list[str]:
 
 
 def run_cli(
-    *args: str, cwd: Path | None = None, timeout: float = 300
+    *args: str, cwd: Path | None = None, timeout: float = 300, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess:
-    """Run ``python -m <args>`` as a user would, capturing text output."""
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    """Run ``python -m <args>`` as a user would, capturing text output; ``env`` replaces the
+    environment (e.g. ``tests.figures.figure_env()``)."""
+    env = {**(os.environ if env is None else env), "PYTHONUNBUFFERED": "1"}
     return subprocess.run(
         [sys.executable, "-m", *args],
         capture_output=True,
