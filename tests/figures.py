@@ -109,14 +109,15 @@ def assert_figure(
     title: str = "",
     labels: tuple[str, ...] = (),
     min_axes: int = 1,
-    min_coloured: float = 0.003,
+    min_coloured: float = 0.0005,
 ) -> dict:
     """``png`` is a real, drawn figure, and says what it shows:
 
     * its pixels are not blank: grey levels vary (std > 0.05 on 0-1; a blank figure has 0),
       and more than ``min_coloured`` of them are coloured (max - min of RGB > 0.2). Axes,
       ticks and texts are black and grey: an empty frame with its labels and title has no
-      coloured pixel (grey std 0.085), the figures of a quick reproduction have 0.9-23 %;
+      coloured pixel (grey std 0.085), the figures of a quick reproduction have 0.9-23 %, a
+      5-s clip's time series and histogram 0.16 %;
     * it was saved from a Figure (found by file name in ``saved``) with at least ``min_axes``
       axes that draw data (colour bars aside), each with a y label or a title (its x axis
       may be categories, named by their tick labels);
