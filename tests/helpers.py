@@ -8,7 +8,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from fractions import Fraction
 from pathlib import Path
 
@@ -60,10 +60,11 @@ def end_background_processes(grace_s: float = 5.0) -> list[str]:
 
 
 def run_cli(
-    *args: str, cwd: Path | None = None, timeout: float = 300
+    *args: str, cwd: Path | None = None, timeout: float = 300, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess:
-    """Run ``python -m <args>`` as a user would, capturing text output."""
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    """Run ``python -m <args>`` as a user would, capturing text output; ``env`` replaces the
+    environment (e.g. ``tests.figures.figure_env()``)."""
+    env = {**(os.environ if env is None else env), "PYTHONUNBUFFERED": "1"}
     return subprocess.run(
         [sys.executable, "-m", *args],
         capture_output=True,
@@ -86,7 +87,8 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> N
 
 def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.Popen:
     """Start a 60-minute simulated capture to ``out`` and wait until its partial file (where a
-    capture writes until it ends) holds at least ``min_bytes``; the caller stops it."""
+    capture writes until it ends) holds at least ``min_bytes`` (failing if it does not within
+    60 s); the caller stops it."""
     from capture.output import partial_path
 
     proc = spawn(
@@ -109,11 +111,53 @@ def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.P
         text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
-    deadline = time.time() + 60
     part = partial_path(out)
-    while time.time() < deadline and (not part.exists() or part.stat().st_size < min_bytes):
-        time.sleep(0.2)
+    assert_file_grows(proc, part, min_bytes, timeout_s=60)
     return proc
+
+
+def wait_until(predicate: Callable[[], object], timeout_s: float, poll_s: float = 0.05) -> bool:
+    """Poll ``predicate`` every ``poll_s`` seconds until it is true or ``timeout_s`` seconds
+    have passed; returns whether it became true (the caller asserts, with its own message)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if predicate():
+            return True
+        if time.monotonic() >= deadline:
+            return bool(predicate())
+        time.sleep(poll_s)
+
+
+def touch_then_sleep(path: str, seconds: float) -> dict:
+    """A pool task for tests: create ``path`` (the task is running), then sleep."""
+    Path(path).touch()
+    time.sleep(seconds)
+    return {}
+
+
+def file_size(path: Path) -> int:
+    """Bytes in ``path``; 0 while it does not exist."""
+    try:
+        return path.stat().st_size
+    except FileNotFoundError:
+        return 0
+
+
+def assert_file_grows(
+    proc: subprocess.Popen, path: Path, min_bytes: int, timeout_s: float = 60
+) -> None:
+    """Wait until the background process ``proc`` has written at least ``min_bytes`` to
+    ``path``; fail (with its stderr, if it ended) when it has not within ``timeout_s``."""
+    wait_until(lambda: file_size(path) >= min_bytes or proc.poll() is not None, timeout_s, 0.1)
+    if file_size(path) >= min_bytes:
+        return
+    ended = proc.poll() is not None
+    why = f"ended with status {proc.returncode}" if ended else "still runs"
+    err = proc.stderr.read() if ended and proc.stderr else ""
+    raise AssertionError(
+        f"{path} holds {file_size(path)} bytes, not {min_bytes}, after {timeout_s:g} s; "
+        f"the process {why}: {err}"
+    )
 
 
 def kill_a_worker_mid_batch(

@@ -26,7 +26,7 @@ import polars as pl
 import pytest
 
 from analysis.rrd_reader import Recording
-from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn
+from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn, wait_until
 from vdc.executors import pool_size, usable_cpus
 from vdc.recording import partial_path
 
@@ -110,10 +110,13 @@ def test_an_output_in_an_unwritable_place_is_one_line(tmp_path: Path) -> None:
 
 
 # two workers that would sleep a minute each: long enough to be killed mid-task
+# each task marks, in the folder given as the script's argument, that it is running
 SCRIPT = """
-import time
+import sys
+from tests.helpers import touch_then_sleep
 from vdc.executors import ExecutorSettings, run_tasks
-run_tasks(time.sleep, [("a", (60,)), ("b", (60,))], ExecutorSettings(jobs=2))
+tasks = [(k, (f"{sys.argv[1]}/{k}.running", 60)) for k in "ab"]
+run_tasks(touch_then_sleep, tasks, ExecutorSettings(jobs=2))
 """
 
 
@@ -129,6 +132,27 @@ def _children(pid: int) -> list[int]:
     return kids
 
 
+def _processes_holding(folder: Path) -> list[str]:
+    """Files inside ``folder`` that a live process holds open (pid: path), from /proc."""
+    held = []
+    for fd in Path("/proc").glob("[0-9]*/fd/*"):
+        try:
+            target = os.readlink(fd)
+        except OSError:  # gone, or another user's process
+            continue
+        if target.startswith(str(folder)) and _alive(int(fd.parent.parent.name)):
+            held.append(f"{fd.parent.parent.name}: {target}")
+    return held
+
+
+def _has_loaded(pid: int, package: str) -> bool:
+    """Whether process ``pid`` has mapped a shared library from ``package`` (it imported it)."""
+    try:
+        return f"/{package}/" in Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return False
+
+
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -139,9 +163,9 @@ def _alive(pid: int) -> bool:
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
-def test_pool_workers_end_when_their_parent_is_killed(sig) -> None:
+def test_pool_workers_end_when_their_parent_is_killed(sig, tmp_path: Path) -> None:
     env = {**os.environ, "VDC_OVERSUBSCRIBE": "1"}  # two workers even on a one-core runner
-    parent = subprocess.Popen([sys.executable, "-c", SCRIPT], cwd=ROOT, env=env)
+    parent = subprocess.Popen([sys.executable, "-c", SCRIPT, str(tmp_path)], cwd=ROOT, env=env)
     workers: list[int] = []
     try:
         deadline = time.monotonic() + 60
@@ -152,7 +176,8 @@ def test_pool_workers_end_when_their_parent_is_killed(sig) -> None:
                 break
             time.sleep(0.2)
         assert len(workers) >= 3, f"the pool did not start: children {workers}"
-        time.sleep(1.0)  # the workers are inside their tasks now
+        running = [tmp_path / "a.running", tmp_path / "b.running"]
+        assert wait_until(lambda: all(p.exists() for p in running), 60), "no task started"
         parent.send_signal(sig)
         parent.wait(timeout=10)
         deadline = time.monotonic() + 10
@@ -442,9 +467,8 @@ def test_a_sweep_killed_mid_run_leaves_no_worker_and_resumes(tmp_path: Path) -> 
     while time.monotonic() < deadline and _processes_mentioning(str(tmp_path)):
         time.sleep(0.2)
     assert not _processes_mentioning(str(tmp_path)), "workers outlived their parent"
-    sizes = {p: p.stat().st_size for p in recs.glob("*.partial.rrd")}
-    time.sleep(0.5)
-    assert {p: p.stat().st_size for p in recs.glob("*.partial.rrd")} == sizes  # nobody writes
+    assert list(recs.glob("*.partial.rrd"))  # the killed runs' partial files...
+    assert not _processes_holding(recs), "a process still holds a recording open"  # ...unwritten
     # the re-run records the two killed runs again (replacing their partial files)
     rerun = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert rerun.returncode == 0, rerun.stderr
@@ -463,10 +487,13 @@ def test_the_emulator_never_replaces_a_file_at_its_link_path(tmp_path: Path) -> 
     assert_clean(tmp_path)
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_ctrl_c_while_the_command_loads_is_one_line(tmp_path: Path) -> None:
     out = tmp_path / "early.rrd"
     proc = sim(out)
-    time.sleep(0.15)  # still importing NumPy, Numba and the SDK
+    # interrupt it while it imports: NumPy is loaded, Numba and the SDK are still to come
+    assert wait_until(lambda: _has_loaded(proc.pid, "numpy") or proc.poll() is not None, 30, 0.005)
+    assert not partial_path(out).exists(), "the capture had started"
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     # 130, or death by SIGINT (-2) when the signal lands before Python hands control to vdc;

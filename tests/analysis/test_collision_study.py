@@ -6,13 +6,15 @@ from pathlib import Path
 
 import polars as pl
 
+from tests.figures import assert_figure, figure_env, saved_figures
 from tests.helpers import assert_one_line_error, run_cli
 
 
 def test_collision_study_end_to_end_and_reuse(tmp_path: Path) -> None:
     out = tmp_path / "study"
     args = ("--minutes", "0.4", "--out", str(out), "--jobs", "2", "--seeds", "2")
-    proc = run_cli("analysis", "collision-study", *args)
+    record = tmp_path / "figures.jsonl"
+    proc = run_cli("analysis", "collision-study", *args, env=figure_env(record))
     assert proc.returncode == 0, proc.stderr
     summary = pl.read_parquet(out / "collision_summary.parquet")
     phases = ["tf0", "tf3", "tf3-adjusted", "tf3-adaptive", "tf0-adaptive"]
@@ -45,8 +47,13 @@ def test_collision_study_end_to_end_and_reuse(tmp_path: Path) -> None:
     assert 0.0 <= row["success_rate_low"] <= row["success_rate_high"] <= 1.0
     md = (out / "collision_study.md").read_text()
     assert "| tf0 |" in md and "229" in md and "| tf0 | 1 |" in md  # per phase, then per run
-    for name in ("collision_study.png", "collision_tf0_seed1.png", "collision.rrd"):
-        assert (out / name).exists(), name
+    assert (out / "collision.rrd").exists()
+    figures = saved_figures(record)
+    assert_figure(out / "collision_study.png", figures, title="events per phase",
+                  labels=("success rate (%)",))  # fmt: skip
+    # one run: three arena maps (with their colour bars) under the run's numbers
+    assert_figure(out / "collision_tf0_seed1.png", figures, title="tf0: ", labels=("x (m)",),
+                  min_axes=3)  # fmt: skip
     again = run_cli("analysis", "collision-study", *args)
     assert again.returncode == 0, again.stderr
     assert again.stderr.count("reusing") == 10

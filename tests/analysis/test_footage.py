@@ -12,6 +12,7 @@ import pytest
 
 from analysis.boundary import BoundarySettings
 from analysis.experiments.boundary import boundary
+from tests.figures import assert_figure, recording_figures
 from tests.footage_clips import COLLISION_FRAME, FPS, write_collection
 from tests.helpers import assert_one_line_error, run_cli
 
@@ -32,8 +33,11 @@ def settings(labels: Path, detector: str, param: str, values: str) -> BoundarySe
 def test_the_toy_detectors_constructed_boundary_is_found(labels: Path, tmp_path: Path) -> None:
     """The toy is blind once the AVDM's running mean exceeds ``blind_above_dps``: the boundary
     found for each value brackets that value (the grid's spacing is the interval)."""
-    res = boundary(settings(labels, "tests.toy_detector:BlindAbove", "blind_above_dps", "6.5,12.5"),
-                   tmp_path)  # fmt: skip
+    with recording_figures() as figures:
+        res = boundary(
+            settings(labels, "tests.toy_detector:BlindAbove", "blind_above_dps", "6.5,12.5"),
+            tmp_path,
+        )
     groups = res.conditions.filter(pl.col("blind_above_dps") == 6.5).sort("complexity_dps")
     assert groups.height == len(DRIFTS)  # clips of one drift speed make one group
     assert (groups["complexity_dps"].diff().drop_nulls() > 2).all()  # busier, group by group
@@ -51,7 +55,7 @@ def test_the_toy_detectors_constructed_boundary_is_found(labels: Path, tmp_path:
     assert not clips.filter(~pl.col("collision"))["false_alarm"].any()  # it never cries wolf
     md = (tmp_path / "boundary.md").read_text()
     assert "## Per clip" in md and "hit rate" in md
-    assert (tmp_path / "boundary.png").read_bytes()[:4] == b"\x89PNG"
+    assert_figure(tmp_path / "boundary.png", figures, title="success", labels=("success (%)",))
 
 
 def test_the_readme_looming_detector_breaks_on_busy_backgrounds(

@@ -10,9 +10,8 @@ import pytest
 import rerun as rr
 
 from analysis.rrd_reader import Recording
+from tests.figures import assert_figure, figure_env, saved_figures
 from tests.helpers import assert_one_line_error, run_cli
-
-PNG = b"\x89PNG\r\n\x1a\n"
 
 
 def entities(path: Path) -> set[str]:
@@ -21,6 +20,7 @@ def entities(path: Path) -> set[str]:
 
 def test_profile_per_recording_segment(recordings, tmp_path: Path) -> None:
     out = tmp_path / "p"
+    record = tmp_path / "figures.jsonl"
     proc = run_cli(
         "analysis",
         "profile",
@@ -31,13 +31,17 @@ def test_profile_per_recording_segment(recordings, tmp_path: Path) -> None:
         "80",
         "--bin-dps",
         "10",
+        env=figure_env(record),
     )
     assert proc.returncode == 0, proc.stderr
     summary = pl.read_parquet(out / "profile_summary.parquet")
     assert summary["wall_tf_hz"].to_list() == [0.0, 3.0]  # one profile per TF phase
     pngs = sorted(out.glob("profile_*.png"))
-    assert len(pngs) == 2 and all(p.read_bytes()[:8] == PNG for p in pngs)
-    assert (out / "profiles.png").read_bytes()[:8] == PNG
+    assert len(pngs) == 2
+    figures = saved_figures(record)
+    for png in pngs:  # each segment: circles, histogram of responses > 80, arena map
+        assert_figure(png, figures, title="responses > 80", labels=("frames", "x (m)"), min_axes=3)
+    assert_figure(out / "profiles.png", figures, title="'AVDM > 80' per segment")
     assert (summary["threshold_dps"] == 80).all()
     # the profile's own statistics agree with the tables'
     t = run_cli(
@@ -84,6 +88,7 @@ def test_profile_pools_recordings_by_condition(recordings, tmp_path: Path) -> No
 def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -> None:
     out = tmp_path / "cmp"
     rec = recordings["tf3_a"]
+    record = tmp_path / "figures.jsonl"
     proc = run_cli(
         "analysis",
         "compare",
@@ -96,6 +101,7 @@ def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -
         "avdm:beta=0.5",
         "--out",
         str(out),
+        env=figure_env(record),
     )
     assert proc.returncode == 0, proc.stderr
     stats = pl.read_parquet(out / "compare_summary.parquet")
@@ -104,7 +110,10 @@ def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -
     corr = pl.read_parquet(out / "compare_correlations.parquet")
     assert corr.height == 3 and (corr["pearson"].abs() <= 1).all()
     assert corr.filter(pl.col("model_b") == "avdm-on")["pearson"][0] > 0.9
-    assert (out / "compare.png").read_bytes()[:8] == PNG
+    assert_figure(
+        out / "compare.png", saved_figures(record), title="the busiest minute",
+        labels=("time (s)", "density"), min_axes=3,
+    )  # fmt: skip
     # the variants file opens alongside the source: same recording id, /model_variants/...
     source = Recording(rec)
     (entry,) = rr.chunk.RrdReader(str(out / "variants.rrd")).recordings()

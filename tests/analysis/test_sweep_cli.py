@@ -11,6 +11,7 @@ import pytest
 
 from analysis.cli import main
 from avdm.calibration_store import lookup_calibration
+from tests.figures import assert_figure, figure_env, recording_figures, saved_figures
 from tests.helpers import assert_one_line_error, run_cli
 from vdc.parquet_io import read_metadata
 
@@ -28,7 +29,8 @@ SWEEP_COLUMNS = [
 
 
 def test_paper_sweep_writes_table_figure_and_monotonicity(out_dir: Path, capsys) -> None:
-    assert main(["sweep", "--out", str(out_dir)]) == 0
+    with recording_figures() as figures:
+        assert main(["sweep", "--out", str(out_dir)]) == 0
     printed = capsys.readouterr().out
     df = pl.read_parquet(out_dir / "sweep.parquet")
     assert df.columns[: len(SWEEP_COLUMNS)] == SWEEP_COLUMNS
@@ -39,7 +41,11 @@ def test_paper_sweep_writes_table_figure_and_monotonicity(out_dir: Path, capsys)
         assert df.filter(pl.col("tf_hz") == tf).height == 17
     np.testing.assert_allclose(df["omega_true_dps"], df["tf_hz"] * 360 / df["sf_upc"])
     np.testing.assert_allclose(df["period_px"], 100 / df["sf_upc"])
-    assert (out_dir / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    fig = assert_figure(
+        out_dir / "sweep.png", figures, title="SF = 10 upc",
+        labels=("TF (Hz)", "SF (units per circle)"), min_axes=6,
+    )  # fmt: skip
+    assert "angular velocity (deg/s)" in {ax["ylabel"] for ax in fig["axes"]}
     mono = pl.read_parquet(out_dir / "monotonicity.parquet")
     assert mono.height == 6
     # the paper's claim on the well-sampled rows: rising with TF, falling with SF
@@ -135,6 +141,7 @@ def test_unwritable_output_is_one_line(tmp_path: Path) -> None:
 
 
 def test_calibrate_prints_and_saves_the_fit(out_dir: Path) -> None:
+    record = out_dir.parent / "figures.jsonl"
     proc = run_cli(
         "analysis",
         "calibrate",
@@ -146,6 +153,7 @@ def test_calibrate_prints_and_saves_the_fit(out_dir: Path) -> None:
         repr(70 / 99),
         "--out",
         str(out_dir),
+        env=figure_env(record),
     )
     assert proc.returncode == 0, proc.stderr
     shipped = lookup_calibration(33.0, 70 / 99)
@@ -158,7 +166,10 @@ def test_calibrate_prints_and_saves_the_fit(out_dir: Path) -> None:
     assert "--model avdm:a=" in proc.stdout
     saved = (out_dir / "calibration.json").read_text()
     assert '"r2"' in saved and '"grid"' in saved
-    assert (out_dir / "calibration.png").exists()
+    assert_figure(
+        out_dir / "calibration.png", saved_figures(record), title="a = ",
+        labels=("true angular velocity ω (deg/s)", "decoded ω̂ (deg/s)"),
+    )  # fmt: skip
 
 
 def test_a_poor_calibration_is_not_offered(tmp_path: Path) -> None:

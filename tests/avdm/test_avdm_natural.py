@@ -48,32 +48,45 @@ def test_fast_kernel_matches_the_plain_reference(size) -> None:
         np.testing.assert_allclose(fast[key], ref[key], rtol=1e-4, atol=1e-9, err_msg=key)
 
 
+# the band docs/video.md gives for avdm-natural: 80 % of the protocol's cell readings lie within
+# 0.79-1.12x the truth (up to 80 deg/s; the two cells here read 0.86-0.92x, 300 deg/s included)
+NATURAL_BAND = (0.79, 1.12)
+
+
 @pytest.mark.parametrize(
     ("image", "speed", "fps"), [("astronaut", 80.0, 30.0), ("gravel", 300.0, 25.0)]
 )
 def test_avdm_natural_reads_true_speed_in_both_directions(image, speed, fps) -> None:
-    """Held to the bounds docs/video.md states for avdm-natural: within 25 % of the truth and the
-    two directions within 10 % of each other, through H.264 at the robot camera's pitch."""
+    """Held to the bounds docs/video.md states for single cells of avdm-natural (its "Tests
+    hold" paragraph): each direction's reading inside the 0.79-1.12x band, and the two
+    directions within 10 % of each other, through H.264 at the robot camera's pitch. The
+    per-speed median error (<= 10 %) is over 64 cells a speed: the benchmark's, not this
+    test's."""
     read = {}
     for d in (1, -1):
         rows = measure_cell(Cell(image, speed, d, fps, "robot", "h264"), ["avdm-natural"])
         read[d] = rows[0]["omega_dps"]
-        assert abs(read[d] - speed) / speed < 0.25, (d, read[d])
+        low, high = NATURAL_BAND
+        assert low < read[d] / speed < high, (d, read[d])
         assert rows[0]["valid_share"] == 1.0  # inside the valid regime on every frame
     assert abs(read[1] - read[-1]) / ((read[1] + read[-1]) / 2) < 0.10
 
 
 def test_faithful_avdm_holds_in_its_stated_range_and_fails_beyond_it() -> None:
     """docs/video.md states the faithful avdm's behaviour on natural footage at 25-30 fps: at
-    10 deg/s on the robot raster (0.47 px/frame) 80 % of readings lie within 0.25-2x the truth;
-    beyond about 1 px per frame the reading falls relative to the truth (median 0.13x at
-    160 deg/s) although the speed rises: the reason avdm-natural exists."""
+    10 deg/s on the robot raster (0.47 px/frame) 80 % of cell readings lie within 0.25-2x the
+    truth; beyond about 1 px per frame the reading falls relative to the truth (median over
+    the protocol's cells 0.40x at 40 deg/s, 0.13x at 160 deg/s) although the speed rises: the
+    reason avdm-natural exists. One image's cells are held to what one cell can show: inside
+    the band at 10 deg/s; at 160 deg/s below the protocol's 90th percentile there (0.42x on
+    the robot raster at 30 fps through H.264; this cell reads 0.20x) and below its own
+    reading at 40 deg/s relative to the truth; and flagged on some frames."""
     for d in (1, -1):
         row = measure_cell(Cell("astronaut", 10.0, d, 30.0, "robot", "h264"), ["avdm"])[0]
         assert 0.25 < row["omega_dps"] / 10.0 < 2.0, (d, row["omega_dps"])
     fast = measure_cell(Cell("astronaut", 160.0, 1, 30.0, "robot", "h264"), ["avdm"])[0]
     mid = measure_cell(Cell("astronaut", 40.0, 1, 30.0, "robot", "h264"), ["avdm"])[0]
-    assert fast["omega_dps"] < 0.6 * 160.0  # far below the truth at 7.5 px/frame
+    assert fast["omega_dps"] / 160.0 < 0.42  # far below the truth at 7.5 px/frame
     assert fast["omega_dps"] / 160.0 < mid["omega_dps"] / 40.0
     assert fast["valid_share"] < 1.0  # and its flag says so on some frames
 

@@ -17,7 +17,7 @@ from analysis.rrd_reader import Recording
 from avdm import make_model
 from capture.config import SimConfig, WallConfig, parse_schedule
 from capture.sim import SimulatedRobot
-from tests.helpers import assert_one_line_error, run_cli, spawn, start_long_capture
+from tests.helpers import assert_one_line_error, run_cli, spawn, start_long_capture, wait_until
 
 CONTRACT_ENTITIES = {
     "/arena/walls",
@@ -264,7 +264,15 @@ def test_connect_tees_to_a_live_viewer_while_writing_the_file(tmp_path: Path) ->
         stderr=subprocess.DEVNULL,
     )
     try:
-        time.sleep(1.5)
+
+        def listening() -> bool:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                return True
+            except OSError:
+                return receiver.poll() is not None  # it ended: stop waiting, the assert says
+
+        assert wait_until(listening, 30) and receiver.poll() is None, "the receiver never listened"
         out = tmp_path / "teed.rrd"
         proc = run_cli(
             "capture",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import pty
+import select
 import signal
 import struct
 import subprocess
@@ -33,7 +34,7 @@ from capture.serial_protocol import (
 )
 from capture.sim import SimulatedRobot
 from capture.tracker import load_calibration as tracker_load
-from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn
+from tests.helpers import ROOT, assert_file_grows, assert_one_line_error, run_cli, spawn, wait_until
 
 
 def test_crc_is_ccitt_false() -> None:
@@ -103,7 +104,11 @@ def test_parser_resynchronises_and_never_yields_corrupt_data(
     assert set(got) <= set(good)
     assert len(got) == len(set(got))
     assert len(good) - len(got) <= sum(1 for g in garbage if b"\xaa" in g)
-    assert parser.stats.bad_crc + parser.stats.bad_length >= 0
+    # every damaged packet is counted (a single flipped bit never passes the CRC-16, and a
+    # flipped type byte fails the length check or the CRC) unless the stream ends while the
+    # parser still waits for the body a false sync word in the garbage announced
+    counted = parser.stats.bad_crc + parser.stats.bad_length
+    assert counted >= sum(corrupt[:n]) - sum(1 for g in garbage if b"\xaa" in g)
 
 
 def render_overhead(folder: Path, seconds: float, fps: float = 10.0, seed: int = 0) -> SimConfig:
@@ -117,6 +122,14 @@ def render_overhead(folder: Path, seconds: float, fps: float = 10.0, seed: int =
         f = min(round(k * cfg.camera.fps / fps), len(poses) - 1)
         cv2.imwrite(str(folder / f"{k:05d}.png"), r.render(poses[f]))
     return cfg
+
+
+def images_in(path: Path) -> int:
+    """Frames with an image in a recording still being written (0 while it cannot be read)."""
+    try:
+        return len(Recording(path).read_frames().frame)
+    except Exception:  # not created yet, or its first chunk is still being written
+        return 0
 
 
 def start_emulator(link: Path, report: Path, *extra: str) -> subprocess.Popen:
@@ -146,7 +159,8 @@ def start_emulator(link: Path, report: Path, *extra: str) -> subprocess.Popen:
 
 
 def start_robot_capture(link: Path, frames: Path, out: Path, min_bytes: int) -> subprocess.Popen:
-    """``vdc-capture robot`` in the background; returns once ``out`` holds ``min_bytes``."""
+    """``vdc-capture robot`` in the background; returns once its partial file holds
+    ``min_bytes`` (fails if it does not within 60 s)."""
     cap = spawn(
         [
             sys.executable,
@@ -166,10 +180,7 @@ def start_robot_capture(link: Path, frames: Path, out: Path, min_bytes: int) -> 
         stderr=subprocess.PIPE,
         text=True,
     )
-    deadline = time.time() + 60
-    part = partial_path(out)  # where a capture writes until it ends
-    while time.time() < deadline and (not part.exists() or part.stat().st_size < min_bytes):
-        time.sleep(0.2)
+    assert_file_grows(cap, partial_path(out), min_bytes)  # where a capture writes until it ends
     return cap
 
 
@@ -256,7 +267,8 @@ def test_decimated_images_and_sigkill_leave_a_readable_recording(tmp_path: Path)
     link, report_path, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
     emu = start_emulator(link, report_path, "--minutes", "0.33", "--decimation", "3")
     cap = start_robot_capture(link, tmp_path / "overhead", out, 200_000)
-    time.sleep(1.0)
+    # kill it mid-run, once its partial file holds more than 10 frames' images
+    assert wait_until(lambda: images_in(partial_path(out)) > 10, 60, poll_s=0.2)
     cap.send_signal(signal.SIGKILL)
     cap.wait(timeout=30)
     emu.kill()
@@ -319,11 +331,12 @@ def test_wall_controller_line_protocol() -> None:
         ctl.update(0.0)
         ctl.update(0.0)  # unchanged: nothing sent
         ctl.update(3.0)
-        time.sleep(0.2)
-        data = os.read(master, 4096).decode()
-        assert (
-            data == "TF 0.000 PERIOD 0.1000 SCENE grating\nTF 3.000 PERIOD 0.1000 SCENE grating\n"
-        )
+        sent = "TF 0.000 PERIOD 0.1000 SCENE grating\nTF 3.000 PERIOD 0.1000 SCENE grating\n"
+        data = b""
+        while len(data) < len(sent) and select.select([master], [], [], 10)[0]:
+            data += os.read(master, 4096)  # until both lines arrived (or 10 s of silence)
+        ctl.update(3.0)  # unchanged again: nothing more is sent
+        assert data.decode() == sent and not select.select([master], [], [], 0)[0]
     finally:
         os.close(master)
         os.close(slave)

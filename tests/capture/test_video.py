@@ -20,6 +20,7 @@ from avdm import make_model
 from avdm.calibration_store import calibration_for
 from avdm.stimuli import grating
 from capture.video import VideoSettings, record_video
+from tests.figures import assert_figure, figure_env, saved_figures
 from tests.helpers import assert_one_line_error, run_cli, write_video
 from vdc.frame_metrics import luma_plane
 
@@ -255,12 +256,18 @@ def test_complexity_on_a_simulated_arena_recording(tmp_path: Path) -> None:
 def test_profile_and_compare_take_a_video_recording(clips, tmp_path: Path) -> None:
     rec = tmp_path / "o.rrd"
     record_video(VideoSettings(str(clips["original"]), FOV), rec)
-    proc = run_cli("analysis", "profile", str(rec), "--out", str(tmp_path / "p"))
+    record = tmp_path / "figures.jsonl"
+    proc = run_cli(
+        "analysis", "profile", str(rec), "--out", str(tmp_path / "p"), env=figure_env(record)
+    )
     assert proc.returncode == 0, proc.stderr
     summary = pl.read_parquet(tmp_path / "p" / "profile_summary.parquet")
     assert summary.height == 1 and summary["n_frames"][0] == 130  # 150 - 20 warm-up
     assert summary["near_wall_mean"].is_nan().all()  # no poses: nothing near a wall, not 0
-    assert len(list((tmp_path / "p").glob("profile_*_video_avdm-natural.png"))) == 1
+    (png,) = (tmp_path / "p").glob("profile_*_video_avdm-natural.png")
+    # no poses: a time series and a histogram, not an arena map
+    assert_figure(png, saved_figures(record), title="response over time", labels=("time (s)",),
+                  min_axes=2)  # fmt: skip
     proc = run_cli(
         "analysis", "compare", str(rec), "--model", "avdm", "--model", "avdm-on",
         "--out", str(tmp_path / "c"),
@@ -357,7 +364,8 @@ def test_complexity_of_frames_equals_the_cli_on_a_real_clip(natural_clip, tmp_pa
     """The Python function on decoded native-resolution frames gives the readings that
     `vdc-capture video` then `vdc-analyse complexity` give: same raster, same context."""
     rec = tmp_path / "nat.rrd"
-    assert run_cli("capture", "video", str(natural_clip), "--fov-deg", "70", "--out", str(rec))
+    proc = run_cli("capture", "video", str(natural_clip), "--fov-deg", "70", "--out", str(rec))
+    assert proc.returncode == 0, proc.stderr
     proc = run_cli("analysis", "complexity", str(rec), "--out", str(tmp_path / "cx"))
     assert proc.returncode == 0, proc.stderr
     cli = pl.read_parquet(tmp_path / "cx" / "complexity.parquet")
