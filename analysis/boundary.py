@@ -139,6 +139,11 @@ class BoundarySettings(ExecutorSettings):
         type=positive_float,
     )
     profile_model: str = option("avdm", "arena: the AVDM variant that profiles the conditions")
+    no_predictors: bool = option(
+        False,
+        "do not judge every complexity measure by how it predicts the failures "
+        "(predictors.parquet; arena: needs --complexity profile)",
+    )
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -200,6 +200,11 @@ def arena_boundary(
     else:
         profiles = None
         complexity = condition_complexity(runs, "online_dps")
+    measures = None
+    if prof and not s.no_predictors:  # every complexity measure of the profiling runs
+        from analysis.experiments.predictor_runs import arena_measures
+
+        measures = arena_measures([(p, c) for _, _, p, c in prof], s, say)
     conditions = condition_statistics(runs, complexity, ["condition", s.param])
     bounds = boundaries(conditions, s.param, s.target)
     policy = fit_policy(runs, s.param, s.target, s.profile_model) if not s.no_fit else None
@@ -231,6 +236,12 @@ def arena_boundary(
         if policy is not None:
             paths.append(policy.save(stage / "policy.csv"))
         md = arena_report(s, conditions, bounds, policy)
+        if measures is not None:
+            from analysis.experiments.predictor_runs import arena_predictor_tables
+
+            _, more, section = arena_predictor_tables(s, runs, measures, stage)
+            paths += more
+            md += "\n" + section
         (stage / "boundary.md").write_text(md, encoding="utf-8")
         paths.append(stage / "boundary.md")
     paths = [out / p.name for p in paths]
