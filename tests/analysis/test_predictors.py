@@ -153,3 +153,57 @@ def test_footage_auroc_perfect_shuffled_and_within_clip(footage, tmp_path) -> No
     assert png.read_bytes()[:4] == b"\x89PNG"
     md = predictors_report(footage, "threshold", "footage")
     assert "### clip_auroc" in md and "| avdm | 1.00 [1.00, 1.00] |" in md
+
+
+def test_the_arena_grid_gains_its_predictors_from_cached_measures(tmp_path) -> None:
+    """A tiny grid (3 drifts, one value, 2 seeds of 0.3 min) end to end: every measure of every
+    profiling run, cached beside it, and the table recomputed from the cache alone."""
+    import vdc
+
+    s = vdc.BoundarySettings(tf="0,1,3", scenes="grating", values="30", seeds=2, minutes=0.3,
+                             jobs=2, no_fit=True)  # fmt: skip
+    res = vdc.boundary(s, tmp_path)
+    pred = pl.read_parquet(tmp_path / "predictors.parquet")
+    measures = pl.read_parquet(tmp_path / "predictor_measures.parquet")
+    assert measures.height == 3 * 2  # one row per profiling run
+    from analysis.predictors import MEASURES
+
+    for m in MEASURES:  # every measure measured, on the camera's raster
+        assert measures[m].is_finite().all(), m
+        assert pred.filter(pl.col("measure") == m).height, m
+    by = measures.group_by("condition").agg(pl.col("avdm", "flow_dps", "ti_p910").mean())
+    c = {r["condition"]: r for r in by.iter_rows(named=True)}
+    for m in ("avdm", "flow_dps", "ti_p910"):  # the wall's drift is what motion measures read
+        assert c["grating-tf3"][m] > c["grating-tf0"][m], m
+    assert (tmp_path / "predictors.png").read_bytes()[:4] == b"\x89PNG"
+    assert "## Which measure predicts where it breaks" in res.markdown
+    caches = sorted((tmp_path / "recordings" / "profile").rglob("*.measures.json"))
+    assert len(caches) == 6
+    (tmp_path / "predictors.parquet").unlink()  # an older grid: computed from the caches
+    again = vdc.predictors(tmp_path)
+    assert again.measures["reused"].all()
+    assert again.predictors.sort("measure", "statistic").equals(pred.sort("measure", "statistic"))
+    assert vdc.predictors(res).predictors.height == pred.height
+
+
+def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
+    """The README's OpenCV looming detector on rendered clips: the per-frame table and the
+    clip and frame statistics for every measure."""
+    import vdc
+    from tests.footage_clips import write_collection
+
+    labels = write_collection(tmp_path / "clips", drifts=(0.0, 4.0), seeds=(1, 2))
+    s = vdc.BoundarySettings(labels=str(labels), fov_deg=60.0, detector="examples.looming:Looming",
+                             param="threshold", values="0.05", jobs=1)  # fmt: skip
+    vdc.boundary(s, tmp_path / "out")
+    res = vdc.predictors(tmp_path / "out")
+    frames = res.measures
+    assert frames["clip"].n_unique() == 8
+    assert {"avdm", "avdm_natural", "ti_p910", "flow_dps", "positive", "keep"} <= set(
+        frames.columns
+    )
+    looming = frames.filter(pl.col("clip").str.starts_with("loom"))
+    assert not looming.filter(pl.col("frame") >= 99 - 50)["keep"].any()  # the window is left out
+    stats = set(res.predictors["statistic"])
+    assert {"clip_auroc", "frame_auroc_pooled", "frame_auroc_within_clip"} <= stats
+    assert "### clip_auroc" in res.markdown
