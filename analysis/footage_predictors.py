@@ -93,7 +93,7 @@ def footage_predictor_tables(
         theirs = per_frame.filter(pl.col("recording_id") == rid[_key(row["source"])]).select(
             "frame", pl.col("omega_dps").alias("avdm_natural"), *keep_cols
         )
-        table = mine.join(theirs, on="frame", how="left")
+        table = mine.join(theirs, on="frame", how="left", maintain_order="left")
         cf = row["collision_frame"]
         wf = round(window * res["fps"])
         scene = table.filter(pl.col("frame") < cf - wf) if cf is not None else table
