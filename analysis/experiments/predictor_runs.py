@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-MEASURE_VERSION = 1
+MEASURE_VERSION = 2  # 1 lost codec_bpp (NaN)
 EVERY = 8  # the SI/TI family, flow and zlib on every 8th frame pair (their cost; see module)
 CODEC_CRF = 23
 
@@ -51,7 +51,7 @@ def _codec_sizes(frames: np.ndarray, fps: float, state: dict[str, Any]) -> None:
         st.width, st.height = w + w % 2, h + h % 2  # 4:2:0 wants even sizes
         st.pix_fmt = "yuv420p"
         st.options = {"preset": "ultrafast", "crf": str(CODEC_CRF)}
-        state |= {"stream": st, "bytes": 0, "frames": 0}
+        state |= {"stream": st, "bytes": 0, "frames": 0, "pixels": st.width * st.height}
     st = state["stream"]
     for f in frames:
         y = np.pad(f, ((0, h % 2), (0, w % 2)), mode="edge")
@@ -117,8 +117,8 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
         parts.append(pl.DataFrame(cols | sampled))
     for p in codec["stream"].encode():
         codec["bytes"] += p.size
-    codec["out"].close()
-    size = float(codec["frames"]) * (codec["stream"].width * codec["stream"].height)
+    codec["out"].close()  # (a closed stream reads width 0: the size was kept before)
+    size = float(codec["frames"]) * codec["pixels"]
     df = pl.concat(parts).join(timing, on="frame", how="left")
     profiler = loaded.online_model or "avdm"
     if profiler in loaded.logged:
