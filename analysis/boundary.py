@@ -157,6 +157,11 @@ class BoundarySettings(ExecutorSettings):
     groups: int | None = option(
         None, "footage mode: clips in N groups of similar complexity (default: up to 5 of 4)"
     )
+    no_predictors: bool = option(
+        False,
+        "do not judge every complexity measure by how it predicts the failures "
+        "(predictors.parquet; arena: needs --complexity profile)",
+    )
 
     def __post_init__(self) -> None:
         super().__post_init__()

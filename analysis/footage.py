@@ -407,6 +407,12 @@ def footage_boundary(
             ),
         ]
         md = footage_report(s, summary, stats, bounds, clips)
+        if not s.no_predictors:  # every measure judged by the clips (and frames) it gets wrong
+            from analysis.footage_predictors import footage_predictor_tables
+
+            _, more, section = footage_predictor_tables(s, labels, clips, out / "complexity", stage)
+            paths += more
+            md += "\n" + section
         (stage / "boundary.md").write_text(md, encoding="utf-8")
         paths.append(stage / "boundary.md")
     paths = [out / p.name for p in paths]

@@ -77,6 +77,7 @@ _API = {
     "boundary": "analysis.experiments.boundary",
     "AdaptationSettings": "analysis.experiments.adaptation",
     "adaptation": "analysis.experiments.adaptation",
+    "predictors": "analysis.predictors",
     "Policy": "avdm.policy",
     "load_policy": "avdm.policy",
     # models

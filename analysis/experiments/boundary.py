@@ -257,6 +257,11 @@ def arena_boundary(
         profiles = None
         complexity = condition_complexity(runs, "online_dps")
     require_evidence(runs, complexity, s, items[0][1])
+    measures = None
+    if prof and not s.no_predictors:  # every complexity measure of the profiling runs
+        from analysis.experiments.predictor_runs import arena_measures
+
+        measures = arena_measures([(p, c) for _, _, p, c in prof], s, say)
     conditions = condition_statistics(runs, complexity, ["condition", s.param])
     fitted, fits = grid_fits(runs, complexity, s.param, s.target)
     bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "grid")
@@ -290,6 +295,12 @@ def arena_boundary(
         if policy is not None:
             paths.append(policy.save(stage / "policy.csv"))
         md = arena_report(s, conditions, bounds, policy)
+        if measures is not None:
+            from analysis.experiments.predictor_runs import arena_predictor_tables
+
+            _, more, section = arena_predictor_tables(s, runs, measures, stage)
+            paths += more
+            md += "\n" + section
         (stage / "boundary.md").write_text(md, encoding="utf-8")
         paths.append(stage / "boundary.md")
     paths = [out / p.name for p in paths]

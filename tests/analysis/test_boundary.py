@@ -21,7 +21,9 @@ from tests.helpers import assert_one_line_error, run_cli, write_video
 
 # LGMD+ (arena tuning) at its released T_ffi = 12 is blinded by a 3 Hz drift (it crashes);
 # at T_ffi = 30, the paper's adjusted threshold, it is not (tests/capture/test_collision_mode)
-GRID = BoundarySettings(tf="0,3", scenes="grating", values="12,30", seeds=3, minutes=1.5, jobs=2)
+GRID = BoundarySettings(
+    tf="0,3", scenes="grating", values="12,30", seeds=3, minutes=1.5, jobs=2, no_predictors=True
+)  # the predictors: tests/analysis/test_predictors.py
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,260 @@
+"""Every complexity measure of an arena grid's conditions, for :mod:`analysis.predictors`.
+
+Each profiling run of ``vdc-analyse boundary`` (ring turns, no detector: the scene alone) is
+measured on the camera's raster (99 × 72 px, 8-bit full range) over its straight-driving frames
+after the warm-up, as ``profile_dps`` is:
+
+* ``avdm``: the paper's AVDM, the on-board model the run logged (``profile_dps``'s own frames);
+* ``avdm_natural``: ``avdm-natural`` run on every frame (over true time);
+* on every :data:`EVERY`-th frame and the one before it (a pair of consecutive frames, so the
+  temporal measures keep their definitions): P.910 and legacy SI/TI, MAFD, edge density and
+  JPEG bits per pixel (``vdc.frame_metrics``), DIS optic flow (mean |horizontal|, deg/s, the
+  ``complexity`` command's preset) and the zlib ratio (level 6);
+* ``codec_bpp``: the bits per pixel of the whole run encoded as H.264 (libx264, ``ultrafast``,
+  CRF 23, every frame), the packets' mean.
+
+The numbers are cached beside the recording (``seedN.measures.json``, with its recording id
+and :data:`MEASURE_VERSION`): a grid recorded before the predictors existed gains them without
+recording anything, and a re-run measures nothing again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import zlib
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+MEASURE_VERSION = 2  # 1 lost codec_bpp (NaN)
+EVERY = 8  # the SI/TI family, flow and zlib on every 8th frame pair (their cost; see module)
+CODEC_CRF = 23
+
+
+def _codec_sizes(frames: np.ndarray, fps: float, state: dict[str, Any]) -> None:
+    """Encode ``frames`` (T, H, W) uint8 into the H.264 stream kept in ``state`` and add the
+    packets' bytes to ``state["bytes"]``."""
+    import av
+
+    h, w = frames.shape[1:]
+    if "stream" not in state:
+        import io
+
+        state["buf"] = io.BytesIO()
+        state["out"] = av.open(state["buf"], "w", format="h264")
+        st = state["out"].add_stream("libx264", rate=round(fps))
+        st.width, st.height = w + w % 2, h + h % 2  # 4:2:0 wants even sizes
+        st.pix_fmt = "yuv420p"
+        st.options = {"preset": "ultrafast", "crf": str(CODEC_CRF)}
+        state |= {"stream": st, "bytes": 0, "frames": 0, "pixels": st.width * st.height}
+    st = state["stream"]
+    for f in frames:
+        y = np.pad(f, ((0, h % 2), (0, w % 2)), mode="edge")
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(y), format="gray")
+        for p in st.encode(frame.reformat(format="yuv420p")):
+            state["bytes"] += p.size
+        state["frames"] += 1
+
+
+def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None) -> dict[str, Any]:
+    """Every measure of one profiling run (see the module): their means over the straight-
+    driving frames after the warm-up, with ``frames`` (straight frames after the warm-up) and
+    ``sampled_frames`` (of those, measured by the sampled measures)."""
+    import cv2
+
+    from analysis.boundary import WARMUP_FRAMES
+    from analysis.source_metrics import DIS_PRESETS
+    from analysis.tables import load_recording
+    from avdm.registry import make_model
+    from avdm.true_time import TrueTimeModel
+    from vdc.frame_metrics import NativeMeter
+    from vdc.recording import NATIVE_METRICS
+
+    warmup = WARMUP_FRAMES if warmup is None else warmup
+    loaded = load_recording(path)
+    ctx = loaded.camera_context()
+    if not ctx:
+        raise ValueError(f"{str(path)!r} does not record its camera")
+    fps, deg_per_px = float(ctx["fps"]), float(ctx["deg_per_px"])
+    timing = loaded.frames.select("frame", "t_s", "repeat", "turning")
+    natural = TrueTimeModel(make_model("avdm-natural", **ctx))
+    dis = cv2.DISOpticalFlow_create(DIS_PRESETS["medium"])
+    meter = NativeMeter(8, "full")
+    codec: dict[str, Any] = {}
+    parts = []
+    prev: np.ndarray | None = None
+    for chunk in loaded.rec.iter_frames():
+        sel = pl.DataFrame({"frame": chunk.frame.astype(np.int64)}).join(
+            timing, on="frame", how="left", maintain_order="left"
+        )
+        t = sel["t_s"].fill_null(strategy="forward").to_numpy()
+        rep = sel["repeat"].fill_null(False).to_numpy()
+        imgs = chunk.images
+        cols: dict[str, Any] = {"frame": chunk.frame.astype(np.int64)}
+        cols["avdm_natural"] = natural.run(imgs, t, rep)["omega_dps"]
+        _codec_sizes(imgs, fps, codec)
+        sampled = {
+            m: np.full(len(imgs), np.nan) for m in (*NATIVE_METRICS, "flow_dps", "zlib_ratio")
+        }
+        for i in np.flatnonzero(chunk.frame % every == 0):
+            before = imgs[i - 1] if i > 0 else prev
+            if before is None:
+                continue
+            meter._prev = before  # the pair's first frame: the temporal measures need it
+            row = meter.row(imgs[i])
+            for k, name in enumerate(NATIVE_METRICS):
+                sampled[name][i] = row[k]
+            flow = dis.calc(before, imgs[i], None)
+            sampled["flow_dps"][i] = float(np.abs(flow[..., 0]).mean()) * deg_per_px * fps
+            raw = imgs[i].tobytes()
+            sampled["zlib_ratio"][i] = len(zlib.compress(raw, 6)) / len(raw)
+        prev = imgs[-1]
+        parts.append(pl.DataFrame(cols | sampled))
+    for p in codec["stream"].encode():
+        codec["bytes"] += p.size
+    codec["out"].close()  # (a closed stream reads width 0: the size was kept before)
+    size = float(codec["frames"]) * codec["pixels"]
+    df = pl.concat(parts).join(timing, on="frame", how="left")
+    profiler = loaded.online_model or "avdm"
+    if profiler in loaded.logged:
+        paper = loaded.logged[profiler].select("frame", pl.col("omega_dps").alias("avdm"))
+        df = df.join(paper, on="frame", how="left")
+    straight = df.filter((pl.col("frame") >= warmup) & pl.col("turning").not_())
+    from analysis.predictors import MEASURES
+
+    row: dict[str, Any] = {
+        "recording_id": loaded.recording_id,
+        "measure_version": MEASURE_VERSION,
+        "every": every,
+        "frames": straight.height,
+        "sampled_frames": int(straight["si_p910"].is_not_nan().sum()),
+        "profiler": profiler,
+        "codec_bpp": 8.0 * codec["bytes"] / size if size else math.nan,
+    }
+    for m in MEASURES:
+        if m in straight.columns:
+            v = straight[m].cast(pl.Float64).fill_nan(None).mean()
+            row[m] = float(v) if v is not None else math.nan
+    return row
+
+
+def cached_measures(path: str | Path, every: int = EVERY) -> dict[str, Any]:
+    """An executor task: :func:`measure_run` of a recording, read from its cache
+    (``seedN.measures.json``) when that was measured from this recording with this version and
+    stride, else measured and cached."""
+    path = Path(path)
+    cache = path.with_suffix(".measures.json")
+    st = path.stat()
+    stamp = [st.st_size, st.st_mtime_ns]  # the recording measured (a re-recorded run differs)
+    if cache.exists():
+        row = json.loads(cache.read_text())
+        same = row.get("measure_version") == MEASURE_VERSION and row.get("every") == every
+        if same and row.get("rrd_stamp") == stamp:
+            return row | {"reused": True}
+    row = measure_run(path, every) | {"rrd_stamp": stamp}
+    tmp = cache.with_suffix(".partial")
+    tmp.write_text(json.dumps(row))
+    tmp.replace(cache)
+    return row | {"reused": False}
+
+
+def arena_measures(
+    items: Sequence[tuple[Path, dict[str, Any]]],
+    executor: Any,
+    log: Callable[[str], None],
+    every: int = EVERY,
+) -> pl.DataFrame:
+    """:func:`cached_measures` of every profiling run ``(path, columns)`` on ``executor`` (an
+    ``ExecutorSettings``): one row per run, ``columns`` (condition, scene, tf_hz, seed) first."""
+    from vdc.executors import TasksFailed, failure_report, run_tasks
+
+    by_key = {str(p): cols for p, cols in items}
+    tasks = [(str(p), (str(p), every)) for p, _ in items]
+    rows = []
+
+    def done(outcome: Any) -> None:
+        if outcome.error is not None:
+            log(f"  measures of {outcome.key} FAILED: {outcome.error}")
+        else:
+            rows.append({**by_key[outcome.key], **outcome.result})
+
+    outcomes = run_tasks(cached_measures, tasks, executor.executor_settings(), done, log)
+    report = failure_report(outcomes, "measurement")
+    if report:
+        raise TasksFailed(report)
+    return pl.DataFrame(rows).sort("condition", "seed")
+
+
+def predictors_for_folder(
+    folder: str | Path,
+    log: Callable[[str], None] | None = None,
+    executor: Any = None,
+) -> Any:
+    """The predictors of a finished arena boundary (``vdc-analyse boundary --out folder``):
+    measures its profiling runs (cached beside them), computes the tables and writes
+    ``predictors.parquet``, ``predictor_measures.parquet``, ``predictors.png`` and the section
+    of ``boundary.md`` into ``folder``. Returns :class:`analysis.predictors.PredictorResult`."""
+    from analysis.boundary import BoundarySettings
+    from analysis.experiments.boundary import profile_items
+    from analysis.predictors import PredictorResult, settings_meta
+    from vdc.parquet_io import table_set
+
+    folder = Path(folder)
+    meta = settings_meta(folder)
+    if meta.get("labels"):
+        raise ValueError(
+            f"{str(folder)!r} is a footage boundary: its predictors are written by the run"
+        )
+    fields = {f.name for f in dataclasses.fields(BoundarySettings)}
+    s = BoundarySettings(**{k: tuple(v) if isinstance(v, list) else v
+                            for k, v in meta.items() if k in fields})  # fmt: skip
+    if executor is not None:
+        s = dataclasses.replace(s, **executor)
+    runs = pl.read_parquet(folder / "boundary_runs.parquet")
+    items = [(p, cols) for _, _, p, cols in profile_items(s, folder / "recordings")]
+    missing = [str(p) for p, _ in items if not p.exists()]
+    if missing:
+        raise ValueError(
+            f"{len(missing)} profiling run(s) are missing (e.g. {missing[0]}): the predictors "
+            "need the grid's profiling runs (--complexity profile)"
+        )
+    measures = arena_measures(items, s, log or (lambda _m: None))
+    md_path = folder / "boundary.md"
+    md = md_path.read_text(encoding="utf-8") if md_path.exists() else ""
+    cut = md.find("## Which measure predicts")
+    md = md[:cut] if cut >= 0 else md
+    with table_set(folder) as stage:
+        table, paths, section = arena_predictor_tables(s, runs, measures, stage)
+        (stage / "boundary.md").write_text(md + "\n" + section, encoding="utf-8")
+    paths = [folder / p.name for p in paths]
+    return PredictorResult(table, measures, paths, section)
+
+
+def arena_predictor_tables(
+    s: Any, runs: pl.DataFrame, measures: pl.DataFrame, stage: Path
+) -> tuple[pl.DataFrame, list[Path], str]:
+    """The predictor table of a grid written into ``stage``: (table, paths, report section)."""
+    from analysis.predictors import arena_predictors, write_predictors
+
+    table = arena_predictors(runs, measures, s.param, s.target)
+    meta = {"settings": dataclasses.asdict(s), "every": int(measures["every"][0])}
+    paths, section = write_predictors(
+        table,
+        measures,
+        stage,
+        meta,
+        s.param,
+        "arena",
+        f"{s.detector}: which measure predicts failure (arena, {measures.height} profiling runs)",
+    )
+    note = (
+        f"Measures: each condition's profiling runs on the camera's raster, straight driving; "
+        f"the SI/TI family, MAFD, edge density, JPEG, flow and zlib on every "
+        f"{int(measures['every'][0])}th frame pair (`predictor_measures.parquet`).\n\n"
+    )
+    return table, paths, section.replace("\n\n", "\n\n" + note, 1)

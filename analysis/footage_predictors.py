@@ -1,0 +1,130 @@
+"""Footage mode's predictors (:mod:`analysis.predictors`): every measure per frame of every
+clip, beside the detector's alert at every parameter value.
+
+The measures are those ``vdc-analyse complexity`` wrote for the clips
+(``OUT/complexity/complexity.parquet``: ``omega_dps`` is ``avdm-natural``) and the paper's
+``avdm``, run here on the same working raster and frames, with the detector at each value (one
+pass over each clip, an executor task per clip).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+
+
+def clip_frames_task(source: str, specs: dict[str, str], fov_deg: float) -> dict[str, Any]:
+    """An executor task: one clip read as ``vdc-capture video`` reads it, the paper's AVDM and
+    the detector at every value (``specs``: value's key → model spec) run on it. Returns the
+    source frame numbers, ``avdm`` (deg/s) and each value's ``alert``, as lists."""
+    from analysis.complexity import ComplexitySettings
+    from analysis.footage import _working_camera
+    from avdm.registry import make_model
+    from avdm.true_time import TrueTimeModel
+    from vdc.sources import FrameBatcher, open_reader
+
+    reader = open_reader(source)
+    try:
+        shape, fps, ctx = _working_camera(reader.info, source, fov_deg, None)
+        paper = TrueTimeModel(make_model("avdm", **ctx))
+        detectors = {k: make_model(spec, **ctx) for k, spec in specs.items()}
+        video = ComplexitySettings
+        batches = FrameBatcher(reader, shape, fps, 128, video.repeat_tol, video.max_repeats)
+        out: dict[str, list] = {"frame": [], "avdm": []} | {k: [] for k in specs}
+        while (fb := batches.next_batch()) is not None:
+            out["frame"] += fb.frame.tolist()
+            out["avdm"] += paper.run(fb.images, fb.t_s, fb.repeat)["omega_dps"].tolist()
+            for k, model in detectors.items():
+                out[k] += model.run(fb.images)["alert"].tolist()
+    finally:
+        reader.close()
+    return out | {"fps": fps}
+
+
+def footage_predictor_tables(
+    s: Any,
+    labels: pl.DataFrame,
+    clips: pl.DataFrame,
+    complexity_dir: Path,
+    stage: Path,
+) -> tuple[pl.DataFrame, list[Path], str]:
+    """The predictor tables of a labelled collection, written into ``stage``: (table, paths,
+    report section). ``clips`` is ``boundary_clips.parquet`` (one row per clip and value with
+    ``correct`` and each measure's mean); ``complexity_dir`` where ``complexity`` wrote its
+    per-frame table."""
+    from analysis.boundary import number_list, with_override
+    from analysis.footage import _key
+    from analysis.predictors import (
+        MEASURES,
+        footage_predictors,
+        frame_classes,
+        write_predictors,
+    )
+    from analysis.source_metrics import METRICS
+    from vdc.executors import TasksFailed, failure_report, run_tasks
+
+    values = number_list(s.values, "values", minimum=-math.inf)
+    specs = {f"{v:g}": with_override(s.detector, s.param, v) for v in values}
+    tasks = [(r["source"], (r["source"], specs, s.fov_deg)) for r in labels.iter_rows(named=True)]
+    got: dict[str, dict] = {}
+
+    def done(outcome: Any) -> None:
+        if outcome.error is None:
+            got[outcome.key] = outcome.result
+
+    outcomes = run_tasks(clip_frames_task, tasks, s.executor_settings(), done, lambda _m: None)
+    report = failure_report(outcomes, "clip")
+    if report:
+        raise TasksFailed(report)
+    per_frame = pl.read_parquet(complexity_dir / "complexity.parquet")
+    ids = pl.read_parquet(complexity_dir / "clips.parquet").select("source", "recording_id")
+    rid = {_key(r["source"]): r["recording_id"] for r in ids.iter_rows(named=True)}
+    keep_cols = [m for m in METRICS if m != "omega_dps"]
+    frames, paper_means = [], {}
+    window = s.alert_window_s
+    for row in labels.iter_rows(named=True):
+        res = got[row["source"]]
+        mine = pl.DataFrame({"frame": np.asarray(res["frame"], np.int64), "avdm": res["avdm"]})
+        theirs = per_frame.filter(pl.col("recording_id") == rid[_key(row["source"])]).select(
+            "frame", pl.col("omega_dps").alias("avdm_natural"), *keep_cols
+        )
+        table = mine.join(theirs, on="frame", how="left", maintain_order="left")
+        cf = row["collision_frame"]
+        wf = round(window * res["fps"])
+        scene = table.filter(pl.col("frame") < cf - wf) if cf is not None else table
+        paper_means[row["clip"]] = float(scene["avdm"].fill_nan(None).mean() or math.nan)
+        for v in values:
+            alert = np.asarray(res[f"{v:g}"], float)
+            positive, keep = frame_classes(table["frame"].to_numpy(), alert, cf, wf)
+            frames.append(
+                table.with_columns(
+                    pl.lit(row["clip"]).alias("clip"),
+                    pl.lit(v).alias(s.param),
+                    pl.Series("alert", alert),
+                    pl.Series("positive", positive),
+                    pl.Series("keep", keep),
+                )
+            )
+    frames_df = pl.concat(frames, how="diagonal_relaxed")
+    measures = [m for m in MEASURES if m in frames_df.columns]
+    frames_df = frames_df.select("clip", s.param, "frame", "alert", "positive", "keep", *measures)
+    clip_table = clips.rename({"omega_dps": "avdm_natural"}).with_columns(
+        pl.col("clip").replace_strict(paper_means, return_dtype=pl.Float64).alias("avdm")
+    )
+    table = footage_predictors(clip_table, frames_df, s.param)
+    meta = {"settings": dataclasses.asdict(s)}
+    paths, section = write_predictors(
+        table,
+        frames_df,
+        stage,
+        meta,
+        s.param,
+        "footage",
+        f"{s.detector}: which measure predicts failure ({labels.height} clips)",
+    )
+    return table, paths, section

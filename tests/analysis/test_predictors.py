@@ -1,0 +1,209 @@
+"""The predictor statistics (:mod:`analysis.predictors`) against constructed truth: a measure
+built to predict the failures perfectly gets ρ 1 and AUROC 1; one built to carry no
+information gets intervals that cover 0 and 0.5; a measure that ranks clips but not moments is
+told apart from one that tracks the moments."""
+
+from __future__ import annotations
+
+import numpy as np
+import polars as pl
+import pytest
+import scipy.stats
+
+from analysis.predictors import (
+    arena_predictors,
+    auroc,
+    footage_predictors,
+    loco_threshold,
+    plot_predictors,
+    predictors_report,
+    spearman,
+)
+
+
+def _get(table: pl.DataFrame, measure: str, statistic: str, value: float = 1.0) -> dict:
+    r = table.filter(
+        (pl.col("measure") == measure)
+        & (pl.col("statistic") == statistic)
+        & (pl.col("value") == value)
+    )
+    assert r.height == 1, (measure, statistic)
+    return r.row(0, named=True)
+
+
+def test_auroc_is_mann_whitney_u_and_spearman_is_scipys() -> None:
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=40).round(1)  # rounded: ties count half
+    y = rng.random(40) < 0.4
+    u = scipy.stats.mannwhitneyu(x[y], x[~y]).statistic
+    assert auroc(x, y) == pytest.approx(u / (y.sum() * (~y).sum()), abs=1e-12)
+    z = rng.normal(size=40)
+    assert spearman(x, z) == pytest.approx(scipy.stats.spearmanr(x, z).statistic, abs=1e-12)
+    assert np.isnan(auroc(x, np.zeros(40, bool)))  # one class: undefined, not 0.5
+
+
+def test_loco_threshold_holds_out_each_condition() -> None:
+    x = np.array([1.0, 2.0, 3.0, 10.0, 11.0, 12.0])
+    fails = x > 5
+    assert loco_threshold(x, fails) == 1.0  # a wide gap: every held-out unit on its side
+    # reversed: no threshold beats calling everything alike, which is chance
+    assert loco_threshold(-x, fails) == 0.5
+    assert np.isnan(loco_threshold(x, np.ones(6, bool)))  # nothing passes: undefined
+
+
+@pytest.fixture(scope="module")
+def arena() -> pl.DataFrame:
+    """8 conditions x 5 seeds; failure rates spread from 2 % to 60 % with a gap at the 80 %
+    target; ``avdm`` is the failure rate itself (plus small noise per seed), ``ti_p910`` pure
+    noise, the same in every condition."""
+    rng = np.random.default_rng(7)
+    fail = np.array([0.02, 0.05, 0.08, 0.11, 0.45, 0.5, 0.55, 0.6])
+    runs, measures = [], []
+    for c, f in enumerate(fail):
+        for s in range(5):
+            k = rng.binomial(400, 1 - f)
+            runs.append(
+                {"condition": f"c{c}", "t_ffi": 1.0, "seed": s, "avoidances": k, "crashes": 400 - k}
+            )
+            measures.append(
+                {
+                    "condition": f"c{c}",
+                    "seed": s,
+                    "avdm": f + rng.normal(0, 0.002),
+                    "ti_p910": rng.normal(),
+                    "si_p910": rng.normal(),
+                }
+            )
+    return arena_predictors(pl.DataFrame(runs), pl.DataFrame(measures), "t_ffi", 0.8)
+
+
+def test_a_perfect_measure_gets_rho_1_and_a_shuffled_one_an_interval_around_0(arena) -> None:
+    assert set(arena.columns) >= {"measure", "value", "statistic", "estimate", "ci_low",
+                                  "ci_high", "n", "verdict"}  # fmt: skip
+    good = _get(arena, "avdm", "rho_failure")
+    assert good["estimate"] == 1.0 and good["ci_low"] > 0.9 and good["n"] == 8
+    assert _get(arena, "avdm", "loco_balanced_accuracy")["estimate"] == 1.0
+    noise = _get(arena, "ti_p910", "rho_failure")
+    assert noise["ci_low"] < 0 < noise["ci_high"]
+    assert noise["ci_high"] - noise["ci_low"] > 0.5  # 8 conditions: wide, as it is
+    paired = _get(arena, "ti_p910", "paired_rho_failure_vs_avdm")
+    assert paired["verdict"] == "better" and paired["ci_low"] > 0
+    # SI/TI alone know nothing; adding the perfect measure lowers the held-out loss
+    gain = _get(arena, "si_p910+ti_p910+avdm", "cv_logloss_gain_vs_si_p910+ti_p910")
+    assert gain["estimate"] > 0
+
+
+@pytest.fixture(scope="module")
+def footage() -> pl.DataFrame:
+    """40 clips, 12 wrong. Per clip, ``avdm`` is high exactly on the wrong clips; ``si_p910``
+    is noise. Per frame (100 frames a clip), ``ti_p910`` rises exactly on the frames the
+    detector alerts on; ``mafd`` is a clip-level constant that is higher where a clip alerts
+    more (it ranks clips, not moments)."""
+    rng = np.random.default_rng(3)
+    n = 40
+    wrong = np.zeros(n, bool)
+    wrong[:12] = True
+    clips = pl.DataFrame(
+        {
+            "clip": [f"k{i}" for i in range(n)],
+            "threshold": 1.0,
+            "correct": ~wrong,
+            "avdm": np.where(wrong, 5.0, 1.0) + rng.random(n),
+            "si_p910": rng.normal(size=n),
+            "ti_p910": rng.normal(size=n),
+            "mafd": rng.normal(size=n),
+        }
+    )
+    frames = []
+    for i in range(n):
+        rate = 0.05 + 0.4 * i / n
+        alert = rng.random(100) < rate
+        frames.append(
+            pl.DataFrame(
+                {
+                    "clip": f"k{i}",
+                    "threshold": 1.0,
+                    "frame": np.arange(100),
+                    "positive": alert,
+                    "keep": True,
+                    "ti_p910": alert * 2.0 + rng.random(100),
+                    "mafd": np.full(100, rate),
+                    "si_p910": rng.normal(size=100),
+                }
+            )
+        )
+    return footage_predictors(clips, pl.concat(frames), "threshold")
+
+
+def test_footage_auroc_perfect_shuffled_and_within_clip(footage, tmp_path) -> None:
+    good = _get(footage, "avdm", "clip_auroc")
+    assert good["estimate"] == 1.0 and good["ci_low"] == 1.0 and good["n"] == 40
+    noise = _get(footage, "si_p910", "clip_auroc")
+    assert noise["ci_low"] < 0.5 < noise["ci_high"]
+    tracks = _get(footage, "ti_p910", "frame_auroc_within_clip")
+    assert tracks["estimate"] == 1.0
+    assert _get(footage, "ti_p910", "frame_auroc_pooled")["estimate"] == 1.0
+    ranks_clips = _get(footage, "mafd", "frame_auroc_pooled")
+    assert ranks_clips["ci_low"] > 0.6  # clips that alert more rank higher, pooled
+    within = _get(footage, "mafd", "frame_auroc_within_clip")
+    assert within["estimate"] == 0.5  # a constant within each clip: ties, no information
+    frame_noise = _get(footage, "si_p910", "frame_auroc_pooled")
+    assert frame_noise["ci_low"] < 0.5 < frame_noise["ci_high"]
+    png = plot_predictors(footage, tmp_path / "p.png", "test")
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    md = predictors_report(footage, "threshold", "footage")
+    assert "### clip_auroc" in md and "| avdm | 1.00 [1.00, 1.00] |" in md
+
+
+def test_the_arena_grid_gains_its_predictors_from_cached_measures(tmp_path) -> None:
+    """A tiny grid (3 drifts, one value, 2 seeds of 0.3 min) end to end: every measure of every
+    profiling run, cached beside it, and the table recomputed from the cache alone."""
+    import vdc
+
+    s = vdc.BoundarySettings(tf="0,1,3", scenes="grating", values="30", seeds=2, minutes=0.3,
+                             jobs=2, no_fit=True)  # fmt: skip
+    res = vdc.boundary(s, tmp_path)
+    pred = pl.read_parquet(tmp_path / "predictors.parquet")
+    measures = pl.read_parquet(tmp_path / "predictor_measures.parquet")
+    assert measures.height == 3 * 2  # one row per profiling run
+    from analysis.predictors import MEASURES
+
+    for m in MEASURES:  # every measure measured, on the camera's raster
+        assert measures[m].is_finite().all(), m
+        assert pred.filter(pl.col("measure") == m).height, m
+    by = measures.group_by("condition").agg(pl.col("avdm", "flow_dps", "ti_p910").mean())
+    c = {r["condition"]: r for r in by.iter_rows(named=True)}
+    for m in ("avdm", "flow_dps", "ti_p910"):  # the wall's drift is what motion measures read
+        assert c["grating-tf3"][m] > c["grating-tf0"][m], m
+    assert (tmp_path / "predictors.png").read_bytes()[:4] == b"\x89PNG"
+    assert "## Which measure predicts where it breaks" in res.markdown
+    caches = sorted((tmp_path / "recordings" / "profile").rglob("*.measures.json"))
+    assert len(caches) == 6
+    (tmp_path / "predictors.parquet").unlink()  # an older grid: computed from the caches
+    again = vdc.predictors(tmp_path)
+    assert again.measures["reused"].all()
+    assert again.predictors.sort("measure", "statistic").equals(pred.sort("measure", "statistic"))
+    assert vdc.predictors(res).predictors.height == pred.height
+
+
+def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
+    """The README's OpenCV looming detector on rendered clips: the per-frame table and the
+    clip and frame statistics for every measure."""
+    import vdc
+    from tests.footage_clips import write_collection
+
+    labels = write_collection(tmp_path / "clips", drifts=(0.0, 4.0), seeds=(1, 2))
+    s = vdc.BoundarySettings(labels=str(labels), fov_deg=60.0, detector="examples.looming:Looming",
+                             param="threshold", values="0.05", jobs=1)  # fmt: skip
+    vdc.boundary(s, tmp_path / "out")
+    res = vdc.predictors(tmp_path / "out")
+    frames = res.measures
+    assert frames["clip"].n_unique() == 8
+    assert {"avdm", "avdm_natural", "ti_p910", "flow_dps", "positive", "keep"} <= set(
+        frames.columns
+    )
+    looming = frames.filter(pl.col("clip").str.starts_with("loom"))
+    assert not looming.filter(pl.col("frame") >= 99 - 50)["keep"].any()  # the window is left out
+    stats = set(res.predictors["statistic"])
+    assert {"clip_auroc", "frame_auroc_pooled", "frame_auroc_within_clip"} <= stats
+    assert "### clip_auroc" in res.markdown
