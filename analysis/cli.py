@@ -137,7 +137,7 @@ def cmd_complexity(args: argparse.Namespace) -> int:
     from analysis.complexity import ComplexitySettings, complexity, expand_sources
 
     settings = settings_from_args(ComplexitySettings, args)
-    sources = expand_sources(args.sources)  # walked once: complexity() takes the files
+    sources = expand_sources(args.sources, _notice)  # walked (and its skips said) once
     n = len(sources)
     with (
         progress_bar(None, "complexity", "frame") as frames,

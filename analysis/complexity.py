@@ -57,6 +57,7 @@ from vdc.recording import FOOTAGE_MODEL
 from vdc.sources import source_name
 
 PARTS = "parts"
+OUTPUT_MARKER = "vdc_output"  # the property that marks a recording vdc derived from another
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,30 +202,31 @@ def complexity_of_frames(
     return df.with_columns(*[pl.Series(m, out[m]).fill_nan(None) for m in metrics])
 
 
-def expand_sources(items: Sequence[str | Path]) -> list[str]:
+def expand_sources(
+    items: Sequence[str | Path], notice: Callable[[str], None] | None = None
+) -> list[str]:
     """Recordings, video files, image-sequence patterns and folders → the sources, in order:
-    a folder gives the recordings and videos in it and below, sorted. A folder without any,
-    a missing file or a pattern that matches nothing raises ValueError."""
+    a folder gives the recordings and videos in it and below, sorted, less what vdc wrote
+    itself, unfinished captures and dangling links (``vdc.folders.scan_folder``), which
+    ``notice`` hears about in one line per folder. A folder without any source, a missing
+    file or a pattern that matches nothing raises ValueError."""
+    from vdc.folders import scan_folder
     from vdc.sources import VIDEO_SUFFIXES
 
     sources: list[str] = []
     for item in map(str, items):
         p = Path(item)
         if p.is_dir():
-            found = sorted(
-                str(f)
-                for f in p.rglob("*")
-                if f.is_file()
-                and f.suffix.lower() in (*VIDEO_SUFFIXES, ".rrd")
-                and not f.name.endswith(".partial.rrd")
-                and PARTS not in f.relative_to(p).parts[:-1]
-            )
-            if not found:
+            scan = scan_folder(p, (*VIDEO_SUFFIXES, ".rrd"), skip_dirs=(PARTS,))
+            note = scan.note(item)
+            if note and notice is not None:
+                notice(note)
+            if not scan.found:
                 raise ValueError(
                     f"folder {item!r} holds no videos ({', '.join(VIDEO_SUFFIXES[:5])}, ...) "
-                    "or .rrd recordings"
+                    f"or .rrd recordings{f' ({note})' if note else ''}"
                 )
-            sources += found
+            sources += map(str, scan.found)
         elif p.is_file():
             sources.append(item)
         elif "%" in item:
@@ -274,14 +276,33 @@ def _stamp(source: str) -> tuple:
     return (source,)
 
 
-def plan_sources(sources: Sequence[str], settings: ComplexitySettings) -> list[dict[str, str]]:
+def plan_sources(
+    sources: Sequence[str],
+    settings: ComplexitySettings,
+    notice: Callable[[str], None] | None = None,
+) -> list[dict[str, str]]:
     """One task per source: its recording id (a recording's own, checked distinct; a video's
     from its file name, the parent folder added where two share a name) and its part's key
     (the name and a hash of the content and the settings, so a changed file or setting is
-    measured again)."""
+    measured again). A recording vdc derived from another (its ``vdc_output`` property: a
+    ``complexity_<id>.rrd`` copied away from its folder's manifest) is not a source: left
+    out, and ``notice`` hears how many."""
     from analysis.rrd_reader import Recording
     from analysis.tables import DistinctRecordings
 
+    derived = [s for s in sources if s.endswith(".rrd") and is_vdc_output(Recording(s))]
+    if derived:
+        if notice is not None:
+            notice(
+                f"skipped {len(derived)} recording(s) vdc derived from others (first: "
+                f"{derived[0]}): outputs, not sources"
+            )
+        if len(derived) == len(sources):
+            raise ValueError(
+                f"{derived[0]!r} is an output of vdc-analyse complexity, not a source; give "
+                "the recording or video it measured"
+            )
+        sources = [s for s in sources if s not in derived]
     names = [source_name(s) for s in sources]
     dup = {n for n in names if names.count(n) > 1}
     distinct = DistinctRecordings()  # two files of one recording would mix their rows
@@ -300,6 +321,12 @@ def plan_sources(sources: Sequence[str], settings: ComplexitySettings) -> list[d
     if len(set(keys)) != len(keys):  # the same name and content twice
         raise ValueError("two sources are the same file; give each once")
     return tasks
+
+
+def is_vdc_output(rec: Any) -> bool:
+    """Whether a recording (``analysis.rrd_reader.Recording``) is one vdc derived from
+    another (it carries the ``vdc_output`` property :func:`write_complexity_rrd` sets)."""
+    return OUTPUT_MARKER in rec.properties()
 
 
 def part_path(out: Path, key: str) -> Path:
@@ -450,14 +477,18 @@ def complexity(
     from vdc.parquet_io import read_metadata, table_set, write_parquet
 
     out = Path(out)
-    listed = expand_sources(sources)
     notes: list[str] = []
-    say = notice or (lambda _m: None)
+
+    def say(message: str) -> None:
+        notes.append(message)
+        if notice is not None:
+            notice(message)
+
+    listed = expand_sources(sources, say)
     without = without_fov(listed, settings)  # before any decoding
     if without:
-        notes.append(without)
         say(without)
-    tasks = plan_sources(listed, settings)
+    tasks = plan_sources(listed, settings, say)
     shard = parse_shard(settings.shard)
     mine = tasks if shard is None else tasks[shard[0] :: shard[1]]
     todo = [t for t in mine if settings.force or not readable_part(part_path(out, t["key"]))]
@@ -497,14 +528,12 @@ def complexity(
         )
     pending = len(tasks) - len(parts) - len(failures)
     if pending > 0:
-        notes.append(f"{pending} source(s) of other shards are not measured yet")
-        say(notes[-1])
+        say(f"{pending} source(s) of other shards are not measured yet")
     table = pl.concat(parts, how="diagonal_relaxed")
     for info in infos:  # a file cut short (or that stops decoding) is not a whole clip
         if info.get("cut_note") or info.get("decode_error"):
             why = info.get("cut_note") or f"decoding stopped ({info['decode_error']})"
-            notes.append(f"{info['source']}: {why}; its row covers {info['frames']} frames")
-            say(notes[-1])
+            say(f"{info['source']}: {why}; its row covers {info['frames']} frames")
     rows = [clip_row(p, i) for p, i in zip(parts, infos, strict=True)]
     clips = pl.DataFrame(rows, infer_schema_length=None)  # sources may differ in metrics
     clips = clips.with_columns(pl.col("header_duration_s", "missing_s").cast(pl.Float64))
@@ -698,6 +727,8 @@ def write_complexity_rrd(df: pl.DataFrame, recording_id: str, path: Path) -> Pat
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
     rec.save(str(path))
+    # an output, not a source: a folder scan that meets it skips it (plan_sources)
+    rec.send_property(OUTPUT_MARKER, rr.AnyValues(command="complexity", of=recording_id))
     norm = _normalised(df)
     idx = [
         rr.TimeColumn(FRAME_TIMELINE, sequence=df["frame"].to_numpy()),

@@ -47,7 +47,7 @@ from analysis.boundary import (
     with_override,
 )
 from analysis.stats import mean_ci, share_ci
-from avdm.base import check_detector, require_alert
+from avdm.base import alert_frames, check_detector, require_alert
 
 LABEL_COLUMNS = ("clip", "label", "collision_frame")
 COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg/s)
@@ -172,10 +172,13 @@ def judge_clip(
     collision_frame: int | None,
     window_s: float,
 ) -> dict[str, Any]:
-    """Hit, miss or false alarm of one clip (see the module)."""
-    on = np.flatnonzero(alert > 0)
+    """Hit, miss or false alarm of one clip (see the module). A NaN alert counts as no
+    alert, and its frames are counted (``alert_nan_frames``): :func:`nan_alert_note`."""
+    flags, undefined = alert_frames(alert)
+    on = np.flatnonzero(flags)
     first = int(frames[on[0]]) if on.size else None
     row: dict[str, Any] = {
+        "alert_nan_frames": undefined,
         "first_alert_frame": first,
         "hit": False,
         "false_alarm": False,
@@ -191,6 +194,21 @@ def judge_clip(
             row["false_alarm"] = True
     row["correct"] = row["hit"] or (collision_frame is None and not row["false_alarm"])
     return row
+
+
+def nan_alert_note(clips: pl.DataFrame, detector: str) -> str | None:
+    """One line when the detector's ``alert`` was NaN on some frames (``clips``: the per-clip
+    rows, with ``alert_nan_frames``), else None: those frames were read as no alert."""
+    if "alert_nan_frames" not in clips.columns:
+        return None
+    bad = clips.filter(pl.col("alert_nan_frames") > 0)
+    if bad.height == 0:
+        return None
+    n = int(bad["alert_nan_frames"].sum())
+    return (
+        f"detector {detector!r}: its 'alert' is NaN on {n} frame(s) of {bad.height} clip run(s) "
+        f"(first: {bad['clip'][0]!r}); they count as no alert (column alert_nan_frames)"
+    )
 
 
 def clip_task(
@@ -347,6 +365,9 @@ def footage_boundary(
                 }
             )
     clips = pl.DataFrame(rows)
+    note = nan_alert_note(clips, s.detector)
+    if note:
+        say(note)
     groups = max(1, min(5, labels.height // 4))
     stats = group_statistics(clips, s.param, groups)
     bounds = boundaries(stats, s.param, s.target)

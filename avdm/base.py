@@ -125,6 +125,14 @@ def check_detector(spec: str, context: Mapping[str, Any], shape: tuple[int, int]
         )
 
 
+def alert_frames(alert: np.ndarray) -> tuple[np.ndarray, int]:
+    """A detector's ``alert`` output (T,) float read as (T,) bool: the frames it alerts on
+    (``alert > 0``), and how many frames its alert is NaN. A NaN is neither an alert nor its
+    absence: it counts as no alert, but the caller must say how many (never silently)."""
+    values = np.asarray(alert, dtype=np.float64)
+    return values > 0, int(np.isnan(values).sum())
+
+
 def run_by_steps(
     step: Any, frames: np.ndarray, names: tuple[str, ...], **check: int
 ) -> dict[str, np.ndarray]:

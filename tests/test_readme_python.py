@@ -28,7 +28,9 @@ def test_the_notebook_example_runs_and_gives_its_tables_and_figures(tmp_path: Pa
     assert "1320 frames" in proc.stdout  # 40 s at 33 Hz
     assert (tmp_path / "recordings" / "nb.rrd").exists()
     assert (tmp_path / "profile_tf3.png").read_bytes()[:4] == b"\x89PNG"
-    written = {p.name for p in (tmp_path / "results" / "nb-compare").iterdir()}
+    folder = tmp_path / "results" / "nb-compare"
+    written = {p.name for p in folder.iterdir() if not p.name.startswith(".")}
+    assert (folder / ".vdc-outputs.json").exists()  # the manifest: what vdc wrote there
     assert written == {
         "compare_summary.parquet",
         "compare_correlations.parquet",

@@ -15,6 +15,7 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from vdc.folders import write_outputs
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import pid_alive
 
@@ -99,7 +100,9 @@ def table_set(out_dir: Path) -> Iterator[Path]:
     """Write a set of tables (and figures) as one: yields a staging folder beside ``out_dir``;
     when the block ends, the folder replaces ``out_dir`` in one atomic exchange, so a reader
     sees the old set or the new one, never a mix. Files already in ``out_dir`` that the new set
-    does not write are kept. If the block raises (a full disk, a signal), ``out_dir`` is left
+    does not write are kept. The folder's manifest (``vdc.folders.OUTPUTS_MANIFEST``) names
+    every file vdc published into it, so a folder scan never takes them as sources. If the
+    block raises (a full disk, a signal), ``out_dir`` is left
     as it was and the staging folder is removed; one left by a SIGKILL is removed by the next
     writer."""
     out_dir = Path(out_dir)
@@ -112,6 +115,7 @@ def table_set(out_dir: Path) -> Iterator[Path]:
     stage.mkdir()
     try:
         yield stage
+        write_outputs(stage, out_dir)  # what vdc wrote: never a source of a folder scan
         _publish(stage, out_dir)
     finally:
         shutil.rmtree(stage, ignore_errors=True)

@@ -175,3 +175,72 @@ def test_a_cut_clip_is_noted_and_its_row_says_how_much_is_missing(tmp_path: Path
     # (the note's time is rounded to 0.01 s)
     assert row["missing_s"] == pytest.approx(2.0 - ends_s - 1 / FPS, abs=0.006)
     assert row["missing_s"] > 0.5  # half the file is gone
+
+
+def test_a_rerun_skips_its_own_outputs_and_says_what_it_skipped(tmp_path: Path) -> None:
+    """``complexity clips --rrd --out clips/res`` twice: the second run does not take the
+    first's ``complexity_*.rrd`` as sources; a dangling link and an output copied out of its
+    folder are skipped too, each said in one line."""
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    write_pan(clips / "pan.mp4", n=12)
+    (clips / "lost.mp4").symlink_to(tmp_path / "moved-away.mp4")  # a clip that is gone
+    s = ComplexitySettings(model=MODEL, fov_deg=FOV, rrd=True)
+    seen: list[str] = []
+    first = complexity([clips], s, clips / "res", notice=seen.append)
+    assert first.clips.height == 1 and not first.failures
+    assert [n for n in seen if "skipped 1 entry: 1 dangling link" in n], seen
+    assert list((clips / "res").glob("complexity_*.rrd"))
+    again = run_cli("analysis", "complexity", str(clips), "--rrd", "--model", MODEL,
+                    "--fov-deg", str(FOV), "--out", str(clips / "res"))  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    assert not (clips / "res" / "failures.parquet").exists()
+    notes = [ln for ln in again.stderr.splitlines() if "skipped" in ln]
+    assert len(notes) == 1, again.stderr  # one line: the link and the outputs, with why
+    assert "1 dangling link" in notes[0] and "output(s) vdc wrote itself" in notes[0]
+    assert pl.read_parquet(clips / "res" / "clips.parquet").height == 1
+    # an output copied away from its folder's manifest is still known by its property
+    rrd = next((clips / "res").glob("complexity_*.rrd"))
+    (clips / "copied.rrd").write_bytes(rrd.read_bytes())
+    seen.clear()
+    third = complexity([clips], s, clips / "res", notice=seen.append)
+    assert third.clips.height == 1 and not third.failures
+    assert [n for n in seen if "skipped 1 recording(s) vdc derived" in n], seen
+
+
+NAN_PLUGIN = '''
+import math
+
+
+class NanAlert:
+    """A detector whose alert is undefined (NaN) on every other frame, never 1."""
+
+    outputs = (("alert", "1"),)
+
+    def __init__(self, gain: float = 1.0, **camera: float) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.i = 0
+
+    def step(self, frame):
+        self.i += 1
+        return {"alert": math.nan if self.i % 2 else 0.0}
+'''
+
+
+def test_a_nan_alert_is_counted_and_said_not_read_silently_as_none(tmp_path, monkeypatch):
+    from analysis.footage import clip_task, nan_alert_note
+
+    (tmp_path / "nan_alert_plugin.py").write_text(NAN_PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    clip = write_pan(tmp_path / "pan.mp4", n=12)
+    spec = "nan_alert_plugin:NanAlert"
+    row = clip_task(str(clip), spec, None, FOV, 0.5)
+    assert row["frames"] == 12 and row["alert_nan_frames"] == 6  # every other frame
+    assert row["first_alert_frame"] is None and not row["false_alarm"]
+    note = nan_alert_note(pl.DataFrame([{"clip": "pan.mp4", **row}]), spec)
+    assert note is not None and "NaN on 6 frame(s) of 1 clip run(s)" in note, note
+    whole = clip_task(str(clip), "lgmd-plus", None, FOV, 0.5)  # a detector with defined alerts
+    assert whole["alert_nan_frames"] == 0
+    assert nan_alert_note(pl.DataFrame([{"clip": "pan.mp4", **whole}]), "lgmd-plus") is None

@@ -1,0 +1,100 @@
+"""Walking a collection folder: what in it is a source, and what is skipped, said.
+
+Every command that takes a folder (``complexity``; the catalog can use the same walk) finds
+its sources here, so all of them skip the same things and say so in one line:
+
+* what vdc wrote itself: every output folder (``--out``) holds a manifest,
+  :data:`OUTPUTS_MANIFEST`, naming the files vdc published into it (``vdc.parquet_io.table_set``
+  writes it), so a re-run never takes its own ``complexity_*.rrd`` (or ``profiles.rrd``,
+  ``collision.rrd``, ``variants.rrd``) as sources, wherever ``--out`` is: inside the
+  collection, beside it or the collection folder itself (the manifest names files, not the
+  folder, so the collection's own clips stay sources);
+* captures still being written or killed (``*.partial.rrd``);
+* dangling symbolic links (a clip moved or deleted): a collection that lost a clip must not
+  report success silently.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Iterable
+from pathlib import Path
+
+OUTPUTS_MANIFEST = ".vdc-outputs.json"
+PARTIAL = ".partial.rrd"
+
+
+def read_outputs(folder: Path) -> set[str]:
+    """The names of the files vdc published into ``folder`` (its manifest), or an empty set."""
+    try:
+        data = json.loads((Path(folder) / OUTPUTS_MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return set()
+    names = data.get("outputs", []) if isinstance(data, dict) else []
+    return {n for n in names if isinstance(n, str)}
+
+
+def write_outputs(stage: Path, previous: Path | None = None) -> None:
+    """Write ``stage``'s manifest: the files in ``stage`` (what is being published) and those
+    ``previous``'s manifest named that still exist there (earlier sets in the same folder)."""
+    names = {e.name for e in Path(stage).iterdir() if not e.name.startswith(".")}
+    if previous is not None and Path(previous).is_dir():
+        names |= {n for n in read_outputs(previous) if (Path(previous) / n).exists()}
+    text = json.dumps({"outputs": sorted(names), "written_by": "vdc"}, indent=1)
+    (Path(stage) / OUTPUTS_MANIFEST).write_text(text + "\n", encoding="utf-8")
+
+
+@dataclasses.dataclass
+class FolderScan:
+    """A folder's sources (sorted paths) and the entries skipped, counted by reason."""
+
+    found: list[Path]
+    skipped: dict[str, int]
+
+    def note(self, folder: str | Path) -> str | None:
+        """One line naming how many entries were skipped and why, or None."""
+        if not self.skipped:
+            return None
+        n = sum(self.skipped.values())
+        why = ", ".join(f"{k} {reason}" for reason, k in self.skipped.items())
+        return f"{str(folder)!r}: skipped {n} entr{'y' if n == 1 else 'ies'}: {why}"
+
+
+DANGLING = "dangling link(s) (their target is gone)"
+VDC_OUTPUT = "output(s) vdc wrote itself (not sources)"
+UNFINISHED = "capture(s) still being written or killed (*.partial.rrd)"
+
+
+def scan_folder(
+    folder: str | Path, suffixes: Iterable[str], skip_dirs: Iterable[str] = ()
+) -> FolderScan:
+    """The files under ``folder`` (recursively, symbolic links to files followed) whose
+    suffix is one of ``suffixes`` (lower case, with the dot), sorted; entries in folders
+    named in ``skip_dirs`` (below ``folder``) are left out silently (vdc's own working
+    folders, e.g. ``parts``). Skipped and counted: dangling links, files a vdc manifest names
+    (:func:`read_outputs`), and unfinished captures."""
+    root = Path(folder)
+    wanted = tuple(s.lower() for s in suffixes)
+    skip = set(skip_dirs)
+    found: list[Path] = []
+    skipped: dict[str, int] = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        here = Path(dirpath)
+        dirnames[:] = sorted(d for d in dirnames if d not in skip)
+        outputs = read_outputs(here)
+        for name in sorted(filenames):  # a dangling link is listed with the files
+            path = here / name
+            if path.is_symlink() and not path.exists():
+                skipped[DANGLING] = skipped.get(DANGLING, 0) + 1
+                continue
+            if not path.is_file() or not name.lower().endswith(wanted):
+                continue
+            if name in outputs:
+                skipped[VDC_OUTPUT] = skipped.get(VDC_OUTPUT, 0) + 1
+            elif name.endswith(PARTIAL):
+                skipped[UNFINISHED] = skipped.get(UNFINISHED, 0) + 1
+            else:
+                found.append(path)
+    return FolderScan(sorted(found), skipped)
