@@ -94,33 +94,47 @@ def require_alert(model: Model) -> None:
         )
 
 
-def check_detector(spec: str, context: Mapping[str, Any], shape: tuple[int, int]) -> None:
+def check_detector(
+    spec: str, context: Mapping[str, Any], shape: tuple[int, int], *, alert: bool = True
+) -> None:
     """The one check of a detector, before any run that takes it: build ``spec`` with the
     camera ``context`` (what ``make_model`` is given), require an ``alert`` output
     (:func:`require_alert`), and step a fresh instance on one mid-grey ``shape`` (H, W) uint8
     frame, the raster it will be given: it must return ``alert`` as a finite number or a bool.
     ValueError in one line naming the detector otherwise (a plug-in that fails to build, has no
-    ``step``, returns other keys or a NaN alert, or raises on a frame)."""
+    ``step``, returns other keys or a NaN alert, or raises on a frame). ``alert=False``: any
+    model (``batch``/``tables --model``), whose step must return each output it declares."""
     from avdm.registry import make_model
 
     model = make_model(spec, **context)
-    require_alert(model)
+    if alert:
+        require_alert(model)
     h, w = shape
     try:
         out = model.step(np.full((h, w), 128, dtype=np.uint8))
-        alert = out["alert"] if isinstance(out, Mapping) and "alert" in out else None
     except Exception as exc:  # the user's code: one line
         first = str(exc).splitlines()[0] if str(exc) else ""
         why = first if isinstance(exc, ValueError) else f"{type(exc).__name__}: {first}"
         raise ValueError(
-            f"detector {model.name!r} cannot run on a {h}x{w} frame (HxW): {why}"
+            f"{'detector' if alert else 'model'} {model.name!r} cannot run on a {h}x{w} frame "
+            f"(HxW): {why}"
         ) from None
-    finite = isinstance(alert, bool | np.bool_) or (
-        isinstance(alert, int | float | np.integer | np.floating) and np.isfinite(alert)
+    if not alert:
+        names = [o.name for o in model.outputs]
+        lacking = [n for n in names if not isinstance(out, Mapping) or n not in out]
+        if lacking:
+            raise ValueError(
+                f"model {model.name!r}: step() on a {h}x{w} frame (HxW) returned no "
+                f"{', '.join(lacking)} (it declares {', '.join(names)})"
+            )
+        return
+    alert_value = out["alert"] if isinstance(out, Mapping) and "alert" in out else None
+    finite = isinstance(alert_value, bool | np.bool_) or (
+        isinstance(alert_value, int | float | np.integer | np.floating) and np.isfinite(alert_value)
     )
     if not finite:
         raise ValueError(
-            f"detector {model.name!r} returned alert={alert!r} on a {h}x{w} frame (HxW): it "
+            f"detector {model.name!r} returned alert={alert_value!r} on a {h}x{w} frame (HxW): it "
             "must be a finite number (1 = collision ahead, 0 = not) or a bool"
         )
 
