@@ -229,10 +229,6 @@ def batch(
     runnable = [t for t in tasks if t[2] is not None]
     todo = [t for t in runnable if settings.force or not is_done(out, t[2], t[1])]
     skipped = len(runnable) - len(todo)
-    say(
-        f"{len(tasks)} tasks{f' (shard {shard[0]}/{shard[1]})' if shard else ''}: "
-        f"{skipped} already done, {len(todo)} to run on {settings.executor_settings().where()}"
-    )
     for path in dict.fromkeys(p for p, _, _ in todo):  # each model stepped once on the
         try:  # first readable recording's raster, before any task: a misfit fails here
             loaded = load_recording(path)
@@ -240,6 +236,10 @@ def batch(
             continue  # its own tasks fail, with their reason
         check_models(loaded, settings.models)
         break
+    say(
+        f"{len(tasks)} tasks{f' (shard {shard[0]}/{shard[1]})' if shard else ''}: "
+        f"{skipped} already done, {len(todo)} to run on {settings.executor_settings().where()}"
+    )
     s = dataclasses.asdict(settings.summary_settings())
 
     def done(outcome: TaskOutcome) -> None:
