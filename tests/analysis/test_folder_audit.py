@@ -11,7 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-import polars as pl
+import numpy as np
 import pytest
 
 from analysis.batch import BatchSettings, batch
@@ -19,8 +19,7 @@ from analysis.boundary import BoundarySettings
 from analysis.experiments.boundary import boundary
 from analysis.tables import TablesSettings, tables
 from capture.sim import SimSettings, record_sim
-from tests.footage_clips import write_collection
-from tests.helpers import ROOT, assert_one_line_error
+from tests.helpers import ROOT, assert_one_line_error, write_video
 from vdc.cli_support import UserError
 from vdc.parquet_io import table_set
 
@@ -119,21 +118,24 @@ def test_a_model_that_fails_on_a_frame_stops_batch_and_tables_first(
 
 
 def test_footage_without_evidence_is_one_line(plugins: Path, tmp_path: Path) -> None:
-    labels = write_collection(tmp_path / "clips", drifts=(0.0,), seeds=(1,))
-    table = pl.read_csv(labels)
-    s = {"fov_deg": 60.0, "param": "gain", "values": "1,2", "jobs": 1}
-    # no clip labelled with a collision: nothing to score hits on
-    quiet = tmp_path / "clips" / "quiet.csv"
-    table.filter(pl.col("collision_frame").is_null()).write_csv(quiet)
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    rng = np.random.default_rng(3)  # one tiny clip (30 frames, 48x64): a scene panning right
+    scene = rng.integers(40, 200, size=(48, 96), dtype=np.uint8)
+    write_video(clips / "tiny.mp4", np.stack([np.roll(scene, 2 * t, 1)[:, :64] for t in range(30)]),
+                25.0)  # fmt: skip
+    s = {"fov_deg": 60.0, "param": "gain", "values": "1", "jobs": 1, "alert_window_s": 0.2}
+    # no clip labelled with a collision: nothing to score hits on, said before any run
+    quiet = clips / "quiet.csv"
+    quiet.write_text("clip,label,collision_frame\ntiny.mp4,background,\n")
     with pytest.raises(UserError, match=r"no clip in .* has a collision") as err:
         boundary(BoundarySettings(labels=str(quiet), detector="audit_plugins:Silent", **s),
                  tmp_path / "q")  # fmt: skip
     assert "nan" not in str(err.value) and not (tmp_path / "q").exists()
-    # a detector that never alerts (one looming clip, one value: cheap): no boundary either
-    looming = tmp_path / "clips" / "looming.csv"
-    table.filter(pl.col("collision_frame").is_not_null()).head(1).write_csv(looming)
-    s["values"] = "1"
+    # a detector that never alerts at any value: no boundary either
+    labels = clips / "labels.csv"
+    labels.write_text("clip,label,collision_frame\ntiny.mp4,collision,29\n")
     with pytest.raises(UserError, match="never alerted on any of the 1 clip") as err:
-        boundary(BoundarySettings(labels=str(looming), detector="audit_plugins:Silent", **s),
+        boundary(BoundarySettings(labels=str(labels), detector="audit_plugins:Silent", **s),
                  tmp_path / "s")  # fmt: skip
     assert "nan" not in str(err.value) and not (tmp_path / "s" / "boundary.md").exists()
