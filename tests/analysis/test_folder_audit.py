@@ -139,3 +139,13 @@ def test_footage_without_evidence_is_one_line(plugins: Path, tmp_path: Path) -> 
         boundary(BoundarySettings(labels=str(labels), detector="audit_plugins:Silent", **s),
                  tmp_path / "s")  # fmt: skip
     assert "nan" not in str(err.value) and not (tmp_path / "s" / "boundary.md").exists()
+
+
+def test_the_catalog_names_a_dangling_link_and_serves_the_others(collection: Path) -> None:
+    from analysis.catalog_query import query
+
+    notes: list[str] = []
+    q = query([collection], notice=notes.append)
+    assert f"not registered: {collection / 'lost.rrd'}: a dangling link" in "\n".join(notes)
+    assert any(n.startswith(f"not registered: {collection / 'junk.rrd'}") for n in notes), notes
+    assert q["frames"]["recording_id"].n_unique() == 2  # the intact run and the cut copy
