@@ -16,6 +16,7 @@ import pytest
 
 from analysis.batch import BatchSettings, batch
 from analysis.boundary import BoundarySettings
+from analysis.complexity import ComplexitySettings, complexity
 from analysis.experiments.boundary import boundary
 from analysis.tables import TablesSettings, tables
 from capture.sim import SimSettings, record_sim
@@ -149,3 +150,15 @@ def test_the_catalog_names_a_dangling_link_and_serves_the_others(collection: Pat
     assert f"not registered: {collection / 'lost.rrd'}: a dangling link" in "\n".join(notes)
     assert any(n.startswith(f"not registered: {collection / 'junk.rrd'}") for n in notes), notes
     assert q["frames"]["recording_id"].n_unique() == 2  # the intact run and the cut copy
+
+
+def test_complexity_measures_the_others_beside_a_file_that_is_no_recording(
+    collection: Path, tmp_path: Path
+) -> None:
+    notes: list[str] = []
+    s = ComplexitySettings(metrics="omega_dps", jobs=1)
+    res = complexity([collection], s, tmp_path / "c", notice=notes.append)
+    note = _skip_note(notes)
+    assert "1 dangling link" in note and "1 output(s) vdc wrote itself" in note, note
+    assert [src for src, _ in res.failures] == [str(collection / "junk.rrd")], res.failures
+    assert res.clips.height == 2  # the intact run and the cut copy, each measured
