@@ -121,10 +121,11 @@ def test_a_model_that_fails_on_a_frame_stops_batch_and_tables_first(
 def test_footage_without_evidence_is_one_line(plugins: Path, tmp_path: Path) -> None:
     clips = tmp_path / "clips"
     clips.mkdir()
-    rng = np.random.default_rng(3)  # one tiny clip (30 frames, 48x64): a scene panning right
-    scene = rng.integers(40, 200, size=(48, 96), dtype=np.uint8)
-    write_video(clips / "tiny.mp4", np.stack([np.roll(scene, 2 * t, 1)[:, :64] for t in range(30)]),
-                25.0)  # fmt: skip
+    # one short clip (30 frames) of a scene panning right, on test_footage's raster (120x160
+    # at 60 deg: the AVDM's calibration for it is fitted once per test session)
+    scene = np.random.default_rng(3).integers(40, 200, size=(120, 220), dtype=np.uint8)
+    pan = np.stack([np.roll(scene, 2 * t, 1)[:, :160] for t in range(30)])
+    write_video(clips / "tiny.mp4", pan, 25.0)
     s = {"fov_deg": 60.0, "param": "gain", "values": "1", "jobs": 1, "alert_window_s": 0.2}
     # no clip labelled with a collision: nothing to score hits on, said before any run
     quiet = clips / "quiet.csv"
