@@ -669,15 +669,13 @@ def build_tables(
     params: dict[str, dict[str, dict[str, Any]]] = {}
     arenas: dict[str, tuple[float, float]] = {}
     distinct = DistinctRecordings()
-    left: list[str] = []
+    left: list[tuple[str, Exception]] = []  # said once the others are read (or raised)
     checked = False
     for path in sorted(paths, key=str):
         try:
             loaded = load_recording(path, settings)
         except (RecordingError, OSError) as exc:  # one bad file leaves the others be
-            left.append(str(path))
-            if notices is not None:
-                notices(f"left out {str(path)!r}: {str(exc).splitlines()[0]}")
+            left.append((str(path), exc))
             continue
         distinct.add(loaded.recording_id, path)
         if specs and not checked:  # each model stepped once on this raster before any run
@@ -703,12 +701,11 @@ def build_tables(
         outputs.append(mo)
         events.append(events_table(loaded))
         summary.append(summary_table(loaded, mo, settings))
-    if not frames:
-        raise RecordingError(
-            f"none of the {len(left)} recording(s) could be read (first: {left[0]!r})"
-            if left
-            else "no recordings given"
-        )
+    if not frames:  # nothing to tabulate: the first file's own reason
+        raise left[0][1] if left else RecordingError("no recordings given")
+    for path, exc in left:
+        if notices is not None:
+            notices(f"left out {path!r}: {str(exc).splitlines()[0]}")
     tables = {
         "frames": pl.concat(frames).sort("recording_id", "frame"),
         "model_outputs": pl.concat(outputs, how="diagonal_relaxed").sort(
