@@ -34,6 +34,7 @@ from analysis.rrd_reader import Recording, RecordingError
 from analysis.tables import (
     DistinctRecordings,
     SummarySettings,
+    check_models,
     events_table,
     load_recording,
     model_outputs_table,
@@ -45,6 +46,7 @@ from analysis.tables import (
 from avdm.registry import canonical_name, parse_model_spec
 from vdc.cli_support import option
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
+from vdc.folders import expand_recordings
 from vdc.parquet_io import read_metadata, write_parquet
 
 PARTS = "parts"
@@ -217,6 +219,7 @@ def batch(
     t0 = time.perf_counter()
     out = Path(out)
     say = log or (lambda _m: None)
+    recordings = expand_recordings(recordings, say)  # folders walked as complexity walks them
     tasks, bad = plan_tasks(recordings, settings.models)
     shard = parse_shard(settings.shard)
     if shard is not None:
@@ -226,6 +229,13 @@ def batch(
     runnable = [t for t in tasks if t[2] is not None]
     todo = [t for t in runnable if settings.force or not is_done(out, t[2], t[1])]
     skipped = len(runnable) - len(todo)
+    for path in dict.fromkeys(p for p, _, _ in todo):  # each model stepped once on the
+        try:  # first readable recording's raster, before any task: a misfit fails here
+            loaded = load_recording(path)
+        except (RecordingError, OSError):
+            continue  # its own tasks fail, with their reason
+        check_models(loaded, settings.models)
+        break
     say(
         f"{len(tasks)} tasks{f' (shard {shard[0]}/{shard[1]})' if shard else ''}: "
         f"{skipped} already done, {len(todo)} to run on {settings.executor_settings().where()}"

@@ -327,6 +327,9 @@ def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = N
         for path in sorted(folder.rglob("*.rrd")):
             if cache in path.parents:
                 continue
+            if path.is_symlink() and not path.exists():  # as vdc.folders.scan_folder says it
+                left.append((str(path), "a dangling link (its target is gone)"))
+                continue
             if path.name.endswith(PARTIAL_SUFFIX) and capture_writing(path) is not None:
                 left.append((str(path), "still being written by a capture"))
                 continue

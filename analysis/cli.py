@@ -288,7 +288,7 @@ COMMANDS = {
         "Read recordings and write frames.parquet, model_outputs.parquet, events.parquet and "
         "summary.parquet into --out. Without --model the online model's logged outputs are "
         "used; each --model (repeatable) is recomputed from the raw frames instead.",
-        inputs=_inputs("results/tables"),
+        inputs=_inputs("results/tables", ".rrd recordings or folders of them"),
         models=True,
     ),
     "profile": Command(
@@ -372,7 +372,7 @@ COMMANDS = {
         "(--force recomputes). At the end the parts are concatenated into the same frames, "
         "model_outputs, events and summary tables `tables` writes. A failing task is listed "
         "and does not stop the others (exit status 1).",
-        inputs=_inputs("results/batch"),
+        inputs=_inputs("results/batch", ".rrd recordings or folders of them"),
         models=True,
     ),
     "summarise": Command(

@@ -311,10 +311,17 @@ def plan_sources(
     measured again). A recording vdc derived from another (its ``vdc_output`` property: a
     ``complexity_<id>.rrd`` copied away from its folder's manifest) is not a source: left
     out, and ``notice`` hears how many."""
-    from analysis.rrd_reader import Recording
+    from analysis.rrd_reader import Recording, RecordingError
     from analysis.tables import DistinctRecordings
 
-    derived = [s for s in sources if s.endswith(".rrd") and is_vdc_output(Recording(s))]
+    opened: dict[str, Any] = {}
+    for s in sources:
+        if s.endswith(".rrd"):
+            try:
+                opened[s] = Recording(s)
+            except (RecordingError, OSError):  # fails as its own task: never sinks the others
+                opened[s] = None
+    derived = [s for s, rec in opened.items() if rec is not None and is_vdc_output(rec)]
     if derived:
         if notice is not None:
             notice(
@@ -335,9 +342,11 @@ def plan_sources(
         if name in dup:
             name = f"{source_name(str(Path(src).parent))}-{name}"
         digest = hashlib.sha1(repr((_stamp(src), settings.measured())).encode()).hexdigest()
-        if src.endswith(".rrd"):
-            rid = Recording(src).recording_id
+        if src.endswith(".rrd") and opened[src] is not None:
+            rid = opened[src].recording_id
             distinct.add(rid, src)
+        elif src.endswith(".rrd"):
+            rid = f"unreadable-{name}"  # its task fails with the reason, in failures.parquet
         else:
             rid = f"video-{name}"
         tasks.append({"source": src, "recording_id": rid, "key": f"{name}-{digest[:8]}"})

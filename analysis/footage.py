@@ -52,6 +52,7 @@ from analysis.boundary import (
 from analysis.boundary_fit import fit_columns, fit_crossing, fit_section, with_fit
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
+from vdc.cli_support import UserError
 
 LABEL_COLUMNS = ("clip", "label", "collision_frame")
 COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg/s)
@@ -325,6 +326,12 @@ def footage_boundary(
     shape, ctx = clip_camera(labels["source"][0], s.fov_deg)
     for spec in specs.values():
         check_detector(spec, ctx, shape)
+    if labels["collision_frame"].drop_nulls().len() == 0:  # as arena mode's require_evidence
+        raise UserError(
+            f"no clip in {s.labels!r} has a collision (collision_frame is empty in all "
+            f"{labels.height}): there is no evidence to place a boundary on; label at least one "
+            "clip with the frame of its collision"
+        )
     out = Path(out)
     say(f"footage: {labels.height} clip(s) x {len(values)} value(s) of {s.param}, {s.detector}")
     complexity = clip_complexity(
@@ -374,6 +381,12 @@ def footage_boundary(
     note = nan_alert_note(clips, s.detector)
     if note:
         say(note)
+    if clips["first_alert_frame"].drop_nulls().len() == 0:
+        raise UserError(
+            f"{s.detector} never alerted on any of the {labels.height} clip(s) at any value of "
+            f"{s.param} ({s.values}): there is no evidence to place a boundary on; try values "
+            "that make it more sensitive"
+        )
     groups = s.groups or max(1, min(5, labels.height // 4))
     stats = group_statistics(clips, s.param, groups)
     fitted, fits = clip_fits(clips, s.param, s.target)

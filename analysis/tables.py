@@ -636,6 +636,25 @@ class DistinctRecordings:
         raise RecordingError(f"{str(path)!r} {what}: give each recording once")
 
 
+def check_models(loaded: LoadedRecording, specs: Sequence[str]) -> None:
+    """Each model in ``specs`` built with ``loaded``'s camera and stepped on one frame of its
+    raster (:func:`avdm.registry.check_detector` without the alert), before any long run: a
+    plug-in that cannot run is a ValueError in one line."""
+    from avdm.registry import check_detector
+
+    ctx = loaded.camera_context()
+    cam = loaded.props.get("camera", {})
+    h = int(ctx.get("height_px", cam.get("height_px", 0)))
+    w = int(ctx.get("width_px", cam.get("width_px", 0)))
+    if h <= 0 or w <= 0:
+        first = next(loaded.rec.iter_frames(), None)
+        if first is None:
+            return
+        h, w = first.images.shape[1:3]
+    for spec in dict.fromkeys(specs):
+        check_detector(spec, ctx, (h, w), alert=False)
+
+
 def build_tables(
     paths: Sequence[str | Path],
     specs: Sequence[str] | None,
@@ -650,9 +669,18 @@ def build_tables(
     params: dict[str, dict[str, dict[str, Any]]] = {}
     arenas: dict[str, tuple[float, float]] = {}
     distinct = DistinctRecordings()
+    left: list[tuple[str, Exception]] = []  # said once the others are read (or raised)
+    checked = False
     for path in sorted(paths, key=str):
-        loaded = load_recording(path, settings)
+        try:
+            loaded = load_recording(path, settings)
+        except (RecordingError, OSError) as exc:  # one bad file leaves the others be
+            left.append((str(path), exc))
+            continue
         distinct.add(loaded.recording_id, path)
+        if specs and not checked:  # each model stepped once on this raster before any run
+            check_models(loaded, specs)
+            checked = True
         if loaded.rec.notice and notices is not None:
             notices(loaded.rec.notice)
         if specs:
@@ -673,6 +701,11 @@ def build_tables(
         outputs.append(mo)
         events.append(events_table(loaded))
         summary.append(summary_table(loaded, mo, settings))
+    if not frames:  # nothing to tabulate: the first file's own reason
+        raise left[0][1] if left else RecordingError("no recordings given")
+    for path, exc in left:
+        if notices is not None:
+            notices(f"left out {path!r}: {str(exc).splitlines()[0]}")
     tables = {
         "frames": pl.concat(frames).sort("recording_id", "frame"),
         "model_outputs": pl.concat(outputs, how="diagonal_relaxed").sort(
@@ -758,7 +791,10 @@ def tables(
 
     ``progress`` is called with the number of frames done; ``notice`` with each note about a
     repaired recording (they are also in the result)."""
+    from vdc.folders import expand_recordings
+
     notes = Notices(notice)
+    recordings = expand_recordings(recordings, notes)
     built, meta = build_tables(recordings, settings.models or None, settings, progress, notes)
     paths = write_tables(built, Path(out), meta) if out is not None else []
     return TablesResult(built, meta, paths, list(notes))

@@ -303,31 +303,45 @@ def describe_models() -> str:
     return "\n".join(lines)
 
 
-def check_detector(spec: str, context: Mapping[str, Any], shape: tuple[int, int]) -> None:
+def check_detector(
+    spec: str, context: Mapping[str, Any], shape: tuple[int, int], *, alert: bool = True
+) -> None:
     """The one check of a detector, before any run that takes it: build ``spec`` with the
     camera ``context`` (what ``make_model`` is given), require an ``alert`` output
     (:func:`avdm.base.require_alert`), and step a fresh instance on one mid-grey ``shape``
     (H, W) uint8 frame, the raster it will be given: it must return ``alert`` as a finite
     number or a bool. ValueError in one line naming the detector otherwise (a plug-in that
     fails to build, has no ``step``, returns other keys or a NaN alert, or raises on a
-    frame)."""
+    frame). ``alert=False``: any model (``batch``/``tables --model``), whose step must return
+    each output it declares."""
     model = make_model(spec, **context)
-    require_alert(model)
+    if alert:
+        require_alert(model)
     h, w = shape
+    what = "detector" if alert else "model"
     try:
         out = model.step(np.full((h, w), 128, dtype=np.uint8))
-        alert = out["alert"] if isinstance(out, Mapping) and "alert" in out else None
     except Exception as exc:  # the user's code: one line
         first = str(exc).splitlines()[0] if str(exc) else ""
         why = first if isinstance(exc, ValueError) else f"{type(exc).__name__}: {first}"
         raise ValueError(
-            f"detector {model.name!r} cannot run on a {h}x{w} frame (HxW): {why}"
+            f"{what} {model.name!r} cannot run on a {h}x{w} frame (HxW): {why}"
         ) from None
-    finite = isinstance(alert, bool | np.bool_) or (
-        isinstance(alert, int | float | np.integer | np.floating) and np.isfinite(alert)
+    names = [o.name for o in model.outputs] if not alert else ["alert"]
+    lacking = [n for n in names if not isinstance(out, Mapping) or n not in out]
+    if lacking and not alert:
+        raise ValueError(
+            f"model {model.name!r}: step() on a {h}x{w} frame (HxW) returned no "
+            f"{', '.join(lacking)} (it declares {', '.join(names)})"
+        )
+    if not alert:
+        return
+    value = out["alert"] if not lacking else None
+    finite = isinstance(value, bool | np.bool_) or (
+        isinstance(value, int | float | np.integer | np.floating) and np.isfinite(value)
     )
     if not finite:
         raise ValueError(
-            f"detector {model.name!r} returned alert={alert!r} on a {h}x{w} frame (HxW): it "
+            f"detector {model.name!r} returned alert={value!r} on a {h}x{w} frame (HxW): it "
             "must be a finite number (1 = collision ahead, 0 = not) or a bool"
         )

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 OUTPUTS_MANIFEST = ".vdc-outputs.json"
@@ -98,3 +98,38 @@ def scan_folder(
             else:
                 found.append(path)
     return FolderScan(sorted(found, key=str), skipped)
+
+
+def expand_recordings(
+    items: Iterable[str | Path], notice: Callable[[str], None] | None = None
+) -> list[str]:
+    """Recordings and folders → the ``.rrd`` recordings, in order (``batch``, ``tables``): a
+    folder gives its recordings and below (:func:`scan_folder`, vdc's ``parts`` folders left
+    out), a file is taken as given. What is skipped (vdc's own outputs, unfinished captures,
+    dangling links, also a dangling link given by name) ``notice`` hears in one line per
+    folder. A missing path, or nothing left to read, raises ValueError."""
+    given = [str(i) for i in items]
+    found: list[str] = []
+    dangling: list[str] = []
+    for item in given:
+        p = Path(item)
+        if p.is_dir():
+            scan = scan_folder(p, (".rrd",), skip_dirs=("parts",))
+            note = scan.note(item)
+            if note and notice is not None:
+                notice(note)
+            found += map(str, scan.found)
+        elif p.is_symlink() and not p.exists():
+            dangling.append(item)
+        elif p.exists():
+            found.append(item)
+        else:
+            raise ValueError(f"{item!r}: no such file or folder")
+    if dangling and notice is not None:
+        notice(
+            f"skipped {len(dangling)} entr{'y' if len(dangling) == 1 else 'ies'}: "
+            f"{len(dangling)} {DANGLING} (first: {dangling[0]})"
+        )
+    if not found:
+        raise ValueError(f"no .rrd recordings in {', '.join(map(repr, given))}")
+    return found
