@@ -156,6 +156,21 @@ class ClosedLoopRobot(SimulatedRobot):
     of ``vdc-capture sim --behaviour collision``). Batches carry the on-board outputs of the
     detector, the AVDM and the controller (threshold in force)."""
 
+    nan_alert_frames = 0  # frames whose detector alert was NaN (read as no alert)
+
+    def _nan_alert(self, frame: int) -> None:
+        """A NaN alert reads as no alert; the first one is said in one line on stderr, and
+        ``nan_alert_frames`` counts them all."""
+        import sys
+
+        if self.nan_alert_frames == 0:
+            print(
+                f"note: detector {self.detector.name!r} gave alert = NaN at frame {frame}; "
+                "a NaN alert is read as no alert (nan_alert_frames counts them)",
+                file=sys.stderr,
+            )
+        self.nan_alert_frames += 1
+
     def __init__(self, config: SimConfig, batch_size: int = 1000) -> None:
         if config.behaviour != "collision":
             raise ValueError("ClosedLoopRobot needs behaviour='collision'")
@@ -244,6 +259,8 @@ class ClosedLoopRobot(SimulatedRobot):
                 )
             else:
                 alert = d["alert"] > 0
+                if d["alert"] != d["alert"]:  # NaN: no alert, but never silently
+                    self._nan_alert(f)
                 detail = (
                     f"{self._base:g} consecutive spikes"
                     if c.collision.base_detector == "lgmd-colias"

@@ -162,3 +162,33 @@ def test_bad_collision_options(tmp_path: Path, args: list[str], needle: str) -> 
         run_cli("capture", "sim", "--minutes", "0.05", *args, "--out", str(out)), needle
     )
     assert not out.exists()
+
+
+NAN_LATER = '''
+import math
+
+
+class NanLater:
+    """A detector whose alert is NaN from its third frame on (finite before: it passes the
+    check of one frame before the run)."""
+
+    outputs = (("alert", "1"),)
+
+    def __init__(self, **camera: float) -> None:
+        self.i = 0
+
+    def step(self, frame):
+        self.i += 1
+        return {"alert": 0.0 if self.i < 3 else math.nan}
+'''
+
+
+def test_a_nan_alert_in_the_closed_loop_is_said_not_read_silently(tmp_path: Path) -> None:
+    (tmp_path / "nan_later_det.py").write_text(NAN_LATER)
+    out = tmp_path / "col.rrd"
+    proc = run_cli("capture", "sim", "--behaviour", "collision", "--model",
+                   "nan_later_det:NanLater", "--minutes", "0.03", "--out", str(out), "--quiet",
+                   cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    notes = [ln for ln in proc.stderr.splitlines() if "alert = NaN" in ln]
+    assert len(notes) == 1 and "frame 2" in notes[0], proc.stderr  # once, at the first
