@@ -255,7 +255,9 @@ def measure_recording(
     path = loaded.rec.path
     if not ctx or "width_px" not in cam:
         raise ValueError(f"{str(path)!r} does not record its camera (fps, width, FOV)")
-    fps, deg_per_px = float(ctx["fps"]), float(ctx["deg_per_px"])
+    # the container's rate (the camera's), from which the meter finds the new frames' rate
+    # again: a video capture built its model at that rate (``model_context``), not at this one
+    fps, deg_per_px = float(cam.get("fps", ctx["fps"])), float(ctx["deg_per_px"])
     native = loaded.native
     meter = ComplexityMeter(fps, deg_per_px, settings, ctx, camera_baselines=native is None)
     timing = loaded.frames.select("frame", "t_s", "repeat")

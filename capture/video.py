@@ -120,6 +120,7 @@ class VideoSource:
             raise ValueError(f"{settings.source!r} states no frame rate: pass --fps")
         self.fps = float(fps)
         self._batches: FrameBatcher | None = None
+        self._peeked: Batch | None = None
         self._size: tuple[int, int] | None = None
 
     def working_size(self) -> tuple[int, int]:
@@ -149,7 +150,21 @@ class VideoSource:
     def last_t_s(self) -> float | None:
         return self._batches.last_t_s if self._batches else None
 
+    def peek(self) -> Batch | None:
+        """The first batch, read now and handed out again by the first :meth:`read`: the
+        rate of new frames is known before the model is built (``new_frame_rate``)."""
+        self.connect()
+        if self._peeked is None:
+            self._peeked = self._next()
+        return self._peeked
+
     def read(self) -> Batch | None:
+        if self._peeked is not None:
+            batch, self._peeked = self._peeked, None
+            return batch
+        return self._next()
+
+    def _next(self) -> Batch | None:
         assert self._batches is not None, "connect() first"
         fb = self._batches.next_batch()
         if fb is None:
@@ -260,7 +275,7 @@ def record_video(
     ValueError before the file exists; a file cut short keeps the frames before the cut."""
     from avdm.calibration_store import calibration_for
     from avdm.registry import make_model
-    from avdm.true_time import TrueTimeModel
+    from avdm.true_time import TrueTimeModel, new_frame_rate
     from capture.output import claim_output
     from capture.recorder import spawn_viewer
     from capture.recording_start import start_recording
@@ -281,12 +296,17 @@ def record_video(
     recorder = None
     try:
         h, w = device.working_size()
+        # the models follow the rate of new frames, whatever the container says: a clip whose
+        # every frame is shown twice at 50 Hz is profiled as the 25-Hz original (docs/video.md)
+        first = device.peek()
+        rate = new_frame_rate(device.fps, first.repeat, settings.max_repeats) if first else None
+        model_fps = rate or device.fps
         # the one context every model of this recording is built with, online and offline
-        context = camera_model_context(w, h, device.fps, settings.fov_deg)
+        context = camera_model_context(w, h, model_fps, settings.fov_deg)
         deg_per_px = float(context["deg_per_px"])
         built = make_model(settings.model, **context)
         cal = calibration_for(
-            device.fps, deg_per_px, progress=calibration_progress, params=_calibrated(built)
+            model_fps, deg_per_px, progress=calibration_progress, params=_calibrated(built)
         )
         model = TrueTimeModel(built)
         live = spawn_viewer() if spawn else live_url

@@ -89,6 +89,21 @@ def test_repeated_frames_at_a_higher_rate_read_the_originals_profile(clips, tmp_
     assert clip["repeated_frames"] == 2 * N_NEW
     assert mean_omega(res.table, 3) == pytest.approx(readings[1], rel=0.05)
 
+    # the capture too: vdc-capture video builds its online model at the new frames' rate, and
+    # complexity on the recording finds the same rate again from the container's
+    from analysis.rrd_reader import Recording
+    from capture.video import VideoSettings, record_video
+
+    rec = record_video(VideoSettings(source=str(clips[3]), fov_deg=FOV), tmp_path / "x3.rrd")
+    props = Recording(rec.record.path).properties()
+    assert props["model_context"]["fps"] == pytest.approx(FPS)
+    assert props["camera"]["fps"] == pytest.approx(3 * FPS)
+    from_rec = complexity(
+        [rec.record.path], ComplexitySettings(flow_preset="ultrafast"), tmp_path / "r"
+    )
+    assert from_rec.clips["model_fps"][0] == pytest.approx(FPS)
+    assert mean_omega(from_rec.table, 3) == pytest.approx(mean_omega(res.table, 3), rel=1e-9)
+
 
 def test_the_rate_of_new_frames() -> None:
     """Regular repeats set the models' rate; sporadic ones leave the container's."""
