@@ -13,6 +13,7 @@ recordings' contract lives in ``capture.recorder``):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -97,13 +98,15 @@ def write_profile_rrd(
             static=True,
         )
         hx, hy = seg.half_extent
-        log_arena_outline(rec, f"{base}/arena", hx, hy)
         edges, counts = histogram_over(seg.response, s)
         rec.log(
             f"{base}/histogram",
             rr.BarChart(counts.astype(np.float64), abscissa=edges[:-1].astype(np.float64)),
             static=True,
         )
+        if not (np.isfinite(seg.x_m).any() and math.isfinite(hx) and math.isfinite(hy)):
+            continue  # a video: no poses and no arena, so no outline and no map of cells
+        log_arena_outline(rec, f"{base}/arena", hx, hy)
         _, _, mean = heat_map(seg, s)
         vmax = float(np.nanmax(mean)) if np.isfinite(mean).any() else 1.0
         rgb = _colours(np.nan_to_num(mean, nan=0.0).ravel(), vmax, "magma").reshape(*mean.shape, 3)

@@ -53,6 +53,7 @@ from analysis.boundary_fit import fit_columns, fit_crossing, fit_section, with_f
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
 from vdc.cli_support import UserError
+from vdc.sources import working_camera
 
 LABEL_COLUMNS = ("clip", "label", "collision_frame")
 COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg/s)
@@ -115,20 +116,6 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     return df.with_columns(pl.Series("source", sources))
 
 
-def _working_camera(
-    info: dict[str, Any], source: str, fov_deg: float, width: int | None
-) -> tuple[tuple[int, int], float, dict[str, Any]]:
-    """The clip's working raster (H, W), frame rate and model context, as ``vdc-capture
-    video`` derives them from the source's own facts."""
-    from vdc.recording import camera_model_context, working_size
-
-    fps = float(info["nominal_fps"])
-    if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"{source!r} states no frame rate")
-    h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
-    return (h, w), fps, camera_model_context(w, h, fps, fov_deg)
-
-
 def clip_camera(
     source: str, fov_deg: float, width: int | None = None
 ) -> tuple[tuple[int, int], dict[str, Any]]:
@@ -138,7 +125,7 @@ def clip_camera(
 
     reader = open_reader(source)
     try:
-        shape, _fps, ctx = _working_camera(reader.info, source, fov_deg, width)
+        shape, _fps, ctx = working_camera(reader.info, source, fov_deg, width)
         return shape, ctx
     finally:
         reader.close()
@@ -156,7 +143,7 @@ def detector_alerts(
 
     reader = open_reader(source)
     try:
-        shape, fps, ctx = _working_camera(reader.info, source, fov_deg, width)
+        shape, fps, ctx = working_camera(reader.info, source, fov_deg, width)
         model = make_model(spec, **ctx)
         require_alert(model)
         video = ComplexitySettings  # the repeat rules vdc-capture video reads sources with

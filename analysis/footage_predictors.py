@@ -18,19 +18,23 @@ import numpy as np
 import polars as pl
 
 
+def _resolved(source: str) -> str:
+    """A clip's key: its resolved path (as footage mode keys its clips)."""
+    return str(Path(source).resolve())
+
+
 def clip_frames_task(source: str, specs: dict[str, str], fov_deg: float) -> dict[str, Any]:
     """An executor task: one clip read as ``vdc-capture video`` reads it, the paper's AVDM and
     the detector at every value (``specs``: value's key → model spec) run on it. Returns the
     source frame numbers, ``avdm`` (deg/s) and each value's ``alert``, as lists."""
     from analysis.complexity import ComplexitySettings
-    from analysis.footage import _working_camera
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel
-    from vdc.sources import FrameBatcher, open_reader
+    from vdc.sources import FrameBatcher, open_reader, working_camera
 
     reader = open_reader(source)
     try:
-        shape, fps, ctx = _working_camera(reader.info, source, fov_deg, None)
+        shape, fps, ctx = working_camera(reader.info, source, fov_deg, None)
         paper = TrueTimeModel(make_model("avdm", **ctx))
         detectors = {k: make_model(spec, **ctx) for k, spec in specs.items()}
         video = ComplexitySettings
@@ -58,13 +62,8 @@ def footage_predictor_tables(
     ``correct`` and each measure's mean); ``complexity_dir`` where ``complexity`` wrote its
     per-frame table."""
     from analysis.boundary import number_list, with_override
-    from analysis.footage import _key
-    from analysis.predictors import (
-        MEASURES,
-        footage_predictors,
-        frame_classes,
-        write_predictors,
-    )
+    from analysis.predictor_report import write_predictors
+    from analysis.predictors import MEASURES, footage_predictors, frame_classes
     from analysis.source_metrics import METRICS
     from vdc.executors import TasksFailed, failure_report, run_tasks
 
@@ -83,14 +82,14 @@ def footage_predictor_tables(
         raise TasksFailed(report)
     per_frame = pl.read_parquet(complexity_dir / "complexity.parquet")
     ids = pl.read_parquet(complexity_dir / "clips.parquet").select("source", "recording_id")
-    rid = {_key(r["source"]): r["recording_id"] for r in ids.iter_rows(named=True)}
+    rid = {_resolved(r["source"]): r["recording_id"] for r in ids.iter_rows(named=True)}
     keep_cols = [m for m in METRICS if m != "omega_dps"]
     frames, paper_means = [], {}
     window = s.alert_window_s
     for row in labels.iter_rows(named=True):
         res = got[row["source"]]
         mine = pl.DataFrame({"frame": np.asarray(res["frame"], np.int64), "avdm": res["avdm"]})
-        theirs = per_frame.filter(pl.col("recording_id") == rid[_key(row["source"])]).select(
+        theirs = per_frame.filter(pl.col("recording_id") == rid[_resolved(row["source"])]).select(
             "frame", pl.col("omega_dps").alias("avdm_natural"), *keep_cols
         )
         table = mine.join(theirs, on="frame", how="left", maintain_order="left")

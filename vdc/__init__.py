@@ -77,7 +77,7 @@ _API = {
     "boundary": "analysis.experiments.boundary",
     "AdaptationSettings": "analysis.experiments.adaptation",
     "adaptation": "analysis.experiments.adaptation",
-    "predictors": "analysis.predictors",
+    "predictors": "analysis.experiments.predictor_runs",
     "Policy": "avdm.policy",
     "load_policy": "avdm.policy",
     # models

@@ -620,3 +620,17 @@ class FrameBatcher:
         from vdc.frame_metrics import decide_ranges
 
         return decide_ranges(self._tag, self.requested_range, self.meter.left_limited_range)
+
+
+def working_camera(
+    info: dict[str, Any], source: str, fov_deg: float, width: int | None
+) -> tuple[tuple[int, int], float, dict[str, Any]]:
+    """The clip's working raster (H, W), frame rate and model context, as ``vdc-capture
+    video`` derives them from the source's own facts."""
+    from vdc.recording import camera_model_context, working_size
+
+    fps = float(info["nominal_fps"])
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"{source!r} states no frame rate")
+    h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
+    return (h, w), fps, camera_model_context(w, h, fps, fov_deg)

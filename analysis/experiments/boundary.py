@@ -30,6 +30,7 @@ from analysis.boundary import (
     with_override,
 )
 from analysis.boundary_fit import grid_fits, with_fit
+from analysis.experiments.captures import profiling_items
 from vdc.executors import ExecutorSettings
 
 
@@ -200,30 +201,6 @@ def grid_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, 
     return items
 
 
-def profile_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
-    """One profiling run (as ``reproduce`` profiles: ring turns, no detector) per (scene, TF,
-    seed)."""
-    from capture.sim import SimSettings
-
-    items = []
-    for scene, tf in s.conditions():
-        cond = condition_name(scene, tf)
-        for seed in range(s.seed, s.seed + s.seeds):
-            settings = SimSettings(
-                scene=scene, tf_hz=tf, minutes=s.minutes, seed=seed, model=s.profile_model
-            )
-            cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": seed}
-            items.append(
-                (
-                    f"profile-{cond}-seed{seed}",
-                    settings,
-                    folder / "profile" / cond / f"seed{seed}.rrd",
-                    cols,
-                )
-            )
-    return items
-
-
 def arena_boundary(
     s: BoundarySettings,
     out: str | Path,
@@ -238,7 +215,7 @@ def arena_boundary(
     out = Path(out)
     rec = out / "recordings"
     items = grid_items(s, rec)
-    prof = profile_items(s, rec) if s.complexity == "profile" else []
+    prof = profiling_items(s, rec) if s.complexity == "profile" else []
     from analysis.experiments.captures import check_detectors
 
     check_detectors(settings.to_config() for _, settings, _, _ in items[:1])  # before a word

@@ -109,3 +109,27 @@ def run_captures(
     if report:
         raise TasksFailed(report)
     return paths
+
+
+def profiling_items(s: Any, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+    """A boundary campaign's profiling runs (``s``: its ``BoundarySettings``): one (as
+    ``reproduce`` profiles: ring turns, no detector) per (scene, TF, seed)."""
+    from analysis.boundary import condition_name
+
+    items = []
+    for scene, tf in s.conditions():
+        cond = condition_name(scene, tf)
+        for seed in range(s.seed, s.seed + s.seeds):
+            settings = SimSettings(
+                scene=scene, tf_hz=tf, minutes=s.minutes, seed=seed, model=s.profile_model
+            )
+            cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": seed}
+            items.append(
+                (
+                    f"profile-{cond}-seed{seed}",
+                    settings,
+                    folder / "profile" / cond / f"seed{seed}.rrd",
+                    cols,
+                )
+            )
+    return items

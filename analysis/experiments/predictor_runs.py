@@ -137,7 +137,7 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
         "codec_bpp": 8.0 * codec["bytes"] / size if size else math.nan,
     }
     for m in MEASURES:
-        if m in straight.columns:
+        if m in straight.columns and m not in row:  # codec_bpp: the whole run's, above
             v = straight[m].cast(pl.Float64).fill_nan(None).mean()
             row[m] = float(v) if v is not None else math.nan
     return row
@@ -200,8 +200,8 @@ def predictors_for_folder(
     ``predictors.parquet``, ``predictor_measures.parquet``, ``predictors.png`` and the section
     of ``boundary.md`` into ``folder``. Returns :class:`analysis.predictors.PredictorResult`."""
     from analysis.boundary import BoundarySettings
-    from analysis.experiments.boundary import profile_items
-    from analysis.predictors import PredictorResult, settings_meta
+    from analysis.experiments.captures import profiling_items
+    from analysis.predictor_report import PredictorResult, settings_meta
     from vdc.parquet_io import table_set
 
     folder = Path(folder)
@@ -216,7 +216,7 @@ def predictors_for_folder(
     if executor is not None:
         s = dataclasses.replace(s, **executor)
     runs = pl.read_parquet(folder / "boundary_runs.parquet")
-    items = [(p, cols) for _, _, p, cols in profile_items(s, folder / "recordings")]
+    items = [(p, cols) for _, _, p, cols in profiling_items(s, folder / "recordings")]
     missing = [str(p) for p, _ in items if not p.exists()]
     if missing:
         raise ValueError(
@@ -239,7 +239,8 @@ def arena_predictor_tables(
     s: Any, runs: pl.DataFrame, measures: pl.DataFrame, stage: Path
 ) -> tuple[pl.DataFrame, list[Path], str]:
     """The predictor table of a grid written into ``stage``: (table, paths, report section)."""
-    from analysis.predictors import arena_predictors, write_predictors
+    from analysis.predictor_report import write_predictors
+    from analysis.predictors import arena_predictors
 
     table = arena_predictors(runs, measures, s.param, s.target)
     meta = {"settings": dataclasses.asdict(s), "every": int(measures["every"][0])}
@@ -258,3 +259,37 @@ def arena_predictor_tables(
         f"{int(measures['every'][0])}th frame pair (`predictor_measures.parquet`).\n\n"
     )
     return table, paths, section.replace("\n\n", "\n\n" + note, 1)
+
+
+def predictors(source: str | Path | Any) -> Any:
+    """The predictor tables of a boundary's output: its folder (``vdc-analyse boundary
+    --out``) or the :class:`analysis.boundary.BoundaryResult` it returned. Reads
+    ``predictors.parquet`` and the measures table it was computed from; if the folder has
+    none yet (a grid measured by an older vdc, or ``--no-predictors``), computes them from the
+    recordings there (arena; the measurements are cached beside the runs)."""
+    if hasattr(source, "paths"):
+        folder = Path(next(iter(source.paths)).parent)
+    else:
+        folder = Path(source)
+    if not folder.is_dir():
+        raise ValueError(f"{str(folder)!r} is not a boundary output folder")
+    pred = folder / "predictors.parquet"
+    if not pred.exists():
+        return predictors_for_folder(folder)
+    measures = next(
+        (folder / n for n in ("predictor_measures.parquet", "predictor_frames.parquet")
+         if (folder / n).exists()),
+        None,
+    )  # fmt: skip
+    md_path = folder / "boundary.md"
+    md = md_path.read_text() if md_path.exists() else ""
+    cut = md.find("## Which measure predicts")
+    paths = [pred] + ([measures] if measures else []) + [folder / "predictors.png"]
+    from analysis.predictor_report import PredictorResult
+
+    return PredictorResult(
+        pl.read_parquet(pred),
+        pl.read_parquet(measures) if measures else pl.DataFrame(),
+        [p for p in paths if p.exists()],
+        md[cut:] if cut >= 0 else "",
+    )

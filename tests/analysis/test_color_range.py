@@ -188,7 +188,7 @@ def test_the_command_names_the_ranges_and_takes_color_range(tmp_path: Path) -> N
     calibration, no fit."""
     levels = [(20, 230)] * 130 + [(44, 246)] * 4
     path = encode_luma(tmp_path / "late.mp4", levels, None, fps=33)
-    args = ("complexity", str(path), "--fov-deg", "70", "--model", "avdm")
+    args = ("complexity", str(path), "--fov-deg", "70", "--model", "avdm", "--metrics", "all")
     proc = run_cli("analysis", *args, "--out", str(tmp_path / "auto"))
     assert proc.returncode == 0, proc.stderr
     clip = pl.read_parquet(tmp_path / "auto" / "clips.parquet").row(0, named=True)

@@ -10,13 +10,12 @@ import polars as pl
 import pytest
 import scipy.stats
 
+from analysis.predictor_report import plot_predictors, predictors_report
 from analysis.predictors import (
     arena_predictors,
     auroc,
     footage_predictors,
     loco_threshold,
-    plot_predictors,
-    predictors_report,
     spearman,
 )
 

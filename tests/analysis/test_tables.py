@@ -163,6 +163,8 @@ def test_bad_files_give_one_line_and_exit_2(recordings, tmp_path: Path) -> None:
     text.write_text("hello")
     empty = tmp_path / "empty.rrd"
     empty.write_bytes(b"")
+    empty_dir = tmp_path / "nothing_here"
+    empty_dir.mkdir()
     no_frames = tmp_path / "no_frames.rrd"
     rec = Recorder(no_frames, "no-frames")
     rec.send_properties(  # what analysis needs besides the frames: nothing is assumed
@@ -178,8 +180,8 @@ def test_bad_files_give_one_line_and_exit_2(recordings, tmp_path: Path) -> None:
         (tiny, ("damaged",)),
         (text, ("not a Rerun recording",)),
         (empty, ("is empty",)),
-        (tmp_path, ("is a directory",)),
-        (tmp_path / "missing.rrd", ("does not exist",)),
+        (empty_dir, ("no .rrd recordings",)),  # a folder is searched (vdc.folders)
+        (tmp_path / "missing.rrd", ("no such file or folder",)),
     ]
     for path, needles in cases:
         assert_one_line_error(
