@@ -29,13 +29,13 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from analysis.loading import load_recording
 from analysis.profile import safe_key
 from analysis.rrd_reader import Recording, RecordingError
 from analysis.tables import (
     DistinctRecordings,
     SummarySettings,
     events_table,
-    load_recording,
     model_outputs_table,
     model_params,
     recompute,

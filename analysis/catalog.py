@@ -167,7 +167,8 @@ def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
     """The summary layer's properties of one recording: what it is, and the numbers of the
     ``summary`` table (mean ω̂ and the share over 100 deg/s after the warm-up; success rate
     of a collision run)."""
-    from analysis.tables import SummarySettings, events_table, load_recording, primary_output
+    from analysis.loading import load_recording
+    from analysis.tables import SummarySettings, events_table, primary_output
 
     loaded = load_recording(path)
     props = loaded.props

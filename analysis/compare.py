@@ -11,14 +11,12 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
+from analysis.loading import LoadedRecording, Notices, load_recording
 from analysis.stats import spearman
 from analysis.tables import (
-    LoadedRecording,
-    Notices,
     SummarySettings,
     TablesSettings,
     frames_in_statistics,
-    load_recording,
     model_params,
     primary_output,
     recompute,

@@ -16,6 +16,7 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
+from analysis.loading import Notices
 from analysis.segments import (  # noqa: F401 - the profile's data, re-exported
     ProfileSettings,
     Segment,
@@ -25,7 +26,7 @@ from analysis.segments import (  # noqa: F401 - the profile's data, re-exported
     segment_summary,
     segments_from_tables,
 )
-from analysis.tables import Notices, build_tables
+from analysis.tables import build_tables
 from vdc.parquet_io import WroteFiles
 
 

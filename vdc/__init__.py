@@ -44,7 +44,7 @@ _API = {
     "capture_sweep": "capture.campaign",
     # reading recordings
     "Recording": "analysis.rrd_reader",
-    "load_recording": "analysis.tables",
+    "load_recording": "analysis.loading",
     # analysis
     "TablesSettings": "analysis.tables",
     "tables": "analysis.tables",
