@@ -1,7 +1,7 @@
 """Analysis recordings (application id ``vdc``): profiles and variant comparisons as ``.rrd``.
 
 This module knows the analysis recordings' entity paths and blueprints (the capture
-recordings' contract lives in ``capture.recorder``):
+recordings' contract lives in ``vdc.recording``):
 
 * ``/profile/<segment>/circles``: Points3D (x_m, y_m, time up), radius ∝ response;
 * ``/profile/<segment>/arena``: LineStrips3D, the arena outline at the start time;

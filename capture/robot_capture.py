@@ -462,8 +462,8 @@ def record_robot(
     import hashlib
 
     from capture.config import ArenaConfig, RobotConfig, config_section
+    from capture.live_view import spawn_viewer
     from capture.output import claim_output
-    from capture.recorder import spawn_viewer
     from capture.recording_start import camera_line, start_recording
     from capture.run import finish_output, run_capture
     from vdc.blueprints import default_blueprint

@@ -261,8 +261,8 @@ def record_video(
     from avdm.calibration_store import calibration_for
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel
+    from capture.live_view import spawn_viewer
     from capture.output import claim_output
-    from capture.recorder import spawn_viewer
     from capture.recording_start import start_recording
     from capture.run import finish_output, run_capture
     from vdc.blueprints import video_blueprint
