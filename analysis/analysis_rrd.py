@@ -22,7 +22,7 @@ import polars as pl
 import rerun as rr
 import rerun.blueprint as rrb
 
-from analysis.segments import ProfileSettings, Segment, heat_map, histogram_over
+from analysis.segments import ProfileSegment, ProfileSettings, heat_map, histogram_over
 from avdm.base import primary_output_name
 from vdc.recording import (
     APP_ID,
@@ -50,7 +50,7 @@ def _colours(values: np.ndarray, vmax: float, cmap: str = "viridis") -> np.ndarr
 
 
 def write_profile_rrd(
-    segs: Sequence[Segment], s: ProfileSettings, path: Path, recording_id: str
+    segs: Sequence[ProfileSegment], s: ProfileSettings, path: Path, recording_id: str
 ) -> Path:
     """One analysis recording holding every segment's profile, with a tabbed blueprint."""
     tabs = []

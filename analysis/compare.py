@@ -20,7 +20,7 @@ from analysis.tables import (
     model_params,
     primary_output,
     recompute,
-    summarise,
+    summary_statistics,
 )
 from avdm.registry import canonical_name, make_model
 from vdc.cli_support import option
@@ -44,7 +44,7 @@ def variant_statistics(
                 "output": out,
                 "n_frames": g.height,
                 "threshold_dps": s.threshold_dps,
-                **summarise(g[out].to_numpy(), g["wall_gap_m"].to_numpy(), s),
+                **summary_statistics(g[out].to_numpy(), g["wall_gap_m"].to_numpy(), s),
             }
         )
     return pl.DataFrame(rows)

@@ -18,8 +18,8 @@ from matplotlib.figure import Figure
 
 from analysis.loading import Notices
 from analysis.segments import (  # noqa: F401 - the profile's data, re-exported
+    ProfileSegment,
     ProfileSettings,
-    Segment,
     heat_map,
     histogram_over,
     safe_key,
@@ -46,12 +46,12 @@ def save_figure(fig: Figure, path: Path) -> Path:
     return path
 
 
-def plot_segment(seg: Segment, s: ProfileSettings, path: Path) -> Path:
+def plot_segment(seg: ProfileSegment, s: ProfileSettings, path: Path) -> Path:
     """One PNG: 3D circle profile, histogram of responses over the threshold, heat map."""
     return save_figure(segment_figure(seg, s), path)
 
 
-def segment_figure(seg: Segment, s: ProfileSettings) -> Figure:
+def segment_figure(seg: ProfileSegment, s: ProfileSettings) -> Figure:
     """The profile of one segment as a matplotlib Figure (for notebooks): 3D circle profile,
     histogram of responses over the threshold, heat map of the mean response."""
     if not np.isfinite(seg.x_m).any():
@@ -115,14 +115,14 @@ def segment_figure(seg: Segment, s: ProfileSettings) -> Figure:
     return fig
 
 
-def _condition(g: Segment) -> str:
+def _condition(g: ProfileSegment) -> str:
     """``grating TF 3``; a video has neither scene nor walls."""
     if math.isfinite(g.wall_tf_hz):
         return f"{g.scene} TF {g.wall_tf_hz:g}"
     return "video"
 
 
-def _time_series_figure(seg: Segment, s: ProfileSettings) -> Figure:
+def _time_series_figure(seg: ProfileSegment, s: ProfileSettings) -> Figure:
     """The profile of a source without poses (a video): the response over time and the
     histogram over the threshold; there is no arena to map it onto."""
     fig = Figure(figsize=(16, 5.2), layout="constrained")
@@ -145,7 +145,7 @@ def _time_series_figure(seg: Segment, s: ProfileSettings) -> Figure:
     return fig
 
 
-def plot_overview(segs: Sequence[Segment], s: ProfileSettings, path: Path) -> Path:
+def plot_overview(segs: Sequence[ProfileSegment], s: ProfileSettings, path: Path) -> Path:
     """All segments side by side: fraction over the threshold and the response distributions."""
     fig = Figure(figsize=(14, 5), layout="constrained")
     (ax_b, ax_d) = fig.subplots(1, 2)
@@ -187,7 +187,7 @@ class ProfileResult(WroteFiles):
     ``figure(i)`` draws segment ``i`` as a matplotlib Figure."""
 
     settings: ProfileSettings
-    segments: list[Segment]
+    segments: list[ProfileSegment]
     summary: pl.DataFrame
     tables: dict[str, pl.DataFrame]
     meta: dict

@@ -247,7 +247,7 @@ def condition_columns(loaded: LoadedRecording) -> dict[str, Any]:
     }
 
 
-def summarise(values: np.ndarray, gap: np.ndarray, s: SummarySettings) -> dict[str, float]:
+def summary_statistics(values: np.ndarray, gap: np.ndarray, s: SummarySettings) -> dict[str, float]:
     """Statistics of one response series (N,) given the wall gap (N,) of each frame."""
     if len(values) == 0:
         nan = float("nan")
@@ -345,7 +345,7 @@ def summary_rows(
                 "motion": motion,
                 "output": out,
                 "n_frames": int(finite.sum()),
-                **summarise(vals[finite], g["wall_gap_m"].to_numpy()[finite], s),
+                **summary_statistics(vals[finite], g["wall_gap_m"].to_numpy()[finite], s),
                 "threshold_dps": s.threshold_dps,
             }
         )
