@@ -479,21 +479,11 @@ class TablesResult(WroteFiles):
             )
         return lines
 
-    @property
-    def frames(self) -> pl.DataFrame:
-        return self.tables["frames"]
-
-    @property
-    def model_outputs(self) -> pl.DataFrame:
-        return self.tables["model_outputs"]
-
-    @property
-    def events(self) -> pl.DataFrame:
-        return self.tables["events"]
-
-    @property
-    def summary(self) -> pl.DataFrame:
-        return self.tables["summary"]
+    # each table by its name: ``result.frames`` is ``result.tables["frames"]``
+    frames = property(lambda self: self.tables["frames"])
+    model_outputs = property(lambda self: self.tables["model_outputs"])
+    events = property(lambda self: self.tables["events"])
+    summary = property(lambda self: self.tables["summary"])
 
 
 def tables(

@@ -84,31 +84,24 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> N
         assert needle in lines[0], (needle, lines[0])
 
 
+def make_sim_recording(out: Path, minutes: float = 0.05, **settings) -> Path:
+    """A short simulated run (``capture.sim.SimSettings`` fields as keywords: ``tf_hz``,
+    ``seed``, ``behaviour``, ``model``...) recorded to ``out`` in this process; its path."""
+    from capture.sim import SimSettings, record_sim
+
+    return record_sim(SimSettings(minutes=minutes, **settings), out).path
+
+
 def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.Popen:
     """Start a 60-minute simulated capture to ``out`` and wait until its partial file (where a
     capture writes until it ends) holds at least ``min_bytes``; the caller stops it."""
     from capture.output import partial_path
 
+    argv = ["-m", "capture", "sim", "--tf-hz", "3", "--minutes", "60", "--out", str(out)]
     proc = spawn(
-        [
-            sys.executable,
-            "-m",
-            "capture",
-            "sim",
-            "--tf-hz",
-            "3",
-            "--minutes",
-            "60",
-            "--out",
-            str(out),
-            "--quiet",
-        ],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
+        [sys.executable, *argv, "--quiet"], cwd=ROOT, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )  # fmt: skip
     deadline = time.time() + 60
     part = partial_path(out)
     while time.time() < deadline and (not part.exists() or part.stat().st_size < min_bytes):
@@ -165,9 +158,7 @@ def write_video(
         if times_s is not None:
             frame.pts = round(times_s[i] * 1000)
             frame.time_base = Fraction(1, 1000)
-        for packet in stream.encode(frame):
-            out.mux(packet)
-    for packet in stream.encode():
-        out.mux(packet)
+        out.mux(stream.encode(frame))
+    out.mux(stream.encode())  # flush the encoder
     out.close()
     return path

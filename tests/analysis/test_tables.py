@@ -16,20 +16,11 @@ from tests.helpers import assert_one_line_error, run_cli, start_long_capture
 from vdc.arena_geometry import distance_to_wall_along
 from vdc.parquet_io import read_metadata
 
-FRAMES_COLUMNS = [
-    "recording_id",
-    "frame",
-    "t_s",
-    "x_m",
-    "y_m",
-    "heading_rad",
-    "wall_tf_hz",
-    "wall_gap_m",
-    "repeat",
-    "dropped_before",
-    "robot_omega_dps",
-    "turning",
-]
+# the frames table's contract, column by column (docs/architecture.md)
+FRAMES_COLUMNS = (
+    "recording_id frame t_s x_m y_m heading_rad wall_tf_hz wall_gap_m repeat dropped_before "
+    "robot_omega_dps turning"
+).split()
 EVENTS_COLUMNS = ["recording_id", "frame", "t_s", "kind", "x_m", "y_m", "heading_rad", "dtc_m"]
 SUMMARY_COLUMNS = [
     "recording_id",
