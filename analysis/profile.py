@@ -11,6 +11,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import polars as pl
@@ -44,6 +45,29 @@ def save_figure(fig: Figure, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     return path
+
+
+def response_densities(
+    ax: Any,
+    series: Sequence[tuple[str, np.ndarray]],
+    threshold_dps: float,
+    title: str,
+    fontsize: float = 8,
+) -> None:
+    """Draw on the matplotlib axes ``ax`` the densities of response series ``(label, values
+    (N,) in the model's unit)`` as step histograms on shared bins (up to their 99.5th
+    percentile), log scale, the threshold dashed: the profile's and the comparison's panel."""
+    finite = [v for _, v in series if len(v)]
+    top = max([float(np.nanpercentile(v, 99.5)) for v in finite] + [1.0])
+    bins = np.linspace(0, top, 60)
+    for label, values in series:
+        ax.hist(values, bins=bins, histtype="step", lw=1.2, label=label, density=True)
+    ax.axvline(threshold_dps, color="k", ls="--", lw=1)
+    ax.set_yscale("log")
+    ax.set_xlabel("response")
+    ax.set_ylabel("density")
+    ax.legend(fontsize=fontsize)
+    ax.set_title(title)
 
 
 def plot_segment(seg: ProfileSegment, s: ProfileSettings, path: Path) -> Path:
@@ -161,23 +185,8 @@ def plot_overview(segs: Sequence[ProfileSegment], s: ProfileSettings, path: Path
     ax_b.set_ylabel(f"% of frames with response > {s.threshold_dps:g}")
     ax_b.set_title(f"'AVDM > {s.threshold_dps:g}' per segment")
     ax_b.grid(axis="y", alpha=0.3)
-    top = max([float(np.percentile(g.response, 99.5)) for g in segs if len(g.response)] + [1.0])
-    bins = np.linspace(0, top, 60)
-    for i, g in enumerate(segs):
-        ax_d.hist(
-            g.response,
-            bins=bins,
-            histtype="step",
-            lw=1.2,
-            label=labels[i].replace("\n", " "),
-            density=True,
-        )
-    ax_d.axvline(s.threshold_dps, color="k", ls="--", lw=1)
-    ax_d.set_yscale("log")
-    ax_d.set_xlabel("response")
-    ax_d.set_ylabel("density")
-    ax_d.legend(fontsize=7)
-    ax_d.set_title("response distributions")
+    series = [(label.replace("\n", " "), g.response) for label, g in zip(labels, segs, strict=True)]
+    response_densities(ax_d, series, s.threshold_dps, "response distributions", fontsize=7)
     return save_figure(fig, path)
 
 

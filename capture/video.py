@@ -26,7 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from capture.device import Batch, Event
+from capture.device import Batch, DeviceContext, Event
 from capture.run import RecordResult
 from vdc.cli_support import (
     API_ONLY,
@@ -105,7 +105,7 @@ def open_source(settings: VideoSettings) -> Reader:
     return open_reader(settings.source, settings.fps)
 
 
-class VideoSource:
+class VideoSource(DeviceContext):
     """A video, image sequence or camera as a capture device (connect / read / disconnect).
 
     The source is opened by the constructor, so a missing or unreadable one fails before any
@@ -198,13 +198,6 @@ class VideoSource:
 
     def disconnect(self) -> None:
         self.reader.close()
-
-    def __enter__(self) -> VideoSource:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.disconnect()
 
 
 @dataclasses.dataclass
