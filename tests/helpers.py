@@ -136,6 +136,26 @@ def kill_a_worker_mid_batch(
     return proc.returncode, stdout, stderr, killed
 
 
+def ffmpeg_siti(path: Path) -> np.ndarray:
+    """FFmpeg's own siti filter over every frame of a video (PyAV's filter graph): its legacy
+    (P.910) SI and TI per frame, (N, 2) float64, as FFmpeg prints them (2 decimals)."""
+    import av.filter
+
+    values = []
+    with av.open(str(path)) as c:
+        st = c.streams.video[0]
+        graph = av.filter.Graph()
+        src, siti, sink = graph.add_buffer(template=st), graph.add("siti"), graph.add("buffersink")
+        src.link_to(siti)
+        siti.link_to(sink)
+        graph.configure()
+        for frame in c.decode(st):
+            graph.push(frame)
+            md = graph.pull().metadata
+            values.append((float(md["lavfi.siti.si"]), float(md["lavfi.siti.ti"])))
+    return np.array(values, dtype=np.float64).reshape(-1, 2)
+
+
 def write_video(
     path: Path,
     frames: np.ndarray,
