@@ -1,7 +1,7 @@
 """Analysis recordings (application id ``vdc``): profiles and variant comparisons as ``.rrd``.
 
 This module knows the analysis recordings' entity paths and blueprints (the capture
-recordings' contract lives in ``capture.recorder``):
+recordings' contract lives in ``vdc.recording``):
 
 * ``/profile/<segment>/circles``: Points3D (x_m, y_m, time up), radius ∝ response;
 * ``/profile/<segment>/arena``: LineStrips3D, the arena outline at the start time;
@@ -23,7 +23,7 @@ import polars as pl
 import rerun as rr
 import rerun.blueprint as rrb
 
-from analysis.segments import ProfileSettings, Segment, heat_map, histogram_over
+from analysis.segments import ProfileSegment, ProfileSettings, heat_map, histogram_over
 from avdm.base import primary_output_name
 from vdc.recording import (
     APP_ID,
@@ -51,7 +51,7 @@ def _colours(values: np.ndarray, vmax: float, cmap: str = "viridis") -> np.ndarr
 
 
 def write_profile_rrd(
-    segs: Sequence[Segment], s: ProfileSettings, path: Path, recording_id: str
+    segs: Sequence[ProfileSegment], s: ProfileSettings, path: Path, recording_id: str
 ) -> Path:
     """One analysis recording holding every segment's profile, with a tabbed blueprint."""
     tabs = []

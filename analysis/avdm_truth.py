@@ -11,7 +11,7 @@ The protocol (``benchmarks/bench_avdm_truth.py`` runs it whole; the tests run on
 * each model variant and OpenCV's DIS optic flow (``flow_dps``, as ``complexity`` computes it)
   read the speed; a cell's reading is the mean after the warm-up.
 
-``summarise`` then gives, per variant: the median absolute relative error per speed, the worst
+``summarise_truth`` then gives, per variant: the median absolute relative error per speed, the worst
 direction asymmetry and Spearman's ρ between reading and truth per image.
 """
 
@@ -191,7 +191,7 @@ def run_protocol(
     return pl.DataFrame(rows)
 
 
-def summarise(table: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
+def summarise_truth(table: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
     """(per reader and speed: median and max |relative error| over images, directions, fps,
     pitches and codecs; per reader: worst direction asymmetry over 2–300 deg/s, and the
     smallest Spearman ρ over (image, fps, pitch, codec) groups)."""

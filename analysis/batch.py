@@ -11,7 +11,7 @@ The ids are columns inside every file too, and a variant's slug never contains `
 such as ``avdm:beta=0.5`` would break the hive partition). A re-run skips finished parts
 (resume after a crash or a killed worker); ``force`` recomputes them. ``shard = (i, n)`` runs
 only every n-th task from the i-th (SLURM job arrays, workstations sharing a filesystem).
-:func:`summarise` concatenates the parts into the same ``frames``, ``model_outputs``,
+:func:`summarise_batch` concatenates the parts into the same ``frames``, ``model_outputs``,
 ``events`` and ``summary`` tables that ``vdc-analyse tables`` writes for the same inputs.
 """
 
@@ -29,6 +29,7 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from analysis.loading import load_recording
 from analysis.profile import safe_key
 from analysis.rrd_reader import Recording, RecordingError
 from analysis.tables import (
@@ -36,7 +37,6 @@ from analysis.tables import (
     SummarySettings,
     check_models,
     events_table,
-    load_recording,
     model_outputs_table,
     model_params,
     recompute,
@@ -125,7 +125,7 @@ def readable_part(path: Path) -> bool:
     return True
 
 
-def is_done(out: Path, recording_id: str, spec: str) -> bool:
+def part_is_done(out: Path, recording_id: str, spec: str) -> bool:
     """A task is done when its parts, and the recording's shared ones, all read."""
     d, shared = part_dir(out, recording_id, spec), part_dir(out, recording_id)
     return all(
@@ -147,7 +147,7 @@ def analyse_task(path: str, spec: str, out: str, settings: dict[str, Any], force
     loaded = load_recording(path, s)
     rid = loaded.recording_id
     name = canonical_name(spec)
-    if not force and is_done(Path(out), rid, spec):  # second line of defence after the plan
+    if not force and part_is_done(Path(out), rid, spec):  # second line of defence after the plan
         return {"recording_id": rid, "model": name, "skipped": True}
     meta = {
         "arena_half_extent_m": {rid: loaded.arena_half_extent()},
@@ -215,7 +215,7 @@ def batch(
     log: Callable[[str], None] | None = None,
 ) -> BatchResult:
     """``vdc-analyse batch``: run every (recording, variant) task not finished yet on the
-    chosen executor, then (unless this is one shard of several) :func:`summarise`."""
+    chosen executor, then (unless this is one shard of several) :func:`summarise_batch`."""
     t0 = time.perf_counter()
     out = Path(out)
     say = log or (lambda _m: None)
@@ -227,7 +227,7 @@ def batch(
     unreadable = dict(bad)
     failures = [(f"{p} {spec}", unreadable[p]) for p, spec, rid in tasks if rid is None]
     runnable = [t for t in tasks if t[2] is not None]
-    todo = [t for t in runnable if settings.force or not is_done(out, t[2], t[1])]
+    todo = [t for t in runnable if settings.force or not part_is_done(out, t[2], t[1])]
     skipped = len(runnable) - len(todo)
     for path in dict.fromkeys(p for p, _, _ in todo):  # each model stepped once on the
         try:  # first readable recording's raster, before any task: a misfit fails here
@@ -260,7 +260,7 @@ def batch(
     failures += [(o.key, o.error) for o in outcomes if o.error is not None]
     tables, paths = None, []
     if shard is None and any((out / PARTS).glob("recording_id=*/model=*/summary.parquet")):
-        tables, paths = summarise(out)
+        tables, paths = summarise_batch(out)
     if failures:
         write_parquet(
             pl.DataFrame(failures, schema=["task", "error"], orient="row"),
@@ -274,9 +274,10 @@ def batch(
     )
 
 
-def summarise(out: str | Path) -> tuple[dict[str, pl.DataFrame], list[Path]]:
-    """``vdc-analyse summarise``: concatenate the finished parts under ``out/parts`` into
-    ``out/{frames,model_outputs,events,summary}.parquet``, as ``tables`` writes them."""
+def summarise_batch(out: str | Path) -> tuple[dict[str, pl.DataFrame], list[Path]]:
+    """``vdc-analyse summarise`` (``vdc.summarise``): concatenate the finished parts under
+    ``out/parts`` into ``out/{frames,model_outputs,events,summary}.parquet``, as ``tables``
+    writes them."""
     out = Path(out)
     done = sorted((out / PARTS).glob("recording_id=*/model=*/summary.parquet"))
     if not done:

@@ -235,7 +235,7 @@ def run_row(path: str | Path, kind: str, false_alarm_m: float = 0.30) -> dict[st
     (``online_dps``) and over straight driving (``straight_dps``); "profile": the online AVDM's
     mean over straight driving (``profile_dps``)."""
     from analysis.collision import CollisionSettings, collision_metrics
-    from analysis.tables import load_recording
+    from analysis.loading import load_recording
 
     loaded = load_recording(path)
     fr = loaded.frames.select("frame", "turning").filter(pl.col("frame") >= WARMUP_FRAMES)

@@ -92,7 +92,9 @@ class CatalogSettings:
 
 
 @dataclasses.dataclass
-class Segment:
+class CatalogSegment:
+    """One recording registered in the catalog (a segment of its dataset)."""
+
     recording_id: str
     path: Path  # the file registered (a repaired copy for a recording without footer)
     source: Path  # the file found
@@ -104,7 +106,7 @@ class Found:
     """What a scan of the folders found: segments, layers ``{name: [(recording id, file)]}``
     and files left out ``[(file, one-line reason)]``."""
 
-    segments: list[Segment]
+    segments: list[CatalogSegment]
     layers: dict[str, list[tuple[str, Path]]]
     unregistered: list[tuple[str, str]]
     entities: dict[str, set[str]] = dataclasses.field(default_factory=dict)  # per layer
@@ -167,7 +169,8 @@ def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
     """The summary layer's properties of one recording: what it is, and the numbers of the
     ``summary`` table (mean ω̂ and the share over 100 deg/s after the warm-up; success rate
     of a collision run)."""
-    from analysis.tables import SummarySettings, events_table, load_recording, primary_output
+    from analysis.loading import load_recording
+    from analysis.tables import SummarySettings, events_table, primary_output
 
     loaded = load_recording(path)
     props = loaded.props
@@ -286,7 +289,7 @@ def _preference(item: tuple[Path, Any, dict[str, Any]]) -> tuple[bool, bool, int
     return (rec.notice is not None, not finished, -path.stat().st_size)
 
 
-def _register(path: Path, rec: Any, cache: Path, say: Callable[[str], None]) -> Segment:
+def _register(path: Path, rec: Any, cache: Path, say: Callable[[str], None]) -> CatalogSegment:
     """One recording checked and made ready to register: repaired into the cache if it has no
     footer (with a note), its summary computed (or read from the cache). ValueError (or the
     reader's error) if it cannot be served."""
@@ -304,7 +307,7 @@ def _register(path: Path, rec: Any, cache: Path, say: Callable[[str], None]) -> 
             f"{path} has no footer (the capture was cut short): registered a repaired copy of "
             "its complete messages (marked repaired)"
         )
-    return Segment(rid, registered, path, summary)
+    return CatalogSegment(rid, registered, path, summary)
 
 
 def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = None) -> Found:
@@ -314,7 +317,7 @@ def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = N
     from analysis.rrd_reader import Recording, RecordingError
 
     say = notice or (lambda _m: None)
-    segments: dict[str, Segment] = {}
+    segments: dict[str, CatalogSegment] = {}
     runs: dict[str, list[tuple[Path, Any, dict[str, Any]]]] = {}  # recording id → files
     layers: dict[str, list[tuple[str, Path]]] = {}
     left: list[tuple[str, str]] = []

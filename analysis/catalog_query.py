@@ -199,7 +199,7 @@ def query(
     ``folders`` are folders of recordings (a catalog is started for the query and stopped
     after it), or one catalog URL, ``"rerun+http://HOST:PORT"``: a catalog already serving
     (``vdc-analyse catalog serve``, a lab's shared server), read as it is."""
-    from analysis.tables import FRAMES_COLUMNS, from_signals, signals_table
+    from analysis.loading import FRAMES_COLUMNS, from_signals, signals_table
 
     sources = [folders] if isinstance(folders, (str, Path)) else list(folders)
     with _select(sources, where, layers, settings, notice) as sel:

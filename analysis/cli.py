@@ -207,9 +207,9 @@ def cmd_batch(args: argparse.Namespace) -> int:
 
 
 def cmd_summarise(args: argparse.Namespace) -> int:
-    from analysis.batch import summarise
+    from analysis.batch import summarise_batch
 
-    tables, paths = summarise(args.out)
+    tables, paths = summarise_batch(args.out)
     for path, (name, df) in zip(paths, tables.items(), strict=True):
         print(f"{name:<14} {df.height:>8} rows -> {path}")
     return 0

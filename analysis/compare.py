@@ -11,18 +11,17 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
+from analysis.loading import LoadedRecording, Notices, load_recording
+from analysis.profile import response_densities
 from analysis.stats import spearman
 from analysis.tables import (
-    LoadedRecording,
-    Notices,
     SummarySettings,
     TablesSettings,
     frames_in_statistics,
-    load_recording,
     model_params,
     primary_output,
     recompute,
-    summarise,
+    summary_statistics,
 )
 from avdm.registry import canonical_name, make_model
 from vdc.cli_support import option
@@ -46,7 +45,7 @@ def variant_statistics(
                 "output": out,
                 "n_frames": g.height,
                 "threshold_dps": s.threshold_dps,
-                **summarise(g[out].to_numpy(), g["wall_gap_m"].to_numpy(), s),
+                **summary_statistics(g[out].to_numpy(), g["wall_gap_m"].to_numpy(), s),
             }
         )
     return pl.DataFrame(rows)
@@ -124,29 +123,16 @@ def compare_figure(
     ax_t.grid(alpha=0.3)
 
     ax_d = fig.add_subplot(grid[1, 0])
-    top = max(
-        float(np.percentile(outputs[n][primary_output(outputs[n])].to_numpy(), 99.5)) for n in names
-    )
-    bins = np.linspace(0, max(top, 1.0), 60)
-    for i, name in enumerate(names):
+    series = []
+    for name in names:
         df = outputs[name].filter(pl.col("frame") >= s.warmup_frames)
         row = stats.filter(pl.col("model") == name).row(0, named=True)
-        ax_d.hist(
-            df[primary_output(df)].to_numpy(),
-            bins=bins,
-            histtype="step",
-            lw=1.3,
-            color=f"C{i}",
-            density=True,
-            label=f"{name}: mean {row['mean']:.1f}, "
-            f"{100 * row['frac_over_threshold']:.1f} % > {s.threshold_dps:g}",
+        label = (
+            f"{name}: mean {row['mean']:.1f}, "
+            f"{100 * row['frac_over_threshold']:.1f} % > {s.threshold_dps:g}"
         )
-    ax_d.axvline(s.threshold_dps, color="k", ls="--", lw=0.8)
-    ax_d.set_yscale("log")
-    ax_d.set_xlabel("response")
-    ax_d.set_ylabel("density")
-    ax_d.legend(fontsize=8)
-    ax_d.set_title("distributions")
+        series.append((label, df[primary_output(df)].to_numpy()))
+    response_densities(ax_d, series, s.threshold_dps, "distributions", fontsize=8)
 
     ax_c = fig.add_subplot(grid[1, 1])
     n = len(names)

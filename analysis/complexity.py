@@ -374,8 +374,8 @@ def measure_source(
 ) -> SourceMeasurement:
     """One source measured (``analysis.source_metrics``): a recording's own id, a video's
     ``recording_id``."""
+    from analysis.loading import load_recording
     from analysis.source_metrics import measure_recording, measure_video
-    from analysis.tables import load_recording
 
     if source.endswith(".rrd"):
         return measure_recording(load_recording(source), settings, progress)

@@ -11,21 +11,23 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
+from analysis.loading import Notices
 from analysis.segments import (  # noqa: F401 - the profile's data, re-exported
+    ProfileSegment,
     ProfileSettings,
-    Segment,
     heat_map,
     histogram_over,
     safe_key,
     segment_summary,
     segments_from_tables,
 )
-from analysis.tables import Notices, build_tables
+from analysis.tables import build_tables
 from vdc.parquet_io import WroteFiles
 
 
@@ -45,12 +47,35 @@ def save_figure(fig: Figure, path: Path) -> Path:
     return path
 
 
-def plot_segment(seg: Segment, s: ProfileSettings, path: Path) -> Path:
+def response_densities(
+    ax: Any,
+    series: Sequence[tuple[str, np.ndarray]],
+    threshold_dps: float,
+    title: str,
+    fontsize: float = 8,
+) -> None:
+    """Draw on the matplotlib axes ``ax`` the densities of response series ``(label, values
+    (N,) in the model's unit)`` as step histograms on shared bins (up to their 99.5th
+    percentile), log scale, the threshold dashed: the profile's and the comparison's panel."""
+    finite = [v for _, v in series if len(v)]
+    top = max([float(np.nanpercentile(v, 99.5)) for v in finite] + [1.0])
+    bins = np.linspace(0, top, 60)
+    for label, values in series:
+        ax.hist(values, bins=bins, histtype="step", lw=1.2, label=label, density=True)
+    ax.axvline(threshold_dps, color="k", ls="--", lw=1)
+    ax.set_yscale("log")
+    ax.set_xlabel("response")
+    ax.set_ylabel("density")
+    ax.legend(fontsize=fontsize)
+    ax.set_title(title)
+
+
+def plot_segment(seg: ProfileSegment, s: ProfileSettings, path: Path) -> Path:
     """One PNG: 3D circle profile, histogram of responses over the threshold, heat map."""
     return save_figure(segment_figure(seg, s), path)
 
 
-def segment_figure(seg: Segment, s: ProfileSettings) -> Figure:
+def segment_figure(seg: ProfileSegment, s: ProfileSettings) -> Figure:
     """The profile of one segment as a matplotlib Figure (for notebooks): 3D circle profile,
     histogram of responses over the threshold, heat map of the mean response."""
     if not np.isfinite(seg.x_m).any():
@@ -114,14 +139,14 @@ def segment_figure(seg: Segment, s: ProfileSettings) -> Figure:
     return fig
 
 
-def _condition(g: Segment) -> str:
+def _condition(g: ProfileSegment) -> str:
     """``grating TF 3``; a video has neither scene nor walls."""
     if math.isfinite(g.wall_tf_hz):
         return f"{g.scene} TF {g.wall_tf_hz:g}"
     return "video"
 
 
-def _time_series_figure(seg: Segment, s: ProfileSettings) -> Figure:
+def _time_series_figure(seg: ProfileSegment, s: ProfileSettings) -> Figure:
     """The profile of a source without poses (a video): the response over time and the
     histogram over the threshold; there is no arena to map it onto."""
     fig = Figure(figsize=(16, 5.2), layout="constrained")
@@ -144,7 +169,7 @@ def _time_series_figure(seg: Segment, s: ProfileSettings) -> Figure:
     return fig
 
 
-def plot_overview(segs: Sequence[Segment], s: ProfileSettings, path: Path) -> Path:
+def plot_overview(segs: Sequence[ProfileSegment], s: ProfileSettings, path: Path) -> Path:
     """All segments side by side: fraction over the threshold and the response distributions."""
     fig = Figure(figsize=(14, 5), layout="constrained")
     (ax_b, ax_d) = fig.subplots(1, 2)
@@ -160,23 +185,8 @@ def plot_overview(segs: Sequence[Segment], s: ProfileSettings, path: Path) -> Pa
     ax_b.set_ylabel(f"% of frames with response > {s.threshold_dps:g}")
     ax_b.set_title(f"'AVDM > {s.threshold_dps:g}' per segment")
     ax_b.grid(axis="y", alpha=0.3)
-    top = max([float(np.percentile(g.response, 99.5)) for g in segs if len(g.response)] + [1.0])
-    bins = np.linspace(0, top, 60)
-    for i, g in enumerate(segs):
-        ax_d.hist(
-            g.response,
-            bins=bins,
-            histtype="step",
-            lw=1.2,
-            label=labels[i].replace("\n", " "),
-            density=True,
-        )
-    ax_d.axvline(s.threshold_dps, color="k", ls="--", lw=1)
-    ax_d.set_yscale("log")
-    ax_d.set_xlabel("response")
-    ax_d.set_ylabel("density")
-    ax_d.legend(fontsize=7)
-    ax_d.set_title("response distributions")
+    series = [(label.replace("\n", " "), g.response) for label, g in zip(labels, segs, strict=True)]
+    response_densities(ax_d, series, s.threshold_dps, "response distributions", fontsize=7)
     return save_figure(fig, path)
 
 
@@ -186,7 +196,7 @@ class ProfileResult(WroteFiles):
     ``figure(i)`` draws segment ``i`` as a matplotlib Figure."""
 
     settings: ProfileSettings
-    segments: list[Segment]
+    segments: list[ProfileSegment]
     summary: pl.DataFrame
     tables: dict[str, pl.DataFrame]
     meta: dict

@@ -5,7 +5,7 @@
 * a recording without a footer (cut by a crash or SIGKILL) is read by a sequential scan, and
   ``Recording.notice`` says so.
 
-Entity paths are the recording contract's, defined once in ``capture.recorder``.
+Entity paths are the recording contract's, defined once in ``vdc.recording``.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ import re
 import numpy as np
 import polars as pl
 
-from analysis.tables import SummarySettings, TablesSettings, summarise
+from analysis.tables import SummarySettings, TablesSettings, summary_statistics
 from vdc.cli_support import API_ONLY, option
 
 
@@ -42,7 +42,7 @@ class ProfileSettings(TablesSettings):
 
 
 @dataclasses.dataclass
-class Segment:
+class ProfileSegment:
     """Responses of one model over one recording segment or pooled condition."""
 
     key: str  # a file- and entity-safe name
@@ -72,7 +72,7 @@ def segments_from_tables(
     by: str,
     warmup_frames: int,
     exclude_turns: bool = False,
-) -> list[Segment]:
+) -> list[ProfileSegment]:
     """Split the long tables into segments (``by="recording"``) or conditions; with
     ``exclude_turns`` only frames known to be straight driving (``turning`` false) are kept."""
     # a video has no wall TF (null): NaN keys join with each other, nulls do not
@@ -110,7 +110,7 @@ def segments_from_tables(
             label = f"{rec_ids[0]}: {walls}, {model}{straight}"
             key = safe_key(f"{rec_ids[0]}_{tf_key}_{model}")
         segs.append(
-            Segment(
+            ProfileSegment(
                 key=key,
                 label=label,
                 model=model,
@@ -139,7 +139,7 @@ def histogram_over(values: np.ndarray, s: ProfileSettings) -> tuple[np.ndarray, 
     return edges, counts
 
 
-def heat_map(seg: Segment, s: ProfileSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def heat_map(seg: ProfileSegment, s: ProfileSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean response per arena cell: (x edges, y edges, mean (ny, nx), NaN where unvisited)."""
     hx, hy = seg.half_extent
     xe = np.linspace(-hx, hx, max(1, round(2 * hx / s.cell_m)) + 1)
@@ -151,8 +151,8 @@ def heat_map(seg: Segment, s: ProfileSettings) -> tuple[np.ndarray, np.ndarray, 
     return xe, ye, mean
 
 
-def segment_summary(seg: Segment, s: ProfileSettings, t: SummarySettings) -> dict:
-    stats = summarise(
+def segment_summary(seg: ProfileSegment, s: ProfileSettings, t: SummarySettings) -> dict:
+    stats = summary_statistics(
         seg.response, seg.gap_m, dataclasses.replace(t, threshold_dps=s.threshold_dps)
     )
     return {

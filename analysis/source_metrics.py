@@ -46,7 +46,7 @@ from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context
 from vdc.sources import cut_short_note, header_shortfall
 
 if TYPE_CHECKING:
-    from analysis.tables import LoadedRecording
+    from analysis.loading import LoadedRecording
 
 
 class MeasureSettings(Protocol):

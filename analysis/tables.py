@@ -1,9 +1,8 @@
 """Recordings → polars tables → Parquet, and model recomputation (the table contract is in
 docs/architecture.md).
 
-* ``frames``: recording_id, frame, t_s, x_m, y_m, heading_rad, wall_tf_hz, wall_gap_m
-  (distance from the robot's centre to the nearest wall), repeat, dropped_before (video frame
-  timing), robot_omega_dps (the robot's own yaw rate) and turning (see ``ego_motion``);
+* ``frames``: one row per frame, as ``analysis.loading`` reads it from a recording (its columns
+  are listed there);
 * ``model_outputs``: recording_id, model, frame, t_s, one column per output (long over models);
 * ``events``: recording_id, frame, t_s, kind, x_m, y_m, heading_rad, dtc_m (distance to
   collision: from the robot's body along its heading to the wall, D_ray − r), text;
@@ -27,24 +26,21 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.ego_motion import turning_flags, yaw_rate_dps
-from analysis.rrd_reader import Recording, RecordingError
+from analysis.loading import (
+    TURN_HOLD_FRAMES,
+    TURN_THRESHOLD_DPS,
+    LoadedRecording,
+    Notices,
+    load_recording,
+    logged_params,
+)
+from analysis.rrd_reader import RecordingError
 from avdm.base import Model, primary_output_name
 from avdm.registry import canonical_name, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
 from vdc.cli_support import API_ONLY, non_negative_int, option, positive_float
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
-from vdc.recording import (
-    FRAME_TIMING,
-    MODEL_ROOT,
-    NATIVE_METRICS,
-    NATIVE_METRICS_PATH,
-    POSE,
-    WALL_TF,
-    camera_model_context,
-    entity_name,
-)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,10 +64,12 @@ class SummarySettings:
     # the robot's own turns (analysis/ego_motion.py): flagged in the frames table, and left
     # out of the summaries with exclude_turns
     turn_threshold_dps: float = option(
-        30.0, "the robot turns when its own yaw rate exceeds this, deg/s", type=positive_float
+        TURN_THRESHOLD_DPS,
+        "the robot turns when its own yaw rate exceeds this, deg/s",
+        type=positive_float,
     )
     turn_hold_frames: int = option(
-        10,
+        TURN_HOLD_FRAMES,
         "frames after a turn still counted as turning: the AVDM remembers a turn for its "
         "10-frame window",
         type=non_negative_int,
@@ -118,229 +116,6 @@ class TablesSettings(SummarySettings):
         object.__setattr__(self, "models", tuple(self.models or ()))
         for spec in self.models:
             parse_model_spec(spec)  # an unknown model fails before any file is read
-
-
-@dataclasses.dataclass
-class LoadedRecording:
-    """What analysis needs from one recording (frames are streamed separately)."""
-
-    rec: Recording
-    props: dict[str, dict[str, Any]]
-    frames: pl.DataFrame
-    logged: dict[str, pl.DataFrame]  # online model name → its logged outputs
-    # the standard metrics the capture measured on the source's native frames (frame, then
-    # one column per vdc.recording.NATIVE_METRICS name); None: a source without native frames
-    native: pl.DataFrame | None = None
-
-    @property
-    def recording_id(self) -> str:
-        return self.rec.recording_id
-
-    @property
-    def online_model(self) -> str | None:
-        return self.props.get("model", {}).get("name")
-
-    def camera_context(self) -> dict[str, float | int]:
-        """The camera facts a model needs (fps, deg/px, texture row): the recording's own
-        ``model_context`` section, which the capture built its online model with, else (older
-        recordings) derived from its camera properties as the capture derived them. Nothing
-        is assumed: a recording with neither raises RecordingError naming what it lacks."""
-        recorded = self.props.get("model_context", {})
-        if "fps" in recorded and "deg_per_px" in recorded:
-            ctx: dict[str, float | int] = {
-                "fps": float(recorded["fps"]),
-                "deg_per_px": float(recorded["deg_per_px"]),
-            }
-            for key in ("texture_row", "width_px", "height_px"):
-                if key in recorded:
-                    ctx[key] = int(recorded[key])
-            return ctx
-        cam = self.props.get("camera", {})
-        _require(self.rec.path, "camera", cam, ("fps", "width_px", "height_px", "hfov_deg"))
-        return camera_model_context(
-            int(cam["width_px"]), int(cam["height_px"]), float(cam["fps"]), float(cam["hfov_deg"])
-        )
-
-    def arena_half_extent(self) -> tuple[float, float]:
-        """Half the arena's length and width, m; NaN for a recording without poses (a video),
-        RecordingError for one with poses that does not record its arena."""
-        has_poses = self.frames["x_m"].drop_nulls().len() > 0
-        return _arena_half_extent(self.props, has_poses, self.rec.path)
-
-
-def _require(path: str | Path, section: str, values: dict[str, Any], keys: Sequence[str]) -> None:
-    """RecordingError in one line unless the property ``section`` holds every key of ``keys``:
-    analysis assumes no camera and no arena."""
-    missing = [k for k in keys if k not in values]
-    if missing:
-        raise RecordingError(
-            f"{str(path)!r} is an old or foreign recording: it lacks "
-            + ("a model_context section and " if section == "camera" else "")
-            + f"the {section} propert{'ies' if len(missing) > 1 else 'y'} "
-            f"{', '.join(missing)}, and analysis assumes none; record it again with this vdc"
-        )
-
-
-def _arena_half_extent(
-    props: dict[str, dict[str, Any]], has_poses: bool, path: str | Path
-) -> tuple[float, float]:
-    if not has_poses:
-        return math.nan, math.nan  # no position, no wall gap: the arena does not matter
-    arena = props.get("arena", {})
-    _require(path, "arena", arena, ("length_m", "width_m"))
-    return float(arena["length_m"]) / 2, float(arena["width_m"]) / 2
-
-
-class Notices(list):
-    """Notes about repaired recordings: kept (for a command's result) and passed on to
-    ``sink`` as they come (the CLI prints them)."""
-
-    def __init__(self, sink: Callable[[str], None] | None = None) -> None:
-        super().__init__()
-        self.sink = sink
-
-    def __call__(self, msg: str) -> None:
-        self.append(msg)
-        if self.sink is not None:
-            self.sink(msg)
-
-    def of(self, loaded: LoadedRecording) -> None:
-        """The recording's own note (footer missing, file repaired), if it has one."""
-        if loaded.rec.notice:
-            self(loaded.rec.notice)
-
-
-def load_recording(
-    path: str | Path, settings: SummarySettings = SummarySettings()
-) -> LoadedRecording:
-    """Open a recording and read its properties, poses, wall TF, frame timing and logged model
-    outputs. A recording without poses (a video) has null poses, wall TF, wall gap, yaw rate
-    and turning flag; one without frame timing (simulated or robot runs) has null ``repeat``
-    and ``dropped_before``. ``settings`` says what counts as a turn."""
-    rec = Recording(path)
-    props = rec.properties()
-    frames, logged, native = from_signals(rec.signals(), props, rec.recording_id, settings, path)
-    return LoadedRecording(rec, props, frames, logged, native)
-
-
-def from_signals(
-    sig: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
-    props: dict[str, dict[str, Any]],
-    recording_id: str,
-    settings: SummarySettings = SummarySettings(),
-    path: str | Path = "",
-) -> tuple[pl.DataFrame, dict[str, pl.DataFrame], pl.DataFrame | None]:
-    """A recording's ``frames`` table, its online model's logged outputs and its native
-    metrics, from its scalar signals ``{entity: (frame (N,), t_s (N,), values (N, K))}`` and
-    its properties: the one construction behind ``tables`` and the catalog's queries."""
-    if POSE in sig:
-        f, t, pose = sig[POSE]
-        frames = pl.DataFrame(
-            {
-                "frame": f.astype(np.int64),
-                "t_s": t,
-                "x_m": pose[:, 0],
-                "y_m": pose[:, 1],
-                "heading_rad": pose[:, 2],
-            }
-        )
-    else:
-        f, t = _frame_index(sig, path)
-        nan = np.full(len(f), np.nan)
-        frames = pl.DataFrame(
-            {"frame": f, "t_s": t, "x_m": nan, "y_m": nan, "heading_rad": nan}
-        ).with_columns(pl.col("x_m", "y_m", "heading_rad").fill_nan(None))
-    if WALL_TF in sig:
-        tf_f, _, tf = sig[WALL_TF]
-        tf_df = pl.DataFrame({"frame": tf_f.astype(np.int64), "wall_tf_hz": tf[:, 0]})
-        frames = frames.join(tf_df, on="frame", how="left")
-    else:
-        frames = frames.with_columns(wall_tf_hz=pl.lit(None, pl.Float64))
-    if FRAME_TIMING in sig:
-        tm_f, _, tm = sig[FRAME_TIMING]
-        timing = pl.DataFrame(
-            {
-                "frame": tm_f.astype(np.int64),
-                "repeat": tm[:, 0] > 0.5,
-                "dropped_before": tm[:, 1].astype(np.int64),
-            }
-        )
-        frames = frames.join(timing, on="frame", how="left")
-    else:
-        frames = frames.with_columns(
-            repeat=pl.lit(None, pl.Boolean), dropped_before=pl.lit(None, pl.Int64)
-        )
-    omega = yaw_rate_dps(
-        frames["t_s"].to_numpy(), frames["heading_rad"].fill_null(np.nan).to_numpy()
-    )
-    turning = turning_flags(omega, settings.turn_threshold_dps, settings.turn_hold_frames)
-    frames = frames.with_columns(
-        pl.Series("robot_omega_dps", omega).fill_nan(None),
-        pl.Series("turning", turning).fill_nan(None).cast(pl.Boolean),
-    )
-    native = None
-    if NATIVE_METRICS_PATH in sig:
-        nf, _, nv = sig[NATIVE_METRICS_PATH]
-        cols = {name: nv[:, k] for k, name in enumerate(NATIVE_METRICS) if k < nv.shape[1]}
-        native = pl.DataFrame({"frame": nf.astype(np.int64), **cols}).with_columns(
-            pl.col(*cols).fill_nan(None)
-        )
-    hx, hy = _arena_half_extent(props, POSE in sig, path)
-    frames = frames.with_columns(
-        pl.lit(recording_id).alias("recording_id"),
-        pl.min_horizontal(hx - pl.col("x_m").abs(), hy - pl.col("y_m").abs()).alias("wall_gap_m"),
-    ).select(*FRAMES_COLUMNS)
-    return frames, logged_outputs(sig, props), native
-
-
-def logged_outputs(
-    sig: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], props: dict[str, dict[str, Any]]
-) -> dict[str, pl.DataFrame]:
-    """Every model the capture logged online, ``{name: frame, t_s, outputs...}``: the online
-    model, a collision run's detector and its controller, each under ``/model/<name>/``. A name
-    is the spec the properties give for that entity (``model``, ``detector``), else the entity's
-    own name (``controller``)."""
-    specs = {
-        entity_name(name): name
-        for section in ("model", "detector")
-        if (name := props.get(section, {}).get("name"))
-    }
-    roots = {e[len(MODEL_ROOT) + 1 :].split("/")[0] for e in sig if e.startswith(MODEL_ROOT + "/")}
-    logged: dict[str, pl.DataFrame] = {}
-    for root in sorted(roots, key=lambda r: (r not in specs, r)):  # the online model first
-        out = signals_table(sig, f"{MODEL_ROOT}/{root}/")
-        if out is not None:
-            logged[specs.get(root, root)] = out
-    return logged
-
-
-def logged_params(props: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """``{name: params}`` of the models a capture logged (the online model, the detector)."""
-    return {
-        name: dict(props.get(f"{section}_params", {}))
-        for section in ("model", "detector")
-        if (name := props.get(section, {}).get("name"))
-    }
-
-
-def signals_table(
-    sig: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], prefix: str
-) -> pl.DataFrame | None:
-    """The scalar entities under ``prefix`` (one model's outputs) as one table: frame, t_s,
-    then a column per output. A capture killed mid-write may have logged some outputs of its
-    last frames and not others: every frame any output reached is kept, missing values null."""
-    cols = {e[len(prefix) :]: v for e, v in sig.items() if e.startswith(prefix)}
-    if not cols:
-        return None
-    parts = [
-        pl.DataFrame({"frame": v[0].astype(np.int64), "t_s": v[1], name: v[2][:, 0]})
-        for name, v in cols.items()
-    ]
-    index = pl.concat([p.select("frame", "t_s") for p in parts]).unique("frame")
-    table = index.sort("frame")
-    for p in parts:
-        table = table.join(p.drop("t_s"), on="frame", how="left")
-    return table
 
 
 def recompute(
@@ -445,30 +220,6 @@ NON_OUTPUT_COLUMNS = (
     "wall_gap_m",
     "turning",
 )
-FRAMES_COLUMNS = (
-    "recording_id",
-    "frame",
-    "t_s",
-    "x_m",
-    "y_m",
-    "heading_rad",
-    "wall_tf_hz",
-    "wall_gap_m",
-    "repeat",
-    "dropped_before",
-    "robot_omega_dps",
-    "turning",
-)
-
-
-def _frame_index(sig: dict, path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Frame indices and times of a recording without poses: from its frame timing, else
-    from its first logged model output."""
-    for entity in (FRAME_TIMING, *sorted(e for e in sig if e.startswith(MODEL_ROOT + "/"))):
-        if entity in sig:
-            f, t, _ = sig[entity]
-            return f.astype(np.int64), t
-    raise RecordingError(f"{str(path)!r} holds neither poses nor frame timing nor model outputs")
 
 
 def primary_output(outputs_df: pl.DataFrame) -> str:
@@ -496,7 +247,7 @@ def condition_columns(loaded: LoadedRecording) -> dict[str, Any]:
     }
 
 
-def summarise(values: np.ndarray, gap: np.ndarray, s: SummarySettings) -> dict[str, float]:
+def summary_statistics(values: np.ndarray, gap: np.ndarray, s: SummarySettings) -> dict[str, float]:
     """Statistics of one response series (N,) given the wall gap (N,) of each frame."""
     if len(values) == 0:
         nan = float("nan")
@@ -594,7 +345,7 @@ def summary_rows(
                 "motion": motion,
                 "output": out,
                 "n_frames": int(finite.sum()),
-                **summarise(vals[finite], g["wall_gap_m"].to_numpy()[finite], s),
+                **summary_statistics(vals[finite], g["wall_gap_m"].to_numpy()[finite], s),
                 "threshold_dps": s.threshold_dps,
             }
         )
@@ -761,21 +512,11 @@ class TablesResult(WroteFiles):
             )
         return lines
 
-    @property
-    def frames(self) -> pl.DataFrame:
-        return self.tables["frames"]
-
-    @property
-    def model_outputs(self) -> pl.DataFrame:
-        return self.tables["model_outputs"]
-
-    @property
-    def events(self) -> pl.DataFrame:
-        return self.tables["events"]
-
-    @property
-    def summary(self) -> pl.DataFrame:
-        return self.tables["summary"]
+    # each table by its name: ``result.frames`` is ``result.tables["frames"]``
+    frames = property(lambda self: self.tables["frames"])
+    model_outputs = property(lambda self: self.tables["model_outputs"])
+    events = property(lambda self: self.tables["events"])
+    summary = property(lambda self: self.tables["summary"])
 
 
 def tables(

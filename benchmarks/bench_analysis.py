@@ -14,8 +14,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from analysis.loading import load_recording
 from analysis.rrd_reader import Recording
-from analysis.tables import load_recording, recompute
+from analysis.tables import recompute
 
 
 def capture(minutes: int, out: Path) -> Path:

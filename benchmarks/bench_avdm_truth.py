@@ -38,7 +38,7 @@ from analysis.avdm_truth import (
     plot_truth,
     protocol_cells,
     run_protocol,
-    summarise,
+    summarise_truth,
 )
 from avdm.registry import make_model
 from vdc.recording import camera_model_context
@@ -93,7 +93,7 @@ def main() -> None:
     ).sort("image", "fps", "pitch", "codec", "omega_true_dps", "direction")
     with pl.Config(tbl_rows=-1, tbl_cols=-1, float_precision=2, tbl_width_chars=200):
         print(wide)
-        per_speed, per_reader = summarise(table)
+        per_speed, per_reader = summarise_truth(table)
         print("\nmedian |reading − truth| / truth per speed (over images, directions, fps,")
         print("pitches and codecs):")
         print(per_speed.pivot(on="reader", index="omega_true_dps", values="median_abs_rel_error"))

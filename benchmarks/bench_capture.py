@@ -15,9 +15,10 @@ from pathlib import Path
 
 from avdm.registry import make_model
 from capture.config import SimConfig, WallConfig
-from capture.recorder import Recorder, default_blueprint
+from capture.recorder import Recorder
 from capture.run import batch_bytes, log_batch
 from capture.sim import SimulatedRobot, recording_properties
+from vdc.blueprints import default_blueprint
 
 
 def rss_mb() -> float:

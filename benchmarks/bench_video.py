@@ -44,6 +44,7 @@ sys.path.insert(0, str(ROOT))
 
 from analysis.complexity import ComplexitySettings, complexity  # noqa: E402
 from analysis.source_metrics import DEFAULT_METRICS, measure_video  # noqa: E402
+from tests.helpers import ffmpeg_siti  # noqa: E402
 
 FPS, FOV = 25, 70.0
 SITI = "si_p910,ti_p910"
@@ -90,21 +91,10 @@ def ours(path: Path, metrics: str) -> int:
     return measure_video(str(path), s, "bench").table.height
 
 
-def ffmpeg_siti(path: Path) -> int:
-    """FFmpeg's siti filter end to end: decode and filter every frame (PyAV's filter graph)."""
-    n = 0
-    with av.open(str(path)) as c:
-        st = c.streams.video[0]
-        graph = av.filter.Graph()
-        src, siti, sink = graph.add_buffer(template=st), graph.add("siti"), graph.add("buffersink")
-        src.link_to(siti)
-        siti.link_to(sink)
-        graph.configure()
-        for f in c.decode(st):
-            graph.push(f)
-            graph.pull()
-            n += 1
-    return n
+def ffmpeg_siti_frames(path: Path) -> int:
+    """FFmpeg's siti filter end to end: decode and filter every frame (PyAV's filter graph,
+    ``tests.helpers.ffmpeg_siti``); the number of frames."""
+    return len(ffmpeg_siti(path))
 
 
 def sititools(path: Path, frames: int) -> int:
@@ -118,7 +108,7 @@ def one_core(hd: Path, n_siti: int) -> None:
     print("720p25 SI/TI (P.910 2022) from the file, one core:")
     ours(hd, SITI)  # warm: compiled kernels loaded
     vdc = line(f"vdc complexity --metrics {SITI}", *timed(lambda: ours(hd, SITI)))
-    ff = line("FFmpeg siti filter (PyAV, legacy SI/TI)", *timed(lambda: ffmpeg_siti(hd)))
+    ff = line("FFmpeg siti filter (PyAV, legacy SI/TI)", *timed(lambda: ffmpeg_siti_frames(hd)))
     st = line(f"siti-tools calculate() ({n_siti} frames)", *timed(lambda: sititools(hd, n_siti)))
     print(
         f"  vdc: {vdc / FPS:.1f}x real time (target >= 8x), {vdc / ff:.1f}x FFmpeg "

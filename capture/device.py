@@ -1,14 +1,15 @@
 """What every capture device delivers, simulated or real.
 
 Like LeRobot's devices: a config plus one interface that the simulated and the real robot both
-implement (``connect`` / ``read`` / ``disconnect``, context manager). ``read`` returns the next
-``Batch`` of consecutive frames, or None at the end; capture code does not care which it has.
+implement (``connect`` / ``read`` / ``disconnect``, and a context manager through
+``DeviceContext``). ``read`` returns the next ``Batch`` of consecutive frames, or None at the
+end; capture code does not care which it has.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Protocol
+from typing import Protocol, Self
 
 import numpy as np
 
@@ -70,3 +71,21 @@ class CaptureDevice(Protocol):
     def read(self) -> Batch | None: ...
 
     def disconnect(self) -> None: ...
+
+
+class DeviceContext:
+    """The context manager every device is: ``with device:`` connects on entry and
+    disconnects on exit (whatever happened)."""
+
+    def connect(self) -> None:
+        raise NotImplementedError
+
+    def disconnect(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.disconnect()

@@ -41,6 +41,21 @@ def _overlap(a0, a1, b0, b1):
     return max(0.0, min(a1, b1) - max(a0, b0))
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _centre_ray(j, w, f, hd, x, y, hx, hy, cam_h):
+    """Column ``j``'s centre ray: its direction (dx, dy), its length in the image plane per
+    unit depth (px) and the image row where the wall meets the floor along it (px below the
+    horizon)."""
+    uc = j + 0.5 - w / 2.0
+    lc = math.sqrt(f * f + uc * uc)
+    phc = hd + math.atan2(-uc, f)
+    dxc = math.cos(phc)
+    dyc = math.sin(phc)
+    dc, _ = ray_to_wall(x, y, dxc, dyc, hx, hy)
+    dc = max(dc, 1e-6)
+    return dxc, dyc, lc, cam_h * lc / dc
+
+
 @numba.njit(cache=True, nogil=True)
 def _column_floor(x, y, dxc, dyc, lc, vb_c, r0, geom, cam_h):
     """Mean floor intensity over FLOOR_SUBROWS samples of pixel row [r0, r0+1] (centre ray)."""
@@ -98,14 +113,7 @@ def render_grating_frames(poses, offsets, geom, cam, grating, out):
                 vb_min = min(vb_min, vb)
                 vb_max = max(vb_max, vb)
             i_mean = i_sum / n_sub
-            uc = j + 0.5 - w / 2.0
-            lc = math.sqrt(f * f + uc * uc)
-            phc = hd + math.atan2(-uc, f)
-            dxc = math.cos(phc)
-            dyc = math.sin(phc)
-            dc, _ = ray_to_wall(x, y, dxc, dyc, hx, hy)
-            dc = max(dc, 1e-6)
-            vb_c = cam_h * lc / dc
+            dxc, dyc, lc, vb_c = _centre_ray(j, w, f, hd, x, y, hx, hy, cam_h)
             for i in range(h):
                 r0 = i - h / 2.0
                 r1 = r0 + 1.0
@@ -151,14 +159,7 @@ def render_texture_frames(poses, offsets, geom, cam, texture, perimeter, out):
                 d = max(d, 1e-6)  # a camera touching the wall divides by nothing
                 sub_d[k] = d
                 sub_c[k] = ((s - off) % perimeter) / perimeter * wt
-            uc = j + 0.5 - w / 2.0
-            lc = math.sqrt(f * f + uc * uc)
-            phc = hd + math.atan2(-uc, f)
-            dxc = math.cos(phc)
-            dyc = math.sin(phc)
-            dc, _ = ray_to_wall(x, y, dxc, dyc, hx, hy)
-            dc = max(dc, 1e-6)
-            vb_c = cam_h * lc / dc
+            dxc, dyc, lc, vb_c = _centre_ray(j, w, f, hd, x, y, hx, hy, cam_h)
             for i in range(h):
                 acc = 0.0
                 for q in range(TEXTURE_SUBROWS):

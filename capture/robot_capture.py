@@ -31,7 +31,7 @@ import serial
 from avdm.registry import canonical_name, make_model
 from capture.colias_link import SerialLink
 from capture.config import SCENES, WallConfig
-from capture.device import Batch, Event
+from capture.device import Batch, DeviceContext, Event
 from capture.run import RecordResult
 from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
 from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose
@@ -89,7 +89,7 @@ def open_camera(source: str) -> cv2.VideoCapture:
     return cap
 
 
-class ColiasRobotDevice:
+class ColiasRobotDevice(DeviceContext):
     """The real robot as a capture device (``connect`` / ``read`` / ``disconnect``)."""
 
     def __init__(
@@ -353,13 +353,6 @@ class ColiasRobotDevice:
             self.cam.release()
             self._connected = False
 
-    def __enter__(self) -> ColiasRobotDevice:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.disconnect()
-
 
 class WallController:
     """Optional LED wall controller on a second serial port; a line protocol (ASCII, \\n):
@@ -462,8 +455,8 @@ def record_robot(
     import hashlib
 
     from capture.config import ArenaConfig, RobotConfig, config_section
+    from capture.live_view import spawn_viewer
     from capture.output import claim_output
-    from capture.recorder import spawn_viewer
     from capture.recording_start import camera_line, start_recording
     from capture.run import finish_output, run_capture
     from vdc.blueprints import default_blueprint

@@ -188,8 +188,8 @@ def record_sim(
     (in the main thread) ends the run cleanly: the result says so and the file is valid."""
     from avdm.registry import make_model
     from capture.closed_loop import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
+    from capture.live_view import spawn_viewer
     from capture.output import claim_output
-    from capture.recorder import spawn_viewer
     from capture.recording_start import start_recording
     from capture.run import finish_output, run_capture
     from vdc.blueprints import default_blueprint

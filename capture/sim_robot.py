@@ -11,7 +11,7 @@ import numpy as np
 
 from avdm.stimuli import clutter_image, resize_image
 from capture.config import SimConfig
-from capture.device import Batch, Event
+from capture.device import Batch, DeviceContext, Event
 from capture.render import CameraRenderer, OverheadRenderer
 from capture.robot import RobotMotion, TurnEvent
 
@@ -43,7 +43,7 @@ def ring_turn_event(turn: TurnEvent) -> Event:
     return Event("ring_turn", turn.frame, turn.x_m, turn.y_m, turn.heading_rad, text)
 
 
-class SimulatedRobot:
+class SimulatedRobot(DeviceContext):
     """A Colias-IV in the simulated arena: renders its camera, moves, reports ring turns."""
 
     def __init__(self, config: SimConfig, batch_size: int = 1000) -> None:
@@ -115,10 +115,3 @@ class SimulatedRobot:
 
     def disconnect(self) -> None:
         self._connected = False
-
-    def __enter__(self) -> SimulatedRobot:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.disconnect()

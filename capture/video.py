@@ -26,7 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from capture.device import Batch, Event
+from capture.device import Batch, DeviceContext, Event
 from capture.run import RecordResult
 from vdc.cli_support import (
     API_ONLY,
@@ -105,7 +105,7 @@ def open_source(settings: VideoSettings) -> Reader:
     return open_reader(settings.source, settings.fps)
 
 
-class VideoSource:
+class VideoSource(DeviceContext):
     """A video, image sequence or camera as a capture device (connect / read / disconnect).
 
     The source is opened by the constructor, so a missing or unreadable one fails before any
@@ -214,13 +214,6 @@ class VideoSource:
     def disconnect(self) -> None:
         self.reader.close()
 
-    def __enter__(self) -> VideoSource:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.disconnect()
-
 
 @dataclasses.dataclass
 class VideoRecordResult:
@@ -276,8 +269,8 @@ def record_video(
     from avdm.calibration_store import calibration_for
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel, new_frame_rate
+    from capture.live_view import spawn_viewer
     from capture.output import claim_output
-    from capture.recorder import spawn_viewer
     from capture.recording_start import start_recording
     from capture.run import finish_output, run_capture
     from vdc.blueprints import video_blueprint

@@ -85,32 +85,25 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> N
         assert needle in lines[0], (needle, lines[0])
 
 
+def make_sim_recording(out: Path, minutes: float = 0.05, **settings) -> Path:
+    """A short simulated run (``capture.sim.SimSettings`` fields as keywords: ``tf_hz``,
+    ``seed``, ``behaviour``, ``model``...) recorded to ``out`` in this process; its path."""
+    from capture.sim import SimSettings, record_sim
+
+    return record_sim(SimSettings(minutes=minutes, **settings), out).path
+
+
 def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.Popen:
     """Start a 60-minute simulated capture to ``out`` and wait until its partial file (where a
     capture writes until it ends) holds at least ``min_bytes`` (failing if it does not within
     60 s); the caller stops it."""
     from capture.output import partial_path
 
+    argv = ["-m", "capture", "sim", "--tf-hz", "3", "--minutes", "60", "--out", str(out)]
     proc = spawn(
-        [
-            sys.executable,
-            "-m",
-            "capture",
-            "sim",
-            "--tf-hz",
-            "3",
-            "--minutes",
-            "60",
-            "--out",
-            str(out),
-            "--quiet",
-        ],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
+        [sys.executable, *argv, "--quiet"], cwd=ROOT, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )  # fmt: skip
     part = partial_path(out)
     assert_file_grows(proc, part, min_bytes, timeout_s=60)
     return proc
@@ -187,6 +180,26 @@ def kill_a_worker_mid_batch(
     return proc.returncode, stdout, stderr, killed
 
 
+def ffmpeg_siti(path: Path) -> np.ndarray:
+    """FFmpeg's own siti filter over every frame of a video (PyAV's filter graph): its legacy
+    (P.910) SI and TI per frame, (N, 2) float64, as FFmpeg prints them (2 decimals)."""
+    import av.filter
+
+    values = []
+    with av.open(str(path)) as c:
+        st = c.streams.video[0]
+        graph = av.filter.Graph()
+        src, siti, sink = graph.add_buffer(template=st), graph.add("siti"), graph.add("buffersink")
+        src.link_to(siti)
+        siti.link_to(sink)
+        graph.configure()
+        for frame in c.decode(st):
+            graph.push(frame)
+            md = graph.pull().metadata
+            values.append((float(md["lavfi.siti.si"]), float(md["lavfi.siti.ti"])))
+    return np.array(values, dtype=np.float64).reshape(-1, 2)
+
+
 def write_video(
     path: Path,
     frames: np.ndarray,
@@ -209,9 +222,7 @@ def write_video(
         if times_s is not None:
             frame.pts = round(times_s[i] * 1000)
             frame.time_base = Fraction(1, 1000)
-        for packet in stream.encode(frame):
-            out.mux(packet)
-    for packet in stream.encode():
-        out.mux(packet)
+        out.mux(stream.encode(frame))
+    out.mux(stream.encode())  # flush the encoder
     out.close()
     return path

@@ -44,7 +44,7 @@ _API = {
     "capture_sweep": "capture.campaign",
     # reading recordings
     "Recording": "analysis.rrd_reader",
-    "load_recording": "analysis.tables",
+    "load_recording": "analysis.loading",
     # analysis
     "TablesSettings": "analysis.tables",
     "tables": "analysis.tables",
@@ -93,6 +93,10 @@ __all__ = sorted(_API)
 __version__ = _version("visual-dynamic-complexity")  # written once, in pyproject.toml
 
 
+# public name -> the name its module gives it, where the two differ (``vdc.summarise`` is
+# ``vdc-analyse summarise``; in its module it says which of the summaries it is)
+_RENAMED = {"summarise": "summarise_batch"}
+
 # name -> a module of the API itself (``vdc.catalog.query(...)``)
 _MODULES = {"catalog": "vdc.catalog"}
 
@@ -105,7 +109,7 @@ def __getattr__(name: str) -> Any:
     module = _API.get(name)
     if module is None:
         raise AttributeError(f"module 'vdc' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
+    value = getattr(importlib.import_module(module), _RENAMED.get(name, name))
     globals()[name] = value  # once loaded, a plain attribute
     return value
 

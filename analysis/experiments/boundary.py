@@ -38,13 +38,13 @@ def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm
     """An executor task: record the run unless a finished recording of the same configuration
     is there, then measure it; the row is kept beside the recording (``.row.json``) so a
     re-run neither records nor measures it again."""
-    from analysis.experiments.captures import is_done
+    from analysis.experiments.captures import capture_is_done
     from capture.sim import record_sim
 
     path = Path(out)
     run_id = settings.to_config().run_id()
     cache = path.with_suffix(".row.json")
-    if is_done(path, run_id):
+    if capture_is_done(path, run_id):
         if cache.exists():
             row = json.loads(cache.read_text())
             # a row measured by an older vdc lacks a measurement: measure again, not record

@@ -27,7 +27,7 @@ from vdc.executors import (
 CaptureItem = tuple[str, SimSettings, Path]
 
 
-def is_done(path: Path, recording_id: str) -> bool:
+def capture_is_done(path: Path, recording_id: str) -> bool:
     """A finished recording of exactly this configuration is already there."""
     if not path.exists():
         return False
@@ -79,7 +79,7 @@ def run_captures(
         run_id = settings.to_config().run_id()  # a bad configuration fails before any process
         out.parent.mkdir(parents=True, exist_ok=True)
         paths[key] = out
-        if is_done(out, run_id):
+        if capture_is_done(out, run_id):
             log(f"  {key}: reusing {out}")
         else:
             todo.append((key, (key, settings, str(out))))

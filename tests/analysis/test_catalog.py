@@ -24,9 +24,8 @@ from analysis.catalog_server import open_catalog
 from analysis.compare import CompareSettings, compare
 from analysis.complexity import ComplexitySettings, complexity
 from analysis.tables import TablesSettings, tables
-from capture.sim import SimSettings, record_sim
 from tests.browser import CHROMIUM
-from tests.helpers import assert_one_line_error, run_cli, spawn
+from tests.helpers import assert_one_line_error, make_sim_recording, run_cli, spawn
 
 
 @pytest.fixture(scope="module")
@@ -36,13 +35,11 @@ def campaign(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("campaign")
     rec = root / "recordings"
     paths = {
-        "tf0": record_sim(SimSettings(tf_hz=0.0, minutes=0.05, seed=1), rec / "tf0.rrd").path,
-        "tf3": record_sim(SimSettings(tf_hz=3.0, minutes=0.05, seed=2), rec / "tf3.rrd").path,
-        "crash": record_sim(
-            SimSettings(behaviour="collision", tf_hz=3.0, minutes=0.3, seed=3), rec / "col.rrd"
-        ).path,
+        "tf0": make_sim_recording(rec / "tf0.rrd", tf_hz=0.0, seed=1),
+        "tf3": make_sim_recording(rec / "tf3.rrd", tf_hz=3.0, seed=2),
+        "crash": make_sim_recording(rec / "col.rrd", 0.3, behaviour="collision", tf_hz=3.0, seed=3),
     }
-    cut = record_sim(SimSettings(tf_hz=1.0, minutes=0.05, seed=4), root / "whole.rrd").path
+    cut = make_sim_recording(root / "whole.rrd", tf_hz=1.0, seed=4)
     data = cut.read_bytes()
     (rec / "cut.rrd").write_bytes(data[: int(len(data) * 0.6)])  # a copy that stopped early
     cut.unlink()
@@ -253,7 +250,7 @@ def intact_and_cut(tmp_path_factory) -> tuple[Path, bytes]:
     """A 30-s profiling run and its first 60 % (a copy that stopped early): the cut part holds
     no poses yet, so it cannot be served at all."""
     root = tmp_path_factory.mktemp("cutcopy")
-    run = record_sim(SimSettings(tf_hz=1.0, minutes=0.5, seed=4), root / "run.rrd").path
+    run = make_sim_recording(root / "run.rrd", 0.5, tf_hz=1.0, seed=4)
     data = run.read_bytes()
     return run, data[: int(len(data) * 0.6)]
 

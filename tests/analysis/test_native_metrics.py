@@ -17,7 +17,7 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 from skimage import data
 
 from analysis.complexity import ComplexitySettings, complexity
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error, ffmpeg_siti, run_cli
 from vdc.frame_metrics import NativeMeter, luma_plane, stream_format
 from vdc.sources import display_grey, open_reader, source_name
 
@@ -84,19 +84,7 @@ def test_p910_si_ti_equal_siti_tools_on_the_file(coded, color_range: str) -> Non
 @pytest.mark.parametrize("color_range", ["limited", "full"])
 def test_legacy_si_ti_equal_ffmpegs_siti_filter(coded, color_range: str) -> None:
     _, rows = ours(coded[color_range])
-    oracle = []
-    with av.open(str(coded[color_range])) as c:
-        st = c.streams.video[0]
-        graph = av.filter.Graph()
-        src, siti, sink = graph.add_buffer(template=st), graph.add("siti"), graph.add("buffersink")
-        src.link_to(siti)
-        siti.link_to(sink)
-        graph.configure()
-        for frame in c.decode(st):
-            graph.push(frame)
-            md = graph.pull().metadata
-            oracle.append((float(md["lavfi.siti.si"]), float(md["lavfi.siti.ti"])))
-    oracle_si, oracle_ti = np.array(oracle).T
+    oracle_si, oracle_ti = ffmpeg_siti(coded[color_range]).T
     # FFmpeg prints its values with 2 decimals: equal within that rounding (0.005) plus float
     # noise; its first frame's TI is 0 where ours is null
     np.testing.assert_allclose([r["si_legacy"] for r in rows], oracle_si, atol=0.0051)

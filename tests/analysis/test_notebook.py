@@ -7,11 +7,11 @@ import urllib.request
 from pathlib import Path
 
 import vdc
-from capture.sim import SimSettings, record_sim
+from tests.helpers import make_sim_recording
 
 
 def test_show_a_recording_and_a_segment_with_locally_served_assets(tmp_path: Path) -> None:
-    rec = record_sim(SimSettings(minutes=0.05, seed=3), tmp_path / "run.rrd").path
+    rec = make_sim_recording(tmp_path / "run.rrd", seed=3)
     viewer = vdc.show(rec, height=400)
     import rerun_notebook
 

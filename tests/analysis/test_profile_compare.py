@@ -67,16 +67,8 @@ def test_profile_per_recording_segment(recordings, tmp_path: Path) -> None:
 
 def test_profile_pools_recordings_by_condition(recordings, tmp_path: Path) -> None:
     out = tmp_path / "c"
-    proc = run_cli(
-        "analysis",
-        "profile",
-        str(recordings["tf3_a"]),
-        str(recordings["tf3_b"]),
-        "--by",
-        "condition",
-        "--out",
-        str(out),
-    )
+    tf3 = [str(recordings["tf3_a"]), str(recordings["tf3_b"])]
+    proc = run_cli("analysis", "profile", *tf3, "--by", "condition", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     summary = pl.read_parquet(out / "profile_summary.parquet")
     assert summary.height == 1
@@ -89,20 +81,9 @@ def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -
     out = tmp_path / "cmp"
     rec = recordings["tf3_a"]
     record = tmp_path / "figures.jsonl"
-    proc = run_cli(
-        "analysis",
-        "compare",
-        str(rec),
-        "--model",
-        "avdm",
-        "--model",
-        "avdm-on",
-        "--model",
-        "avdm:beta=0.5",
-        "--out",
-        str(out),
-        env=figure_env(record),
-    )
+    models = ["--model", "avdm", "--model", "avdm-on", "--model", "avdm:beta=0.5"]
+    proc = run_cli("analysis", "compare", str(rec), *models, "--out", str(out),
+                   env=figure_env(record))  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     stats = pl.read_parquet(out / "compare_summary.parquet")
     assert stats["model"].to_list() == ["avdm", "avdm-on", "avdm:beta=0.5"]

@@ -16,20 +16,11 @@ from tests.helpers import assert_one_line_error, run_cli, start_long_capture
 from vdc.arena_geometry import distance_to_wall_along
 from vdc.parquet_io import read_metadata
 
-FRAMES_COLUMNS = [
-    "recording_id",
-    "frame",
-    "t_s",
-    "x_m",
-    "y_m",
-    "heading_rad",
-    "wall_tf_hz",
-    "wall_gap_m",
-    "repeat",
-    "dropped_before",
-    "robot_omega_dps",
-    "turning",
-]
+# the frames table's contract, column by column (docs/architecture.md)
+FRAMES_COLUMNS = (
+    "recording_id frame t_s x_m y_m heading_rad wall_tf_hz wall_gap_m repeat dropped_before "
+    "robot_omega_dps turning"
+).split()
 EVENTS_COLUMNS = ["recording_id", "frame", "t_s", "kind", "x_m", "y_m", "heading_rad", "dtc_m"]
 SUMMARY_COLUMNS = [
     "recording_id",
@@ -217,7 +208,7 @@ def test_bad_files_give_one_line_and_exit_2(recordings, tmp_path: Path) -> None:
 def test_outputs_cut_unevenly_by_a_crash_keep_every_frame_they_reached(tmp_path: Path) -> None:
     """A capture killed mid-write can leave one output of the last frames logged and another
     not; the frames table and the logged outputs keep every frame (missing values null)."""
-    from analysis.tables import load_recording
+    from analysis.loading import load_recording
 
     path = tmp_path / "uneven.rrd"
     rec = Recorder(path, "uneven")

@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from analysis.loading import load_recording
 from analysis.rrd_reader import Recording, RecordingError
-from analysis.tables import build_tables, load_recording
+from analysis.tables import build_tables
 from avdm.stimuli import grating
 from capture.config import CameraConfig
 from capture.recorder import Recorder
-from capture.sim import SimSettings, record_sim
 from capture.video import VideoSettings, record_video
-from tests.helpers import assert_one_line_error, run_cli, write_video
+from tests.helpers import assert_one_line_error, make_sim_recording, run_cli, write_video
 from vdc.recording import EVENT_KINDS, PROPERTY_SECTIONS
 
 MODEL_DESCRIPTION = ("model", "model_params", "model_context")
@@ -43,7 +43,7 @@ def test_the_recorder_refuses_unknown_sections_and_event_kinds(tmp_path: Path) -
 
 def test_a_simulated_run_describes_its_model_and_itself(tmp_path: Path) -> None:
     out = tmp_path / "sim.rrd"
-    record_sim(SimSettings(tf_hz=3.0, minutes=0.02, model="avdm:beta=0.5"), out)
+    make_sim_recording(out, 0.02, tf_hz=3.0, model="avdm:beta=0.5")
     rec = Recording(out)
     props = rec.properties()
     assert set(MODEL_DESCRIPTION) <= set(props)
