@@ -69,7 +69,7 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
 
     from analysis.boundary import WARMUP_FRAMES
     from analysis.source_metrics import DIS_PRESETS
-    from analysis.tables import load_recording
+    from analysis.loading import load_recording
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel
     from vdc.frame_metrics import NativeMeter
