@@ -21,10 +21,8 @@ A source is a recording (``.rrd``), a video file, an image-sequence pattern
 
 from __future__ import annotations
 
-import base64
 import dataclasses
 import hashlib
-import html
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -33,6 +31,8 @@ from typing import Any
 import numpy as np
 import polars as pl
 
+from analysis import complexity_figures as figures
+from analysis.analysis_rrd import OUTPUT_MARKER, write_complexity_rrd
 from analysis.source_metrics import (
     ANGULAR_METRICS,
     DEFAULT_METRICS,
@@ -43,6 +43,7 @@ from analysis.source_metrics import (
     SourceMeasurement,
     fov_free,
     parse_metrics,
+    present,
     rank_correlations,
 )
 from vdc.cli_support import (
@@ -53,19 +54,12 @@ from vdc.cli_support import (
     positive_float,
 )
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
-from vdc.frame_metrics import RANGE_CHOICES
+from vdc.frame_metrics import RANGE_CHOICES, RANGE_COLUMNS
 from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL
 from vdc.sources import source_name
 
 PARTS = "parts"
-OUTPUT_MARKER = "vdc_output"  # the property that marks a recording vdc derived from another
-# clips.parquet: the colour range each SI/TI variant read and how it was decided
-# (vdc.frame_metrics.decide_ranges: tagged, detected, assumed or user)
-RANGE_COLUMNS = (
-    "color_range_p910", "color_range_p910_source", "color_range_legacy",
-    "color_range_legacy_source",
-)  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -401,11 +395,6 @@ def complexity_task(
     return {"frames": m.table.height}
 
 
-def present(df: pl.DataFrame, suffix: str = "") -> list[str]:
-    """The metrics (:data:`METRICS` order) a table has columns for (``m + suffix``)."""
-    return [m for m in METRICS if m + suffix in df.columns]
-
-
 def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
     """A clip's row of ``clips.parquet``: what the source is, then each metric's mean, max and
     95th percentile over its frames (where defined)."""
@@ -447,7 +436,7 @@ class ComplexityResult(WroteFiles):
             f"{self.clips.height} clip(s), {self.table.height} frames -> "
             f"{files.complexity_parquet}, {files.clips}, {files.complexity_html}"
         ]
-        rank = _ranking(self.clips)
+        rank = figures.ranking(self.clips)
         top = self.clips.sort(f"{rank[0]}_mean", descending=True, nulls_last=True)
         shown = [m for m in ("omega_dps", "si_p910", "ti_p910") if m in rank] or rank[:3]
         unit = {"omega_dps": " deg/s", "flow_dps": " deg/s"}
@@ -589,13 +578,15 @@ def complexity(
         fails = pl.DataFrame(failures, schema=["source", "error"], orient="row")
         if failures:
             paths.append(write_parquet(fails, stage / "failures.parquet", meta))
-        paths.append(plot_collection(clips, stage / "complexity_collection.png"))
-        paths.append(write_summary_html(clips, failures, stage / "complexity.html", paths[-1]))
+        paths.append(figures.plot_collection(clips, stage / "complexity_collection.png"))
+        paths.append(
+            figures.write_summary_html(clips, failures, stage / "complexity.html", paths[-1])
+        )
         if per_clip:
             for p in parts:
                 rid = p["recording_id"][0]
                 c = corr.filter(pl.col("recording_id") == rid)
-                paths.append(plot_complexity(p, c, stage / f"complexity_{rid}.png"))
+                paths.append(figures.plot_complexity(p, c, stage / f"complexity_{rid}.png"))
                 paths.append(write_complexity_rrd(p, rid, stage / f"complexity_{rid}.rrd"))
     if not failures and (out / "failures.parquet").exists():
         (out / "failures.parquet").unlink()  # an earlier run's failures are measured now
@@ -603,178 +594,3 @@ def complexity(
     return ComplexityResult(
         table, clips, corr, failures, paths, notes, len(mine), len(mine) - len(todo)
     )
-
-
-_LABELS = {
-    "omega_dps": "AVDM ω̂ (deg/s)",
-    "ti_p910": "TI, P.910 (2022)",
-    "si_p910": "SI, P.910 (2022)",
-    "flow_dps": "DIS flow (deg/s)",
-}
-# what the collection figure and the report rank clips by, the first measured
-_RANK_ORDER = ("omega_dps", "ti_p910", "si_p910", "flow_dps", *METRICS)
-
-
-def _ranking(clips: pl.DataFrame) -> list[str]:
-    """The measured metrics in the order the figure and the report rank clips by."""
-    have = present(clips, "_mean")
-    return list(dict.fromkeys(m for m in _RANK_ORDER if m in have))
-
-
-def plot_collection(clips: pl.DataFrame, path: Path) -> Path:
-    """The collection at a glance: clips ranked by their mean AVDM response and by their mean
-    TI (P.910), and each clip's mean AVDM against its mean TI and SI."""
-    from matplotlib.figure import Figure
-
-    from analysis.profile import save_figure
-
-    n = clips.height
-    fig = Figure(figsize=(14, 6 + 0.15 * min(n, 60)), layout="constrained")
-    axes = fig.subplots(2, 2)
-    names = clips["recording_id"].to_list()
-    rank = _ranking(clips)
-    first, second = rank[0], rank[1 % len(rank)]
-    x_a, x_b = (rank[1:] + rank[:1] * 2)[:2]
-    for ax, col, what in (
-        (axes[0, 0], f"{first}_mean", f"mean {_LABELS.get(first, first)}"),
-        (axes[0, 1], f"{second}_mean", f"mean {_LABELS.get(second, second)}"),
-    ):
-        v = clips[col].fill_null(np.nan).to_numpy()
-        order = np.argsort(np.nan_to_num(v, nan=-np.inf))[-60:]  # the 60 highest
-        ax.barh(range(len(order)), v[order], color="tab:blue" if "omega" in col else "tab:orange")
-        ax.set_yticks(range(len(order)), [names[i] for i in order], fontsize=7)
-        ax.set_xlabel(what)
-        ax.set_title(f"clips ranked by {what}" + (f" (top 60 of {n})" if n > 60 else ""))
-        ax.grid(axis="x", alpha=0.3)
-    omega = clips[f"{first}_mean"].fill_null(np.nan).to_numpy()
-    for ax, col, what in (
-        (axes[1, 0], f"{x_a}_mean", f"mean {_LABELS.get(x_a, x_a)}"),
-        (axes[1, 1], f"{x_b}_mean", f"mean {_LABELS.get(x_b, x_b)}"),
-    ):
-        x = clips[col].fill_null(np.nan).to_numpy()
-        ax.scatter(x, omega, s=25)
-        for xi, yi, name in zip(x, omega, names, strict=True):
-            if n <= 40:
-                ax.annotate(name, (xi, yi), fontsize=6, xytext=(3, 2), textcoords="offset points")
-        ax.set_xlabel(what)
-        ax.set_ylabel(f"mean {_LABELS.get(first, first)}")
-        ax.set_title(
-            f"{_LABELS.get(first, first).split(' (')[0].split(',')[0]} against "
-            f"{what.split(',')[0].replace('mean ', '')} ({n} clips)"
-        )
-        ax.grid(alpha=0.3)
-    fig.suptitle("complexity of the collection: one point or bar per clip, its mean over frames")
-    return save_figure(fig, path)
-
-
-def write_summary_html(
-    clips: pl.DataFrame, failures: list[tuple[str, str]], path: Path, figure: Path
-) -> Path:
-    """A self-contained page: the collection figure, then the clip table (means and maxima)."""
-    cols = [
-        "recording_id", "codec", "width_px", "height_px", "fps", "duration_s", "frames",
-        "repeated_frames", "dropped_frames", "raster", "omega_dps_mean", "omega_dps_max",
-        "si_p910_mean", "si_p910_max", "ti_p910_mean", "ti_p910_max", "flow_dps_mean",
-        "jpeg_bpp_mean", "codec_bpp_mean",
-    ]  # fmt: skip
-
-    cols = [c for c in cols if c in clips.columns]
-
-    def cell(v: Any) -> str:
-        if isinstance(v, float):
-            return "-" if not math.isfinite(v) else f"{v:.4g}"
-        return html.escape("-" if v is None else str(v))
-
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
-    rows = "".join(
-        "<tr>" + "".join(f"<td>{cell(r.get(c))}</td>" for c in cols) + "</tr>"
-        for r in clips.iter_rows(named=True)
-    )
-    failed = "".join(f"<li>{html.escape(s)}: {html.escape(e)}</li>" for s, e in failures)
-    img = base64.b64encode(figure.read_bytes()).decode()
-    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>vdc complexity</title>
-<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse;font-size:12px}}
-td,th{{border:1px solid #ccc;padding:3px 6px;text-align:right}}</style></head><body>
-<h1>Complexity of {clips.height} clip(s)</h1>
-<p>Per clip, the mean and max over its frames. SI/TI follow ITU-T P.910 (2022) on the
-source's native frames (column raster); the AVDM and the flow are in deg/s on the model
-raster. Per-frame values: complexity.parquet; every statistic: clips.parquet.</p>
-<img src="data:image/png;base64,{img}" style="max-width:100%">
-<h2>Clips</h2><table><tr>{head}</tr>{rows}</table>
-{f"<h2>Failed</h2><ul>{failed}</ul>" if failures else ""}</body></html>"""
-    path.write_text(page, encoding="utf-8")
-    return path
-
-
-def _normalised(df: pl.DataFrame) -> dict[str, np.ndarray]:
-    """Each metric divided by its 99th percentile (so all share one axis)."""
-    out = {}
-    for m in present(df):
-        v = df[m].cast(pl.Float64).fill_null(np.nan).to_numpy()
-        top = np.nanpercentile(v, 99) if np.isfinite(v).any() else np.nan
-        out[m] = v / top if top and np.isfinite(top) and top > 0 else v * np.nan
-    return out
-
-
-def plot_complexity(df: pl.DataFrame, corr: pl.DataFrame, path: Path) -> Path:
-    from matplotlib.figure import Figure
-
-    from analysis.profile import save_figure
-
-    norm = _normalised(df)
-    t = df["t_s"].to_numpy()
-    fig = Figure(figsize=(16, 5.5), layout="constrained")
-    (ax, axc) = fig.subplots(1, 2, gridspec_kw={"width_ratios": [2.2, 1]})
-    metrics = present(df)
-    for m in metrics:
-        ax.plot(t, norm[m], lw=1.6 if m == "omega_dps" else 0.8, label=m, alpha=0.9)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("metric / its 99th percentile")
-    ax.set_title("complexity metrics over time (normalised)")
-    ax.legend(fontsize=7, ncol=2)
-    ax.grid(alpha=0.3)
-    n = len(metrics)
-    mat = np.eye(n)
-    for r in corr.iter_rows(named=True):
-        i, j = metrics.index(r["metric_a"]), metrics.index(r["metric_b"])
-        mat[i, j] = mat[j, i] = r["spearman"]
-    im = axc.imshow(mat, vmin=-1, vmax=1, cmap="RdBu_r")
-    for i in range(n):
-        for j in range(n):
-            if np.isfinite(mat[i, j]):
-                axc.text(j, i, f"{mat[i, j]:.2f}", ha="center", va="center", fontsize=6)
-    axc.set_xticks(range(n), metrics, rotation=45, ha="right", fontsize=7)
-    axc.set_yticks(range(n), metrics, fontsize=7)
-    axc.set_title("Spearman rank correlation over frames")
-    fig.colorbar(im, ax=axc, shrink=0.8)
-    fig.suptitle(str(df["recording_id"][0]))
-    return save_figure(fig, path)
-
-
-def write_complexity_rrd(df: pl.DataFrame, recording_id: str, path: Path) -> Path:
-    """The normalised metrics under ``/complexity/<metric>`` with the source's recording id,
-    on its ``frame`` and ``time`` timelines (so it merges with the source in the viewer)."""
-    import rerun as rr
-
-    from vdc.recording import APP_ID, COMPLEXITY_ROOT, FRAME_TIMELINE, TIME_TIMELINE
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
-    rec.save(str(path))
-    # an output, not a source: a folder scan that meets it skips it (plan_sources)
-    rec.send_property(OUTPUT_MARKER, rr.AnyValues(command="complexity", of=recording_id))
-    norm = _normalised(df)
-    idx = [
-        rr.TimeColumn(FRAME_TIMELINE, sequence=df["frame"].to_numpy()),
-        rr.TimeColumn(
-            TIME_TIMELINE,
-            duration=np.rint(df["t_s"].to_numpy() * 1e9).astype("timedelta64[ns]"),
-        ),
-    ]
-    for m in present(df):
-        entity = f"{COMPLEXITY_ROOT}/{m}"
-        rec.log(entity, rr.SeriesLines(names=[f"{m} (normalised)"]), static=True)
-        rec.send_columns(entity, indexes=idx, columns=rr.Scalars.columns(scalars=norm[m]))
-    rec.flush()
-    rec.disconnect()
-    return path

@@ -53,7 +53,7 @@ from analysis.boundary_fit import fit_columns, fit_crossing, fit_section, with_f
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
 from vdc.cli_support import UserError
-from vdc.sources import working_camera
+from vdc.frame_batches import working_camera
 
 LABEL_COLUMNS = ("clip", "label", "collision_frame")
 COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg/s)
@@ -139,7 +139,8 @@ def detector_alerts(
     the frame rate (Hz)."""
     from analysis.complexity import ComplexitySettings
     from avdm.registry import make_model
-    from vdc.sources import FrameBatcher, open_reader
+    from vdc.frame_batches import FrameBatcher
+    from vdc.sources import open_reader
 
     reader = open_reader(source)
     try:

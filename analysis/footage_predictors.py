@@ -30,7 +30,8 @@ def clip_frames_task(source: str, specs: dict[str, str], fov_deg: float) -> dict
     from analysis.complexity import ComplexitySettings
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel
-    from vdc.sources import FrameBatcher, open_reader, working_camera
+    from vdc.frame_batches import FrameBatcher, working_camera
+    from vdc.sources import open_reader
 
     reader = open_reader(source)
     try:

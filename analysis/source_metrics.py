@@ -334,8 +334,9 @@ def measure_video(
     decoded once: the source-raster metrics on its native frames, the model-raster ones on
     the working raster ``vdc-capture video`` uses (the same frames, times and repeat flags:
     its recording then gives the same table)."""
+    from vdc.frame_batches import FrameBatcher
     from vdc.pipeline import usable_threads
-    from vdc.sources import FrameBatcher, open_reader
+    from vdc.sources import open_reader
 
     metrics = chosen_metrics(settings)
     if settings.fov_deg is None:  # the pixel metrics only (complexity notes it, once)
@@ -414,7 +415,7 @@ def measure_video(
 
 def with_p910_corrections(table: pl.DataFrame, fix: np.ndarray) -> pl.DataFrame:
     """``table`` with ``si_p910``, ``ti_p910`` of its first len(``fix``) frames replaced by
-    ``fix`` (K, 2) (``vdc.sources.FrameBatcher.p910_late_corrections``)."""
+    ``fix`` (K, 2) (``vdc.frame_batches.FrameBatcher.p910_late_corrections``)."""
     if not len(fix) or not {"si_p910", "ti_p910"} & set(table.columns):
         return table
     k = len(fix)
@@ -448,3 +449,18 @@ def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
         "recording_id": pl.String, "metric_a": pl.String, "metric_b": pl.String,
         "spearman": pl.Float64,
     })  # fmt: skip
+
+
+def present(df: pl.DataFrame, suffix: str = "") -> list[str]:
+    """The metrics (:data:`METRICS` order) a table has columns for (``m + suffix``)."""
+    return [m for m in METRICS if m + suffix in df.columns]
+
+
+def normalised(df: pl.DataFrame) -> dict[str, np.ndarray]:
+    """Each metric divided by its 99th percentile (so all share one axis)."""
+    out = {}
+    for m in present(df):
+        v = df[m].cast(pl.Float64).fill_null(np.nan).to_numpy()
+        top = np.nanpercentile(v, 99) if np.isfinite(v).any() else np.nan
+        out[m] = v / top if top and np.isfinite(top) and top > 0 else v * np.nan
+    return out

@@ -35,9 +35,9 @@ from vdc.cli_support import (
     option,
     positive_float,
 )
+from vdc.frame_batches import FrameBatcher
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 from vdc.sources import (
-    FrameBatcher,
     Reader,
     cut_short_note,
     open_reader,

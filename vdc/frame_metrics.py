@@ -43,6 +43,11 @@ RANGE_CHOICES = ("auto", *RANGES)  # --color-range
 # how a variant's range was decided: the stream's tag, detected from the luma (P.910 in an
 # untagged stream), assumed as FFmpeg does (legacy in an untagged stream: limited), or given
 RANGE_SOURCES = ("tagged", "detected", "assumed", "user")
+# clips.parquet: the colour range each SI/TI variant read and how it was decided
+RANGE_COLUMNS = (
+    "color_range_p910", "color_range_p910_source", "color_range_legacy",
+    "color_range_legacy_source",
+)  # fmt: skip
 
 # P.910 (2022) display model and PQ, as siti-tools' defaults (BT.1886, SDR)
 GAMMA, L_MAX, L_MIN = 2.4, 300.0, 0.1

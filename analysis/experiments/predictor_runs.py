@@ -68,8 +68,8 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
     import cv2
 
     from analysis.boundary import WARMUP_FRAMES
-    from analysis.source_metrics import DIS_PRESETS
     from analysis.loading import load_recording
+    from analysis.source_metrics import DIS_PRESETS
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel
     from vdc.frame_metrics import NativeMeter

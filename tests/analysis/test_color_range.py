@@ -19,9 +19,10 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 from skimage import data
 
 from tests.helpers import assert_one_line_error, run_cli
+from vdc.frame_batches import FrameBatcher
 from vdc.frame_metrics import decide_ranges
 from vdc.recording import NATIVE_METRICS
-from vdc.sources import FrameBatcher, open_reader
+from vdc.sources import open_reader
 
 W, H = 384, 240  # a width whose Y plane has no padding, which siti-tools' reader needs
 SITI = {"limited": ColorRange.LIMITED, "full": ColorRange.FULL}

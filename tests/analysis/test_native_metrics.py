@@ -205,7 +205,7 @@ def test_repeats_are_judged_on_native_frames_not_on_the_thumbnail(tmp_path: Path
     tolerance, and most frames would be called repeats."""
     from avdm.stimuli import panned_image
     from avdm.true_time import repeat_flags
-    from vdc.sources import FrameBatcher
+    from vdc.frame_batches import FrameBatcher
 
     photo = cv2.cvtColor(data.astronaut(), cv2.COLOR_RGB2GRAY).astype(np.float64)
     fov, width, fps = 64.0, 640, 25.0

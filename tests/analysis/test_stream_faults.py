@@ -127,7 +127,8 @@ def test_a_damaged_stream_is_read_in_time_order_and_counted_once(damaged, tmp_pa
 def test_a_frame_after_a_later_one_is_dropped_and_counted(damaged, monkeypatch) -> None:
     """With no reorder buffer at all, the decoder's out-of-order frames reach the reader:
     each one that comes after a later one is dropped and counted, never delivered."""
-    from vdc.sources import FrameBatcher, _PyAvReader, open_reader
+    from vdc.frame_batches import FrameBatcher
+    from vdc.sources import _PyAvReader, open_reader
 
     monkeypatch.setattr(_PyAvReader, "reorder_depth", lambda self: 0)
     reader = open_reader(str(damaged["bad"]))
