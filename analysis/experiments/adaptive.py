@@ -46,7 +46,6 @@ from analysis.boundary import (
     condition_name,
     condition_statistics,
     plot_boundary,
-    with_override,
 )
 from analysis.boundary_fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
 
@@ -197,26 +196,14 @@ def run_items(
     s: BoundarySettings, placed: list[dict[str, Any]], folder: Path
 ) -> list[tuple[str, Any, Path, dict[str, Any]]]:
     """Closed-loop runs for the placed (value, scene, TF, seed)s, as the grid records them."""
-    from capture.sim import SimSettings
+    from analysis.experiments.captures import collision_run_item
 
-    items = []
-    for p in placed:
-        value, scene, tf, seed = p["value"], p["scene"], p["tf_hz"], p["seed"]
-        cond = condition_name(scene, tf)
-        settings = SimSettings(
-            behaviour="collision",
-            model=with_override(s.detector, s.param, value),
-            scene=scene,
-            tf_hz=tf,
-            minutes=s.minutes,
-            seed=seed,
-            phase=f"{cond}-{s.param}{value:g}",
-            profile_model=s.profile_model,
+    return [
+        collision_run_item(
+            s, p["scene"], p["tf_hz"], p["value"], p["seed"], folder, {s.param: p["value"]} | p
         )
-        cols = {"condition": cond, s.param: value} | p
-        path = folder / cond / f"{s.param}{value:g}" / f"seed{seed}.rrd"
-        items.append((f"{cond}-{s.param}{value:g}-seed{seed}", settings, path, cols))
-    return items
+        for p in placed
+    ]
 
 
 def adaptive_boundary(
@@ -254,9 +241,18 @@ def adaptive_boundary(
         return done.to_dicts()
 
     rows, fits = design_runs(
-        values, scenes, pmap, s.tf_bounds(), run_batch, target=s.target, budget=s.budget,
-        precision_dps=s.precision, batch=max(2, s.jobs), seed=s.seed, log=say,
-    )  # fmt: skip
+        values,
+        scenes,
+        pmap,
+        s.tf_bounds(),
+        run_batch,
+        target=s.target,
+        budget=s.budget,
+        precision_dps=s.precision,
+        batch=max(2, s.jobs),
+        seed=s.seed,
+        log=say,
+    )
     runs = pl.DataFrame(rows).drop("value").sort(s.param, "batch", "seed")
     complexity = runs.select(
         "condition",

@@ -22,15 +22,13 @@ from analysis.boundary import (
     arena_report,
     boundaries,
     condition_complexity,
-    condition_name,
     condition_statistics,
     fit_policy,
     plot_boundary,
     run_row,
-    with_override,
 )
 from analysis.boundary_fit import grid_fits, with_fit
-from analysis.experiments.captures import profiling_items
+from analysis.experiments.captures import collision_run_item, profiling_items
 from vdc.executors import ExecutorSettings
 
 
@@ -169,36 +167,20 @@ def boundary(
 
 def grid_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
     """One closed-loop run per (scene, TF, value, seed)."""
-    from capture.sim import SimSettings
-
-    items = []
-    for scene, tf in s.conditions():
-        cond = condition_name(scene, tf)
-        for value in s.grid_values():
-            spec = with_override(s.detector, s.param, value)
-            for seed in range(s.seed, s.seed + s.seeds):
-                key = f"{cond}-{s.param}{value:g}-seed{seed}"
-                settings = SimSettings(
-                    behaviour="collision",
-                    model=spec,
-                    scene=scene,
-                    tf_hz=tf,
-                    minutes=s.minutes,
-                    seed=seed,
-                    phase=f"{cond}-{s.param}{value:g}",
-                    profile_model=s.profile_model,
-                )
-                cols = {
-                    "condition": cond,
-                    "scene": scene,
-                    "tf_hz": tf,
-                    s.param: value,
-                    "seed": seed,
-                }
-                items.append(
-                    (key, settings, folder / cond / f"{s.param}{value:g}" / f"seed{seed}.rrd", cols)
-                )
-    return items
+    return [
+        collision_run_item(
+            s,
+            scene,
+            tf,
+            value,
+            seed,
+            folder,
+            {"scene": scene, "tf_hz": tf, s.param: value, "seed": seed},
+        )
+        for scene, tf in s.conditions()
+        for value in s.grid_values()
+        for seed in range(s.seed, s.seed + s.seeds)
+    ]
 
 
 def arena_boundary(

@@ -133,3 +133,27 @@ def profiling_items(s: Any, folder: Path) -> list[tuple[str, Any, Path, dict[str
                 )
             )
     return items
+
+
+def collision_run_item(
+    s: Any, scene: str, tf_hz: float, value: float, seed: int, folder: Path, cols: dict[str, Any]
+) -> tuple[str, Any, Path, dict[str, Any]]:
+    """One closed-loop run of a boundary campaign (``s``: its ``BoundarySettings``) at the
+    detector's ``value``: (key, settings, recording path, row columns), as the grid and the
+    adaptive design both record it (so either reuses the other's finished runs)."""
+    from analysis.boundary import condition_name, with_override
+
+    cond = condition_name(scene, tf_hz)
+    tag = f"{s.param}{value:g}"
+    settings = SimSettings(
+        behaviour="collision",
+        model=with_override(s.detector, s.param, value),
+        scene=scene,
+        tf_hz=tf_hz,
+        minutes=s.minutes,
+        seed=seed,
+        phase=f"{cond}-{tag}",
+        profile_model=s.profile_model,
+    )
+    key = f"{cond}-{tag}-seed{seed}"
+    return key, settings, folder / cond / tag / f"seed{seed}.rrd", {"condition": cond} | cols
