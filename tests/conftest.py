@@ -31,12 +31,16 @@ def _end_background_processes():
 
 
 # Fitted calibrations are cached per user; the tests use a cache of their own (inherited by
-# the commands they run), removed at the end of the session.
-_CACHE = tempfile.mkdtemp(prefix="vdc-test-cache-")
+# the commands they run), removed at the end of the session. One cache for the whole session:
+# the xdist workers inherit the controller's, so a calibration one worker fits (atomically
+# written) the others read instead of fitting it again.
+_CACHE = os.environ.get("VDC_TEST_SESSION_CACHE") or tempfile.mkdtemp(prefix="vdc-test-cache-")
+os.environ["VDC_TEST_SESSION_CACHE"] = _CACHE
 os.environ["VDC_CACHE_DIR"] = _CACHE
 
 
 @pytest.fixture(scope="session", autouse=True)
 def _calibration_cache():
     yield Path(_CACHE)
-    shutil.rmtree(_CACHE, ignore_errors=True)
+    if "PYTEST_XDIST_WORKER" not in os.environ:  # the controller ends the session's cache
+        shutil.rmtree(_CACHE, ignore_errors=True)
