@@ -27,8 +27,8 @@ A policy is fitted from the grid (:func:`fit_policy`) and written as ``policy.cs
 
 This module holds the settings, the measurements and statistics, the boundary, the policy fit,
 the figure and the report; the campaign that records the arena's runs is
-:mod:`analysis.experiments.boundary` (the command's entry, :func:`boundary`), the footage mode
-:mod:`analysis.footage`.
+:mod:`analysis.experiments.boundary_campaign` (the command's entry, :func:`boundary`), the
+footage mode :mod:`analysis.footage`.
 """
 
 from __future__ import annotations

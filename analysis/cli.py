@@ -340,7 +340,7 @@ COMMANDS = {
     ),
     "boundary": Command(
         "analysis.boundary:BoundarySettings",
-        _campaign("analysis.experiments.boundary:boundary", "run"),
+        _campaign("analysis.experiments.boundary_campaign:boundary", "run"),
         "where a detector breaks as complexity rises (arena grid or labelled footage)",
         "Arena: closed-loop runs over scene x TF x --param values x seeds (finished runs "
         "reused), each condition profiled with the AVDM; per condition, success, avoidances, "

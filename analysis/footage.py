@@ -296,7 +296,7 @@ def footage_boundary(
     log: Callable[[str], None] | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> BoundaryResult:
-    """Footage mode of :func:`analysis.experiments.boundary.boundary`."""
+    """Footage mode of :func:`analysis.experiments.boundary_campaign.boundary`."""
     from vdc.executors import TasksFailed, failure_report, run_tasks
     from vdc.parquet_io import table_set, write_parquet
 

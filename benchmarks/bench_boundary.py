@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 
 from analysis.boundary import BoundarySettings
-from analysis.experiments.boundary import boundary, grid_items
+from analysis.experiments.boundary_campaign import boundary, grid_items
 from capture.sim import record_sim
 
 

@@ -36,7 +36,7 @@ def main() -> None:
     import dataclasses
 
     from analysis.boundary import BoundarySettings
-    from analysis.experiments.boundary import boundary
+    from analysis.experiments.boundary_campaign import boundary
     from analysis.experiments.predictor_runs import predictors_for_folder
     from avdm.registry import make_model
     from vdc.recording import camera_model_context

@@ -74,7 +74,7 @@ _API = {
     "reproduce": "analysis.experiments.reproduce",
     # where a detector breaks, and a learnt policy tested where it was not learnt
     "BoundarySettings": "analysis.boundary",
-    "boundary": "analysis.experiments.boundary",
+    "boundary": "analysis.experiments.boundary_campaign",
     "AdaptationSettings": "analysis.experiments.adaptation",
     "adaptation": "analysis.experiments.adaptation",
     "predictors": "analysis.experiments.predictor_runs",

@@ -44,7 +44,7 @@ from analysis.boundary import (
     name_list,
     number_list,
 )
-from analysis.experiments.boundary import run_grid
+from analysis.experiments.boundary_campaign import run_grid
 from analysis.stats import mean_ci
 from avdm.policy import load_policy
 from avdm.registry import add_overrides

@@ -13,7 +13,7 @@ import pytest
 
 from analysis.boundary import BoundarySettings, find_boundary
 from analysis.experiments.adaptation import AdaptationSettings, adaptation
-from analysis.experiments.boundary import boundary
+from analysis.experiments.boundary_campaign import boundary
 from analysis.rrd_reader import Recording
 from avdm.policy import load_policy
 from tests.figures import assert_figure, recording_figures

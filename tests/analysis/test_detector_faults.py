@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from analysis.boundary import BoundarySettings, describe_boundary, interval
-from analysis.experiments.boundary import boundary
+from analysis.experiments.boundary_campaign import boundary
 from analysis.experiments.captures import run_captures
 from avdm.registry import check_detector
 from capture.sim import SimSettings

@@ -17,7 +17,7 @@ import pytest
 from analysis.batch import BatchSettings, batch
 from analysis.boundary import BoundarySettings
 from analysis.complexity import ComplexitySettings, complexity
-from analysis.experiments.boundary import boundary
+from analysis.experiments.boundary_campaign import boundary
 from analysis.tables import TablesSettings, tables
 from capture.sim import SimSettings, record_sim
 from tests.helpers import ROOT, assert_one_line_error, write_video

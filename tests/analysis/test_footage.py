@@ -11,7 +11,7 @@ import polars as pl
 import pytest
 
 from analysis.boundary import BoundarySettings
-from analysis.experiments.boundary import boundary
+from analysis.experiments.boundary_campaign import boundary
 from tests.figures import assert_figure, recording_figures
 from tests.footage_clips import COLLISION_FRAME, FPS, write_collection
 from tests.helpers import assert_one_line_error, run_cli
