@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from avdm import canonical_name, make_model, make_params, parse_model_spec
@@ -98,6 +98,9 @@ def test_any_lgmd_variant_accepts_valid_overrides(name: str, fps: float, n_ts: i
     _overrides_hold(name, {"fps": fps, "n_ts": n_ts})
 
 
+# a parse round trip: 30 drawn examples cover every variant several times (the default 100
+# builds avdm-natural's calibration-bound params 100 times, 15 s of the suite)
+@settings(max_examples=30)
 @given(st.sampled_from(AVDM_VARIANTS), st.floats(0.0, 1.0), st.integers(1, 50))
 def test_any_variant_accepts_valid_overrides(name: str, beta: float, tw: int) -> None:
     _overrides_hold(name, {"beta": beta, "tw": tw})
