@@ -52,11 +52,13 @@ def plot_predictors(table: pl.DataFrame, path: Path, title: str) -> Path:
         order = ranked(table, stat)["measure"].to_list()[::-1]
         t = table.filter(pl.col("statistic") == stat)
         values = t["value"].unique(maintain_order=True).to_list()
+        drawn = 0
         for k, v in enumerate(values):
             tv = t.filter(pl.col("value") == v)
             for r in tv.iter_rows(named=True):
                 if r["estimate"] is None:
                     continue
+                drawn += 1
                 y = order.index(r["measure"]) + (k - (len(values) - 1) / 2) * 0.15
                 lo = r["ci_low"] if r["ci_low"] is not None else r["estimate"]
                 hi = r["ci_high"] if r["ci_high"] is not None else r["estimate"]
@@ -66,9 +68,12 @@ def plot_predictors(table: pl.DataFrame, path: Path, title: str) -> Path:
         ax.set_yticks(range(len(order)), order)
         chance = 0.0 if stat == "rho_failure" else 0.5
         ax.axvline(chance, color="k", lw=0.8, ls=":")
-        ax.set_title(stat)
+        # an empty panel says why rather than showing nothing
+        ax.set_title(stat if drawn else f"{stat}: no estimate (success did not vary)")
+        ax.set_xlabel("estimate and its 95 % interval (dotted: chance)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, title="value", title_fontsize=7)
+        if drawn:
+            ax.legend(fontsize=7, title="value", title_fontsize=7)
     fig.suptitle(title)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)

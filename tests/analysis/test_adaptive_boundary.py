@@ -16,6 +16,7 @@ from analysis.boundary_fit import describe_fit, dps_to_tf, fit_columns, fit_cros
 from analysis.experiments.adaptation import AdaptationSettings
 from analysis.experiments.adaptive import ProfileMap, design_runs, in_fitted_range
 from avdm.policy import load_policy
+from tests.figures import assert_figure, figure_env, saved_figures
 from tests.helpers import assert_one_line_error, run_cli
 
 TARGET = 0.9
@@ -122,7 +123,8 @@ def test_a_tiny_adaptive_campaign_end_to_end(tmp_path: Path) -> None:
     args = ["analysis.cli", "boundary", "--design", "adaptive", "--budget", "5", "--values",
             "12", "--scenes", "grating", "--tf-range", "0:3", "--minutes", "0.2", "--jobs",
             "2", "--out", str(out)]  # fmt: skip
-    proc = run_cli(*args)
+    record = tmp_path / "figures.jsonl"
+    proc = run_cli(*args, env=figure_env(record))
     assert proc.returncode == 0, proc.stderr
     assert "boundary at t_ffi = 12: " in proc.stdout
     bounds = pl.read_parquet(out / "boundary.parquet")
@@ -144,7 +146,7 @@ def test_a_tiny_adaptive_campaign_end_to_end(tmp_path: Path) -> None:
     np.testing.assert_allclose(runs["complexity_dps"].to_numpy(), expect)
     md = (out / "boundary.md").read_text()
     assert "Adaptive design" in md and "| t_ffi | state | boundary (deg/s)" in md
-    assert (out / "boundary.png").read_bytes()[:4] == b"\x89PNG"
+    assert_figure(out / "boundary.png", saved_figures(record), title="", labels=("success (%)",))
     # the policy fitted from the campaign (its TF range in thirds) is what adaptation reads
     policy = load_policy(out / "policy.csv")
     assert policy.param == "t_ffi" and set(policy.values) == {12.0}
