@@ -499,6 +499,50 @@ class BoundaryResult(WroteFiles):
         return [*lines, "wrote " + ", ".join(str(p) for p in self.paths if p.name in wanted)]
 
 
+def write_arena_outputs(
+    stage: Path,
+    s: BoundarySettings,
+    tables: dict[str, pl.DataFrame | None],
+    policy: Any,
+    title: str,
+    x_label: str,
+    fits: Any,
+) -> tuple[list[Path], str]:
+    """An arena campaign's files into ``stage`` (the grid's and the adaptive design's alike):
+    ``boundary_{runs,conditions}.parquet``, ``boundary.parquet``, ``boundary_profiles.parquet``
+    (``tables["profiles"]`` None: none), ``boundary.png``, ``policy.csv`` (``policy`` None:
+    none); returns their paths and the report (``boundary.md``, not yet written)."""
+    from vdc.parquet_io import write_parquet
+
+    meta = {"settings": dataclasses.asdict(s)}
+    paths = [
+        write_parquet(df, stage / f"{name}.parquet", meta)
+        for name, df in (
+            ("boundary_runs", tables["runs"]),
+            ("boundary_conditions", tables["conditions"]),
+            ("boundary", tables["bounds"]),
+            ("boundary_profiles", tables["profiles"]),
+        )
+        if df is not None
+    ]
+    conditions, bounds = tables["conditions"], tables["bounds"]
+    paths.append(
+        plot_boundary(
+            conditions,
+            bounds,
+            s.param,
+            s.target,
+            stage / "boundary.png",
+            title,
+            x_label,
+            fits=fits,
+        )
+    )
+    if policy is not None:
+        paths.append(policy.save(stage / "policy.csv"))
+    return paths, arena_report(s, conditions, bounds, policy)
+
+
 def arena_report(
     s: BoundarySettings, conditions: pl.DataFrame, bounds: pl.DataFrame, policy: Policy | None
 ) -> str:

@@ -41,11 +41,10 @@ import polars as pl
 from analysis.boundary import (
     BoundaryResult,
     BoundarySettings,
-    arena_report,
     boundaries,
     condition_name,
     condition_statistics,
-    plot_boundary,
+    write_arena_outputs,
 )
 from analysis.boundary_fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
 
@@ -221,7 +220,7 @@ def adaptive_boundary(
     row per run the design placed, ``boundary.parquet`` with the fitted columns,
     ``boundary_profiles.parquet``, ``policy.csv``)."""
     from analysis.boundary_fit import fit_columns, with_fit
-    from vdc.parquet_io import table_set, write_parquet
+    from vdc.parquet_io import table_set
 
     say = log or (lambda _m: None)
     out = Path(out)
@@ -271,27 +270,15 @@ def adaptive_boundary(
     policy = None
     if not s.no_fit:
         policy = policy_from_campaign(runs, s)
-    meta = {"settings": dataclasses.asdict(s)}
     with table_set(out) as stage:
-        paths = [
-            write_parquet(runs, stage / "boundary_runs.parquet", meta),
-            write_parquet(conditions, stage / "boundary_conditions.parquet", meta),
-            write_parquet(bounds, stage / "boundary.parquet", meta),
-            write_parquet(profiles, stage / "boundary_profiles.parquet", meta),
-            plot_boundary(
-                conditions,
-                bounds,
-                s.param,
-                s.target,
-                stage / "boundary.png",
-                f"{s.detector}: adaptive design, {runs.height} runs",
-                "complexity: AVDM straight-driving response, profile interpolated (deg/s)",
-                fits=fits,
-            ),
-        ]
-        if policy is not None:
-            paths.append(policy.save(stage / "policy.csv"))
-        md = arena_report(s, conditions, bounds, policy)
+        paths, md = write_arena_outputs(
+            stage, s,
+            {"runs": runs, "conditions": conditions, "bounds": bounds, "profiles": profiles},
+            policy,
+            f"{s.detector}: adaptive design, {runs.height} runs",
+            "complexity: AVDM straight-driving response, profile interpolated (deg/s)",
+            fits,
+        )  # fmt: skip
         (stage / "boundary.md").write_text(md, encoding="utf-8")
         paths.append(stage / "boundary.md")
     paths = [out / p.name for p in paths]

@@ -5,7 +5,6 @@ to footage mode (:mod:`analysis.footage`) instead."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from collections.abc import Callable, Sequence
@@ -19,13 +18,12 @@ from analysis.boundary import (
     WARMUP_FRAMES,
     BoundaryResult,
     BoundarySettings,
-    arena_report,
     boundaries,
     condition_complexity,
     condition_statistics,
     fit_policy,
-    plot_boundary,
     run_row,
+    write_arena_outputs,
 )
 from analysis.boundary_fit import grid_fits, with_fit
 from analysis.experiments.captures import collision_run_item, profiling_items
@@ -191,7 +189,7 @@ def arena_boundary(
     progress: Callable[[int], None] | None = None,
 ) -> BoundaryResult:
     """Arena mode of :func:`boundary`."""
-    from vdc.parquet_io import table_set, write_parquet
+    from vdc.parquet_io import table_set
 
     say = log or (lambda _m: None)
     out = Path(out)
@@ -225,35 +223,17 @@ def arena_boundary(
     fitted, fits = grid_fits(runs, complexity, s.param, s.target)
     bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "grid")
     policy = fit_policy(runs, s.param, s.target, s.profile_model) if not s.no_fit else None
-    meta = {"settings": dataclasses.asdict(s)}
+    x_label = (
+        "complexity: AVDM straight-driving response, profiling runs (deg/s)"
+        if s.complexity == "profile"
+        else "complexity: on-board AVDM mean in the detector's runs (deg/s)"
+    )
     with table_set(out) as stage:
-        paths = [
-            write_parquet(runs, stage / "boundary_runs.parquet", meta),
-            write_parquet(conditions, stage / "boundary_conditions.parquet", meta),
-            write_parquet(bounds, stage / "boundary.parquet", meta),
-        ]
-        if profiles is not None:
-            paths.append(write_parquet(profiles, stage / "boundary_profiles.parquet", meta))
-        x_label = (
-            "complexity: AVDM straight-driving response, profiling runs (deg/s)"
-            if s.complexity == "profile"
-            else "complexity: on-board AVDM mean in the detector's runs (deg/s)"
-        )
-        paths.append(
-            plot_boundary(
-                conditions,
-                bounds,
-                s.param,
-                s.target,
-                stage / "boundary.png",
-                f"{s.detector}: success against complexity",
-                x_label,
-                fits=fits,
-            )
-        )
-        if policy is not None:
-            paths.append(policy.save(stage / "policy.csv"))
-        md = arena_report(s, conditions, bounds, policy)
+        paths, md = write_arena_outputs(
+            stage, s,
+            {"runs": runs, "conditions": conditions, "bounds": bounds, "profiles": profiles},
+            policy, f"{s.detector}: success against complexity", x_label, fits,
+        )  # fmt: skip
         if measures is not None:
             from analysis.experiments.predictor_runs import arena_predictor_tables
 
