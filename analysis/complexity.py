@@ -10,8 +10,10 @@ A source is a recording (``.rrd``), a video file, an image-sequence pattern
 * ``complexity.parquet``: one row per frame (columns: ``analysis.source_metrics``; only the
   metrics ``--metrics`` asks for, and without ``--fov-deg`` a video's angular ones left out);
 * ``clips.parquet``: one row per clip: source, codec, resolution, fps, duration, repeated
-  and dropped frames, and each metric's mean, max and p95 (P.910 clause 7.8.4 recommends the
-  mean and the max per sequence);
+  and dropped frames (each lost frame once: ``frames + dropped_frames == container_frames``
+  where the source states its count; ``lost_after_last`` of them after the last frame,
+  ``missing_s`` those in seconds; ``vdc.sources.end_fields``), and each metric's mean, max
+  and p95 (P.910 clause 7.8.4 recommends the mean and the max per sequence);
 * ``complexity_correlations.parquet``: Spearman ρ of every pair of metrics per clip;
 * ``complexity_collection.png``: clips ranked by the AVDM and by TI, and the AVDM against TI
   and SI; ``complexity.html``: that figure with the clip table;
@@ -404,8 +406,8 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
             k: info.get(k)
             for k in (
                 "source", "kind", "codec", "width_px", "height_px", "fps", "duration_s",
-                "frames", "repeated_frames", "dropped_frames", "header_duration_s", "missing_s",
-                "model_fps", *RANGE_COLUMNS,
+                "frames", "repeated_frames", "dropped_frames", "container_frames",
+                "lost_after_last", "header_duration_s", "missing_s", "model_fps", *RANGE_COLUMNS,
             )
         },
         "raster": table["raster"][0],
@@ -557,9 +559,23 @@ def complexity(
         if info.get("cut_note") or info.get("decode_error"):
             why = info.get("cut_note") or f"decoding stopped ({info['decode_error']})"
             say(f"{info['source']}: {why}; its row covers {info['frames']} frames")
+    uncounted = [  # files whose end cannot be counted (parts of older runs do not say)
+        i["source"]
+        for i in infos
+        if i.get("kind") == "file" and "container_frames" in i and i["container_frames"] is None
+    ]
+    if uncounted:
+        say(
+            f"{len(uncounted)} file(s) whose container states no frame count (nor a duration "
+            f"at a constant rate), first {uncounted[0]}: frames lost after their last frame are "
+            "unknown, not counted (container_frames and lost_after_last null)"
+        )
     rows = [clip_row(p, i) for p, i in zip(parts, infos, strict=True)]
     clips = pl.DataFrame(rows, infer_schema_length=None)  # sources may differ in metrics
-    clips = clips.with_columns(pl.col("header_duration_s", "missing_s").cast(pl.Float64))
+    clips = clips.with_columns(
+        pl.col("header_duration_s", "missing_s").cast(pl.Float64),
+        pl.col("container_frames", "lost_after_last").cast(pl.Int64),
+    )
     corr = pl.concat([rank_correlations(p, p["recording_id"][0]) for p in parts])
     paths: list[Path] = []
     meta = {

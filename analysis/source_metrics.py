@@ -43,7 +43,7 @@ from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, new_frame_rate, repeat_flags
 from vdc.frame_metrics import NativeMeter, decide_ranges
 from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context, working_size
-from vdc.sources import cut_short_note, header_shortfall
+from vdc.sources import end_fields
 
 if TYPE_CHECKING:
     from analysis.loading import LoadedRecording
@@ -288,7 +288,10 @@ def measure_recording(
     table = _frame_table([df], raster, size, loaded.recording_id, meter.metrics)
     frames = loaded.frames
     last_t = float(frames["t_s"].max() or 0.0) if frames.height else None
-    header_s = src.get("header_duration_s")  # a video recording's file, as its header said
+    # a video recording's file as its header said (the ``video`` property); nothing lost
+    # after the last frame of a capture stopped before the file's end
+    complete = bool(loaded.props.get("run_end", {}).get("complete", False))
+    dropped = int(frames["dropped_before"].fill_null(0).sum())
     info = {
         "source": str(path),
         "kind": src.get("kind", loaded.props.get("run", {}).get("source", "recording")),
@@ -299,10 +302,7 @@ def measure_recording(
         "duration_s": float(frames["t_s"].max() or 0.0) if frames.height else 0.0,
         "frames": table.height,
         "repeated_frames": int(frames["repeat"].fill_null(False).sum()),
-        "dropped_frames": int(frames["dropped_before"].fill_null(0).sum()),
-        "header_duration_s": header_s,
-        "missing_s": header_shortfall(header_s, last_t, fps),
-        "cut_note": cut_short_note(header_s, last_t, fps),
+        **end_fields(src, last_t, fps, table.height, dropped, complete),
         "model_fps": meter.model_fps,
         **recorded_ranges(src if native is not None else None),
     }
@@ -394,17 +394,15 @@ def measure_video(
             "duration_s": float(batches.last_t_s or 0.0),
             "frames": table.height,
             "repeated_frames": batches.repeats_total,
-            # each lost frame once: a bad packet's or a late frame's cost is a gap in the times
-            "dropped_frames": batches.dropped_total,
+            # each lost frame once (vdc.sources.end_fields): before the first frame, a gap
+            # in the times (a bad packet's or a late frame's cost) or after the last
+            **batches.end_fields(),
             "source_problems": reader.problems,
             "model_fps": meter.model_fps if meter is not None else None,
             "bit_depth": info["bit_depth"],
             "color_range_tag": info.get("color_range_tag"),
             **batches.color_ranges(),
             "decode_error": reader.error,
-            "header_duration_s": info.get("duration_s") or None,
-            "missing_s": header_shortfall(info.get("duration_s"), batches.last_t_s, fps),
-            "cut_note": cut_short_note(info.get("duration_s"), batches.last_t_s, fps),
         }
         return SourceMeasurement(table, meta)
     finally:

@@ -139,6 +139,11 @@ def cmd_video(args: argparse.Namespace) -> int:
             f"{PROG} video: note: decoding stopped after {rec.frames} frames "
             f"({res.decode_error}); the recording keeps every frame before it"
         )
+    if rec.complete and res.info.get("kind") == "file" and res.container_frames is None:
+        say(
+            f"{PROG} video: note: the container states no frame count (nor a duration at a "
+            "constant rate): frames lost after the last one read are unknown, not counted"
+        )
     cal = res.calibration
     print(
         f"wrote {rec.path} ({rec.frames} frames, {res.repeats} repeated, {res.dropped} dropped; "

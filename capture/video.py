@@ -11,7 +11,9 @@ robot camera's (70°/99 px, the resolution the models were designed and calibrat
 ``width = round(fov_deg / (70/99))`` unless given, height from the aspect ratio.
 
 Repeated frames (each frame shown twice, pulldown, webcams faster than their sensor) and
-dropped frames (gaps in the timestamps) are detected per frame and recorded; the online model
+dropped frames (gaps in the timestamps; before the first frame, the gap from the stream's start
+to it) are detected per frame and recorded, and the frames lost after the last one are those the
+container states less those read and dropped (``vdc.sources.end_fields``); the online model
 sees only new frames, over true time (avdm.true_time). The device has no pose, arena or walls:
 its batches carry None there and the recording holds none of those entities.
 """
@@ -39,7 +41,6 @@ from vdc.frame_batches import FrameBatcher
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 from vdc.sources import (
     Reader,
-    cut_short_note,
     open_reader,
     source_kind,
     source_name,
@@ -140,7 +141,14 @@ class VideoSource(DeviceContext):
 
     @property
     def dropped_total(self) -> int:
+        """Frames lost before and between the frames read so far (the times' gaps)."""
         return self._batches.dropped_total if self._batches else 0
+
+    def end_fields(self, finished: bool) -> dict[str, Any]:
+        """The counts of the source once read (``vdc.frame_batches.FrameBatcher.end_fields``):
+        with those lost after its last frame where it was read to its end (``finished``)."""
+        assert self._batches is not None, "connect() first"
+        return self._batches.end_fields(ended=finished and self._batches.ended)
 
     @property
     def repeats_total(self) -> int:
@@ -170,6 +178,7 @@ class VideoSource(DeviceContext):
         if fb is None:
             return None
         frame, dropped, dt, notes = fb.frame, fb.dropped_before, fb.dt_s, fb.notes
+        start_s = float(self.info.get("first_frame_s") or 0.0)
         events = [
             Event(
                 "dropped_frames",
@@ -177,7 +186,12 @@ class VideoSource(DeviceContext):
                 math.nan,
                 math.nan,
                 math.nan,
-                f"{n} frame(s) missing before frame {f} ({dt_i * 1000:.1f} ms gap)",
+                f"{n} frame(s) missing before frame {f} ("
+                + (
+                    f"{dt_i * 1000:.1f} ms gap)"
+                    if math.isfinite(dt_i)
+                    else f"it comes {start_s:.3f} s after the stream's start)"
+                ),
             )
             for f, n, dt_i in zip(frame, dropped, dt, strict=True)
             if n > 0
@@ -222,11 +236,15 @@ class VideoRecordResult:
     record: RecordResult
     info: dict[str, Any]  # the source: codec, nominal fps, size, rotation
     repeats: int  # frames that repeated the previous one
-    dropped: int  # frames missing according to the timestamps
+    dropped: int  # frames lost: before, between (the timestamps' gaps) and after the frames
     decode_error: str | None  # why decoding stopped early, if it did
     calibration: dict[str, Any]
     lost: int = 0  # frames lost inside the source (bad packets, missing or bad images)
     first_loss: str | None = None  # the first of them, named
+    # the frames the source states it holds (None: it states none, or a live camera) and
+    # those of them lost after the last frame read (counted in ``dropped``; None: unknown)
+    container_frames: int | None = None
+    lost_after_last: int | None = None
 
 
 def recording_id(settings: VideoSettings, out: str | Path | None = None) -> str:
@@ -335,8 +353,12 @@ def record_video(
                     "src_height_px": info["src_height_px"],
                     "fov_deg": settings.fov_deg,
                     "rotation_deg": info["rotation_deg"],
-                    # the duration the file's header states (s): a cut file ends before it
+                    # the duration the file's header states (s, from the stream's start): a
+                    # cut file ends before it; the frames it states it holds (None: it states
+                    # none); its first frame's time after the stream's start (s)
                     "header_duration_s": info.get("duration_s") or None,
+                    "container_frames": info.get("container_frames"),
+                    "first_frame_s": info.get("first_frame_s", 0.0),
                     "bit_depth": info["bit_depth"],
                     "color_range": info["color_range"],
                     "repeat_tol": settings.repeat_tol,
@@ -376,16 +398,19 @@ def record_video(
         finish_output(claim, recorder)
     error = getattr(device.reader, "error", None)
     finished = result.stop_reason == "finished"  # a signal or a full disk is not a cut file
+    ends = device.end_fields(finished)
     if error is None and finished:
         # the frames end well before the duration the header states: the file was cut
-        error = cut_short_note(info.get("duration_s"), device.last_t_s, device.fps)
+        error = ends["cut_note"]
     return VideoRecordResult(
         RecordResult.of(path, rid, result, total),
         info,
         device.repeats_total,
-        device.dropped_total,
+        ends["dropped_frames"],
         error,
         cal,
         device.reader.problems,
         device.reader.first_problem,
+        ends["container_frames"],
+        ends["lost_after_last"],
     )

@@ -24,8 +24,10 @@ class FrameBatch:
     nanoseconds (as a recording stores them); images (N, h, w) uint8 grey on the working
     raster; native_metrics (N, len(NATIVE_METRICS)) float64 on the native frames; repeat
     (N,) bool (judged on the native frames); dropped_before (N,) int64 frames the timestamps
-    say are missing just before each; dt_s (N,) seconds since the previous frame (NaN for the
-    first); notes: what was lost inside the source just before each frame, or None."""
+    say are missing just before each (before a source's first frame: those between the
+    stream's start and it, ``Reader.lost_before_first``); dt_s (N,) seconds since the
+    previous frame (NaN for the first); notes: what was lost inside the source just before
+    each frame, or None."""
 
     frame: np.ndarray
     t_s: np.ndarray
@@ -42,9 +44,11 @@ class FrameBatcher:
     for the models (``vdc.resize.area_resize``), measured on their native luma
     (``vdc.frame_metrics.NativeMeter``), with repeats (a native mean |difference| from the
     previous frame of at most ``repeat_tol`` 8-bit levels, at most ``max_repeats`` in a row)
-    and dropped frames (a gap of more than 1.5 nominal intervals at ``fps``). ``vdc-capture
-    video`` and ``vdc-analyse complexity`` both read sources through it, so both see the same
-    frames, times and flags.
+    and dropped frames (a gap of more than 1.5 nominal intervals at ``fps``; before the first
+    frame, the frames between the stream's start and it). ``vdc-capture video`` and
+    ``vdc-analyse complexity`` both read sources through it, so both see the same frames,
+    times, flags and counts: ``dropped_total`` counts the frames lost before and between the
+    frames read, :meth:`end_fields` those lost after the last one too.
 
     ``metrics``: the native metrics to compute (default all; the MAFD always, for the
     repeats); ``size`` None: no working raster (``images`` then (N, 0, 0)). ``threads`` > 1:
@@ -149,6 +153,8 @@ class FrameBatcher:
             missing = np.where(np.isfinite(dt), np.rint(dt * self.fps) - 1, 0)
             # a gap of more than half a frame interval beyond the nominal one: dropped frames
             dropped = np.where(dt * self.fps > 1.5, np.maximum(missing, 1), 0).astype(np.int64)
+        if self._prev_t is None:  # the source's first frame: those lost before it
+            dropped[0] = self.reader.lost_before_first
         frame = np.arange(self._index, self._index + len(images), dtype=np.int64)
         self._index += len(images)
         self._prev_t = self.last_t_s = float(t_s[-1])
@@ -158,6 +164,19 @@ class FrameBatcher:
             np.stack(images) if self.size is not None else np.zeros((len(images), 0, 0), np.uint8)
         )
         return FrameBatch(frame, t_s, stacked, metrics, repeat, dropped, dt, notes)
+
+    def end_fields(self, ended: bool | None = None) -> dict[str, Any]:
+        """The clip's counts once read (``vdc.sources.end_fields``): ``dropped_frames``
+        (before, between and, where the source states its count, after the frames read),
+        ``container_frames``, ``lost_after_last``, ``header_duration_s``, ``missing_s`` and
+        ``cut_note``. ``ended`` (default: read to the source's end) False: a source read in
+        part (a capture stopped by a signal), nothing counted after its last frame."""
+        from vdc.sources import end_fields
+
+        done = self.ended if ended is None else ended
+        return end_fields(
+            self.reader.info, self.last_t_s, self.fps, self._index, self.dropped_total, done
+        )
 
     def _correct_p910(self, metrics: np.ndarray, first: int) -> None:
         """Full-range P.910 values for this batch's frames that were measured in limited

@@ -7,6 +7,12 @@ with its grey image as displayed (the models' input) and its native luma as code
 standard metrics' input, ``vdc.frame_metrics``). Lost frames (bad packets, missing or
 unreadable images) are counted and named, never a silent end. Both ``vdc-capture video`` and
 ``vdc-analyse complexity`` read sources here, so both see the same frames.
+
+Each frame a source should hold is measured or counted lost, once: frames lost in the middle
+are gaps in the times (``vdc.frame_batches.FrameBatcher``); those lost before the first frame
+that decodes are the gap from the stream's start time to it (:attr:`Reader.lost_before_first`);
+those lost after the last are the frames the container states it holds less those measured and
+counted (:func:`frames_lost_after`; unknown, None, where the container states no count).
 """
 
 from __future__ import annotations
@@ -58,9 +64,16 @@ class Reader:
     ended normally); ``problems``: what went wrong inside it (missing or unreadable images,
     packets that would not decode, frames out of time order), counted. The frames these cost
     show as gaps in the times, where :class:`FrameBatcher` counts them as dropped, once; a
-    problem is the reason, not a second count."""
+    problem is the reason, not a second count.
+
+    ``info["container_frames"]``: the frames the source states it holds (a file's container,
+    an image sequence's numbers from the first file to the last), None where it states none
+    (a camera; a file whose container states neither a count nor a trustworthy duration);
+    ``info["first_frame_s"]``: the first frame's time after the stream's start (s), whose
+    frames :attr:`lost_before_first` counts."""
 
     info: dict[str, Any]
+    lost_before_first: int = 0  # frames the source should hold before its first frame
     error: str | None = None
     problems: int = 0
     first_problem: str | None = None
@@ -102,6 +115,12 @@ class _PyAvReader(Reader):
         single = os.environ.get("VDC_WORKER_THREADS") == "1"
         self.stream.thread_type = "NONE" if single else "AUTO"
         rate = self.stream.average_rate or self.stream.guessed_rate or self.stream.base_rate
+        tb = self.stream.time_base
+        start = self.stream.start_time
+        # the stream's first presentation time (s): a file need not start at 0 (an edit, an
+        # MP4 edit list's B-frame delay, an MPEG-TS clock); a frame that decodes later than
+        # it follows lost frames
+        self._start_s = float(start * tb) if start is not None and tb else None
         self.info = {
             "kind": "file",
             "codec": self.stream.codec_context.name,
@@ -110,9 +129,12 @@ class _PyAvReader(Reader):
             "src_height_px": self.stream.codec_context.height,
             "n_frames_header": int(self.stream.frames or 0),
             "rotation_deg": 0,
-            # what the container's header says (µs); a file cut short ends before it
-            "duration_s": (self.container.duration or 0) / 1e6,
+            # the duration the container's header states, from the stream's start (s); a file
+            # cut short ends before it
+            "duration_s": self._header_duration_s(),
+            "first_frame_s": 0.0,
         }
+        self.info["container_frames"] = self._container_frames()
         self._sizes: dict[int, int] = {}  # packet size by pts: frames leave the decoder reordered
         self._frames = self._decode()
         first = next(self._frames, None)  # a file with no decodable frame fails here
@@ -123,6 +145,33 @@ class _PyAvReader(Reader):
         self._first = first
         self.info["src_height_px"], self.info["src_width_px"] = first.luma.shape[:2]
 
+    def _header_duration_s(self) -> float:
+        """The stream's duration as the container's header states it, from the stream's
+        start (s; 0.0 where it states none). FFmpeg reads a Matroska (WebM) Segment's Duration
+        as it stands, which is its end on a timeline that starts at 0 (a file whose first frame
+        is at 0.48 s states 2.48 s for 2 s of frames): the start is taken off there."""
+        stated = (self.container.duration or 0) / 1e6
+        if "matroska" in self.container.format.name and self._start_s and stated > self._start_s:
+            stated -= self._start_s
+        return stated
+
+    def _container_frames(self) -> int | None:
+        """The frames the container states the stream holds: its count (MP4, MOV, AVI: the
+        sample table; less the packets an edit list discards, counted while demuxing), else
+        its header's duration times a constant rate (Matroska and WebM state a duration, not
+        a count: constant when FFmpeg's average rate equals the stream's base rate), else
+        None: unknown (MPEG-TS and raw streams state neither, whose duration FFmpeg can only
+        estimate; a variable rate)."""
+        if self.stream.frames:
+            return int(self.stream.frames)
+        avg, base = self.stream.average_rate, self.stream.base_rate
+        duration_s = self.info["duration_s"]
+        if "matroska" not in self.container.format.name or not (avg and base and duration_s > 0):
+            return None
+        if abs(float(avg) / float(base) - 1) > 1e-3:  # a variable rate: no count from it
+            return None
+        return round(duration_s * float(base))
+
     def _decoded(self, note: list[str]) -> Iterator[Any]:
         """The decoder's frames in the order it hands them over, packet by packet, so that
         one packet that will not decode costs its own frames only: its error is appended to
@@ -132,6 +181,9 @@ class _PyAvReader(Reader):
 
         try:
             for packet in self.container.demux(self.stream):
+                if packet.is_discard and self.info.get("container_frames"):
+                    # before an edit list's start: in the sample table, never shown
+                    self.info["container_frames"] -= 1
                 if packet.pts is not None and packet.size:
                     self._sizes[packet.pts] = packet.size
                 try:
@@ -169,7 +221,11 @@ class _PyAvReader(Reader):
 
         def deliver(t: float, frame: Any) -> SourceFrame:
             nonlocal t0
-            t0 = t if t0 is None else t0
+            if t0 is None:  # the first frame: how far after the stream's start
+                t0 = t
+                if frame.time is not None and self._start_s is not None:
+                    self.info["first_frame_s"] = max(0.0, t - self._start_s)
+                    self.lost_before_first = frames_missing_in(self.info["first_frame_s"], fps)
             rot = round(float(getattr(frame, "rotation", 0) or 0))
             self.info["rotation_deg"] = rot
             if "bit_depth" not in self.info:
@@ -237,6 +293,8 @@ class _CameraReader(Reader):
             "src_height_px": h,
             "n_frames_header": 0,
             "rotation_deg": 0,
+            "container_frames": None,  # live: no set length
+            "first_frame_s": 0.0,
             **IMAGE_FORMAT,
         }
 
@@ -320,6 +378,9 @@ class _ImageSequenceReader(Reader):
             "src_height_px": h,
             "n_frames_header": self.last_index - self.first_index + 1,
             "rotation_deg": 0,
+            # every number from the first file to the last is a frame
+            "container_frames": self.last_index - self.first_index + 1,
+            "first_frame_s": 0.0,
             **IMAGE_FORMAT,
         }
         self.size = (h, w)
@@ -360,7 +421,10 @@ class _ImageSequenceReader(Reader):
                 name = path.name if path is not None else self.name_of(k)
                 note.append(self._problem(f"image {name} {why}"))
                 continue
-            k0 = k if k0 is None else k0
+            if k0 is None:  # the first image read: those before it are lost
+                k0 = k
+                self.lost_before_first = k - self.first_index
+                self.info["first_frame_s"] = self.lost_before_first / self.fps
             assert img is not None and path is not None
             size = path.stat().st_size  # the image file: its codec's bits
             yield SourceFrame(img, (k - k0) / self.fps, "; ".join(note) or None, img, size)
@@ -389,13 +453,35 @@ def display_grey(frame: Any, native: np.ndarray) -> np.ndarray:
     return frame.to_ndarray(format="gray")
 
 
+def frames_missing_in(gap_s: float, fps: float) -> int:
+    """Frames missing in ``gap_s`` seconds between the stream's start and its first frame, by
+    the rule :class:`vdc.frame_batches.FrameBatcher` counts gaps between frames with (a frame
+    is missing where the first comes more than half a frame interval late): 0 for a whole
+    start, round(``gap_s`` × ``fps``) otherwise."""
+    if not (math.isfinite(gap_s) and math.isfinite(fps) and fps > 0) or gap_s * fps <= 0.5:
+        return 0
+    return max(round(gap_s * fps), 1)
+
+
+def frames_lost_after(container_frames: int | None, frames: int, dropped: int) -> int | None:
+    """Frames lost after a source's last frame: the ``container_frames`` it states it holds
+    less the ``frames`` measured and those ``dropped`` before and between them (never
+    negative); None, unknown, where the source states no count. A file cut short loses its
+    frames here: they are dropped frames, and ``missing_s`` (:func:`header_shortfall`) says
+    the same frames in seconds, not a second count."""
+    if container_frames is None:
+        return None
+    return max(0, int(container_frames) - int(frames) - int(dropped))
+
+
 def header_shortfall(
     header_duration_s: float | None, last_t_s: float | None, fps: float
 ) -> float | None:
     """Seconds of a file its header states but its frames do not reach: the header's
-    duration less the last frame's time and one frame interval (``1 / fps``), 0.0 for a
-    whole file (frames that end within two intervals of the header's duration), None where
-    no header states a duration (image sequences, cameras) or no frame was read."""
+    duration less the last frame's time since the stream's start (``last_t_s``) and one frame
+    interval (``1 / fps``), 0.0 for a whole file (frames that end within two intervals of the
+    header's duration), None where no header states a duration (image sequences, cameras) or
+    no frame was read."""
     stated = float(header_duration_s or 0.0)
     if stated <= 0 or last_t_s is None or not (math.isfinite(fps) and fps > 0):
         return None
@@ -405,17 +491,52 @@ def header_shortfall(
 
 
 def cut_short_note(
-    header_duration_s: float | None, last_t_s: float | None, fps: float
+    header_duration_s: float | None,
+    last_t_s: float | None,
+    fps: float,
+    lost_after: int | None = None,
 ) -> str | None:
     """The one line ``vdc-capture video`` and ``vdc-analyse complexity`` say about a file
-    that ends well before the duration its header states (see :func:`header_shortfall`),
-    else None."""
+    that ends well before the duration its header states (see :func:`header_shortfall`;
+    ``last_t_s`` since the stream's start), else None; with the ``lost_after`` frames
+    (:func:`frames_lost_after`) it says they are counted among the dropped ones."""
     if not header_shortfall(header_duration_s, last_t_s, fps):
         return None
+    counted = f"; its {lost_after} frame(s) after it are counted as dropped" if lost_after else ""
     return (
         f"the file ends at {last_t_s:.2f} s but its header says {header_duration_s:.2f} s "
-        "(cut short?)"
+        f"(cut short?){counted}"
     )
+
+
+def end_fields(
+    info: dict[str, Any],
+    last_t_s: float | None,
+    fps: float,
+    frames: int,
+    dropped: int,
+    ended: bool = True,
+) -> dict[str, Any]:
+    """What a clip's row says about its end (``clips.parquet``), from a source's ``info``
+    (:attr:`Reader.info`, or a video recording's ``video`` property, which keeps the same
+    keys), its last frame's time since its first (``last_t_s``), and the ``frames`` measured
+    and ``dropped`` before and between them: ``dropped_frames`` (with those lost after the
+    last frame), ``container_frames`` (the count the source states, None where it states
+    none), ``lost_after_last`` (None: unknown), ``header_duration_s``, ``missing_s`` (the
+    lost end in seconds, :func:`header_shortfall`) and ``cut_note``. ``ended``: False for a
+    source read only in part (a capture stopped by a signal): nothing is lost after it."""
+    container = info.get("container_frames")
+    after = frames_lost_after(container, frames, dropped) if ended else None
+    header_s = info.get("header_duration_s", info.get("duration_s")) or None
+    end_s = None if last_t_s is None else last_t_s + float(info.get("first_frame_s") or 0.0)
+    return {
+        "dropped_frames": int(dropped) + (after or 0),
+        "container_frames": container,
+        "lost_after_last": after,
+        "header_duration_s": header_s,
+        "missing_s": header_shortfall(header_s, end_s, fps),
+        "cut_note": cut_short_note(header_s, end_s, fps, after) if ended else None,
+    }
 
 
 def source_kind(source: str) -> str:
