@@ -36,6 +36,24 @@ EVERY = 8  # the SI/TI family, flow and zlib on every 8th frame pair (their cost
 CODEC_CRF = 23
 
 
+# full-range grey -> limited-range luma (16-235), exactly what FFmpeg's gray -> yuv420p
+# conversion computes (checked against it pixel for pixel in tests/analysis/test_predictors.py)
+_LIMITED_LUMA = np.rint(16 + np.arange(256) * 219 / 255).astype(np.uint8)
+
+
+def yuv420_planes(frames: np.ndarray) -> np.ndarray:
+    """Frames (T, H, W) uint8 full-range grey as FFmpeg's ``yuv420p`` layout, (T, 3 H' / 2, W')
+    uint8 with H', W' the sizes padded to even (edge rows/columns repeated): the limited-range
+    luma plane then the neutral (128) chroma planes. The same bytes as
+    ``VideoFrame.from_ndarray(grey, format="gray").reformat(format="yuv420p")``, without a
+    per-frame conversion (which cost most of the predictors' time on the arena's small frames)."""
+    t, h, w = frames.shape
+    luma = _LIMITED_LUMA[np.pad(frames, ((0, 0), (0, h % 2), (0, w % 2)), mode="edge")]
+    hh, ww = luma.shape[1:]
+    chroma = np.full((t, hh // 2, ww), 128, np.uint8)  # U then V, each (H'/2, W'/2), row-packed
+    return np.ascontiguousarray(np.concatenate([luma, chroma], axis=1))
+
+
 def _codec_sizes(frames: np.ndarray, fps: float, state: dict[str, Any]) -> None:
     """Encode ``frames`` (T, H, W) uint8 into the H.264 stream kept in ``state`` and add the
     packets' bytes to ``state["bytes"]``."""
@@ -53,10 +71,8 @@ def _codec_sizes(frames: np.ndarray, fps: float, state: dict[str, Any]) -> None:
         st.options = {"preset": "ultrafast", "crf": str(CODEC_CRF)}
         state |= {"stream": st, "bytes": 0, "frames": 0, "pixels": st.width * st.height}
     st = state["stream"]
-    for f in frames:
-        y = np.pad(f, ((0, h % 2), (0, w % 2)), mode="edge")
-        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(y), format="gray")
-        for p in st.encode(frame.reformat(format="yuv420p")):
+    for planes in yuv420_planes(frames):
+        for p in st.encode(av.VideoFrame.from_ndarray(planes, format="yuv420p")):
             state["bytes"] += p.size
         state["frames"] += 1
 
@@ -101,7 +117,10 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
         sampled = {
             m: np.full(len(imgs), np.nan) for m in (*NATIVE_METRICS, "flow_dps", "zlib_ratio")
         }
-        for i in np.flatnonzero(chunk.frame % every == 0):
+        # only the frames the means are over (straight driving after the warm-up): the others'
+        # numbers were computed and dropped (a fifth of the run's flow, the dearest measure)
+        used = (chunk.frame >= warmup) & ~sel["turning"].fill_null(True).to_numpy()
+        for i in np.flatnonzero((chunk.frame % every == 0) & used):
             before = imgs[i - 1] if i > 0 else prev
             if before is None:
                 continue

@@ -213,3 +213,21 @@ def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
     stats = set(res.predictors["statistic"])
     assert {"clip_auroc", "frame_auroc_pooled", "frame_auroc_within_clip"} <= stats
     assert "### clip_auroc" in res.markdown
+
+
+@pytest.mark.parametrize("shape", [(3, 72, 99), (2, 71, 100)])
+def test_codec_frames_are_ffmpegs_grey_to_yuv420p(shape) -> None:
+    """The H.264 size (codec_bpp) is of 4:2:0 frames built directly from the grey frames: they
+    are, byte for byte, FFmpeg's own conversion (odd sizes padded by their edge), so the
+    faster path measures the same stream."""
+    import av
+
+    from analysis.experiments.predictor_runs import yuv420_planes
+
+    frames = np.random.default_rng(1).integers(0, 256, shape, dtype=np.uint8)
+    frames[0, 0, :2] = (0, 255)  # both ends of the range
+    ours = yuv420_planes(frames)
+    for grey, planes in zip(frames, ours, strict=True):
+        even = np.pad(grey, ((0, shape[1] % 2), (0, shape[2] % 2)), mode="edge")
+        ffmpeg = av.VideoFrame.from_ndarray(even, format="gray").reformat(format="yuv420p")
+        np.testing.assert_array_equal(planes, ffmpeg.to_ndarray())
