@@ -168,20 +168,36 @@ class RobotEmulator:
         except OSError:
             return 0
 
-    def _drain(self, timeout_s: float = 2.0, settle_s: float = 0.1) -> None:
-        """Wait until the host has read everything written so far (or ``timeout_s``): nothing
-        pending for ``settle_s`` on end, as bytes still in the pty's flip buffer are not yet
-        counted as pending."""
-        deadline = time.monotonic() + timeout_s
+    def _drain(
+        self, timeout_s: float = 2.0, settle_s: float = 0.1, stall_s: float | None = None
+    ) -> bool:
+        """Wait until the host has read everything written so far: nothing pending for
+        ``settle_s`` on end, as bytes still in the pty's flip buffer are not yet counted as
+        pending. Gives up after ``timeout_s``, or after ``stall_s`` in which the host read
+        nothing (it is gone or stopped reading), or when the host sends STOP; True if drained."""
+        start = time.monotonic()
+        deadline = start + timeout_s
         empty_since = None
+        last_pending, progress_at = self._pending_bytes(), start
         while time.monotonic() < deadline:
-            if self._pending_bytes() > 0:
+            pending = self._pending_bytes()
+            now = time.monotonic()
+            if pending > 0:
                 empty_since = None
+                if pending < last_pending:
+                    progress_at = now
+                last_pending = pending
+                if stall_s is not None and now - progress_at >= stall_s:
+                    return False
             elif empty_since is None:
-                empty_since = time.monotonic()
-            elif time.monotonic() - empty_since >= settle_s:
-                return
+                empty_since = now
+            elif now - empty_since >= settle_s:
+                return True
+            if stall_s is not None and TYPE_STOP in self._read_host():
+                self.stopped = True
+                return False
             time.sleep(0.005)
+        return False
 
     def _read_host(self) -> list[int]:
         """Packet types the host sent since the last call (a PARAMS is kept as asked for)."""
@@ -326,8 +342,12 @@ class RobotEmulator:
             self._announce(self._model)  # the firmware announces after every START
 
     def _finish(self) -> None:
-        self._write(encode(TYPE_END))
-        time.sleep(0.2)
+        """END, then the port closes once the host has read it: closing the pty discards what
+        the host has not read, and a host that misses END takes the closed port for a cable
+        pulled out and waits for the robot to come back (a host that sent STOP reads no more;
+        one that reads nothing for 10 s is gone)."""
+        if self._write(encode(TYPE_END)) and not self.stopped:
+            self._drain(timeout_s=120.0, settle_s=0.5, stall_s=10.0)
         self.close_port()
         if self.report_path is not None:
             self.report_path.write_text(json.dumps(self.report), encoding="utf-8")

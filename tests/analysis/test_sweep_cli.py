@@ -13,6 +13,7 @@ from analysis.cli import main
 from avdm.calibration_store import lookup_calibration
 from tests.figures import assert_figure, figure_env, recording_figures, saved_figures
 from tests.helpers import assert_one_line_error, run_cli
+from tests.in_process import run_in_process
 from vdc.parquet_io import read_metadata
 
 SWEEP_COLUMNS = [
@@ -124,10 +125,11 @@ def test_sweep_runs_as_a_module(out_dir: Path) -> None:
     ],
 )
 def test_bad_input_gives_one_line_and_exit_2(args: list[str], needles: list[str], out_dir) -> None:
+    # in this process (tests.in_process): the parse and checks of the command line only
     proc = (
-        run_cli("analysis", *args, "--out", str(out_dir))
+        run_in_process("analysis", *args, "--out", str(out_dir))
         if args[0] != "frobnicate"
-        else run_cli("analysis", *args)
+        else run_in_process("analysis", *args)
     )
     assert_one_line_error(proc, *needles)
     assert not (out_dir / "sweep.parquet").exists()
@@ -136,7 +138,9 @@ def test_bad_input_gives_one_line_and_exit_2(args: list[str], needles: list[str]
 def test_unwritable_output_is_one_line(tmp_path: Path) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    proc = run_cli("analysis", "sweep", "--sf", "5,10", "--tf", "2", "--out", str(blocker / "sub"))
+    proc = run_in_process(
+        "analysis", "sweep", "--sf", "5,10", "--tf", "2", "--out", str(blocker / "sub")
+    )
     assert_one_line_error(proc)
 
 
@@ -175,7 +179,7 @@ def test_calibrate_prints_and_saves_the_fit(out_dir: Path) -> None:
 def test_a_poor_calibration_is_not_offered(tmp_path: Path) -> None:
     """12x4 px at 30 Hz leaves a narrow valid band: the log-log fit explains too little of it
     (R^2 about 0.67), so it is written for inspection but neither offered nor stored."""
-    proc = run_cli(
+    proc = run_in_process(
         "analysis", "calibrate", "--fps", "30", "--size", "12x4", "--update-defaults",
         "--out", str(tmp_path),
     )  # fmt: skip

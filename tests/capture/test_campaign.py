@@ -15,6 +15,7 @@ from analysis.rrd_reader import Recording
 from capture.campaign import CaptureSweepSettings, parse_grid
 from capture.sim import SimSettings
 from tests.helpers import assert_one_line_error, run_cli
+from tests.in_process import run_in_process
 
 
 def test_grid_items_take_the_sim_settings_types() -> None:
@@ -140,6 +141,7 @@ def test_a_failing_run_is_listed_and_the_others_finish(tmp_path: Path) -> None:
     ],
 )
 def test_bad_grids_are_one_line_errors(tmp_path: Path, args: list[str], needle: str) -> None:
-    proc = run_cli("capture", "sweep", *args, "--out", str(tmp_path / "o"))
+    # in this process (tests.in_process): the grid is refused before any run starts
+    proc = run_in_process("capture", "sweep", *args, "--out", str(tmp_path / "o"))
     assert_one_line_error(proc, needle)
     assert not (tmp_path / "o").exists()  # nothing recorded

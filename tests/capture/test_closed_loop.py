@@ -20,6 +20,7 @@ from capture.config import (
     WallConfig,
 )
 from tests.helpers import assert_one_line_error, run_cli
+from tests.in_process import run_in_process
 
 
 def config(**kw) -> SimConfig:
@@ -158,8 +159,8 @@ def test_collision_recording_has_events_detector_and_controller(tmp_path: Path) 
 )
 def test_bad_collision_options(tmp_path: Path, args: list[str], needle: str) -> None:
     out = tmp_path / "x.rrd"
-    assert_one_line_error(
-        run_cli("capture", "sim", "--minutes", "0.05", *args, "--out", str(out)), needle
+    assert_one_line_error(  # in this process (tests.in_process): refused before any run
+        run_in_process("capture", "sim", "--minutes", "0.05", *args, "--out", str(out)), needle
     )
     assert not out.exists()
 

@@ -18,6 +18,7 @@ from avdm import make_model
 from capture.config import SimConfig, WallConfig, parse_schedule
 from capture.sim import SimulatedRobot
 from tests.helpers import assert_one_line_error, run_cli, spawn, start_long_capture, wait_until
+from tests.in_process import run_in_process
 
 CONTRACT_ENTITIES = {
     "/arena/walls",
@@ -182,9 +183,10 @@ def test_signal_stops_cleanly_with_a_valid_recording(tmp_path: Path, sig, code) 
 )
 def test_bad_input_gives_one_line_exit_2_and_no_file(tmp_path: Path, args, needles) -> None:
     out = tmp_path / "bad.rrd"
-    proc = run_cli("capture", "sim", "--minutes", "0.05", *args, "--out", str(out))
+    # in this process (tests.in_process): the parse and checks of the command line only
+    proc = run_in_process("capture", "sim", "--minutes", "0.05", *args, "--out", str(out))
     if "--minutes" in args:  # the test's own --minutes comes first; theirs wins
-        proc = run_cli("capture", "sim", *args, "--out", str(out))
+        proc = run_in_process("capture", "sim", *args, "--out", str(out))
     assert_one_line_error(proc, *needles)
     assert not out.exists()
 

@@ -10,6 +10,7 @@ import signal
 import struct
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -398,3 +399,53 @@ def test_sigint_stops_robot_capture_cleanly(tmp_path: Path) -> None:
     end = rec.properties()["run_end"]
     assert end["stop_reason"] == "signal SIGINT" and end["frames"] > 10
     assert len(rec.read_frames().frame) == end["frames"]
+
+
+def test_a_host_that_reads_late_still_gets_the_robots_end(tmp_path: Path) -> None:
+    """The emulator closes its port only once the host has read END: closing a pty discards
+    what the host has not read yet, and a host that misses END takes the vanished port for a
+    cable pulled out and waits for the robot to come back (the flaky 'did not come back within
+    30 s' of a loaded machine). Here the host does not read until the robot has sent its whole
+    run (1 s of frames, without images, fits in the pty's buffers)."""
+    import serial
+
+    from capture.colias_link import EmulateSettings, emulate_robot
+    from capture.serial_protocol import TYPE_END, TYPE_START
+
+    link = tmp_path / "robot"
+    settings = EmulateSettings(
+        link=str(link), minutes=1 / 60, fast=True, decimation=1000, width_px=16, height_px=12
+    )
+    reports: list[dict] = []
+    robot = threading.Thread(target=lambda: reports.append(emulate_robot(settings)))
+    robot.start()
+    try:
+        assert wait_until(link.is_symlink, 60), "the emulator's port did not appear"
+        host = serial.Serial(str(link), timeout=0.05)
+        host.write(encode(TYPE_START))
+        host.flush()
+        # wait, reading nothing, until the robot has written all it will write (its run is
+        # over: the bytes waiting stop growing for 1 s) or it closed the port
+        sizes = [-1]
+
+        def robot_done() -> bool:
+            if not robot.is_alive():
+                return True
+            sizes.append(host.in_waiting)
+            return len(sizes) > 20 and len(set(sizes[-21:])) == 1 and sizes[-1] > 0
+
+        assert wait_until(robot_done, 60)
+        parser, types = PacketParser(), []
+        while TYPE_END not in types:
+            try:
+                data = host.read(4096)
+            except serial.SerialException:  # the port was closed under the host
+                break
+            if not data:
+                break
+            types += [t for t, _ in parser.feed(data)]
+        host.close()
+    finally:
+        robot.join(timeout=60)
+    assert TYPE_END in types, "the robot closed its port before the host read its END"
+    assert types.count(TYPE_FRAME) == reports[0]["frames"] == 33

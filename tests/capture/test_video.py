@@ -22,6 +22,7 @@ from avdm.stimuli import grating
 from capture.video import VideoSettings, record_video
 from tests.figures import assert_figure, figure_env, saved_figures
 from tests.helpers import assert_one_line_error, run_cli, write_video
+from tests.in_process import run_in_process
 from vdc.frame_metrics import luma_plane
 
 FOV = 70.0
@@ -151,14 +152,15 @@ def test_bad_files_are_one_line_and_exit_2(tmp_path: Path, make, needles) -> Non
     src = tmp_path / "clip.mp4"
     make(src)
     out = tmp_path / "x.rrd"
-    proc = run_cli("capture", "video", str(src), "--fov-deg", "70", "--out", str(out))
+    # in this process (tests.in_process): the file is refused before any recording
+    proc = run_in_process("capture", "video", str(src), "--fov-deg", "70", "--out", str(out))
     assert_one_line_error(proc, *needles)
     assert not out.exists()
 
 
 def test_a_camera_index_that_does_not_exist_is_one_line(tmp_path: Path) -> None:
     out = tmp_path / "x.rrd"
-    proc = run_cli("capture", "video", "57", "--fov-deg", "60", "--out", str(out))
+    proc = run_in_process("capture", "video", "57", "--fov-deg", "60", "--out", str(out))
     assert_one_line_error(proc, "camera 57")
     assert not out.exists()
 
