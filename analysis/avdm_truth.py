@@ -8,11 +8,15 @@ The protocol (``benchmarks/bench_avdm_truth.py`` runs it whole; the tests run on
 * the frames are made at a *video pitch* (320 px across 70°, 0.22 deg/px) and optionally go
   through H.264 (libx264, CRF 23, the codec's default quality); the *robot pitch* (99 px,
   0.71 deg/px) is the video frames area-resized as ``vdc-capture video`` resizes them;
-* each model variant and OpenCV's DIS optic flow (``flow_dps``, as ``complexity`` computes it)
-  read the speed; a cell's reading is the mean after the warm-up.
+* each registered model (``VARIANTS``: ``avdm``, ``avdm-natural`` and the Hassenstein–Reichardt
+  correlator ``hrc``) and three of OpenCV's optic flows (``FLOW_READERS``: DIS, as
+  ``complexity``'s ``flow_dps`` computes it; Farnebäck; pyramidal Lucas–Kanade on a grid of
+  points) read the speed; a flow reads the mean |horizontal flow| in deg/s; a cell's reading is
+  the mean after the warm-up.
 
-``summarise_truth`` then gives, per variant: the median absolute relative error per speed, the worst
-direction asymmetry and Spearman's ρ between reading and truth per image.
+``summarise_truth`` then gives, per reader: the median absolute relative error per speed, the
+share of frames a model flagged valid (``omega_valid``), the worst direction asymmetry and
+Spearman's ρ between reading and truth per image.
 """
 
 from __future__ import annotations
@@ -38,7 +42,8 @@ VIDEO_SIZE = (232, 320)  # (H, W): 0.22 deg/px, a small video's pitch at 70°
 ROBOT_SIZE = (72, 99)  # the robot camera's raster, 0.71 deg/px
 SPEEDS_DPS = (1.0, 2.0, 5.0, 10.0, 20.0, 40.0, 80.0, 160.0, 300.0)
 IMAGES = ("camera", "astronaut", "coffee", "chelsea", "rocket", "brick", "grass", "gravel")
-VARIANTS = ("avdm", "avdm-natural")
+VARIANTS = ("avdm", "avdm-natural", "hrc")
+FLOW_READERS = ("dis", "farneback", "lk")
 
 
 def photograph(name: str) -> np.ndarray:
@@ -123,11 +128,66 @@ def dis_speed_dps(frames: np.ndarray, fps: float, deg_per_px: float) -> np.ndarr
     return np.asarray(px) * deg_per_px * fps
 
 
+# OpenCV's documented example parameters (the dense optical flow tutorial): pyramid scale 0.5,
+# 3 levels, 15 px window, 3 iterations, 5 px polynomial neighbourhood, σ 1.2
+FARNEBACK = {
+    "pyr_scale": 0.5,
+    "levels": 3,
+    "winsize": 15,
+    "iterations": 3,
+    "poly_n": 5,
+    "poly_sigma": 1.2,
+    "flags": 0,
+}
+
+
+def farneback_speed_dps(frames: np.ndarray, fps: float, deg_per_px: float) -> np.ndarray:
+    """Mean |horizontal Farnebäck flow| (``cv2.calcOpticalFlowFarneback``, ``FARNEBACK``) per
+    frame pair, deg/s, read as DIS is: (T−1,)."""
+    px = [
+        float(np.abs(cv2.calcOpticalFlowFarneback(a, b, None, **FARNEBACK)[..., 0]).mean())
+        for a, b in pairwise(frames)
+    ]
+    return np.asarray(px) * deg_per_px * fps
+
+
+def lk_grid(h: int, w: int) -> np.ndarray:
+    """The points Lucas–Kanade tracks: a grid about 40 points across (every ``max(4, W/40)``
+    px, at least 10 px from the border), (N, 1, 2) float32 (x, y)."""
+    step = max(4, round(w / 40))
+    xs = np.arange(min(10, w // 4), w - min(10, w // 4), step)
+    ys = np.arange(min(10, h // 4), h - min(10, h // 4), step)
+    gx, gy = np.meshgrid(xs, ys)
+    return np.stack([gx.ravel(), gy.ravel()], axis=-1).astype(np.float32)[:, None, :]
+
+
+def lk_speed_dps(frames: np.ndarray, fps: float, deg_per_px: float) -> np.ndarray:
+    """Mean |horizontal displacement| of the grid points pyramidal Lucas–Kanade
+    (``cv2.calcOpticalFlowPyrLK``, OpenCV's defaults: 21×21 window, 3 pyramid levels) tracks
+    from each frame to the next, over the points it reports found, deg/s: (T−1,). A pair
+    where it finds none reads 0."""
+    pts = lk_grid(*frames.shape[1:])
+    px = []
+    for a, b in pairwise(frames):
+        moved, status, _ = cv2.calcOpticalFlowPyrLK(a, b, pts, None)
+        ok = status.ravel() == 1
+        px.append(float(np.abs(moved[ok, 0, 0] - pts[ok, 0, 0]).mean()) if ok.any() else 0.0)
+    return np.asarray(px) * deg_per_px * fps
+
+
+FLOW_SPEED = {"dis": dis_speed_dps, "farneback": farneback_speed_dps, "lk": lk_speed_dps}
+
+
 def measure_cell(
-    cell: Cell, variants: Sequence[str] = VARIANTS, n_frames: int = 45, warm: int = 20
+    cell: Cell,
+    variants: Sequence[str] = VARIANTS,
+    n_frames: int = 45,
+    warm: int = 20,
+    flows: Sequence[str] = FLOW_READERS,
 ) -> list[dict]:
-    """Rows (one per reader: each variant and ``dis``) with the mean and spread of the reading
-    after ``warm`` frames and, for the AVDM kinds, the share of frames flagged valid."""
+    """Rows (one per reader: each variant and each optic flow of ``flows``) with the mean and
+    spread of the reading after ``warm`` frames and, for the models with ``omega_valid``, the
+    share of frames flagged valid (NaN for the flows, which flag nothing)."""
     frames = cell_frames(cell, n_frames)
     h, w = frames.shape[1:]
     ctx = camera_model_context(w, h, cell.fps, FOV_DEG)
@@ -146,16 +206,17 @@ def measure_cell(
                 "valid_share": float(valid[warm:].mean()) if valid is not None else math.nan,
             }
         )
-    d = dis_speed_dps(frames, cell.fps, float(ctx["deg_per_px"]))[warm - 1 :]
-    rows.append(
-        {
-            **base,
-            "reader": "dis",
-            "omega_dps": float(d.mean()),
-            "omega_sd_dps": float(d.std()),
-            "valid_share": math.nan,
-        }
-    )
+    for flow in flows:
+        d = FLOW_SPEED[flow](frames, cell.fps, float(ctx["deg_per_px"]))[warm - 1 :]
+        rows.append(
+            {
+                **base,
+                "reader": flow,
+                "omega_dps": float(d.mean()),
+                "omega_sd_dps": float(d.std()),
+                "valid_share": math.nan,
+            }
+        )
     return rows
 
 
@@ -193,8 +254,9 @@ def run_protocol(
 
 def summarise_truth(table: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
     """(per reader and speed: median and max |relative error| over images, directions, fps,
-    pitches and codecs; per reader: worst direction asymmetry over 2–300 deg/s, and the
-    smallest Spearman ρ over (image, fps, pitch, codec) groups)."""
+    pitches and codecs, and the mean share of frames flagged valid (NaN for a reader without
+    a flag); per reader: worst direction asymmetry over 2–300 deg/s, and the smallest
+    Spearman ρ over (image, fps, pitch, codec) groups)."""
     from analysis.stats import spearman
 
     t = table.with_columns(
@@ -207,6 +269,7 @@ def summarise_truth(table: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
         .agg(
             pl.col("abs_rel_error").median().alias("median_abs_rel_error"),
             pl.col("abs_rel_error").max().alias("max_abs_rel_error"),
+            pl.col("valid_share").mean().alias("valid_share"),
         )
         .sort("reader", "omega_true_dps")
     )
@@ -241,6 +304,7 @@ def summarise_truth(table: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
         .agg(
             pl.col("asymmetry").max().alias("worst_asymmetry"),
             pl.col("asymmetry").median().alias("median_asymmetry"),
+            (pl.col("asymmetry") <= 0.10).mean().alias("share_asymmetry_le_0_10"),
         )
         .join(
             rho_t.group_by("reader").agg(

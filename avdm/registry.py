@@ -19,6 +19,7 @@ from avdm.avdm_multiscale import AvdmMultiScale, AvdmMultiScaleParams
 from avdm.base import PRIMARY_OUTPUT as PRIMARY_OUTPUT_NAME
 from avdm.base import Model, Params, require_alert
 from avdm.calibration_store import calibration_for
+from avdm.hrc import Hrc, HrcParams
 from avdm.lgmd import LgmdColias, LgmdPlus
 from avdm.lgmd_params import LgmdColiasParams, LgmdPlusParams
 from avdm.plugins import (
@@ -61,6 +62,23 @@ def _complete_avdm(params: Params) -> Params:
     )
 
 
+def _complete_hrc(params: Params) -> Params:
+    assert isinstance(params, HrcParams)
+    if None not in (params.r_peak, params.v_peak_dps, params.knee, params.change_max):
+        return params
+    # the response curve measured on 1/f clutter for this camera and these dynamics: once,
+    # then cached (avdm.hrc_calibration); what the user fixed wins
+    from avdm.hrc_calibration import hrc_calibration
+
+    cal = hrc_calibration(params)
+    return params.replace(
+        **{k: cal[k] if getattr(params, k) is None else getattr(params, k) for k in _HRC_CURVE}
+    )
+
+
+_HRC_CURVE = ("r_peak", "v_peak_dps", "knee", "change_max")
+
+
 def _as_is(params: Params) -> Params:
     return params
 
@@ -72,6 +90,7 @@ KINDS: dict[str, Kind] = {
         lambda p, n: AvdmMultiScale(p, n),  # type: ignore[arg-type]
         _complete_avdm,
     ),
+    "hrc": Kind(HrcParams, lambda p, n: Hrc(p, n), _complete_hrc),  # type: ignore[arg-type]
     "lgmd-plus": Kind(LgmdPlusParams, lambda p, n: LgmdPlus(p, n), _as_is),  # type: ignore[arg-type]
     "lgmd-colias": Kind(LgmdColiasParams, lambda p, n: LgmdColias(p, n), _as_is),  # type: ignore[arg-type]
 }
@@ -99,6 +118,12 @@ VARIANTS: dict[str, Variant] = {
         {},
         "AVDM for real footage: multi-scale, direction-symmetric correlators, texture pooled "
         "over the field; valid 1-300 deg/s at 25-30 fps (default for video and complexity)",
+    ),
+    "hrc": Variant(
+        "hrc",
+        {},
+        "Hassenstein-Reichardt correlator, fly-style, contrast-normalised: tuned to temporal "
+        "frequency; reads deg/s only below its calibrated peak (about 25 deg/s at 25-30 fps)",
     ),
     "lgmd-plus": Variant("lgmd-plus", {}, "LGMD+ collision detector, released defaults"),
     "lgmd-plus-arena": Variant(
@@ -276,7 +301,7 @@ def make_model(spec: str, **context: Any) -> Model:
 
 # the families whose models decode an angular velocity (output ``omega_dps``); the others are
 # collision detectors (spike rate, membrane potential)
-ANGULAR_VELOCITY_KINDS = ("avdm", "avdm-multiscale")
+ANGULAR_VELOCITY_KINDS = ("avdm", "avdm-multiscale", "hrc")
 
 
 def require_angular_velocity(spec: str, what: str) -> None:
@@ -291,7 +316,7 @@ def require_angular_velocity(spec: str, what: str) -> None:
         avdms = sorted(n for n, v in VARIANTS.items() if v.kind in ANGULAR_VELOCITY_KINDS)
         raise ValueError(
             f"{what} needs a model's angular velocity (omega_dps); {name} is a collision "
-            f"detector without one: give an AVDM variant ({', '.join(avdms)})"
+            f"detector without one: give an angular-velocity model ({', '.join(avdms)})"
         )
 
 

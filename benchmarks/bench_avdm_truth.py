@@ -1,15 +1,17 @@
-"""How true is each AVDM variant on real footage? Real photographs panned at known speeds.
+"""How true is each speed reader on real footage? Real photographs panned at known speeds.
 
-    python benchmarks/bench_avdm_truth.py                 # the whole protocol (~10 min)
+    python benchmarks/bench_avdm_truth.py                 # the whole protocol (~15 min)
     python benchmarks/bench_avdm_truth.py --quick         # 3 images, no H.264 (~1 min)
 
 Protocol (analysis/avdm_truth.py): 8 photographs shipped in scikit-image, a 70° camera panning
 at 1, 2, 5, 10, 20, 40, 80, 160 and 300 deg/s in both directions, at 25 and 30 fps, at the
 robot camera's pitch (0.71 deg/px) and a video pitch (0.22 deg/px), raw and through H.264.
-Prints every cell (truth, each variant's mean ± sd, DIS flow), then per reader the median
-absolute relative error per speed, the worst direction asymmetry and Spearman's ρ, then the
-speed of the models against DIS on the same frames, one core. Writes the figure and tables
-to --out.
+The readers: the registered models avdm, avdm-natural and hrc (a Hassenstein-Reichardt
+correlator), and OpenCV's DIS, Farnebäck and pyramidal Lucas-Kanade optic flows (mean
+|horizontal flow| in deg/s). Prints every cell, then per reader the median absolute relative
+error per speed, the share of frames a model flagged valid per speed, the worst direction
+asymmetry and Spearman's ρ, then the speed of every reader against DIS on the same frames,
+one core. Writes the figure and tables to --out.
 """
 
 from __future__ import annotations
@@ -30,11 +32,13 @@ import polars as pl
 from tqdm import tqdm
 
 from analysis.avdm_truth import (
+    FARNEBACK,
     FOV_DEG,
     IMAGES,
     VARIANTS,
     Cell,
     cell_frames,
+    lk_grid,
     plot_truth,
     protocol_cells,
     run_protocol,
@@ -60,10 +64,17 @@ def speed(pitch: str) -> list[str]:
         m.run(frames)
         rates[spec] = len(frames) / (time.perf_counter() - t)
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    t = time.perf_counter()
-    for a, b in pairwise(frames):
-        dis.calc(a, b, None)
-    rates["dis (reference)"] = (len(frames) - 1) / (time.perf_counter() - t)
+    pts = lk_grid(h, w)
+    flows = {
+        "dis (reference)": lambda a, b: dis.calc(a, b, None),
+        "farneback": lambda a, b: cv2.calcOpticalFlowFarneback(a, b, None, **FARNEBACK),
+        "lk": lambda a, b: cv2.calcOpticalFlowPyrLK(a, b, pts, None),
+    }
+    for name, flow in flows.items():
+        t = time.perf_counter()
+        for a, b in pairwise(frames):
+            flow(a, b)
+        rates[name] = (len(frames) - 1) / (time.perf_counter() - t)
     for k, v in rates.items():
         lines.append(
             f"  {pitch:5s} {w}x{h}  {k:18s} {v:10.0f} frames/s"
@@ -97,6 +108,9 @@ def main() -> None:
         print("\nmedian |reading − truth| / truth per speed (over images, directions, fps,")
         print("pitches and codecs):")
         print(per_speed.pivot(on="reader", index="omega_true_dps", values="median_abs_rel_error"))
+        print("\nshare of frames flagged valid (omega_valid) per speed, after the warm-up:")
+        flagged = per_speed.filter(pl.col("valid_share").is_not_nan())
+        print(flagged.pivot(on="reader", index="omega_true_dps", values="valid_share"))
     with pl.Config(tbl_cols=-1, float_precision=3, tbl_width_chars=200):
         print("\nper reader (asymmetry and ρ over 2-300 deg/s):")
         print(per_reader)
