@@ -40,11 +40,14 @@ from analysis.source_metrics import (
     DEFAULT_METRICS,
     DIS_PRESETS,
     METRICS,
+    PARTS,
     RASTERS,
     ComplexityMeter,
-    SourceMeasurement,
+    complexity_task,
     fov_free,
+    measured_settings,
     parse_metrics,
+    part_path,
     present,
     rank_correlations,
 )
@@ -60,8 +63,6 @@ from vdc.frame_metrics import RANGE_CHOICES, RANGE_COLUMNS
 from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL
 from vdc.sources import source_name
-
-PARTS = "parts"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,9 +156,7 @@ class ComplexitySettings:
 
     def measured(self) -> dict[str, Any]:
         """The settings a source's numbers depend on (not where or which it runs)."""
-        skip = {"executor", "jobs", "scheduler", "shard", "force", "rrd"}
-        out = {k: v for k, v in dataclasses.asdict(self).items() if k not in skip}
-        return out | {"metrics": ",".join(self.metric_names())}
+        return measured_settings(dataclasses.asdict(self))
 
 
 def complexity_of_frames(
@@ -356,45 +355,6 @@ def is_vdc_output(rec: Any) -> bool:
     """Whether a recording (``analysis.rrd_reader.Recording``) is one vdc derived from
     another (it carries the ``vdc_output`` property :func:`write_complexity_rrd` sets)."""
     return OUTPUT_MARKER in rec.properties()
-
-
-def part_path(out: Path, key: str) -> Path:
-    return Path(out) / PARTS / f"{key}.parquet"
-
-
-def measure_source(
-    source: str,
-    recording_id: str,
-    settings: ComplexitySettings,
-    progress: Callable[[int], None] | None = None,
-) -> SourceMeasurement:
-    """One source measured (``analysis.source_metrics``): a recording's own id, a video's
-    ``recording_id``."""
-    from analysis.loading import load_recording
-    from analysis.source_metrics import measure_recording, measure_video
-
-    if source.endswith(".rrd"):
-        return measure_recording(load_recording(source), settings, progress)
-    return measure_video(source, settings, recording_id, progress)
-
-
-def complexity_task(
-    source: str,
-    recording_id: str,
-    key: str,
-    settings: dict,
-    out: str,
-    progress: Callable[[int], None] | None = None,
-) -> dict:
-    """One source as an executor task: measure it and write its part (the "done" mark)
-    atomically. Module-level, small arguments, a small result."""
-    from vdc.parquet_io import write_parquet
-
-    s = ComplexitySettings(**settings)
-    m = measure_source(source, recording_id, s, progress)
-    meta = {"info": m.info, "settings": s.measured(), "source": source, "key": key}
-    write_parquet(m.table, part_path(Path(out), key), meta)
-    return {"frames": m.table.height}
 
 
 def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:

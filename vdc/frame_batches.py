@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -59,7 +59,11 @@ class FrameBatcher:
     ``color_range`` (``auto``, ``limited``, ``full``) decides the range of the SI/TI variants
     (``vdc.frame_metrics.decide_ranges``). In an untagged stream the P.910 variant is limited
     until a frame's luma leaves that range: a batch's own earlier frames are then corrected
-    before it is returned, and :meth:`p910_late_corrections` gives those of earlier batches."""
+    before it is returned, and :meth:`p910_late_corrections` gives those of earlier batches.
+    ``reopen`` (a file or an image sequence: a function that opens the source again) spares
+    the second SI/TI pass a detecting meter otherwise makes on every frame for these
+    corrections: only when a frame leaves the limited range, the frames before it are read
+    again and measured in full range (the same bits; a clip that stays inside costs nothing)."""
 
     def __init__(
         self,
@@ -73,6 +77,7 @@ class FrameBatcher:
         threads: int = 1,
         jpeg_quality: int = 75,
         color_range: str = "auto",
+        reopen: Callable[[], Reader] | None = None,
     ) -> None:
         from vdc.frame_metrics import NativeMeter, decide_ranges
         from vdc.recording import NATIVE_METRICS
@@ -85,8 +90,9 @@ class FrameBatcher:
         native = NATIVE_METRICS if metrics is None else (*metrics, "mafd")
         self.meter = NativeMeter(
             reader.info["bit_depth"], ranges["color_range_legacy"], jpeg_quality, tuple(native),
-            p910_range=ranges["color_range_p910"] or "detect",
+            p910_range=ranges["color_range_p910"] or "detect", full_alternative=reopen is None,
         )  # fmt: skip
+        self._reopen = reopen
         reader.grey = size is not None  # no working raster: no grey conversion (0.3 ms at 720p)
         if threads > 1:
             from vdc.pipeline import pipelined
@@ -183,7 +189,7 @@ class FrameBatcher:
         range before a later frame of the batch left it (in place)."""
         from vdc.recording import NATIVE_METRICS
 
-        fix = self.meter.p910_corrections()
+        fix = self.p910_late_corrections()
         k = np.arange(first, min(len(fix), first + len(metrics)))
         if len(k):
             metrics[k - first, NATIVE_METRICS.index("si_p910")] = fix[k, 0]
@@ -193,6 +199,18 @@ class FrameBatcher:
         """(K, 2) float64 ``si_p910``, ``ti_p910`` in full range for frames 0..K-1 returned in
         earlier batches in limited range (an untagged stream whose luma left the limited
         range only after them); K = 0 when none need it."""
+        if self._reopen is not None and self.meter.lacks_full_alternative:
+            from vdc.frame_metrics import full_range_p910
+
+            again = self._reopen()
+            try:
+                again.grey = False  # the native planes only
+                natives = (fr.native for fr in again.frames())
+                self.meter.set_full_alternative(
+                    full_range_p910(natives, self.meter.bit_depth, self.meter.left_limited_at)
+                )
+            finally:
+                again.close()
         return self.meter.p910_corrections()
 
     def color_ranges(self) -> dict[str, str | None]:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterable
 from typing import Any
 
 import cv2
@@ -263,7 +264,11 @@ class NativeMeter:
     otherwise); ``p910_range`` ``limited``, ``full``, None (= ``color_range``) or ``detect``
     (an untagged stream with ``--color-range auto``: limited until a frame's luma leaves the
     limited range, full from that frame on, as siti-tools accepts it; :meth:`p910_corrections`
-    then gives the earlier frames' values in full range). ``update(y, packet_bytes)`` takes
+    then gives the earlier frames' values in full range). While detecting, each frame's
+    full-range values are computed beside (a second SI/TI pass) unless ``full_alternative``
+    is False: then a caller that can read the source again gives them once a frame leaves
+    the limited range (:meth:`set_full_alternative`; ``vdc.frame_batches.FrameBatcher`` does
+    for files). ``update(y, packet_bytes)`` takes
     one frame (H, W) and the size of its packet in the source (None: no ``codec_bpp``) and
     returns its metrics (temporal ones NaN on the first frame). Only the names in ``metrics``
     are computed (the others are NaN); the MAFD always is (repeats are judged on it), and a
@@ -274,6 +279,7 @@ class NativeMeter:
     jpeg_quality: int = 75
     metrics: tuple[str, ...] = NATIVE_METRICS
     p910_range: str | None = None
+    full_alternative: bool = True
 
     def __post_init__(self) -> None:
         if self.bit_depth not in (8, 10, 12):
@@ -306,11 +312,29 @@ class NativeMeter:
         """Detecting: whether a frame so far left the limited range; else None."""
         return (self.left_limited_at is not None) if self._detect else None
 
+    @property
+    def lacks_full_alternative(self) -> bool:
+        """Whether a frame left the limited range and the full-range values of the frames
+        before it are still to be given (:meth:`set_full_alternative`)."""
+        k = self.left_limited_at
+        return bool(k) and len(self._full_alt) < k
+
+    def set_full_alternative(self, values: np.ndarray) -> None:
+        """(K, 2) ``si_p910``, ``ti_p910`` in full range of the first K = ``left_limited_at``
+        frames, computed elsewhere (``full_alternative`` False: a second reading of the
+        source through a meter in full range gives the same bits)."""
+        k = self.left_limited_at
+        if k is None or len(values) != k:
+            raise ValueError(f"expected the full-range values of {k} frames, got {len(values)}")
+        self._full_alt = [(float(a), float(b)) for a, b in values]
+
     def p910_corrections(self) -> np.ndarray:
         """(K, 2) float64: ``si_p910``, ``ti_p910`` in full range of the first K frames,
         which were given in limited range before frame K left it (K = 0: none to correct)."""
         if self.left_limited_at is None:
             return np.zeros((0, 2))
+        if len(self._full_alt) < self.left_limited_at:
+            raise RuntimeError("full-range values of the frames before the excursion not given")
         return np.array(self._full_alt[: self.left_limited_at], dtype=np.float64).reshape(-1, 2)
 
     def row(self, y: np.ndarray, packet_bytes: int | None = None) -> np.ndarray:
@@ -334,7 +358,7 @@ class NativeMeter:
                 self.left_limited_at = self.frames_seen
                 self.p910_now = "full"
                 self._p910 = self._p910_full
-            else:  # keep the full-range values in case a later frame leaves the range
+            elif self.full_alternative:  # the full-range values, in case a later frame leaves
                 full = self._p910_full
                 a = chosen_sums(y, prev if have else y, full, full, have, True, False)
                 self._full_alt.append(
@@ -394,3 +418,22 @@ def luma_plane(frame: Any, bit_depth: int) -> np.ndarray:
     per_line = plane.line_size // np.dtype(dtype).itemsize
     rows = np.frombuffer(plane, dtype).reshape(-1, per_line)
     return rows[: frame.height, : frame.width]
+
+
+def full_range_p910(natives: Iterable[np.ndarray], bit_depth: int, frames: int) -> np.ndarray:
+    """(``frames``, 2) float64 ``si_p910``, ``ti_p910`` in full range of the first ``frames``
+    native luma planes of ``natives`` (a second reading of a source): the same bits as a
+    detecting :class:`NativeMeter` computes beside its limited-range values. Fewer planes
+    than ``frames`` raise ValueError."""
+    meter = NativeMeter(bit_depth, "full", metrics=("si_p910", "ti_p910", "mafd"))
+    out = np.full((frames, 2), np.nan)
+    seen = 0
+    for y in natives:
+        if seen == frames:
+            break
+        m = meter.update(y)
+        out[seen] = m["si_p910"], m["ti_p910"]
+        seen += 1
+    if seen < frames:
+        raise ValueError(f"the source gave {seen} frames on a second reading, not {frames}")
+    return out

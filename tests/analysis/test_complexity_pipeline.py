@@ -101,3 +101,33 @@ def test_the_cheaper_area_resize_is_opencvs_within_a_level(clip) -> None:
     for m in ("omega_dps", "flow_dps"):
         a, b = read["ours"][m][2:], read["cv"][m][2:]
         np.testing.assert_allclose(a, b, rtol=0.005, err_msg=m)
+
+
+@pytest.mark.parametrize("first_out", [0, 6])
+def test_reading_again_gives_the_full_range_values_of_a_second_pass(tmp_path, first_out) -> None:
+    """An untagged clip whose luma leaves 16..235 at frame ``first_out`` (batches of 4): the
+    batcher that reads the file again for the frames before it (``reopen``, as the command
+    does) gives the native metrics of the one that measures every frame in full range beside,
+    bit for bit, and no second reading happens when none is needed."""
+    from tests.analysis.test_color_range import encode_luma
+    from vdc.frame_batches import FrameBatcher
+    from vdc.sources import open_reader
+
+    path = encode_luma(tmp_path / "late.mp4", [(20, 230)] * first_out + [(44, 246)] * 4, None)
+    got, reopened = {}, []
+
+    def reopen():
+        reopened.append(1)
+        return open_reader(str(path))
+
+    for name, again in (("beside", None), ("again", reopen)):
+        reader = open_reader(str(path))
+        b = FrameBatcher(reader, (62, 99), 25.0, 4, color_range="auto", reopen=again)
+        rows = np.concatenate([fb.native_metrics for fb in iter(b.next_batch, None)])
+        got[name] = (rows, b.p910_late_corrections(), b.color_ranges())
+        reader.close()
+    assert got["again"][2]["color_range_p910"] == "full"
+    for a, b in zip(got["again"][:2], got["beside"][:2], strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert len(got["again"][1]) == first_out  # every frame before the excursion
+    assert len(reopened) == (1 if first_out else 0)
