@@ -20,7 +20,7 @@ from vdc.cli_support import (
     say,
     settings_from_args,
 )
-from vdc.executors import TasksFailed
+from vdc.executors import Feedback, TasksFailed
 
 PROG = "vdc-analyse"
 
@@ -118,7 +118,7 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
 
 
 def _campaign(entry: str, unit: str) -> Callable[[argparse.Namespace], int]:
-    """A sub-command that runs ``module:function(settings, out, log=, progress=)`` with a
+    """A sub-command that runs ``module:function(settings, out, feedback)`` with a
     progress bar over its ``unit``s and prints the result's ``report()`` lines."""
 
     def run(args: argparse.Namespace) -> int:
@@ -126,7 +126,7 @@ def _campaign(entry: str, unit: str) -> Callable[[argparse.Namespace], int]:
         fn = getattr(importlib.import_module(module), name)
         with progress_bar(None, name, unit) as bar:
             settings = settings_from_args(load_settings_class(args.settings_target), args)
-            res = fn(settings, args.out, log=say, progress=bar.update)
+            res = fn(settings, args.out, Feedback(say, bar.update))
         print("\n".join(res.report()))
         return 0
 

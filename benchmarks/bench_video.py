@@ -33,41 +33,23 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import av
-import av.filter
 import cv2
-import numpy as np
-from skimage import data
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from analysis.complexity import ComplexitySettings, complexity  # noqa: E402
 from analysis.source_metrics import DEFAULT_METRICS, measure_video  # noqa: E402
-from tests.helpers import ffmpeg_siti  # noqa: E402
+from tests.helpers import ffmpeg_siti, write_pan  # noqa: E402
 
 FPS, FOV = 25, 70.0
 SITI = "si_p910,ti_p910"
 
 
 def write_clip(path: Path, width: int, height: int, seconds: float) -> Path:
-    """A grey photograph panning 7 px per frame, H.264 (x264 veryfast, CRF 23, yuv420p)."""
-    img = cv2.cvtColor(data.astronaut(), cv2.COLOR_RGB2GRAY).astype(np.float64)
-    pano = cv2.resize(30 + img * (190 / 255), (width * 3, height), interpolation=cv2.INTER_CUBIC)
-    pano = np.clip(np.rint(pano), 0, 255).astype(np.uint8)
-    out = av.open(str(path), "w")
-    st = out.add_stream("libx264", rate=FPS)
-    st.width, st.height, st.pix_fmt = width, height, "yuv420p"
-    st.options = {"preset": "veryfast", "crf": "23"}
-    for i in range(round(seconds * FPS)):
-        x = (i * 7) % (2 * width)
-        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(pano[:, x : x + width]), "gray")
-        for p in st.encode(frame):
-            out.mux(p)
-    for p in st.encode():
-        out.mux(p)
-    out.close()
-    return path
+    """A grey photograph panning 7 px per frame, ``seconds`` long (H.264, x264 veryfast,
+    CRF 23, yuv420p, 25 fps)."""
+    return write_pan(path, width, height, round(seconds * FPS), step_px=7, crf=23)
 
 
 def timed(fn: Callable[[], int]) -> tuple[int, float, float]:

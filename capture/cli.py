@@ -150,12 +150,13 @@ def cmd_video(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from capture.campaign import CaptureSweepSettings, capture_sweep
+    from vdc.executors import Feedback
 
     settings = settings_from_args(CaptureSweepSettings, args)
     total = len(settings.runs())
     # disable=None: a bar on terminals, silence in pipes and CI logs
     with progress_bar(total, "sweep", "run", args.quiet) as bar:
-        res = capture_sweep(settings, args.out, progress=bar.update, log=say)
+        res = capture_sweep(settings, args.out, Feedback(say, bar.update))
     ran = len(res.outcomes) - len(res.failures)
     print(
         f"{res.planned} runs: {res.skipped} already done, {ran} recorded, "

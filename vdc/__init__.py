@@ -85,8 +85,9 @@ _API = {
     "make_params": "avdm.registry",
     "describe_models": "avdm.registry",
     "calibration_for": "avdm.calibration_store",
-    # where tasks run
+    # where tasks run, and what a long command tells its caller as it goes
     "ExecutorSettings": "vdc.executors",
+    "Feedback": "vdc.executors",
 }
 
 __all__ = sorted(_API)
