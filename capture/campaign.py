@@ -201,10 +201,11 @@ def _settings_columns(settings: SimSettings, exclude: dict[str, Any]) -> dict[st
 def record_run(key: str, values: dict[str, Any], settings: SimSettings, out: str) -> dict[str, Any]:
     """One run of the grid, as an executor task: record it, then write its row (the done
     mark) atomically. Module-level, small arguments, a small result."""
+    from capture.run import REPLACE_OUTPUT
     from capture.sim import record_sim
 
     rec = Path(out) / RECORDINGS / f"{key}.rrd"
-    res = record_sim(settings, rec, force=True)  # a partial file of a killed run is replaced
+    res = record_sim(settings, rec, REPLACE_OUTPUT)  # a partial file of a killed run is replaced
     row = {
         "run": key,
         **values,

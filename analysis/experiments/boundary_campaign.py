@@ -36,6 +36,7 @@ def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm
     is there, then measure it; the row is kept beside the recording (``.row.json``) so a
     re-run neither records nor measures it again."""
     from analysis.experiments.captures import capture_is_done
+    from capture.run import REPLACE_OUTPUT
     from capture.sim import record_sim
 
     path = Path(out)
@@ -48,7 +49,7 @@ def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm
             if row.get("recording_id") == run_id and row.get("row_version") == ROW_VERSION:
                 return row | {"key": key, "reused": True}
     else:
-        record_sim(settings, path, force=True)  # a partial file of a killed run is replaced
+        record_sim(settings, path, REPLACE_OUTPUT)  # a partial file of a killed run is replaced
     row = run_row(path, kind, false_alarm_m) | {"row_version": ROW_VERSION}
     tmp = cache.with_suffix(".partial")
     tmp.write_text(json.dumps(row))
