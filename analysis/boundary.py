@@ -499,6 +499,14 @@ class BoundaryResult(WroteFiles):
         return [*lines, "wrote " + ", ".join(str(p) for p in self.paths if p.name in wanted)]
 
 
+def published(stage: Path, out: Path, result: BoundaryResult) -> BoundaryResult:
+    """The end of every boundary mode: its report last, as ``boundary.md`` into ``stage`` (the
+    table set ``out``'s staging folder); ``result`` naming each file where it is published."""
+    (stage / "boundary.md").write_text(result.markdown, encoding="utf-8")
+    paths = [out / p.name for p in result.paths] + [out / "boundary.md"]
+    return dataclasses.replace(result, paths=paths)
+
+
 def write_arena_outputs(
     stage: Path,
     s: BoundarySettings,
@@ -512,19 +520,15 @@ def write_arena_outputs(
     ``boundary_{runs,conditions}.parquet``, ``boundary.parquet``, ``boundary_profiles.parquet``
     (``tables["profiles"]`` None: none), ``boundary.png``, ``policy.csv`` (``policy`` None:
     none); returns their paths and the report (``boundary.md``, not yet written)."""
-    from vdc.parquet_io import write_parquet
+    from vdc.parquet_io import write_tables
 
-    meta = {"settings": dataclasses.asdict(s)}
-    paths = [
-        write_parquet(df, stage / f"{name}.parquet", meta)
-        for name, df in (
-            ("boundary_runs", tables["runs"]),
-            ("boundary_conditions", tables["conditions"]),
-            ("boundary", tables["bounds"]),
-            ("boundary_profiles", tables["profiles"]),
-        )
-        if df is not None
-    ]
+    named = {
+        "boundary_runs": tables["runs"],
+        "boundary_conditions": tables["conditions"],
+        "boundary": tables["bounds"],
+        "boundary_profiles": tables["profiles"],
+    }
+    paths = write_tables(stage, named, {"settings": dataclasses.asdict(s)})
     conditions, bounds = tables["conditions"], tables["bounds"]
     paths.append(
         plot_boundary(

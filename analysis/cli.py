@@ -20,7 +20,7 @@ from vdc.cli_support import (
     say,
     settings_from_args,
 )
-from vdc.executors import TasksFailed
+from vdc.executors import Feedback, TasksFailed
 
 PROG = "vdc-analyse"
 
@@ -58,29 +58,20 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_tables(args: argparse.Namespace) -> int:
-    from analysis.tables import TablesSettings, tables
+def _over_recordings(entry: str) -> Callable[[argparse.Namespace], int]:
+    """A sub-command that runs ``module:function(recordings, settings, out, progress=,
+    notice=)`` with a progress bar over frames and prints the result's ``report()`` lines."""
 
-    with progress_bar(None, "tables", "frame") as bar:
-        res = tables(
-            args.recordings,
-            settings_from_args(TablesSettings, args),
-            args.out,
-            progress=bar.update,
-            notice=_notice,
-        )
-    print("\n".join(res.report()))
-    return 0
+    def run(args: argparse.Namespace) -> int:
+        module, name = entry.split(":")
+        fn = getattr(importlib.import_module(module), name)
+        settings = settings_from_args(load_settings_class(args.settings_target), args)
+        with progress_bar(None, name, "frame") as bar:
+            res = fn(args.recordings, settings, args.out, progress=bar.update, notice=_notice)
+        print("\n".join(res.report()))
+        return 0
 
-
-def cmd_profile(args: argparse.Namespace) -> int:
-    from analysis.profile import ProfileSettings, profile
-
-    s = settings_from_args(ProfileSettings, args)
-    with progress_bar(None, "profile", "frame") as bar:
-        res = profile(args.recordings, s, args.out, progress=bar.update, notice=_notice)
-    print("\n".join(res.report()))
-    return 0
+    return run
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -118,7 +109,7 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
 
 
 def _campaign(entry: str, unit: str) -> Callable[[argparse.Namespace], int]:
-    """A sub-command that runs ``module:function(settings, out, log=, progress=)`` with a
+    """A sub-command that runs ``module:function(settings, out, feedback)`` with a
     progress bar over its ``unit``s and prints the result's ``report()`` lines."""
 
     def run(args: argparse.Namespace) -> int:
@@ -126,7 +117,7 @@ def _campaign(entry: str, unit: str) -> Callable[[argparse.Namespace], int]:
         fn = getattr(importlib.import_module(module), name)
         with progress_bar(None, name, unit) as bar:
             settings = settings_from_args(load_settings_class(args.settings_target), args)
-            res = fn(settings, args.out, log=say, progress=bar.update)
+            res = fn(settings, args.out, Feedback(say, bar.update))
         print("\n".join(res.report()))
         return 0
 
@@ -283,7 +274,7 @@ COMMANDS = {
     ),
     "tables": Command(
         "analysis.tables:TablesSettings",
-        cmd_tables,
+        _over_recordings("analysis.tables:tables"),
         "recordings -> frames, model_outputs, events, summary Parquet tables",
         "Read recordings and write frames.parquet, model_outputs.parquet, events.parquet and "
         "summary.parquet into --out. Without --model the online model's logged outputs are "
@@ -293,7 +284,7 @@ COMMANDS = {
     ),
     "profile": Command(
         "analysis.profile:ProfileSettings",
-        cmd_profile,
+        _over_recordings("analysis.profile:profile"),
         "3D circle profiles, 'AVDM > 100' histograms and heat maps (paper Figs. 6-7)",
         "For every recording segment (one wall TF) or condition: a 3D circle profile (x, y "
         "against time, circle size proportional to the response), the histogram of responses "

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -47,12 +46,14 @@ from analysis.boundary import (
     markdown_table,
     number_list,
     plot_boundary,
+    published,
     with_override,
 )
 from analysis.boundary_fit import fit_columns, fit_crossing, fit_section, with_fit
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
 from vdc.cli_support import UserError
+from vdc.executors import Feedback
 from vdc.frame_batches import working_camera
 
 LABEL_COLUMNS = ("clip", "label", "collision_frame")
@@ -289,18 +290,11 @@ def share_row(name: str, flags: pl.Series) -> dict[str, float]:
     return {mean_key: e.mean, f"{name}_low": e.low, f"{name}_high": e.high}
 
 
-def footage_boundary(
-    s: BoundarySettings,
-    out: str | Path,
-    *,
-    log: Callable[[str], None] | None = None,
-    progress: Callable[[int], None] | None = None,
-) -> BoundaryResult:
+def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> BoundaryResult:
     """Footage mode of :func:`analysis.experiments.boundary_campaign.boundary`."""
-    from vdc.executors import TasksFailed, failure_report, run_tasks
-    from vdc.parquet_io import table_set, write_parquet
+    from vdc.executors import run_tasks_or_raise
+    from vdc.parquet_io import table_set, write_tables
 
-    say = log or (lambda _m: None)
     if s.fov_deg is None:
         raise ValueError("footage mode needs --fov-deg (the camera's horizontal field of view)")
     values = number_list(s.values, "values", minimum=-math.inf)
@@ -320,8 +314,9 @@ def footage_boundary(
             f"{labels.height}): there is no evidence to place a boundary on; label at least one "
             "clip with the frame of its collision"
         )
-    out = Path(out)
-    say(f"footage: {labels.height} clip(s) x {len(values)} value(s) of {s.param}, {s.detector}")
+    feedback.log(
+        f"footage: {labels.height} clip(s) x {len(values)} value(s) of {s.param}, {s.detector}"
+    )
     complexity = clip_complexity(
         labels,
         s.fov_deg,
@@ -337,18 +332,7 @@ def footage_boundary(
         for v, spec in specs.items()
         for row in labels.iter_rows(named=True)
     ]
-    results: dict[str, dict] = {}
-
-    def done(outcome: Any) -> None:
-        if progress is not None:
-            progress(1)
-        if outcome.error is None:
-            results[outcome.key] = outcome.result
-
-    outcomes = run_tasks(clip_task, tasks, s.executor_settings(), done, say)
-    report = failure_report(outcomes, "clip")
-    if report:
-        raise TasksFailed(report)
+    results = run_tasks_or_raise(clip_task, tasks, s.executor_settings(), "clip", feedback)
     by_source = {r["source"]: r for r in complexity.iter_rows(named=True)}
     rows = []
     for v in values:
@@ -368,7 +352,7 @@ def footage_boundary(
     clips = pl.DataFrame(rows)
     note = nan_alert_note(clips, s.detector)
     if note:
-        say(note)
+        feedback.log(note)
     if clips["first_alert_frame"].drop_nulls().len() == 0:
         raise UserError(
             f"{s.detector} never alerted on any of the {labels.height} clip(s) at any value of "
@@ -388,13 +372,15 @@ def footage_boundary(
         for (v,), g in clips.group_by(s.param, maintain_order=True)
     ]
     summary = pl.DataFrame(overall)
-    meta = {"settings": dataclasses.asdict(s)}
+    named = {
+        "boundary_clips": clips,
+        "boundary_conditions": stats,
+        "boundary": bounds,
+        "boundary_summary": summary,
+    }
     with table_set(out) as stage:
-        paths = [
-            write_parquet(clips, stage / "boundary_clips.parquet", meta),
-            write_parquet(stats, stage / "boundary_conditions.parquet", meta),
-            write_parquet(bounds, stage / "boundary.parquet", meta),
-            write_parquet(summary, stage / "boundary_summary.parquet", meta),
+        paths = write_tables(stage, named, {"settings": dataclasses.asdict(s)})
+        paths.append(
             plot_boundary(
                 stats,
                 bounds,
@@ -405,8 +391,8 @@ def footage_boundary(
                 "complexity: AVDM mean response of the clips' group (deg/s)",
                 energy=("false_alarm_rate", 100.0, "false alarms (% of clips)"),
                 fits=fits,
-            ),
-        ]
+            )
+        )
         md = footage_report(s, summary, stats, bounds, clips)
         if not s.no_predictors:  # every measure judged by the clips (and frames) it gets wrong
             from analysis.footage_predictors import footage_predictor_tables
@@ -414,10 +400,7 @@ def footage_boundary(
             _, more, section = footage_predictor_tables(s, labels, clips, out / "complexity", stage)
             paths += more
             md += "\n" + section
-        (stage / "boundary.md").write_text(md, encoding="utf-8")
-        paths.append(stage / "boundary.md")
-    paths = [out / p.name for p in paths]
-    return BoundaryResult(clips, stats, bounds, None, paths, md)
+        return published(stage, out, BoundaryResult(clips, stats, bounds, None, paths, md))
 
 
 def clip_fits(clips: pl.DataFrame, by: str, target: float) -> tuple[pl.DataFrame, dict[float, Any]]:

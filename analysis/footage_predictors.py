@@ -66,21 +66,12 @@ def footage_predictor_tables(
     from analysis.predictor_report import write_predictors
     from analysis.predictors import MEASURES, footage_predictors, frame_classes
     from analysis.source_metrics import METRICS
-    from vdc.executors import TasksFailed, failure_report, run_tasks
+    from vdc.executors import run_tasks_or_raise
 
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {f"{v:g}": with_override(s.detector, s.param, v) for v in values}
     tasks = [(r["source"], (r["source"], specs, s.fov_deg)) for r in labels.iter_rows(named=True)]
-    got: dict[str, dict] = {}
-
-    def done(outcome: Any) -> None:
-        if outcome.error is None:
-            got[outcome.key] = outcome.result
-
-    outcomes = run_tasks(clip_frames_task, tasks, s.executor_settings(), done, lambda _m: None)
-    report = failure_report(outcomes, "clip")
-    if report:
-        raise TasksFailed(report)
+    got = run_tasks_or_raise(clip_frames_task, tasks, s.executor_settings(), "clip")
     per_frame = pl.read_parquet(complexity_dir / "complexity.parquet")
     ids = pl.read_parquet(complexity_dir / "clips.parquet").select("source", "recording_id")
     rid = {_resolved(r["source"]): r["recording_id"] for r in ids.iter_rows(named=True)}

@@ -37,6 +37,7 @@ from pathlib import Path
 
 from analysis.boundary import BoundarySettings
 from analysis.experiments.boundary_campaign import boundary, grid_items
+from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
 
 
@@ -69,7 +70,7 @@ def main() -> None:
         key, one, path, _ = grid_items(s, Path(tmp) / "alone")[-1]
         record_sim(one, path)  # warm: compile caches, calibrations
         t0 = time.perf_counter()
-        record_sim(one, path, force=True)
+        record_sim(one, path, REPLACE_OUTPUT)
         alone = time.perf_counter() - t0
         grid = len(grid_items(s, out))
         n_runs = grid + grid // len(s.grid_values())  # plus one profiling run per condition

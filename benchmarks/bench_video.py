@@ -33,9 +33,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import av
 import cv2
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -49,25 +47,11 @@ SITI = "si_p910,ti_p910"
 
 
 def write_clip(path: Path, width: int, height: int, seconds: float) -> Path:
-    """A grey photograph panning 7 px per frame, H.264 (x264 veryfast, CRF 23, yuv420p)."""
-    from skimage import data
+    """A grey photograph panning 7 px per frame, ``seconds`` long (H.264, x264 veryfast,
+    CRF 23, yuv420p, 25 fps)."""
+    from tests.helpers import write_pan
 
-    img = cv2.cvtColor(data.astronaut(), cv2.COLOR_RGB2GRAY).astype(np.float64)
-    pano = cv2.resize(30 + img * (190 / 255), (width * 3, height), interpolation=cv2.INTER_CUBIC)
-    pano = np.clip(np.rint(pano), 0, 255).astype(np.uint8)
-    out = av.open(str(path), "w")
-    st = out.add_stream("libx264", rate=FPS)
-    st.width, st.height, st.pix_fmt = width, height, "yuv420p"
-    st.options = {"preset": "veryfast", "crf": "23"}
-    for i in range(round(seconds * FPS)):
-        x = (i * 7) % (2 * width)
-        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(pano[:, x : x + width]), "gray")
-        for p in st.encode(frame):
-            out.mux(p)
-    for p in st.encode():
-        out.mux(p)
-    out.close()
-    return path
+    return write_pan(path, width, height, round(seconds * FPS), step_px=7, crf=23)
 
 
 def timed(fn: Callable[[], int]) -> tuple[int, float, float]:

@@ -21,7 +21,7 @@ import itertools
 import math
 import re
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +30,7 @@ import polars as pl
 from avdm.registry import make_params
 from capture.sim import SimSettings
 from vdc.cli_support import option
-from vdc.executors import ExecutorSettings, TaskOutcome, run_tasks
+from vdc.executors import QUIET, ExecutorSettings, Feedback, TaskOutcome, run_tasks
 from vdc.parquet_io import WroteFiles, write_parquet
 
 RUNS = "runs"
@@ -201,10 +201,11 @@ def _settings_columns(settings: SimSettings, exclude: dict[str, Any]) -> dict[st
 def record_run(key: str, values: dict[str, Any], settings: SimSettings, out: str) -> dict[str, Any]:
     """One run of the grid, as an executor task: record it, then write its row (the done
     mark) atomically. Module-level, small arguments, a small result."""
+    from capture.run import REPLACE_OUTPUT
     from capture.sim import record_sim
 
     rec = Path(out) / RECORDINGS / f"{key}.rrd"
-    res = record_sim(settings, rec, force=True)  # a partial file of a killed run is replaced
+    res = record_sim(settings, rec, REPLACE_OUTPUT)  # a partial file of a killed run is replaced
     row = {
         "run": key,
         **values,
@@ -235,20 +236,15 @@ def collect_runs(out: str | Path, keys: Sequence[str]) -> pl.DataFrame:
 
 
 def capture_sweep(
-    settings: CaptureSweepSettings,
-    out: str | Path,
-    *,
-    progress: Callable[[int], None] | None = None,
-    log: Callable[[str], None] | None = None,
+    settings: CaptureSweepSettings, out: str | Path, feedback: Feedback = QUIET
 ) -> CaptureSweepResult:
     """Record every run of the grid that has no row yet (all with ``force``) on the executor,
     then write ``OUT/runs.parquet``. A failed run is listed and does not stop the others."""
     t0 = time.perf_counter()
     out = Path(out)
-    say = log or (lambda _m: None)
     runs = settings.runs()
     todo = [r for r in runs if settings.force or not run_path(out, r[0]).exists()]
-    say(
+    feedback.log(
         f"{len(runs)} runs: {len(runs) - len(todo)} already done, {len(todo)} to record on "
         f"{settings.where()}"
     )
@@ -256,16 +252,15 @@ def capture_sweep(
 
     def done(outcome: TaskOutcome) -> None:
         if outcome.error is not None:
-            say(f"FAILED {outcome.key}: {outcome.error}")
-        if progress is not None:
-            progress(1)
+            feedback.log(f"FAILED {outcome.key}: {outcome.error}")
+        feedback.progress(1)
 
     outcomes = run_tasks(
         record_run,
         [(key, (key, values, s, str(out))) for key, values, s in todo],
         settings.executor_settings(),
         done,
-        say,
+        feedback.log,
         shared_paths=[out],
     )
     failures = [(o.key, o.error) for o in outcomes if o.error is not None]

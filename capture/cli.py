@@ -19,20 +19,18 @@ from vdc.cli_support import (
 )
 
 if TYPE_CHECKING:
-    from capture.run import RecordResult
+    from capture.run import CaptureOptions, RecordResult
 
 PROG = "vdc-capture"
 
 
-def _recording_options(args: argparse.Namespace) -> dict:
+def _recording_options(args: argparse.Namespace) -> CaptureOptions:
     """The options every capture command's function takes from add_output_options' flags."""
-    return {
-        "force": args.force,
-        "live_url": args.connect,
-        "spawn": args.spawn,
-        "progress": not args.quiet,
-        "log": say,
-    }
+    from capture.run import CaptureOptions
+
+    return CaptureOptions(
+        force=args.force, live_url=args.connect, spawn=args.spawn, progress=not args.quiet, log=say
+    )
 
 
 def _report_write_error(rec: RecordResult) -> None:
@@ -52,7 +50,7 @@ def _noun(noun: str, n: int) -> str:
 def cmd_sim(args: argparse.Namespace) -> int:
     from capture.sim import SimSettings, record_sim
 
-    res = record_sim(settings_from_args(SimSettings, args), args.out, **_recording_options(args))
+    res = record_sim(settings_from_args(SimSettings, args), args.out, _recording_options(args))
     _report_write_error(res)
     if res.complete:
         events = ", ".join(
@@ -93,9 +91,7 @@ def cmd_emulate_robot(args: argparse.Namespace) -> int:
 def cmd_robot(args: argparse.Namespace) -> int:
     from capture.robot_capture import RobotSettings, record_robot
 
-    res = record_robot(
-        settings_from_args(RobotSettings, args), args.out, **_recording_options(args)
-    )
+    res = record_robot(settings_from_args(RobotSettings, args), args.out, _recording_options(args))
     rec = res.record
     _report_write_error(rec)
     print(
@@ -118,9 +114,7 @@ def cmd_video(args: argparse.Namespace) -> int:
         bars[0].update(n)
 
     try:
-        res = record_video(
-            s, args.out, calibration_progress=calibrating, **_recording_options(args)
-        )
+        res = record_video(s, args.out, _recording_options(args), calibration_progress=calibrating)
     finally:
         for bar in bars:
             bar.close()
@@ -155,12 +149,13 @@ def cmd_video(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from capture.campaign import CaptureSweepSettings, capture_sweep
+    from vdc.executors import Feedback
 
     settings = settings_from_args(CaptureSweepSettings, args)
     total = len(settings.runs())
     # disable=None: a bar on terminals, silence in pipes and CI logs
     with progress_bar(total, "sweep", "run", args.quiet) as bar:
-        res = capture_sweep(settings, args.out, progress=bar.update, log=say)
+        res = capture_sweep(settings, args.out, Feedback(say, bar.update))
     ran = len(res.outcomes) - len(res.failures)
     print(
         f"{res.planned} runs: {res.skipped} already done, {ran} recorded, "

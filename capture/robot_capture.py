@@ -32,7 +32,7 @@ from avdm.registry import canonical_name, make_model
 from capture.colias_link import SerialLink
 from capture.config import SCENES, WallConfig
 from capture.device import Batch, DeviceContext, Event
-from capture.run import RecordResult
+from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
 from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
 from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose
 from vdc.cli_support import non_negative_float, option, positive_float
@@ -439,23 +439,19 @@ class RobotRecordResult:
 def record_robot(
     settings: RobotSettings,
     out: str | Path | None = None,
+    options: CaptureOptions = DEFAULT_CAPTURE,
     *,
-    force: bool = False,
-    live_url: str | None = None,
-    spawn: bool = False,
-    progress: bool = False,
-    log: Callable[[str], None] | None = None,
     warn: Callable[[str], None] | None = None,
 ) -> RobotRecordResult:
     """Record a real Colias-IV until it ends its run, the link is lost for good, or a signal
-    (default ``recordings/robot-<time>-<hash>.rrd``). A missing port or camera, or a robot that
-    announces another model than ``settings.model`` (or other outputs), raises ValueError
-    before the file exists. A robot that does not announce itself is recorded with
-    ``model.verified`` false, and ``warn`` (default: stderr) says so in one line."""
+    (default ``recordings/robot-<time>-<hash>.rrd``), as ``options`` say. A missing port or
+    camera, or a robot that announces another model than ``settings.model`` (or other
+    outputs), raises ValueError before the file exists. A robot that does not announce itself
+    is recorded with ``model.verified`` false, and ``warn`` (default: stderr) says so in one
+    line."""
     import hashlib
 
     from capture.config import ArenaConfig, RobotConfig, config_section
-    from capture.live_view import spawn_viewer
     from capture.output import claim_output
     from capture.recording_start import camera_line, start_recording
     from capture.run import finish_output, run_capture
@@ -479,8 +475,8 @@ def record_robot(
     stamp = time.strftime("%Y%m%d-%H%M%S")
     digest = hashlib.sha1(f"{settings.port}{settings.camera}{stamp}".encode()).hexdigest()[:8]
     rid = f"robot-{stamp}-{digest}"
-    path = Path(out) if out else Path("recordings") / f"{rid}.rrd"
-    claim = claim_output(path, force)  # exclusive from here; bad folders fail here
+    path = options.output_path(out, rid)
+    claim = claim_output(path, options.force)  # exclusive from here; bad folders fail here
     recorder = None
     try:
         # a missing port or camera, or a robot running another model, fails here: no file yet
@@ -493,7 +489,7 @@ def record_robot(
                 f"older firmware?): recording its outputs as "
                 f"{settings.model}'s on a {camera_line(context)} camera, marked unverified"
             )
-        live = spawn_viewer() if spawn else live_url
+        live = options.viewer_url()
         model = make_model(device.model_name, **context)
         arena = ArenaConfig()
         recorder = start_recording(
@@ -560,9 +556,11 @@ def record_robot(
             if h is None:
                 raise ValueError("no overhead frame yet to calibrate from")
             save_calibration(h, Path(settings.save_calibration))
-        if log is not None:
-            log(f"recording {rid} from {settings.port} (camera {settings.camera}) -> {path}")
-        result = run_capture(device, None, recorder, total_frames=None, progress=progress)
+        if options.log is not None:
+            options.log(
+                f"recording {rid} from {settings.port} (camera {settings.camera}) -> {path}"
+            )
+        result = run_capture(device, None, recorder, total_frames=None, progress=options.progress)
     finally:
         finish_output(claim, recorder)
     return RobotRecordResult(RecordResult.of(path, rid, result, None), device.link_stats())

@@ -12,7 +12,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -81,6 +81,33 @@ class RecordResult:
         if self.stop_reason == "write error":
             return 1
         return 130 if "SIGINT" in self.stop_reason else 143
+
+
+@dataclasses.dataclass(frozen=True)
+class CaptureOptions:
+    """How every capture (sim, video, robot) writes and shows its recording: the command
+    line's ``--force``, ``--connect`` / ``--spawn`` and ``--quiet``."""
+
+    force: bool = False  # replace an existing output file
+    live_url: str | None = None  # also stream to the viewer at this URL
+    spawn: bool = False  # also stream to a new viewer
+    progress: bool = False  # a progress bar on stderr
+    log: Callable[[str], None] | None = None  # gets one line on what is recorded, before the run
+
+    def output_path(self, out: str | Path | None, recording_id: str) -> Path:
+        """``out``, by default ``recordings/<recording id>.rrd``."""
+        return Path(out) if out else Path("recordings") / f"{recording_id}.rrd"
+
+    def viewer_url(self) -> str | None:
+        """Where the recording streams live as well: a new viewer (``spawn``), ``live_url``,
+        or nowhere (None)."""
+        from capture.live_view import spawn_viewer
+
+        return spawn_viewer() if self.spawn else self.live_url
+
+
+DEFAULT_CAPTURE = CaptureOptions()
+REPLACE_OUTPUT = CaptureOptions(force=True)  # a campaign's run: what a killed run left is replaced
 
 
 def finish_output(claim: OutputClaim, recorder: Recorder | None) -> None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +18,7 @@ from avdm import __version__
 from avdm.base import Model
 from capture.config import SCENES, SimConfig
 from capture.recording_start import model_sections
-from capture.run import RecordResult
+from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
 from capture.sim_robot import SimulatedRobot, load_wall_image, ring_turn_event  # noqa: F401
 from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
 from vdc.provenance import machine_info, package_versions
@@ -174,21 +173,13 @@ class SimSettings:
 def record_sim(
     settings: SimSettings,
     out: str | Path | None = None,
-    *,
-    force: bool = False,
-    live_url: str | None = None,
-    spawn: bool = False,
-    progress: bool = False,
-    log: Callable[[str], None] | None = None,
+    options: CaptureOptions = DEFAULT_CAPTURE,
 ) -> RecordResult:
-    """Simulate a run and write it to ``out`` (default ``recordings/<run id>.rrd``).
-
-    ``live_url`` also streams to a running viewer, ``spawn`` to a new one; ``progress`` shows a
-    bar on stderr; ``log`` gets a one-line description before the run starts. Ctrl-C or SIGTERM
-    (in the main thread) ends the run cleanly: the result says so and the file is valid."""
+    """Simulate a run and write it to ``out`` (default ``recordings/<run id>.rrd``), as
+    ``options`` say (replace, stream live, a bar, a line of log). Ctrl-C or SIGTERM (in the
+    main thread) ends the run cleanly: the result says so and the file is valid."""
     from avdm.registry import make_model
     from capture.closed_loop import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
-    from capture.live_view import spawn_viewer
     from capture.output import claim_output
     from capture.recording_start import start_recording
     from capture.run import finish_output, run_capture
@@ -203,11 +194,11 @@ def record_sim(
     # the device reads a wall image now, so a bad one fails before anything is written
     device = ClosedLoopRobot(config) if collision else SimulatedRobot(config)
     run_id = config.run_id()
-    path = Path(out) if out else Path("recordings") / f"{run_id}.rrd"
-    claim = claim_output(path, force)  # exclusive from here; bad folders fail here
+    path = options.output_path(out, run_id)
+    claim = claim_output(path, options.force)  # exclusive from here; bad folders fail here
     recorder = None
     try:
-        live = spawn_viewer() if spawn else live_url
+        live = options.viewer_url()
         if detector is not None:
             main = detector
             names = {o.name for o in detector.outputs}
@@ -273,14 +264,14 @@ def record_sim(
             recorder.log_model_meta(
                 CONTROLLER, tuple(Output(k, u, d) for k, (u, d) in CONTROLLER_OUTPUTS.items())
             )
-        if log is not None:
+        if options.log is not None:
             what = (
                 f"collision mode, detector {detector.name}"
                 + (" (adaptive threshold)" if config.collision.adaptive else "")
                 if detector
                 else f"model {model.name}"
             )
-            log(
+            options.log(
                 f"recording {run_id}: {config.wall.scene} walls, TF schedule "
                 f"{schedule}, {config.duration_s / 60:g} min "
                 f"({config.n_frames} frames at {config.camera.fps:g} Hz), {what}"
@@ -290,7 +281,7 @@ def record_sim(
             None if collision else model,
             recorder,
             total_frames=config.n_frames,
-            progress=progress,
+            progress=options.progress,
         )
     finally:
         finish_output(claim, recorder)

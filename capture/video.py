@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from capture.device import Batch, DeviceContext, Event
-from capture.run import RecordResult
+from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
 from vdc.cli_support import (
     API_ONLY,
     non_negative_float,
@@ -273,21 +273,18 @@ def _calibrated(model: Any) -> Any:
 def record_video(
     settings: VideoSettings,
     out: str | Path | None = None,
+    options: CaptureOptions = DEFAULT_CAPTURE,
     *,
-    force: bool = False,
-    live_url: str | None = None,
-    spawn: bool = False,
-    progress: bool = False,
-    log: Callable[[str], None] | None = None,
     calibration_progress: Callable[[int], Any] | None = None,
 ) -> VideoRecordResult:
     """Profile a video, image sequence or camera into ``out`` (default
-    ``recordings/<recording id>.rrd``). A missing, empty or unreadable source raises
-    ValueError before the file exists; a file cut short keeps the frames before the cut."""
+    ``recordings/<recording id>.rrd``), as ``options`` say; ``calibration_progress`` counts
+    the cells of a calibration fit when this camera needs one. A missing, empty or unreadable
+    source raises ValueError before the file exists; a file cut short keeps the frames before
+    the cut."""
     from avdm.calibration_store import calibration_for
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel, new_frame_rate
-    from capture.live_view import spawn_viewer
     from capture.output import claim_output
     from capture.recording_start import start_recording
     from capture.run import finish_output, run_capture
@@ -295,7 +292,7 @@ def record_video(
     from vdc.provenance import machine_info, package_versions
 
     rid = recording_id(settings, out)
-    path = Path(out) if out else Path("recordings") / f"{rid}.rrd"
+    path = options.output_path(out, rid)
     src = Path(settings.source)
     if settings.kind == "file" and path.exists() and src.exists() and src.samefile(path):
         raise ValueError(
@@ -303,7 +300,7 @@ def record_video(
             "choose another --out"
         )
     device = VideoSource(settings)  # opens the source: bad input fails here
-    claim = claim_output(path, force)  # exclusive from here; bad folders fail here
+    claim = claim_output(path, options.force)  # exclusive from here; bad folders fail here
     recorder = None
     try:
         h, w = device.working_size()
@@ -320,7 +317,7 @@ def record_video(
             model_fps, deg_per_px, progress=calibration_progress, params=_calibrated(built)
         )
         model = TrueTimeModel(built)
-        live = spawn_viewer() if spawn else live_url
+        live = options.viewer_url()
         info = device.info
         recorder = start_recording(
             claim.partial,
@@ -386,14 +383,14 @@ def record_video(
                 "provenance": {**package_versions(), **machine_info()},
             },
         )
-        if log is not None:
-            log(
+        if options.log is not None:
+            options.log(
                 f"recording {rid}: {settings.source} ({info['codec']}, {info['src_width_px']}x"
                 f"{info['src_height_px']}, {device.fps:.6g} fps) as {w}x{h} px luma at "
                 f"{deg_per_px:.4g} deg/px, model {model.name}"
             )
         total = info["n_frames_header"] or None
-        result = run_capture(device, model, recorder, total_frames=total, progress=progress)
+        result = run_capture(device, model, recorder, total_frames=total, progress=options.progress)
     finally:
         finish_output(claim, recorder)
     error = getattr(device.reader, "error", None)

@@ -180,24 +180,64 @@ def kill_a_worker_mid_batch(
     return proc.returncode, stdout, stderr, killed
 
 
-def ffmpeg_siti(path: Path) -> np.ndarray:
+def ffmpeg_siti(path: Path, force_range: str | None = None) -> np.ndarray:
     """FFmpeg's own siti filter over every frame of a video (PyAV's filter graph): its legacy
-    (P.910) SI and TI per frame, (N, 2) float64, as FFmpeg prints them (2 decimals)."""
+    (P.910) SI and TI per frame, (N, 2) float64, as FFmpeg prints them (2 decimals); with
+    ``force_range`` ("full" or "limited") after ``setparams`` gives the frames that range (as
+    ``--color-range`` does)."""
+    import itertools
+
     import av.filter
 
     values = []
     with av.open(str(path)) as c:
         st = c.streams.video[0]
         graph = av.filter.Graph()
-        src, siti, sink = graph.add_buffer(template=st), graph.add("siti"), graph.add("buffersink")
-        src.link_to(siti)
-        siti.link_to(sink)
+        chain = [graph.add_buffer(template=st)]
+        if force_range:
+            chain.append(graph.add("setparams", f"range={'pc' if force_range == 'full' else 'tv'}"))
+        chain += [graph.add("siti"), graph.add("buffersink")]
+        for a, b in itertools.pairwise(chain):
+            a.link_to(b)
         graph.configure()
         for frame in c.decode(st):
             graph.push(frame)
             md = graph.pull().metadata
             values.append((float(md["lavfi.siti.si"]), float(md["lavfi.siti.ti"])))
     return np.array(values, dtype=np.float64).reshape(-1, 2)
+
+
+def write_pan(
+    path: Path,
+    width: int,
+    height: int,
+    n_frames: int,
+    *,
+    step_px: int = 5,
+    color_range: str = "limited",
+    crf: int = 20,
+) -> Path:
+    """A real photograph (scikit-image's astronaut, grey) panned ``step_px`` px per frame,
+    H.264 (x264 veryfast) at 25 fps; levels kept inside 30..220 so that decoded limited-range
+    values stay in 16..235 (siti-tools refuses others). ``color_range`` full is yuvj420p."""
+    import cv2
+    from skimage import data
+
+    img = cv2.cvtColor(data.astronaut(), cv2.COLOR_RGB2GRAY).astype(np.float64)
+    pano = cv2.resize(30 + img * (190 / 255), (width * 3, height), interpolation=cv2.INTER_CUBIC)
+    pano = np.clip(np.rint(pano), 0, 255).astype(np.uint8)
+    out = av.open(str(path), "w")
+    st = out.add_stream("libx264", rate=25)
+    st.width, st.height = width, height
+    st.pix_fmt = "yuvj420p" if color_range == "full" else "yuv420p"
+    st.options = {"preset": "veryfast", "crf": str(crf)}
+    for i in range(n_frames):
+        x = (i * step_px) % (2 * width)
+        view = np.ascontiguousarray(pano[:, x : x + width])
+        out.mux(st.encode(av.VideoFrame.from_ndarray(view, format="gray")))
+    out.mux(st.encode())  # flush the encoder
+    out.close()
+    return path
 
 
 def write_video(

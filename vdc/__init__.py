@@ -5,7 +5,7 @@ import itself is fast (no NumPy, Numba or Rerun until a name is used)::
 
     import vdc
 
-    rec = vdc.record_sim(vdc.SimSettings(tf_hz=3, minutes=3), "run.rrd", progress=False)
+    rec = vdc.record_sim(vdc.SimSettings(tf_hz=3, minutes=3), "run.rrd")
     t = vdc.tables([rec.path], out="tables")
     t.summary                                   # a polars DataFrame
     model = vdc.make_model("avdm-natural", fps=30, deg_per_px=0.7)
@@ -40,6 +40,7 @@ _API = {
     "record_video": "capture.video",
     "RobotSettings": "capture.robot_capture",
     "record_robot": "capture.robot_capture",
+    "CaptureOptions": "capture.run",
     "CaptureSweepSettings": "capture.campaign",
     "capture_sweep": "capture.campaign",
     # reading recordings
@@ -85,8 +86,9 @@ _API = {
     "make_params": "avdm.registry",
     "describe_models": "avdm.registry",
     "calibration_for": "avdm.calibration_store",
-    # where tasks run
+    # where tasks run, and what a long command tells its caller as it goes
     "ExecutorSettings": "vdc.executors",
+    "Feedback": "vdc.executors",
 }
 
 __all__ = sorted(_API)

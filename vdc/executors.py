@@ -111,6 +111,23 @@ class TasksFailed(Exception):
     command ends with exit status 1 and this message."""
 
 
+def _quiet(_what: Any) -> None:
+    """Feedback nobody listens to."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Feedback:
+    """What a long command tells its caller as it goes: ``log`` takes a line for people
+    (the command line prints it on stderr), ``progress`` takes how many more units (runs,
+    clips, ...) are done (the command line moves its bar). Both do nothing by default."""
+
+    log: Callable[[str], None] = _quiet
+    progress: Callable[[int], None] = _quiet
+
+
+QUIET = Feedback()
+
+
 def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
     """The client, and the local cluster it runs on when vdc started one (else None)."""
     try:
@@ -308,6 +325,34 @@ def run_tasks(
                     on_done(outcomes[k])
         restarted = restarted or bool(broken)
     return [outcomes[k] for k, _ in tasks if k in outcomes]
+
+
+def run_tasks_or_raise(
+    fn: Callable[..., dict[str, Any]],
+    tasks: Sequence[tuple[str, tuple]],
+    settings: ExecutorSettings,
+    what: str,
+    feedback: Feedback = QUIET,
+    shared_paths: Sequence[str | Path] = (),
+) -> dict[str, dict[str, Any]]:
+    """A campaign's loop: :func:`run_tasks` with one ``feedback.progress`` unit and, for a
+    failure, one ``feedback.log`` line per finished task; the results by key in the order
+    they finished. A failed task does not stop the others: when all have finished,
+    :class:`TasksFailed` names the failed ones (``what``: a task's noun, e.g. "run")."""
+    results: dict[str, dict[str, Any]] = {}
+
+    def done(outcome: TaskOutcome) -> None:
+        feedback.progress(1)
+        if outcome.error is not None:
+            feedback.log(f"  {outcome.key} FAILED: {outcome.error}")
+        else:
+            results[outcome.key] = outcome.result or {}
+
+    outcomes = run_tasks(fn, tasks, settings, done, feedback.log, shared_paths)
+    report = failure_report(outcomes, what)
+    if report:
+        raise TasksFailed(report)
+    return results
 
 
 def failure_report(outcomes: Sequence[TaskOutcome], what: str = "task") -> str | None:

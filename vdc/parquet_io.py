@@ -7,7 +7,7 @@ import ctypes
 import json
 import os
 import shutil
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,18 @@ def write_parquet(df: pl.DataFrame, path: Path, meta: dict[str, Any]) -> Path:
     pq.write_table(table, tmp)
     tmp.replace(path)
     return path
+
+
+def write_tables(
+    folder: Path, tables: Mapping[str, pl.DataFrame | None], meta: dict[str, Any]
+) -> list[Path]:
+    """Each table that is not None as ``folder/<name>.parquet`` with ``meta``
+    (:func:`write_parquet`); their paths, in the order of ``tables``."""
+    return [
+        write_parquet(df, folder / f"{name}.parquet", meta)
+        for name, df in tables.items()
+        if df is not None
+    ]
 
 
 def read_metadata(path: Path) -> dict[str, Any]:

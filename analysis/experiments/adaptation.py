@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +48,7 @@ from analysis.stats import mean_ci
 from avdm.policy import load_policy
 from avdm.registry import add_overrides
 from vdc.cli_support import non_negative_int, option, positive_float
-from vdc.executors import ExecutorSettings
+from vdc.executors import QUIET, ExecutorSettings, Feedback
 from vdc.parquet_io import WroteFiles
 
 CONTROLLERS = ("fixed", "hand", "adaptive", "policy")
@@ -229,17 +228,12 @@ class AdaptationResult(WroteFiles):
 
 
 def adaptation(
-    s: AdaptationSettings,
-    out: str | Path,
-    *,
-    log: Callable[[str], None] | None = None,
-    progress: Callable[[int], None] | None = None,
+    s: AdaptationSettings, out: str | Path, feedback: Feedback = QUIET
 ) -> AdaptationResult:
     """Run the held-out conditions with every controller; write ``adaptation.md``,
     ``adaptation.png`` and the Parquet tables into ``out``."""
-    from vdc.parquet_io import table_set, write_parquet
+    from vdc.parquet_io import table_set, write_tables
 
-    say = log or (lambda _m: None)
     out = Path(out)
     policy = load_policy(s.policy)
     fitted = set()
@@ -253,13 +247,13 @@ def adaptation(
         if cond in fitted or in_fitted_range(scene, tf, fitted)  # a grid's or a TF range's
     ]
     for n in notices:
-        say(f"note: {n}")
+        feedback.log(f"note: {n}")
     items = adaptation_items(s, out / "recordings")
     from analysis.experiments.captures import check_detectors
 
     check_detectors(st.to_config() for _, st, _, _ in items)  # one line before any run
-    say(f"adaptation: {len(s.conditions())} held-out condition(s), {len(items)} run(s)")
-    runs = run_grid(items, "collision", s, s.false_alarm_m, say, progress)
+    feedback.log(f"adaptation: {len(s.conditions())} held-out condition(s), {len(items)} run(s)")
+    runs = run_grid(items, "collision", s, s.false_alarm_m, feedback)
     complexity = condition_complexity(runs, "online_dps")
     conditions = condition_statistics(runs, complexity, ["condition", "controller"])
     others = [c for c in runs["controller"].unique(maintain_order=True) if c != "policy"]
@@ -267,14 +261,14 @@ def adaptation(
         [compare_to(runs, cond, other, s.target) for cond, *_ in s.conditions() for other in others]
     )
     verdict = overall_verdict(conditions, comparisons, s.target)
-    meta = {"settings": dataclasses.asdict(s)}
+    named = {
+        "adaptation_runs": runs,
+        "adaptation_conditions": conditions,
+        "adaptation_comparisons": comparisons,
+    }
     with table_set(out) as stage:
-        paths = [
-            write_parquet(runs, stage / "adaptation_runs.parquet", meta),
-            write_parquet(conditions, stage / "adaptation_conditions.parquet", meta),
-            write_parquet(comparisons, stage / "adaptation_comparisons.parquet", meta),
-            plot_adaptation(conditions, s.target, stage / "adaptation.png"),
-        ]
+        paths = write_tables(stage, named, {"settings": dataclasses.asdict(s)})
+        paths.append(plot_adaptation(conditions, s.target, stage / "adaptation.png"))
         md = adaptation_report(s, conditions, comparisons, verdict, notices)
         (stage / "adaptation.md").write_text(md, encoding="utf-8")
         paths.append(stage / "adaptation.md")

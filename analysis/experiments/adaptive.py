@@ -44,9 +44,11 @@ from analysis.boundary import (
     boundaries,
     condition_name,
     condition_statistics,
+    published,
     write_arena_outputs,
 )
 from analysis.boundary_fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
+from vdc.executors import Feedback
 
 FIRST_BATCH = 4
 PROFILE_POINTS = 3  # profiling TFs per scene: the range's ends and middle
@@ -206,12 +208,7 @@ def run_items(
 
 
 def adaptive_boundary(
-    s: BoundarySettings,
-    out: str | Path,
-    run_grid: Callable[..., pl.DataFrame],
-    *,
-    log: Callable[[str], None] | None = None,
-    progress: Callable[[int], None] | None = None,
+    s: BoundarySettings, out: Path, run_grid: Callable[..., pl.DataFrame], feedback: Feedback
 ) -> BoundaryResult:
     """Arena mode with ``--design adaptive``, recording with the grid's ``run_grid``
     (:func:`analysis.experiments.boundary_campaign.run_grid`, passed in by the command's entry,
@@ -222,21 +219,19 @@ def adaptive_boundary(
     from analysis.boundary_fit import fit_columns, with_fit
     from vdc.parquet_io import table_set
 
-    say = log or (lambda _m: None)
-    out = Path(out)
     rec = out / "recordings"
     scenes, values = s.scene_list(), s.grid_values()
     prof_items = profile_runs(s, rec)
-    say(
+    feedback.log(
         f"adaptive boundary of {s.detector} over {s.param} = {values}: up to {s.budget} run(s) "
         f"per value along wall TF {s.tf_range} Hz ({', '.join(scenes)}), plus "
         f"{len(prof_items)} profiling run(s)"
     )
-    profiles = run_grid(prof_items, "profile", s, s.false_alarm_m, say, progress)
+    profiles = run_grid(prof_items, "profile", s, s.false_alarm_m, feedback)
     pmap = ProfileMap.from_runs(profiles)
 
     def run_batch(placed: list[dict[str, Any]]) -> list[dict[str, Any]]:
-        done = run_grid(run_items(s, placed, rec), "collision", s, s.false_alarm_m, say, progress)
+        done = run_grid(run_items(s, placed, rec), "collision", s, s.false_alarm_m, feedback)
         return done.to_dicts()
 
     rows, fits = design_runs(
@@ -250,7 +245,7 @@ def adaptive_boundary(
         precision_dps=s.precision,
         batch=max(2, s.jobs),
         seed=s.seed,
-        log=say,
+        log=feedback.log,
     )
     runs = pl.DataFrame(rows).drop("value").sort(s.param, "batch", "seed")
     complexity = runs.select(
@@ -279,10 +274,7 @@ def adaptive_boundary(
             "complexity: AVDM straight-driving response, profile interpolated (deg/s)",
             fits,
         )  # fmt: skip
-        (stage / "boundary.md").write_text(md, encoding="utf-8")
-        paths.append(stage / "boundary.md")
-    paths = [out / p.name for p in paths]
-    return BoundaryResult(runs, conditions, bounds, policy, paths, md)
+        return published(stage, out, BoundaryResult(runs, conditions, bounds, policy, paths, md))
 
 
 def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3) -> Any:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,12 +22,13 @@ from analysis.boundary import (
     condition_complexity,
     condition_statistics,
     fit_policy,
+    published,
     run_row,
     write_arena_outputs,
 )
 from analysis.boundary_fit import grid_fits, with_fit
 from analysis.experiments.captures import collision_run_item, profiling_items
-from vdc.executors import ExecutorSettings
+from vdc.executors import QUIET, ExecutorSettings, Feedback, run_tasks_or_raise
 
 
 def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm_m: float) -> dict:
@@ -35,6 +36,7 @@ def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm
     is there, then measure it; the row is kept beside the recording (``.row.json``) so a
     re-run neither records nor measures it again."""
     from analysis.experiments.captures import capture_is_done
+    from capture.run import REPLACE_OUTPUT
     from capture.sim import record_sim
 
     path = Path(out)
@@ -47,7 +49,7 @@ def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm
             if row.get("recording_id") == run_id and row.get("row_version") == ROW_VERSION:
                 return row | {"key": key, "reused": True}
     else:
-        record_sim(settings, path, force=True)  # a partial file of a killed run is replaced
+        record_sim(settings, path, REPLACE_OUTPUT)  # a partial file of a killed run is replaced
     row = run_row(path, kind, false_alarm_m) | {"row_version": ROW_VERSION}
     tmp = cache.with_suffix(".partial")
     tmp.write_text(json.dumps(row))
@@ -60,16 +62,13 @@ def run_grid(
     kind: str,
     executor: ExecutorSettings,
     false_alarm_m: float,
-    log: Callable[[str], None],
-    progress: Callable[[int], None] | None = None,
+    feedback: Feedback,
 ) -> pl.DataFrame:
     """Record and measure every ``(key, SimSettings, path, columns)`` on ``executor``; one row
     per run with ``columns`` (its condition) first. A failed run does not stop the others:
     they are kept and :class:`vdc.executors.TasksFailed` names the failed ones."""
     from analysis.experiments.captures import check_detectors
-    from vdc.executors import TasksFailed, failure_report, run_tasks
 
-    by_key = {k: cols for k, _, _, cols in items}
     # a detector that cannot be one: one line before the first run, not one failure per run
     check_detectors(settings.to_config() for _, settings, _, _ in items)
     tasks = []
@@ -77,30 +76,18 @@ def run_grid(
         settings.to_config()  # a bad configuration fails before any process starts
         path.parent.mkdir(parents=True, exist_ok=True)
         tasks.append((key, (key, settings, str(path), kind, false_alarm_m)))
-    rows = []
-
-    def done(outcome: Any) -> None:
-        if progress is not None:
-            progress(1)
-        if outcome.error is not None:
-            log(f"  {outcome.key} FAILED: {outcome.error}")
-        else:
-            rows.append({**by_key[outcome.key], **outcome.result})
-
-    outcomes = run_tasks(
+    results = run_tasks_or_raise(
         record_and_measure,
         tasks,
         executor.executor_settings(),
-        done,
-        log,
+        "run",
+        feedback,
         shared_paths=[items[0][2].parent] if items else [],
     )
+    rows = [{**cols, **results[key]} for key, _, _, cols in items if key in results]
     reused = sum(bool(r.get("reused")) for r in rows)
     if reused:
-        log(f"reused {reused} of {len(items)} {kind} run(s) that an earlier run finished")
-    report = failure_report(outcomes, "run")
-    if report:
-        raise TasksFailed(report)
+        feedback.log(f"reused {reused} of {len(items)} {kind} run(s) that an earlier run finished")
     return pl.DataFrame(rows).sort("key")
 
 
@@ -144,23 +131,19 @@ def require_evidence(
 
 
 def boundary(
-    settings: BoundarySettings,
-    out: str | Path,
-    *,
-    log: Callable[[str], None] | None = None,
-    progress: Callable[[int], None] | None = None,
+    settings: BoundarySettings, out: str | Path, feedback: Feedback = QUIET
 ) -> BoundaryResult:
     """Run the grid (arena) or the labelled clips (footage mode: ``settings.labels``) and
     write the tables, the figure, the report and, in the arena, ``policy.csv`` into ``out``."""
     if settings.labels is not None:
         from analysis.footage import footage_boundary
 
-        return footage_boundary(settings, out, log=log, progress=progress)
+        return footage_boundary(settings, Path(out), feedback)
     if settings.design == "adaptive":
         from analysis.experiments.adaptive import adaptive_boundary
 
-        return adaptive_boundary(settings, out, run_grid, log=log, progress=progress)
-    return arena_boundary(settings, out, log=log, progress=progress)
+        return adaptive_boundary(settings, Path(out), run_grid, feedback)
+    return arena_boundary(settings, Path(out), feedback)
 
 
 def grid_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
@@ -181,34 +164,26 @@ def grid_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, 
     ]
 
 
-def arena_boundary(
-    s: BoundarySettings,
-    out: str | Path,
-    *,
-    log: Callable[[str], None] | None = None,
-    progress: Callable[[int], None] | None = None,
-) -> BoundaryResult:
+def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> BoundaryResult:
     """Arena mode of :func:`boundary`."""
     from vdc.parquet_io import table_set
 
-    say = log or (lambda _m: None)
-    out = Path(out)
     rec = out / "recordings"
     items = grid_items(s, rec)
     prof = profiling_items(s, rec) if s.complexity == "profile" else []
     from analysis.experiments.captures import check_detectors
 
     check_detectors(settings.to_config() for _, settings, _, _ in items[:1])  # before a word
-    say(
+    feedback.log(
         f"boundary of {s.detector} over {s.param} = {list(s.grid_values())}: {len(s.conditions())} "
         f"condition(s) x {len(s.grid_values())} value(s) x {s.seeds} seed(s) of "
         f"{s.minutes:g} min = {len(items)} run(s)"
         + (f", plus {len(prof)} profiling run(s)" if prof else "")
     )
-    runs = run_grid(items, "collision", s, s.false_alarm_m, say, progress)
+    runs = run_grid(items, "collision", s, s.false_alarm_m, feedback)
     require_evidence(runs, None, s, items[0][1])  # never a verdict from no evidence
     if prof:
-        profiles = run_grid(prof, "profile", s, s.false_alarm_m, say, progress)
+        profiles = run_grid(prof, "profile", s, s.false_alarm_m, feedback)
         complexity = condition_complexity(profiles, "profile_dps")
     else:
         profiles = None
@@ -218,7 +193,7 @@ def arena_boundary(
     if prof and not s.no_predictors:  # every complexity measure of the profiling runs
         from analysis.experiments.predictor_runs import arena_measures
 
-        measures = arena_measures([(p, c) for _, _, p, c in prof], s, say)
+        measures = arena_measures([(p, c) for _, _, p, c in prof], s, feedback.log)
     conditions = condition_statistics(runs, complexity, ["condition", s.param])
     fitted, fits = grid_fits(runs, complexity, s.param, s.target)
     bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "grid")
@@ -240,7 +215,4 @@ def arena_boundary(
             _, more, section = arena_predictor_tables(s, runs, measures, stage)
             paths += more
             md += "\n" + section
-        (stage / "boundary.md").write_text(md, encoding="utf-8")
-        paths.append(stage / "boundary.md")
-    paths = [out / p.name for p in paths]
-    return BoundaryResult(runs, conditions, bounds, policy, paths, md)
+        return published(stage, out, BoundaryResult(runs, conditions, bounds, policy, paths, md))

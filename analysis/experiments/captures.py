@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from analysis.rrd_reader import Recording, RecordingError
+from capture.run import REPLACE_OUTPUT
 from capture.sim import SimSettings, record_sim
 from vdc.executors import (
     ExecutorSettings,
@@ -62,7 +63,7 @@ def check_detectors(configs: Iterable[Any]) -> None:
 def _record(key: str, settings: SimSettings, out: str) -> dict:
     """One run, as an executor task (module-level, small arguments, small result)."""
     t0 = time.perf_counter()
-    record_sim(settings, out, force=True)  # a partial file of a killed run is replaced
+    record_sim(settings, out, REPLACE_OUTPUT)  # a partial file of a killed run is replaced
     return {"key": key, "seconds": time.perf_counter() - t0}
 
 

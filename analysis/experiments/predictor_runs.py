@@ -190,22 +190,13 @@ def arena_measures(
 ) -> pl.DataFrame:
     """:func:`cached_measures` of every profiling run ``(path, columns)`` on ``executor`` (an
     ``ExecutorSettings``): one row per run, ``columns`` (condition, scene, tf_hz, seed) first."""
-    from vdc.executors import TasksFailed, failure_report, run_tasks
+    from vdc.executors import Feedback, run_tasks_or_raise
 
-    by_key = {str(p): cols for p, cols in items}
     tasks = [(str(p), (str(p), every)) for p, _ in items]
-    rows = []
-
-    def done(outcome: Any) -> None:
-        if outcome.error is not None:
-            log(f"  measures of {outcome.key} FAILED: {outcome.error}")
-        else:
-            rows.append({**by_key[outcome.key], **outcome.result})
-
-    outcomes = run_tasks(cached_measures, tasks, executor.executor_settings(), done, log)
-    report = failure_report(outcomes, "measurement")
-    if report:
-        raise TasksFailed(report)
+    got = run_tasks_or_raise(
+        cached_measures, tasks, executor.executor_settings(), "measurement", Feedback(log)
+    )
+    rows = [{**cols, **got[str(p)]} for p, cols in items if str(p) in got]
     return pl.DataFrame(rows).sort("condition", "seed")
 
 

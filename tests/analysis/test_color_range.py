@@ -6,7 +6,6 @@ untagged stream as limited; ``clips.parquet`` names the range and how it was dec
 
 from __future__ import annotations
 
-import itertools
 from pathlib import Path
 
 import av
@@ -18,7 +17,7 @@ import pytest
 from siti_tools.siti import ColorRange, SiTiCalculator
 from skimage import data
 
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error, ffmpeg_siti, run_cli
 from vdc.frame_batches import FrameBatcher
 from vdc.frame_metrics import decide_ranges
 from vdc.recording import NATIVE_METRICS
@@ -104,27 +103,6 @@ def native_metrics(path: Path, batch_frames: int = 128, color_range: str = "auto
 def siti_tools(path: Path, color_range: str) -> tuple[list[float], list[float]]:
     si, ti, _ = SiTiCalculator(color_range=SITI[color_range]).calculate(str(path))
     return si, ti
-
-
-def ffmpeg_siti(path: Path, force_range: str | None = None) -> np.ndarray:
-    """(T, 2) SI, TI of FFmpeg's ``siti`` filter (through PyAV), after ``setparams`` gives the
-    frames ``force_range`` (as ``--color-range`` does) where given."""
-    out = []
-    with av.open(str(path)) as c:
-        st = c.streams.video[0]
-        g = av.filter.Graph()
-        chain = [g.add_buffer(template=st)]
-        if force_range:
-            chain.append(g.add("setparams", f"range={'pc' if force_range == 'full' else 'tv'}"))
-        chain += [g.add("siti"), g.add("buffersink")]
-        for a, b in itertools.pairwise(chain):
-            a.link_to(b)
-        g.configure()
-        for frame in c.decode(st):
-            g.push(frame)
-            md = g.pull().metadata
-            out.append((float(md["lavfi.siti.si"]), float(md["lavfi.siti.ti"])))
-    return np.array(out)
 
 
 def assert_equal_to_references(ours: dict, path: Path, p910: str, legacy_force=None) -> None:

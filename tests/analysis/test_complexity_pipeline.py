@@ -12,14 +12,15 @@ import pytest
 
 from analysis.complexity import ComplexitySettings
 from analysis.source_metrics import METRICS, measure_video, parse_metrics
-from tests.analysis.test_native_metrics import FOV, encode_pan
+from tests.analysis.test_native_metrics import FOV
+from tests.helpers import write_pan
 from vdc.pipeline import pipelined
 
 
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory) -> Path:
     # 40 frames: more than one queue's depth in flight, 7-px pan so that every metric moves
-    return encode_pan(tmp_path_factory.mktemp("pipe") / "pan.mp4", 384, 240, 40, "limited", 7)
+    return write_pan(tmp_path_factory.mktemp("pipe") / "pan.mp4", 384, 240, 40, step_px=7)
 
 
 def test_the_pipeline_gives_the_plain_loops_table_bit_for_bit(clip, monkeypatch) -> None:

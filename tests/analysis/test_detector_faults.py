@@ -23,7 +23,7 @@ from avdm.registry import check_detector
 from capture.sim import SimSettings
 from tests.helpers import ROOT, assert_one_line_error, write_video
 from vdc.cli_support import UserError
-from vdc.executors import ExecutorSettings
+from vdc.executors import ExecutorSettings, Feedback
 
 # a user's module of detectors that do not fit, written into a temporary folder
 PLUGINS = """
@@ -128,7 +128,7 @@ def test_an_unfit_plugin_stops_the_arena_grid_before_any_run(plugins, kind, tmp_
         scenes="grating", seeds=2, minutes=0.02,
     )  # fmt: skip
     with pytest.raises(ValueError, match=re.escape(KINDS[kind])):
-        boundary(s, out, log=log.append)
+        boundary(s, out, Feedback(log=log.append))
     assert log == [] and not out.exists()  # said before a word, nothing ran or was written
     if kind == "OtherKeys":  # from the command line: one line, exit status 2
         proc = _cli(
@@ -176,7 +176,7 @@ def test_a_grid_without_evidence_says_so_and_a_resumed_one_counts_its_reuse(tmp_
     out = tmp_path / "tiny"
     log: list[str] = []
     with pytest.raises(UserError, match="no run had an avoidance or a crash") as err:
-        boundary(TINY, out, log=log.append)
+        boundary(TINY, out, Feedback(log=log.append))
     msg = str(err.value)
     assert "--minutes 0.2 at the very least" in msg and "nan" not in msg.lower()
     assert not (out / "boundary.md").exists() and not (out / "policy.csv").exists()

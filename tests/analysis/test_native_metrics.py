@@ -17,42 +17,18 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 from skimage import data
 
 from analysis.complexity import ComplexitySettings, complexity
-from tests.helpers import assert_one_line_error, ffmpeg_siti, run_cli
+from tests.helpers import assert_one_line_error, ffmpeg_siti, run_cli, write_pan
 from vdc.frame_metrics import NativeMeter, luma_plane, stream_format
 from vdc.sources import display_grey, open_reader, source_name
 
 FOV = 70.0
 
 
-def encode_pan(
-    path: Path, width: int, height: int, n: int, color_range: str, step_px: int = 5
-) -> Path:
-    """A real photograph (scikit-image's astronaut, grey) panned ``step_px`` px per frame,
-    H.264 at 25 fps; levels kept inside 30..220 so that decoded limited-range values stay in
-    16..235 (siti-tools refuses others). ``color_range`` full is yuvj420p."""
-    img = cv2.cvtColor(data.astronaut(), cv2.COLOR_RGB2GRAY).astype(np.float64)
-    pano = cv2.resize(30 + img * (190 / 255), (width * 3, height), interpolation=cv2.INTER_CUBIC)
-    out = av.open(str(path), "w")
-    st = out.add_stream("libx264", rate=25)
-    st.width, st.height = width, height
-    st.pix_fmt = "yuvj420p" if color_range == "full" else "yuv420p"
-    st.options = {"preset": "veryfast", "crf": "20"}
-    for i in range(n):
-        x = (i * step_px) % (2 * width)
-        g = np.clip(np.rint(pano[:, x : x + width]), 0, 255).astype(np.uint8)
-        for p in st.encode(av.VideoFrame.from_ndarray(g, format="gray")):
-            out.mux(p)
-    for p in st.encode():
-        out.mux(p)
-    out.close()
-    return path
-
-
 @pytest.fixture(scope="module")
 def coded(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("coded")
     # 384 px: a width whose Y plane has no padding, which siti-tools' reader needs (issue #17)
-    return {r: encode_pan(d / f"{r}.mp4", 384, 240, 24, r) for r in ("limited", "full")}
+    return {r: write_pan(d / f"{r}.mp4", 384, 240, 24, color_range=r) for r in ("limited", "full")}
 
 
 def ours(path: Path) -> tuple[dict, list[dict[str, float]]]:

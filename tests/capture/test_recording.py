@@ -36,9 +36,9 @@ CONTRACT_ENTITIES = {
 }
 
 
-@pytest.fixture(scope="module")
-def short_recording(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("rec") / "short.rrd"
+def record_short_run(out: Path) -> str:
+    """The short run through the command line (30 s, TF 0 then 3 Hz, seed 3, the overhead
+    camera) into ``out``; its stdout."""
     proc = run_cli(
         "capture",
         "sim",
@@ -52,7 +52,14 @@ def short_recording(tmp_path_factory) -> Path:
         "--quiet",
     )
     assert proc.returncode == 0, proc.stderr
-    assert "wrote" in proc.stdout and "990 frames" in proc.stdout
+    return proc.stdout
+
+
+@pytest.fixture(scope="module")
+def short_recording(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("rec") / "short.rrd"
+    stdout = record_short_run(out)
+    assert "wrote" in stdout and "990 frames" in stdout
     return out
 
 
@@ -123,19 +130,7 @@ def test_frames_come_back_bit_exact_and_outputs_recompute_exactly(short_recordin
 
 def test_same_seed_same_recording_content(short_recording: Path, tmp_path: Path) -> None:
     again = tmp_path / "again.rrd"
-    proc = run_cli(
-        "capture",
-        "sim",
-        "--tf-schedule",
-        "0:10s,3:20s",
-        "--seed",
-        "3",
-        "--overhead",
-        "--out",
-        str(again),
-        "--quiet",
-    )
-    assert proc.returncode == 0, proc.stderr
+    record_short_run(again)
     a, b = Recording(short_recording), Recording(again)
     assert a.recording_id == b.recording_id
     assert np.array_equal(a.read_frames().images, b.read_frames().images)
