@@ -62,7 +62,7 @@ def footage_predictor_tables(
     report section). ``clips`` is ``boundary_clips.parquet`` (one row per clip and value with
     ``correct`` and each measure's mean); ``complexity_dir`` where ``complexity`` wrote its
     per-frame table."""
-    from analysis.boundary import number_list, with_override
+    from analysis.boundary import WARMUP_FRAMES, number_list, with_override
     from analysis.predictor_report import write_predictors
     from analysis.predictors import MEASURES, footage_predictors, frame_classes
     from analysis.source_metrics import METRICS
@@ -100,7 +100,7 @@ def footage_predictor_tables(
         paper_means[row["clip"]] = float(scene["avdm"].fill_nan(None).mean() or math.nan)
         for v in values:
             alert = np.asarray(res[f"{v:g}"], float)
-            positive, keep = frame_classes(table["frame"].to_numpy(), alert, cf, wf)
+            positive, keep = frame_classes(table["frame"].to_numpy(), alert, cf, wf, WARMUP_FRAMES)
             frames.append(
                 table.with_columns(
                     pl.lit(row["clip"]).alias("clip"),
