@@ -97,7 +97,8 @@ def footage_predictor_tables(
         cf = row["collision_frame"]
         wf = round(window * res["fps"])
         scene = table.filter(pl.col("frame") < cf - wf) if cf is not None else table
-        paper_means[row["clip"]] = float(scene["avdm"].fill_nan(None).mean() or math.nan)
+        mean = scene["avdm"].fill_nan(None).mean()  # 0.0 on a still scene is a number, not NaN
+        paper_means[row["clip"]] = float(mean) if mean is not None else math.nan
         for v in values:
             alert = np.asarray(res[f"{v:g}"], float)
             positive, keep = frame_classes(table["frame"].to_numpy(), alert, cf, wf, WARMUP_FRAMES)
