@@ -62,7 +62,7 @@ def footage_predictor_tables(
     report section). ``clips`` is ``boundary_clips.parquet`` (one row per clip and value with
     ``correct`` and each measure's mean); ``complexity_dir`` where ``complexity`` wrote its
     per-frame table."""
-    from analysis.boundary import number_list, with_override
+    from analysis.boundary import WARMUP_FRAMES, number_list, with_override
     from analysis.predictor_report import write_predictors
     from analysis.predictors import MEASURES, footage_predictors, frame_classes
     from analysis.source_metrics import METRICS
@@ -88,10 +88,11 @@ def footage_predictor_tables(
         cf = row["collision_frame"]
         wf = round(window * res["fps"])
         scene = table.filter(pl.col("frame") < cf - wf) if cf is not None else table
-        paper_means[row["clip"]] = float(scene["avdm"].fill_nan(None).mean() or math.nan)
+        mean = scene["avdm"].fill_nan(None).mean()  # 0.0 on a still scene is a number, not NaN
+        paper_means[row["clip"]] = float(mean) if mean is not None else math.nan
         for v in values:
             alert = np.asarray(res[f"{v:g}"], float)
-            positive, keep = frame_classes(table["frame"].to_numpy(), alert, cf, wf)
+            positive, keep = frame_classes(table["frame"].to_numpy(), alert, cf, wf, WARMUP_FRAMES)
             frames.append(
                 table.with_columns(
                     pl.lit(row["clip"]).alias("clip"),

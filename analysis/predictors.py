@@ -420,15 +420,22 @@ def _table(rows: list[dict[str, Any]]) -> pl.DataFrame:
 
 
 def frame_classes(
-    frames: np.ndarray, alert: np.ndarray, collision_frame: int | None, window_frames: int
+    frames: np.ndarray,
+    alert: np.ndarray,
+    collision_frame: int | None,
+    window_frames: int,
+    warmup_frames: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per frame: (positive, keep). Positive: the detector alerts with no collision in the
     window; negative: it stays quiet; frames inside the window and after the collision are not
-    kept (the object, not the scene, drives the detector there)."""
+    kept (the object, not the scene, drives the detector there), nor the first
+    ``warmup_frames`` (the measures' and the detector's start-up: the AVDM rises from 0 over
+    its first frames while a detector that needs a run of frames cannot alert yet, so a busy
+    clip's only quiet frames would be those, and every AVDM would "predict" them exactly)."""
     frames = np.asarray(frames)
-    keep = np.ones(len(frames), bool)
+    keep = frames >= warmup_frames
     if collision_frame is not None:
-        keep = frames < collision_frame - window_frames
+        keep &= frames < collision_frame - window_frames
     return (np.asarray(alert) > 0) & keep, keep
 
 

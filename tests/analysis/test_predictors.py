@@ -231,3 +231,20 @@ def test_codec_frames_are_ffmpegs_grey_to_yuv420p(shape) -> None:
         even = np.pad(grey, ((0, shape[1] % 2), (0, shape[2] % 2)), mode="edge")
         ffmpeg = av.VideoFrame.from_ndarray(even, format="gray").reformat(format="yuv420p")
         np.testing.assert_array_equal(planes, ffmpeg.to_ndarray())
+
+
+def test_frame_classes_leave_out_the_start_up_and_the_window() -> None:
+    """A busy clip alerts from its third frame on: its only quiet frames are the start-up,
+    where the AVDM is still rising from 0; with the start-up left out, no quiet frame is left
+    to make a within-clip AUROC of 1 from that artefact."""
+    from analysis.predictors import frame_classes
+
+    frames = np.arange(100)
+    alert = (frames >= 2).astype(float)
+    positive, keep = frame_classes(frames, alert, None, 25, warmup_frames=60)
+    assert not keep[:60].any() and keep[60:].all()
+    assert positive[keep].all()  # nothing quiet to compare with: the statistic has no pair
+    positive, keep = frame_classes(frames, alert, 99, 25, warmup_frames=60)
+    assert np.flatnonzero(keep).tolist() == list(range(60, 74))
+    positive, keep = frame_classes(frames, alert, 99, 25)  # no start-up given: as before
+    assert keep[:74].all() and not keep[74:].any() and not positive[:2].any()
