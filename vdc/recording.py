@@ -98,7 +98,8 @@ PROPERTY_SECTIONS = {
     "link": "hardware runs: serial protocol and its counters",
     "provenance": "package versions, CPU model and Numba's compile target",
     "video": "video sources: path, codec, nominal fps, source size, rotation, FOV, bit depth "
-    "and colour range",
+    "and colour range; the header's duration, the frames the container states "
+    "(container_frames) and the first frame's time after the stream's start (first_frame_s)",
     "calibration": "the AVDM decoding fit in use: a, b, r2, rms_rel_error, source",
     "model_context": "what every model of this recording is built with: fps, deg_per_px, "
     "texture_row (capture, recomputation and complexity read this one section)",

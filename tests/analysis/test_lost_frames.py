@@ -209,3 +209,24 @@ def test_the_three_entry_points_count_the_same(tmp_path, capsys):
     assert frames < N and frames + dropped == N == api["container_frames"]
     assert api["missing_s"] == pytest.approx(api["lost_after_last"] / FPS, abs=1e-6)
     assert f"its {api['lost_after_last']} frame(s) after it are counted as dropped" in err, err
+
+
+def test_a_file_that_states_no_count_is_said_once_not_guessed(tmp_path, capsys):
+    """MPEG-TS states neither a frame count nor a duration: nothing is counted after the last
+    frame, the row's count is null, and each command says so in one line."""
+    import vdc
+    from capture.cli import main as capture
+
+    clip = write_clip(tmp_path / "clip.ts")
+    seen: list[str] = []
+    s = vdc.ComplexitySettings(metrics=PIXEL_METRICS)
+    row = vdc.complexity([clip], s, tmp_path / "cx", notice=seen.append).clips.row(0, named=True)
+    assert (row["frames"], row["dropped_frames"]) == (N, 0)
+    assert row["container_frames"] is None and row["lost_after_last"] is None
+    said = [n for n in seen if "states no frame count" in n]
+    assert len(said) == 1 and "1 file(s)" in said[0] and str(clip) in said[0], seen
+    capsys.readouterr()
+    assert capture(["video", str(clip), "--fov-deg", "70", "--model", "avdm",
+                    "--out", str(tmp_path / "clip.rrd"), "--quiet"]) == 0  # fmt: skip
+    err = capsys.readouterr().err
+    assert len([ln for ln in err.splitlines() if "states no frame count" in ln]) == 1, err
