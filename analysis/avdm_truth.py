@@ -25,6 +25,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from fractions import Fraction
+from functools import lru_cache
 from itertools import pairwise
 from pathlib import Path
 
@@ -46,11 +47,13 @@ VARIANTS = ("avdm", "avdm-natural", "hrc")
 FLOW_READERS = ("dis", "farneback", "lk")
 
 
+@lru_cache(maxsize=len(IMAGES))
 def photograph(name: str) -> np.ndarray:
     """A photograph that ships inside scikit-image, as 8-bit luma (H, W) float64.
 
     Needs scikit-image (the ``test`` extra); nothing is downloaded: only images inside the
-    package's own data folder are used."""
+    package's own data folder are used. Remembered (read-only): the protocol reads each many
+    times."""
     try:
         from skimage import data
     except ImportError:  # pragma: no cover - the test extra installs it
@@ -60,7 +63,9 @@ def photograph(name: str) -> np.ndarray:
     img = getattr(data, name)()
     if img.ndim == 3:  # BT.601 luma, as a video decoder's gray conversion gives
         img = img[..., :3] @ np.array([0.299, 0.587, 0.114])
-    return np.asarray(img, dtype=np.float64)
+    out = np.asarray(img, dtype=np.float64)
+    out.flags.writeable = False
+    return out
 
 
 def h264_roundtrip(frames: np.ndarray, fps: float, crf: int = 23) -> np.ndarray:
@@ -99,19 +104,27 @@ class Cell:
     codec: str  # "none" or "h264"
 
 
-def cell_frames(cell: Cell, n_frames: int = 45) -> np.ndarray:
-    """The frames (T, H, W) uint8 a model sees in ``cell``."""
-    img = photograph(cell.image)
+# the protocol measures each pan at two pitches, raw and through H.264: one pan serves all four
+# (the 18 speeds and directions of an image and frame rate, ~60 MB at the video pitch)
+@lru_cache(maxsize=2 * len(SPEEDS_DPS))
+def _pan(image: str, omega_dps: float, direction: int, fps: float, n_frames: int) -> np.ndarray:
     frames = panned_image(
-        img,
+        photograph(image),
         size=VIDEO_SIZE,
         fov_deg=FOV_DEG,
         image_deg=FOV_DEG / VIEW_FRACTION,
-        fps=cell.fps,
-        omega_dps=cell.omega_true_dps,
+        fps=fps,
+        omega_dps=omega_dps,
         n_frames=n_frames,
-        direction=cell.direction,
+        direction=direction,
     )
+    frames.flags.writeable = False
+    return frames
+
+
+def cell_frames(cell: Cell, n_frames: int = 45) -> np.ndarray:
+    """The frames (T, H, W) uint8 a model sees in ``cell``."""
+    frames = _pan(cell.image, cell.omega_true_dps, cell.direction, cell.fps, n_frames).copy()
     if cell.codec == "h264":
         frames = h264_roundtrip(frames, cell.fps)
     if cell.pitch == "robot":
@@ -227,14 +240,15 @@ def protocol_cells(
     pitches: Sequence[str] = ("robot", "video"),
     codecs: Sequence[str] = ("none", "h264"),
 ) -> list[Cell]:
+    # the pitches and codecs of one pan next to each other: its frames are made once
     return [
         Cell(i, float(v), d, float(f), p, c)
         for i in images
         for f in fps
-        for p in pitches
-        for c in codecs
         for v in speeds
         for d in (1, -1)
+        for p in pitches
+        for c in codecs
     ]
 
 
