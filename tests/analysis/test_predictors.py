@@ -213,6 +213,8 @@ def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
     stats = set(res.predictors["statistic"])
     assert {"clip_auroc", "frame_auroc_pooled", "frame_auroc_within_clip"} <= stats
     assert "### clip_auroc" in res.markdown
+    # the still clips' paper AVDM is 0, a number: the combined models with it are fitted
+    assert "si_p910+ti_p910+avdm" in set(res.predictors["measure"])
 
 
 @pytest.mark.parametrize("shape", [(3, 72, 99), (2, 71, 100)])
