@@ -197,6 +197,14 @@ def test_the_three_entry_points_count_the_same(tmp_path, capsys):
     frames, dropped = counts[0]
     assert frames < N - 2 * GOP + 1 and frames + dropped == N == api["container_frames"]
     assert api["lost_after_last"] >= GOP
+    from analysis.rrd_reader import Recording
+
+    events = Recording(tmp_path / "bad" / "clip.rrd").events()
+    first = events.filter((pl.col("kind") == "dropped_frames") & (pl.col("frame") == 0))
+    # the recording says where the first frames went (the first GOP: 10 frames, 0.4 s)
+    assert first["text"].to_list() == [
+        "10 frame(s) missing before frame 0 (it comes 0.400 s after the stream's start)"
+    ]
 
     # a Matroska file cut in half: its header still states 1.20 s (30 frames); the frames
     # after the cut are dropped ones, and missing_s says the same frames in seconds
