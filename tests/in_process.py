@@ -13,7 +13,8 @@ exits exactly as a user's would. What a separate process would have kept apart i
 * warnings are shown on stderr as a fresh interpreter shows them (not recorded by pytest), so a
   test of "one line on stderr" still sees a warning that would break it;
 * an exception that escapes the command is printed as the interpreter would (a traceback,
-  exit status 1); SystemExit gives the exit status; KeyboardInterrupt is ``vdc.launch``'s;
+  exit status 1); SystemExit gives the exit status; Ctrl-C, which the command takes as a user's
+  (status 130), then stops the test run too;
 * the environment, the working folder, ``sys.argv``, the signal handlers, the root logger's
   handlers and OpenCV's thread count are restored afterwards;
 * ``timeout`` ends the command with :class:`subprocess.TimeoutExpired`, as ``subprocess.run``;
@@ -181,6 +182,8 @@ def run_in_process(
     cmd = [sys.executable, "-m", *args]
     if status is None:
         raise subprocess.TimeoutExpired(cmd, timeout, out, err)
+    if status == 130:  # Ctrl-C (no test signals a command it runs in its own process)
+        raise KeyboardInterrupt(err)
     return subprocess.CompletedProcess(cmd, status, out, err)
 
 
