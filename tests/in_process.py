@@ -13,15 +13,17 @@ exits exactly as a user's would. What a separate process would have kept apart i
 * warnings are shown on stderr as a fresh interpreter shows them (not recorded by pytest), so a
   test of "one line on stderr" still sees a warning that would break it;
 * an exception that escapes the command is printed as the interpreter would (a traceback,
-  exit status 1); SystemExit gives the exit status; KeyboardInterrupt is ``vdc.launch``'s;
+  exit status 1); SystemExit gives the exit status; Ctrl-C, which the command takes as a user's
+  (status 130), then stops the test run too;
 * the environment, the working folder, ``sys.argv``, the signal handlers, the root logger's
   handlers and OpenCV's thread count are restored afterwards;
-* ``timeout`` ends the command with :class:`subprocess.TimeoutExpired`, as ``subprocess.run``.
+* ``timeout`` ends the command with :class:`subprocess.TimeoutExpired`, as ``subprocess.run``;
+* under ``tests.figures.figure_env`` the figures the command saves are recorded as its probe
+  records them in a subprocess (the processes it starts load the probe themselves).
 
 Keep a real subprocess (``run_cli``) where the test is about the process: signals, kill, ptys,
-timeouts, resource limits, interpreter-level tracebacks, "no process left", start-up time,
-``sitecustomize`` probes (``tests.figures.figure_env``), or a plug-in module loaded from the
-current folder (cached per process).
+timeouts, resource limits, interpreter-level tracebacks, "no process left", start-up time, or
+a plug-in module loaded from the current folder (cached per process).
 """
 
 from __future__ import annotations
@@ -36,9 +38,14 @@ import traceback
 import warnings
 from pathlib import Path
 
+from tests import figures
 from tests.helpers import ROOT
 
-_ENTRIES = {"analysis": ("vdc-analyse", "analysis.cli"), "capture": ("vdc-capture", "capture.cli")}
+_ENTRIES = {
+    "analysis": ("vdc-analyse", "analysis.cli"),
+    "analysis.cli": ("vdc-analyse", "analysis.cli"),
+    "capture": ("vdc-capture", "capture.cli"),
+}
 _SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGPIPE, signal.SIGALRM)
 
 
@@ -58,6 +65,25 @@ def _fresh_interpreter_warnings() -> None:
         sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
 
     warnings.showwarning = show
+
+
+def _record_figures(record: str):
+    """Append every Figure saved from now on to ``record`` (as ``figures.install_from_env``);
+    returns the function that stops it."""
+    import json
+
+    from matplotlib.figure import Figure
+
+    def append(info: dict) -> None:
+        with open(record, "a", encoding="utf-8") as f:
+            f.write(json.dumps(info) + "\n")
+
+    original = figures._install(append)
+
+    def stop() -> None:
+        Figure.savefig = original
+
+    return stop
 
 
 def run_in_process(
@@ -86,6 +112,7 @@ def run_in_process(
     }
     files = (tempfile.TemporaryFile(), tempfile.TemporaryFile())
     status = 0
+    unrecord = None
 
     def expire(signum, frame) -> None:
         raise _Timeout
@@ -95,6 +122,8 @@ def run_in_process(
             os.environ.clear()
             os.environ.update(env)
         os.environ["PYTHONUNBUFFERED"] = "1"  # for the processes the command starts
+        if os.environ.get(figures.ENV):  # what the probe's sitecustomize does in a subprocess
+            unrecord = _record_figures(os.environ[figures.ENV])
         os.chdir(cwd or ROOT)
         sys.argv = [prog, *argv]
         os.dup2(files[0].fileno(), 1)
@@ -125,6 +154,8 @@ def run_in_process(
         status = None
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
+        if unrecord is not None:
+            unrecord()
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()
@@ -151,6 +182,8 @@ def run_in_process(
     cmd = [sys.executable, "-m", *args]
     if status is None:
         raise subprocess.TimeoutExpired(cmd, timeout, out, err)
+    if status == 130:  # Ctrl-C (no test signals a command it runs in its own process)
+        raise KeyboardInterrupt(err)
     return subprocess.CompletedProcess(cmd, status, out, err)
 
 

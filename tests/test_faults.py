@@ -27,6 +27,7 @@ import pytest
 
 from analysis.rrd_reader import Recording
 from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn, wait_until
+from tests.in_process import run_in_process
 from vdc.executors import pool_size, usable_cpus
 from vdc.recording import partial_path
 
@@ -104,7 +105,7 @@ def test_two_captures_to_one_path_one_wins_and_the_file_is_whole(tmp_path: Path,
 
 def test_an_output_in_an_unwritable_place_is_one_line(tmp_path: Path) -> None:
     assert_one_line_error(
-        run_cli("capture", "sim", "--minutes", "0.1", "--out", "/proc/vdc-x.rrd"), "/proc"
+        run_in_process("capture", "sim", "--minutes", "0.1", "--out", "/proc/vdc-x.rrd"), "/proc"
     )
     assert not Path("/proc/vdc-x.rrd").exists()
 
@@ -264,16 +265,24 @@ def test_a_gap_and_a_bad_image_in_a_sequence_are_flagged_not_a_cut(tmp_path: Pat
     good = (seq / "0020.png").read_bytes()
     (seq / "0020.png").write_bytes(good[: len(good) // 3])  # a truncated image
     out = tmp_path / "seq.rrd"
-    res = run_cli(
-        "capture", "video", str(seq / "%04d.png"), "--fps", "25", "--fov-deg", "60",
-        "--out", str(out), "--quiet",
-    )  # fmt: skip
+    res = run_in_process(
+        "capture",
+        "video",
+        str(seq / "%04d.png"),
+        "--fps",
+        "25",
+        "--fov-deg",
+        "60",
+        "--out",
+        str(out),
+        "--quiet",
+    )
     assert res.returncode == 0, res.stderr
     notes = [ln for ln in res.stderr.splitlines() if "lost inside the source" in ln]
     assert len(notes) == 1 and "0010.png missing" in notes[0], res.stderr
     assert n_frames(out) == 38  # every readable image, past the gap and the bad one
     tables = tmp_path / "t"
-    assert run_cli("analysis", "tables", str(out), "--out", str(tables)).returncode == 0
+    assert run_in_process("analysis", "tables", str(out), "--out", str(tables)).returncode == 0
     events = pl.read_parquet(tables / "events.parquet")
     lost = events.filter(pl.col("kind") == "decode_error")
     assert lost["frame"].to_list() == [10, 19]  # the frames just after each loss
@@ -303,7 +312,9 @@ def test_a_bad_packet_costs_its_own_frames_only(tmp_path: Path) -> None:
         except av.FFmpegError:
             pass
     out = tmp_path / "bad.rrd"
-    res = run_cli("capture", "video", str(bad), "--fov-deg", "60", "--out", str(out), "--quiet")
+    res = run_in_process(
+        "capture", "video", str(bad), "--fov-deg", "60", "--out", str(out), "--quiet"
+    )
     assert res.returncode == 0, res.stderr
     assert "lost inside the source" in res.stderr and "Traceback" not in res.stderr
     kept = n_frames(out)
@@ -320,7 +331,9 @@ def test_a_video_given_as_its_own_output_is_refused_and_unchanged(tmp_path: Path
         tmp_path / "v.rrd", np.zeros((10, 48, 64), np.uint8), 30.0, container="matroska"
     )
     before = hashlib.sha256(clip.read_bytes()).hexdigest()
-    res = run_cli("capture", "video", str(clip), "--fov-deg", "60", "--out", str(clip), "--force")
+    res = run_in_process(
+        "capture", "video", str(clip), "--fov-deg", "60", "--out", str(clip), "--force"
+    )
     assert_one_line_error(res, "source")
     assert hashlib.sha256(clip.read_bytes()).hexdigest() == before
     assert_clean(tmp_path)
@@ -334,7 +347,9 @@ def test_a_growing_recording_is_read_as_one_snapshot(tmp_path: Path) -> None:
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and (not part.exists() or part.stat().st_size < 3e6):
         time.sleep(0.05)
-    res = run_cli("analysis", "tables", str(part), "--model", "avdm", "--out", str(tmp_path / "t"))
+    res = run_in_process(
+        "analysis", "tables", str(part), "--model", "avdm", "--out", str(tmp_path / "t")
+    )
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=60)
     assert res.returncode == 0, res.stderr
@@ -386,21 +401,40 @@ def test_analysis_temporaries_never_outlive_a_full_disk(tmp_path: Path) -> None:
     # the repair copy does not fit under the limit: one line naming the folder, nothing left
     res = subprocess.run(
         [PY, "-m", "analysis", "tables", str(cut), "--out", str(tmp_path / "t")],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
         preexec_fn=_limit_file_size(200_000),
-    )  # fmt: skip
+    )
     assert_one_line_error(res, str(tmp), "TMPDIR")
     assert not list(tmp.iterdir()) and not (tmp_path / "t").exists()
     # a table set that does not fit leaves the old set whole and no staging folder
     old = tmp_path / "tables"
-    assert run_cli("analysis", "tables", str(src), "--out", str(old)).returncode == 0
+    assert run_in_process("analysis", "tables", str(src), "--out", str(old)).returncode == 0
     before = {p.name: p.read_bytes() for p in old.iterdir()}
     res = subprocess.run(
-        [PY, "-m", "analysis", "tables", str(src), "--model", "avdm", "--model", "avdm-on",
-         "--out", str(old)],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
+        [
+            PY,
+            "-m",
+            "analysis",
+            "tables",
+            str(src),
+            "--model",
+            "avdm",
+            "--model",
+            "avdm-on",
+            "--out",
+            str(old),
+        ],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
         preexec_fn=_limit_file_size(60_000),
-    )  # fmt: skip
+    )
     assert res.returncode != 0 and "Traceback" not in res.stderr, res.stderr
     assert {p.name: p.read_bytes() for p in old.iterdir()} == before
     assert not list(tmp.iterdir())
@@ -419,7 +453,7 @@ def test_duplicate_recording_ids_are_refused(tmp_path: Path) -> None:
         ("complexity", [str(a), str(copy)]),
         ("batch", [str(a), str(copy), "--model", "avdm", "--jobs", "1"]),
     ):
-        res = run_cli("analysis", cmd, *args, "--out", str(tmp_path / cmd))
+        res = run_in_process("analysis", cmd, *args, "--out", str(tmp_path / cmd))
         assert_one_line_error(res, "give each recording once")
         assert not (tmp_path / cmd / "frames.parquet").exists()
     assert_clean(tmp_path)
@@ -430,7 +464,7 @@ def test_a_damaged_batch_part_is_recomputed_not_counted_as_done(tmp_path: Path) 
     assert sim(a, minutes=0.2).wait(timeout=120) == 0
     out = tmp_path / "b"
     assert (
-        run_cli(
+        run_in_process(
             "analysis", "batch", str(a), "--model", "avdm", "--jobs", "1", "--out", str(out)
         ).returncode
         == 0
@@ -438,9 +472,11 @@ def test_a_damaged_batch_part_is_recomputed_not_counted_as_done(tmp_path: Path) 
     good = pl.read_parquet(out / "summary.parquet")
     part = next((out / "parts").rglob("model_outputs.parquet"))
     part.write_bytes(part.read_bytes()[:100])  # damaged after it was written
-    res = run_cli("analysis", "summarise", str(out))
+    res = run_in_process("analysis", "summarise", str(out))
     assert_one_line_error(res, "damaged", str(part))
-    res = run_cli("analysis", "batch", str(a), "--model", "avdm", "--jobs", "1", "--out", str(out))
+    res = run_in_process(
+        "analysis", "batch", str(a), "--model", "avdm", "--jobs", "1", "--out", str(out)
+    )
     assert res.returncode == 0, res.stderr
     assert "0 already done, 1 to run" in res.stderr
     assert pl.read_parquet(out / "summary.parquet").equals(good)
@@ -481,7 +517,7 @@ def test_a_sweep_killed_mid_run_leaves_no_worker_and_resumes(tmp_path: Path) -> 
 def test_the_emulator_never_replaces_a_file_at_its_link_path(tmp_path: Path) -> None:
     precious = tmp_path / "notes.txt"
     precious.write_text("keep me")
-    res = run_cli("capture", "emulate-robot", "--link", str(precious), "--minutes", "0.1")
+    res = run_in_process("capture", "emulate-robot", "--link", str(precious), "--minutes", "0.1")
     assert_one_line_error(res, "--link", "not a link")
     assert precious.read_text() == "keep me"
     assert_clean(tmp_path)
@@ -509,10 +545,10 @@ def test_a_recording_shorter_than_the_warm_up_is_one_line(tmp_path: Path) -> Non
     short = tmp_path / "short.rrd"
     assert sim(short, minutes=0.01).wait(timeout=120) == 0  # 20 frames
     for cmd in ("tables", "profile"):
-        res = run_cli("analysis", cmd, str(short), "--out", str(tmp_path / cmd))
+        res = run_in_process("analysis", cmd, str(short), "--out", str(tmp_path / cmd))
         assert_one_line_error(res, "warm-up")
         assert not (tmp_path / cmd).exists()
-    res = run_cli("analysis", "complexity", str(short), "--out", str(tmp_path / "c"))
+    res = run_in_process("analysis", "complexity", str(short), "--out", str(tmp_path / "c"))
     assert res.returncode == 0, res.stderr  # per-frame metrics need no warm-up
     assert pl.read_parquet(tmp_path / "c" / "complexity.parquet").height == 20
     assert_clean(tmp_path)
@@ -523,7 +559,7 @@ def test_a_recording_given_as_the_tables_folder_is_refused_and_kept(tmp_path: Pa
     assert sim(rec, minutes=0.2).wait(timeout=120) == 0
     before = hashlib.sha256(rec.read_bytes()).hexdigest()
     assert_one_line_error(
-        run_cli("analysis", "tables", str(rec), "--out", str(rec)), "not a folder"
+        run_in_process("analysis", "tables", str(rec), "--out", str(rec)), "not a folder"
     )
     assert hashlib.sha256(rec.read_bytes()).hexdigest() == before
     assert_clean(tmp_path)

@@ -6,11 +6,13 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import run_cli
+from tests.in_process import run_in_process
 
 
 def _capture(out: Path, *args: str) -> Path:
-    proc = run_cli("capture", "sim", *args, "--out", str(out), "--quiet")
+    # in this process (tests.in_process): the command as a user gives it, without a
+    # subprocess's imports (each xdist worker makes these once)
+    proc = run_in_process("capture", "sim", *args, "--out", str(out), "--quiet")
     assert proc.returncode == 0, proc.stderr
     return out
 

@@ -17,7 +17,8 @@ from analysis.experiments.adaptation import AdaptationSettings
 from analysis.experiments.adaptive import ProfileMap, design_runs, in_fitted_range
 from avdm.policy import load_policy
 from tests.figures import assert_figure, figure_env, saved_figures
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error
+from tests.in_process import run_in_process
 
 TARGET = 0.9
 
@@ -124,7 +125,7 @@ def test_a_tiny_adaptive_campaign_end_to_end(tmp_path: Path) -> None:
             "12", "--scenes", "grating", "--tf-range", "0:3", "--minutes", "0.2", "--jobs",
             "2", "--out", str(out)]  # fmt: skip
     record = tmp_path / "figures.jsonl"
-    proc = run_cli(*args, env=figure_env(record))
+    proc = run_in_process(*args, env=figure_env(record))
     assert proc.returncode == 0, proc.stderr
     assert "boundary at t_ffi = 12: " in proc.stdout
     bounds = pl.read_parquet(out / "boundary.parquet")
@@ -154,7 +155,7 @@ def test_a_tiny_adaptive_campaign_end_to_end(tmp_path: Path) -> None:
     AdaptationSettings(policy=str(out / "policy.csv"))  # accepted as a grid's policy is
     fitted = set(policy.evidence["condition"])
     assert in_fitted_range("grating", 2.0, fitted) != in_fitted_range("natural", 2.0, fitted)
-    again = run_cli(*args)  # a re-run places the same runs and records none
+    again = run_in_process(*args)  # a re-run places the same runs and records none
     assert again.returncode == 0, again.stderr
     assert pl.read_parquet(out / "boundary_runs.parquet")["reused"].all()
 
@@ -168,5 +169,5 @@ def test_a_tiny_adaptive_campaign_end_to_end(tmp_path: Path) -> None:
     ],
 )
 def test_bad_adaptive_input_is_one_line(tmp_path: Path, args, needle) -> None:
-    proc = run_cli("analysis.cli", "boundary", *args, "--out", str(tmp_path))
+    proc = run_in_process("analysis.cli", "boundary", *args, "--out", str(tmp_path))
     assert_one_line_error(proc, needle)

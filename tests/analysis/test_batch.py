@@ -10,7 +10,8 @@ from pathlib import Path
 import polars as pl
 
 from analysis.batch import model_slug
-from tests.helpers import ROOT, assert_one_line_error, kill_a_worker_mid_batch, run_cli
+from tests.helpers import ROOT, assert_one_line_error, kill_a_worker_mid_batch
+from tests.in_process import run_in_process
 
 MODELS = ("avdm", "avdm:beta=0.5", "lgmd-plus")
 TABLES = ("frames", "model_outputs", "events", "summary")
@@ -32,10 +33,10 @@ def _same_tables(a: dict[str, pl.DataFrame], b: dict[str, pl.DataFrame]) -> None
 
 def test_batch_writes_the_tables_tables_writes_and_resumes(recordings, tmp_path: Path) -> None:
     recs = [str(recordings[k]) for k in ("phases", "tf3_a", "tf3_b")]
-    proc = run_cli("analysis", "tables", *recs, *_models(), "--out", str(tmp_path / "t"))
+    proc = run_in_process("analysis", "tables", *recs, *_models(), "--out", str(tmp_path / "t"))
     assert proc.returncode == 0, proc.stderr
     out = tmp_path / "b"
-    proc = run_cli("analysis", "batch", *recs, *_models(), "--out", str(out), "--jobs", "2")
+    proc = run_in_process("analysis", "batch", *recs, *_models(), "--out", str(out), "--jobs", "2")
     assert proc.returncode == 0, proc.stderr
     assert "9 tasks: 0 already done, 9 ran, 0 failed" in proc.stdout
     _same_tables(_read(out), _read(tmp_path / "t"))
@@ -48,10 +49,10 @@ def test_batch_writes_the_tables_tables_writes_and_resumes(recordings, tmp_path:
     assert one["recording_id"].n_unique() == 1 and one["model"].n_unique() == 1  # ids inside
     # a re-run finds everything done; --force recomputes, to the same rows
     stamp = parts[0].stat().st_mtime_ns
-    again = run_cli("analysis", "batch", *recs, *_models(), "--out", str(out))
+    again = run_in_process("analysis", "batch", *recs, *_models(), "--out", str(out))
     assert again.returncode == 0, again.stderr
     assert "9 already done, 0 ran" in again.stdout and parts[0].stat().st_mtime_ns == stamp
-    forced = run_cli("analysis", "batch", *recs, *_models(), "--out", str(out), "--force")
+    forced = run_in_process("analysis", "batch", *recs, *_models(), "--out", str(out), "--force")
     assert forced.returncode == 0 and "0 already done, 9 ran" in forced.stdout
     _same_tables(_read(out), _read(tmp_path / "t"))
 
@@ -61,7 +62,7 @@ def test_shards_split_the_tasks_and_summarise_joins_them(recordings, tmp_path: P
     out = tmp_path / "s"
     done = []
     for i in range(3):
-        proc = run_cli(
+        proc = run_in_process(
             "analysis", "batch", *recs, *_models(), "--out", str(out), "--shard", f"{i}/3",
             "--jobs", "1",
         )  # fmt: skip
@@ -69,9 +70,9 @@ def test_shards_split_the_tasks_and_summarise_joins_them(recordings, tmp_path: P
         assert "2 tasks (shard" in proc.stderr and not (out / "summary.parquet").exists()
         done.append(len(list(out.glob("parts/*/model=*/summary.parquet"))))
     assert done == [2, 4, 6]  # each shard ran its own two of the six tasks
-    proc = run_cli("analysis", "summarise", str(out))
+    proc = run_in_process("analysis", "summarise", str(out))
     assert proc.returncode == 0, proc.stderr
-    whole = run_cli("analysis", "tables", *recs, *_models(), "--out", str(tmp_path / "t"))
+    whole = run_in_process("analysis", "tables", *recs, *_models(), "--out", str(tmp_path / "t"))
     assert whole.returncode == 0, whole.stderr
     _same_tables(_read(out), _read(tmp_path / "t"))
 
@@ -80,7 +81,7 @@ def test_a_corrupt_recording_fails_its_own_tasks_only(recordings, tmp_path: Path
     bad = tmp_path / "bad.rrd"
     bad.write_bytes(b"not a recording" * 100)
     out = tmp_path / "b"
-    proc = run_cli(
+    proc = run_in_process(
         "analysis", "batch", str(recordings["tf3_a"]), str(bad), "--model", "avdm",
         "--model", "lgmd-plus", "--out", str(out),
     )  # fmt: skip
@@ -129,7 +130,7 @@ def test_a_killed_pool_worker_loses_no_finished_part(recordings, tmp_path: Path)
     assert "a worker process died" in stderr
     for part in out.glob("parts/**/*.parquet"):
         pl.read_parquet(part)  # every part is whole: written to a temporary name, then renamed
-    again = run_cli("analysis", "batch", *recs, *models, "--out", str(out))
+    again = run_in_process("analysis", "batch", *recs, *models, "--out", str(out))
     assert again.returncode == 0, again.stderr
     assert "12 already done, 0 ran" in again.stdout
     assert pl.read_parquet(out / "summary.parquet").height == 12 + 4  # 'phases' has 2 TFs
@@ -144,11 +145,11 @@ def test_bad_batch_input_is_one_line(tmp_path: Path, recordings) -> None:
         (["--jobs", "0"], "--jobs must be at least 1"),
         (["--model", "nope"], "unknown model"),
     ):
-        proc = run_cli(
+        proc = run_in_process(
             "analysis", "batch", rec, "--model", "avdm", *args, "--out", str(tmp_path / "o")
         )
         assert_one_line_error(proc, message)
-    proc = run_cli("analysis", "summarise", str(tmp_path / "empty"))
+    proc = run_in_process("analysis", "summarise", str(tmp_path / "empty"))
     assert_one_line_error(proc, "has no finished batch parts")
 
 

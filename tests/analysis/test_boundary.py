@@ -17,7 +17,8 @@ from analysis.experiments.boundary_campaign import boundary
 from analysis.rrd_reader import Recording
 from avdm.policy import load_policy
 from tests.figures import assert_figure, recording_figures
-from tests.helpers import assert_one_line_error, run_cli, write_video
+from tests.helpers import assert_one_line_error, write_video
+from tests.in_process import run_in_process
 
 # LGMD+ (arena tuning) at its released T_ffi = 12 is blinded by a 3 Hz drift (it crashes);
 # at T_ffi = 30, the paper's adjusted threshold, it is not (tests/capture/test_collision_mode)
@@ -143,12 +144,14 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str], needl
     labels = tmp_path / "labels.csv"
     labels.write_text("clip,label,collision_frame\nclip.mp4,background,\n")
     args = [a.replace("{labels}", str(labels)) for a in args]
-    proc = run_cli("analysis.cli", "boundary", *args, "--out", str(tmp_path / "o"))
+    proc = run_in_process("analysis.cli", "boundary", *args, "--out", str(tmp_path / "o"))
     assert_one_line_error(proc, *needles)
 
 
 def test_a_bad_policy_for_adaptation_is_one_line(tmp_path: Path) -> None:
     bad = tmp_path / "policy.csv"
     bad.write_text("complexity_dps,t_ffi\n1,2\n")
-    proc = run_cli("analysis.cli", "adaptation", "--policy", str(bad), "--out", str(tmp_path))
+    proc = run_in_process(
+        "analysis.cli", "adaptation", "--policy", str(bad), "--out", str(tmp_path)
+    )
     assert_one_line_error(proc, "policy.csv", "# param: NAME")

@@ -7,14 +7,15 @@ from pathlib import Path
 import polars as pl
 
 from tests.figures import assert_figure, figure_env, saved_figures
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error
+from tests.in_process import run_in_process
 
 
 def test_collision_study_end_to_end_and_reuse(tmp_path: Path) -> None:
     out = tmp_path / "study"
     args = ("--minutes", "0.4", "--out", str(out), "--jobs", "2", "--seeds", "2")
     record = tmp_path / "figures.jsonl"
-    proc = run_cli("analysis", "collision-study", *args, env=figure_env(record))
+    proc = run_in_process("analysis", "collision-study", *args, env=figure_env(record))
     assert proc.returncode == 0, proc.stderr
     summary = pl.read_parquet(out / "collision_summary.parquet")
     phases = ["tf0", "tf3", "tf3-adjusted", "tf3-adaptive", "tf0-adaptive"]
@@ -54,19 +55,23 @@ def test_collision_study_end_to_end_and_reuse(tmp_path: Path) -> None:
     # one run: three arena maps (with their colour bars) under the run's numbers
     assert_figure(out / "collision_tf0_seed1.png", figures, title="tf0: ", labels=("x (m)",),
                   min_axes=3)  # fmt: skip
-    again = run_cli("analysis", "collision-study", *args)
+    again = run_in_process("analysis", "collision-study", *args)
     assert again.returncode == 0, again.stderr
     assert again.stderr.count("reusing") == 10
     assert pl.read_parquet(out / "collision_summary.parquet").equals(summary)
 
 
 def test_collision_refuses_a_profile_recording(recordings, tmp_path: Path) -> None:
-    proc = run_cli("analysis", "collision", str(recordings["tf3_a"]), "--out", str(tmp_path))
+    proc = run_in_process("analysis", "collision", str(recordings["tf3_a"]), "--out", str(tmp_path))
     assert_one_line_error(proc, "not a collision-mode recording")
 
 
 def test_collision_study_bad_detector(tmp_path: Path) -> None:
-    proc = run_cli("analysis", "collision-study", "--detector", "nope", "--out", str(tmp_path))
+    proc = run_in_process(
+        "analysis", "collision-study", "--detector", "nope", "--out", str(tmp_path)
+    )
     assert_one_line_error(proc, "unknown model")
-    proc = run_cli("analysis", "collision-study", "--adjusted", "t_ffi=x", "--out", str(tmp_path))
+    proc = run_in_process(
+        "analysis", "collision-study", "--adjusted", "t_ffi=x", "--out", str(tmp_path)
+    )
     assert_one_line_error(proc, "expected a number")

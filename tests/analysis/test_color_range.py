@@ -17,7 +17,8 @@ import pytest
 from siti_tools.siti import ColorRange, SiTiCalculator
 from skimage import data
 
-from tests.helpers import assert_one_line_error, ffmpeg_siti, run_cli
+from tests.helpers import assert_one_line_error, ffmpeg_siti
+from tests.in_process import run_in_process
 from vdc.frame_batches import FrameBatcher
 from vdc.frame_metrics import decide_ranges
 from vdc.recording import NATIVE_METRICS
@@ -168,7 +169,7 @@ def test_the_command_names_the_ranges_and_takes_color_range(tmp_path: Path) -> N
     levels = [(20, 230)] * 130 + [(44, 246)] * 4
     path = encode_luma(tmp_path / "late.mp4", levels, None, fps=33)
     args = ("complexity", str(path), "--fov-deg", "70", "--model", "avdm", "--metrics", "all")
-    proc = run_cli("analysis", *args, "--out", str(tmp_path / "auto"))
+    proc = run_in_process("analysis", *args, "--out", str(tmp_path / "auto"))
     assert proc.returncode == 0, proc.stderr
     clip = pl.read_parquet(tmp_path / "auto" / "clips.parquet").row(0, named=True)
     assert clip["color_range_p910"] == "full" and clip["color_range_p910_source"] == "detected"
@@ -178,7 +179,7 @@ def test_the_command_names_the_ranges_and_takes_color_range(tmp_path: Path) -> N
     ours = {m: table[m].fill_null(np.nan).to_numpy() for m in NATIVE_METRICS}
     assert_equal_to_references(ours, path, "full")
 
-    proc = run_cli("analysis", *args, "--color-range", "pc", "--out", str(tmp_path / "bad"))
+    proc = run_in_process("analysis", *args, "--color-range", "pc", "--out", str(tmp_path / "bad"))
     assert_one_line_error(proc, "--color-range")
 
 

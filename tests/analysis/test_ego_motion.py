@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from analysis.ego_motion import YAW_WINDOW_S, turning_flags, yaw_rate_dps
 from analysis.tables import SummarySettings, TablesSettings, tables
-from tests.helpers import run_cli
+from tests.in_process import run_in_process
 
 FPS = 33.0  # the arena robot's camera
 TURN_DPS = 120.0  # its in-place turn rate (capture/config.py)
@@ -118,7 +118,9 @@ def test_the_flag_holds_for_the_models_memory_after_a_turn() -> None:
 
 def test_exclude_turns_summarises_straight_driving_only(recordings, tmp_path: Path) -> None:
     rec = recordings["tf3_a"]
-    proc = run_cli("analysis", "tables", str(rec), "--out", str(tmp_path / "s"), "--exclude-turns")
+    proc = run_in_process(
+        "analysis", "tables", str(rec), "--out", str(tmp_path / "s"), "--exclude-turns"
+    )
     assert proc.returncode == 0, proc.stderr
     straight = pl.read_parquet(tmp_path / "s" / "summary.parquet").row(0, named=True)
     frames = pl.read_parquet(tmp_path / "s" / "frames.parquet")
@@ -135,7 +137,9 @@ def test_exclude_turns_summarises_straight_driving_only(recordings, tmp_path: Pa
     # the robot's 120 °/s turns are most of what the decoder reads over 100 deg/s
     assert straight["frac_over_100"] < everything["frac_over_100"]
     # the profile labels say which frames it shows
-    proc = run_cli("analysis", "profile", str(rec), "--out", str(tmp_path / "p"), "--exclude-turns")
+    proc = run_in_process(
+        "analysis", "profile", str(rec), "--out", str(tmp_path / "p"), "--exclude-turns"
+    )
     assert proc.returncode == 0, proc.stderr
     prof = pl.read_parquet(tmp_path / "p" / "profile_summary.parquet").row(0, named=True)
     assert prof["motion"] == "straight" and prof["n_frames"] == kept.height

@@ -17,7 +17,8 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 from skimage import data
 
 from analysis.complexity import ComplexitySettings, complexity
-from tests.helpers import assert_one_line_error, ffmpeg_siti, run_cli, write_pan
+from tests.helpers import assert_one_line_error, ffmpeg_siti, write_pan
+from tests.in_process import run_in_process
 from vdc.frame_metrics import NativeMeter, luma_plane, stream_format
 from vdc.sources import display_grey, open_reader, source_name
 
@@ -96,7 +97,7 @@ def test_a_collection_in_one_command_with_a_corrupt_clip(coded, tmp_path: Path) 
             cv2.imwrite(str(shots / f"img_{i:05d}.png"), frame.to_ndarray(format="gray"))
     out = tmp_path / "cx"
     args = ("complexity", str(folder), str(shots / "img_%05d.png"), "--fov-deg", str(FOV))
-    proc = run_cli("analysis", *args, "--fps", "25", "--jobs", "2", "--out", str(out))
+    proc = run_in_process("analysis", *args, "--fps", "25", "--jobs", "2", "--out", str(out))
     assert proc.returncode == 1, proc.stderr  # one source failed
     assert "FAILED" in proc.stderr and "cut.mp4" in proc.stderr
     fails = pl.read_parquet(out / "failures.parquet")
@@ -123,7 +124,7 @@ def test_a_collection_in_one_command_with_a_corrupt_clip(coded, tmp_path: Path) 
     assert html.count("data:image/png;base64") == 1 and "video-b-clip" in html
     assert not list(out.glob("complexity_video-*.rrd"))  # per-clip .rrd only with --rrd
     # a re-run measures nothing again; the cut file still fails
-    again = run_cli("analysis", *args, "--fps", "25", "--jobs", "2", "--out", str(out))
+    again = run_in_process("analysis", *args, "--fps", "25", "--jobs", "2", "--out", str(out))
     assert again.returncode == 1 and "3 of 4 source(s) already measured" in again.stderr
 
 
@@ -131,13 +132,13 @@ def test_bad_collections_are_one_line(tmp_path: Path) -> None:
     empty = tmp_path / "empty"
     empty.mkdir()
     (empty / "notes.txt").write_text("no video here")
-    proc = run_cli("analysis", "complexity", str(empty), "--out", str(tmp_path / "o"))
+    proc = run_in_process("analysis", "complexity", str(empty), "--out", str(tmp_path / "o"))
     assert_one_line_error(proc, "holds no videos")
-    proc = run_cli("analysis", "complexity", str(tmp_path / "x_%05d.png"), "--fps", "25")
+    proc = run_in_process("analysis", "complexity", str(tmp_path / "x_%05d.png"), "--fps", "25")
     assert_one_line_error(proc, "matches no files")
     single = tmp_path / "bad.mp4"
     single.write_bytes(b"\x00" * 5000)
-    proc = run_cli("analysis", "complexity", str(single), "--fov-deg", "70")
+    proc = run_in_process("analysis", "complexity", str(single), "--fov-deg", "70")
     assert_one_line_error(proc, "cannot read")
 
 
@@ -162,12 +163,12 @@ def test_a_folder_without_its_field_of_view_gives_the_pixel_metrics(coded, tmp_p
     assert "omega_dps" not in res.table.columns and "flow_dps" not in res.table.columns
     assert res.clips["si_p910_mean"].min() > 0
     out = tmp_path / "o2"
-    proc = run_cli(
+    proc = run_in_process(
         "analysis", "complexity", str(folder), "--metrics", "omega_dps", "--out", str(out)
     )
     assert_one_line_error(proc, "--fov-deg")
     assert not out.exists()  # refused before anything was decoded or written
-    proc = run_cli("analysis", "complexity", str(folder), "--metrics", "si_p910,nope")
+    proc = run_in_process("analysis", "complexity", str(folder), "--metrics", "si_p910,nope")
     assert_one_line_error(proc, "unknown nope")
     reader = open_reader(str(coded["full"]))
     assert reader.info["color_range"] == "full" and reader.info["bit_depth"] == 8

@@ -11,7 +11,8 @@ import rerun as rr
 
 from analysis.rrd_reader import Recording
 from tests.figures import assert_figure, figure_env, saved_figures
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error
+from tests.in_process import run_in_process
 
 
 def entities(path: Path) -> set[str]:
@@ -21,7 +22,7 @@ def entities(path: Path) -> set[str]:
 def test_profile_per_recording_segment(recordings, tmp_path: Path) -> None:
     out = tmp_path / "p"
     record = tmp_path / "figures.jsonl"
-    proc = run_cli(
+    proc = run_in_process(
         "analysis",
         "profile",
         str(recordings["phases"]),
@@ -44,7 +45,7 @@ def test_profile_per_recording_segment(recordings, tmp_path: Path) -> None:
     assert_figure(out / "profiles.png", figures, title="'AVDM > 80' per segment")
     assert (summary["threshold_dps"] == 80).all()
     # the profile's own statistics agree with the tables'
-    t = run_cli(
+    t = run_in_process(
         "analysis",
         "tables",
         str(recordings["phases"]),
@@ -68,7 +69,7 @@ def test_profile_per_recording_segment(recordings, tmp_path: Path) -> None:
 def test_profile_pools_recordings_by_condition(recordings, tmp_path: Path) -> None:
     out = tmp_path / "c"
     tf3 = [str(recordings["tf3_a"]), str(recordings["tf3_b"])]
-    proc = run_cli("analysis", "profile", *tf3, "--by", "condition", "--out", str(out))
+    proc = run_in_process("analysis", "profile", *tf3, "--by", "condition", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     summary = pl.read_parquet(out / "profile_summary.parquet")
     assert summary.height == 1
@@ -82,8 +83,9 @@ def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -
     rec = recordings["tf3_a"]
     record = tmp_path / "figures.jsonl"
     models = ["--model", "avdm", "--model", "avdm-on", "--model", "avdm:beta=0.5"]
-    proc = run_cli("analysis", "compare", str(rec), *models, "--out", str(out),
-                   env=figure_env(record))  # fmt: skip
+    proc = run_in_process(
+        "analysis", "compare", str(rec), *models, "--out", str(out), env=figure_env(record)
+    )
     assert proc.returncode == 0, proc.stderr
     stats = pl.read_parquet(out / "compare_summary.parquet")
     assert stats["model"].to_list() == ["avdm", "avdm-on", "avdm:beta=0.5"]
@@ -124,4 +126,4 @@ def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -
 )
 def test_bad_options_give_one_line(recordings, tmp_path: Path, args, needle) -> None:
     args = [str(recordings["tf3_a"]) if a == "REC" else a for a in args]
-    assert_one_line_error(run_cli("analysis", *args, "--out", str(tmp_path / "o")), needle)
+    assert_one_line_error(run_in_process("analysis", *args, "--out", str(tmp_path / "o")), needle)

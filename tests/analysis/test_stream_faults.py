@@ -15,7 +15,7 @@ import polars as pl
 import pytest
 
 from analysis.complexity import ComplexitySettings, complexity
-from tests.helpers import run_cli
+from tests.in_process import run_in_process
 
 N_FRAMES, FPS = 50, 25
 SHIFT_PX = 3  # the scene pans 3 px per frame on the 320-px source ...
@@ -100,14 +100,33 @@ def test_a_damaged_stream_is_read_in_time_order_and_counted_once(damaged, tmp_pa
     assert clip["frames"] < N_FRAMES  # the damage cost frames ...
     assert clip["frames"] + clip["dropped_frames"] == in_container  # ... each counted once
 
-    cli = run_cli("analysis", "complexity", str(bad), "--fov-deg", str(FOV), "--model", MODEL,
-                  "--out", str(tmp_path / "cli"))  # fmt: skip
+    cli = run_in_process(
+        "analysis",
+        "complexity",
+        str(bad),
+        "--fov-deg",
+        str(FOV),
+        "--model",
+        MODEL,
+        "--out",
+        str(tmp_path / "cli"),
+    )
     assert cli.returncode == 0, cli.stderr
     table = pl.read_parquet(tmp_path / "cli" / "complexity.parquet")
     assert (table["t_s"].diff().drop_nulls() > 0).all()
     row = pl.read_parquet(tmp_path / "cli" / "clips.parquet").row(0, named=True)
-    cap = run_cli("capture", "video", str(bad), "--fov-deg", str(FOV), "--model", MODEL,
-                  "--out", str(tmp_path / "bad.rrd"), "--quiet")  # fmt: skip
+    cap = run_in_process(
+        "capture",
+        "video",
+        str(bad),
+        "--fov-deg",
+        str(FOV),
+        "--model",
+        MODEL,
+        "--out",
+        str(tmp_path / "bad.rrd"),
+        "--quiet",
+    )
     assert cap.returncode == 0, cap.stderr
     # the three say the same for the same file
     assert (clip["frames"], clip["dropped_frames"]) == (row["frames"], row["dropped_frames"])
@@ -152,14 +171,33 @@ def test_a_cut_clip_is_noted_and_its_row_says_how_much_is_missing(tmp_path: Path
     clips.mkdir()
     cut = clips / "cut.mkv"
     cut.write_bytes(data[: len(data) // 2])  # Matroska's header (2.00 s) is at the start
-    cap = run_cli("capture", "video", str(cut), "--fov-deg", str(FOV), "--model", MODEL,
-                  "--out", str(tmp_path / "cut.rrd"), "--quiet")  # fmt: skip
+    cap = run_in_process(
+        "capture",
+        "video",
+        str(cut),
+        "--fov-deg",
+        str(FOV),
+        "--model",
+        MODEL,
+        "--out",
+        str(tmp_path / "cut.rrd"),
+        "--quiet",
+    )
     assert cap.returncode == 0, cap.stderr
     said = CUT_NOTE.search(cap.stderr)
     assert said, cap.stderr
     # the command on the file: the same note, one line
-    cli = run_cli("analysis", "complexity", str(cut), "--fov-deg", str(FOV), "--model", MODEL,
-                  "--out", str(tmp_path / "one"))  # fmt: skip
+    cli = run_in_process(
+        "analysis",
+        "complexity",
+        str(cut),
+        "--fov-deg",
+        str(FOV),
+        "--model",
+        MODEL,
+        "--out",
+        str(tmp_path / "one"),
+    )
     assert cli.returncode == 0, cli.stderr
     notes = [ln for ln in cli.stderr.splitlines() if CUT_NOTE.search(ln)]
     assert len(notes) == 1 and said.group(0) in notes[0], cli.stderr
@@ -192,8 +230,18 @@ def test_a_rerun_skips_its_own_outputs_and_says_what_it_skipped(tmp_path: Path) 
     assert first.clips.height == 1 and not first.failures
     assert [n for n in seen if "skipped 1 entry: 1 dangling link" in n], seen
     assert list((clips / "res").glob("complexity_*.rrd"))
-    again = run_cli("analysis", "complexity", str(clips), "--rrd", "--model", MODEL,
-                    "--fov-deg", str(FOV), "--out", str(clips / "res"))  # fmt: skip
+    again = run_in_process(
+        "analysis",
+        "complexity",
+        str(clips),
+        "--rrd",
+        "--model",
+        MODEL,
+        "--fov-deg",
+        str(FOV),
+        "--out",
+        str(clips / "res"),
+    )
     assert again.returncode == 0, again.stderr
     assert not (clips / "res" / "failures.parquet").exists()
     notes = [ln for ln in again.stderr.splitlines() if "skipped" in ln]

@@ -12,7 +12,8 @@ import pytest
 from analysis.rrd_reader import Recording
 from capture.output import partial_path
 from capture.recorder import Recorder
-from tests.helpers import assert_one_line_error, run_cli, start_long_capture
+from tests.helpers import assert_one_line_error, start_long_capture
+from tests.in_process import run_in_process
 from vdc.arena_geometry import distance_to_wall_along
 from vdc.parquet_io import read_metadata
 
@@ -42,7 +43,7 @@ SUMMARY_COLUMNS = [
 
 
 def tables(out: Path, *recs: Path, extra: tuple[str, ...] = ()) -> dict[str, pl.DataFrame]:
-    proc = run_cli("analysis", "tables", *map(str, recs), "--out", str(out), *extra)
+    proc = run_in_process("analysis", "tables", *map(str, recs), "--out", str(out), *extra)
     assert proc.returncode == 0, proc.stderr
     return {
         n: pl.read_parquet(out / f"{n}.parquet")
@@ -122,13 +123,15 @@ def test_a_capture_killed_with_sigkill_is_analysed(tmp_path: Path) -> None:
     proc.wait(timeout=30)
     assert not out.exists()  # a killed capture never takes the final name...
     out = partial_path(out)  # ...its frames are in the partial file, readable as it is
-    res = run_cli("analysis", "tables", str(out), "--out", str(tmp_path / "t"))
+    res = run_in_process("analysis", "tables", str(out), "--out", str(tmp_path / "t"))
     assert res.returncode == 0, res.stderr
     assert "note:" in res.stderr and ("no footer" in res.stderr or "truncated" in res.stderr)
     frames = pl.read_parquet(tmp_path / "t" / "frames.parquet")
     assert frames.height > 1000
     assert frames["frame"].to_list() == list(range(frames.height))  # no gap before the cut
-    res = run_cli("analysis", "tables", str(out), "--model", "avdm", "--out", str(tmp_path / "r"))
+    res = run_in_process(
+        "analysis", "tables", str(out), "--model", "avdm", "--out", str(tmp_path / "r")
+    )
     assert res.returncode == 0, res.stderr
 
 
@@ -137,7 +140,9 @@ def test_a_truncated_copy_keeps_its_complete_part(recordings, tmp_path: Path) ->
     cut = tmp_path / "cut.rrd"
     cut.write_bytes(data[: len(data) * 3 // 4])  # inside the second batch
     # small chunks (logged outputs) may lie after the cut: recompute from the frames that survive
-    res = run_cli("analysis", "tables", str(cut), "--model", "avdm", "--out", str(tmp_path / "t"))
+    res = run_in_process(
+        "analysis", "tables", str(cut), "--model", "avdm", "--out", str(tmp_path / "t")
+    )
     assert res.returncode == 0, res.stderr
     assert "truncated" in res.stderr
     outputs = pl.read_parquet(tmp_path / "t" / "model_outputs.parquet")
@@ -176,22 +181,22 @@ def test_bad_files_give_one_line_and_exit_2(recordings, tmp_path: Path) -> None:
     ]
     for path, needles in cases:
         assert_one_line_error(
-            run_cli("analysis", "tables", str(path), "--out", str(tmp_path / "o")), *needles
+            run_in_process("analysis", "tables", str(path), "--out", str(tmp_path / "o")), *needles
         )
     # a recording without camera frames: fine for logged tables, refused for recomputation
     assert_one_line_error(
-        run_cli("analysis", "tables", str(no_frames), "--out", str(tmp_path / "o")),
+        run_in_process("analysis", "tables", str(no_frames), "--out", str(tmp_path / "o")),
         "no logged model outputs",
         "--model",
     )
     assert_one_line_error(
-        run_cli(
+        run_in_process(
             "analysis", "tables", str(no_frames), "--model", "avdm", "--out", str(tmp_path / "o")
         ),
         "holds no camera frames",
     )
     assert_one_line_error(
-        run_cli(
+        run_in_process(
             "analysis",
             "tables",
             str(recordings["tf3_a"]),
@@ -230,10 +235,21 @@ def test_every_model_a_collision_run_logged_is_in_model_outputs(tmp_path: Path) 
     """The detector and its controller, logged online on every frame, land in the tables
     without --model, one ``model`` each, equal to what the recording holds."""
     rec = tmp_path / "col.rrd"
-    proc = run_cli("capture", "sim", "--behaviour", "collision", "--minutes", "0.05",
-                   "--model", "lgmd-plus-arena", "--out", str(rec), "--quiet")  # fmt: skip
+    proc = run_in_process(
+        "capture",
+        "sim",
+        "--behaviour",
+        "collision",
+        "--minutes",
+        "0.05",
+        "--model",
+        "lgmd-plus-arena",
+        "--out",
+        str(rec),
+        "--quiet",
+    )
     assert proc.returncode == 0, proc.stderr
-    proc = run_cli("analysis", "tables", str(rec), "--out", str(tmp_path / "t"))
+    proc = run_in_process("analysis", "tables", str(rec), "--out", str(tmp_path / "t"))
     assert proc.returncode == 0, proc.stderr
     mo = pl.read_parquet(tmp_path / "t" / "model_outputs.parquet")
     models = set(mo["model"].unique())

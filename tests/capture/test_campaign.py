@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from analysis.rrd_reader import Recording
 from capture.campaign import CaptureSweepSettings, parse_grid
 from capture.sim import SimSettings
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error
 from tests.in_process import run_in_process
 
 
@@ -62,7 +62,7 @@ def test_runs_are_the_product_of_the_varied_items_with_distinct_keys(tfs, seeds)
 
 
 def _sweep(out: Path, *args: str) -> object:
-    return run_cli("capture", "sweep", *args, "--out", str(out), "--quiet", "--jobs", "2")
+    return run_in_process("capture", "sweep", *args, "--out", str(out), "--quiet", "--jobs", "2")
 
 
 def test_a_collision_grid_records_every_run_once_and_resumes(tmp_path: Path) -> None:

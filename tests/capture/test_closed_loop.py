@@ -111,7 +111,7 @@ def test_adaptive_mode_lets_t_ffi_follow_the_avdm_mean() -> None:
 
 def test_collision_recording_has_events_detector_and_controller(tmp_path: Path) -> None:
     out = tmp_path / "col.rrd"
-    proc = run_cli(
+    proc = run_in_process(
         "capture",
         "sim",
         "--behaviour",
@@ -187,9 +187,20 @@ class NanLater:
 def test_a_nan_alert_in_the_closed_loop_is_said_not_read_silently(tmp_path: Path) -> None:
     (tmp_path / "nan_later_det.py").write_text(NAN_LATER)
     out = tmp_path / "col.rrd"
-    proc = run_cli("capture", "sim", "--behaviour", "collision", "--model",
-                   "nan_later_det:NanLater", "--minutes", "0.03", "--out", str(out), "--quiet",
-                   cwd=tmp_path)  # fmt: skip
+    proc = run_cli(
+        "capture",
+        "sim",
+        "--behaviour",
+        "collision",
+        "--model",
+        "nan_later_det:NanLater",
+        "--minutes",
+        "0.03",
+        "--out",
+        str(out),
+        "--quiet",
+        cwd=tmp_path,
+    )
     assert proc.returncode == 0, proc.stderr
     notes = [ln for ln in proc.stderr.splitlines() if "alert = NaN" in ln]
     assert len(notes) == 1 and "frame 2" in notes[0], proc.stderr  # once, at the first

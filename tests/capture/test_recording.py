@@ -39,7 +39,7 @@ CONTRACT_ENTITIES = {
 def record_short_run(out: Path) -> str:
     """The short run through the command line (30 s, TF 0 then 3 Hz, seed 3, the overhead
     camera) into ``out``; its stdout."""
-    proc = run_cli(
+    proc = run_in_process(
         "capture",
         "sim",
         "--tf-schedule",
@@ -190,7 +190,7 @@ def test_unreadable_image_unwritable_output_and_existing_file(tmp_path: Path) ->
     junk = tmp_path / "junk.png"
     junk.write_bytes(b"not an image at all")
     out = tmp_path / "x.rrd"
-    proc = run_cli(
+    proc = run_in_process(
         "capture",
         "sim",
         "--scene",
@@ -205,15 +205,17 @@ def test_unreadable_image_unwritable_output_and_existing_file(tmp_path: Path) ->
     assert_one_line_error(proc, "not a readable image")
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    proc = run_cli("capture", "sim", "--minutes", "0.05", "--out", str(blocker / "x.rrd"))
+    proc = run_in_process("capture", "sim", "--minutes", "0.05", "--out", str(blocker / "x.rrd"))
     assert_one_line_error(proc, "cannot create the folder")
-    proc = run_cli("capture", "sim", "--minutes", "0.05", "--out", str(tmp_path / "x.txt"))
+    proc = run_in_process("capture", "sim", "--minutes", "0.05", "--out", str(tmp_path / "x.txt"))
     assert_one_line_error(proc, "must end in .rrd")
     out.write_bytes(b"precious")
-    proc = run_cli("capture", "sim", "--minutes", "0.05", "--out", str(out))
+    proc = run_in_process("capture", "sim", "--minutes", "0.05", "--out", str(out))
     assert_one_line_error(proc, "already exists", "--force")
     assert out.read_bytes() == b"precious"
-    proc = run_cli("capture", "sim", "--minutes", "0.05", "--out", str(out), "--force", "--quiet")
+    proc = run_in_process(
+        "capture", "sim", "--minutes", "0.05", "--out", str(out), "--force", "--quiet"
+    )
     assert proc.returncode == 0, proc.stderr
 
 
@@ -224,7 +226,7 @@ def test_natural_scene_from_an_image_file(tmp_path: Path) -> None:
     path = tmp_path / "scene.png"
     cv2.imwrite(str(path), img)
     out = tmp_path / "nat.rrd"
-    proc = run_cli(
+    proc = run_in_process(
         "capture",
         "sim",
         "--scene",

@@ -21,7 +21,7 @@ from avdm.calibration_store import calibration_for
 from avdm.stimuli import grating
 from capture.video import VideoSettings, record_video
 from tests.figures import assert_figure, figure_env, saved_figures
-from tests.helpers import assert_one_line_error, run_cli, write_video
+from tests.helpers import assert_one_line_error, write_video
 from tests.in_process import run_in_process
 from vdc.frame_metrics import luma_plane
 
@@ -128,7 +128,9 @@ def test_a_truncated_file_keeps_the_frames_before_the_cut(tmp_path: Path) -> Non
     data = clip.read_bytes()
     cut.write_bytes(data[: len(data) // 2])
     out = tmp_path / "cut.rrd"
-    proc = run_cli("capture", "video", str(cut), "--fov-deg", "70", "--out", str(out), "--quiet")
+    proc = run_in_process(
+        "capture", "video", str(cut), "--fov-deg", "70", "--out", str(out), "--quiet"
+    )
     assert proc.returncode == 0, proc.stderr
     n = len(Recording(out).read_frames().frame)
     assert 30 < n < 150
@@ -174,13 +176,23 @@ def test_an_image_sequence_needs_its_rate_and_then_records(tmp_path: Path) -> No
         cv2.imwrite(str(folder / f"{i:05d}.png"), f)
     pattern = str(folder / "%05d.png")
     assert_one_line_error(
-        run_cli("capture", "video", pattern, "--fov-deg", "70", "--out", str(tmp_path / "a.rrd")),
+        run_in_process(
+            "capture", "video", pattern, "--fov-deg", "70", "--out", str(tmp_path / "a.rrd")
+        ),
         "--fps",
     )
-    proc = run_cli(
-        "capture", "video", pattern, "--fps", "25", "--fov-deg", "70",
-        "--out", str(tmp_path / "b.rrd"), "--quiet",
-    )  # fmt: skip
+    proc = run_in_process(
+        "capture",
+        "video",
+        pattern,
+        "--fps",
+        "25",
+        "--fov-deg",
+        "70",
+        "--out",
+        str(tmp_path / "b.rrd"),
+        "--quiet",
+    )
     assert proc.returncode == 0, proc.stderr
     t = Recording(tmp_path / "b.rrd").signals()["/robot/camera/timing"][1]
     np.testing.assert_allclose(t, np.arange(40) / 25.0, atol=1e-9)
@@ -242,11 +254,11 @@ def test_complexity_of_a_video_recording_of_the_file_and_of_an_array(clips, tmp_
 
 def test_complexity_on_a_simulated_arena_recording(tmp_path: Path) -> None:
     out = tmp_path / "sim.rrd"
-    proc = run_cli(
+    proc = run_in_process(
         "capture", "sim", "--minutes", "0.1", "--tf-hz", "3", "--out", str(out), "--quiet"
     )
     assert proc.returncode == 0, proc.stderr
-    proc = run_cli("analysis", "complexity", str(out), "--out", str(tmp_path / "cx"))
+    proc = run_in_process("analysis", "complexity", str(out), "--out", str(tmp_path / "cx"))
     assert proc.returncode == 0, proc.stderr
     df = pl.read_parquet(tmp_path / "cx" / "complexity.parquet")
     assert df.height == 198 and df["omega_dps"].null_count() == 0
@@ -259,7 +271,7 @@ def test_profile_and_compare_take_a_video_recording(clips, tmp_path: Path) -> No
     rec = tmp_path / "o.rrd"
     record_video(VideoSettings(str(clips["original"]), FOV), rec)
     record = tmp_path / "figures.jsonl"
-    proc = run_cli(
+    proc = run_in_process(
         "analysis", "profile", str(rec), "--out", str(tmp_path / "p"), env=figure_env(record)
     )
     assert proc.returncode == 0, proc.stderr
@@ -270,19 +282,21 @@ def test_profile_and_compare_take_a_video_recording(clips, tmp_path: Path) -> No
     # no poses: a time series and a histogram, not an arena map
     assert_figure(png, saved_figures(record), title="response over time", labels=("time (s)",),
                   min_axes=2)  # fmt: skip
-    proc = run_cli(
+    proc = run_in_process(
         "analysis", "compare", str(rec), "--model", "avdm", "--model", "avdm-on",
         "--out", str(tmp_path / "c"),
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    proc = run_cli("analysis", "collision", str(rec), "--out", str(tmp_path / "k"))
+    proc = run_in_process("analysis", "collision", str(rec), "--out", str(tmp_path / "k"))
     assert_one_line_error(proc, "not a collision-mode recording")
     # a video has no poses: its frames' turning flag is unknown, and excluding turns is refused
-    proc = run_cli("analysis", "tables", str(rec), "--out", str(tmp_path / "t"))
+    proc = run_in_process("analysis", "tables", str(rec), "--out", str(tmp_path / "t"))
     assert proc.returncode == 0, proc.stderr
     frames = pl.read_parquet(tmp_path / "t" / "frames.parquet")
     assert frames["turning"].null_count() == frames["robot_omega_dps"].null_count() == 150
-    proc = run_cli("analysis", "tables", str(rec), "--out", str(tmp_path / "t"), "--exclude-turns")
+    proc = run_in_process(
+        "analysis", "tables", str(rec), "--out", str(tmp_path / "t"), "--exclude-turns"
+    )
     assert_one_line_error(proc, "has no poses, so its turns are unknown")
 
 
@@ -337,7 +351,7 @@ def test_online_equals_offline_on_natural_footage_through_h264(natural_clip, tmp
     and the recorded model context agree bit for bit (the faithful avdm once read texture on
     row 2 online and row H/2 offline)."""
     out = tmp_path / "nat.rrd"
-    proc = run_cli(
+    proc = run_in_process(
         "capture",
         "video",
         str(natural_clip),
@@ -366,9 +380,11 @@ def test_complexity_of_frames_equals_the_cli_on_a_real_clip(natural_clip, tmp_pa
     """The Python function on decoded native-resolution frames gives the readings that
     `vdc-capture video` then `vdc-analyse complexity` give: same raster, same context."""
     rec = tmp_path / "nat.rrd"
-    proc = run_cli("capture", "video", str(natural_clip), "--fov-deg", "70", "--out", str(rec))
+    proc = run_in_process(
+        "capture", "video", str(natural_clip), "--fov-deg", "70", "--out", str(rec)
+    )
     assert proc.returncode == 0, proc.stderr
-    proc = run_cli("analysis", "complexity", str(rec), "--out", str(tmp_path / "cx"))
+    proc = run_in_process("analysis", "complexity", str(rec), "--out", str(tmp_path / "cx"))
     assert proc.returncode == 0, proc.stderr
     cli = pl.read_parquet(tmp_path / "cx" / "complexity.parquet")
     frames, t = decoded_luma(natural_clip)
@@ -384,7 +400,9 @@ def test_a_video_given_as_its_own_output_is_refused_and_kept(clips, tmp_path) ->
     clip = tmp_path / "v.rrd"  # an H.264 file that happens to end in .rrd
     clip.write_bytes(clips["original"].read_bytes())
     before = clip.read_bytes()
-    proc = run_cli("capture", "video", str(clip), "--fov-deg", "70", "--out", str(clip), "--force")
+    proc = run_in_process(
+        "capture", "video", str(clip), "--fov-deg", "70", "--out", str(clip), "--force"
+    )
     assert_one_line_error(proc, "is the source video")
     assert clip.read_bytes() == before  # the input is untouched
 
