@@ -367,7 +367,13 @@ def plot_truth(table: pl.DataFrame, path: str | Path) -> Path:
     ax.set_yscale("log")
     ax.set_xlabel("true angular speed (deg/s)")
     ax.set_ylabel("reading (deg/s): median and 10-90 % over cells")
-    ax.set_title("real photographs panned at known speeds (25/30 fps, 2 pitches, ±H.264)")
+    fps = "/".join(f"{f:g}" for f in sorted(table["fps"].unique().to_list()))
+    codecs = set(table["codec"].unique().to_list())
+    codec = "±H.264" if codecs == {"none", "h264"} else ("H.264" if codecs == {"h264"} else "raw")
+    n_img, n_pitch = table["image"].n_unique(), table["pitch"].n_unique()
+    ax.set_title(
+        f"{n_img} real photographs panned at known speeds ({fps} fps, {n_pitch} pitches, {codec})"
+    )
     ax.legend()
     ax.grid(alpha=0.3, which="both")
     path = Path(path)

@@ -1,7 +1,9 @@
 """How true is each speed reader on real footage? Real photographs panned at known speeds.
 
-    python benchmarks/bench_avdm_truth.py                 # the whole protocol (~15 min)
-    python benchmarks/bench_avdm_truth.py --quick         # 3 images, no H.264 (~1 min)
+    python benchmarks/bench_avdm_truth.py          # the whole protocol (1,152 cells, ~20 min)
+    python benchmarks/bench_avdm_truth.py --quick  # 3 images, no H.264 (216 cells, ~4 min)
+
+(on a quiet machine; 15 min for --quick on one shared by six jobs)
 
 Protocol (analysis/avdm_truth.py): 8 photographs shipped in scikit-image, a 70° camera panning
 at 1, 2, 5, 10, 20, 40, 80, 160 and 300 deg/s in both directions, at 25 and 30 fps, at the
