@@ -24,7 +24,8 @@ Footage (units: clips):
   clip the detector gets wrong (a miss or a false alarm), stratified bootstrap over clips;
 * ``frame_auroc_pooled`` and ``frame_auroc_within_clip``: per frame, frames where the detector
   alerts with no collision in the window (or after it) against frames where it stays quiet
-  (frames inside the window and after the collision are left out of both), pooled over clips
+  (frames inside the window and after the collision, and the start-up's, are left out of
+  both: :func:`frame_classes`), pooled over clips
   and per clip (the mean over clips with both kinds of frame); bootstrap over clips. A measure
   that ranks clips but not moments scores well pooled and near 0.5 within clips.
 

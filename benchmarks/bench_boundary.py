@@ -212,7 +212,9 @@ def economy(args: argparse.Namespace) -> None:
         b = bracket.filter(pl.col("t_ffi") == v).row(0, named=True)
         step = b["boundary_high_dps"] - b["boundary_low_dps"]
         grid_point = g["boundary_dps"] if g["fit_state"] == "within" else b["boundary_dps"]
-        ok = math.isfinite(step) and abs(a["boundary_dps"] - grid_point) <= step
+        # found = a placed boundary: an undetermined fit's point estimate is not one
+        found = a["fit_state"] == "within"
+        ok = found and math.isfinite(step) and abs(a["boundary_dps"] - grid_point) <= step
         within += ok
         print(
             f"  T_ffi {v:g}: adaptive {a['boundary_dps']:.1f} deg/s "
@@ -221,6 +223,7 @@ def economy(args: argparse.Namespace) -> None:
             f"{g['boundary_dps_high']:.1f}] ({g['fit_state']}), bracket {b['where']} "
             f"{b['boundary_low_dps']:.1f}-{b['boundary_high_dps']:.1f}; one grid step "
             f"{step:.1f} deg/s: {'within' if ok else 'NOT within'}"
+            f"{'' if found else ' (the adaptive design placed no boundary)'}"
         )
     print(f"economy: {within} of {len(values)} values within one grid step")
 
