@@ -93,6 +93,7 @@ class FrameBatcher:
             p910_range=ranges["color_range_p910"] or "detect", full_alternative=reopen is None,
         )  # fmt: skip
         self._reopen = reopen
+        self.meter.copy_previous = not reader.planes_persist
         reader.grey = size is not None  # no working raster: no grey conversion (0.3 ms at 720p)
         if threads > 1:
             from vdc.pipeline import pipelined

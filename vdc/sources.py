@@ -81,6 +81,8 @@ class Reader:
     # False: a reader may leave ``luma`` as the native plane (no grey conversion) where no
     # one reads it (FrameBatcher without a working raster: native metrics only)
     grey: bool = True
+    # True: a frame's ``native`` array stays unchanged while anyone holds it (no buffer reuse)
+    planes_persist: bool = False
 
     def frames(self) -> Iterator[SourceFrame]:  # pragma: no cover - interface
         raise NotImplementedError
@@ -111,6 +113,9 @@ class _PyAvReader(Reader):
             self.container.close()
             raise ValueError(f"{path!r} holds no video stream")
         self.stream = self.container.streams.video[0]
+        # a plane views the frame's reference-counted buffer, which FFmpeg's pools hand out
+        # again only when no frame references it
+        self.planes_persist = True
         # FFmpeg's frame threads, except in a pool worker (one core each: vdc.executors)
         single = os.environ.get("VDC_WORKER_THREADS") == "1"
         self.stream.thread_type = "NONE" if single else "AUTO"
