@@ -33,6 +33,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import av
 import cv2
 
 ROOT = Path(__file__).resolve().parents[1]
