@@ -14,7 +14,8 @@ from analysis.boundary import BoundarySettings
 from analysis.experiments.boundary_campaign import boundary
 from tests.figures import assert_figure, recording_figures
 from tests.footage_clips import COLLISION_FRAME, FPS, write_collection
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error
+from tests.in_process import run_in_process
 
 DRIFTS = (0.0, 0.5, 1.0, 2.0, 4.0)  # px per frame: five groups of clips, ever busier
 WINDOW_S = 1.0
@@ -93,7 +94,20 @@ def test_a_bad_labels_table_is_one_line(labels: Path, tmp_path: Path, table: str
     clip = labels.parent / "bg-drift0-s1.mp4"
     path = tmp_path / "labels.csv"
     path.write_text(table.replace("{clip}", str(clip)))
-    proc = run_cli("analysis.cli", "boundary", "--labels", str(path), "--fov-deg", "60",
-                   "--detector", "examples.looming:Looming", "--param", "threshold",
-                   "--values", "0.1", "--out", str(tmp_path / "o"))  # fmt: skip
+    proc = run_in_process(
+        "analysis.cli",
+        "boundary",
+        "--labels",
+        str(path),
+        "--fov-deg",
+        "60",
+        "--detector",
+        "examples.looming:Looming",
+        "--param",
+        "threshold",
+        "--values",
+        "0.1",
+        "--out",
+        str(tmp_path / "o"),
+    )
     assert_one_line_error(proc, *needles)

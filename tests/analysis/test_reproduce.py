@@ -11,7 +11,7 @@ import pytest
 
 from analysis.experiments.reproduce import evaluate_claims
 from tests.figures import assert_figure, figure_env, saved_figures
-from tests.helpers import run_cli
+from tests.in_process import run_in_process
 
 ARGS = (
     "--quick",
@@ -32,7 +32,7 @@ RECORDINGS = 2 * (5 + 5)  # seeds x (profiling conditions + collision phases)
 def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path) -> None:
     out = tmp_path / "repro"
     record = tmp_path / "figures.jsonl"
-    proc = run_cli(
+    proc = run_in_process(
         "analysis", "reproduce", *ARGS, "--out", str(out), timeout=600, env=figure_env(record)
     )
     assert proc.returncode == 0, proc.stderr
@@ -157,6 +157,6 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
     for c in again:
         assert not re.search(r"\d\.\d", c.measured), c.measured
     # a rerun records nothing new
-    rerun = run_cli("analysis", "reproduce", *ARGS, "--out", str(out), timeout=600)
+    rerun = run_in_process("analysis", "reproduce", *ARGS, "--out", str(out), timeout=600)
     assert rerun.returncode == 0, rerun.stderr
     assert rerun.stderr.count("reusing") == RECORDINGS and "recorded in" not in rerun.stderr

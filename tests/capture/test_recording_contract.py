@@ -17,7 +17,8 @@ from avdm.stimuli import grating
 from capture.config import CameraConfig
 from capture.recorder import Recorder
 from capture.video import VideoSettings, record_video
-from tests.helpers import assert_one_line_error, make_sim_recording, run_cli, write_video
+from tests.helpers import assert_one_line_error, make_sim_recording, write_video
+from tests.in_process import run_in_process
 from vdc.recording import EVENT_KINDS, PROPERTY_SECTIONS
 
 MODEL_DESCRIPTION = ("model", "model_params", "model_context")
@@ -92,7 +93,7 @@ def foreign_recording(path: Path, sections: dict) -> Path:
 
 def test_analysis_names_what_an_old_or_foreign_recording_lacks(tmp_path: Path) -> None:
     no_arena = foreign_recording(tmp_path / "no_arena.rrd", {})
-    proc = run_cli("analysis", "tables", str(no_arena), "--out", str(tmp_path / "t"))
+    proc = run_in_process("analysis", "tables", str(no_arena), "--out", str(tmp_path / "t"))
     assert_one_line_error(proc, "old or foreign recording", "arena", "length_m, width_m")
     assert not (tmp_path / "t" / "frames.parquet").exists()
     # with its arena it tabulates its logged outputs; recomputing needs the camera it lacks
