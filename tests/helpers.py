@@ -8,7 +8,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from fractions import Fraction
 from pathlib import Path
 
@@ -266,3 +266,12 @@ def write_video(
     out.mux(stream.encode())  # flush the encoder
     out.close()
     return path
+
+
+def module_on_path(folder: Path, module: str, source: str) -> Iterator[Path]:
+    """``source`` written as ``folder/<module>.py`` and importable (``folder`` first on
+    ``sys.path``) until the generator ends: the body of a fixture of test plugins."""
+    (folder / f"{module}.py").write_text(source)
+    sys.path.insert(0, str(folder))
+    yield folder
+    sys.path.remove(str(folder))

@@ -11,6 +11,7 @@ import os
 import re
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ from analysis.experiments.boundary_campaign import boundary
 from analysis.experiments.captures import run_captures
 from avdm.registry import check_detector
 from capture.sim import SimSettings
-from tests.helpers import ROOT, assert_one_line_error, write_video
+from tests.helpers import ROOT, assert_one_line_error, module_on_path, write_video
 from vdc.cli_support import UserError
 from vdc.executors import ExecutorSettings, Feedback
 
@@ -86,12 +87,8 @@ CAMERA = {"fps": 33.0, "deg_per_px": 70 / 99, "width_px": 99, "height_px": 72}
 
 
 @pytest.fixture(scope="module")
-def plugins(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("plugins")
-    (folder / "unfit_detectors.py").write_text(PLUGINS)
-    sys.path.insert(0, str(folder))
-    yield folder
-    sys.path.remove(str(folder))
+def plugins(tmp_path_factory) -> Iterator[Path]:
+    yield from module_on_path(tmp_path_factory.mktemp("plugins"), "unfit_detectors", PLUGINS)
 
 
 def _cli(plugins: Path, *args: str) -> subprocess.CompletedProcess:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ from analysis.complexity import ComplexitySettings, complexity
 from analysis.experiments.boundary_campaign import boundary
 from analysis.tables import TablesSettings, tables
 from capture.sim import SimSettings, record_sim
-from tests.helpers import ROOT, assert_one_line_error, write_video
+from tests.helpers import ROOT, assert_one_line_error, module_on_path, write_video
 from vdc.cli_support import UserError
 from vdc.parquet_io import table_set
 
@@ -47,12 +48,8 @@ class Silent:  # a detector that never alerts
 
 
 @pytest.fixture(scope="module")
-def plugins(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("plugins")
-    (folder / "audit_plugins.py").write_text(PLUGINS)
-    sys.path.insert(0, str(folder))
-    yield folder
-    sys.path.remove(str(folder))
+def plugins(tmp_path_factory) -> Iterator[Path]:
+    yield from module_on_path(tmp_path_factory.mktemp("plugins"), "audit_plugins", PLUGINS)
 
 
 @pytest.fixture(scope="module")
