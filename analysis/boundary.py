@@ -154,6 +154,11 @@ class BoundarySettings(ExecutorSettings):
         "adaptive: a value stops once its boundary's 95 % interval is narrower, deg/s",
         type=positive_float,
     )
+    per_scene: bool = option(
+        False,
+        "adaptive: each scene a factor: --budget split among the scenes, each scene's runs "
+        "placed along its own TF axis, a boundary (the first crossing) per scene",
+    )
     groups: int | None = option(
         None, "footage mode: clips in N groups of similar complexity (default: up to 5 of 4)"
     )
@@ -492,7 +497,8 @@ class BoundaryResult(WroteFiles):
         """What the command line prints: the boundary per value, then the files."""
         param = self.boundaries.columns[0]
         lines = [
-            f"boundary at {param} = {r[param]:g}: {describe_boundary(r)}"
+            f"boundary at {param} = {r[param]:g}{', ' + r['scene'] if r.get('scene') else ''}: "
+            f"{describe_boundary(r)}"
             for r in self.boundaries.iter_rows(named=True)
         ]
         wanted = ("boundary.md", "boundary.png", "policy.csv")
@@ -547,6 +553,9 @@ def write_arena_outputs(
     return paths, arena_report(s, conditions, bounds, policy)
 
 
+PER_SCENE_DESIGN = " split among the scenes, each scene placed and fitted on its own (--per-scene)"
+
+
 def arena_report(
     s: BoundarySettings, conditions: pl.DataFrame, bounds: pl.DataFrame, policy: Policy | None
 ) -> str:
@@ -558,8 +567,9 @@ def arena_report(
         f"{_join(s.values)}; {s.seeds} seed(s) from {s.seed}"
         if s.design == "grid"
         else f"Adaptive design: scenes {', '.join(s.scene_list())}; wall TF {s.tf_range} Hz; "
-        f"{s.param} = {_join(s.values)}; at most {s.budget} runs per value, stopping at a 95 % "
-        f"interval narrower than {s.precision:g} deg/s"
+        f"{s.param} = {_join(s.values)}; at most {s.budget} runs per value"
+        f"{PER_SCENE_DESIGN if s.per_scene else ''}"
+        f", stopping at a 95 % interval narrower than {s.precision:g} deg/s"
     )
     lines = [
         f"# Where {s.detector} breaks\n",
@@ -571,7 +581,8 @@ def arena_report(
         *fit_section(bounds, s.param),
     ]
     for row in bounds.iter_rows(named=True):
-        lines.append(f"- {s.param} = {row[s.param]:g}: {describe_boundary(row)}")
+        scene = f", {row['scene']}" if row.get("scene") else ""  # --per-scene
+        lines.append(f"- {s.param} = {row[s.param]:g}{scene}: {describe_boundary(row)}")
     lines += ["", "## Performance per condition\n"]
     columns = {
         "complexity (deg/s)": ("complexity", 1.0),

@@ -368,29 +368,45 @@ FIT_NOTE = (
 )
 
 
+PER_SCENE_NOTE = (
+    " Per scene (`--per-scene`): each scene's runs alone, up to its first clearly failing run "
+    "(the boundary is the *first* crossing along that scene's TF axis), wall TF through that "
+    "scene's profile."
+)
+
+
 def fit_section(bounds: pl.DataFrame, by: str) -> list[str]:
     """``boundary.md``'s table of the fitted boundaries (deg/s and wall TF, 95 %)."""
     if "fit_state" not in bounds.columns:
         return []
-    head = f"| {by} | state | boundary (deg/s) | 95 % | wall TF (Hz) | 95 % | runs |"
-    lines = [FIT_NOTE, "", head]
-    lines.append("|---|---|---|---|---|---|---|")
+    scene = "scene" in bounds.columns  # --per-scene: a row per (value, scene)
+
+    def scene_cell(r: dict[str, Any]) -> str:
+        return f" {r['scene']} |" if scene else ""
+
+    head = (
+        f"| {by} |{' scene |' if scene else ''} state | boundary (deg/s) | 95 % | wall TF (Hz) "
+        "| 95 % | runs |"
+    )
+    lines = [FIT_NOTE + (PER_SCENE_NOTE if scene else ""), "", head]
+    lines.append("|---|---|---|---|---|---|---|" + ("---|" if scene else ""))
     for r in bounds.iter_rows(named=True):
         dps = _span(r["boundary_dps_low"], r["boundary_dps_high"], "", 1).strip() or "—"
         tf = _span(r["boundary_tf_low"], r["boundary_tf_high"], "", 2).strip() or "—"
         point = f"{r['boundary_dps']:.1f}" if _finite(r["boundary_dps"]) else "—"
         tf_point = f"{r['boundary_tf_hz']:.2f}" if _finite(r["boundary_tf_hz"]) else "—"
         lines.append(
-            f"| {r[by]:g} | {r['fit_state']} | {point} | {dps} | {tf_point} | {tf} | "
-            f"{r['fit_runs']} |"
+            f"| {r[by]:g} |{scene_cell(r)} {r['fit_state']} | {point} | {dps} | {tf_point} | "
+            f"{tf} | {r['fit_runs']} |"
         )
     return [*lines, ""]
 
 
-def draw_fit(ax: Any, fit: CrossingFit, color: str) -> None:
-    """The fitted curve (success, %) with its 95 % band and the boundary's interval (shaded,
-    to the edge of the axis where unbounded) and estimate (dashed) on a matplotlib axis."""
-    ax.plot(fit.curve_x, 100 * fit.curve_p, color=color, lw=2)
+def draw_fit(ax: Any, fit: CrossingFit, color: str, ls: str = "-") -> None:
+    """The fitted curve (success, %; line style ``ls``) with its 95 % band and the boundary's
+    interval (shaded, to the edge of the axis where unbounded) and estimate (dashed) on a
+    matplotlib axis."""
+    ax.plot(fit.curve_x, 100 * fit.curve_p, color=color, lw=2, ls=ls)
     ax.fill_between(fit.curve_x, 100 * fit.band_low, 100 * fit.band_high, color=color, alpha=0.12)
     lo, hi = fit.domain
     a = max(fit.low, lo - 0.5 * (hi - lo))

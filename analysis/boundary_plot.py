@@ -24,11 +24,12 @@ def plot_boundary(
         1.0,
         "avoidances per 30 min (energy spent turning)",
     ),
-    fits: dict[float, Any] | None = None,
+    fits: dict[Any, Any] | None = None,
 ) -> Path:
     """Success (with the target and each curve's boundary) and the energy spent avoiding
     (avoidances per 30 min) against complexity, one curve per value of ``by``, 95 % intervals
-    as error bars."""
+    as error bars. ``fits`` keyed by value, or by (value, scene) for a fitted curve per scene
+    (solid grating, dash-dot natural)."""
     fig = Figure(figsize=(13, 5), layout="constrained")
     ax_s, ax_e = fig.subplots(1, 2)
     for i, ((value,), g) in enumerate(conditions.group_by(by, maintain_order=True)):
@@ -55,7 +56,13 @@ def plot_boundary(
                 if on.any():
                     ax.plot(x[on], y[on], marker, color=color, ms=7)
         b = bounds.filter(pl.col(by) == value).row(0, named=True)
-        if fits is not None and value in fits:  # the fitted curve, its band and interval
+        per_scene = [k for k in (fits or {}) if isinstance(k, tuple) and k[0] == value]
+        if per_scene:  # --per-scene: a curve per scene, keyed (value, scene)
+            from analysis.boundary_fit import draw_fit
+
+            for key in per_scene:
+                draw_fit(ax_s, fits[key], color, ls=_SCENE_LINES.get(key[1], "-"))
+        elif fits is not None and value in fits:  # the fitted curve, its band and interval
             from analysis.boundary_fit import draw_fit
 
             draw_fit(ax_s, fits[value], color)
@@ -83,6 +90,7 @@ def plot_boundary(
 
 
 _MARKERS = {"grating": "o", "natural": "s", "group": "D"}
+_SCENE_LINES = {"grating": "-", "natural": "-."}  # --per-scene: each scene's fitted curve
 
 
 def _err(y: np.ndarray, low: Any, high: Any) -> np.ndarray | None:

@@ -30,6 +30,7 @@ benchmark's coverage check drives it with simulated detectors of known boundary.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -174,6 +175,153 @@ def design_runs(
     return [r for v in values for r in rows[v]], fits
 
 
+PER_SCENE_FIRST = 3  # per-scene design: the first batch per scene, the range's ends and middle
+
+
+def first_failure(
+    x: Sequence[float], k: Sequence[float], n: Sequence[float], target: float
+) -> float:
+    """The least complexity among runs that clearly fail (the exact binomial 95 % upper bound
+    of their success, ``k`` of ``n``, below ``target``); inf when none does. The per-scene
+    design's boundary is the *first* crossing: runs past this one are not fitted (a detector
+    can fail in the middle of a scene's range and recover at its end)."""
+    import scipy.stats
+
+    x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
+    ok = n_a > 0
+    upper = np.ones_like(x_a)
+    upper[ok] = np.where(
+        k_a[ok] >= n_a[ok], 1.0, scipy.stats.beta.ppf(0.975, k_a[ok] + 1, n_a[ok] - k_a[ok])
+    )
+    failing = x_a[ok & (upper < target)]
+    return float(failing.min()) if failing.size else math.inf
+
+
+def fit_first_crossing(
+    rows: Sequence[dict[str, Any]], target: float, domain: tuple[float, float]
+) -> tuple[CrossingFit, float]:
+    """The monotone curve (:func:`fit_crossing`) fitted to one scene's runs (complexity_dps,
+    avoidances, crashes) up to the first clearly failing one (:func:`first_failure`); returns
+    the fit and that run's complexity (inf: none fails, every run fitted). A clearly failing
+    run at the least complex point of ``domain`` makes the state ``below`` (95 %: < it)."""
+    x = [r["complexity_dps"] for r in rows]
+    k = [r["avoidances"] for r in rows]
+    n = [r["avoidances"] + r["crashes"] for r in rows]
+    cut = first_failure(x, k, n, target)
+    keep = [i for i, xi in enumerate(x) if xi <= cut]
+    fit = fit_crossing([x[i] for i in keep], [k[i] for i in keep], [n[i] for i in keep], target,
+                       domain)  # fmt: skip
+    if cut <= min(domain) + 1e-9:  # a run at the scene's least complex point clearly fails
+        fit = dataclasses.replace(fit, state="below", boundary=math.nan, low=-math.inf, high=cut)
+    return fit, cut
+
+
+def sample_within(
+    fit: CrossingFit, rng: np.random.Generator, size: int, low: float, high: float
+) -> np.ndarray:
+    """``size`` crossings (deg/s) drawn from ``fit``'s normalised likelihood restricted to
+    [``low``, ``high``] (a scene's range, up to its first clearly failing run): no run is spent
+    at an end only because the crossing may lie past it. Clipped draws if none of the
+    likelihood lies there."""
+    inside = (fit.t_grid >= low) & (fit.t_grid <= high)
+    w = np.where(inside, fit.weights, 0.0)
+    if w.sum() <= 0:
+        return np.clip(fit.sample(rng, size), low, high)
+    return rng.choice(fit.t_grid, size=size, p=w / w.sum())
+
+
+def design_runs_per_scene(
+    values: Sequence[float],
+    scenes: Sequence[str],
+    profile: ProfileMap,
+    tf_range: tuple[float, float],
+    run_batch: Callable[[list[dict[str, Any]]], list[dict[str, Any]]],
+    *,
+    target: float,
+    budget: int,
+    precision_dps: float,
+    batch: int,
+    seed: int,
+    log: Callable[[str], None] = lambda _m: None,
+) -> tuple[list[dict[str, Any]], dict[tuple[float, str], CrossingFit]]:
+    """The per-scene adaptive loop (``--per-scene``): each (value, scene) its own design.
+    ``budget`` runs per value are split evenly among the scenes (a scene that settles early
+    leaves its unspent runs to the value's scenes still running); per scene a first batch of
+    ``PER_SCENE_FIRST`` runs at TFs spread over the range, then batches of ``batch`` runs whose
+    complexities (that scene's profile) are drawn from the likelihood of its first crossing
+    (:func:`fit_first_crossing`) within that scene's range and below its first clearly failing
+    run (:func:`sample_within`), and made TFs of that scene. A (value, scene) stops as
+    :func:`design_runs`' values do (or at its share of the budget). ``run_batch`` as
+    :func:`design_runs`'; returns every row and the last fit per (value, scene)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = tf_range
+    per_scene = max(2, budget // len(scenes))
+    domain = {sc: (float(profile.to_dps(sc, lo)), float(profile.to_dps(sc, hi))) for sc in scenes}
+    keys = [(v, sc) for v in values for sc in scenes]
+    rows: dict[tuple[float, str], list[dict[str, Any]]] = {key: [] for key in keys}
+    fits: dict[tuple[float, str], CrossingFit] = {}
+    cuts: dict[tuple[float, str], float] = {}
+    active = list(keys)
+    spare = dict.fromkeys(values, 0)  # runs a value's settled scenes left unspent
+
+    def cap(v: float) -> int:  # a scene's share: its own plus the unspent runs shared out
+        return per_scene + spare[v] // max(1, sum(key[0] == v for key in active))
+
+    round_no = 0
+    while active:
+        placed: list[dict[str, Any]] = []
+        for v, sc in active:
+            done = rows[(v, sc)]
+            if round_no == 0:
+                tfs = [
+                    round(float(t), 2) for t in np.linspace(lo, hi, min(PER_SCENE_FIRST, per_scene))
+                ]
+            else:
+                size = min(batch, cap(v) - len(done))
+                top = min(domain[sc][1], cuts[(v, sc)])
+                dps = sample_within(fits[(v, sc)], rng, size, domain[sc][0], top)
+                tfs = [round(float(np.clip(profile.to_tf(sc, d), lo, hi)), 2) for d in dps]
+            for tf in tfs:
+                n_value = sum(len(rows[(v, s2)]) for s2 in scenes)
+                placed.append(
+                    {
+                        "value": v,
+                        "scene": sc,
+                        "tf_hz": tf,
+                        "seed": seed + n_value + sum(p["value"] == v for p in placed),
+                        "batch": round_no,
+                        "complexity_dps": float(profile.to_dps(sc, tf)),
+                    }
+                )
+        for r in run_batch(placed):
+            rows[(r["value"], r["scene"])].append(r)
+        still = []
+        for key in active:
+            g = rows[key]
+            fits[key], cuts[key] = fit_first_crossing(g, target, domain[key[1]])
+            f = fits[key]
+            log(
+                f"  value {key[0]:g}, {key[1]}, batch {round_no}: {len(g)} run(s), boundary "
+                f"{f.boundary:.1f} deg/s, 95 % [{f.low:.1f}, {f.high:.1f}] ({f.state})"
+                + (
+                    f"; first failing run at {cuts[key]:.1f} deg/s"
+                    if math.isfinite(cuts[key])
+                    else ""
+                )
+            )
+            settled = f.state in ("beyond", "below") or (
+                f.state == "within" and f.width < precision_dps
+            )
+            if not settled and len(g) < cap(key[0]):
+                still.append(key)
+        for key in active:
+            if key not in still:  # settled or spent: its unspent runs go to its value's others
+                spare[key[0]] += max(0, cap(key[0]) - len(rows[key]))
+        active = still
+        round_no += 1
+    return [r for key in keys for r in rows[key]], fits
+
+
 def profile_runs(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
     """The profiling runs: per scene, ``PROFILE_POINTS`` TFs over the range, seed ``--seed``."""
     from capture.sim import SimSettings
@@ -234,6 +382,8 @@ def adaptive_boundary(
         done = run_grid(run_items(s, placed, rec), "collision", s, s.false_alarm_m, feedback)
         return done.to_dicts()
 
+    if s.per_scene:
+        return _per_scene_outputs(s, out, pmap, profiles, run_batch, feedback)
     rows, fits = design_runs(
         values,
         scenes,
@@ -275,6 +425,89 @@ def adaptive_boundary(
             fits,
         )  # fmt: skip
         return published(stage, out, BoundaryResult(runs, conditions, bounds, policy, paths, md))
+
+
+def _per_scene_outputs(
+    s: BoundarySettings,
+    out: Path,
+    pmap: ProfileMap,
+    profiles: pl.DataFrame,
+    run_batch: Callable[[list[dict[str, Any]]], list[dict[str, Any]]],
+    feedback: Feedback,
+) -> BoundaryResult:
+    """``--per-scene``: the loop (:func:`design_runs_per_scene`) and the files, with one row of
+    ``boundary.parquet`` per (value, scene) (a ``scene`` column; the TF columns through that
+    scene's profile; the bracket from that scene's runs)."""
+    from vdc.parquet_io import table_set
+
+    scenes, values = s.scene_list(), s.grid_values()
+    rows, fits = design_runs_per_scene(
+        values,
+        scenes,
+        pmap,
+        s.tf_bounds(),
+        run_batch,
+        target=s.target,
+        budget=s.budget,
+        precision_dps=s.precision,
+        batch=max(2, s.jobs),
+        seed=s.seed,
+        log=feedback.log,
+    )
+    runs = pl.DataFrame(rows).drop("value").sort(s.param, "batch", "seed")
+    conditions = campaign_conditions(runs, s.param)
+    bounds = per_scene_bounds(conditions, fits, s.param, s.target, pmap.to_tf)
+    policy = None if s.no_fit else policy_from_campaign(runs, s)
+    with table_set(out) as stage:
+        paths, md = write_arena_outputs(
+            stage, s,
+            {"runs": runs, "conditions": conditions, "bounds": bounds, "profiles": profiles},
+            policy,
+            f"{s.detector}: adaptive design per scene, {runs.height} runs",
+            "complexity: AVDM straight-driving response, profile interpolated (deg/s)",
+            fits,
+        )  # fmt: skip
+        return published(stage, out, BoundaryResult(runs, conditions, bounds, policy, paths, md))
+
+
+def campaign_conditions(runs: pl.DataFrame, by: str) -> pl.DataFrame:
+    """Per-condition statistics (:func:`analysis.boundary.condition_statistics`) of an adaptive
+    campaign's runs, each condition at its own interpolated complexity."""
+    complexity = runs.select(
+        "condition",
+        "complexity_dps",
+        pl.col("complexity_dps").alias("complexity_low"),
+        pl.col("complexity_dps").alias("complexity_high"),
+    ).unique("condition", maintain_order=True)
+    return condition_statistics(runs.drop("complexity_dps"), complexity, ["condition", by])
+
+
+def per_scene_bounds(
+    conditions: pl.DataFrame,
+    fits: dict[tuple[float, str], CrossingFit],
+    by: str,
+    target: float,
+    to_tf: Callable[[str, Any], Any],
+    design: str = "adaptive",
+) -> pl.DataFrame:
+    """``boundary.parquet`` per (value, scene): the bracket of that scene's conditions
+    (:func:`analysis.boundary.boundaries`), the fitted columns of ``fits[(value, scene)]``
+    (TF through ``to_tf(scene, deg/s)``), the ``design``."""
+    from analysis.boundary_fit import fit_columns
+
+    parts = []
+    for v, sc in fits:
+        mine = conditions.filter((pl.col(by) == v) & pl.col("condition").str.starts_with(f"{sc}-"))
+        bracket = boundaries(mine, by, target).rename({"boundary_dps": "bracket_dps"})
+        fitted = fit_columns(fits[(v, sc)], lambda d, sc=sc: to_tf(sc, d))
+        parts.append(
+            bracket.with_columns(
+                pl.lit(sc).alias("scene"),
+                *[pl.lit(val).alias(name) for name, val in fitted.items()],
+                pl.lit(design).alias("design"),
+            )
+        )
+    return pl.concat(parts, how="diagonal_relaxed")
 
 
 def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3) -> Any:
