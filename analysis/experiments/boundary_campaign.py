@@ -31,10 +31,15 @@ from analysis.experiments.captures import collision_run_item, profiling_items
 from vdc.executors import QUIET, ExecutorSettings, Feedback, run_tasks_or_raise
 
 
-def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm_m: float) -> dict:
+def record_and_measure(
+    key: str, settings: Any, out: str, kind: str, false_alarm_m: float, measure_every: int = 0
+) -> dict:
     """An executor task: record the run unless a finished recording of the same configuration
     is there, then measure it; the row is kept beside the recording (``.row.json``) so a
-    re-run neither records nor measures it again."""
+    re-run neither records nor measures it again. A profiling run with ``measure_every`` > 0
+    also gets every complexity measure of the predictors, in this worker right after its
+    recording (``predictor_runs.cached_measures``, cached beside it the same way), under
+    ``"measures"``: no second pool to start, import and warm up after the grid's."""
     from analysis.experiments.captures import capture_is_done
     from capture.run import REPLACE_OUTPUT
     from capture.sim import record_sim
@@ -42,31 +47,40 @@ def record_and_measure(key: str, settings: Any, out: str, kind: str, false_alarm
     path = Path(out)
     run_id = settings.to_config().run_id()
     cache = path.with_suffix(".row.json")
+    row = None
     if capture_is_done(path, run_id):
         if cache.exists():
             row = json.loads(cache.read_text())
             # a row measured by an older vdc lacks a measurement: measure again, not record
             if row.get("recording_id") == run_id and row.get("row_version") == ROW_VERSION:
-                return row | {"key": key, "reused": True}
+                row |= {"reused": True}
+            else:
+                row = None
     else:
         record_sim(settings, path, REPLACE_OUTPUT)  # a partial file of a killed run is replaced
-    row = run_row(path, kind, false_alarm_m) | {"row_version": ROW_VERSION}
-    tmp = cache.with_suffix(".partial")
-    tmp.write_text(json.dumps(row))
-    tmp.replace(cache)
-    return row | {"key": key, "reused": False}
+    if row is None:
+        row = run_row(path, kind, false_alarm_m) | {"row_version": ROW_VERSION}
+        tmp = cache.with_suffix(".partial")
+        tmp.write_text(json.dumps(row))
+        tmp.replace(cache)
+        row |= {"reused": False}
+    if kind == "profile" and measure_every > 0:
+        from analysis.experiments.predictor_runs import cached_measures
+
+        row["measures"] = cached_measures(path, measure_every)
+    return row | {"key": key}
 
 
-def run_grid(
+def _record_all(
     items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
     kind: str,
     executor: ExecutorSettings,
     false_alarm_m: float,
     feedback: Feedback,
-) -> pl.DataFrame:
-    """Record and measure every ``(key, SimSettings, path, columns)`` on ``executor``; one row
-    per run with ``columns`` (its condition) first. A failed run does not stop the others:
-    they are kept and :class:`vdc.executors.TasksFailed` names the failed ones."""
+    measure_every: int = 0,
+) -> list[dict[str, Any]]:
+    """:func:`record_and_measure` of every item on ``executor``: the results in the items'
+    order, ``columns`` first."""
     from analysis.experiments.captures import check_detectors
 
     # a detector that cannot be one: one line before the first run, not one failure per run
@@ -75,7 +89,7 @@ def run_grid(
     for key, settings, path, _ in items:
         settings.to_config()  # a bad configuration fails before any process starts
         path.parent.mkdir(parents=True, exist_ok=True)
-        tasks.append((key, (key, settings, str(path), kind, false_alarm_m)))
+        tasks.append((key, (key, settings, str(path), kind, false_alarm_m, measure_every)))
     results = run_tasks_or_raise(
         record_and_measure,
         tasks,
@@ -88,7 +102,40 @@ def run_grid(
     reused = sum(bool(r.get("reused")) for r in rows)
     if reused:
         feedback.log(f"reused {reused} of {len(items)} {kind} run(s) that an earlier run finished")
+    return rows
+
+
+def run_grid(
+    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
+    kind: str,
+    executor: ExecutorSettings,
+    false_alarm_m: float,
+    feedback: Feedback,
+) -> pl.DataFrame:
+    """Record and measure every ``(key, SimSettings, path, columns)`` on ``executor``; one row
+    per run with ``columns`` (its condition) first. A failed run does not stop the others:
+    they are kept and :class:`vdc.executors.TasksFailed` names the failed ones."""
+    rows = _record_all(items, kind, executor, false_alarm_m, feedback)
     return pl.DataFrame(rows).sort("key")
+
+
+def run_profiles(
+    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
+    executor: ExecutorSettings,
+    feedback: Feedback,
+    measure_every: int = 0,
+) -> tuple[pl.DataFrame, pl.DataFrame | None]:
+    """:func:`run_grid` of the profiling runs, and (``measure_every`` > 0) every complexity
+    measure of each, taken by the worker that recorded it
+    (:func:`analysis.experiments.predictor_runs.measures_table`; else None)."""
+    rows = _record_all(items, "profile", executor, 0.0, feedback, measure_every)
+    got = {r["key"]: r.pop("measures") for r in rows if "measures" in r}
+    measures = None
+    if measure_every > 0:
+        from analysis.experiments.predictor_runs import measures_table
+
+        measures = measures_table([(key, cols) for key, _, _, cols in items], got)
+    return pl.DataFrame(rows).sort("key"), measures
 
 
 def _shortest_run(s: BoundarySettings, sim: Any) -> str:
@@ -183,17 +230,16 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
     runs = run_grid(items, "collision", s, s.false_alarm_m, feedback)
     require_evidence(runs, None, s, items[0][1])  # never a verdict from no evidence
     if prof:
-        profiles = run_grid(prof, "profile", s, s.false_alarm_m, feedback)
+        from analysis.experiments.predictor_runs import EVERY
+
+        # every complexity measure of a profiling run, by the worker that just recorded it
+        every = 0 if s.no_predictors else EVERY
+        profiles, measures = run_profiles(prof, s, feedback, every)
         complexity = condition_complexity(profiles, "profile_dps")
     else:
-        profiles = None
+        profiles = measures = None
         complexity = condition_complexity(runs, "online_dps")
     require_evidence(runs, complexity, s, items[0][1])
-    measures = None
-    if prof and not s.no_predictors:  # every complexity measure of the profiling runs
-        from analysis.experiments.predictor_runs import arena_measures
-
-        measures = arena_measures([(p, c) for _, _, p, c in prof], s, feedback.log)
     conditions = condition_statistics(runs, complexity, ["condition", s.param])
     fitted, fits = grid_fits(runs, complexity, s.param, s.target)
     bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "grid")

@@ -13,6 +13,9 @@ after the warm-up, as ``profile_dps`` is:
 * ``codec_bpp``: the bits per pixel of the whole run encoded as H.264 (libx264, ``ultrafast``,
   CRF 23, every frame), the packets' mean.
 
+``vdc-analyse boundary`` measures each profiling run in the worker that has just recorded it
+(``boundary_campaign.record_and_measure``: no second pool to start and warm up);
+:func:`arena_measures` measures a finished grid's runs afterwards, with the same function.
 The numbers are cached beside the recording (``seedN.measures.json``, with its recording id
 and :data:`MEASURE_VERSION`): a grid recorded before the predictors existed gains them without
 recording anything, and a re-run measures nothing again.
@@ -198,7 +201,17 @@ def arena_measures(
     got = run_tasks_or_raise(
         cached_measures, tasks, executor.executor_settings(), "measurement", Feedback(log)
     )
-    rows = [{**cols, **got[str(p)]} for p, cols in items if str(p) in got]
+    return measures_table([(str(p), cols) for p, cols in items], got)
+
+
+def measures_table(
+    items: Sequence[tuple[str, dict[str, Any]]], got: dict[str, dict[str, Any]]
+) -> pl.DataFrame:
+    """The measures table of the profiling runs ``(key, columns)`` from their
+    :func:`cached_measures` rows ``got`` (by key): one row per run, ``columns`` (condition,
+    scene, tf_hz, seed) first. The same table whether the runs were measured by the workers
+    that recorded them (``vdc-analyse boundary``) or afterwards (:func:`arena_measures`)."""
+    rows = [{**cols, **got[key]} for key, cols in items if key in got]
     return pl.DataFrame(rows).sort("condition", "seed")
 
 

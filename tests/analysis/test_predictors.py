@@ -158,7 +158,9 @@ def test_footage_auroc_perfect_shuffled_and_within_clip(footage, tmp_path) -> No
 
 def test_the_arena_grid_gains_its_predictors_from_cached_measures(tmp_path) -> None:
     """A tiny grid (3 drifts, one value, 2 seeds of 0.3 min) end to end: every measure of every
-    profiling run, cached beside it, and the table recomputed from the cache alone."""
+    profiling run, cached beside it, and the table recomputed from the cache alone; measured
+    in the grid's own pool (by the worker that recorded the run), the same bytes as measured
+    afterwards."""
     import vdc
 
     s = vdc.BoundarySettings(tf="0,1,3", scenes="grating", values="30", seeds=2, minutes=0.3,
@@ -190,6 +192,16 @@ def test_the_arena_grid_gains_its_predictors_from_cached_measures(tmp_path) -> N
     assert again.measures["reused"].all()
     assert again.predictors.sort("measure", "statistic").equals(pred.sort("measure", "statistic"))
     assert vdc.predictors(res).predictors.height == pred.height
+    # measured by the workers that recorded the runs == measured afterwards, bit for bit (the
+    # JSON floats round-trip exactly): the same numbers from either pool, nothing re-tuned
+    in_pool = {c: c.read_text() for c in caches}
+    for c in caches:
+        c.unlink()
+    (tmp_path / "predictors.parquet").unlink()
+    after = vdc.predictors(tmp_path)
+    assert not after.measures["reused"].any()  # measured afresh, in a second pool
+    assert {c: c.read_text() for c in caches} == in_pool
+    assert after.predictors.sort("measure", "statistic").equals(pred.sort("measure", "statistic"))
 
 
 def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
