@@ -12,7 +12,7 @@ import polars as pl
 from matplotlib.figure import Figure
 
 from analysis.loading import LoadedRecording, Notices, load_recording
-from analysis.profile import response_densities
+from analysis.profile import correlation_panel, response_densities
 from analysis.stats import spearman
 from analysis.tables import (
     SummarySettings,
@@ -135,19 +135,9 @@ def compare_figure(
     response_densities(ax_d, series, s.threshold_dps, "distributions", fontsize=8)
 
     ax_c = fig.add_subplot(grid[1, 1])
-    n = len(names)
-    mat = np.eye(n)
-    for r in corr.iter_rows(named=True):
-        i, j = names.index(r["model_a"]), names.index(r["model_b"])
-        mat[i, j] = mat[j, i] = r["pearson"]
-    im = ax_c.imshow(mat, vmin=-1, vmax=1, cmap="coolwarm")
-    for i in range(n):
-        for j in range(n):
-            ax_c.text(j, i, f"{mat[i, j]:.3f}", ha="center", va="center", fontsize=9)
-    ax_c.set_xticks(range(n), names, rotation=30, ha="right", fontsize=8)
-    ax_c.set_yticks(range(n), names, fontsize=8)
-    ax_c.set_title("Pearson correlation over frames")
-    fig.colorbar(im, ax=ax_c, shrink=0.8)
+    pairs = ((r["model_a"], r["model_b"], r["pearson"]) for r in corr.iter_rows(named=True))
+    correlation_panel(fig, ax_c, names, pairs, "Pearson correlation over frames", digits=3,
+                      fontsize=8, cmap="coolwarm")  # fmt: skip
     fig.suptitle(title)
     return fig
 

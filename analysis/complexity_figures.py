@@ -119,7 +119,7 @@ raster. Per-frame values: complexity.parquet; every statistic: clips.parquet.</p
 def plot_complexity(df: pl.DataFrame, corr: pl.DataFrame, path: Path) -> Path:
     from matplotlib.figure import Figure
 
-    from analysis.profile import save_figure
+    from analysis.profile import correlation_panel, save_figure
 
     norm = normalised(df)
     t = df["t_s"].to_numpy()
@@ -133,19 +133,7 @@ def plot_complexity(df: pl.DataFrame, corr: pl.DataFrame, path: Path) -> Path:
     ax.set_title("complexity metrics over time (normalised)")
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3)
-    n = len(metrics)
-    mat = np.eye(n)
-    for r in corr.iter_rows(named=True):
-        i, j = metrics.index(r["metric_a"]), metrics.index(r["metric_b"])
-        mat[i, j] = mat[j, i] = r["spearman"]
-    im = axc.imshow(mat, vmin=-1, vmax=1, cmap="RdBu_r")
-    for i in range(n):
-        for j in range(n):
-            if np.isfinite(mat[i, j]):
-                axc.text(j, i, f"{mat[i, j]:.2f}", ha="center", va="center", fontsize=6)
-    axc.set_xticks(range(n), metrics, rotation=45, ha="right", fontsize=7)
-    axc.set_yticks(range(n), metrics, fontsize=7)
-    axc.set_title("Spearman rank correlation over frames")
-    fig.colorbar(im, ax=axc, shrink=0.8)
+    pairs = ((r["metric_a"], r["metric_b"], r["spearman"]) for r in corr.iter_rows(named=True))
+    correlation_panel(fig, axc, metrics, pairs, "Spearman rank correlation over frames", fontsize=6)
     fig.suptitle(str(df["recording_id"][0]))
     return save_figure(fig, path)

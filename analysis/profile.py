@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +68,38 @@ def response_densities(
     ax.set_ylabel("density")
     ax.legend(fontsize=fontsize)
     ax.set_title(title)
+
+
+def correlation_panel(
+    fig: Figure,
+    ax: Any,
+    names: Sequence[str],
+    pairs: Iterable[tuple[str, str, float]],
+    title: str,
+    *,
+    digits: int = 2,
+    fontsize: float = 7,
+    cmap: str = "RdBu_r",
+) -> None:
+    """Draw on ``ax`` the symmetric matrix of ``(name_a, name_b, r)`` correlations in [-1, 1]
+    over ``names`` (1 on the diagonal), each cell labelled, with a colour bar on ``fig``: the
+    comparison's and the complexity page's panel. A pair never given stays blank (NaN)."""
+    n = len(names)
+    mat = np.full((n, n), np.nan)
+    np.fill_diagonal(mat, 1.0)
+    for a, b, r in pairs:
+        i, j = names.index(a), names.index(b)
+        mat[i, j] = mat[j, i] = r
+    im = ax.imshow(mat, vmin=-1, vmax=1, cmap=cmap)
+    for i in range(n):
+        for j in range(n):
+            if np.isfinite(mat[i, j]):
+                ax.text(j, i, f"{mat[i, j]:.{digits}f}", ha="center", va="center",
+                        fontsize=fontsize)  # fmt: skip
+    ax.set_xticks(range(n), names, rotation=40, ha="right", fontsize=fontsize + 1)
+    ax.set_yticks(range(n), names, fontsize=fontsize + 1)
+    ax.set_title(title)
+    fig.colorbar(im, ax=ax, shrink=0.8)
 
 
 def plot_segment(seg: ProfileSegment, s: ProfileSettings, path: Path) -> Path:

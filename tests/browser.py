@@ -14,6 +14,8 @@ import urllib.request
 from collections.abc import Callable
 from pathlib import Path
 
+from tests.helpers import end_group
+
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
@@ -78,10 +80,5 @@ def screenshot(
         out.write_bytes(png)
         return out
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        end_group(proc, grace_s=10)  # Chromium's renderer and GPU processes too
         shutil.rmtree(profile, ignore_errors=True)

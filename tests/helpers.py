@@ -30,32 +30,40 @@ def spawn(cmd: Sequence[str], **kwargs) -> subprocess.Popen:
     return proc
 
 
+def end_group(proc: subprocess.Popen, grace_s: float = 5.0) -> bool:
+    """Terminate (then kill) ``proc`` with its process group (it must lead one: ``spawn``, or
+    ``start_new_session``) and close its pipes; True when it was still running."""
+    running = proc.poll() is None
+    if running:
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            try:
+                os.killpg(proc.pid, sig)
+            except ProcessLookupError:
+                break
+            try:
+                proc.wait(timeout=grace_s)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+    else:  # the leader is gone; its group may not be
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+    for pipe in (proc.stdin, proc.stdout, proc.stderr):
+        if pipe is not None:
+            pipe.close()
+    return running
+
+
 def end_background_processes(grace_s: float = 5.0) -> list[str]:
-    """Terminate (then kill) every process :func:`spawn` started that still runs, with its
-    process group, and close its pipes; returns the commands that were still running."""
+    """End every process :func:`spawn` started that still runs, with its process group
+    (:func:`end_group`); returns the commands that were still running."""
     left = []
     while _BACKGROUND:
         proc = _BACKGROUND.pop()
-        if proc.poll() is None:
+        if end_group(proc, grace_s):
             left.append(" ".join(map(str, proc.args)))  # type: ignore[arg-type]
-            for sig in (signal.SIGTERM, signal.SIGKILL):
-                try:
-                    os.killpg(proc.pid, sig)
-                except ProcessLookupError:
-                    break
-                try:
-                    proc.wait(timeout=grace_s)
-                    break
-                except subprocess.TimeoutExpired:
-                    continue
-        else:  # the leader is gone; its group may not be
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
-        for pipe in (proc.stdin, proc.stdout, proc.stderr):
-            if pipe is not None:
-                pipe.close()
     return left
 
 
