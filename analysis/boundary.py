@@ -181,11 +181,15 @@ class BoundarySettings(ExecutorSettings):
             raise ValueError("--budget must be at least 2 and --groups at least 1")
         if self.design == "adaptive" and (self.complexity != "profile" or self.labels):
             raise ValueError("--design adaptive is for the arena with --complexity profile")
+        if self.per_scene and self.design != "adaptive":
+            raise ValueError("--per-scene is for --design adaptive")
         if self.labels is None:
             self.tf_bounds()
             self.grid_values()
             number_list(self.tf, "tf")
             name_list(self.scenes, "scenes", ("grating", "natural"))
+            if self.per_scene and self.budget < 2 * len(self.scene_list()):
+                raise ValueError("--per-scene needs --budget of at least 2 runs per scene")
             from analysis.collision import CollisionSettings
 
             CollisionSettings(false_alarm_m=self.false_alarm_m)

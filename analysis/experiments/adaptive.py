@@ -510,6 +510,35 @@ def per_scene_bounds(
     return pl.concat(parts, how="diagonal_relaxed")
 
 
+def grid_fits_per_scene(
+    runs: pl.DataFrame, complexity: pl.DataFrame, by: str, target: float
+) -> pl.DataFrame:
+    """A grid's boundary per (value, scene), as ``--per-scene`` fits its own: each scene's runs
+    (condition, scene, tf_hz, ``by``, avoidances, crashes) at their condition's complexity
+    (condition, complexity_dps, complexity_low, complexity_high) up to the first clearly
+    failing run (:func:`fit_first_crossing`), over that scene's conditions' range; deg/s to
+    wall TF through that scene's conditions. Columns as :func:`per_scene_bounds`', plus
+    ``step_dps``: the gap between the scene's two grid conditions around the fitted boundary
+    (or its bracket), the grid's resolution there (NaN where it places none)."""
+    data = runs.join(complexity.select("condition", "complexity_dps"), on="condition", how="left")
+    conditions = condition_statistics(runs, complexity, ["condition", by])
+    fits, points = {}, {}
+    for (scene,), g in data.group_by("scene", maintain_order=True):
+        prof = g.unique("condition").sort("tf_hz")
+        points[scene] = (prof["tf_hz"].to_numpy(), prof["complexity_dps"].to_numpy())
+        domain = (float(g["complexity_dps"].min()), float(g["complexity_dps"].max()))
+        for (value,), gv in g.group_by(by, maintain_order=True):
+            fits[(value, scene)], _ = fit_first_crossing(gv.to_dicts(), target, domain)
+    bounds = per_scene_bounds(conditions, fits, by, target, lambda sc, d: dps_to_tf(d, *points[sc]))
+    steps = []
+    for r in bounds.iter_rows(named=True):
+        grid = np.sort(points[r["scene"]][1])
+        at = r["boundary_dps"] if r["fit_state"] == "within" else r["bracket_dps"]
+        i = np.searchsorted(grid, at) if at is not None and math.isfinite(at) else -1
+        steps.append(float(grid[i] - grid[i - 1]) if 0 < i < grid.size else math.nan)
+    return bounds.with_columns(pl.Series("step_dps", steps))
+
+
 def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3) -> Any:
     """The policy (:func:`analysis.boundary.fit_policy`) from an adaptive campaign's runs: each
     scene's TF range cut in ``bins`` equal parts, the runs of a part pooled as one condition
