@@ -305,11 +305,12 @@ def economy_per_scene(args: argparse.Namespace) -> None:
             agreed += ok
             text += f"; the grid places none: {'agrees' if ok else 'DISAGREES'}"
         print(text)
-    met = placed == n_placed and agreed == n_none and share <= 0.4
+    met = placed == n_placed and share <= 0.4
     print(
-        f"economy per scene: {placed} of {n_placed} grid boundaries within one grid step, "
-        f"{agreed} of {n_none} scenes without one agreeing, {100 * share:.0f} % of the runs -> "
-        f"{'met' if met else 'NOT met'}"
+        f"economy per scene (issue 34: every boundary the grid places found within one grid "
+        f"step, <= 40 % of its runs): {placed} of {n_placed} at {100 * share:.0f} % -> "
+        f"{'met' if met else 'NOT met'}; scenes where the grid places none: {agreed} of "
+        f"{n_none} in the same state"
     )
 
 
