@@ -25,11 +25,7 @@ same runs and records only what is missing. Each run is its own condition
 
 :func:`design_runs` is the loop alone, with the runs made by a function it is given: the
 benchmark's coverage check drives it with simulated detectors of known boundary.
-
-``--per-scene`` (:func:`design_runs_per_scene`) makes the scene a factor: each (value, scene)
-its own share of the budget, its runs placed along that scene's own TF axis, and its own
-boundary, the *first* crossing (:func:`fit_first_crossing`), in a row of ``boundary.parquet``
-per (value, scene); :func:`grid_fits_per_scene` fits a grid the same way for comparison.
+``--per-scene``: :func:`design_runs_per_scene` (each scene its own budget, TF axis, boundary).
 """
 
 from __future__ import annotations
