@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
+from analysis.boundary_fit import describe_boundary as describe_boundary  # re-exported
 from analysis.boundary_plot import plot_boundary as plot_boundary  # re-exported: its old home
 from analysis.report_tables import interval, markdown_table
 from analysis.stats import mean_ci, share_ci
@@ -181,11 +182,15 @@ class BoundarySettings(ExecutorSettings):
             raise ValueError("--budget must be at least 2 and --groups at least 1")
         if self.design == "adaptive" and (self.complexity != "profile" or self.labels):
             raise ValueError("--design adaptive is for the arena with --complexity profile")
+        if self.per_scene and self.design != "adaptive":
+            raise ValueError("--per-scene is for --design adaptive")
         if self.labels is None:
             self.tf_bounds()
             self.grid_values()
             number_list(self.tf, "tf")
             name_list(self.scenes, "scenes", ("grating", "natural"))
+            if self.per_scene and self.budget < 2 * len(self.scene_list()):
+                raise ValueError("--per-scene needs --budget of at least 2 runs per scene")
             from analysis.collision import CollisionSettings
 
             CollisionSettings(false_alarm_m=self.false_alarm_m)
@@ -367,33 +372,6 @@ def boundaries(conditions: pl.DataFrame, by: str, target: float) -> pl.DataFrame
         b = find_boundary(g["complexity_dps"], g["success_rate"], g["success_high"], target)
         rows.append({by: value, "target": target, **b})
     return pl.DataFrame(rows)
-
-
-def _finite(value: Any) -> bool:
-    return isinstance(value, int | float) and math.isfinite(value)
-
-
-def describe_boundary(row: dict[str, Any]) -> str:
-    """One boundary as a phrase: "31.2 deg/s (between 20.5 and 35.0)"; a row with the fitted
-    columns (``analysis.boundary_fit``) as the fitted boundary with its 95 % interval; never a
-    number that is not one (a phrase with "nan" in it is no verdict)."""
-    if "fit_state" in row:
-        from analysis.boundary_fit import describe_fitted
-
-        return describe_fitted(row)
-    needed = {"beyond": ["boundary_low_dps"], "below": ["boundary_high_dps"]}.get(
-        row["where"], ["boundary_dps", "boundary_low_dps", "boundary_high_dps"]
-    )
-    if not all(_finite(row.get(k)) for k in needed):
-        return "not placed: the complexity of its conditions could not be measured"
-    if row["where"] == "beyond":
-        return f"beyond the grid (> {row['boundary_low_dps']:.1f} deg/s)"
-    if row["where"] == "below":
-        return f"at or below the least complex condition (<= {row['boundary_high_dps']:.1f} deg/s)"
-    return (
-        f"{row['boundary_dps']:.1f} deg/s (between {row['boundary_low_dps']:.1f} and "
-        f"{row['boundary_high_dps']:.1f})"
-    )
 
 
 # --- the policy -----------------------------------------------------------------------------

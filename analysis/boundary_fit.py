@@ -359,6 +359,27 @@ def describe_fitted(row: dict[str, Any]) -> str:
     return f"{text}; {row['design']}: {grid}"
 
 
+def describe_boundary(row: dict[str, Any]) -> str:
+    """One boundary as a phrase: "31.2 deg/s (between 20.5 and 35.0)"; a row with the fitted
+    columns (``analysis.boundary_fit``) as the fitted boundary with its 95 % interval; never a
+    number that is not one (a phrase with "nan" in it is no verdict)."""
+    if "fit_state" in row:
+        return describe_fitted(row)
+    needed = {"beyond": ["boundary_low_dps"], "below": ["boundary_high_dps"]}.get(
+        row["where"], ["boundary_dps", "boundary_low_dps", "boundary_high_dps"]
+    )
+    if not all(_finite(row.get(k)) for k in needed):
+        return "not placed: the complexity of its conditions could not be measured"
+    if row["where"] == "beyond":
+        return f"beyond the grid (> {row['boundary_low_dps']:.1f} deg/s)"
+    if row["where"] == "below":
+        return f"at or below the least complex condition (<= {row['boundary_high_dps']:.1f} deg/s)"
+    return (
+        f"{row['boundary_dps']:.1f} deg/s (between {row['boundary_low_dps']:.1f} and "
+        f"{row['boundary_high_dps']:.1f})"
+    )
+
+
 FIT_NOTE = (
     "The boundary is where a monotone logistic curve of success against complexity, fitted "
     "to every run (binomial counts; overdispersion between seeds corrected), crosses the "

@@ -25,6 +25,7 @@ same runs and records only what is missing. Each run is its own condition
 
 :func:`design_runs` is the loop alone, with the runs made by a function it is given: the
 benchmark's coverage check drives it with simulated detectors of known boundary.
+``--per-scene``: :func:`design_runs_per_scene` (each scene its own budget, TF axis, boundary).
 """
 
 from __future__ import annotations
@@ -197,18 +198,41 @@ def first_failure(
     return float(failing.min()) if failing.size else math.inf
 
 
+def first_recovery(
+    x: Sequence[float], k: Sequence[float], n: Sequence[float], target: float, failed: float
+) -> float:
+    """The least complexity above ``failed`` (the first clearly failing run's) among runs that
+    clearly succeed again (the exact binomial 95 % lower bound of their success above
+    ``target``): where the success recovers; inf when none does (or none failed)."""
+    import scipy.stats
+
+    x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
+    ok = (n_a > 0) & (x_a > failed)
+    lower = np.zeros_like(x_a)
+    lower[ok] = np.where(
+        k_a[ok] <= 0,
+        0.0,
+        scipy.stats.beta.ppf(0.025, np.maximum(k_a[ok], 1), n_a[ok] - k_a[ok] + 1),
+    )
+    back = x_a[ok & (lower > target)]
+    return float(back.min()) if back.size else math.inf
+
+
 def fit_first_crossing(
     rows: Sequence[dict[str, Any]], target: float, domain: tuple[float, float]
 ) -> tuple[CrossingFit, float]:
     """The monotone curve (:func:`fit_crossing`) fitted to one scene's runs (complexity_dps,
-    avoidances, crashes) up to the first clearly failing one (:func:`first_failure`); returns
-    the fit and that run's complexity (inf: none fails, every run fitted). A clearly failing
-    run at the least complex point of ``domain`` makes the state ``below`` (95 %: < it)."""
+    avoidances, crashes) below the first that clearly holds again past the first clearly
+    failing one (:func:`first_recovery`, :func:`first_failure`): the *first* crossing, with
+    every run on the falling side of it. Returns the fit and the first failing run's
+    complexity (inf: none fails, every run fitted). A clearly failing run at the least complex
+    point of ``domain`` makes the state ``below`` (95 %: < it)."""
     x = [r["complexity_dps"] for r in rows]
     k = [r["avoidances"] for r in rows]
     n = [r["avoidances"] + r["crashes"] for r in rows]
     cut = first_failure(x, k, n, target)
-    keep = [i for i, xi in enumerate(x) if xi <= cut]
+    back = first_recovery(x, k, n, target, cut)
+    keep = [i for i, xi in enumerate(x) if xi < back]
     fit = fit_crossing([x[i] for i in keep], [k[i] for i in keep], [n[i] for i in keep], target,
                        domain)  # fmt: skip
     if cut <= min(domain) + 1e-9:  # a run at the scene's least complex point clearly fails
@@ -249,10 +273,11 @@ def design_runs_per_scene(
     leaves its unspent runs to the value's scenes still running); per scene a first batch of
     ``PER_SCENE_FIRST`` runs at TFs spread over the range, then batches of ``batch`` runs whose
     complexities (that scene's profile) are drawn from the likelihood of its first crossing
-    (:func:`fit_first_crossing`) within that scene's range and below its first clearly failing
-    run (:func:`sample_within`), and made TFs of that scene. A (value, scene) stops as
-    :func:`design_runs`' values do (or at its share of the budget). ``run_batch`` as
-    :func:`design_runs`'; returns every row and the last fit per (value, scene)."""
+    (:func:`fit_first_crossing`: the runs up to where success clearly recovers) within that
+    scene's range and below its first clearly failing run (:func:`sample_within`), and made
+    TFs of that scene. A (value, scene) stops as :func:`design_runs`' values do (or at its
+    share of the budget). ``run_batch`` as :func:`design_runs`'; returns every row and the
+    last fit per (value, scene)."""
     rng = np.random.default_rng(seed)
     lo, hi = tf_range
     per_scene = max(2, budget // len(scenes))
@@ -508,6 +533,36 @@ def per_scene_bounds(
             )
         )
     return pl.concat(parts, how="diagonal_relaxed")
+
+
+def grid_fits_per_scene(
+    runs: pl.DataFrame, complexity: pl.DataFrame, by: str, target: float
+) -> pl.DataFrame:
+    """A grid's boundary per (value, scene), as ``--per-scene`` fits its own: each scene's runs
+    (condition, scene, tf_hz, ``by``, avoidances, crashes) at their condition's complexity
+    (condition, complexity_dps, complexity_low, complexity_high) up to where success clearly
+    recovers past the first clearly failing run (:func:`fit_first_crossing`), over that
+    scene's conditions' range; deg/s to wall TF through that scene's conditions. Columns as
+    :func:`per_scene_bounds`', plus ``step_dps``: the gap between the scene's two grid
+    conditions around the fitted boundary (or its bracket), the grid's resolution there (NaN
+    where it places none)."""
+    data = runs.join(complexity.select("condition", "complexity_dps"), on="condition", how="left")
+    conditions = condition_statistics(runs, complexity, ["condition", by])
+    fits, points = {}, {}
+    for (scene,), g in data.group_by("scene", maintain_order=True):
+        prof = g.unique("condition").sort("tf_hz")
+        points[scene] = (prof["tf_hz"].to_numpy(), prof["complexity_dps"].to_numpy())
+        domain = (float(g["complexity_dps"].min()), float(g["complexity_dps"].max()))
+        for (value,), gv in g.group_by(by, maintain_order=True):
+            fits[(value, scene)], _ = fit_first_crossing(gv.to_dicts(), target, domain)
+    bounds = per_scene_bounds(conditions, fits, by, target, lambda sc, d: dps_to_tf(d, *points[sc]))
+    steps = []
+    for r in bounds.iter_rows(named=True):
+        grid = np.sort(points[r["scene"]][1])
+        at = r["boundary_dps"] if r["fit_state"] == "within" else r["bracket_dps"]
+        i = np.searchsorted(grid, at) if at is not None and math.isfinite(at) else -1
+        steps.append(float(grid[i] - grid[i - 1]) if 0 < i < grid.size else math.nan)
+    return bounds.with_columns(pl.Series("step_dps", steps))
 
 
 def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3) -> Any:
