@@ -100,33 +100,13 @@ def test_a_damaged_stream_is_read_in_time_order_and_counted_once(damaged, tmp_pa
     assert clip["frames"] < N_FRAMES  # the damage cost frames ...
     assert clip["frames"] + clip["dropped_frames"] == in_container  # ... each counted once
 
-    cli = run_in_process(
-        "analysis",
-        "complexity",
-        str(bad),
-        "--fov-deg",
-        str(FOV),
-        "--model",
-        MODEL,
-        "--out",
-        str(tmp_path / "cli"),
-    )
+    camera = (str(bad), "--fov-deg", str(FOV), "--model", MODEL)  # the same for both commands
+    cli = run_in_process("analysis", "complexity", *camera, "--out", str(tmp_path / "cli"))
     assert cli.returncode == 0, cli.stderr
     table = pl.read_parquet(tmp_path / "cli" / "complexity.parquet")
     assert (table["t_s"].diff().drop_nulls() > 0).all()
     row = pl.read_parquet(tmp_path / "cli" / "clips.parquet").row(0, named=True)
-    cap = run_in_process(
-        "capture",
-        "video",
-        str(bad),
-        "--fov-deg",
-        str(FOV),
-        "--model",
-        MODEL,
-        "--out",
-        str(tmp_path / "bad.rrd"),
-        "--quiet",
-    )
+    cap = run_in_process("capture", "video", *camera, "--out", str(tmp_path / "bad.rrd"), "--quiet")
     assert cap.returncode == 0, cap.stderr
     # the three say the same for the same file
     assert (clip["frames"], clip["dropped_frames"]) == (row["frames"], row["dropped_frames"])

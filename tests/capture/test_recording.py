@@ -186,22 +186,16 @@ def test_bad_input_gives_one_line_exit_2_and_no_file(tmp_path: Path, args, needl
     assert not out.exists()
 
 
+def natural_scene(image: Path) -> tuple[str, ...]:
+    """The command line of a simulated run on a natural wall made of ``image``."""
+    return ("capture", "sim", "--scene", "natural", "--image", str(image))
+
+
 def test_unreadable_image_unwritable_output_and_existing_file(tmp_path: Path) -> None:
     junk = tmp_path / "junk.png"
     junk.write_bytes(b"not an image at all")
     out = tmp_path / "x.rrd"
-    proc = run_in_process(
-        "capture",
-        "sim",
-        "--scene",
-        "natural",
-        "--image",
-        str(junk),
-        "--minutes",
-        "0.05",
-        "--out",
-        str(out),
-    )
+    proc = run_in_process(*natural_scene(junk), "--minutes", "0.05", "--out", str(out))
     assert_one_line_error(proc, "not a readable image")
     blocker = tmp_path / "file"
     blocker.write_text("x")
@@ -227,19 +221,7 @@ def test_natural_scene_from_an_image_file(tmp_path: Path) -> None:
     cv2.imwrite(str(path), img)
     out = tmp_path / "nat.rrd"
     proc = run_in_process(
-        "capture",
-        "sim",
-        "--scene",
-        "natural",
-        "--image",
-        str(path),
-        "--tf-hz",
-        "3",
-        "--minutes",
-        "0.1",
-        "--out",
-        str(out),
-        "--quiet",
+        *natural_scene(path), "--tf-hz", "3", "--minutes", "0.1", "--out", str(out), "--quiet"
     )
     assert proc.returncode == 0, proc.stderr
     rec = Recording(out)
