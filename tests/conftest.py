@@ -7,6 +7,14 @@ import shutil
 import tempfile
 from pathlib import Path
 
+# One OpenBLAS thread per process, set before NumPy loads here, in the xdist workers (which
+# inherit the controller's environment) and in every command they start. The suite already
+# runs a process per core, and OpenBLAS's own threads spin while they wait: on a busy 2-core
+# machine a calibration's clutter pans (small matrix products, avdm.stimuli.panned_image)
+# took 11.3 s CPU and 68 s with the default threads, 0.6 s CPU and 6 s with one. The numbers
+# do not change (only the order of a sum could, far below any tolerance here).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import pytest
 from hypothesis import settings
 
