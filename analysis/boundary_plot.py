@@ -70,6 +70,11 @@ def plot_boundary(
             ax_s.axvspan(b["boundary_low_dps"], b["boundary_high_dps"], color=color, alpha=0.08)
             ax_s.axvline(b["boundary_dps"], color=color, ls="--", lw=1)
     ax_s.axhline(100 * target, color="k", ls=":", lw=1, label=f"target {100 * target:g} %")
+    for kind, marker in _MARKERS.items():  # which marker is which scene, in the legend
+        if any(str(c).startswith(kind) for c in conditions["condition"]):
+            per_scene_fit = any(isinstance(k, tuple) and k[1] == kind for k in (fits or {}))
+            ls = _SCENE_LINES.get(kind, "-") if per_scene_fit else ""
+            ax_s.plot([], [], marker=marker[0], ls=ls, color="0.35", label=kind)
     ax_s.set_ylabel("success (%)")
     ax_s.set_ylim(-2, 102)
     ax_s.set_title(
