@@ -87,6 +87,11 @@ def _counts(stdout: str) -> tuple[int, int]:
     return int(m.group(1)), int(m.group(2))
 
 
+def camera(clip: Path) -> tuple[str, ...]:
+    """The source and camera flags every command here is given (the same for each command)."""
+    return (str(clip), "--fov-deg", str(FOV), "--model", MODEL)
+
+
 def test_a_damaged_stream_is_read_in_time_order_and_counted_once(damaged, tmp_path) -> None:
     bad = damaged["bad"]
     with av.open(str(bad)) as c:
@@ -100,13 +105,14 @@ def test_a_damaged_stream_is_read_in_time_order_and_counted_once(damaged, tmp_pa
     assert clip["frames"] < N_FRAMES  # the damage cost frames ...
     assert clip["frames"] + clip["dropped_frames"] == in_container  # ... each counted once
 
-    camera = (str(bad), "--fov-deg", str(FOV), "--model", MODEL)  # the same for both commands
-    cli = run_in_process("analysis", "complexity", *camera, "--out", str(tmp_path / "cli"))
+    cli = run_in_process("analysis", "complexity", *camera(bad), "--out", str(tmp_path / "cli"))
     assert cli.returncode == 0, cli.stderr
     table = pl.read_parquet(tmp_path / "cli" / "complexity.parquet")
     assert (table["t_s"].diff().drop_nulls() > 0).all()
     row = pl.read_parquet(tmp_path / "cli" / "clips.parquet").row(0, named=True)
-    cap = run_in_process("capture", "video", *camera, "--out", str(tmp_path / "bad.rrd"), "--quiet")
+    cap = run_in_process(
+        "capture", "video", *camera(bad), "--out", str(tmp_path / "bad.rrd"), "--quiet"
+    )
     assert cap.returncode == 0, cap.stderr
     # the three say the same for the same file
     assert (clip["frames"], clip["dropped_frames"]) == (row["frames"], row["dropped_frames"])
@@ -152,32 +158,13 @@ def test_a_cut_clip_is_noted_and_its_row_says_how_much_is_missing(tmp_path: Path
     cut = clips / "cut.mkv"
     cut.write_bytes(data[: len(data) // 2])  # Matroska's header (2.00 s) is at the start
     cap = run_in_process(
-        "capture",
-        "video",
-        str(cut),
-        "--fov-deg",
-        str(FOV),
-        "--model",
-        MODEL,
-        "--out",
-        str(tmp_path / "cut.rrd"),
-        "--quiet",
+        "capture", "video", *camera(cut), "--out", str(tmp_path / "cut.rrd"), "--quiet"
     )
     assert cap.returncode == 0, cap.stderr
     said = CUT_NOTE.search(cap.stderr)
     assert said, cap.stderr
     # the command on the file: the same note, one line
-    cli = run_in_process(
-        "analysis",
-        "complexity",
-        str(cut),
-        "--fov-deg",
-        str(FOV),
-        "--model",
-        MODEL,
-        "--out",
-        str(tmp_path / "one"),
-    )
+    cli = run_in_process("analysis", "complexity", *camera(cut), "--out", str(tmp_path / "one"))
     assert cli.returncode == 0, cli.stderr
     notes = [ln for ln in cli.stderr.splitlines() if CUT_NOTE.search(ln)]
     assert len(notes) == 1 and said.group(0) in notes[0], cli.stderr
