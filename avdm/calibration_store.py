@@ -97,9 +97,35 @@ def calibration_key(fps: float, deg_per_px: float, params: Any = None) -> dict[s
     return key
 
 
-def _cache_path(key: dict[str, Any]) -> Path:
+def cache_path(key: dict[str, Any], stem: str) -> Path:
+    """Where a calibration under ``key`` is cached: ``stem`` (the model and rate, for people)
+    and a digest of the whole key."""
     digest = hashlib.sha1(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
-    return cache_dir() / "calibrations" / f"{key['model']}-{key['fps']:g}Hz-{digest}.json"
+    return cache_dir() / "calibrations" / f"{stem}-{digest}.json"
+
+
+def read_cached(path: Path, key: dict[str, Any]) -> dict[str, Any] | None:
+    """The entry cached at ``path`` if it was made under ``key``; None if absent, unreadable
+    or another key's (then it is fitted again)."""
+    try:
+        entry = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return entry if isinstance(entry, dict) and entry.get("key") == key else None
+
+
+def write_cached(path: Path, entry: dict[str, Any]) -> str:
+    """Cache ``entry`` at ``path`` atomically (a partial file, then renamed: a reader never
+    sees half an entry); the path written, or "" when it cannot be (that only costs a fit
+    next time)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.partial")
+        tmp.write_text(json.dumps(entry, indent=2) + "\n", encoding="utf-8")
+        tmp.replace(path)
+    except OSError:
+        return ""
+    return str(path)
 
 
 def calibration_for(
@@ -129,13 +155,10 @@ def calibration_for(
         if shipped is not None:
             return {**shipped, "source": "shipped"}
     key = calibration_key(fps, deg_per_px, params)
-    path = _cache_path(key)
-    try:
-        entry = json.loads(path.read_text(encoding="utf-8"))
-        if entry.get("key") == key:
-            return {**entry, "source": "cache", "cache_file": str(path)}
-    except (OSError, ValueError):
-        pass  # absent or unreadable: fit again
+    path = cache_path(key, f"{key['model']}-{key['fps']:g}Hz")
+    cached = read_cached(path, key)
+    if cached is not None:
+        return {**cached, "source": "cache", "cache_file": str(path)}
     if multiscale:
         from avdm.calibration import fit_multiscale
 
@@ -146,12 +169,4 @@ def calibration_for(
 
         fit = fit_decoding(params, size=CAL_SIZE, contrasts=CAL_CONTRASTS, progress=progress)
     entry = {"key": key, **key, **fit.to_dict()}
-    try:  # a cache that cannot be written only costs a fit next time
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.partial")
-        tmp.write_text(json.dumps(entry, indent=2) + "\n", encoding="utf-8")
-        tmp.replace(path)
-        where = str(path)
-    except OSError:
-        where = ""
-    return {**entry, "source": "fitted", "cache_file": where}
+    return {**entry, "source": "fitted", "cache_file": write_cached(path, entry)}

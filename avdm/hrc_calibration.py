@@ -16,11 +16,8 @@ A fit takes seconds (more at a video pitch); it is cached in the user's cache fo
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
-import os
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -145,33 +142,18 @@ def calibration_key(params: HrcParams) -> dict[str, Any]:
 def hrc_calibration(params: HrcParams) -> dict[str, Any]:
     """The response curve for ``params``' camera and dynamics: remembered, cached on disk, or
     measured now and cached. ``source`` says which (``memo``, ``cache`` or ``fitted``)."""
-    from avdm.calibration_store import cache_dir
+    from avdm.calibration_store import cache_path, read_cached, write_cached
 
     key = calibration_key(params)
     text = json.dumps(key, sort_keys=True)
     if text in _MEMO:
         return {**_MEMO[text], "source": "memo"}
-    digest = hashlib.sha1(text.encode()).hexdigest()[:16]
-    path = cache_dir() / "calibrations" / f"hrc-{params.fps:g}Hz-{digest}.json"
-    entry: dict[str, Any] | None = None
-    try:
-        got = json.loads(path.read_text(encoding="utf-8"))
-        if got.get("key") == key:
-            entry = {**got, "source": "cache"}
-    except (OSError, ValueError):
-        pass  # absent or unreadable: measure again
-    if entry is None:
+    path = cache_path(key, f"hrc-{params.fps:g}Hz")
+    cached = read_cached(path, key)
+    if cached is not None:
+        entry = {**cached, "source": "cache"}
+    else:
         entry = {"key": key, **fit_curve(*measure_curve(params)), "source": "fitted"}
-        _write(path, entry)
+        write_cached(path, entry)
     _MEMO[text] = entry
     return entry
-
-
-def _write(path: Path, entry: dict[str, Any]) -> None:
-    try:  # a cache that cannot be written only costs a fit next time
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.partial")
-        tmp.write_text(json.dumps(entry, indent=2) + "\n", encoding="utf-8")
-        tmp.replace(path)
-    except OSError:
-        pass
