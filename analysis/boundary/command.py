@@ -309,7 +309,8 @@ def condition_complexity(rows: pl.DataFrame, column: str) -> pl.DataFrame:
     """Per condition: the mean of ``column`` across its runs with the 95 % interval."""
     out = []
     for (cond,), g in rows.group_by("condition", maintain_order=True):
-        e = mean_ci(g[column].cast(pl.Float64).to_numpy())
+        # a speed (deg/s) is not negative: the t-interval stops at 0
+        e = mean_ci(g[column].cast(pl.Float64).to_numpy(), bounds=(0.0, math.inf))
         out.append(
             {
                 "condition": cond,
@@ -566,6 +567,8 @@ def arena_report(
     columns = {
         "complexity (deg/s)": ("complexity", 1.0),
         "success (%)": ("success", 100.0),
+        # a success rate alone hides a detector that turns from everything
+        "false alarms / 30 min": ("false_alarms_per_30min", 1.0),
         "avoidances / 30 min": ("avoidances_per_30min", 1.0),
         "crashes / 30 min": ("crashes_per_30min", 1.0),
         "median DTC (cm)": ("dtc_median_m", 100.0),
@@ -581,7 +584,8 @@ def arena_report(
     if policy is not None:
         lines += [
             "## The learnt policy (policy.csv)\n",
-            f"{s.param} against the on-board AVDM's running mean over {policy.window_s:g} s "
+            f"{s.param} against the on-board AVDM's running {policy.statistic} over "
+            f"{policy.window_s:g} s "
             f"(interpolated between rows). Use it with `--model "
             f"'{s.detector}:policy=policy.csv'`; test it on conditions it was not fitted on "
             "with `vdc-analyse adaptation`.\n",

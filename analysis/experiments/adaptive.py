@@ -50,6 +50,7 @@ from analysis.boundary.command import (
     write_arena_outputs,
 )
 from analysis.boundary.fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
+from analysis.stats import condition_share_bounds
 from vdc.executors import Feedback
 
 FIRST_BATCH = 4
@@ -180,41 +181,31 @@ PER_SCENE_FIRST = 3  # per-scene design: the first batch per scene, the range's 
 
 
 def first_failure(
-    x: Sequence[float], k: Sequence[float], n: Sequence[float], target: float
+    x: Sequence[float], k: Sequence[float], n: Sequence[float], target: float, phi: float = 1.0
 ) -> float:
-    """The least complexity among runs that clearly fail (the exact binomial 95 % upper bound
-    of their success, ``k`` of ``n``, below ``target``); inf when none does. The per-scene
+    """The least complexity among conditions that clearly fail (the 95 % upper bound of their
+    success below ``target``, seed spread counted:
+    :func:`analysis.stats.condition_share_bounds`); inf when none does. The per-scene
     design's boundary is the *first* crossing: runs past this one are not fitted (a detector
     can fail in the middle of a scene's range and recover at its end)."""
-    import scipy.stats
-
-    x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
-    ok = n_a > 0
-    upper = np.ones_like(x_a)
-    upper[ok] = np.where(
-        k_a[ok] >= n_a[ok], 1.0, scipy.stats.beta.ppf(0.975, k_a[ok] + 1, n_a[ok] - k_a[ok])
-    )
-    failing = x_a[ok & (upper < target)]
+    xs, _, upper = condition_share_bounds(x, k, n, phi)
+    failing = xs[upper < target]
     return float(failing.min()) if failing.size else math.inf
 
 
 def first_recovery(
-    x: Sequence[float], k: Sequence[float], n: Sequence[float], target: float, failed: float
+    x: Sequence[float],
+    k: Sequence[float],
+    n: Sequence[float],
+    target: float,
+    failed: float,
+    phi: float = 1.0,
 ) -> float:
-    """The least complexity above ``failed`` (the first clearly failing run's) among runs that
-    clearly succeed again (the exact binomial 95 % lower bound of their success above
-    ``target``): where the success recovers; inf when none does (or none failed)."""
-    import scipy.stats
-
-    x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
-    ok = (n_a > 0) & (x_a > failed)
-    lower = np.zeros_like(x_a)
-    lower[ok] = np.where(
-        k_a[ok] <= 0,
-        0.0,
-        scipy.stats.beta.ppf(0.025, np.maximum(k_a[ok], 1), n_a[ok] - k_a[ok] + 1),
-    )
-    back = x_a[ok & (lower > target)]
+    """The least complexity above ``failed`` (the first clearly failing condition's) among
+    conditions that clearly succeed again (the 95 % lower bound of their success above
+    ``target``, seed spread counted): where the success recovers; inf when none does."""
+    xs, lower, _ = condition_share_bounds(x, k, n, phi)
+    back = xs[(xs > failed) & (lower > target)]
     return float(back.min()) if back.size else math.inf
 
 
@@ -230,9 +221,17 @@ def fit_first_crossing(
     x = [r["complexity_dps"] for r in rows]
     k = [r["avoidances"] for r in rows]
     n = [r["avoidances"] + r["crashes"] for r in rows]
-    cut = first_failure(x, k, n, target)
-    back = first_recovery(x, k, n, target, cut)
-    keep = [i for i, xi in enumerate(x) if xi < back]
+    # twice: binomial bounds find the falling side; the runs there give the dispersion that
+    # a lone run's bounds are then widened by (seeds differ more than binomially), and the
+    # falling side is found again (a dispersion from runs past a recovery would be the dip's)
+    phi = 1.0
+    for _ in range(2):
+        cut = first_failure(x, k, n, target, phi)
+        back = first_recovery(x, k, n, target, cut, phi)
+        keep = [i for i, xi in enumerate(x) if xi < back]
+        if len(keep) > 2:
+            pick = [x[i] for i in keep], [k[i] for i in keep], [n[i] for i in keep]
+            phi = fit_crossing(*pick, target, domain, band=False).dispersion
     fit = fit_crossing([x[i] for i in keep], [k[i] for i in keep], [n[i] for i in keep], target,
                        domain)  # fmt: skip
     if cut <= min(domain) + 1e-9:  # a run at the scene's least complex point clearly fails
