@@ -48,7 +48,7 @@ from analysis.boundary.plot import plot_boundary as plot_boundary  # re-exported
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy
-from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
 from vdc.executors import ExecutorSettings
 from vdc.parquet_io import WroteFiles
 
@@ -141,6 +141,12 @@ class BoundarySettings(ExecutorSettings):
         "footage mode: an alert at most this long before the collision frame is a hit, an "
         "earlier one a false alarm",
         type=positive_float,
+    )
+    min_ttc_s: float = option(
+        0.5,
+        "footage mode: a first alert later than this before the collision is a miss (too late "
+        "to turn away), s; 0 counts an alert at the moment of impact as a hit",
+        type=non_negative_float,
     )
     profile_model: str = option("avdm", "arena: the AVDM variant that profiles the conditions")
     design: str = option(

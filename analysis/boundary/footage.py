@@ -38,6 +38,7 @@ import numpy as np
 import polars as pl
 
 from analysis.boundary.command import (
+    WARMUP_FRAMES,
     BoundaryResult,
     BoundarySettings,
     boundaries,
@@ -101,6 +102,17 @@ def read_labels(path: str | Path) -> pl.DataFrame:
         pl.col("label").cast(pl.Utf8),
         frames.cast(pl.Int64).alias("collision_frame"),
     )
+    if "hazard_onset_frame" in df.columns:  # optional: where the hazard enters the scene
+        try:
+            onset = df["hazard_onset_frame"].cast(pl.Float64)
+        except pl.exceptions.PolarsError:
+            onset = None
+        if onset is None or (onset.drop_nulls() < 0).any() or (onset.drop_nulls() % 1).any():
+            raise ValueError(
+                f"labels table {str(path)!r}: hazard_onset_frame must be a frame number >= 0 "
+                "or empty"
+            )
+        df = df.with_columns(onset.cast(pl.Int64).alias("hazard_onset_frame"))
     if df["clip"].n_unique() != df.height:
         dup = df.filter(pl.col("clip").is_duplicated())["clip"][0]
         raise ValueError(f"labels table {str(path)!r} lists clip {dup!r} twice")
@@ -165,9 +177,16 @@ def judge_clip(
     fps: float,
     collision_frame: int | None,
     window_s: float,
+    min_ttc_s: float = 0.0,
 ) -> dict[str, Any]:
     """Hit, miss or false alarm of one clip (see the module). A NaN alert counts as no
-    alert, and its frames are counted (``alert_nan_frames``): :func:`nan_alert_note`."""
+    alert, and its frames are counted (``alert_nan_frames``): :func:`nan_alert_note`.
+
+    ``failure`` scores the ways to be wrong apart (issue 42; their signs oppose on real
+    footage): ``miss`` (no alert, or a first alert less than ``min_ttc_s`` before the
+    collision: too late to turn away), ``early`` (a first alert more than ``window_s``
+    before it), ``false_alarm`` (an alert on a clip without collision); ``hit`` and ``quiet``
+    (no alert, nothing collides) are right."""
     flags, undefined = alert_frames(alert)
     on = np.flatnonzero(flags)
     first = int(frames[on[0]]) if on.size else None
@@ -182,11 +201,15 @@ def judge_clip(
         row["false_alarm"] = first is not None
     elif first is not None and first <= collision_frame:
         row["ttc_first_alert_s"] = (collision_frame - first) / fps
-        if row["ttc_first_alert_s"] <= window_s + 1e-9:
-            row["hit"] = True
-        else:
+        if row["ttc_first_alert_s"] > window_s + 1e-9:
             row["false_alarm"] = True
+        elif row["ttc_first_alert_s"] >= min_ttc_s - 1e-9:  # 1e-9: frame / fps rounding
+            row["hit"] = True
     row["correct"] = row["hit"] or (collision_frame is None and not row["false_alarm"])
+    if collision_frame is None:
+        row["failure"] = "false_alarm" if row["false_alarm"] else "quiet"
+    else:
+        row["failure"] = "hit" if row["hit"] else "early" if row["false_alarm"] else "miss"
     return row
 
 
@@ -206,14 +229,19 @@ def nan_alert_note(clips: pl.DataFrame, detector: str) -> str | None:
 
 
 def clip_task(
-    source: str, spec: str, collision_frame: int | None, fov_deg: float, window_s: float
+    source: str,
+    spec: str,
+    collision_frame: int | None,
+    fov_deg: float,
+    window_s: float,
+    min_ttc_s: float = 0.0,
 ) -> dict[str, Any]:
     """An executor task: one clip judged (its complexity is measured separately, once)."""
     frames, alert, fps = detector_alerts(source, spec, fov_deg)
     return {
         "fps": fps,
         "frames": len(frames),
-        **judge_clip(frames, alert, fps, collision_frame, window_s),
+        **judge_clip(frames, alert, fps, collision_frame, window_s, min_ttc_s),
     }
 
 
@@ -238,8 +266,8 @@ def clip_complexity(
     for row in labels.iter_rows(named=True):
         rid, fps = ids[_key(row["source"])]
         frames = res.table.filter(pl.col("recording_id") == rid)
-        if row["collision_frame"] is not None:
-            end = row["collision_frame"] - round(window_s * fps)
+        end = scene_end(row, fps, window_s)
+        if end is not None:
             frames = frames.filter(pl.col("frame") < end)
             if frames.height == 0:
                 raise ValueError(
@@ -247,9 +275,26 @@ def clip_complexity(
                     "before the collision frame) to measure the scene on: use a longer clip or a "
                     "shorter --alert-window-s"
                 )
+        # the models' start-up (the AVDM rises from 0, running means fill) is not the scene:
+        # its frames are left out where the clip has frames after it
+        startup = WARMUP_FRAMES if (frames["frame"] >= WARMUP_FRAMES).any() else 0
+        frames = frames.filter(pl.col("frame") >= startup)
         means = {m: frames[m].cast(pl.Float64).mean() for m in METRICS}
-        rows.append({"source": row["source"], **means, "complexity_frames": frames.height})
+        rows.append({"source": row["source"], **means, "complexity_frames": frames.height,
+                     "startup_frames_left_out": startup})  # fmt: skip
     return pl.DataFrame(rows)
+
+
+def scene_end(row: dict[str, Any], fps: float, window_s: float) -> int | None:
+    """The first frame not of the scene the detector faced: the hazard's onset where the
+    labels give it (``hazard_onset_frame``), else the alert window's start before a collision;
+    None (every frame) for a clip without either."""
+    onset = row.get("hazard_onset_frame")
+    if onset is not None:
+        return int(onset)
+    if row["collision_frame"] is not None:
+        return int(row["collision_frame"] - round(window_s * fps))
+    return None
 
 
 def _key(source: str) -> str:
@@ -327,7 +372,14 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
     tasks = [
         (
             f"{row['clip']} {s.param}={v:g}",
-            (row["source"], spec, row["collision_frame"], s.fov_deg, s.alert_window_s),
+            (
+                row["source"],
+                spec,
+                row["collision_frame"],
+                s.fov_deg,
+                s.alert_window_s,
+                s.min_ttc_s,
+            ),
         )
         for v, spec in specs.items()
         for row in labels.iter_rows(named=True)

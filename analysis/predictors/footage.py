@@ -64,6 +64,7 @@ def footage_predictor_tables(
     ``correct`` and each measure's mean); ``complexity_dir`` where ``complexity`` wrote its
     per-frame table."""
     from analysis.boundary.command import WARMUP_FRAMES, number_list, with_override
+    from analysis.boundary.footage import scene_end
     from analysis.complexity.source_metrics import METRICS
     from analysis.predictors.report import write_predictors
     from analysis.predictors.statistics import MEASURES, footage_predictors, frame_classes
@@ -88,7 +89,10 @@ def footage_predictor_tables(
         table = mine.join(theirs, on="frame", how="left", maintain_order="left")
         cf = row["collision_frame"]
         wf = round(window * res["fps"])
-        scene = table.filter(pl.col("frame") < cf - wf) if cf is not None else table
+        end = scene_end(row, res["fps"], window)
+        scene = table.filter(pl.col("frame") < end) if end is not None else table
+        if (scene["frame"] >= WARMUP_FRAMES).any():  # the start-up is not the scene
+            scene = scene.filter(pl.col("frame") >= WARMUP_FRAMES)
         mean = scene["avdm"].fill_nan(None).mean()  # 0.0 on a still scene is a number, not NaN
         paper_means[row["clip"]] = float(mean) if mean is not None else math.nan
         for v in values:

@@ -310,3 +310,31 @@ def test_frame_classes_leave_out_the_start_up_and_the_window() -> None:
     assert np.flatnonzero(keep).tolist() == list(range(60, 74))
     positive, keep = frame_classes(frames, alert, 99, 25)  # no start-up given: as before
     assert keep[:74].all() and not keep[74:].any() and not positive[:2].any()
+
+
+def test_failure_modes_with_opposite_signs_are_scored_apart() -> None:
+    """Misses on dark, plain scenes (a LOW measure) and false alarms on busy ones (HIGH): one
+    class "wrong" mixes them to about chance; scored apart, each is found with its sign."""
+    rng = np.random.default_rng(4)
+    kinds = ["miss"] * 10 + ["hit"] * 20 + ["false_alarm"] * 10 + ["quiet"] * 20
+    level = {"miss": -2.0, "hit": 0.0, "false_alarm": 2.0, "quiet": 0.0}
+    clips = pl.DataFrame(
+        {
+            "clip": [f"k{i}" for i in range(len(kinds))],
+            "threshold": 1.0,
+            "correct": [k in ("hit", "quiet") for k in kinds],
+            "failure": kinds,
+            "si_p910": [level[k] + rng.normal(0, 0.3) for k in kinds],
+        }
+    )
+    frames = pl.DataFrame(
+        schema={"clip": pl.String, "threshold": pl.Float64, "frame": pl.Int64,
+                "positive": pl.Boolean, "keep": pl.Boolean, "si_p910": pl.Float64}
+    )  # fmt: skip
+    t = footage_predictors(clips, frames, "threshold")
+    mixed = _get(t, "si_p910", "clip_auroc")
+    assert mixed["ci_low"] < 0.5 < mixed["ci_high"]  # one class: the signs cancel
+    miss = _get(t, "si_p910", "clip_auroc_miss")
+    fa = _get(t, "si_p910", "clip_auroc_false_alarm")
+    assert miss["estimate"] < 0.1 and miss["n"] == 30 and miss["n_failures"] == 10
+    assert fa["estimate"] > 0.9 and fa["n"] == 30
