@@ -444,8 +444,7 @@ def _judged(rows: list[dict[str, Any]], mode: str) -> list[dict[str, Any]]:
     for r in cmp:
         if r.get("verdict") is not None:
             continue
-        p = r["p_value"] if r["role"] == "primary" else r["p_holm"]
-        r["p_holm"] = r.get("p_holm", r["p_value"])
+        p = r["p_value"] if r["role"] == "primary" else r["p_holm"]  # the primary: uncorrected
         r["survives"] = bool(p < ALPHA)
         r["verdict"] = _verdict_dir(r["estimate"]) if r["survives"] else "no difference shown"
     return rows
