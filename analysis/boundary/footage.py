@@ -5,15 +5,19 @@ The labels table (CSV or Parquet) has one row per clip:
 * ``clip``: the video file (or image-sequence pattern), relative to the table's folder;
 * ``label``: free text (what the clip shows, e.g. ``looming`` or ``background``);
 * ``collision_frame``: the source frame (0-based) at which the object reaches the camera, or
-  empty when nothing collides.
+  empty when nothing collides;
+* ``hazard_onset_frame`` (optional): the frame at which the hazard enters the scene; the
+  clip's complexity is measured on the frames before it.
 
 Each clip is read as ``vdc-capture video`` reads it (the working raster, its true frame rate)
 and the detector runs on it; the clip's complexity is measured as ``vdc-analyse complexity``
 measures it (the AVDM and the baselines). Per clip:
 
 * a collision clip is a **hit** when the detector's first alert comes at most
-  ``alert_window_s`` before the collision frame (and not after it); an earlier first alert is a
-  **false alarm** (it would have turned away from nothing), none in time a **miss**;
+  ``alert_window_s`` and at least ``min_ttc_s`` before the collision frame; an earlier first
+  alert is an **early alert** (a false alarm: it would have turned away from nothing), none,
+  or one later than ``min_ttc_s`` before the collision (too late to turn), a **miss**;
+  ``failure`` names which (scored apart by the predictors: their signs oppose);
 * a clip without a collision is a false alarm when the detector alerts at all;
 * **success** = the share of collision clips that are hits (as in the arena, where success is
   avoidances among avoidances and crashes); a clip is **correct** when it is a hit, or has no
