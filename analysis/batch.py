@@ -29,7 +29,6 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from analysis.profile import safe_key
 from analysis.recordings.loading import load_recording
 from analysis.recordings.reader import Recording, RecordingError
 from analysis.recordings.recompute import (
@@ -43,6 +42,7 @@ from analysis.recordings.recompute import (
     summary_table,
     write_tables,
 )
+from analysis.recordings.segments import safe_key
 from avdm.registry import canonical_name, parse_model_spec
 from vdc.cli_support import option
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks

@@ -167,7 +167,8 @@ def cmd_catalog(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from analysis.experiments.reproduce import ReproduceSettings, reproduce
+    from analysis.experiments.plan import ReproduceSettings
+    from analysis.experiments.reproduce import reproduce
 
     plan = ReproduceSettings.make(args.quick, **flag_values(ReproduceSettings, args))
     res = reproduce(plan, args.out, log=say)
@@ -283,7 +284,7 @@ COMMANDS = {
         models=True,
     ),
     "profile": Command(
-        "analysis.profile:ProfileSettings",
+        "analysis.recordings.segments:ProfileSettings",
         _over_recordings("analysis.profile:profile"),
         "3D circle profiles, 'AVDM > 100' histograms and heat maps (paper Figs. 6-7)",
         "For every recording segment (one wall TF) or condition: a 3D circle profile (x, y "
@@ -410,7 +411,7 @@ COMMANDS = {
         inputs=_catalog_inputs,
     ),
     "reproduce": Command(
-        "analysis.experiments.reproduce:ReproduceSettings",
+        "analysis.experiments.plan:ReproduceSettings",
         cmd_reproduce,
         "reproduce the paper end to end and write a claim-by-claim report",
         "Run the SF-TF sweep, the open-loop approach, closed-loop profiling (grating TF 0, 1, "

@@ -25,11 +25,11 @@ import rerun as rr
 import rerun.blueprint as rrb
 from matplotlib.figure import Figure
 
-from analysis.profile import safe_key
 from analysis.recordings.analysis_rrd import log_arena_outline
 from analysis.recordings.ego_motion import turning_before
 from analysis.recordings.loading import LoadedRecording
 from analysis.recordings.recompute import SummarySettings, events_table
+from analysis.recordings.segments import safe_key
 from analysis.stats import Estimate, mean_ci, share_ci
 from vdc.cli_support import option
 from vdc.parquet_io import WroteFiles

@@ -19,12 +19,11 @@ from matplotlib.figure import Figure
 
 from analysis.recordings.loading import Notices
 from analysis.recordings.recompute import build_tables
-from analysis.recordings.segments import (  # noqa: F401 - the profile's data, re-exported
+from analysis.recordings.segments import (
     ProfileSegment,
     ProfileSettings,
     heat_map,
     histogram_over,
-    safe_key,
     segment_summary,
     segments_from_tables,
 )

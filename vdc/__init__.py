@@ -49,7 +49,7 @@ _API = {
     # analysis
     "TablesSettings": "analysis.recordings.recompute",
     "tables": "analysis.recordings.recompute",
-    "ProfileSettings": "analysis.profile",
+    "ProfileSettings": "analysis.recordings.segments",
     "profile": "analysis.profile",
     "CompareSettings": "analysis.compare",
     "compare": "analysis.compare",
@@ -71,7 +71,7 @@ _API = {
     "calibrate": "analysis.experiments.calibrate",
     "CollisionStudySettings": "analysis.experiments.collision_study",
     "collision_study": "analysis.experiments.collision_study",
-    "ReproduceSettings": "analysis.experiments.reproduce",
+    "ReproduceSettings": "analysis.experiments.plan",
     "reproduce": "analysis.experiments.reproduce",
     # where a detector breaks, and a learnt policy tested where it was not learnt
     "BoundarySettings": "analysis.boundary.command",

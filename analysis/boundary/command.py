@@ -43,8 +43,8 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary.fit import describe_boundary as describe_boundary  # re-exported
-from analysis.boundary.plot import plot_boundary as plot_boundary  # re-exported: its old home
+from analysis.boundary.fit import describe_boundary
+from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy

@@ -41,15 +41,19 @@ from analysis.boundary.command import (
     BoundaryResult,
     BoundarySettings,
     boundaries,
-    describe_boundary,
-    interval,
-    markdown_table,
     number_list,
-    plot_boundary,
     published,
     with_override,
 )
-from analysis.boundary.fit import fit_columns, fit_crossing, fit_section, with_fit
+from analysis.boundary.fit import (
+    describe_boundary,
+    fit_columns,
+    fit_crossing,
+    fit_section,
+    with_fit,
+)
+from analysis.boundary.plot import plot_boundary
+from analysis.boundary.report_tables import interval, markdown_table
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
 from vdc.errors import UserError

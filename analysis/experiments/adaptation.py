@@ -38,11 +38,10 @@ from analysis.boundary.command import (
     condition_complexity,
     condition_name,
     condition_statistics,
-    interval,
-    markdown_table,
     name_list,
     number_list,
 )
+from analysis.boundary.report_tables import interval, markdown_table
 from analysis.experiments.boundary_campaign import run_grid
 from analysis.stats import mean_ci
 from avdm.policy import load_policy

@@ -11,7 +11,7 @@ import pytest
 from capture import tracker
 from capture.config import ArenaConfig, SimConfig, WallConfig
 from capture.render import OverheadRenderer
-from capture.sim import SimulatedRobot
+from capture.sim_robot import SimulatedRobot
 
 
 @pytest.fixture(scope="module")
