@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -27,12 +28,12 @@ from matplotlib.figure import Figure
 
 from analysis.recordings.analysis_rrd import log_arena_outline
 from analysis.recordings.ego_motion import turning_before
-from analysis.recordings.loading import LoadedRecording
-from analysis.recordings.recompute import SummarySettings, events_table
+from analysis.recordings.loading import LoadedRecording, Notices, load_recording
+from analysis.recordings.recompute import DistinctRecordings, SummarySettings, events_table
 from analysis.recordings.segments import safe_key
 from analysis.stats import Estimate, mean_ci, share_ci
 from vdc.cli_support import option
-from vdc.parquet_io import WroteFiles
+from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from vdc.recording import APP_ID
 
 # what the paper reports for its three phases (30 min each) [BRIEF]
@@ -348,11 +349,6 @@ def collision(
     """``vdc-analyse collision`` (Fig. 8): metrics of closed-loop recordings, ordered by
     phase. With ``out``: ``collision_summary.parquet``, ``collision_events.parquet``, a PNG
     per recording, ``collision_study.png`` and ``collision.rrd``."""
-    import hashlib
-
-    from analysis.recordings.loading import Notices, load_recording
-    from analysis.recordings.recompute import DistinctRecordings
-    from vdc.parquet_io import table_set, write_parquet
 
     items, notes = [], Notices(notice)
     distinct = DistinctRecordings()

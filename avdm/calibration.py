@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 
 from avdm.avdm_model import Avdm, AvdmParams
-from avdm.stimuli import grating
+from avdm.avdm_multiscale import AvdmMultiScale
+from avdm.stimuli import clutter_image, grating, panned_image
 
 MIN_PERIODS_ACROSS = 2.0
 MIN_PERIOD_PX = 4.0
@@ -228,8 +229,6 @@ def clutter_pans(
     """Pan a camera of ``size`` (H, W) at ``params.deg_per_px`` across 1/f clutter at each
     speed and read it with a multi-scale AVDM of ``params``. Returns one response per (speed,
     seed)."""
-    from avdm.avdm_multiscale import AvdmMultiScale
-    from avdm.stimuli import clutter_image, panned_image
 
     fov = size[1] * params.deg_per_px
     warm = 2 * params.tw

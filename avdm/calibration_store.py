@@ -18,6 +18,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from avdm.avdm_model import AvdmParams
+from avdm.calibration import fit_decoding, fit_multiscale
+from avdm.version import __version__
+
 CALIBRATION_FILE = "calibrations.json"
 
 
@@ -79,8 +83,6 @@ def cache_dir() -> Path:
 
 
 def calibration_key(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any]:
-    from avdm import __version__
-    from avdm.avdm_model import AvdmParams
 
     kind = "avdm" if params is None or isinstance(params, AvdmParams) else "avdm-multiscale"
     key: dict[str, Any] = {
@@ -143,7 +145,6 @@ def calibration_for(
     honest deg/s. The entry carries ``a``, ``b``, the fit's quality (``r2``,
     ``rms_rel_error``, ``max_rel_error``, ``n_points``) and ``source``: ``shipped``, ``cache``
     or ``fitted``. ``progress`` is called once per stimulus of a new fit."""
-    from avdm.avdm_model import AvdmParams
 
     if params is None:
         params = AvdmParams(fps=fps, deg_per_px=deg_per_px)
@@ -160,13 +161,9 @@ def calibration_for(
     if cached is not None:
         return {**cached, "source": "cache", "cache_file": str(path)}
     if multiscale:
-        from avdm.calibration import fit_multiscale
-
         size = (params.height_px, params.width_px)  # its scales depend on the raster
         fit = fit_multiscale(params, size=size, progress=progress)
     else:
-        from avdm.calibration import fit_decoding
-
         fit = fit_decoding(params, size=CAL_SIZE, contrasts=CAL_CONTRASTS, progress=progress)
     entry = {"key": key, **key, **fit.to_dict()}
     return {**entry, "source": "fitted", "cache_file": write_cached(path, entry)}

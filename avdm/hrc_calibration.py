@@ -22,7 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from avdm.calibration import CLUTTER_SEEDS, VIEW_FRACTION
+from avdm.calibration_store import cache_path, read_cached, write_cached
 from avdm.hrc import Hrc, HrcParams, response_curve
+from avdm.stimuli import clutter_image
+from avdm.version import __version__
 
 # the decoding constants and the validity threshold do not change the measured curve
 NOT_DYNAMICS = frozenset({"r_peak", "v_peak_dps", "knee", "change_max", "valid_fraction"})
@@ -45,8 +49,6 @@ def clutter_pan(
     motion toward +x): frames (T, H, W). The clutter (``avdm.stimuli.clutter_image``, periodic)
     is made at the camera's pitch, ``1/VIEW_FRACTION`` times the view's width, and shifted by
     exact sub-pixel Fourier shifts; levels 0–255 rounded, as a camera delivers them."""
-    from avdm.calibration import VIEW_FRACTION
-    from avdm.stimuli import clutter_image
 
     h, w = size
     wide = math.ceil(w / VIEW_FRACTION)
@@ -67,7 +69,6 @@ def measure_curve(
     """(speeds (S,), mean R̄ (S,), mean C̄ (S,) over the clutter seeds): the raw response and
     the non-directional change of an HRC of ``params`` (decoding constants ignored) to image
     motion toward +x at each speed."""
-    from avdm.calibration import CLUTTER_SEEDS
 
     size = calibration_raster(params.deg_per_px)
     probe = params.replace(r_peak=1.0, v_peak_dps=1.0, knee=1.0, change_max=1.0)
@@ -90,7 +91,7 @@ def fit_curve(speeds: np.ndarray, resp: np.ndarray, change: np.ndarray) -> dict[
     measured peak with a positive response: r_peak, v_peak_dps, knee and the fit's quality;
     and ``change_max``, C̄ at v_peak (log-log interpolated): a scene changing faster than
     the clutter at the peak is past the peak, where a reading cannot be trusted."""
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares  # lazy: start-up
 
     i_peak = int(np.argmax(resp))
     if resp[i_peak] <= 0:
@@ -124,7 +125,6 @@ def fit_curve(speeds: np.ndarray, resp: np.ndarray, change: np.ndarray) -> dict[
 
 
 def calibration_key(params: HrcParams) -> dict[str, Any]:
-    from avdm import __version__
 
     dyn = {k: v for k, v in params.to_dict().items() if k not in NOT_DYNAMICS}
     dyn["fps"] = float(f"{params.fps:.9g}")
@@ -142,7 +142,6 @@ def calibration_key(params: HrcParams) -> dict[str, Any]:
 def hrc_calibration(params: HrcParams) -> dict[str, Any]:
     """The response curve for ``params``' camera and dynamics: remembered, cached on disk, or
     measured now and cached. ``source`` says which (``memo``, ``cache`` or ``fitted``)."""
-    from avdm.calibration_store import cache_path, read_cached, write_cached
 
     key = calibration_key(params)
     text = json.dumps(key, sort_keys=True)

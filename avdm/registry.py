@@ -20,6 +20,7 @@ from avdm.base import PRIMARY_OUTPUT as PRIMARY_OUTPUT_NAME
 from avdm.base import Model, Params, require_alert
 from avdm.calibration_store import calibration_for
 from avdm.hrc import Hrc, HrcParams
+from avdm.hrc_calibration import hrc_calibration
 from avdm.lgmd import LgmdColias, LgmdPlus
 from avdm.lgmd_params import LgmdColiasParams, LgmdPlusParams
 from avdm.plugins import (
@@ -30,6 +31,7 @@ from avdm.plugins import (
     is_reference,
     load_factory,
 )
+from avdm.policy import PolicyModel, load_policy
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,7 +70,6 @@ def _complete_hrc(params: Params) -> Params:
         return params
     # the response curve measured on 1/f clutter for this camera and these dynamics: once,
     # then cached (avdm.hrc_calibration); what the user fixed wins
-    from avdm.hrc_calibration import hrc_calibration
 
     cal = hrc_calibration(params)
     return params.replace(
@@ -292,7 +293,6 @@ def make_model(spec: str, **context: Any) -> Model:
         model = KINDS[VARIANTS[name].kind].build(params, full)
     if policy is None:
         return model
-    from avdm.policy import PolicyModel, load_policy
 
     plan = load_policy(policy)
     profiler = make_model(plan.profile_model, **context)

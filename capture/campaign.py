@@ -28,7 +28,8 @@ from typing import Any
 import polars as pl
 
 from avdm.registry import make_params
-from capture.sim import SimSettings
+from capture.run import REPLACE_OUTPUT
+from capture.sim import SimSettings, record_sim
 from vdc.cli_support import option
 from vdc.executors import QUIET, ExecutorSettings, Feedback, TaskOutcome, run_tasks
 from vdc.parquet_io import WroteFiles, write_parquet
@@ -201,8 +202,6 @@ def _settings_columns(settings: SimSettings, exclude: dict[str, Any]) -> dict[st
 def record_run(key: str, values: dict[str, Any], settings: SimSettings, out: str) -> dict[str, Any]:
     """One run of the grid, as an executor task: record it, then write its row (the done
     mark) atomically. Module-level, small arguments, a small result."""
-    from capture.run import REPLACE_OUTPUT
-    from capture.sim import record_sim
 
     rec = Path(out) / RECORDINGS / f"{key}.rrd"
     res = record_sim(settings, rec, REPLACE_OUTPUT)  # a partial file of a killed run is replaced

@@ -21,6 +21,7 @@ logged under ``/model/controller/t_ffi``; the spike-rate alert threshold stays f
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 
@@ -161,7 +162,6 @@ class ClosedLoopRobot(SimulatedRobot):
     def _nan_alert(self, frame: int) -> None:
         """A NaN alert reads as no alert; the first one is said in one line on stderr, and
         ``nan_alert_frames`` counts them all."""
-        import sys
 
         if self.nan_alert_frames == 0:
             print(

@@ -32,7 +32,7 @@ import numpy as np
 import serial
 
 from avdm.registry import canonical_name, make_model
-from capture.config import SimConfig
+from capture.config import CameraConfig, SimConfig, WallConfig
 from capture.serial_protocol import (
     TYPE_ANNOUNCE,
     TYPE_END,
@@ -537,7 +537,6 @@ def emulate_robot(settings: EmulateSettings, announce: Callable[[str], None] | N
     """Run a simulated Colias-IV on a pseudo-terminal behind ``settings.link`` until its run
     ends; ``announce`` gets the pty's name once it exists. Returns what was injected (frames
     intact, corrupted, dropped, lost in disconnects). ValueError if no host sends START."""
-    from capture.config import CameraConfig, WallConfig
 
     emu = EmulatorConfig(
         corrupt_rate=settings.corrupt_rate,

@@ -13,6 +13,8 @@ import math
 import re
 from typing import Any
 
+from avdm.registry import VARIANTS, add_overrides, is_plugin
+from avdm.version import __version__
 from vdc.recording import camera_model_context
 
 SCENES = ("grating", "natural")
@@ -252,7 +254,6 @@ class CollisionConfig:
     phase: str = ""  # a label for the study's tables, e.g. "TF 3 Hz, adjusted threshold"
 
     def __post_init__(self) -> None:
-        from avdm.registry import is_plugin
 
         plugin = is_plugin(self.detector)  # a bad spec fails here, in one line
         _check(
@@ -297,7 +298,6 @@ class CollisionConfig:
     @property
     def base_detector(self) -> str:
         """The detector's model kind (``lgmd-plus`` for ``lgmd-plus-arena:t_sr=80``)."""
-        from avdm.registry import VARIANTS
 
         name = self.detector.split(":", 1)[0].strip()
         return VARIANTS[name].kind if name in VARIANTS else name
@@ -306,7 +306,6 @@ class CollisionConfig:
         """The registry spec of the detector with its threshold applied."""
         if math.isnan(self.threshold):
             return self.detector
-        from avdm.registry import add_overrides
 
         if self.base_detector == "lgmd-plus":  # a spike-rate threshold
             return add_overrides(self.detector, f"t_sr={self.threshold:g}")
@@ -373,7 +372,6 @@ class SimConfig:
 
     def digest(self) -> str:
         """8 hex digits identifying this exact configuration (same config → same run)."""
-        from avdm import __version__  # a new vdc version records anew instead of reusing
 
         text = json.dumps({**self.to_sections(), "vdc": __version__}, sort_keys=True, default=str)
         return hashlib.sha1(text.encode()).hexdigest()[:8]

@@ -17,6 +17,7 @@ never announces (older firmware) is recorded with its model marked unverified.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import sys
 import time
@@ -30,12 +31,24 @@ import serial
 
 from avdm.registry import canonical_name, make_model
 from capture.colias_link import SerialLink
-from capture.config import SCENES, WallConfig
+from capture.config import (
+    SCENES,
+    ArenaConfig,
+    RobotConfig,
+    WallConfig,
+    config_section,
+    parse_schedule,
+)
 from capture.device import Batch, DeviceContext, Event
-from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
+from capture.output import claim_output
+from capture.recording_start import camera_line, start_recording
+from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
-from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose
+from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose, save_calibration
+from vdc.blueprints import default_blueprint
 from vdc.cli_support import non_negative_float, option, positive_float
+from vdc.provenance import machine_info, package_versions
+from vdc.recording import LINK_STATS as LINK_STATS_ENTITY
 from vdc.recording import camera_model_context
 
 LINK_STATS = (
@@ -416,7 +429,6 @@ class RobotSettings:
     )
 
     def wall(self) -> WallConfig:
-        from capture.config import parse_schedule
 
         schedule: tuple[tuple[float, float], ...] = ((self.tf_hz, 48 * 3600.0),)
         if self.tf_schedule:
@@ -449,15 +461,6 @@ def record_robot(
     outputs), raises ValueError before the file exists. A robot that does not announce itself
     is recorded with ``model.verified`` false, and ``warn`` (default: stderr) says so in one
     line."""
-    import hashlib
-
-    from capture.config import ArenaConfig, RobotConfig, config_section
-    from capture.output import claim_output
-    from capture.recording_start import camera_line, start_recording
-    from capture.run import finish_output, run_capture
-    from vdc.blueprints import default_blueprint
-    from vdc.provenance import machine_info, package_versions
-    from vdc.recording import LINK_STATS as LINK_STATS_ENTITY
 
     wall = settings.wall()
     schedule = wall.tf_schedule
@@ -550,8 +553,6 @@ def record_robot(
         )
         recorder.log_arena(arena, RobotConfig().radius_m)
         if settings.save_calibration:
-            from capture.tracker import save_calibration
-
             h = device.calibrate_tracker()
             if h is None:
                 raise ValueError("no overhead frame yet to calibrate from")

@@ -28,8 +28,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from avdm.avdm_model import AvdmParams
+from avdm.avdm_multiscale import AvdmMultiScaleParams
+from avdm.calibration_store import calibration_for
+from avdm.registry import make_model
+from avdm.true_time import TrueTimeModel, new_frame_rate
 from capture.device import Batch, DeviceContext, Event
-from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
+from capture.output import claim_output
+from capture.recording_start import start_recording
+from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
+from vdc.blueprints import video_blueprint
 from vdc.cli_support import (
     API_ONLY,
     non_negative_float,
@@ -38,6 +46,7 @@ from vdc.cli_support import (
     positive_float,
 )
 from vdc.frame_batches import FrameBatcher
+from vdc.provenance import machine_info, package_versions
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 from vdc.sources import (
     Reader,
@@ -263,8 +272,6 @@ def recording_id(settings: VideoSettings, out: str | Path | None = None) -> str:
 
 def _calibrated(model: Any) -> Any:
     """The params whose calibration the recording reports (the AVDM kinds), else None."""
-    from avdm.avdm_model import AvdmParams
-    from avdm.avdm_multiscale import AvdmMultiScaleParams
 
     p = model.params
     return p if isinstance(p, AvdmParams | AvdmMultiScaleParams) else None
@@ -282,14 +289,6 @@ def record_video(
     the cells of a calibration fit when this camera needs one. A missing, empty or unreadable
     source raises ValueError before the file exists; a file cut short keeps the frames before
     the cut."""
-    from avdm.calibration_store import calibration_for
-    from avdm.registry import make_model
-    from avdm.true_time import TrueTimeModel, new_frame_rate
-    from capture.output import claim_output
-    from capture.recording_start import start_recording
-    from capture.run import finish_output, run_capture
-    from vdc.blueprints import video_blueprint
-    from vdc.provenance import machine_info, package_versions
 
     rid = recording_id(settings, out)
     path = options.output_path(out, rid)

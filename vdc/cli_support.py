@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import math
 import sys
 import textwrap
 from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
+
+from tqdm import tqdm
 
 from vdc.errors import UserError
 
@@ -39,7 +42,6 @@ def say(message: str) -> None:
 def progress_bar(total: int | None, desc: str, unit: str = "cell", quiet: bool = False) -> Any:
     """A tqdm bar on stderr for long work: on terminals only (``disable=None`` keeps pipes and
     CI logs clean), or never with ``quiet``."""
-    from tqdm import tqdm
 
     disable = True if quiet else None
     return tqdm(total=total, desc=desc, unit=unit, disable=disable, leave=False, file=sys.stderr)
@@ -249,7 +251,6 @@ def settings_from_args(cls: type, args: argparse.Namespace, **extra: Any) -> Any
 
 def load_settings_class(target: str) -> type:
     """``"package.module:ClassName"`` → the class (the command lines name their settings so)."""
-    import importlib
 
     module, _, name = target.partition(":")
     return getattr(importlib.import_module(module), name)
@@ -276,7 +277,7 @@ def command_line(
     """The parser of a command line. The flags of sub-command ``command`` are generated from
     its settings (only its modules load, so a command line starts fast); None generates every
     sub-command's (the CLI reference), "" none (the top-level help)."""
-    from avdm.registry import describe_models
+    from avdm.registry import describe_models  # lazy: start-up
 
     parser = OneLineParser(
         prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import ctypes
 import dataclasses
 import multiprocessing
 import os
@@ -30,6 +31,8 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
+
+import cv2
 
 from vdc.cli_support import option
 
@@ -131,7 +134,7 @@ QUIET = Feedback()
 def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
     """The client, and the local cluster it runs on when vdc started one (else None)."""
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client, LocalCluster  # lazy: optional extra
     except ImportError:
         raise ValueError(
             '--executor dask needs the optional extra: pip install -e ".[dask]"'
@@ -182,8 +185,6 @@ def _die_with_parent(parent_pid: int, threads: int = 1) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if sys.platform.startswith("linux"):
         try:
-            import ctypes
-
             pr_set_pdeathsig = 1
             ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
         except (OSError, AttributeError):  # another libc: the watch thread still works
@@ -212,12 +213,7 @@ def one_thread_per_worker(threads: int = 1) -> None:
     ``threads`` > 1: the cores the pool leaves this worker (fewer workers than cores), which
     vdc's own pipelines may use (``vdc.pipeline.usable_threads``)."""
     os.environ[SINGLE_THREAD_ENV] = str(max(1, threads))
-    try:
-        import cv2
-
-        cv2.setNumThreads(1)
-    except ImportError:  # pragma: no cover - OpenCV is a dependency
-        pass
+    cv2.setNumThreads(1)
 
 
 def pool_size(jobs: int, n_tasks: int) -> int:

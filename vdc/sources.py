@@ -18,6 +18,7 @@ counted (:func:`frames_lost_after`; unknown, None, where the container states no
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import math
 import os
 import re
@@ -98,7 +99,7 @@ class Reader:
 
 class _PyAvReader(Reader):
     def __init__(self, path: str) -> None:
-        import av
+        import av  # lazy: start-up
 
         p = Path(path)
         if not p.exists():
@@ -182,7 +183,7 @@ class _PyAvReader(Reader):
         one packet that will not decode costs its own frames only: its error is appended to
         ``note`` and decoding goes on (a whole-stream decode stops at the first bad packet). A
         container that cannot be demuxed further ends here (``error``)."""
-        import av
+        import av  # lazy: start-up
 
         try:
             for packet in self.container.demux(self.stream):
@@ -215,7 +216,6 @@ class _PyAvReader(Reader):
         same time) is dropped, counted (``late_frames``, a problem) and never delivered, so
         time never runs backwards. What a frame cost shows as a gap in the times (the
         batcher's dropped frames): each lost frame is counted there, once."""
-        import heapq
 
         note: list[str] = []
         held: list[tuple[float, int, Any]] = []  # (time, arrival, frame): a min-heap

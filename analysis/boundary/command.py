@@ -43,14 +43,17 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary.fit import describe_boundary
+from analysis.boundary.fit import describe_boundary, fit_section
 from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
+from analysis.collision import CollisionSettings, collision_metrics
+from analysis.recordings.loading import load_recording
 from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy
+from avdm.registry import add_overrides, parse_model_spec
 from vdc.cli_support import non_negative_int, option, positive_float
 from vdc.executors import ExecutorSettings
-from vdc.parquet_io import WroteFiles
+from vdc.parquet_io import WroteFiles, write_tables
 
 TARGET_HELP = "the success rate a detector must keep (default: {default}, the paper's 90 %)"
 COMPLEXITY_MEASURES = ("profile", "online")
@@ -89,7 +92,6 @@ def name_list(text: Any, name: str, allowed: Sequence[str]) -> list[str]:
 
 def with_override(spec: str, key: str, value: float) -> str:
     """``spec`` with ``key=value`` added to its overrides."""
-    from avdm.registry import add_overrides
 
     return add_overrides(spec, f"{key}={value:g}")
 
@@ -172,7 +174,6 @@ class BoundarySettings(ExecutorSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        from avdm.registry import parse_model_spec
 
         parse_model_spec(self.detector)  # a bad detector or plug-in fails before anything runs
         if not 0 < self.target < 1:
@@ -192,13 +193,11 @@ class BoundarySettings(ExecutorSettings):
             name_list(self.scenes, "scenes", ("grating", "natural"))
             if self.per_scene and self.budget < 2 * len(self.scene_list()):
                 raise ValueError("--per-scene needs --budget of at least 2 runs per scene")
-            from analysis.collision import CollisionSettings
 
             CollisionSettings(false_alarm_m=self.false_alarm_m)
 
     def grid_values(self) -> list[float]:
         values = number_list(self.values, "values")
-        from avdm.registry import parse_model_spec
 
         for v in values:  # the parameter exists and takes these values
             parse_model_spec(with_override(self.detector, self.param, v))
@@ -245,8 +244,6 @@ def run_row(path: str | Path, kind: str, false_alarm_m: float = 0.30) -> dict[st
     (``analysis.collision``) plus the on-board AVDM's mean over all frames after the warm-up
     (``online_dps``) and over straight driving (``straight_dps``); "profile": the online AVDM's
     mean over straight driving (``profile_dps``)."""
-    from analysis.collision import CollisionSettings, collision_metrics
-    from analysis.recordings.loading import load_recording
 
     loaded = load_recording(path)
     fr = loaded.frames.select("frame", "turning").filter(pl.col("frame") >= WARMUP_FRAMES)
@@ -505,7 +502,6 @@ def write_arena_outputs(
     ``boundary_{runs,conditions}.parquet``, ``boundary.parquet``, ``boundary_profiles.parquet``
     (``tables["profiles"]`` None: none), ``boundary.png``, ``policy.csv`` (``policy`` None:
     none); returns their paths and the report (``boundary.md``, not yet written)."""
-    from vdc.parquet_io import write_tables
 
     named = {
         "boundary_runs": tables["runs"],
@@ -539,7 +535,6 @@ def arena_report(
     s: BoundarySettings, conditions: pl.DataFrame, bounds: pl.DataFrame, policy: Policy | None
 ) -> str:
     """``boundary.md``: the boundary per value, performance per condition, the policy."""
-    from analysis.boundary.fit import fit_section
 
     design = (
         f"Grid: scenes {', '.join(s.scene_list())}; wall TF {_join(s.tf)} Hz; {s.param} = "

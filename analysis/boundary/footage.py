@@ -54,11 +54,17 @@ from analysis.boundary.fit import (
 )
 from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
+from analysis.complexity.command import ComplexitySettings, complexity
+from analysis.complexity.source_metrics import METRICS
+from analysis.predictors.footage import footage_predictor_tables
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
+from avdm.registry import check_detector, make_model
 from vdc.errors import UserError
-from vdc.executors import Feedback
-from vdc.frame_batches import working_camera
+from vdc.executors import Feedback, run_tasks_or_raise
+from vdc.frame_batches import FrameBatcher, working_camera
+from vdc.parquet_io import table_set, write_tables
+from vdc.sources import open_reader
 
 LABEL_COLUMNS = ("clip", "label", "collision_frame")
 COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg/s)
@@ -126,7 +132,6 @@ def clip_camera(
 ) -> tuple[tuple[int, int], dict[str, Any]]:
     """The clip's working raster (H, W) and the camera facts a model is built with for it (as
     ``vdc-capture video``)."""
-    from vdc.sources import open_reader
 
     reader = open_reader(source)
     try:
@@ -142,10 +147,6 @@ def detector_alerts(
     """The detector ``spec`` run on a clip as ``vdc-capture video`` would run it (its repeat
     rules too): the source frames' numbers (T,) int64, its ``alert`` output (T,) float64 and
     the frame rate (Hz)."""
-    from analysis.complexity.command import ComplexitySettings
-    from avdm.registry import make_model
-    from vdc.frame_batches import FrameBatcher
-    from vdc.sources import open_reader
 
     reader = open_reader(source)
     try:
@@ -227,8 +228,6 @@ def clip_complexity(
     """Each clip's complexity: the mean of every metric of ``vdc-analyse complexity`` over the
     frames before the alert window (a collision clip) or over all frames (the scene the
     detector faced, not the object on its way in). Columns: source, then one per metric."""
-    from analysis.complexity.command import ComplexitySettings, complexity
-    from analysis.complexity.source_metrics import METRICS
 
     s = ComplexitySettings(fov_deg=fov_deg, metrics="all", **executor)
     res = complexity(labels["source"].to_list(), s, out)
@@ -296,16 +295,12 @@ def share_row(name: str, flags: pl.Series) -> dict[str, float]:
 
 def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> BoundaryResult:
     """Footage mode of :func:`analysis.experiments.boundary_campaign.boundary`."""
-    from vdc.executors import run_tasks_or_raise
-    from vdc.parquet_io import table_set, write_tables
 
     if s.fov_deg is None:
         raise ValueError("footage mode needs --fov-deg (the camera's horizontal field of view)")
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {v: with_override(s.detector, s.param, v) for v in values}
     labels = read_labels(s.labels or "")
-
-    from avdm.registry import check_detector
 
     # each value built and stepped on one frame of the clips' raster, before any clip runs: a
     # factory that raises, a model without alert or one whose step cannot give it fails now
@@ -399,8 +394,6 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
         )
         md = footage_report(s, summary, stats, bounds, clips)
         if not s.no_predictors:  # every measure judged by the clips (and frames) it gets wrong
-            from analysis.predictors.footage import footage_predictor_tables
-
             _, more, section = footage_predictor_tables(s, labels, clips, out / "complexity", stage)
             paths += more
             md += "\n" + section

@@ -22,6 +22,7 @@ Spearman's ρ between reading and truth per image.
 from __future__ import annotations
 
 import dataclasses
+import io
 import math
 from collections.abc import Callable, Sequence
 from fractions import Fraction
@@ -32,7 +33,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import polars as pl
+from matplotlib.figure import Figure
 
+from analysis.stats import spearman
 from avdm.registry import make_model
 from avdm.stimuli import panned_image
 from vdc.recording import camera_model_context
@@ -55,7 +58,7 @@ def photograph(name: str) -> np.ndarray:
     package's own data folder are used. Remembered (read-only): the protocol reads each many
     times."""
     try:
-        from skimage import data
+        from skimage import data  # lazy: optional extra
     except ImportError:  # pragma: no cover - the test extra installs it
         raise ValueError(
             "the validation photographs need scikit-image: pip install scikit-image"
@@ -71,9 +74,8 @@ def photograph(name: str) -> np.ndarray:
 def h264_roundtrip(frames: np.ndarray, fps: float, crf: int = 23) -> np.ndarray:
     """Encode grey frames (T, H, W) uint8 as H.264 (yuv420p, libx264) in memory and decode
     them back to luma: what a real clip's frames look like after the codec."""
-    import io
 
-    import av
+    import av  # lazy: start-up
 
     buf = io.BytesIO()
     with av.open(buf, "w", format="matroska") as out:
@@ -271,7 +273,6 @@ def summarise_truth(table: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
     pitches and codecs, and the mean share of frames flagged valid (NaN for a reader without
     a flag); per reader: worst direction asymmetry over 2–300 deg/s, and the smallest
     Spearman ρ over (image, fps, pitch, codec) groups)."""
-    from analysis.stats import spearman
 
     t = table.with_columns(
         ((pl.col("omega_dps") - pl.col("omega_true_dps")).abs() / pl.col("omega_true_dps")).alias(
@@ -341,7 +342,6 @@ def summarise_truth(table: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
 def plot_truth(table: pl.DataFrame, path: str | Path) -> Path:
     """Reading against truth (log-log), each reader's median and 10–90 % band over images,
     directions, fps, pitches and codecs; the ±25 % band around the truth shaded."""
-    from matplotlib.figure import Figure
 
     fig = Figure(figsize=(7.5, 5.5), layout="constrained")
     ax = fig.add_subplot()

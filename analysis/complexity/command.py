@@ -34,12 +34,14 @@ from typing import Any
 import numpy as np
 import polars as pl
 
+from analysis.batch import parse_shard, readable_part
 from analysis.complexity import figures
 from analysis.complexity.source_metrics import (
     ANGULAR_METRICS,
     DEFAULT_METRICS,
     DIS_PRESETS,
     METRICS,
+    MODEL_METRICS,
     PARTS,
     RASTERS,
     ComplexityMeter,
@@ -52,6 +54,10 @@ from analysis.complexity.source_metrics import (
     rank_correlations,
 )
 from analysis.recordings.analysis_rrd import OUTPUT_MARKER, write_complexity_rrd
+from analysis.recordings.reader import Recording, RecordingError
+from analysis.recordings.recompute import DistinctRecordings
+from avdm.registry import require_angular_velocity
+from avdm.true_time import repeats_of
 from vdc.cli_support import (
     API_ONLY,
     non_negative_float,
@@ -60,10 +66,18 @@ from vdc.cli_support import (
     positive_float,
 )
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
-from vdc.frame_metrics import RANGE_CHOICES, RANGE_COLUMNS
-from vdc.parquet_io import WroteFiles
-from vdc.recording import FOOTAGE_MODEL
-from vdc.sources import source_name
+from vdc.folders import scan_folder
+from vdc.frame_metrics import (
+    RANGE_CHOICES,
+    RANGE_COLUMNS,
+    NativeMeter,
+    decide_ranges,
+    leaves_limited,
+)
+from vdc.parquet_io import WroteFiles, read_metadata, table_set, write_parquet
+from vdc.recording import FOOTAGE_MODEL, NATIVE_METRICS, camera_model_context, working_size
+from vdc.resize import area_resize
+from vdc.sources import VIDEO_SUFFIXES, source_name
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,8 +143,6 @@ class ComplexitySettings:
     force: bool = option(False, "measure finished sources again")
 
     def __post_init__(self) -> None:
-        from analysis.batch import parse_shard
-        from avdm.registry import require_angular_velocity
 
         require_angular_velocity(self.model, "complexity")
         parse_metrics(self.metrics)
@@ -185,11 +197,6 @@ def complexity_of_frames(
 
     Returns a DataFrame: frame, t_s, repeat, then one column per metric of
     ``settings.metrics`` (see the module)."""
-    from analysis.complexity.source_metrics import MODEL_METRICS
-    from avdm.true_time import repeats_of
-    from vdc.frame_metrics import NativeMeter, decide_ranges, leaves_limited
-    from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
-    from vdc.resize import area_resize
 
     settings = settings or ComplexitySettings()
     frames = np.asarray(frames)
@@ -230,8 +237,6 @@ def expand_sources(
     itself, unfinished captures and dangling links (``vdc.folders.scan_folder``), which
     ``notice`` hears about in one line per folder. A folder without any source, a missing
     file or a pattern that matches nothing raises ValueError."""
-    from vdc.folders import scan_folder
-    from vdc.sources import VIDEO_SUFFIXES
 
     sources: list[str] = []
     for item in map(str, items):
@@ -307,8 +312,6 @@ def plan_sources(
     measured again). A recording vdc derived from another (its ``vdc_output`` property: a
     ``complexity_<id>.rrd`` copied away from its folder's manifest) is not a source: left
     out, and ``notice`` hears how many."""
-    from analysis.recordings.reader import Recording, RecordingError
-    from analysis.recordings.recompute import DistinctRecordings
 
     opened: dict[str, Any] = {}
     for s in sources:
@@ -459,8 +462,6 @@ def complexity(
     (see the module). ``progress`` counts frames (a single source), ``clip_progress`` sources
     as they finish. A bad single source raises ValueError; in a collection, failed sources
     are listed in ``result.failures`` and ``failures.parquet``."""
-    from analysis.batch import parse_shard, readable_part
-    from vdc.parquet_io import read_metadata, table_set, write_parquet
 
     out = Path(out)
     notes: list[str] = []

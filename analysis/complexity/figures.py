@@ -12,8 +12,10 @@ from typing import Any
 
 import numpy as np
 import polars as pl
+from matplotlib.figure import Figure
 
 from analysis.complexity.source_metrics import METRICS, normalised, present
+from analysis.profile import correlation_panel, save_figure
 
 _LABELS = {
     "omega_dps": "AVDM ω̂ (deg/s)",
@@ -34,9 +36,6 @@ def ranking(clips: pl.DataFrame) -> list[str]:
 def plot_collection(clips: pl.DataFrame, path: Path) -> Path:
     """The collection at a glance: clips ranked by their mean AVDM response and by their mean
     TI (P.910), and each clip's mean AVDM against its mean TI and SI."""
-    from matplotlib.figure import Figure
-
-    from analysis.profile import save_figure
 
     n = clips.height
     fig = Figure(figsize=(14, 6 + 0.15 * min(n, 60)), layout="constrained")
@@ -117,9 +116,6 @@ raster. Per-frame values: complexity.parquet; every statistic: clips.parquet.</p
 
 
 def plot_complexity(df: pl.DataFrame, corr: pl.DataFrame, path: Path) -> Path:
-    from matplotlib.figure import Figure
-
-    from analysis.profile import correlation_panel, save_figure
 
     norm = normalised(df)
     t = df["t_s"].to_numpy()

@@ -41,11 +41,16 @@ import cv2
 import numpy as np
 import polars as pl
 
+from analysis.recordings.loading import load_recording
+from analysis.stats import spearman
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, new_frame_rate, repeat_flags
+from vdc.frame_batches import FrameBatcher
 from vdc.frame_metrics import NativeMeter, decide_ranges
+from vdc.parquet_io import write_parquet
+from vdc.pipeline import usable_threads
 from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context, working_size
-from vdc.sources import end_fields
+from vdc.sources import end_fields, open_reader
 
 if TYPE_CHECKING:
     from analysis.recordings.loading import LoadedRecording
@@ -337,9 +342,6 @@ def measure_video(
     decoded once: the source-raster metrics on its native frames, the model-raster ones on
     the working raster ``vdc-capture video`` uses (the same frames, times and repeat flags:
     its recording then gives the same table)."""
-    from vdc.frame_batches import FrameBatcher
-    from vdc.pipeline import usable_threads
-    from vdc.sources import open_reader
 
     metrics = chosen_metrics(settings)
     if settings.fov_deg is None:  # the pixel metrics only (complexity notes it, once)
@@ -461,8 +463,6 @@ def measure_source(
     """One source measured: a recording (``.rrd``, its own id) or a video
     (``recording_id``)."""
     if source.endswith(".rrd"):
-        from analysis.recordings.loading import load_recording
-
         return measure_recording(load_recording(source), settings, progress)
     return measure_video(source, settings, recording_id, progress)
 
@@ -481,7 +481,6 @@ def complexity_task(
     in ``analysis.complexity.command``, so that a pool worker imports only what measuring needs: not
     the figures, Rerun or the command line (1.25 against about 0.5 s of CPU per worker, paid
     on the wall clock whatever the number of workers)."""
-    from vdc.parquet_io import write_parquet
 
     s = SimpleNamespace(**settings)
     m = measure_source(source, recording_id, s, progress)
@@ -493,7 +492,6 @@ def complexity_task(
 def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
     """Spearman ρ of every pair of metrics (of those in ``df``) over the frames where both
     are defined."""
-    from analysis.stats import spearman
 
     rows = []
     present = [m for m in METRICS if m in df.columns]

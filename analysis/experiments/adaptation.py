@@ -42,13 +42,17 @@ from analysis.boundary.command import (
     number_list,
 )
 from analysis.boundary.report_tables import interval, markdown_table
+from analysis.experiments.adaptive import in_fitted_range
 from analysis.experiments.boundary_campaign import run_grid
+from analysis.experiments.captures import check_detectors
 from analysis.stats import mean_ci
 from avdm.policy import load_policy
-from avdm.registry import add_overrides
+from avdm.registry import add_overrides, parse_model_spec
+from capture.config import CollisionConfig, parse_schedule
+from capture.sim import SimSettings
 from vdc.cli_support import non_negative_int, option, positive_float
 from vdc.executors import QUIET, ExecutorSettings, Feedback
-from vdc.parquet_io import WroteFiles
+from vdc.parquet_io import WroteFiles, table_set, write_tables
 
 CONTROLLERS = ("fixed", "hand", "adaptive", "policy")
 BETTER, WORSE, SAME = "better", "worse", "no difference"
@@ -82,7 +86,6 @@ class AdaptationSettings(ExecutorSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        from avdm.registry import parse_model_spec
 
         if not self.policy:
             raise ValueError("give the policy to test: --policy FILE (from vdc-analyse boundary)")
@@ -102,7 +105,6 @@ class AdaptationSettings(ExecutorSettings):
         return add_overrides(self.detector, self.hand) if self.hand else self.detector
 
     def adaptive_allowed(self) -> bool:
-        from capture.config import CollisionConfig
 
         return CollisionConfig(detector=self.detector).base_detector == "lgmd-plus"
 
@@ -114,8 +116,6 @@ class AdaptationSettings(ExecutorSettings):
             for tf in number_list(self.tf, "tf")
         ]
         if self.schedule:
-            from capture.config import parse_schedule
-
             parse_schedule(self.schedule)
             out.append(
                 (
@@ -132,7 +132,6 @@ class AdaptationSettings(ExecutorSettings):
 
 def adaptation_items(s: AdaptationSettings, folder: Path) -> list[tuple[str, Any, Path, dict]]:
     """One closed-loop run per (condition, controller, seed)."""
-    from capture.sim import SimSettings
 
     controllers = [c for c in CONTROLLERS if c != "adaptive" or s.adaptive_allowed()]
     specs = {
@@ -231,14 +230,12 @@ def adaptation(
 ) -> AdaptationResult:
     """Run the held-out conditions with every controller; write ``adaptation.md``,
     ``adaptation.png`` and the Parquet tables into ``out``."""
-    from vdc.parquet_io import table_set, write_tables
 
     out = Path(out)
     policy = load_policy(s.policy)
     fitted = set()
     if policy.evidence is not None and "condition" in policy.evidence.columns:
         fitted = set(policy.evidence["condition"].to_list())
-    from analysis.experiments.adaptive import in_fitted_range
 
     notices = [
         f"{cond} was in the policy's fit: it is not held out"
@@ -248,7 +245,6 @@ def adaptation(
     for n in notices:
         feedback.log(f"note: {n}")
     items = adaptation_items(s, out / "recordings")
-    from analysis.experiments.captures import check_detectors
 
     check_detectors(st.to_config() for _, st, _, _ in items)  # one line before any run
     feedback.log(f"adaptation: {len(s.conditions())} held-out condition(s), {len(items)} run(s)")

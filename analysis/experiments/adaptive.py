@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 import polars as pl
+import scipy.stats
 
 from analysis.boundary.command import (
     BoundaryResult,
@@ -46,11 +47,22 @@ from analysis.boundary.command import (
     boundaries,
     condition_name,
     condition_statistics,
+    fit_policy,
     published,
     write_arena_outputs,
 )
-from analysis.boundary.fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
+from analysis.boundary.fit import (
+    CrossingFit,
+    dps_to_tf,
+    fit_columns,
+    fit_crossing,
+    tf_to_dps,
+    with_fit,
+)
+from analysis.experiments.captures import collision_run_item
+from capture.sim import SimSettings
 from vdc.executors import Feedback
+from vdc.parquet_io import table_set
 
 FIRST_BATCH = 4
 PROFILE_POINTS = 3  # profiling TFs per scene: the range's ends and middle
@@ -186,7 +198,6 @@ def first_failure(
     of their success, ``k`` of ``n``, below ``target``); inf when none does. The per-scene
     design's boundary is the *first* crossing: runs past this one are not fitted (a detector
     can fail in the middle of a scene's range and recover at its end)."""
-    import scipy.stats
 
     x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
     ok = n_a > 0
@@ -204,7 +215,6 @@ def first_recovery(
     """The least complexity above ``failed`` (the first clearly failing run's) among runs that
     clearly succeed again (the exact binomial 95 % lower bound of their success above
     ``target``): where the success recovers; inf when none does (or none failed)."""
-    import scipy.stats
 
     x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
     ok = (n_a > 0) & (x_a > failed)
@@ -349,7 +359,6 @@ def design_runs_per_scene(
 
 def profile_runs(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
     """The profiling runs: per scene, ``PROFILE_POINTS`` TFs over the range, seed ``--seed``."""
-    from capture.sim import SimSettings
 
     lo, hi = s.tf_bounds()
     items = []
@@ -370,7 +379,6 @@ def run_items(
     s: BoundarySettings, placed: list[dict[str, Any]], folder: Path
 ) -> list[tuple[str, Any, Path, dict[str, Any]]]:
     """Closed-loop runs for the placed (value, scene, TF, seed)s, as the grid records them."""
-    from analysis.experiments.captures import collision_run_item
 
     return [
         collision_run_item(
@@ -389,8 +397,6 @@ def adaptive_boundary(
     same files as the grid (``boundary.md``, ``boundary.png``, ``boundary_runs.parquet``: one
     row per run the design placed, ``boundary.parquet`` with the fitted columns,
     ``boundary_profiles.parquet``, ``policy.csv``)."""
-    from analysis.boundary.fit import fit_columns, with_fit
-    from vdc.parquet_io import table_set
 
     rec = out / "recordings"
     scenes, values = s.scene_list(), s.grid_values()
@@ -463,7 +469,6 @@ def _per_scene_outputs(
     """``--per-scene``: the loop (:func:`design_runs_per_scene`) and the files, with one row of
     ``boundary.parquet`` per (value, scene) (a ``scene`` column; the TF columns through that
     scene's profile; the bracket from that scene's runs)."""
-    from vdc.parquet_io import table_set
 
     scenes, values = s.scene_list(), s.grid_values()
     rows, fits = design_runs_per_scene(
@@ -519,7 +524,6 @@ def per_scene_bounds(
     """``boundary.parquet`` per (value, scene): the bracket of that scene's conditions
     (:func:`analysis.boundary.command.boundaries`), the fitted columns of ``fits[(value, scene)]``
     (TF through ``to_tf(scene, deg/s)``), the ``design``."""
-    from analysis.boundary.fit import fit_columns
 
     parts = []
     for v, sc in fits:
@@ -572,7 +576,6 @@ def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3)
     scene's TF range cut in ``bins`` equal parts, the runs of a part pooled as one condition
     (``<scene>-tf<LO>-<HI>``); parts where some value has no run are left out (the policy
     compares the values on the same conditions). None when no part has every value."""
-    from analysis.boundary.command import fit_policy
 
     lo, hi = s.tf_bounds()
     edges = np.linspace(lo, hi, bins + 1)

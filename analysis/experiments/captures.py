@@ -13,7 +13,9 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from analysis.boundary.command import condition_name, with_override
 from analysis.recordings.reader import Recording, RecordingError
+from avdm.registry import check_detector
 from capture.run import REPLACE_OUTPUT
 from capture.sim import SimSettings, record_sim
 from vdc.executors import (
@@ -45,7 +47,6 @@ def check_detectors(configs: Iterable[Any]) -> None:
     stepped on one frame of the camera's raster (:func:`avdm.registry.check_detector`), before any
     run: a detector that cannot be one is a ValueError in one line, not one failure per run.
     ``configs``: :class:`capture.config.SimConfig` items."""
-    from avdm.registry import check_detector
 
     seen = set()
     for config in configs:
@@ -115,7 +116,6 @@ def run_captures(
 def profiling_items(s: Any, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
     """A boundary campaign's profiling runs (``s``: its ``BoundarySettings``): one (as
     ``reproduce`` profiles: ring turns, no detector) per (scene, TF, seed)."""
-    from analysis.boundary.command import condition_name
 
     items = []
     for scene, tf in s.conditions():
@@ -142,7 +142,6 @@ def collision_run_item(
     """One closed-loop run of a boundary campaign (``s``: its ``BoundarySettings``) at the
     detector's ``value``: (key, settings, recording path, row columns), as the grid and the
     adaptive design both record it (so either reuses the other's finished runs)."""
-    from analysis.boundary.command import condition_name, with_override
 
     cond = condition_name(scene, tf_hz)
     tag = f"{s.param}{value:g}"

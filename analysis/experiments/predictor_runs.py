@@ -25,6 +25,7 @@ recording anything, and a re-run measures nothing again.
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import math
 import zlib
@@ -32,8 +33,22 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import polars as pl
+
+from analysis.boundary.command import WARMUP_FRAMES, BoundarySettings
+from analysis.complexity.source_metrics import DIS_PRESETS
+from analysis.experiments.captures import profiling_items
+from analysis.predictors.report import PredictorResult, settings_meta, write_predictors
+from analysis.predictors.statistics import MEASURES, arena_predictors
+from analysis.recordings.loading import load_recording
+from avdm.registry import make_model
+from avdm.true_time import TrueTimeModel
+from vdc.executors import Feedback, run_tasks_or_raise
+from vdc.frame_metrics import NativeMeter
+from vdc.parquet_io import table_set
+from vdc.recording import NATIVE_METRICS
 
 MEASURE_VERSION = 2  # 1 lost codec_bpp (NaN)
 EVERY = 8  # the SI/TI family, flow and zlib on every 8th frame pair (their cost; see module)
@@ -61,12 +76,10 @@ def yuv420_planes(frames: np.ndarray) -> np.ndarray:
 def _codec_sizes(frames: np.ndarray, fps: float, state: dict[str, Any]) -> None:
     """Encode ``frames`` (T, H, W) uint8 into the H.264 stream kept in ``state`` and add the
     packets' bytes to ``state["bytes"]``."""
-    import av
+    import av  # lazy: start-up
 
     h, w = frames.shape[1:]
     if "stream" not in state:
-        import io
-
         state["buf"] = io.BytesIO()
         state["out"] = av.open(state["buf"], "w", format="h264")
         st = state["out"].add_stream("libx264", rate=round(fps))
@@ -87,15 +100,6 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
     """Every measure of one profiling run (see the module): their means over the straight-
     driving frames after the warm-up, with ``frames`` (straight frames after the warm-up) and
     ``sampled_frames`` (of those, measured by the sampled measures)."""
-    import cv2
-
-    from analysis.boundary.command import WARMUP_FRAMES
-    from analysis.complexity.source_metrics import DIS_PRESETS
-    from analysis.recordings.loading import load_recording
-    from avdm.registry import make_model
-    from avdm.true_time import TrueTimeModel
-    from vdc.frame_metrics import NativeMeter
-    from vdc.recording import NATIVE_METRICS
 
     warmup = WARMUP_FRAMES if warmup is None else warmup
     loaded = load_recording(path)
@@ -150,7 +154,6 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
         paper = loaded.logged[profiler].select("frame", pl.col("omega_dps").alias("avdm"))
         df = df.join(paper, on="frame", how="left")
     straight = df.filter((pl.col("frame") >= warmup) & pl.col("turning").not_())
-    from analysis.predictors.statistics import MEASURES
 
     row: dict[str, Any] = {
         "recording_id": loaded.recording_id,
@@ -196,7 +199,6 @@ def arena_measures(
 ) -> pl.DataFrame:
     """:func:`cached_measures` of every profiling run ``(path, columns)`` on ``executor`` (an
     ``ExecutorSettings``): one row per run, ``columns`` (condition, scene, tf_hz, seed) first."""
-    from vdc.executors import Feedback, run_tasks_or_raise
 
     tasks = [(str(p), (str(p), every)) for p, _ in items]
     got = run_tasks_or_raise(
@@ -226,10 +228,6 @@ def predictors_for_folder(
     ``predictors.parquet``, ``predictor_measures.parquet``, ``predictors.png`` and the
     section of ``boundary.md`` into ``folder``. Returns
     :class:`analysis.predictors.report.PredictorResult`."""
-    from analysis.boundary.command import BoundarySettings
-    from analysis.experiments.captures import profiling_items
-    from analysis.predictors.report import PredictorResult, settings_meta
-    from vdc.parquet_io import table_set
 
     folder = Path(folder)
     meta = settings_meta(folder)
@@ -266,8 +264,6 @@ def arena_predictor_tables(
     s: Any, runs: pl.DataFrame, measures: pl.DataFrame, stage: Path
 ) -> tuple[pl.DataFrame, list[Path], str]:
     """The predictor table of a grid written into ``stage``: (table, paths, report section)."""
-    from analysis.predictors.report import write_predictors
-    from analysis.predictors.statistics import arena_predictors
 
     table = arena_predictors(runs, measures, s.param, s.target)
     meta = {"settings": dataclasses.asdict(s), "every": int(measures["every"][0])}
@@ -312,7 +308,6 @@ def predictors(source: str | Path | Any) -> Any:
     md = md_path.read_text() if md_path.exists() else ""
     cut = md.find("## Which measure predicts")
     paths = [pred] + ([measures] if measures else []) + [folder / "predictors.png"]
-    from analysis.predictors.report import PredictorResult
 
     return PredictorResult(
         pl.read_parquet(pred),

@@ -23,7 +23,7 @@ from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model, make_params, require_angular_velocity
 from avdm.stimuli import grating, omega_true_dps, period_px_from_sf
 from vdc.cli_support import option, parse_size, positive_float
-from vdc.parquet_io import WroteFiles
+from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
 PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
 PAPER_TF_HZ = (1.0, 5.0, 50.0)  # columns: response vs SF
@@ -377,7 +377,6 @@ def sweep(
 ) -> SweepResult:
     """``vdc-analyse sweep`` (paper Fig. 3). With ``out``: ``sweep.parquet``,
     ``monotonicity.parquet`` and ``sweep.png``. ``progress`` is called once per cell."""
-    from vdc.parquet_io import table_set, write_parquet
 
     config = settings.stimulus
     name = canonical_name(settings.model)

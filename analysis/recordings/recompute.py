@@ -41,6 +41,8 @@ from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
 from vdc.cli_support import API_ONLY, non_negative_int, option, positive_float
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
+from avdm.registry import check_detector
+from vdc.folders import expand_recordings
 
 
 @dataclasses.dataclass(frozen=True)
@@ -391,7 +393,6 @@ def check_models(loaded: LoadedRecording, specs: Sequence[str]) -> None:
     """Each model in ``specs`` built with ``loaded``'s camera and stepped on one frame of its
     raster (:func:`avdm.registry.check_detector` without the alert), before any long run: a
     plug-in that cannot run is a ValueError in one line."""
-    from avdm.registry import check_detector
 
     ctx = loaded.camera_context()
     cam = loaded.props.get("camera", {})
@@ -532,7 +533,6 @@ def tables(
 
     ``progress`` is called with the number of frames done; ``notice`` with each note about a
     repaired recording (they are also in the result)."""
-    from vdc.folders import expand_recordings
 
     notes = Notices(notice)
     recordings = expand_recordings(recordings, notes)
