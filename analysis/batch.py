@@ -38,9 +38,9 @@ from analysis.recordings.recompute import (
     events_table,
     model_outputs_table,
     model_params,
+    publish_tables,
     recompute,
     summary_table,
-    write_tables,
 )
 from analysis.recordings.segments import safe_key
 from avdm.registry import canonical_name, parse_model_spec
@@ -315,4 +315,4 @@ def summarise_batch(out: str | Path) -> tuple[dict[str, pl.DataFrame], list[Path
             "recording_id", "model", "wall_tf_hz"
         ),
     }
-    return tables, write_tables(tables, out, meta)
+    return tables, publish_tables(tables, out, meta)

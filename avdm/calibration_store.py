@@ -36,14 +36,14 @@ def shipped_calibrations() -> tuple[dict[str, Any], ...]:
 # (keyed separately, to 1e-9), the texture row (the calibration gratings are uniform down
 # every column, so every row sees the same pattern) and the preferred direction (the gratings
 # drift in it, so a mirrored model meets mirrored stimuli: the same fit).
-NOT_DYNAMICS = frozenset({"a", "b", "fps", "deg_per_px", "texture_row", "direction"})
+NOT_DECODING_DYNAMICS = frozenset({"a", "b", "fps", "deg_per_px", "texture_row", "direction"})
 
 
 def dynamics(params: Any) -> dict[str, Any]:
     """The parameters of ``params`` (a params object or its flat dict) that change the model's
-    dynamics, hence its calibration: every field but those in ``NOT_DYNAMICS``."""
+    dynamics, hence its calibration: every field but those in ``NOT_DECODING_DYNAMICS``."""
     values = params if isinstance(params, dict) else params.to_dict()
-    return {k: v for k, v in values.items() if k not in NOT_DYNAMICS}
+    return {k: v for k, v in values.items() if k not in NOT_DECODING_DYNAMICS}
 
 
 def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any] | None:
@@ -82,8 +82,7 @@ def cache_dir() -> Path:
     return Path(base) / "vdc"
 
 
-def calibration_key(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any]:
-
+def decoding_key(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any]:
     kind = "avdm" if params is None or isinstance(params, AvdmParams) else "avdm-multiscale"
     key: dict[str, Any] = {
         "fps": float(f"{fps:.9g}"),
@@ -155,7 +154,7 @@ def calibration_for(
         shipped = lookup_calibration(fps, deg_per_px, params)
         if shipped is not None:
             return {**shipped, "source": "shipped"}
-    key = calibration_key(fps, deg_per_px, params)
+    key = decoding_key(fps, deg_per_px, params)
     path = cache_path(key, f"{key['model']}-{key['fps']:g}Hz")
     cached = read_cached(path, key)
     if cached is not None:

@@ -29,7 +29,7 @@ from avdm.stimuli import clutter_image
 from avdm.version import __version__
 
 # the decoding constants and the validity threshold do not change the measured curve
-NOT_DYNAMICS = frozenset({"r_peak", "v_peak_dps", "knee", "change_max", "valid_fraction"})
+NOT_HRC_DYNAMICS = frozenset({"r_peak", "v_peak_dps", "knee", "change_max", "valid_fraction"})
 CAL_SPEEDS_DPS = tuple(float(v) for v in np.geomspace(0.5, 600.0, 19))
 CAL_FOV_DEG = 70.0
 CAL_ASPECT = 72.0 / 99.0  # H/W of the calibration raster (the robot camera's)
@@ -124,14 +124,13 @@ def fit_curve(speeds: np.ndarray, resp: np.ndarray, change: np.ndarray) -> dict[
     }
 
 
-def calibration_key(params: HrcParams) -> dict[str, Any]:
-
-    dyn = {k: v for k, v in params.to_dict().items() if k not in NOT_DYNAMICS}
+def hrc_key(params: HrcParams) -> dict[str, Any]:
+    dyn = {k: v for k, v in params.to_dict().items() if k not in NOT_HRC_DYNAMICS}
     dyn["fps"] = float(f"{params.fps:.9g}")
     dyn["deg_per_px"] = float(f"{params.deg_per_px:.9g}")
     return {
         "model": "hrc",
-        "curve": sorted(NOT_DYNAMICS - {"valid_fraction"}),  # what an entry holds
+        "curve": sorted(NOT_HRC_DYNAMICS - {"valid_fraction"}),  # what an entry holds
         "dynamics": dyn,
         "speeds_dps": list(CAL_SPEEDS_DPS),
         "raster_hw": list(calibration_raster(params.deg_per_px)),
@@ -143,7 +142,7 @@ def hrc_calibration(params: HrcParams) -> dict[str, Any]:
     """The response curve for ``params``' camera and dynamics: remembered, cached on disk, or
     measured now and cached. ``source`` says which (``memo``, ``cache`` or ``fitted``)."""
 
-    key = calibration_key(params)
+    key = hrc_key(params)
     text = json.dumps(key, sort_keys=True)
     if text in _MEMO:
         return {**_MEMO[text], "source": "memo"}

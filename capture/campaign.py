@@ -1,4 +1,4 @@
-"""``vdc-capture sweep``: a grid of simulated runs (a campaign), each one executor task.
+"""``vdc-capture campaign``: a grid of simulated runs (a campaign), each one executor task.
 
 The grid is a few ``FIELD=V1,V2,...`` items over :class:`capture.sim.SimSettings` (the
 ``vdc-capture sim`` flags, same names), e.g.::
@@ -135,8 +135,8 @@ def _token(value: Any) -> str:
 
 
 @dataclasses.dataclass(frozen=True)
-class CaptureSweepSettings(ExecutorSettings):
-    """``vdc-capture sweep``: the grid items, ``force`` to record finished runs again, and
+class CampaignSettings(ExecutorSettings):
+    """``vdc-capture campaign``: the grid items, ``force`` to record finished runs again, and
     where the runs go (``executor``, ``jobs``, ``scheduler``)."""
 
     grid: tuple[str, ...] = option(
@@ -175,7 +175,7 @@ class CaptureSweepSettings(ExecutorSettings):
 
 
 @dataclasses.dataclass
-class CaptureSweepResult(WroteFiles):
+class CampaignResult(WroteFiles):
     runs: pl.DataFrame  # one row per finished run
     planned: int
     skipped: int  # finished by an earlier invocation
@@ -234,9 +234,9 @@ def collect_runs(out: str | Path, keys: Sequence[str]) -> pl.DataFrame:
     return df.with_columns(pl.col(events).fill_null(0)).sort("run")
 
 
-def capture_sweep(
-    settings: CaptureSweepSettings, out: str | Path, feedback: Feedback = QUIET
-) -> CaptureSweepResult:
+def campaign(
+    settings: CampaignSettings, out: str | Path, feedback: Feedback = QUIET
+) -> CampaignResult:
     """Record every run of the grid that has no row yet (all with ``force``) on the executor,
     then write ``OUT/runs.parquet``. A failed run is listed and does not stop the others."""
     t0 = time.perf_counter()
@@ -268,7 +268,7 @@ def capture_sweep(
     if table.height:
         meta = {"grid": list(settings.grid)}
         paths.append(write_parquet(table, out / "runs.parquet", meta))
-    return CaptureSweepResult(
+    return CampaignResult(
         table, len(runs), len(runs) - len(todo), outcomes, failures, paths,
         time.perf_counter() - t0,
     )  # fmt: skip

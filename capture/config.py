@@ -254,7 +254,6 @@ class CollisionConfig:
     phase: str = ""  # a label for the study's tables, e.g. "TF 3 Hz, adjusted threshold"
 
     def __post_init__(self) -> None:
-
         plugin = is_plugin(self.detector)  # a bad spec fails here, in one line
         _check(
             plugin or self.base_detector in DETECTORS,

@@ -254,7 +254,6 @@ class OverheadRenderer:
     def __init__(
         self, arena: ArenaConfig, robot_radius_m: float, px_per_m: float, markers: bool = False
     ) -> None:
-
         self.arena = arena
         self.px_per_m = px_per_m
         self.radius_m = robot_radius_m

@@ -44,14 +44,19 @@ from capture.output import claim_output
 from capture.recording_start import camera_line, start_recording
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
-from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose, save_calibration
+from capture.tracker import (
+    MarkerLayout,
+    calibrate_homography,
+    load_calibration,
+    robot_pose,
+    save_calibration,
+)
 from vdc.blueprints import default_blueprint
 from vdc.cli_support import non_negative_float, option, positive_float
 from vdc.provenance import machine_info, package_versions
-from vdc.recording import LINK_STATS as LINK_STATS_ENTITY
-from vdc.recording import camera_model_context
+from vdc.recording import LINK_STATS, camera_model_context
 
-LINK_STATS = (
+LINK_COUNTERS = (
     "packets",
     "bad_crc",
     "bad_length",
@@ -159,7 +164,7 @@ class ColiasRobotDevice(DeviceContext):
         self.lost = 0
         self.duplicates = 0
         self.tracking = True
-        self._reported = dict.fromkeys(LINK_STATS, 0)
+        self._reported = dict.fromkeys(LINK_COUNTERS, 0)
         self._disconnect_events: list[str] = []
         self._connected = True
 
@@ -217,7 +222,7 @@ class ColiasRobotDevice(DeviceContext):
             self._cam_next += 1
             grey = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
             if self.h is None:
-                self.h = calibrate(grey, self.cfg.layout)
+                self.h = calibrate_homography(grey, self.cfg.layout)
             self.samples.append((stamp, robot_pose(grey, self.h)))
             if not self._video:
                 return
@@ -317,7 +322,7 @@ class ColiasRobotDevice(DeviceContext):
         stats = self.link_stats()
         changes = [
             f"{k} +{stats[k] - self._reported[k]}"
-            for k in LINK_STATS[1:]
+            for k in LINK_COUNTERS[1:]
             if stats[k] > self._reported[k]
         ]
         for text in self._disconnect_events:
@@ -429,7 +434,6 @@ class RobotSettings:
     )
 
     def wall(self) -> WallConfig:
-
         schedule: tuple[tuple[float, float], ...] = ((self.tf_hz, 48 * 3600.0),)
         if self.tf_schedule:
             text = self.tf_schedule
@@ -500,7 +504,7 @@ def record_robot(
             rid,
             live_url=live,
             blueprint=default_blueprint(
-                model.name, model.outputs, [("serial link counts", [LINK_STATS_ENTITY])]
+                model.name, model.outputs, [("serial link counts", [LINK_STATS])]
             ),
             model=model,
             context=context,
@@ -545,7 +549,7 @@ def record_robot(
                 },
                 "link": {
                     "protocol": "vdc serial v1 (docs/robot.md)",
-                    "stats": ",".join(LINK_STATS),
+                    "stats": ",".join(LINK_COUNTERS),
                     "announce": "received" if verified else "none (older firmware?)",
                 },
                 "provenance": {**package_versions(), **machine_info()},

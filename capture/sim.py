@@ -124,7 +124,6 @@ class SimSettings:
     overhead_fps: float = option(5.0, "overhead camera rate, Hz", type=positive_float)
 
     def to_config(self) -> SimConfig:
-
         if self.tf_schedule is not None:
             schedule = parse_schedule(self.tf_schedule)
             total = sum(d for _, d in schedule)

@@ -55,7 +55,7 @@ def detect(image: np.ndarray) -> dict[int, np.ndarray]:
     return {int(i): c.reshape(4, 2) for i, c in zip(ids.ravel(), corners, strict=True)}
 
 
-def calibrate(image: np.ndarray, layout: MarkerLayout) -> np.ndarray:
+def calibrate_homography(image: np.ndarray, layout: MarkerLayout) -> np.ndarray:
     """Homography (3, 3) from image pixels to arena metres, from the four corner markers.
 
     Raises ValueError naming the markers it could not see."""

@@ -507,3 +507,49 @@ def test_no_package_module_is_longer_than_the_limit() -> None:
         if lengths.get(name, 0) <= MODULE_MAX_LINES
     }
     assert not stale, f"remove from MODULE_LENGTH_EXCEPTIONS (now within the limit): {stale}"
+
+
+# The command lines' shared interface: each command line module has these, with one meaning.
+COMMAND_LINE_NAMES = {"PROG", "COMMANDS", "build_parser", "main"}
+
+
+def public_definitions(sources: dict[str, str]) -> dict[str, list[str]]:
+    """Public name (a top-level def, class or assignment without a leading underscore) -> the
+    modules that define it."""
+    defined: dict[str, list[str]] = {}
+    for module, source in sorted(sources.items()):
+        for node in ast.parse(source).body:
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+                names = [node.name]
+            elif isinstance(node, ast.Assign | ast.AnnAssign):
+                targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+                names = [t.id for t in targets if isinstance(t, ast.Name)]
+            else:
+                continue
+            for name in names:
+                if not name.startswith("_"):
+                    defined.setdefault(name, []).append(module)
+    return defined
+
+
+def twice_defined(sources: dict[str, str]) -> dict[str, list[str]]:
+    return {
+        name: modules
+        for name, modules in public_definitions(sources).items()
+        if len(modules) > 1
+        and not (name in COMMAND_LINE_NAMES and all(m.endswith(".cli") for m in modules))
+    }
+
+
+def test_no_public_name_is_defined_twice() -> None:
+    """One name, one meaning: a second definition of a public name is either the same thing
+    (import it from where it lives) or another thing (give it its own name)."""
+    assert not twice_defined(module_sources())
+
+
+def test_a_second_definition_is_found() -> None:
+    sources = {"analysis.stats": "def spearman(x, y):\n    return 0.0\n", "capture.cli": "PROG = 1"}
+    assert not twice_defined({**sources, "analysis.cli": "PROG = 2\n"})
+    assert twice_defined({**sources, "analysis.compare": "SPEARMAN = 1\nspearman = None\n"}) == {
+        "spearman": ["analysis.compare", "analysis.stats"]
+    }

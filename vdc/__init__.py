@@ -41,8 +41,8 @@ _API = {
     "RobotSettings": "capture.robot_capture",
     "record_robot": "capture.robot_capture",
     "CaptureOptions": "capture.run",
-    "CaptureSweepSettings": "capture.campaign",
-    "capture_sweep": "capture.campaign",
+    "CampaignSettings": "capture.campaign",
+    "campaign": "capture.campaign",
     # reading recordings
     "Recording": "analysis.recordings.reader",
     "load_recording": "analysis.recordings.loading",

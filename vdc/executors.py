@@ -12,7 +12,7 @@
 Tasks are module-level functions with small, picklable arguments (paths, not arrays) that
 write their own outputs and return a small dict. Both sides use
 this module: ``vdc-analyse batch`` and the closed-loop campaigns (``collision-study``,
-``reproduce``, ``vdc-capture sweep``).
+``reproduce``, ``vdc-capture campaign``).
 """
 
 from __future__ import annotations

@@ -85,7 +85,6 @@ class FrameBatcher:
         color_range: str = "auto",
         reopen: Callable[[], Reader] | None = None,
     ) -> None:
-
         self.reader, self.size, self.fps = reader, size, float(fps)
         self.batch_frames, self.repeat_tol, self.max_repeats = batch_frames, repeat_tol, max_repeats
         self._tag = reader.info.get("color_range_tag", reader.info["color_range"])
@@ -134,7 +133,6 @@ class FrameBatcher:
             close()
 
     def next_batch(self) -> FrameBatch | None:
-
         images, times, notes, native = [], [], [], []
         for small, t, note, row in self._it:
             images.append(small)

@@ -122,7 +122,6 @@ class Found:
 
 
 def _cache(folder: Path) -> Path:
-
     key = hashlib.sha1(str(folder.resolve()).encode()).hexdigest()[:12]
     return cache_dir() / "catalog" / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', folder.name)}-{key}"
 
@@ -218,7 +217,6 @@ def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
 
 
 def _write_summary_layer(recording_id: str, props: dict[str, Any], path: Path) -> None:
-
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + f".tmp-{os.getpid()}")
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
@@ -230,7 +228,6 @@ def _write_summary_layer(recording_id: str, props: dict[str, Any], path: Path) -
 
 
 def _read_summary(path: Path) -> dict[str, Any] | None:
-
     try:
         return Recording(path).properties().get(SUMMARY)
     except Exception:  # an older or damaged cache file: computed again
@@ -402,7 +399,6 @@ def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = N
 
 
 def _entities(path: Path) -> set[str]:
-
     return set(Recording(path).signals())
 
 

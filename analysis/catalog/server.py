@@ -136,7 +136,6 @@ def _require_free_port(host: str, port: int, flag: str) -> None:
 
 
 def _free_port(host: str) -> int:
-
     with socket.socket() as s:
         s.bind((host, 0))
         return int(s.getsockname()[1])

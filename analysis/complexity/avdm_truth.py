@@ -8,8 +8,8 @@ The protocol (``benchmarks/bench_avdm_truth.py`` runs it whole; the tests run on
 * the frames are made at a *video pitch* (320 px across 70°, 0.22 deg/px) and optionally go
   through H.264 (libx264, CRF 23, the codec's default quality); the *robot pitch* (99 px,
   0.71 deg/px) is the video frames area-resized as ``vdc-capture video`` resizes them;
-* each registered model (``VARIANTS``: ``avdm``, ``avdm-natural`` and the Hassenstein–Reichardt
-  correlator ``hrc``) and three of OpenCV's optic flows (``FLOW_READERS``: DIS, as
+* each registered model (``TRUTH_VARIANTS``: ``avdm``, ``avdm-natural`` and the Hassenstein–
+  Reichardt correlator ``hrc``) and three of OpenCV's optic flows (``FLOW_READERS``: DIS, as
   ``complexity``'s ``flow_dps`` computes it; Farnebäck; pyramidal Lucas–Kanade on a grid of
   points) read the speed; a flow reads the mean |horizontal flow| in deg/s; a cell's reading is
   the mean after the warm-up.
@@ -41,12 +41,12 @@ from avdm.stimuli import panned_image
 from vdc.recording import camera_model_context
 
 FOV_DEG = 70.0
-VIEW_FRACTION = 0.65  # the camera sees this share of the photograph's width
+TRUTH_VIEW_FRACTION = 0.65  # the camera sees this share of the photograph's width
 VIDEO_SIZE = (232, 320)  # (H, W): 0.22 deg/px, a small video's pitch at 70°
 ROBOT_SIZE = (72, 99)  # the robot camera's raster, 0.71 deg/px
 SPEEDS_DPS = (1.0, 2.0, 5.0, 10.0, 20.0, 40.0, 80.0, 160.0, 300.0)
 IMAGES = ("camera", "astronaut", "coffee", "chelsea", "rocket", "brick", "grass", "gravel")
-VARIANTS = ("avdm", "avdm-natural", "hrc")
+TRUTH_VARIANTS = ("avdm", "avdm-natural", "hrc")
 FLOW_READERS = ("dis", "farneback", "lk")
 
 
@@ -114,7 +114,7 @@ def _pan(image: str, omega_dps: float, direction: int, fps: float, n_frames: int
         photograph(image),
         size=VIDEO_SIZE,
         fov_deg=FOV_DEG,
-        image_deg=FOV_DEG / VIEW_FRACTION,
+        image_deg=FOV_DEG / TRUTH_VIEW_FRACTION,
         fps=fps,
         omega_dps=omega_dps,
         n_frames=n_frames,
@@ -193,9 +193,9 @@ def lk_speed_dps(frames: np.ndarray, fps: float, deg_per_px: float) -> np.ndarra
 FLOW_SPEED = {"dis": dis_speed_dps, "farneback": farneback_speed_dps, "lk": lk_speed_dps}
 
 
-def measure_cell(
+def measure_truth_cell(
     cell: Cell,
-    variants: Sequence[str] = VARIANTS,
+    variants: Sequence[str] = TRUTH_VARIANTS,
     n_frames: int = 45,
     warm: int = 20,
     flows: Sequence[str] = FLOW_READERS,
@@ -256,13 +256,13 @@ def protocol_cells(
 
 def run_protocol(
     cells: Sequence[Cell],
-    variants: Sequence[str] = VARIANTS,
+    variants: Sequence[str] = TRUTH_VARIANTS,
     progress: Callable[[], None] | None = None,
 ) -> pl.DataFrame:
     """Every cell measured: one row per (cell, reader)."""
     rows = []
     for c in cells:
-        rows.extend(measure_cell(c, variants))
+        rows.extend(measure_truth_cell(c, variants))
         if progress is not None:
             progress()
     return pl.DataFrame(rows)

@@ -48,9 +48,9 @@ from analysis.complexity.source_metrics import (
     complexity_task,
     fov_free,
     measured_settings,
+    metrics_present,
     parse_metrics,
     part_path,
-    present,
     rank_correlations,
 )
 from analysis.recordings.analysis_rrd import OUTPUT_MARKER, write_complexity_rrd
@@ -143,7 +143,6 @@ class ComplexitySettings:
     force: bool = option(False, "measure finished sources again")
 
     def __post_init__(self) -> None:
-
         require_angular_velocity(self.model, "complexity")
         parse_metrics(self.metrics)
         if self.flow_preset not in DIS_PRESETS:
@@ -376,7 +375,7 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
         },
         "raster": table["raster"][0],
     }  # fmt: skip
-    for m in present(table):
+    for m in metrics_present(table):
         v = table[m].drop_nulls().cast(pl.Float64)
         row[f"{m}_mean"] = float(v.mean()) if v.len() else None
         row[f"{m}_max"] = float(v.max()) if v.len() else None
@@ -543,8 +542,8 @@ def complexity(
     meta = {
         "settings": settings.measured(),
         "recordings": sorted(table["recording_id"].unique().to_list()),
-        "metrics": present(table),
-        "rasters": {m: RASTERS[m] for m in present(table)},
+        "metrics": metrics_present(table),
+        "rasters": {m: RASTERS[m] for m in metrics_present(table)},
         "raster_note": "model: the AVDM's working raster (70/99 deg per px); source: the "
         "native frames where the source has them, else the camera's raster (column raster)",
     }

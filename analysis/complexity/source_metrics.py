@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 import polars as pl
 
+from analysis.batch import PARTS
 from analysis.recordings.loading import load_recording
 from analysis.stats import spearman
 from avdm.registry import make_model
@@ -437,7 +438,6 @@ def with_p910_corrections(table: pl.DataFrame, fix: np.ndarray) -> pl.DataFrame:
     )
 
 
-PARTS = "parts"  # a collection's per-source tables: <out>/parts/<key>.parquet
 # the settings that say where and which sources run, not what their numbers are
 RUN_FIELDS = ("executor", "jobs", "scheduler", "shard", "force", "rrd")
 
@@ -508,7 +508,7 @@ def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
     })  # fmt: skip
 
 
-def present(df: pl.DataFrame, suffix: str = "") -> list[str]:
+def metrics_present(df: pl.DataFrame, suffix: str = "") -> list[str]:
     """The metrics (:data:`METRICS` order) a table has columns for (``m + suffix``)."""
     return [m for m in METRICS if m + suffix in df.columns]
 
@@ -516,7 +516,7 @@ def present(df: pl.DataFrame, suffix: str = "") -> list[str]:
 def normalised(df: pl.DataFrame) -> dict[str, np.ndarray]:
     """Each metric divided by its 99th percentile (so all share one axis)."""
     out = {}
-    for m in present(df):
+    for m in metrics_present(df):
         v = df[m].cast(pl.Float64).fill_null(np.nan).to_numpy()
         top = np.nanpercentile(v, 99) if np.isfinite(v).any() else np.nan
         out[m] = v / top if top and np.isfinite(top) and top > 0 else v * np.nan

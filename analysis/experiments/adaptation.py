@@ -105,7 +105,6 @@ class AdaptationSettings(ExecutorSettings):
         return add_overrides(self.detector, self.hand) if self.hand else self.detector
 
     def adaptive_allowed(self) -> bool:
-
         return CollisionConfig(detector=self.detector).base_detector == "lgmd-plus"
 
     def conditions(self) -> list[tuple[str, str, float | None, str | None]]:

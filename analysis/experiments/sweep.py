@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 
 from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model, make_params, require_angular_velocity
-from avdm.stimuli import grating, omega_true_dps, period_px_from_sf
+from avdm.stimuli import WAVEFORMS, grating, omega_true_dps, period_px_from_sf
 from vdc.cli_support import option, parse_size, positive_float
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
@@ -29,7 +29,6 @@ PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
 PAPER_TF_HZ = (1.0, 5.0, 50.0)  # columns: response vs SF
 DEFAULT_TFS_HZ = (1, 2, 3, 5, 7, 10, 15, 20, 30, 40, 50, 60, 75, 100, 125, 150)
 DEFAULT_SFS_UPC = (1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 35, 40, 45, 50)
-WAVEFORMS = ("sine", "square")
 OUTPUT_COLUMNS = ("omega_dps", "lambda_px", "motion", "contrast")
 
 

@@ -40,7 +40,7 @@ from vdc.recording import COMPLEXITY_ROOT
 from vdc.recording import FRAME_TIMELINE
 from vdc.recording import TIME_TIMELINE
 from analysis.complexity.source_metrics import normalised
-from analysis.complexity.source_metrics import present
+from analysis.complexity.source_metrics import metrics_present
 
 PROFILE_ROOT = "/profile"
 TIME_SCALE_M = 1.0  # the profile's time axis spans this height in the 3D view
@@ -212,7 +212,7 @@ def write_complexity_rrd(df: pl.DataFrame, recording_id: str, path: Path) -> Pat
             duration=np.rint(df["t_s"].to_numpy() * 1e9).astype("timedelta64[ns]"),
         ),
     ]
-    for m in present(df):
+    for m in metrics_present(df):
         entity = f"{COMPLEXITY_ROOT}/{m}"
         rec.log(entity, rr.SeriesLines(names=[f"{m} (normalised)"]), static=True)
         rec.send_columns(entity, indexes=idx, columns=rr.Scalars.columns(scalars=norm[m]))

@@ -477,7 +477,7 @@ def build_tables(
     return tables, meta
 
 
-def write_tables(
+def publish_tables(
     tables: dict[str, pl.DataFrame], out_dir: Path, meta: dict[str, Any]
 ) -> list[Path]:
     """Write each table to ``out_dir/<name>.parquet`` with ``meta`` in its metadata, as one set
@@ -537,5 +537,5 @@ def tables(
     notes = Notices(notice)
     recordings = expand_recordings(recordings, notes)
     built, meta = build_tables(recordings, settings.models or None, settings, progress, notes)
-    paths = write_tables(built, Path(out), meta) if out is not None else []
+    paths = publish_tables(built, Path(out), meta) if out is not None else []
     return TablesResult(built, meta, paths, list(notes))
