@@ -45,6 +45,7 @@ from analysis.recordings.recompute import (
 from analysis.recordings.segments import safe_key
 from avdm.registry import canonical_name, parse_model_spec
 from vdc.cli_support import option
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
 from vdc.folders import expand_recordings
 from vdc.parquet_io import read_metadata, write_parquet
@@ -73,9 +74,9 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
         i_s, n_s = text.split("/")
         i, n = int(i_s), int(n_s)
     except ValueError:
-        raise ValueError(f"--shard {text!r}: expected I/N, e.g. 0/4") from None
+        raise UserError(f"--shard {text!r}: expected I/N, e.g. 0/4") from None
     if not (n >= 1 and 0 <= i < n):
-        raise ValueError(f"--shard {text!r}: need 0 <= I < N")
+        raise UserError(f"--shard {text!r}: need 0 <= I < N")
     return i, n
 
 
@@ -100,7 +101,7 @@ class BatchSettings(SummarySettings):
         super().__post_init__()
         object.__setattr__(self, "models", tuple(self.models or ()))
         if not self.models:
-            raise ValueError("give at least one --model")
+            raise UserError("give at least one --model")
         for spec in self.models:
             parse_model_spec(spec)
         self.executor_settings()
@@ -281,11 +282,11 @@ def summarise_batch(out: str | Path) -> tuple[dict[str, pl.DataFrame], list[Path
     out = Path(out)
     done = sorted((out / PARTS).glob("recording_id=*/model=*/summary.parquet"))
     if not done:
-        raise ValueError(f"{str(out)!r} has no finished batch parts (run vdc-analyse batch)")
+        raise UserError(f"{str(out)!r} has no finished batch parts (run vdc-analyse batch)")
     for p in done:
         for part in (p, p.parent / "model_outputs.parquet", *p.parent.parent.glob("*.parquet")):
             if not readable_part(part):
-                raise ValueError(
+                raise UserError(
                     f"the batch part {str(part)!r} is damaged or missing: run the same "
                     "vdc-analyse batch again to recompute it"
                 )

@@ -33,6 +33,7 @@ from analysis.recordings.recompute import DistinctRecordings, SummarySettings, e
 from analysis.recordings.segments import safe_key
 from analysis.stats import Estimate, mean_ci, share_ci
 from vdc.cli_support import option
+from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from vdc.recording import APP_ID
 
@@ -56,16 +57,16 @@ class CollisionSettings:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.false_alarm_m) and self.false_alarm_m > 0):
-            raise ValueError(f"--false-alarm-m must be > 0, got {self.false_alarm_m}")
+            raise UserError(f"--false-alarm-m must be > 0, got {self.false_alarm_m}")
         if not (math.isfinite(self.bin_m) and 0.005 <= self.bin_m <= 0.2):
-            raise ValueError(f"--bin-m must be between 0.005 and 0.2 m, got {self.bin_m}")
+            raise UserError(f"--bin-m must be between 0.005 and 0.2 m, got {self.bin_m}")
 
 
 def require_collision_recording(loaded: LoadedRecording) -> None:
     """Raise ValueError unless the recording comes from collision mode."""
     run = loaded.props.get("run", {})
     if run.get("behaviour") != "collision" or "detector" not in loaded.props:
-        raise ValueError(
+        raise UserError(
             f"{str(loaded.rec.path)!r} is not a collision-mode recording (record one with "
             "`vdc-capture sim --behaviour collision`): it has no avoidance/crash events to study"
         )

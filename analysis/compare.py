@@ -26,6 +26,7 @@ from analysis.recordings.recompute import (
 from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model
 from vdc.cli_support import option
+from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
 
@@ -154,10 +155,10 @@ class CompareSettings(TablesSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         if len(self.models) < 2:
-            raise ValueError("compare needs at least two --model variants")
+            raise UserError("compare needs at least two --model variants")
         names = [canonical_name(m) for m in self.models]
         if len(set(names)) != len(names):
-            raise ValueError(f"the same variant is given twice: {', '.join(names)}")
+            raise UserError(f"the same variant is given twice: {', '.join(names)}")
 
 
 @dataclasses.dataclass

@@ -24,6 +24,7 @@ import numpy as np
 
 from avdm.calibration import CLUTTER_SEEDS, VIEW_FRACTION
 from avdm.calibration_store import cache_path, read_cached, write_cached
+from avdm.errors import ParameterError
 from avdm.hrc import Hrc, HrcParams, response_curve
 from avdm.stimuli import clutter_image
 from avdm.version import __version__
@@ -95,7 +96,7 @@ def fit_curve(speeds: np.ndarray, resp: np.ndarray, change: np.ndarray) -> dict[
 
     i_peak = int(np.argmax(resp))
     if resp[i_peak] <= 0:
-        raise ValueError("the hrc gave no positive response on the calibration clutter")
+        raise ParameterError("the hrc gave no positive response on the calibration clutter")
     use = (speeds <= 2.0 * speeds[i_peak]) & (resp > 0)
     v, y = speeds[use], np.log(resp[use])
 

@@ -31,6 +31,7 @@ from avdm.registry import make_params
 from capture.run import REPLACE_OUTPUT
 from capture.sim import SimSettings, record_sim
 from vdc.cli_support import option
+from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback, TaskOutcome, run_tasks
 from vdc.parquet_io import WroteFiles, write_parquet
 
@@ -58,9 +59,9 @@ def _convert(field: str, kind: str, text: str) -> Any:
         if base == "bool":
             if text.lower() in _TRUE | _FALSE:
                 return text.lower() in _TRUE
-            raise ValueError(text)
+            raise UserError(text)
     except ValueError:
-        raise ValueError(f"grid item {field}: {text!r} is not a {base}") from None
+        raise UserError(f"grid item {field}: {text!r} is not a {base}") from None
     return text
 
 
@@ -91,7 +92,7 @@ def _values(field: str, kind: str, text: str) -> list[Any]:
     if m and kind.startswith("int"):
         lo, hi = int(m[1]), int(m[2])
         if hi < lo:
-            raise ValueError(f"grid item {field}={text}: the range runs backwards")
+            raise UserError(f"grid item {field}={text}: the range runs backwards")
         return list(range(lo, hi + 1))
     # a TF schedule holds commas itself: give several schedules separated by ';'
     if field == "tf_schedule":
@@ -102,7 +103,7 @@ def _values(field: str, kind: str, text: str) -> list[Any]:
         parts = text.split(",")
     values = [_convert(field, kind, v) for v in parts if v.strip()]
     if not values:
-        raise ValueError(f"grid item {field}= has no value")
+        raise UserError(f"grid item {field}= has no value")
     return values
 
 
@@ -115,17 +116,17 @@ def parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
         name, sep, text = item.partition("=")
         field = name.strip().lstrip("-").replace("-", "_")
         if not sep:
-            raise ValueError(f"grid item {item!r}: expected FIELD=V1,V2,...")
+            raise UserError(f"grid item {item!r}: expected FIELD=V1,V2,...")
         if field not in types:
-            raise ValueError(
+            raise UserError(
                 f"grid item {item!r}: {field!r} is not a vdc-capture sim setting "
                 f"(one of {', '.join(types)})"
             )
         if field in grid:
-            raise ValueError(f"grid item {field} is given twice")
+            raise UserError(f"grid item {field} is given twice")
         grid[field] = _values(field, types[field], text)
     if not grid:
-        raise ValueError("the grid is empty: give items such as tf_hz=0,1,3 seed=1..3")
+        raise UserError("the grid is empty: give items such as tf_hz=0,1,3 seed=1..3")
     return grid
 
 
@@ -156,7 +157,7 @@ class CampaignSettings(ExecutorSettings):
         varied = {k: v for k, v in grid.items() if len(v) > 1}
         n_runs = math.prod(len(v) for v in varied.values())
         if n_runs > MAX_RUNS:
-            raise ValueError(
+            raise UserError(
                 f"the grid makes {n_runs:,} runs, more than {MAX_RUNS:,}: give fewer values "
                 "(or several sweeps)"
             )

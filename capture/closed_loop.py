@@ -30,6 +30,7 @@ from capture.config import CollisionConfig, SimConfig
 from capture.device import Batch, Event
 from capture.sim_robot import SimulatedRobot
 from vdc.arena_geometry import distance_ahead
+from vdc.errors import UserError
 
 FORWARD, AVOIDING, CRASH_TURN = 0, 1, 2
 CONTROLLER = "controller"  # on-board outputs of the decision itself
@@ -173,9 +174,9 @@ class ClosedLoopRobot(SimulatedRobot):
 
     def __init__(self, config: SimConfig, batch_size: int = 1000) -> None:
         if config.behaviour != "collision":
-            raise ValueError("ClosedLoopRobot needs behaviour='collision'")
+            raise UserError("ClosedLoopRobot needs behaviour='collision'")
         if config.arena.ring_enabled:
-            raise ValueError("the light ring must be off in collision mode (ring_enabled=False)")
+            raise UserError("the light ring must be off in collision mode (ring_enabled=False)")
         super().__init__(config, batch_size)
         ctx = config.camera.model_context()
         self._detector_spec = config.collision.detector_spec()

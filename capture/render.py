@@ -23,6 +23,7 @@ import numpy as np
 from capture.config import ArenaConfig, CameraConfig, WallConfig
 from capture.tracker import CORNER_IDS, ROBOT_ID, MarkerLayout, draw_marker
 from vdc.arena_geometry import ray_to_wall
+from vdc.errors import UserError
 
 TEXTURE_SUBCOLS = 4
 TEXTURE_SUBROWS = 2
@@ -228,7 +229,7 @@ class CameraRenderer:
         self._texture = None
         if wall.scene == "natural":
             if texture is None:
-                raise ValueError("a natural-scene wall needs its texture")
+                raise UserError("a natural-scene wall needs its texture")
             z = np.asarray(texture, dtype=np.float64)
             self._texture = np.ascontiguousarray(mean * (1.0 + wall.contrast * z), np.float32)
 

@@ -53,6 +53,7 @@ from capture.tracker import (
 )
 from vdc.blueprints import default_blueprint
 from vdc.cli_support import non_negative_float, option, positive_float
+from vdc.errors import UserError
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import LINK_STATS, camera_model_context
 
@@ -100,10 +101,10 @@ def open_camera(source: str) -> cv2.VideoCapture:
     else:
         is_pattern = "%" in source
         if not is_pattern and not Path(source).exists():
-            raise ValueError(f"overhead camera {source!r}: no such file or camera index")
+            raise UserError(f"overhead camera {source!r}: no such file or camera index")
         cap = cv2.VideoCapture(source, cv2.CAP_IMAGES if is_pattern else cv2.CAP_ANY)
     if not cap.isOpened():
-        raise ValueError(f"overhead camera {source!r} cannot be opened")
+        raise UserError(f"overhead camera {source!r} cannot be opened")
     return cap
 
 
@@ -140,7 +141,7 @@ class ColiasRobotDevice(DeviceContext):
         try:
             self.link.open()
         except (serial.SerialException, OSError) as exc:
-            raise ValueError(
+            raise UserError(
                 f"cannot open the robot's serial port {cfg.port!r}: "
                 f"{getattr(exc, 'strerror', None) or exc}"
             ) from None
@@ -179,17 +180,17 @@ class ColiasRobotDevice(DeviceContext):
             got = a.model  # a model this host does not know: it cannot be --model's
         robot_outputs = [f"{n} [{u}]" for n, u in a.outputs]
         if got != want:
-            raise ValueError(
+            raise UserError(
                 f"the robot runs {a.model} (outputs {', '.join(robot_outputs) or 'none'}), not "
                 f"--model {self.cfg.model}: give --model {a.model}, or load {want} on the robot"
             )
         try:
             host = make_model(want, **a.model_context())
         except ValueError as exc:
-            raise ValueError(f"the robot's announced camera does not fit {want}: {exc}") from None
+            raise UserError(f"the robot's announced camera does not fit {want}: {exc}") from None
         host_outputs = [f"{o.name} [{o.unit}]" for o in host.outputs]
         if robot_outputs != host_outputs:
-            raise ValueError(
+            raise UserError(
                 f"the robot's {a.model} sends {len(robot_outputs)} outputs "
                 f"({', '.join(robot_outputs) or 'none'}) but {want} has {len(host_outputs)} "
                 f"({', '.join(host_outputs)}): the robot's firmware and vdc disagree on the model"
@@ -380,7 +381,7 @@ class WallController:
         try:
             self.ser = serial.Serial(port, 115200, timeout=0.1)
         except (serial.SerialException, OSError) as exc:
-            raise ValueError(
+            raise UserError(
                 f"cannot open the wall controller port {port!r}: "
                 f"{getattr(exc, 'strerror', None) or exc}"
             ) from None
@@ -559,7 +560,7 @@ def record_robot(
         if settings.save_calibration:
             h = device.calibrate_tracker()
             if h is None:
-                raise ValueError("no overhead frame yet to calibrate from")
+                raise UserError("no overhead frame yet to calibrate from")
             save_calibration(h, Path(settings.save_calibration))
         if options.log is not None:
             options.log(

@@ -35,6 +35,7 @@ from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_ou
 from capture.sim_robot import SimulatedRobot, load_wall_image, ring_turn_event  # noqa: F401
 from vdc.blueprints import default_blueprint
 from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
+from vdc.errors import UserError
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import model_path
 
@@ -132,7 +133,7 @@ class SimSettings:
             duration = (self.minutes if self.minutes is not None else 30.0) * 60
             schedule = ((self.tf_hz, duration),)
         if self.image and self.scene != "natural":
-            raise ValueError("--image gives a natural scene: use it with --scene natural")
+            raise UserError("--image gives a natural scene: use it with --scene natural")
         wall = WallConfig(
             scene=self.scene,
             period_m=self.period_m,
@@ -158,7 +159,7 @@ class SimSettings:
                 ("--phase", bool(self.phase)),
             ):
                 if given:
-                    raise ValueError(f"{flag} belongs to --behaviour collision")
+                    raise UserError(f"{flag} belongs to --behaviour collision")
             col = CollisionConfig()
             model = self.model or "avdm"
         return SimConfig(

@@ -18,6 +18,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vdc.errors import UserError
+
 DICTIONARY = cv2.aruco.DICT_4X4_50
 CORNER_IDS = (0, 1, 2, 3)
 ROBOT_ID = 10
@@ -62,11 +64,11 @@ def calibrate_homography(image: np.ndarray, layout: MarkerLayout) -> np.ndarray:
     found = detect(image)
     missing = [i for i in CORNER_IDS if i not in found]
     if missing:
-        raise ValueError(f"overhead calibration: corner marker(s) {missing} not visible")
+        raise UserError(f"overhead calibration: corner marker(s) {missing} not visible")
     px = np.array([found[i].mean(axis=0) for i in CORNER_IDS], dtype=np.float64)
     h, _ = cv2.findHomography(px, layout.corner_centres(), 0)
     if h is None:
-        raise ValueError("overhead calibration: the corner markers give no homography")
+        raise UserError("overhead calibration: the corner markers give no homography")
     return h
 
 
@@ -79,9 +81,9 @@ def load_calibration(path: Path) -> np.ndarray:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
         h = np.array(data["homography_px_to_m"], dtype=np.float64)
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"cannot read the tracker calibration {str(path)!r}: {exc}") from None
+        raise UserError(f"cannot read the tracker calibration {str(path)!r}: {exc}") from None
     if h.shape != (3, 3):
-        raise ValueError(f"tracker calibration {str(path)!r} is not a 3x3 homography")
+        raise UserError(f"tracker calibration {str(path)!r} is not a 3x3 homography")
     return h
 
 

@@ -45,6 +45,7 @@ from vdc.cli_support import (
     option,
     positive_float,
 )
+from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
@@ -92,13 +93,13 @@ class VideoSettings:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.fov_deg) and 1.0 <= self.fov_deg <= 360.0):
-            raise ValueError(f"--fov-deg must be between 1 and 360 degrees, got {self.fov_deg:g}")
+            raise UserError(f"--fov-deg must be between 1 and 360 degrees, got {self.fov_deg:g}")
         if self.fps is not None and not (math.isfinite(self.fps) and 0 < self.fps <= 10_000):
-            raise ValueError(f"--fps must be between 0 and 10000 Hz, got {self.fps:g}")
+            raise UserError(f"--fps must be between 0 and 10000 Hz, got {self.fps:g}")
         if self.width is not None and not 8 <= self.width <= 4096:
-            raise ValueError(f"--width must be between 8 and 4096 px, got {self.width}")
+            raise UserError(f"--width must be between 8 and 4096 px, got {self.width}")
         if not (self.repeat_tol >= 0 and self.max_repeats >= 0):
-            raise ValueError("--repeat-tol and --max-repeats must be >= 0")
+            raise UserError("--repeat-tol and --max-repeats must be >= 0")
 
     @property
     def kind(self) -> str:
@@ -127,7 +128,7 @@ class VideoSource(DeviceContext):
         self.info = self.reader.info
         fps = settings.fps or self.info["nominal_fps"]
         if not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"{settings.source!r} states no frame rate: pass --fps")
+            raise UserError(f"{settings.source!r} states no frame rate: pass --fps")
         self.fps = float(fps)
         self._batches: FrameBatcher | None = None
         self._peeked: Batch | None = None
@@ -294,7 +295,7 @@ def record_video(
     path = options.output_path(out, rid)
     src = Path(settings.source)
     if settings.kind == "file" and path.exists() and src.exists() and src.samefile(path):
-        raise ValueError(
+        raise UserError(
             f"the output {str(path)!r} is the source video: writing it would destroy the input; "
             "choose another --out"
         )

@@ -340,21 +340,34 @@ def reference_page(
     return lines
 
 
+def raised_on_purpose(exc: BaseException) -> bool:
+    """Whether ``exc`` is an error vdc raises on purpose for bad input: a :class:`UserError` or
+    the models' ``avdm.errors.ParameterError`` (looked up, not imported: if avdm is not loaded,
+    no model raised one, and a command line's start stays light)."""
+    models = sys.modules.get("avdm.errors")
+    return isinstance(exc, UserError) or (
+        models is not None and isinstance(exc, models.ParameterError)
+    )
+
+
 def run_command_line(
     prog: str,
     parser: argparse.ArgumentParser,
     argv: Sequence[str] | None,
     stopped: dict[type[Exception], str] | None = None,
 ) -> int:
-    """Parse ``argv`` and run the sub-command. Bad input (:class:`UserError`, ValueError, an
-    OSError on a named file) is one line and exit status 2; an exception of a type in
-    ``stopped`` (work stopped with what was done kept) is its message plus that text, exit
-    1; Ctrl-C is exit 130. Anything else is a bug, and its traceback is kept."""
+    """Parse ``argv`` and run the sub-command. Bad input (the errors vdc raises on purpose:
+    :class:`UserError`, the models' :class:`ParameterError`; an OSError on a named file) is one
+    line and exit status 2; an exception of a type in ``stopped`` (work stopped with what was
+    done kept) is its message plus that text, exit 1; Ctrl-C is exit 130. Anything else (a
+    ValueError from NumPy or polars included) is a bug: its traceback is kept, exit 1."""
     args = parser.parse_args(argv)
     where = f"{prog} {args.command}"
     try:
         return int(args.func(args) or 0)
-    except (UserError, ValueError) as exc:
+    except ValueError as exc:
+        if not raised_on_purpose(exc):
+            raise
         fail(where, str(exc))
     except OSError as exc:
         fail(where, f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": "))

@@ -35,6 +35,7 @@ from typing import Any
 import cv2
 
 from vdc.cli_support import option
+from vdc.errors import UserError
 
 EXECUTORS = ("local", "dask")
 
@@ -84,14 +85,14 @@ class ExecutorSettings:
         if self.scheduler and self.executor == "local":
             object.__setattr__(self, "executor", "dask")  # a scheduler means Dask
         if self.executor not in EXECUTORS:
-            raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}")
+            raise UserError(f"--executor must be one of {', '.join(EXECUTORS)}")
         if self.jobs < 1:
-            raise ValueError(f"--jobs must be at least 1, got {self.jobs}")
+            raise UserError(f"--jobs must be at least 1, got {self.jobs}")
         if self.scheduler and not self.scheduler.startswith(("tcp://", "tls://", "inproc://")):
             path = Path(self.scheduler).expanduser()
             # Client(scheduler_file=...) neither expands ~ nor times out on a missing file
             if not path.is_file():
-                raise ValueError(
+                raise UserError(
                     f"--scheduler {self.scheduler!r} is neither tcp://HOST:PORT, tls://HOST:PORT "
                     "nor an existing scheduler file"
                 )
@@ -136,7 +137,7 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
     try:
         from distributed import Client, LocalCluster  # lazy: optional extra
     except ImportError:
-        raise ValueError(
+        raise UserError(
             '--executor dask needs the optional extra: pip install -e ".[dask]"'
         ) from None
     if settings.scheduler:
@@ -150,13 +151,13 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
             # unreachable or refused (OSError); tls:// without a client certificate in Dask's
             # configuration (TypeError "TLS expects a ssl_context")
             why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise ValueError(f"cannot reach the Dask scheduler {s}: {why}") from None
+            raise UserError(f"cannot reach the Dask scheduler {s}: {why}") from None
         try:
             # workers running another vdc, Python or pickle library would fail obscurely later
             client.get_versions(check=True)
         except Exception as exc:
             client.close()
-            raise ValueError(f"the Dask cluster at {s} does not match this client: {exc}") from None
+            raise UserError(f"the Dask cluster at {s} does not match this client: {exc}") from None
         return client, None
     # our own cluster: loopback only (a Dask port runs pickled code as the user), processes
     # with one thread each (the models' Python loops hold the GIL)
@@ -268,7 +269,7 @@ def check_shared_paths(client: Any, paths: Sequence[str | Path]) -> None:
         seen = client.run(os.path.exists, str(Path(path).resolve()))
         blind = sorted(w for w, ok in seen.items() if not ok)
         if blind:
-            raise ValueError(
+            raise UserError(
                 f"{len(blind)} of {len(seen)} Dask worker(s) cannot see {path} (e.g. {blind[0]}): "
                 "recordings and --out must be on a filesystem shared by every worker"
             )

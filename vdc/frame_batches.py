@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from avdm.true_time import repeats_of
+from vdc.errors import UserError
 from vdc.frame_metrics import NativeMeter, decide_ranges, full_range_p910
 from vdc.pipeline import pipelined
 from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
@@ -222,6 +223,6 @@ def working_camera(
 
     fps = float(info["nominal_fps"])
     if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"{source!r} states no frame rate")
+        raise UserError(f"{source!r} states no frame rate")
     h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
     return (h, w), fps, camera_model_context(w, h, fps, fov_deg)

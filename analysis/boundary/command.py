@@ -52,6 +52,7 @@ from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy
 from avdm.registry import add_overrides, parse_model_spec
 from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings
 from vdc.parquet_io import WroteFiles, write_tables
 
@@ -74,11 +75,11 @@ def number_list(text: Any, name: str, *, minimum: float = 0.0) -> list[float]:
     try:
         values = [float(v) for v in _items(text)]
     except ValueError:
-        raise ValueError(f"--{name} must be numbers separated by commas, got {text!r}") from None
+        raise UserError(f"--{name} must be numbers separated by commas, got {text!r}") from None
     if not values or not all(math.isfinite(v) and v >= minimum for v in values):
-        raise ValueError(f"--{name} must be numbers >= {minimum:g}, comma-separated: {text!r}")
+        raise UserError(f"--{name} must be numbers >= {minimum:g}, comma-separated: {text!r}")
     if len(set(values)) != len(values):
-        raise ValueError(f"--{name} repeats a value: {text!r}")
+        raise UserError(f"--{name} repeats a value: {text!r}")
     return values
 
 
@@ -86,7 +87,7 @@ def name_list(text: Any, name: str, allowed: Sequence[str]) -> list[str]:
     values = _items(text)
     bad = [v for v in values if v not in allowed]
     if not values or bad:
-        raise ValueError(f"--{name} must be some of {', '.join(allowed)}, got {text!r}")
+        raise UserError(f"--{name} must be some of {', '.join(allowed)}, got {text!r}")
     return values
 
 
@@ -177,22 +178,22 @@ class BoundarySettings(ExecutorSettings):
 
         parse_model_spec(self.detector)  # a bad detector or plug-in fails before anything runs
         if not 0 < self.target < 1:
-            raise ValueError(f"--target must be between 0 and 1, got {self.target}")
+            raise UserError(f"--target must be between 0 and 1, got {self.target}")
         if self.seeds < 1:
-            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
         if self.budget < 2 or (self.groups is not None and self.groups < 1):
-            raise ValueError("--budget must be at least 2 and --groups at least 1")
+            raise UserError("--budget must be at least 2 and --groups at least 1")
         if self.design == "adaptive" and (self.complexity != "profile" or self.labels):
-            raise ValueError("--design adaptive is for the arena with --complexity profile")
+            raise UserError("--design adaptive is for the arena with --complexity profile")
         if self.per_scene and self.design != "adaptive":
-            raise ValueError("--per-scene is for --design adaptive")
+            raise UserError("--per-scene is for --design adaptive")
         if self.labels is None:
             self.tf_bounds()
             self.grid_values()
             number_list(self.tf, "tf")
             name_list(self.scenes, "scenes", ("grating", "natural"))
             if self.per_scene and self.budget < 2 * len(self.scene_list()):
-                raise ValueError("--per-scene needs --budget of at least 2 runs per scene")
+                raise UserError("--per-scene needs --budget of at least 2 runs per scene")
 
             CollisionSettings(false_alarm_m=self.false_alarm_m)
 
@@ -211,9 +212,7 @@ class BoundarySettings(ExecutorSettings):
         except ValueError:
             bounds = (math.nan, math.nan)
         if not (0 <= bounds[0] < bounds[1] < math.inf):
-            raise ValueError(
-                f"--tf-range must be LO:HI Hz with 0 <= LO < HI, got {self.tf_range!r}"
-            )
+            raise UserError(f"--tf-range must be LO:HI Hz with 0 <= LO < HI, got {self.tf_range!r}")
         return bounds
 
     def scene_list(self) -> list[str]:

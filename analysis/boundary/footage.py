@@ -77,7 +77,7 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     frame, or clips that are not there."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"labels table {str(path)!r} not found")
+        raise UserError(f"labels table {str(path)!r} not found")
     try:
         df = (
             pl.read_parquet(path)
@@ -85,24 +85,24 @@ def read_labels(path: str | Path) -> pl.DataFrame:
             else pl.read_csv(path, infer_schema_length=None)
         )
     except Exception as exc:  # polars' many parse errors: one line for the user
-        raise ValueError(f"labels table {str(path)!r} cannot be read: {exc}") from None
+        raise UserError(f"labels table {str(path)!r} cannot be read: {exc}") from None
     missing = [c for c in LABEL_COLUMNS if c not in df.columns]
     if missing:
-        raise ValueError(
+        raise UserError(
             f"labels table {str(path)!r} has no column {', '.join(missing)} (it needs "
             f"{', '.join(LABEL_COLUMNS)}; collision_frame empty where nothing collides)"
         )
     if df.height == 0:
-        raise ValueError(f"labels table {str(path)!r} lists no clips")
+        raise UserError(f"labels table {str(path)!r} lists no clips")
     try:
         frames = df["collision_frame"].cast(pl.Float64)
     except pl.exceptions.PolarsError:
-        raise ValueError(
+        raise UserError(
             f"labels table {str(path)!r}: collision_frame must be a frame number or empty"
         ) from None
     bad = frames.drop_nulls().filter((frames.drop_nulls() < 0) | (frames.drop_nulls() % 1 != 0))
     if bad.len():
-        raise ValueError(
+        raise UserError(
             f"labels table {str(path)!r}: collision_frame must be a frame number >= 0 or "
             f"empty, got {bad[0]:g}"
         )
@@ -113,14 +113,14 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     )
     if df["clip"].n_unique() != df.height:
         dup = df.filter(pl.col("clip").is_duplicated())["clip"][0]
-        raise ValueError(f"labels table {str(path)!r} lists clip {dup!r} twice")
+        raise UserError(f"labels table {str(path)!r} lists clip {dup!r} twice")
     sources = [
         str((path.parent / c).resolve()) if not Path(c).is_absolute() else c for c in df["clip"]
     ]
     unknown = [c for c, s in zip(df["clip"], sources, strict=True) if not Path(s).exists()]
     if unknown:
         more = f" (and {len(unknown) - 3} more)" if len(unknown) > 3 else ""
-        raise ValueError(
+        raise UserError(
             f"labels table {str(path)!r} names clips that are not there: "
             f"{', '.join(unknown[:3])}{more} (clips are relative to the table's folder)"
         )
@@ -233,7 +233,7 @@ def clip_complexity(
     res = complexity(labels["source"].to_list(), s, out)
     if res.failures:
         src, err = res.failures[0]
-        raise ValueError(f"clip {src!r} cannot be measured: {err}")
+        raise UserError(f"clip {src!r} cannot be measured: {err}")
     ids = {
         _key(r["source"]): (r["recording_id"], r["fps"]) for r in res.clips.iter_rows(named=True)
     }
@@ -245,7 +245,7 @@ def clip_complexity(
             end = row["collision_frame"] - round(window_s * fps)
             frames = frames.filter(pl.col("frame") < end)
             if frames.height == 0:
-                raise ValueError(
+                raise UserError(
                     f"clip {row['clip']!r} has no frame before its alert window ({window_s:g} s "
                     "before the collision frame) to measure the scene on: use a longer clip or a "
                     "shorter --alert-window-s"
@@ -297,7 +297,7 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
     """Footage mode of :func:`analysis.experiments.boundary_campaign.boundary`."""
 
     if s.fov_deg is None:
-        raise ValueError("footage mode needs --fov-deg (the camera's horizontal field of view)")
+        raise UserError("footage mode needs --fov-deg (the camera's horizontal field of view)")
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {v: with_override(s.detector, s.param, v) for v in values}
     labels = read_labels(s.labels or "")

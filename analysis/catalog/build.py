@@ -149,7 +149,7 @@ def repair(path: Path, out: Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     good, count = complete_prefix(path)
     if count == 0:
-        raise ValueError("could not be repaired: no complete message")
+        raise UserError("could not be repaired: no complete message")
     prefix = out.with_name(out.name + f".prefix-{os.getpid()}")
     tmp = out.with_name(out.name + f".tmp-{os.getpid()}")
     try:
@@ -163,7 +163,7 @@ def repair(path: Path, out: Path) -> Path:
         )
         if proc.returncode != 0 or not tmp.exists():
             why = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
-            raise ValueError(f"could not be repaired: {why[0]}")
+            raise UserError(f"could not be repaired: {why[0]}")
         tmp.replace(out)
     finally:
         prefix.unlink(missing_ok=True)

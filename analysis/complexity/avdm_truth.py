@@ -38,6 +38,7 @@ from matplotlib.figure import Figure
 from analysis.stats import spearman
 from avdm.registry import make_model
 from avdm.stimuli import panned_image
+from vdc.errors import UserError
 from vdc.recording import camera_model_context
 
 FOV_DEG = 70.0
@@ -60,7 +61,7 @@ def photograph(name: str) -> np.ndarray:
     try:
         from skimage import data  # lazy: optional extra
     except ImportError:  # pragma: no cover - the test extra installs it
-        raise ValueError(
+        raise UserError(
             "the validation photographs need scikit-image: pip install scikit-image"
         ) from None
     img = getattr(data, name)()

@@ -65,6 +65,7 @@ from vdc.cli_support import (
     option,
     positive_float,
 )
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
 from vdc.folders import scan_folder
 from vdc.frame_metrics import (
@@ -146,16 +147,16 @@ class ComplexitySettings:
         require_angular_velocity(self.model, "complexity")
         parse_metrics(self.metrics)
         if self.flow_preset not in DIS_PRESETS:
-            raise ValueError(f"--flow-preset must be one of {', '.join(DIS_PRESETS)}")
+            raise UserError(f"--flow-preset must be one of {', '.join(DIS_PRESETS)}")
         if not 1 <= self.jpeg_quality <= 100:
-            raise ValueError(f"--jpeg-quality must be 1-100, got {self.jpeg_quality}")
+            raise UserError(f"--jpeg-quality must be 1-100, got {self.jpeg_quality}")
         if not 0 <= self.zlib_level <= 9:
-            raise ValueError(f"--zlib-level must be 0-9, got {self.zlib_level}")
+            raise UserError(f"--zlib-level must be 0-9, got {self.zlib_level}")
         if self.width is not None and not 8 <= self.width <= 4096:
-            raise ValueError(f"--width must be between 8 and 4096 px, got {self.width}")
+            raise UserError(f"--width must be between 8 and 4096 px, got {self.width}")
         if self.color_range not in RANGE_CHOICES:
             choices = ", ".join(RANGE_CHOICES)
-            raise ValueError(f"--color-range must be one of {choices}, got {self.color_range!r}")
+            raise UserError(f"--color-range must be one of {choices}, got {self.color_range!r}")
         self.executor_settings()
         parse_shard(self.shard)
 
@@ -200,10 +201,10 @@ def complexity_of_frames(
     settings = settings or ComplexitySettings()
     frames = np.asarray(frames)
     if frames.ndim != 3 or frames.dtype != np.uint8 or len(frames) == 0:
-        raise ValueError(f"frames must be a non-empty (T, H, W) uint8 array, got {frames.shape}")
+        raise UserError(f"frames must be a non-empty (T, H, W) uint8 array, got {frames.shape}")
     native = frames if native is None else np.asarray(native)
     if native.shape[0] != frames.shape[0]:
-        raise ValueError("native must hold one image per frame")
+        raise UserError("native must hold one image per frame")
     metrics = settings.metric_names()
     h, w = working_size(frames.shape[1], frames.shape[2], fov_deg, width)
     t = np.arange(len(frames)) / fps if t_s is None else np.asarray(t_s, np.float64)
@@ -246,7 +247,7 @@ def expand_sources(
             if note and notice is not None:
                 notice(note)
             if not scan.found:
-                raise ValueError(
+                raise UserError(
                     f"folder {item!r} holds no videos ({', '.join(VIDEO_SUFFIXES[:5])}, ...) "
                     f"or .rrd recordings{f' ({note})' if note else ''}"
                 )
@@ -259,10 +260,10 @@ def expand_sources(
             if not folder.is_dir() or not any(
                 f.name.startswith(head) for f in folder.iterdir() if f.is_file()
             ):
-                raise ValueError(f"image sequence {item!r} matches no files")
+                raise UserError(f"image sequence {item!r} matches no files")
             sources.append(item)
         else:
-            raise ValueError(f"{item!r}: no such file or folder")
+            raise UserError(f"{item!r}: no such file or folder")
     return sources
 
 
@@ -279,7 +280,7 @@ def without_fov(sources: Sequence[str], settings: ComplexitySettings) -> str | N
     if not left:
         return None
     if not kept and len(videos) == len(sources):
-        raise ValueError(
+        raise UserError(
             f"{', '.join(left)} need the camera's field of view: give --fov-deg (the horizontal "
             "field of view, degrees) or ask for pixel metrics (--metrics)"
         )
@@ -327,7 +328,7 @@ def plan_sources(
                 f"{derived[0]}): outputs, not sources"
             )
         if len(derived) == len(sources):
-            raise ValueError(
+            raise UserError(
                 f"{derived[0]!r} is an output of vdc-analyse complexity, not a source; give "
                 "the recording or video it measured"
             )
@@ -350,7 +351,7 @@ def plan_sources(
         tasks.append({"source": src, "recording_id": rid, "key": f"{name}-{digest[:8]}"})
     keys = [t["key"] for t in tasks]
     if len(set(keys)) != len(keys):  # the same name and content twice
-        raise ValueError("two sources are the same file; give each once")
+        raise UserError("two sources are the same file; give each once")
     return tasks
 
 
@@ -508,7 +509,7 @@ def complexity(
             parts.append(pl.read_parquet(path))
             infos.append(read_metadata(path)["info"])
     if not parts:
-        raise ValueError(
+        raise UserError(
             "no source could be measured: "
             + "; ".join(f"{src}: {err}" for src, err in failures[:3])
         )

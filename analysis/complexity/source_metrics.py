@@ -46,6 +46,7 @@ from analysis.recordings.loading import load_recording
 from analysis.stats import spearman
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, new_frame_rate, repeat_flags
+from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher
 from vdc.frame_metrics import NativeMeter, decide_ranges
 from vdc.parquet_io import write_parquet
@@ -116,7 +117,7 @@ def parse_metrics(text: str | tuple[str, ...] | list[str]) -> tuple[str, ...]:
         return METRICS
     unknown = [n for n in names if n not in METRICS]
     if unknown or not names:
-        raise ValueError(
+        raise UserError(
             f"--metrics: {'unknown ' + ', '.join(unknown) if unknown else 'no metric named'}; "
             f"choose from {', '.join(METRICS)} (or all)"
         )
@@ -263,7 +264,7 @@ def measure_recording(
     cam = loaded.props.get("camera", {})
     path = loaded.rec.path
     if not ctx or "width_px" not in cam:
-        raise ValueError(f"{str(path)!r} does not record its camera (fps, width, FOV)")
+        raise UserError(f"{str(path)!r} does not record its camera (fps, width, FOV)")
     # the container's rate (the camera's), from which the meter finds the new frames' rate
     # again: a video capture built its model at that rate (``model_context``), not at this one
     fps, deg_per_px = float(cam.get("fps", ctx["fps"])), float(ctx["deg_per_px"])
@@ -348,7 +349,7 @@ def measure_video(
     if settings.fov_deg is None:  # the pixel metrics only (complexity notes it, once)
         metrics = fov_free(metrics, settings.width)
         if not metrics:
-            raise ValueError(
+            raise UserError(
                 f"{source!r} is a video: give --fov-deg (the camera's horizontal field of view) "
                 "for the AVDM and the flow in deg/s, or ask for pixel metrics (--metrics)"
             )
@@ -359,7 +360,7 @@ def measure_video(
         info = reader.info
         fps = settings.fps or info["nominal_fps"]
         if not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"{source!r} states no frame rate: pass --fps")
+            raise UserError(f"{source!r} states no frame rate: pass --fps")
         size = ctx = meter = None
         if model_metrics:
             fov = settings.fov_deg or float(settings.width or 0) * ROBOT_DEG_PER_PX

@@ -51,6 +51,7 @@ from avdm.registry import add_overrides, parse_model_spec
 from capture.config import CollisionConfig, parse_schedule
 from capture.sim import SimSettings
 from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback
 from vdc.parquet_io import WroteFiles, table_set, write_tables
 
@@ -88,14 +89,14 @@ class AdaptationSettings(ExecutorSettings):
         super().__post_init__()
 
         if not self.policy:
-            raise ValueError("give the policy to test: --policy FILE (from vdc-analyse boundary)")
+            raise UserError("give the policy to test: --policy FILE (from vdc-analyse boundary)")
         load_policy(self.policy)  # a bad policy file fails before anything runs
         parse_model_spec(self.policy_spec())
         parse_model_spec(self.hand_spec())
         if not 0 < self.target < 1:
-            raise ValueError(f"--target must be between 0 and 1, got {self.target}")
+            raise UserError(f"--target must be between 0 and 1, got {self.target}")
         if self.seeds < 1:
-            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
         self.conditions()
 
     def policy_spec(self) -> str:
@@ -125,7 +126,7 @@ class AdaptationSettings(ExecutorSettings):
                 )
             )
         if not out:
-            raise ValueError("no held-out condition: give --tf and --scenes or --schedule")
+            raise UserError("no held-out condition: give --tf and --scenes or --schedule")
         return out
 
 

@@ -26,6 +26,7 @@ from analysis.experiments.captures import CaptureItem, check_detectors, run_capt
 from avdm.registry import add_overrides, parse_model_spec
 from capture.sim import SimSettings
 from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings
 
 SEEDS_HELP = (  # --seeds of the campaigns (collision-study, reproduce)
@@ -123,7 +124,7 @@ class CollisionStudySettings(ExecutorSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.seeds < 1:
-            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
         parse_model_spec(self.detector)  # a bad detector fails before anything runs
         if self.adjusted:
             parse_model_spec(add_overrides(self.detector, self.adjusted))

@@ -45,6 +45,7 @@ from analysis.predictors.statistics import MEASURES, arena_predictors
 from analysis.recordings.loading import load_recording
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel
+from vdc.errors import UserError
 from vdc.executors import Feedback, run_tasks_or_raise
 from vdc.frame_metrics import NativeMeter
 from vdc.parquet_io import table_set
@@ -105,7 +106,7 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
     loaded = load_recording(path)
     ctx = loaded.camera_context()
     if not ctx:
-        raise ValueError(f"{str(path)!r} does not record its camera")
+        raise UserError(f"{str(path)!r} does not record its camera")
     fps, deg_per_px = float(ctx["fps"]), float(ctx["deg_per_px"])
     timing = loaded.frames.select("frame", "t_s", "repeat", "turning")
     natural = TrueTimeModel(make_model("avdm-natural", **ctx))
@@ -232,7 +233,7 @@ def predictors_for_folder(
     folder = Path(folder)
     meta = settings_meta(folder)
     if meta.get("labels"):
-        raise ValueError(
+        raise UserError(
             f"{str(folder)!r} is a footage boundary: its predictors are written by the run"
         )
     fields = {f.name for f in dataclasses.fields(BoundarySettings)}
@@ -244,7 +245,7 @@ def predictors_for_folder(
     items = [(p, cols) for _, _, p, cols in profiling_items(s, folder / "recordings")]
     missing = [str(p) for p, _ in items if not p.exists()]
     if missing:
-        raise ValueError(
+        raise UserError(
             f"{len(missing)} profiling run(s) are missing (e.g. {missing[0]}): the predictors "
             "need the grid's profiling runs (--complexity profile)"
         )
@@ -295,7 +296,7 @@ def predictors(source: str | Path | Any) -> Any:
     else:
         folder = Path(source)
     if not folder.is_dir():
-        raise ValueError(f"{str(folder)!r} is not a boundary output folder")
+        raise UserError(f"{str(folder)!r} is not a boundary output folder")
     pred = folder / "predictors.parquet"
     if not pred.exists():
         return predictors_for_folder(folder)

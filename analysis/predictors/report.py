@@ -16,6 +16,7 @@ import polars as pl
 import pyarrow.parquet as pq
 from matplotlib.figure import Figure
 
+from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles, write_parquet
 
 
@@ -208,7 +209,7 @@ def settings_meta(folder: Path) -> dict[str, Any]:
             raw = kv.get(b"vdc.settings")
             if raw:
                 return json.loads(raw)
-    raise ValueError(f"{str(folder)!r} holds no boundary tables (boundary_runs.parquet)")
+    raise UserError(f"{str(folder)!r} holds no boundary tables (boundary_runs.parquet)")
 
 
 Log = Callable[[str], None]

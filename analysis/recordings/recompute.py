@@ -43,6 +43,7 @@ from vdc.cli_support import API_ONLY, non_negative_int, option, positive_float
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from avdm.registry import check_detector
 from vdc.folders import expand_recordings
+from vdc.errors import UserError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,10 +88,10 @@ class SummarySettings:
         for name in ("threshold_dps", "near_wall_m", "centre_m", "turn_threshold_dps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name}={v!r} must be a number >= 0")
+                raise UserError(f"{name}={v!r} must be a number >= 0")
         for name in ("warmup_frames", "turn_hold_frames"):
             if getattr(self, name) < 0:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 0")
+                raise UserError(f"{name}={getattr(self, name)} must be >= 0")
 
     @property
     def motion(self) -> str:
@@ -234,7 +235,7 @@ def primary_output(outputs_df: pl.DataFrame) -> str:
         if c not in NON_OUTPUT_COLUMNS and outputs_df[c].null_count() < outputs_df.height
     ]
     if not cols:
-        raise ValueError("no model output columns")
+        raise UserError("no model output columns")
     return primary_output_name(cols)
 
 
@@ -303,7 +304,7 @@ def frames_in_statistics(
     ``motion`` overrides the settings: "all", "straight" or "turning" frames."""
     motion = motion or s.motion
     if motion not in MOTIONS:
-        raise ValueError(f"motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
+        raise UserError(f"motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
     df = df.filter(pl.col("frame") >= s.warmup_frames)
     if motion == "all":
         return df
