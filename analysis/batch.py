@@ -48,7 +48,7 @@ from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
 from vdc.folders import expand_recordings
-from vdc.parquet_io import read_metadata, write_parquet
+from vdc.parquet_io import WroteFiles, read_metadata, write_parquet
 
 PARTS = "parts"
 
@@ -176,7 +176,7 @@ def analyse_task(path: str, spec: str, out: str, settings: dict[str, Any], force
 
 
 @dataclasses.dataclass
-class BatchResult:
+class BatchResult(WroteFiles):
     """What a batch did: tasks run, skipped and failed (with their errors), and the tables."""
 
     planned: int  # tasks in this shard

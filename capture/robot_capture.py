@@ -54,6 +54,7 @@ from capture.tracker import (
 from vdc.blueprints import default_blueprint
 from vdc.cli_support import non_negative_float, option, positive_float
 from vdc.errors import UserError
+from vdc.parquet_io import WroteFiles
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import LINK_STATS, camera_model_context
 
@@ -445,12 +446,18 @@ class RobotSettings:
         return WallConfig(tf_schedule=schedule, period_m=self.period_m, scene=self.scene)
 
 
-@dataclasses.dataclass
-class RobotRecordResult:
-    """A robot recording and the serial link's counts."""
+@dataclasses.dataclass(kw_only=True)
+class RobotRecordResult(WroteFiles):
+    """A robot recording and the serial link's counts; ``paths``: the recording, and the
+    tracker's calibration when it was saved."""
 
     record: RecordResult
     link_stats: dict[str, int]
+    calibration_file: Path | None = None
+
+    @property
+    def paths(self) -> list[Path]:  # type: ignore[override]
+        return [self.record.path, *([self.calibration_file] if self.calibration_file else [])]
 
 
 def record_robot(
@@ -569,4 +576,8 @@ def record_robot(
         result = run_capture(device, None, recorder, total_frames=None, progress=options.progress)
     finally:
         finish_output(claim, recorder)
-    return RobotRecordResult(RecordResult.of(path, rid, result, None), device.link_stats())
+    return RobotRecordResult(
+        record=RecordResult.of(path, rid, result, None),
+        link_stats=device.link_stats(),
+        calibration_file=Path(settings.save_calibration) if settings.save_calibration else None,
+    )

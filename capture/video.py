@@ -47,6 +47,7 @@ from vdc.cli_support import (
 )
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher
+from vdc.parquet_io import WroteFiles
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 from vdc.sources import (
@@ -145,8 +146,8 @@ class VideoSource(DeviceContext):
         if self._batches is None:
             s = self.settings
             self._batches = FrameBatcher(
-                self.reader, self.working_size(), self.fps, s.batch_frames, s.repeat_tol,
-                s.max_repeats,
+                self.reader, self.working_size(), self.fps, batch_frames=s.batch_frames,
+                repeat_tol=s.repeat_tol, max_repeats=s.max_repeats,
             )  # fmt: skip
 
     @property
@@ -239,8 +240,8 @@ class VideoSource(DeviceContext):
         self.reader.close()
 
 
-@dataclasses.dataclass
-class VideoRecordResult:
+@dataclasses.dataclass(kw_only=True)
+class VideoRecordResult(WroteFiles):
     """A video recording, with what was found about the source's frames."""
 
     record: RecordResult
@@ -255,6 +256,11 @@ class VideoRecordResult:
     # those of them lost after the last frame read (counted in ``dropped``; None: unknown)
     container_frames: int | None = None
     lost_after_last: int | None = None
+
+    @property
+    def paths(self) -> list[Path]:  # type: ignore[override]
+        """The files it wrote: the recording (a calibration it fitted is a per-user cache)."""
+        return [self.record.path]
 
 
 def recording_id(settings: VideoSettings, out: str | Path | None = None) -> str:
@@ -400,14 +406,14 @@ def record_video(
         # the frames end well before the duration the header states: the file was cut
         error = ends["cut_note"]
     return VideoRecordResult(
-        RecordResult.of(path, rid, result, total),
-        info,
-        device.repeats_total,
-        ends["dropped_frames"],
-        error,
-        cal,
-        device.reader.problems,
-        device.reader.first_problem,
-        ends["container_frames"],
-        ends["lost_after_last"],
+        record=RecordResult.of(path, rid, result, total),
+        info=info,
+        repeats=device.repeats_total,
+        dropped=ends["dropped_frames"],
+        decode_error=error,
+        calibration=cal,
+        lost=device.reader.problems,
+        first_loss=device.reader.first_problem,
+        container_frames=ends["container_frames"],
+        lost_after_last=ends["lost_after_last"],
     )

@@ -77,6 +77,7 @@ class FrameBatcher:
         reader: Reader,
         size: tuple[int, int] | None,
         fps: float,
+        *,
         batch_frames: int = 128,
         repeat_tol: float = 0.5,
         max_repeats: int = 3,

@@ -154,7 +154,9 @@ def detector_alerts(
         model = make_model(spec, **ctx)
         require_alert(model)
         video = ComplexitySettings  # the repeat rules vdc-capture video reads sources with
-        batches = FrameBatcher(reader, shape, fps, 128, video.repeat_tol, video.max_repeats)
+        batches = FrameBatcher(
+            reader, shape, fps, repeat_tol=video.repeat_tol, max_repeats=video.max_repeats
+        )
         frames, alerts = [], []
         while (fb := batches.next_batch()) is not None:
             frames.append(fb.frame)

@@ -368,8 +368,9 @@ def measure_video(
             ctx = camera_model_context(size[1], size[0], fps, fov)
         native = tuple(m for m in NATIVE_METRICS if m in metrics)
         batches = FrameBatcher(
-            reader, size, fps, 128, settings.repeat_tol, settings.max_repeats, native,
-            usable_threads(), settings.jpeg_quality, settings.color_range,
+            reader, size, fps, batch_frames=128, repeat_tol=settings.repeat_tol,
+            max_repeats=settings.max_repeats, metrics=native, threads=usable_threads(),
+            jpeg_quality=settings.jpeg_quality, color_range=settings.color_range,
             # a file or image sequence can be read again (a camera cannot): no second SI/TI
             # pass for the range decision (vdc.frame_batches)
             reopen=None if info["kind"] == "camera" else lambda: open_reader(source, settings.fps),

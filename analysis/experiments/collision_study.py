@@ -28,6 +28,7 @@ from capture.sim import SimSettings
 from vdc.cli_support import non_negative_int, option, positive_float
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings
+from vdc.parquet_io import WroteFiles
 
 SEEDS_HELP = (  # --seeds of the campaigns (collision-study, reproduce)
     "runs per condition, seeds --seed, --seed+1, ...: every figure is given as a mean with its "
@@ -132,7 +133,7 @@ class CollisionStudySettings(ExecutorSettings):
 
 
 @dataclasses.dataclass
-class CollisionStudyResult:
+class CollisionStudyResult(WroteFiles):
     summary: pl.DataFrame  # one row per (phase, seed)
     phases: pl.DataFrame  # one row per phase: means and 95 % intervals across seeds
     markdown: str  # the per-phase and per-run tables beside the paper's numbers

@@ -46,7 +46,9 @@ def clip_frames_task(source: str, specs: dict[str, str], fov_deg: float) -> dict
         paper = TrueTimeModel(make_model("avdm", **ctx))
         detectors = {k: make_model(spec, **ctx) for k, spec in specs.items()}
         video = ComplexitySettings
-        batches = FrameBatcher(reader, shape, fps, 128, video.repeat_tol, video.max_repeats)
+        batches = FrameBatcher(
+            reader, shape, fps, repeat_tol=video.repeat_tol, max_repeats=video.max_repeats
+        )
         out: dict[str, list] = {"frame": [], "avdm": []} | {k: [] for k in specs}
         while (fb := batches.next_batch()) is not None:
             out["frame"] += fb.frame.tolist()
