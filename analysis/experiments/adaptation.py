@@ -44,7 +44,7 @@ from analysis.boundary.command import (
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.experiments.adaptive import in_fitted_range
 from analysis.experiments.boundary_campaign import run_grid
-from analysis.experiments.captures import check_detectors
+from analysis.experiments.captures import RunItem, check_detectors
 from analysis.stats import mean_ci
 from avdm.policy import load_policy
 from avdm.registry import add_overrides, parse_model_spec
@@ -130,7 +130,7 @@ class AdaptationSettings(ExecutorSettings):
         return out
 
 
-def adaptation_items(s: AdaptationSettings, folder: Path) -> list[tuple[str, Any, Path, dict]]:
+def adaptation_items(s: AdaptationSettings, folder: Path) -> list[RunItem]:
     """One closed-loop run per (condition, controller, seed)."""
 
     controllers = [c for c in CONTROLLERS if c != "adaptive" or s.adaptive_allowed()]
@@ -157,14 +157,8 @@ def adaptation_items(s: AdaptationSettings, folder: Path) -> list[tuple[str, Any
                     adaptive_gain=s.adaptive_gain,
                 )
                 cols = {"condition": cond, "controller": ctrl, "seed": seed}
-                items.append(
-                    (
-                        f"{cond}-{ctrl}-seed{seed}",
-                        settings,
-                        folder / cond / ctrl / f"seed{seed}.rrd",
-                        cols,
-                    )
-                )
+                path = folder / cond / ctrl / f"seed{seed}.rrd"
+                items.append(RunItem(f"{cond}-{ctrl}-seed{seed}", settings, path, cols))
     return items
 
 
@@ -246,7 +240,7 @@ def adaptation(
         feedback.log(f"note: {n}")
     items = adaptation_items(s, out / "recordings")
 
-    check_detectors(st.to_config() for _, st, _, _ in items)  # one line before any run
+    check_detectors(it.settings.to_config() for it in items)  # one line before any run
     feedback.log(f"adaptation: {len(s.conditions())} held-out condition(s), {len(items)} run(s)")
     runs = run_grid(items, "collision", s, s.false_alarm_m, feedback)
     complexity = condition_complexity(runs, "online_dps")

@@ -59,7 +59,7 @@ from analysis.boundary.fit import (
     tf_to_dps,
     with_fit,
 )
-from analysis.experiments.captures import collision_run_item
+from analysis.experiments.captures import RunItem, collision_run_item
 from capture.sim import SimSettings
 from vdc.executors import Feedback
 from vdc.parquet_io import table_set
@@ -357,7 +357,7 @@ def design_runs_per_scene(
     return [r for key in keys for r in rows[key]], fits
 
 
-def profile_runs(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+def profile_runs(s: BoundarySettings, folder: Path) -> list[RunItem]:
     """The profiling runs: per scene, ``PROFILE_POINTS`` TFs over the range, seed ``--seed``."""
 
     lo, hi = s.tf_bounds()
@@ -371,13 +371,11 @@ def profile_runs(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path
             )
             cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": s.seed}
             path = folder / "profile" / cond / f"seed{s.seed}.rrd"
-            items.append((f"profile-{cond}-seed{s.seed}", settings, path, cols))
+            items.append(RunItem(f"profile-{cond}-seed{s.seed}", settings, path, cols))
     return items
 
 
-def run_items(
-    s: BoundarySettings, placed: list[dict[str, Any]], folder: Path
-) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+def run_items(s: BoundarySettings, placed: list[dict[str, Any]], folder: Path) -> list[RunItem]:
     """Closed-loop runs for the placed (value, scene, TF, seed)s, as the grid records them."""
 
     return [

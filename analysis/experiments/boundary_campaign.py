@@ -31,6 +31,7 @@ from analysis.boundary.fit import grid_fits, with_fit
 from analysis.boundary.footage import footage_boundary
 from analysis.experiments.adaptive import adaptive_boundary
 from analysis.experiments.captures import (
+    RunItem,
     capture_is_done,
     check_detectors,
     collision_run_item,
@@ -85,7 +86,7 @@ def record_and_measure(
 
 
 def _record_all(
-    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
+    items: Sequence[RunItem],
     kind: str,
     executor: ExecutorSettings,
     false_alarm_m: float,
@@ -96,21 +97,22 @@ def _record_all(
     order, ``columns`` first."""
 
     # a detector that cannot be one: one line before the first run, not one failure per run
-    check_detectors(settings.to_config() for _, settings, _, _ in items)
+    check_detectors(it.settings.to_config() for it in items)
     tasks = []
-    for key, settings, path, _ in items:
-        settings.to_config()  # a bad configuration fails before any process starts
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tasks.append((key, (key, settings, str(path), kind, false_alarm_m, measure_every)))
+    for it in items:
+        it.settings.to_config()  # a bad configuration fails before any process starts
+        it.path.parent.mkdir(parents=True, exist_ok=True)
+        task = (it.key, it.settings, str(it.path), kind, false_alarm_m, measure_every)
+        tasks.append((it.key, task))
     results = run_tasks_or_raise(
         record_and_measure,
         tasks,
         executor.executor_settings(),
         "run",
         feedback,
-        shared_paths=[items[0][2].parent] if items else [],
+        shared_paths=[items[0].path.parent] if items else [],
     )
-    rows = [{**cols, **results[key]} for key, _, _, cols in items if key in results]
+    rows = [{**it.columns, **results[it.key]} for it in items if it.key in results]
     reused = sum(bool(r.get("reused")) for r in rows)
     if reused:
         feedback.log(f"reused {reused} of {len(items)} {kind} run(s) that an earlier run finished")
@@ -118,7 +120,7 @@ def _record_all(
 
 
 def run_grid(
-    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
+    items: Sequence[RunItem],
     kind: str,
     executor: ExecutorSettings,
     false_alarm_m: float,
@@ -132,7 +134,7 @@ def run_grid(
 
 
 def run_profiles(
-    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
+    items: Sequence[RunItem],
     executor: ExecutorSettings,
     feedback: Feedback,
     measure_every: int = 0,
@@ -144,7 +146,7 @@ def run_profiles(
     got = {r["key"]: r.pop("measures") for r in rows if "measures" in r}
     measures = None
     if measure_every > 0:
-        measures = measures_table([(key, cols) for key, _, _, cols in items], got)
+        measures = measures_table([(it.key, it.columns) for it in items], got)
     return pl.DataFrame(rows).sort("key"), measures
 
 
@@ -223,7 +225,7 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
     items = grid_items(s, rec)
     prof = profiling_items(s, rec) if s.complexity == "profile" else []
 
-    check_detectors(settings.to_config() for _, settings, _, _ in items[:1])  # before a word
+    check_detectors(it.settings.to_config() for it in items[:1])  # before a word
     feedback.log(
         f"boundary of {s.detector} over {s.param} = {list(s.grid_values())}: {len(s.conditions())} "
         f"condition(s) x {len(s.grid_values())} value(s) x {s.seeds} seed(s) of "
@@ -231,7 +233,7 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
         + (f", plus {len(prof)} profiling run(s)" if prof else "")
     )
     runs = run_grid(items, "collision", s, s.false_alarm_m, feedback)
-    require_evidence(runs, None, s, items[0][1])  # never a verdict from no evidence
+    require_evidence(runs, None, s, items[0].settings)  # never a verdict from no evidence
     if prof:
         # every complexity measure of a profiling run, by the worker that just recorded it
         every = 0 if s.no_predictors else EVERY
@@ -240,7 +242,7 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
     else:
         profiles = measures = None
         complexity = condition_complexity(runs, "online_dps")
-    require_evidence(runs, complexity, s, items[0][1])
+    require_evidence(runs, complexity, s, items[0].settings)
     conditions = condition_statistics(runs, complexity, ["condition", s.param])
     fitted, fits = grid_fits(runs, complexity, s.param, s.target)
     bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "grid")

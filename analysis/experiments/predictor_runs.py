@@ -242,7 +242,7 @@ def predictors_for_folder(
     if executor is not None:
         s = dataclasses.replace(s, **executor)
     runs = pl.read_parquet(folder / "boundary_runs.parquet")
-    items = [(p, cols) for _, _, p, cols in profiling_items(s, folder / "recordings")]
+    items = [(it.path, it.columns) for it in profiling_items(s, folder / "recordings")]
     missing = [str(p) for p, _ in items if not p.exists()]
     if missing:
         raise UserError(

@@ -101,7 +101,7 @@ def fake_run_grid(rng: np.random.Generator):
 
     def run_grid(items: list, kind: str, *_: Any) -> pl.DataFrame:
         rows = []
-        for _key, _settings, _path, cols in items:
+        for cols in (it.columns for it in items):
             if kind == "profile":
                 dps = float(np.interp(cols["tf_hz"], *PROFILE[cols["scene"]]))
                 rows.append(cols | {"profile_dps": dps})
