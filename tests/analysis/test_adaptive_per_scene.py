@@ -57,7 +57,7 @@ def test_each_scene_gets_its_own_runs_and_interval_around_its_own_crossing() -> 
     rows, fits = design_runs_per_scene(
         [45.0], ["grating", "natural"], profile, (0.0, 3.0),
         lambda placed: simulated(rng, placed, dip=True),
-        DesignSettings(target=TARGET, budget=16, precision_dps=0.5, batch=2, seed=1),  # 0.5: more runs
+        DesignSettings(target=TARGET, budget=16, precision_dps=0.5, batch=2, seed=1),  # 0.5: many
     )  # fmt: skip
     assert set(fits) == {(45.0, "grating"), (45.0, "natural")}
     assert len(rows) <= 16 and len({r["seed"] for r in rows}) == len(rows)
