@@ -31,6 +31,8 @@ import importlib
 from importlib.metadata import version as _version
 from typing import Any
 
+from vdc.lazy import api_stub as _api_stub
+
 # name -> module that defines it
 _API = {
     # capture
@@ -118,3 +120,9 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return sorted([*globals(), *_API, *_MODULES])
+
+
+def _stub() -> str:
+    """The text of ``vdc/__init__.pyi`` (``vdc.lazy.api_stub``): regenerate it with
+    ``python -c 'import vdc; open("vdc/__init__.pyi", "w").write(vdc._stub())'``."""
+    return _api_stub(_API, _RENAMED, _MODULES, "__version__: str")
