@@ -1,0 +1,116 @@
+"""What the whole dataset decides about each episode: blur against the camera's own
+sharpness, the camera's shift against its reference view, and the flags with their
+thresholds (docs/dataset.md says why each is where it is)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import cv2
+import numpy as np
+import polars as pl
+
+# flag -> (column, threshold, unit, meaning); an episode is flagged when |value| >= threshold
+FLAGS: dict[str, tuple[str, float, str, str]] = {
+    "frozen": ("frozen_longest_s", 0.2, "s", "the image stood still while the state moved"),
+    "dropped": ("dropped", 1, "frames", "frames missing from the video's times"),
+    "drift": ("drift_abs_ms", 20.0, "ms", "the video's clock and the data's disagree"),
+    "moved": ("shift_px", 2.0, "px", "the camera moved against its reference view"),
+    "moved_within": ("shift_within_px", 2.0, "px", "the camera moved during the episode"),
+    "lag": ("lag_abs_ms", 50.0, "ms", "the camera's motion lags the state's"),
+    "idle": ("idle_head_s", 0.5, "s", "nothing moves at the start"),
+    "idle_tail": ("idle_tail_s", 0.5, "s", "nothing moves at the end"),
+    "blurred": ("blurred_share", 0.5, "share", "most frames far less sharp than the camera's"),
+    "underexposed": ("underexposed_share", 0.5, "share", "most frames clipped dark"),
+    "overexposed": ("overexposed_share", 0.5, "share", "most frames clipped bright"),
+    "short": ("frames_missing", 1, "frames", "fewer frames decoded than the episode states"),
+}
+# a frame is blurred when its sharpness (variance of the Laplacian) is below this share of the
+# camera's median over the dataset: a focus or motion blur of 2 px divides it by 10 or more,
+# while a clean episode's frames stay within a factor of 2 of the median
+BLUR_SHARE_OF_MEDIAN = 0.3
+PRE_BLUR_PX = 1.5  # sigma of the views' common blur before their shift is measured
+
+
+def phase_shift(ref: np.ndarray, img: np.ndarray) -> tuple[float, float]:
+    """(dx, dy) px that moves ``ref`` onto ``img`` (phase correlation, Hanning window)."""
+    if ref.shape != img.shape:
+        return math.nan, math.nan
+    win = cv2.createHanningWindow((ref.shape[1], ref.shape[0]), cv2.CV_32F)
+    # both blurred alike first: phase correlation whitens the spectrum, so a blurred or
+    # heavily compressed view's empty high frequencies (codec noise) would vote as loudly as
+    # the scene's structure; a common blur of PRE_BLUR_PX leaves only the structure
+    a = cv2.GaussianBlur(ref, (0, 0), PRE_BLUR_PX)
+    b = cv2.GaussianBlur(img, (0, 0), PRE_BLUR_PX)
+    (dx, dy), _ = cv2.phaseCorrelate(a, b, win)
+    return float(dx), float(dy)
+
+
+def finish(
+    rows: list[dict[str, Any]],
+    frames: pl.DataFrame,
+    views: dict[tuple[int, str], list[np.ndarray]],
+    widths: dict[str, int],
+    fov_deg: float | None,
+) -> tuple[pl.DataFrame, pl.DataFrame]:
+    """(episodes, frames) with the dataset's measures and the flags added: ``blurred`` per
+    frame and ``blurred_share``; ``shift_px``/``shift_deg`` of each episode's first view
+    against the camera's reference view (its first episode's first), ``shift_within_px``/
+    ``_deg`` of its last view against its first; ``flags`` (comma-separated names of
+    :data:`FLAGS`) and ``flag_count``. ``widths``: each camera's frame width (px) at which
+    the views' shifts are stated."""
+    med = frames.group_by("camera").agg(pl.col("sharpness").median().alias("_med"))
+    frames = (
+        frames.join(med, on="camera")
+        .with_columns(
+            (pl.col("sharpness") < BLUR_SHARE_OF_MEDIAN * pl.col("_med")).alias("blurred")
+        )
+        .drop("_med")
+    )
+    blur = frames.group_by("episode_index", "camera").agg(
+        pl.col("blurred").mean().alias("blurred_share")
+    )
+    refs: dict[str, np.ndarray] = {}
+    for (e, cam), v in sorted(views.items()):
+        refs.setdefault(cam, v[0])
+    for r in rows:
+        v = views.get((r["episode_index"], r["camera"]))
+        scale = widths[r["camera"]] / v[0].shape[1] if v else math.nan
+        dx, dy = phase_shift(refs[r["camera"]], v[0]) if v else (math.nan, math.nan)
+        wx, wy = phase_shift(v[0], v[-1]) if v else (math.nan, math.nan)
+        r["shift_px"] = math.hypot(dx, dy) * scale
+        r["shift_dx_px"], r["shift_dy_px"] = dx * scale, dy * scale
+        r["shift_within_px"] = math.hypot(wx, wy) * scale
+        deg = fov_deg / widths[r["camera"]] if fov_deg else None
+        r["shift_deg"] = r["shift_px"] * deg if deg else None
+        r["shift_within_deg"] = r["shift_within_px"] * deg if deg else None
+    eps = pl.DataFrame(rows, infer_schema_length=None).join(
+        blur, on=["episode_index", "camera"], how="left"
+    )
+    eps = eps.with_columns(
+        pl.max_horizontal(pl.col("drift_start_ms").abs(), pl.col("drift_end_ms").abs())
+        .alias("drift_abs_ms"),
+        pl.col("lag_ms").abs().alias("lag_abs_ms"),
+        (pl.col("length") - pl.col("frames_decoded") - pl.col("dropped")).clip(0)
+        .alias("frames_missing"),
+    )  # fmt: skip
+    named = [
+        pl.when(pl.col(col).fill_null(0).fill_nan(0) >= thr).then(pl.lit(name)).otherwise(None)
+        for name, (col, thr, _, _) in FLAGS.items()
+    ]
+    eps = eps.with_columns(pl.concat_list(named).list.drop_nulls().alias("_f"))
+    eps = eps.with_columns(
+        pl.col("_f").list.join(",").alias("flags"), pl.col("_f").list.len().alias("flag_count")
+    ).drop("_f")
+    return eps.sort("episode_index", "camera"), frames
+
+
+def severity(eps: pl.DataFrame) -> pl.DataFrame:
+    """``eps`` worst first: most flags, then the largest excess over a threshold."""
+    excess = [
+        (pl.col(col).fill_null(0).fill_nan(0).abs() / thr) for col, thr, _, _ in FLAGS.values()
+    ]
+    return eps.with_columns(pl.max_horizontal(excess).alias("severity")).sort(
+        ["flag_count", "severity"], descending=True
+    )

@@ -1,0 +1,243 @@
+"""One camera of one episode measured (one executor task): every frame of its window decoded
+once, through the same batcher as every other vdc source (``vdc.frame_batches``), beside the
+episode's rows of data. The measures that need the whole dataset (blur against the camera's
+own sharpness, the camera's shift against its reference view) are finished by the caller
+(``analysis.dataset.faults``)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import cv2
+import numpy as np
+import polars as pl
+
+from analysis.dataset.layout import EpisodeVideo, read_episode_data
+from analysis.dataset.window import WindowReader
+
+# a frame is under-exposed when this share of its pixels is at most DARK (full-range grey),
+# over-exposed when this share is at least BRIGHT: a fifth of the view clipped is detail lost
+# that no gain brings back (a well-lit synthetic view clips 0-2 % of its pixels)
+CLIPPED_SHARE, DARK, BRIGHT = 0.2, 10, 245
+# the state moves when its speed is above this share of the episode's peak speed: a robot's
+# encoders jitter by far less, and a real motion passes it within a frame or two of starting
+STATE_MOVING_SHARE = 0.02
+# lag: the camera's motion against the state's, cross-correlated over at most this (s) either
+# way; measurable only where the peak correlation reaches LAG_MIN_R (below it the motions do
+# not match well enough for a peak to mean a delay)
+LAG_SEARCH_S, LAG_MIN_R = 0.4, 0.5
+SMOOTH_FRAMES = 3
+LAG_BOOT, LAG_BLOCK = 200, 15  # moving-block bootstrap: repeats, block length (frames)
+VIEW_MAX_WIDTH = 320  # the first and last views kept for the camera's shift, px wide at most
+
+
+def _view(grey: np.ndarray) -> np.ndarray:
+    """A view for the shift, at most :data:`VIEW_MAX_WIDTH` px wide (float32)."""
+    h, w = grey.shape
+    if w > VIEW_MAX_WIDTH:
+        grey = cv2.resize(grey, (VIEW_MAX_WIDTH, round(h * VIEW_MAX_WIDTH / w)),
+                          interpolation=cv2.INTER_AREA)  # fmt: skip
+    return grey.astype(np.float32)
+
+
+def _frame_stats(grey: np.ndarray) -> tuple[float, float, float, float]:
+    """(sharpness: variance of the Laplacian, mean grey, share <= DARK, share >= BRIGHT)."""
+    lap = cv2.Laplacian(grey, cv2.CV_32F, ksize=3)
+    _, sd = cv2.meanStdDev(lap)
+    hist = cv2.calcHist([grey], [0], None, [256], [0, 256]).ravel() / grey.size
+    mean = float(np.dot(hist, np.arange(256)))
+    return float(sd[0, 0]) ** 2, mean, float(hist[: DARK + 1].sum()), float(hist[BRIGHT:].sum())
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, length) of each run of True in ``mask``."""
+    out, start = [], None
+    for i, m in enumerate(np.append(mask, False)):
+        if m and start is None:
+            start = i
+        elif not m and start is not None:
+            out.append((start, i - start))
+            start = None
+    return out
+
+
+def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float, seed: int = 0) -> dict:
+    """The delay of the image's motion behind the state's (ms; positive: the camera late):
+    the peak of their cross-correlation on the data's frame grid, refined by a parabola
+    through its neighbours, and a 95 % interval from a moving-block bootstrap of the frames.
+    Both (N,) float64, per frame interval. ``lag_note`` says why there is no value."""
+    none = {"lag_ms": None, "lag_low_ms": None, "lag_high_ms": None, "lag_r": None}
+    ok = np.isfinite(speed_state) & np.isfinite(motion)
+    # the same three-frame box on both (it delays neither against the other): an AV1 stream
+    # with a key frame every 2 frames alternates its noise from frame to frame, which the
+    # box averages away (clean episodes' lags: within 60 ms unsmoothed, 13 ms smoothed)
+    box = np.ones(SMOOTH_FRAMES) / SMOOTH_FRAMES
+    x = np.convolve(speed_state[ok], box, "same")
+    y = np.convolve(motion[ok], box, "same")
+    k_max = max(1, round(LAG_SEARCH_S * fps))
+    if len(x) < 4 * k_max or x.std() == 0 or y.std() == 0:
+        return none | {"lag_note": "not measurable: nothing moves"}
+
+    def peak(idx: np.ndarray) -> tuple[float, float]:
+        xs, ys = x[idx], y[idx]
+        rs = []
+        for k in range(-k_max, k_max + 1):
+            a = xs[max(0, -k) : len(xs) - max(0, k)]
+            b = ys[max(0, k) : len(ys) - max(0, -k)]
+            sa, sb = a.std(), b.std()
+            rs.append(
+                float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb)) if sa and sb else -1
+            )
+        r = np.asarray(rs)
+        i = int(np.argmax(r))
+        off = 0.0
+        if 0 < i < len(r) - 1:  # the parabola's vertex through the peak and its neighbours
+            den = r[i - 1] - 2 * r[i] + r[i + 1]
+            off = 0.5 * (r[i - 1] - r[i + 1]) / den if den < 0 else 0.0
+        return (i - k_max + off) / fps * 1000, float(r[i])
+
+    n = len(x)
+    lag, r = peak(np.arange(n))
+    if r < LAG_MIN_R:
+        return none | {"lag_r": r, "lag_note": f"not measurable: motions match poorly (r {r:.2f})"}
+    rng = np.random.default_rng(seed)
+    starts = np.arange(0, n - LAG_BLOCK + 1)
+    boots = []
+    for _ in range(LAG_BOOT):  # blocks keep the delay inside them; the pairs stay aligned
+        pick = rng.choice(starts, size=math.ceil(n / LAG_BLOCK))
+        idx = (pick[:, None] + np.arange(LAG_BLOCK)[None, :]).ravel()[:n]
+        boots.append(peak(np.sort(idx))[0])
+    lo, hi = np.percentile(boots, [2.5, 97.5])
+    return {"lag_ms": lag, "lag_low_ms": float(min(lo, lag)), "lag_high_ms": float(max(hi, lag)),
+            "lag_r": r, "lag_note": None}  # fmt: skip
+
+
+def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str, Any]:
+    """Measure one camera of one episode at the dataset's ``fps`` (see the module). Returns ``row`` (dict: the
+    episode's measures), ``frames`` (polars DataFrame: one row per decoded frame) and
+    ``views`` (first, last: float32 grey images for the camera's shift). Unreadable input
+    raises ValueError naming the file."""
+    from analysis.source_metrics import ComplexityMeter
+    from vdc.frame_batches import FrameBatcher
+    from vdc.recording import camera_model_context, working_size
+    from vdc.sources import open_reader
+
+    data = read_episode_data(video.data_path, video.episode)
+    reader = (
+        WindowReader(video.path, video.from_s, video.to_s, fps)
+        if video.kind == "video"
+        else open_reader(video.path, fps)
+    )
+    stats: list[tuple[float, float, float, float]] = []
+    first_last: list[np.ndarray] = []
+    try:
+        h, w = reader.info["src_height_px"], reader.info["src_width_px"]
+        size = working_size(h, w, settings.fov_deg, settings.width) if settings.fov_deg else None
+        frames_it = reader.frames
+        last: list[Any] = [None]
+
+        def observed():  # each frame's grey seen once, on its way to the batcher
+            for fr in frames_it():
+                stats.append(_frame_stats(fr.luma))
+                if not first_last:
+                    first_last.append(_view(fr.luma))
+                last[0] = fr.luma
+                yield fr
+
+        reader.frames = observed  # type: ignore[method-assign]
+        batcher = FrameBatcher(reader, size, fps, metrics=settings.native_metrics(),
+                               repeat_tol=settings.repeat_tol, max_repeats=settings.max_repeats)  # fmt: skip
+        meter = None
+        if size is not None:
+            ctx = camera_model_context(size[1], size[0], fps, settings.fov_deg)
+            meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx,
+                                    metrics=settings.model_metrics())  # fmt: skip
+        parts = []
+        while (b := batcher.next_batch()) is not None:
+            cols = {"frame": b.frame, "t_s": b.t_s, "dt_s": b.dt_s, "repeat": b.repeat,
+                    "dropped_before": b.dropped_before}  # fmt: skip
+            from vdc.recording import NATIVE_METRICS
+
+            for m in settings.native_metrics():
+                cols[m] = b.native_metrics[:, NATIVE_METRICS.index(m)]
+            if meter is not None:
+                out = meter.update(b.images, b.t_s, b.repeat)
+                for m in settings.model_metrics():
+                    cols[m] = out[m]
+            parts.append(pl.DataFrame(cols))
+        if last[0] is not None:
+            first_last.append(_view(last[0]))
+        error = reader.error
+    finally:
+        reader.close()
+    if error:
+        raise ValueError(error)
+    frames = pl.concat(parts)
+    st = np.asarray(stats, dtype=np.float64).reshape(-1, 4)
+    frames = frames.with_columns(
+        pl.Series("sharpness", st[:, 0]), pl.Series("mean_grey", st[:, 1]),
+        pl.Series("underexposed", st[:, 2] >= CLIPPED_SHARE),
+        pl.Series("overexposed", st[:, 3] >= CLIPPED_SHARE),
+    )  # fmt: skip
+    row, extra = episode_measures(video, data, frames, fps, settings.repeat_tol, batcher)
+    frames = frames.with_columns(*extra)
+    return {"row": row, "frames": frames, "views": first_last}
+
+
+def episode_measures(video, data, frames: pl.DataFrame, fps: float, tol: float, batcher) -> tuple:
+    """(the episode's row, the per-frame columns ``still`` and ``state_moving``)."""
+    t_v = frames["t_s"].to_numpy()
+    mafd = frames["mafd"].to_numpy()
+    ts = data.timestamp
+    pose = data.state if data.state is not None else data.action
+    if pose is not None and len(pose) > 1:
+        speed = np.concatenate(([0.0], np.linalg.norm(np.diff(pose, axis=0), axis=1)))
+    else:
+        speed = np.zeros(len(ts))
+    peak = float(speed.max()) if len(speed) else 0.0
+    moving_data = speed > STATE_MOVING_SHARE * peak if peak > 0 else np.zeros(len(ts), bool)
+    # each frame at its own time on the data's clock: the state moved in the interval before
+    idx = np.clip(np.searchsorted(ts, t_v - 0.5 / fps), 0, len(ts) - 1)
+    state_moving = moving_data[idx]
+    still = np.nan_to_num(mafd, nan=np.inf) <= tol
+    frozen = _runs(still & state_moving)
+    longest = max((n for _, n in frozen), default=0)
+    image_moves = np.flatnonzero(~still[1:]) + 1  # frames that differ from the one before
+    state_moves = np.flatnonzero(moving_data)
+    end = ts[-1] if len(ts) else 0.0
+    head_img = t_v[image_moves[0] - 1] if len(image_moves) else t_v[-1]
+    tail_img = t_v[-1] - t_v[image_moves[-1]] if len(image_moves) else t_v[-1]
+    head_state = ts[state_moves[0] - 1] if len(state_moves) else end
+    tail_state = end - ts[state_moves[-1]] if len(state_moves) else end
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rate = mafd / (frames["dt_s"].to_numpy() * fps)  # change per nominal interval
+    motion = np.interp(ts, t_v[1:], rate[1:]) if len(t_v) > 1 else np.zeros(len(ts))
+    lag = lag_of(speed[1:], motion[1:], fps, seed=video.episode)
+    if pose is None:
+        lag |= {"lag_note": "not measurable: the dataset has no state or action"}
+    tail_gap = (video.to_s - video.from_s) - t_v[-1] - 1 / fps if video.to_s is not None else 0
+    from vdc.sources import frames_missing_in
+
+    dropped = batcher.dropped_total + frames_missing_in(max(tail_gap, 0.0), fps)
+    row = {
+        "episode_index": video.episode, "camera": video.camera, "video_path": video.path,
+        "from_s": video.from_s, "to_s": video.to_s, "frames_decoded": len(t_v),
+        "length": video.length, "data_timestamps": len(ts),
+        "drift_start_ms": (t_v[0] - ts[0]) * 1000 if len(ts) else None,
+        "drift_end_ms": (t_v[-1] - ts[-1]) * 1000 if len(ts) else None,
+        "dropped": int(dropped), "repeated": int(batcher.repeats_total),
+        "frozen_longest_s": longest / fps, "frozen_total_s": sum(n for _, n in frozen) / fps,
+        "idle_head_s": float(min(head_img, head_state)),
+        "idle_tail_s": float(min(tail_img, tail_state)),
+        "underexposed_share": float(frames["underexposed"].mean()),
+        "overexposed_share": float(frames["overexposed"].mean()),
+        "sharpness_median": float(frames["sharpness"].median()),
+        **lag,
+    }  # fmt: skip
+    for m in frames.columns:
+        if m in ("si_p910", "ti_p910", "mafd", "codec_bpp", "si_legacy", "ti_legacy",
+                 "edge_density", "jpeg_bpp", "omega_dps", "flow_dps", "zlib_ratio"):  # fmt: skip
+            v = frames[m].fill_nan(None).mean()
+            row[f"{m}_mean"] = None if v is None else float(v)
+    return row, [pl.Series("still", still), pl.Series("state_moving", state_moving)]
