@@ -9,7 +9,7 @@ from typing import Any
 import polars as pl
 
 from analysis.dataset import DatasetResult, DatasetSettings
-from analysis.dataset.flags import FLAGS, finish, severity
+from analysis.dataset.flags import finish, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
 from vdc.executors import Feedback, run_tasks
 from vdc.parquet_io import table_set, write_tables

@@ -72,7 +72,7 @@ def finish(
         pl.col("blurred").mean().alias("blurred_share")
     )
     refs: dict[str, np.ndarray] = {}
-    for (e, cam), v in sorted(views.items()):
+    for (_, cam), v in sorted(views.items()):
         refs.setdefault(cam, v[0])
     for r in rows:
         v = views.get((r["episode_index"], r["camera"]))
@@ -114,3 +114,49 @@ def severity(eps: pl.DataFrame) -> pl.DataFrame:
     return eps.with_columns(pl.max_horizontal(excess).alias("severity")).sort(
         ["flag_count", "severity"], descending=True
     )
+
+
+def flagged_frame(flag: str, fr: pl.DataFrame, row: dict[str, Any]) -> int:
+    """The frame (index into the episode's decoded frames) that shows ``flag`` best, from
+    the episode's frame table ``fr`` (in order) and its row."""
+    n = len(fr)
+    if flag == "frozen":
+        runs = (fr["still"] & fr["state_moving"]).to_list()
+        best, start, k0 = 0, 0, None
+        for i, v in enumerate([*runs, False]):
+            if v and k0 is None:
+                k0 = i
+            elif not v and k0 is not None:
+                if i - k0 > best:
+                    best, start = i - k0, k0
+                k0 = None
+        return start
+    if flag == "dropped":
+        hit = fr["dropped_before"].arg_max()
+        return int(hit or 0)
+    if flag in ("blurred",):
+        return int(fr["sharpness"].arg_min() or 0)
+    if flag in ("overexposed", "underexposed"):
+        hit = fr[flag].arg_max()
+        return int(hit or 0)
+    if flag == "idle":
+        t = row.get("idle_head_s") or 0.0
+        return int(min(n - 1, (fr["t_s"] <= t).sum()))
+    if flag == "lag":
+        return int(fr["mafd"].fill_nan(None).arg_max() or 0)
+    if flag == "moved":
+        return 0
+    return n - 1  # drift, moved_within, idle_tail, short: the episode's end
+
+
+def first_flags(eps: pl.DataFrame, frames: pl.DataFrame) -> dict[tuple[int, str], tuple[str, int]]:
+    """(episode, camera) → (its first flag, the frame that shows it) for flagged episodes."""
+    out = {}
+    for row in eps.filter(pl.col("flag_count") > 0).iter_rows(named=True):
+        key = (row["episode_index"], row["camera"])
+        fr = frames.filter(
+            (pl.col("episode_index") == key[0]) & (pl.col("camera") == key[1])
+        ).sort("frame")
+        flag = row["flags"].split(",")[0]
+        out[key] = (flag, flagged_frame(flag, fr, row))
+    return out

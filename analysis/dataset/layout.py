@@ -167,8 +167,8 @@ def _v3_videos(root: Path, info: dict, cams: list[str], problems: list[Problem])
                     out.append(EpisodeVideo(e, cam, _image_pattern(root, cam, e), 0.0, None,
                                             int(r["length"]), str(data), "images"))  # fmt: skip
                     continue
-                keys = [f"videos/{cam}/{k}" for k in
-                        ("chunk_index", "file_index", "from_timestamp", "to_timestamp")]  # fmt: skip
+                ends = ("chunk_index", "file_index", "from_timestamp", "to_timestamp")
+                keys = [f"videos/{cam}/{k}" for k in ends]
                 missing = [k for k in keys if r.get(k) is None]
                 if missing:
                     problems.append(Problem(str(f), e, f"no {missing[0]}"))

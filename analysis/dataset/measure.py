@@ -28,7 +28,10 @@ STATE_MOVING_SHARE = 0.02
 # not match well enough for a peak to mean a delay)
 LAG_SEARCH_S, LAG_MIN_R = 0.4, 0.5
 SMOOTH_FRAMES = 3
-LAG_BOOT, LAG_BLOCK = 200, 15  # moving-block bootstrap: repeats, block length (frames)
+# the interval: a moving-block bootstrap of the frames, LAG_BOOT repeats of blocks LAG_BLOCK_S
+# long (one stroke of an arm, out or back: shorter blocks cut the strokes whose timing the
+# delay is read from, and the interval then spans the whole search)
+LAG_BOOT, LAG_BLOCK_S = 200, 1.5
 VIEW_MAX_WIDTH = 320  # the first and last views kept for the camera's shift, px wide at most
 
 
@@ -79,43 +82,45 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float, seed: int = 
     if len(x) < 4 * k_max or x.std() == 0 or y.std() == 0:
         return none | {"lag_note": "not measurable: nothing moves"}
 
-    def peak(idx: np.ndarray) -> tuple[float, float]:
-        xs, ys = x[idx], y[idx]
-        rs = []
-        for k in range(-k_max, k_max + 1):
-            a = xs[max(0, -k) : len(xs) - max(0, k)]
-            b = ys[max(0, k) : len(ys) - max(0, -k)]
-            sa, sb = a.std(), b.std()
-            rs.append(
-                float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb)) if sa and sb else -1
-            )
-        r = np.asarray(rs)
-        i = int(np.argmax(r))
-        off = 0.0
-        if 0 < i < len(r) - 1:  # the parabola's vertex through the peak and its neighbours
-            den = r[i - 1] - 2 * r[i] + r[i + 1]
-            off = 0.5 * (r[i - 1] - r[i + 1]) / den if den < 0 else 0.0
-        return (i - k_max + off) / fps * 1000, float(r[i])
+    # every lag's aligned pairs over the same frames i (x[i], y[i + k]): a bootstrap then
+    # resamples frames, never the delay between the two signals
+    i = np.arange(k_max, len(x) - k_max)
+    ks = np.arange(-k_max, k_max + 1)
+    xs = np.broadcast_to(x[i], (len(ks), len(i)))
+    ys = y[i[None, :] + ks[:, None]]
 
-    n = len(x)
-    lag, r = peak(np.arange(n))
+    def peak(idx: np.ndarray) -> tuple[float, float]:
+        a, b = xs[:, idx], ys[:, idx]
+        a = a - a.mean(axis=1, keepdims=True)
+        b = b - b.mean(axis=1, keepdims=True)
+        den = np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
+        r = np.where(den > 0, (a * b).sum(axis=1) / np.where(den > 0, den, 1), -1.0)
+        j = int(np.argmax(r))
+        off = 0.0
+        if 0 < j < len(r) - 1:  # the parabola's vertex through the peak and its neighbours
+            curve = r[j - 1] - 2 * r[j] + r[j + 1]
+            off = 0.5 * (r[j - 1] - r[j + 1]) / curve if curve < 0 else 0.0
+        return (ks[j] + off) / fps * 1000, float(r[j])
+
+    m = len(i)
+    lag, r = peak(np.arange(m))
     if r < LAG_MIN_R:
         return none | {"lag_r": r, "lag_note": f"not measurable: motions match poorly (r {r:.2f})"}
     rng = np.random.default_rng(seed)
-    starts = np.arange(0, n - LAG_BLOCK + 1)
+    block = min(max(2, round(LAG_BLOCK_S * fps)), m)
+    starts = np.arange(0, m - block + 1)
     boots = []
-    for _ in range(LAG_BOOT):  # blocks keep the delay inside them; the pairs stay aligned
-        pick = rng.choice(starts, size=math.ceil(n / LAG_BLOCK))
-        idx = (pick[:, None] + np.arange(LAG_BLOCK)[None, :]).ravel()[:n]
-        boots.append(peak(np.sort(idx))[0])
+    for _ in range(LAG_BOOT):  # moving blocks: neighbouring frames' noise stays together
+        pick = rng.choice(starts, size=math.ceil(m / block))
+        boots.append(peak((pick[:, None] + np.arange(block)[None, :]).ravel()[:m])[0])
     lo, hi = np.percentile(boots, [2.5, 97.5])
     return {"lag_ms": lag, "lag_low_ms": float(min(lo, lag)), "lag_high_ms": float(max(hi, lag)),
             "lag_r": r, "lag_note": None}  # fmt: skip
 
 
 def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str, Any]:
-    """Measure one camera of one episode at the dataset's ``fps`` (see the module). Returns ``row`` (dict: the
-    episode's measures), ``frames`` (polars DataFrame: one row per decoded frame) and
+    """Measure one camera of one episode at the dataset's ``fps`` (see the module). Returns
+    ``row`` (dict: the episode's measures), ``frames`` (polars DataFrame: one row per decoded frame) and
     ``views`` (first, last: float32 grey images for the camera's shift). Unreadable input
     raises ValueError naming the file."""
     from analysis.source_metrics import ComplexityMeter
@@ -146,8 +151,10 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
                 yield fr
 
         reader.frames = observed  # type: ignore[method-assign]
-        batcher = FrameBatcher(reader, size, fps, metrics=settings.native_metrics(),
-                               repeat_tol=settings.repeat_tol, max_repeats=settings.max_repeats)  # fmt: skip
+        batcher = FrameBatcher(
+            reader, size, fps, metrics=settings.native_metrics(),
+            repeat_tol=settings.repeat_tol, max_repeats=settings.max_repeats,
+        )  # fmt: skip
         meter = None
         if size is not None:
             ctx = camera_model_context(size[1], size[0], fps, settings.fov_deg)
@@ -212,7 +219,13 @@ def episode_measures(video, data, frames: pl.DataFrame, fps: float, tol: float, 
     tail_state = end - ts[state_moves[-1]] if len(state_moves) else end
     with np.errstate(invalid="ignore", divide="ignore"):
         rate = mafd / (frames["dt_s"].to_numpy() * fps)  # change per nominal interval
-    motion = np.interp(ts, t_v[1:], rate[1:]) if len(t_v) > 1 else np.zeros(len(ts))
+    # the lag on the data's clock once the drift between the clocks is taken out (a linear
+    # map making the first and last frames agree with the data's): a clock running fast is
+    # the drift's to report, a constant delay the lag's
+    t_c = t_v
+    if len(t_v) > 1 and len(ts) > 1 and t_v[-1] > t_v[0]:
+        t_c = ts[0] + (t_v - t_v[0]) * (ts[-1] - ts[0]) / (t_v[-1] - t_v[0])
+    motion = np.interp(ts, t_c[1:], rate[1:]) if len(t_v) > 1 else np.zeros(len(ts))
     lag = lag_of(speed[1:], motion[1:], fps, seed=video.episode)
     if pose is None:
         lag |= {"lag_note": "not measurable: the dataset has no state or action"}

@@ -3,7 +3,7 @@ places: the truth the dataset command is tested against, and the worked example 
 docs/dataset.md (``python -m analysis.dataset.synthetic OUT``).
 
 The scene is a real photograph (scikit-image's ``astronaut``) seen by a fixed third-person
-camera, with a textured object (a crop of ``coffee``) that the robot moves across it: the
+camera, with a textured object (``coffee``: a white cup on a dark table) that the robot moves across it: the
 object's image position is a fixed linear function of ``observation.state`` at the time the
 camera saw it. Each episode starts and ends at the home pose (state 0) and moves as
 ``sin²`` in between, so every episode's first frame is the camera's reference view.
@@ -101,7 +101,7 @@ def _scene(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     bg = cv2.resize(data.astronaut(), (width + 2 * MARGIN_PX, height + 2 * MARGIN_PX),
                     interpolation=cv2.INTER_AREA)  # fmt: skip
     side = max(8, height // 4)
-    obj = cv2.resize(data.coffee()[100:300, 150:350], (side, side), interpolation=cv2.INTER_AREA)
+    obj = cv2.resize(data.coffee()[0:400, 100:500], (side, side), interpolation=cv2.INTER_AREA)
     return bg, obj
 
 
@@ -187,7 +187,7 @@ class _Encoder:
             opts |= {"bf": "0", "preset": "veryfast"}
         else:
             opts |= {"preset": "12"}  # libsvtav1's fastest: the tests' CPU
-        s = self.container.add_stream(codec, rate=int(round(fps)), options=opts)
+        s = self.container.add_stream(codec, rate=round(fps), options=opts)
         s.width, s.height, s.pix_fmt = shape[1], shape[0], "yuv420p"
         s.codec_context.time_base = TIME_BASE
         s.time_base = TIME_BASE
@@ -273,7 +273,7 @@ def write_dataset(
     (root / "meta").mkdir(parents=True, exist_ok=True)
     scene = _scene(*shape)
     span = np.linspace(seconds[0], seconds[1], episodes) if episodes > 1 else [seconds[0]]
-    lengths = [int(round(s * fps)) for s in span]
+    lengths = [round(float(s) * fps) for s in span]
     clean = Faults()
     per_cam: dict[str, list] = {cam: [] for cam in cameras}  # [(state, frames)] per episode
     states = []
