@@ -154,9 +154,9 @@ def first_flags(eps: pl.DataFrame, frames: pl.DataFrame) -> dict[tuple[int, str]
     out = {}
     for row in eps.filter(pl.col("flag_count") > 0).iter_rows(named=True):
         key = (row["episode_index"], row["camera"])
-        fr = frames.filter(
-            (pl.col("episode_index") == key[0]) & (pl.col("camera") == key[1])
-        ).sort("frame")
+        fr = frames.filter((pl.col("episode_index") == key[0]) & (pl.col("camera") == key[1])).sort(
+            "frame"
+        )
         flag = row["flags"].split(",")[0]
         out[key] = (flag, flagged_frame(flag, fr, row))
     return out

@@ -25,7 +25,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from vdc.cli_support import UserError  # vdc.errors once the command packages land
+from vdc.errors import UserError
 
 VERSIONS = ("v3.0", "v2.1", "v2.0")
 CHUNKS_SIZE = 1000  # LeRobot's default when info.json states none

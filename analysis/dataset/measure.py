@@ -13,8 +13,12 @@ import cv2
 import numpy as np
 import polars as pl
 
+from analysis.complexity.source_metrics import ComplexityMeter
 from analysis.dataset.layout import EpisodeVideo, read_episode_data
 from analysis.dataset.window import WindowReader
+from vdc.frame_batches import FrameBatcher
+from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
+from vdc.sources import frames_missing_in, open_reader
 
 # a frame is under-exposed when this share of its pixels is at most DARK (full-range grey),
 # over-exposed when this share is at least BRIGHT: a fifth of the view clipped is detail lost
@@ -120,14 +124,9 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float, seed: int = 
 
 def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str, Any]:
     """Measure one camera of one episode at the dataset's ``fps`` (see the module). Returns
-    ``row`` (dict: the episode's measures), ``frames`` (polars DataFrame: one row per decoded frame) and
-    ``views`` (first, last: float32 grey images for the camera's shift). Unreadable input
+    ``row`` (dict: the episode's measures), ``frames`` (polars DataFrame: one row per decoded
+    frame) and ``views`` (first, last: float32 grey images for the camera's shift). Unreadable input
     raises ValueError naming the file."""
-    from analysis.source_metrics import ComplexityMeter
-    from vdc.frame_batches import FrameBatcher
-    from vdc.recording import camera_model_context, working_size
-    from vdc.sources import open_reader
-
     data = read_episode_data(video.data_path, video.episode)
     reader = (
         WindowReader(video.path, video.from_s, video.to_s, fps)
@@ -164,8 +163,6 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
         while (b := batcher.next_batch()) is not None:
             cols = {"frame": b.frame, "t_s": b.t_s, "dt_s": b.dt_s, "repeat": b.repeat,
                     "dropped_before": b.dropped_before}  # fmt: skip
-            from vdc.recording import NATIVE_METRICS
-
             for m in settings.native_metrics():
                 cols[m] = b.native_metrics[:, NATIVE_METRICS.index(m)]
             if meter is not None:
@@ -230,8 +227,6 @@ def episode_measures(video, data, frames: pl.DataFrame, fps: float, tol: float, 
     if pose is None:
         lag |= {"lag_note": "not measurable: the dataset has no state or action"}
     tail_gap = (video.to_s - video.from_s) - t_v[-1] - 1 / fps if video.to_s is not None else 0
-    from vdc.sources import frames_missing_in
-
     dropped = batcher.dropped_total + frames_missing_in(max(tail_gap, 0.0), fps)
     row = {
         "episode_index": video.episode, "camera": video.camera, "video_path": video.path,

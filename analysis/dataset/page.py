@@ -12,9 +12,12 @@ from typing import Any
 import cv2
 import numpy as np
 import polars as pl
+from matplotlib.figure import Figure
 
 from analysis.dataset.flags import FLAGS, first_flags
 from analysis.dataset.layout import Dataset, Problem
+from analysis.dataset.window import WindowReader
+from vdc.sources import open_reader
 
 STRIP_HALF = 4  # frames either side of the flagged one
 THUMB_WIDTH = 128  # px
@@ -43,9 +46,6 @@ def _png(img: np.ndarray) -> str:
 def thumbnails(ds: Dataset, episode: int, camera: str, frame: int) -> np.ndarray | None:
     """(h, k × w) uint8 grey: the frames ``frame`` ± STRIP_HALF of the episode's camera side
     by side, the flagged one framed in white (decoded again: only flagged episodes)."""
-    from analysis.dataset.window import WindowReader
-    from vdc.sources import open_reader
-
     video = next((v for v in ds.videos if v.episode == episode and v.camera == camera), None)
     if video is None:
         return None
@@ -77,15 +77,11 @@ def thumbnails(ds: Dataset, episode: int, camera: str, frame: int) -> np.ndarray
 def plot_measures(eps: pl.DataFrame, path: Path) -> Path:
     """The measures across the dataset: a panel per measure, one bar per episode × camera,
     flagged ones red; the threshold a dashed line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     by_col = {col: (thr, name) for name, (col, thr, _, _) in FLAGS.items()}
     e = eps.sort("episode_index", "camera")
     x = np.arange(len(e))
-    fig, axes = plt.subplots(3, 3, figsize=(12, 8), constrained_layout=True)
+    fig = Figure(figsize=(12, 8), layout="constrained")
+    axes = fig.subplots(3, 3)
     for ax, (col, title) in zip(axes.ravel(), PANELS, strict=True):
         if col not in e.columns:
             ax.set_visible(False)
@@ -111,7 +107,6 @@ def plot_measures(eps: pl.DataFrame, path: Path) -> Path:
         ax.set_xlabel("episode", fontsize=8)
     fig.suptitle("Each episode's measures (red: flagged)")
     fig.savefig(path, dpi=90)
-    plt.close(fig)
     return path
 
 

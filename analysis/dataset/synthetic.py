@@ -3,10 +3,11 @@ places: the truth the dataset command is tested against, and the worked example 
 docs/dataset.md (``python -m analysis.dataset.synthetic OUT``).
 
 The scene is a real photograph (scikit-image's ``astronaut``) seen by a fixed third-person
-camera, with a textured object (``coffee``: a white cup on a dark table) that the robot moves across it: the
-object's image position is a fixed linear function of ``observation.state`` at the time the
-camera saw it. Each episode starts and ends at the home pose (state 0) and moves as
-``sin²`` in between, so every episode's first frame is the camera's reference view.
+camera, with an object (scikit-image's ``coffee``: a white cup on a dark table) that the robot
+moves across it: the object's image position is a fixed linear function of
+``observation.state`` at the time the camera saw it. Each episode starts and ends at the home
+pose (state 0) and moves as ``sin²`` in between, so every episode's first frame is the camera's
+reference view.
 
 Layouts (LeRobot's ``codebase_version``):
 
