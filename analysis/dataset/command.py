@@ -186,13 +186,9 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         if outcome.error is None:
             results[outcome.key] = outcome.result
             return
-        v = by_key[outcome.key]
-        msg = (
-            outcome.error.split(": ", 1)[1]
-            if outcome.error.startswith("ValueError")
-            else outcome.error
-        )
-        problems.append(Problem(v.path, v.episode, f"{v.camera}: {msg}"))
+        problem = _problem_of(by_key[outcome.key], outcome.error)
+        if problem not in problems:  # a data file's problem: once, not once per camera
+            problems.append(problem)
 
     run_tasks(_task, tasks, settings.executor_settings(), done,
               feedback.log, shared_paths=(root,))  # fmt: skip
@@ -232,6 +228,18 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             if fail & set(filter(None, r["flags"].split(","))):
                 failed.append(int(r["episode_index"]))
     return DatasetResult(paths, eps, [p.line() for p in problems], sorted(set(failed)), notes)
+
+
+def _problem_of(v: EpisodeVideo, error: str) -> Problem:
+    """The problem a failed task names: the file its message starts with (the episode's data
+    or its video; the camera said for a video), else the video and the whole message (an
+    unexpected error keeps its type)."""
+    msg = error.split(": ", 1)[1] if error.startswith("ValueError: ") else error
+    if msg.startswith(v.data_path + ": "):
+        return Problem(v.data_path, v.episode, msg[len(v.data_path) + 2 :])
+    if msg.startswith(v.path + ": "):
+        msg = msg[len(v.path) + 2 :]
+    return Problem(v.path, v.episode, f"{v.camera}: {msg}")
 
 
 def _order(key: str) -> tuple[int, str]:

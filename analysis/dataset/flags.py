@@ -26,11 +26,25 @@ FLAGS: dict[str, tuple[str, float, str, str]] = {
     "overexposed": ("overexposed_share", 0.5, "share", "most frames clipped bright"),
     "short": ("frames_missing", 1, "frames", "fewer frames decoded than the episode states"),
 }
+FLOAT_COLUMNS = (
+    "from_s", "to_s", "drift_start_ms", "drift_end_ms", "lag_ms", "lag_low_ms", "lag_high_ms",
+    "lag_r", "shift_deg", "shift_within_deg", "shift_px", "shift_within_px", "shift_dx_px",
+    "shift_dy_px", "frozen_longest_s", "frozen_total_s", "idle_head_s", "idle_tail_s",
+)  # fmt: skip
 # a frame is blurred when its sharpness (variance of the Laplacian) is below this share of the
 # camera's median over the dataset: a focus or motion blur of 2 px divides it by 10 or more,
 # while a clean episode's frames stay within a factor of 2 of the median
 BLUR_SHARE_OF_MEDIAN = 0.3
 PRE_BLUR_PX = 1.5  # sigma of the views' common blur before their shift is measured
+
+
+def _longest(flags: pl.Series) -> int:
+    """The longest run of True in ``flags``."""
+    best = run = 0
+    for f in flags:
+        run = run + 1 if f else 0
+        best = max(best, run)
+    return best
 
 
 def phase_shift(ref: np.ndarray, img: np.ndarray) -> tuple[float, float]:
@@ -68,9 +82,24 @@ def finish(
         )
         .drop("_med")
     )
-    blur = frames.group_by("episode_index", "camera").agg(
-        pl.col("blurred").mean().alias("blurred_share")
-    )
+    # frozen is judged on sharp frames only: a blurred view hides small motion (on the test
+    # datasets a blurred moving object changed no block by the still threshold for 0.43 s)
+    fps = 1.0 / float(frames["dt_s"].median() or 1.0)
+    frames = frames.with_columns((pl.col("frozen") & ~pl.col("blurred")).alias("frozen"))
+    blur = (
+        frames.sort("episode_index", "camera", "frame")
+        .group_by("episode_index", "camera")
+        .agg(
+            pl.col("blurred").mean().alias("blurred_share"),
+            pl.col("frozen").alias("_fz"),
+        )
+        .with_columns(
+            pl.col("_fz").map_elements(lambda f: _longest(f) / fps, return_dtype=pl.Float64)
+            .alias("frozen_longest_s"),
+            (pl.col("_fz").list.sum() / fps).alias("frozen_total_s"),
+        )
+        .drop("_fz")
+    )  # fmt: skip
     refs: dict[str, np.ndarray] = {}
     for (_, cam), v in sorted(views.items()):
         refs.setdefault(cam, v[0])
@@ -85,9 +114,17 @@ def finish(
         deg = fov_deg / widths[r["camera"]] if fov_deg else None
         r["shift_deg"] = r["shift_px"] * deg if deg else None
         r["shift_within_deg"] = r["shift_within_px"] * deg if deg else None
-    eps = pl.DataFrame(rows, infer_schema_length=None).join(
-        blur, on=["episode_index", "camera"], how="left"
+    eps = pl.DataFrame(rows, infer_schema_length=None)
+    # a column every row of which is None (no lag measurable, no field of view) keeps its type
+    eps = eps.with_columns(
+        *[
+            pl.col(c).cast(pl.Float64)
+            for c in eps.columns
+            if c in FLOAT_COLUMNS or c.endswith("_mean")
+        ],
+        *[pl.col(c).cast(pl.String) for c in ("lag_note", "video_path") if c in eps.columns],
     )
+    eps = eps.join(blur, on=["episode_index", "camera"], how="left")
     eps = eps.with_columns(
         pl.max_horizontal(pl.col("drift_start_ms").abs(), pl.col("drift_end_ms").abs())
         .alias("drift_abs_ms"),
@@ -121,7 +158,7 @@ def flagged_frame(flag: str, fr: pl.DataFrame, row: dict[str, Any]) -> int:
     the episode's frame table ``fr`` (in order) and its row."""
     n = len(fr)
     if flag == "frozen":
-        runs = (fr["still"] & fr["state_moving"]).to_list()
+        runs = fr["frozen"].to_list()
         best, start, k0 = 0, 0, None
         for i, v in enumerate([*runs, False]):
             if v and k0 is None:

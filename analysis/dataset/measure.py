@@ -27,15 +27,28 @@ CLIPPED_SHARE, DARK, BRIGHT = 0.2, 10, 245
 # the state moves when its speed is above this share of the episode's peak speed: a robot's
 # encoders jitter by far less, and a real motion passes it within a frame or two of starting
 STATE_MOVING_SHARE = 0.02
+# frozen: the image still while the state moves at least this share of its peak speed (a
+# motion the camera must show: slower, an object may move less than a block's noise)
+FROZEN_STATE_SHARE = 0.25
 # lag: the camera's motion against the state's, cross-correlated over at most this (s) either
 # way; measurable only where the peak correlation reaches LAG_MIN_R (below it the motions do
 # not match well enough for a peak to mean a delay)
 LAG_SEARCH_S, LAG_MIN_R = 0.4, 0.5
+# and only in episodes of at least LAG_MIN_S (2.9 s): the search leaves out LAG_SEARCH_S at
+# either end, and what is left must hold more than one bootstrap block (1.4 of them) for the
+# resampled episodes to differ
+LAG_MIN_S = 2 * LAG_SEARCH_S + 1.4 * 1.5
 SMOOTH_FRAMES = 3
 # the interval: a moving-block bootstrap of the frames, LAG_BOOT repeats of blocks LAG_BLOCK_S
 # long (one stroke of an arm, out or back: shorter blocks cut the strokes whose timing the
 # delay is read from, and the interval then spans the whole search)
-LAG_BOOT, LAG_BLOCK_S = 200, 1.5
+LAG_BOOT, LAG_BLOCK_S = 200, 1.5  # LAG_MIN_S counts 1.4 of these blocks
+# a frame shows nothing new (still) when no block of BLOCK_PX px changed by more than
+# STILL_LEVELS on average: an unchanged image coded again as a key frame (LeRobot's encoders
+# make every second frame one) changes its blocks by up to 8.2 levels with H.264 at CRF 30 on
+# the test datasets (up to 4 with AV1), while the object moving at a quarter of its peak speed
+# changes its block by 12 or more
+BLOCK_PX, STILL_LEVELS = 16, 10.0
 VIEW_MAX_WIDTH = 320  # the first and last views kept for the camera's shift, px wide at most
 
 
@@ -46,6 +59,21 @@ def _view(grey: np.ndarray) -> np.ndarray:
         grey = cv2.resize(grey, (VIEW_MAX_WIDTH, round(h * VIEW_MAX_WIDTH / w)),
                           interpolation=cv2.INTER_AREA)  # fmt: skip
     return grey.astype(np.float32)
+
+
+def local_change(grey: np.ndarray, prev: np.ndarray | None) -> float:
+    """The largest mean |difference| from ``prev`` over :data:`BLOCK_PX` square blocks (8-bit
+    grey levels; NaN without a previous frame): a small object that moves changes its block
+    by tens of levels, while a codec's noise on an unchanged image stays spread thin."""
+    if prev is None or prev.shape != grey.shape:
+        return math.nan
+    diff = cv2.absdiff(grey, prev).astype(np.float32)
+    h, w = diff.shape
+    bh, bw = max(1, h // BLOCK_PX), max(1, w // BLOCK_PX)
+    blocks = cv2.resize(
+        diff[: bh * BLOCK_PX, : bw * BLOCK_PX], (bw, bh), interpolation=cv2.INTER_AREA
+    )
+    return float(blocks.max())
 
 
 def _frame_stats(grey: np.ndarray) -> tuple[float, float, float, float]:
@@ -73,30 +101,34 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float, seed: int = 
     """The delay of the image's motion behind the state's (ms; positive: the camera late):
     the peak of their cross-correlation on the data's frame grid, refined by a parabola
     through its neighbours, and a 95 % interval from a moving-block bootstrap of the frames.
-    Both (N,) float64, per frame interval. ``lag_note`` says why there is no value."""
+    Both (N,) float64, per frame interval; NaN where a signal is unknown (a frozen or lost
+    frame), left out of every sum. ``lag_note`` says why there is no value."""
     none = {"lag_ms": None, "lag_low_ms": None, "lag_high_ms": None, "lag_r": None}
-    ok = np.isfinite(speed_state) & np.isfinite(motion)
-    # the same three-frame box on both (it delays neither against the other): an AV1 stream
-    # with a key frame every 2 frames alternates its noise from frame to frame, which the
-    # box averages away (clean episodes' lags: within 60 ms unsmoothed, 13 ms smoothed)
+    # the same three-frame box on both (it delays neither against the other): a stream with
+    # a key frame every 2 frames alternates its noise from frame to frame, which the box
+    # averages away (clean episodes' lags: within 60 ms unsmoothed, 13 ms smoothed)
     box = np.ones(SMOOTH_FRAMES) / SMOOTH_FRAMES
-    x = np.convolve(speed_state[ok], box, "same")
-    y = np.convolve(motion[ok], box, "same")
+    x = np.convolve(speed_state, box, "same")
+    y = np.convolve(motion, box, "same")
     k_max = max(1, round(LAG_SEARCH_S * fps))
-    if len(x) < 4 * k_max or x.std() == 0 or y.std() == 0:
+    if len(x) < LAG_MIN_S * fps:
+        return none | {"lag_note": f"not measurable: shorter than {LAG_MIN_S:g} s"}
+    if np.nanstd(x) == 0 or np.nanstd(y) == 0:
         return none | {"lag_note": "not measurable: nothing moves"}
-
     # every lag's aligned pairs over the same frames i (x[i], y[i + k]): a bootstrap then
     # resamples frames, never the delay between the two signals
     i = np.arange(k_max, len(x) - k_max)
     ks = np.arange(-k_max, k_max + 1)
     xs = np.broadcast_to(x[i], (len(ks), len(i)))
     ys = y[i[None, :] + ks[:, None]]
+    w0 = (np.isfinite(xs) & np.isfinite(ys)).astype(np.float64)
+    xs, ys = np.nan_to_num(xs), np.nan_to_num(ys)
 
     def peak(idx: np.ndarray) -> tuple[float, float]:
-        a, b = xs[:, idx], ys[:, idx]
-        a = a - a.mean(axis=1, keepdims=True)
-        b = b - b.mean(axis=1, keepdims=True)
+        w, a, b = w0[:, idx], xs[:, idx], ys[:, idx]
+        n = np.maximum(w.sum(axis=1, keepdims=True), 1)
+        a = (a - (w * a).sum(axis=1, keepdims=True) / n) * w
+        b = (b - (w * b).sum(axis=1, keepdims=True) / n) * w
         den = np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
         r = np.where(den > 0, (a * b).sum(axis=1) / np.where(den > 0, den, 1), -1.0)
         j = int(np.argmax(r))
@@ -134,19 +166,21 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
         else open_reader(video.path, fps)
     )
     stats: list[tuple[float, float, float, float]] = []
+    change: list[tuple[float, float]] = []  # against the frame before, and the one before it
     first_last: list[np.ndarray] = []
     try:
         h, w = reader.info["src_height_px"], reader.info["src_width_px"]
         size = working_size(h, w, settings.fov_deg, settings.width) if settings.fov_deg else None
         frames_it = reader.frames
-        last: list[Any] = [None]
+        last: list[Any] = [None, None]
 
         def observed():  # each frame's grey seen once, on its way to the batcher
             for fr in frames_it():
                 stats.append(_frame_stats(fr.luma))
+                change.append((local_change(fr.luma, last[0]), local_change(fr.luma, last[1])))
                 if not first_last:
                     first_last.append(_view(fr.luma))
-                last[0] = fr.luma
+                last[:] = [fr.luma, last[0]]
                 yield fr
 
         reader.frames = observed  # type: ignore[method-assign]
@@ -179,17 +213,20 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
         raise ValueError(error)
     frames = pl.concat(parts)
     st = np.asarray(stats, dtype=np.float64).reshape(-1, 4)
+    ch = np.asarray(change, dtype=np.float64).reshape(-1, 2)
     frames = frames.with_columns(
         pl.Series("sharpness", st[:, 0]), pl.Series("mean_grey", st[:, 1]),
+        pl.Series("change_max", ch[:, 0]),
+        pl.Series("change2_max", ch[:, 1]),
         pl.Series("underexposed", st[:, 2] >= CLIPPED_SHARE),
         pl.Series("overexposed", st[:, 3] >= CLIPPED_SHARE),
     )  # fmt: skip
-    row, extra = episode_measures(video, data, frames, fps, settings.repeat_tol, batcher)
+    row, extra = episode_measures(video, data, frames, fps, batcher)
     frames = frames.with_columns(*extra)
     return {"row": row, "frames": frames, "views": first_last}
 
 
-def episode_measures(video, data, frames: pl.DataFrame, fps: float, tol: float, batcher) -> tuple:
+def episode_measures(video, data, frames: pl.DataFrame, fps: float, batcher) -> tuple:
     """(the episode's row, the per-frame columns ``still`` and ``state_moving``)."""
     t_v = frames["t_s"].to_numpy()
     mafd = frames["mafd"].to_numpy()
@@ -204,9 +241,19 @@ def episode_measures(video, data, frames: pl.DataFrame, fps: float, tol: float, 
     # each frame at its own time on the data's clock: the state moved in the interval before
     idx = np.clip(np.searchsorted(ts, t_v - 0.5 / fps), 0, len(ts) - 1)
     state_moving = moving_data[idx]
-    still = np.nan_to_num(mafd, nan=np.inf) <= tol
-    frozen = _runs(still & state_moving)
-    longest = max((n for _, n in frozen), default=0)
+    # still: unchanged since the frame before and the one before that (within STILL_LEVELS):
+    # an encoder that skips every other frame's small changes (AV1 on a blurred view) shows
+    # no change for one interval, never for two while the scene moves
+    c1 = np.nan_to_num(frames["change_max"].to_numpy(), nan=np.inf) <= STILL_LEVELS
+    # (the second frame has no frame two before it: judged on the one before alone)
+    c2 = np.nan_to_num(frames["change2_max"].to_numpy(), nan=0.0) <= STILL_LEVELS
+    still = c1 & c2
+    fast = speed[idx] >= FROZEN_STATE_SHARE * peak if peak > 0 else np.zeros(len(t_v), bool)
+    frozen_frame = still & fast
+    # a run's first repeated frame passes only the one-interval test: counted back in
+    frozen = [(s - 1, n + 1) if s > 0 and c1[s - 1] else (s, n) for s, n in _runs(frozen_frame)]
+    for s, _ in frozen:
+        frozen_frame[s] = True
     image_moves = np.flatnonzero(~still[1:]) + 1  # frames that differ from the one before
     state_moves = np.flatnonzero(moving_data)
     end = ts[-1] if len(ts) else 0.0
@@ -216,6 +263,7 @@ def episode_measures(video, data, frames: pl.DataFrame, fps: float, tol: float, 
     tail_state = end - ts[state_moves[-1]] if len(state_moves) else end
     with np.errstate(invalid="ignore", divide="ignore"):
         rate = mafd / (frames["dt_s"].to_numpy() * fps)  # change per nominal interval
+    rate[frozen_frame] = np.nan  # a frozen frame says nothing of the scene's motion
     # the lag on the data's clock once the drift between the clocks is taken out (a linear
     # map making the first and last frames agree with the data's): a clock running fast is
     # the drift's to report, a constant delay the lag's
@@ -235,7 +283,6 @@ def episode_measures(video, data, frames: pl.DataFrame, fps: float, tol: float, 
         "drift_start_ms": (t_v[0] - ts[0]) * 1000 if len(ts) else None,
         "drift_end_ms": (t_v[-1] - ts[-1]) * 1000 if len(ts) else None,
         "dropped": int(dropped), "repeated": int(batcher.repeats_total),
-        "frozen_longest_s": longest / fps, "frozen_total_s": sum(n for _, n in frozen) / fps,
         "idle_head_s": float(min(head_img, head_state)),
         "idle_tail_s": float(min(tail_img, tail_state)),
         "underexposed_share": float(frames["underexposed"].mean()),
@@ -248,4 +295,8 @@ def episode_measures(video, data, frames: pl.DataFrame, fps: float, tol: float, 
                  "edge_density", "jpeg_bpp", "omega_dps", "flow_dps", "zlib_ratio"):  # fmt: skip
             v = frames[m].fill_nan(None).mean()
             row[f"{m}_mean"] = None if v is None else float(v)
-    return row, [pl.Series("still", still), pl.Series("state_moving", state_moving)]
+    return row, [
+        pl.Series("still", still),
+        pl.Series("state_moving", state_moving),
+        pl.Series("frozen", frozen_frame),
+    ]

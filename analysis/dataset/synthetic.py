@@ -84,7 +84,7 @@ class Faults:
 
 # the test datasets' faults: one per episode, clean episodes between (0, 8 and 9 before the bump)
 STANDARD_FAULTS = Faults(
-    frozen={1: (40, 12)},
+    frozen={1: (15, 12)},  # while the arm moves out fast (not at its turn)
     dropped={2: (45, 5)},
     drift_ms={3: 80.0},
     lag_ms={4: 100.0},
