@@ -17,6 +17,7 @@ from analysis.dataset.page import write_page
 from vdc.cli_support import API_ONLY, non_negative_float, non_negative_int, option, positive_float
 from vdc.executors import ExecutorSettings, Feedback, executor_field, run_tasks
 from vdc.parquet_io import WroteFiles, table_set, write_tables
+from vdc.recording import FOOTAGE_MODEL
 
 # the metrics measured unless told: those of ``vdc-analyse complexity``'s default set that a
 # dataset's frames give (the angular ones need --fov-deg)
@@ -39,7 +40,9 @@ class DatasetSettings:
         "and the shifts in degrees; without it they are left out, with one note",
         type=positive_float,
     )
-    model: str = option("avdm-natural", "the AVDM variant for omega_dps")
+    model: str = option(
+        FOOTAGE_MODEL, "the AVDM variant for omega_dps (default: {default}, as complexity)"
+    )
     flow_preset: str = option("medium", "DIS optic-flow preset (flow_dps)")
     width: int | None = option(None, "working width of the AVDM, px (default: from the fov)")
     jpeg_quality: int = dataclasses.field(default=75, metadata=API_ONLY)

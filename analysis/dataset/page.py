@@ -76,7 +76,7 @@ def thumbnails(ds: Dataset, episode: int, camera: str, frame: int) -> np.ndarray
 
 def plot_measures(eps: pl.DataFrame, path: Path) -> Path:
     """The measures across the dataset: a panel per measure, one bar per episode × camera,
-    flagged ones red; the threshold a dashed line."""
+    red where it reaches the panel's flag threshold (a dashed line)."""
     by_col = {col: (thr, name) for name, (col, thr, _, _) in FLAGS.items()}
     e = eps.sort("episode_index", "camera")
     x = np.arange(len(e))
@@ -87,15 +87,15 @@ def plot_measures(eps: pl.DataFrame, path: Path) -> Path:
             ax.set_visible(False)
             continue
         v = e[col].cast(pl.Float64).fill_null(np.nan).to_numpy()
-        flagged = e["flags"].to_list()
-        colour = ["#c0392b" if f else "#7f8c8d" for f in flagged]
-        ax.bar(x, np.nan_to_num(v), color=colour)
+        key = "drift_abs_ms" if col == "drift_end_ms" else "lag_abs_ms" if col == "lag_ms" else col
+        thr = by_col[key][0] if key in by_col else np.inf
+        over = np.abs(np.nan_to_num(v)) >= thr
+        ax.bar(x, np.nan_to_num(v), color=np.where(over, "#c0392b", "#7f8c8d"))
         if col == "lag_ms":
             lo = e["lag_low_ms"].cast(pl.Float64).fill_null(np.nan).to_numpy()
             hi = e["lag_high_ms"].cast(pl.Float64).fill_null(np.nan).to_numpy()
             ax.errorbar(x, np.nan_to_num(v), yerr=[np.nan_to_num(v - lo), np.nan_to_num(hi - v)],
                         fmt="none", ecolor="k", lw=0.8)  # fmt: skip
-        key = "drift_abs_ms" if col == "drift_end_ms" else "lag_abs_ms" if col == "lag_ms" else col
         if key in by_col:
             thr, name = by_col[key]
             ax.axhline(thr, ls="--", color="k", lw=0.8, label=f"{name} threshold")
@@ -105,7 +105,7 @@ def plot_measures(eps: pl.DataFrame, path: Path) -> Path:
         ax.set_title(title, fontsize=10)
         ax.set_xticks(x, [str(i) for i in e["episode_index"]], fontsize=7)
         ax.set_xlabel("episode", fontsize=8)
-    fig.suptitle("Each episode's measures (red: flagged)")
+    fig.suptitle("Each episode's measures (red: at or past the flag's threshold, dashed)")
     fig.savefig(path, dpi=90)
     return path
 
