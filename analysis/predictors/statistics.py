@@ -54,7 +54,6 @@ from analysis.predictors.inference import (
 )
 from analysis.stats import mean_ci
 
-CONFIDENCE = 0.95
 BOOTSTRAP = 1000  # resamples for every interval
 RIDGE = 0.1  # the combined logistic's L2 penalty on standardised coefficients (few units)
 # every measure, its column in the measures tables, in the order the reports list them
@@ -145,8 +144,9 @@ def auroc_matrix(scores: np.ndarray, positive: np.ndarray) -> np.ndarray:
     return out
 
 
-def spearman(x: np.ndarray, y: np.ndarray) -> float:
-    """Spearman ρ of the finite pairs; NaN if either side is constant or < 3 pairs."""
+def finite_spearman(x: np.ndarray, y: np.ndarray) -> float:
+    """Spearman ρ of the finite pairs (a NaN or inf on either side drops the pair, unlike
+    :func:`analysis.stats.spearman`); NaN if either side is constant or < 3 pairs."""
     x, y = np.asarray(x, float), np.asarray(y, float)
     ok = np.isfinite(x) & np.isfinite(y)
     return float(spearman_rows(x[None, ok], y[None, ok])[0])
@@ -255,10 +255,6 @@ def cv_logistic_losses(X: np.ndarray, y: np.ndarray, ridge: float = RIDGE) -> np
     return losses
 
 
-def _verdict_dir(estimate: float) -> str:
-    return "better" if estimate > 0 else "worse"
-
-
 def _row(measure: str, value: float, statistic: str, est: float, lo: float, hi: float, n: int,
          unit: str, n_failures: int | None = None, p: float = math.nan,
          role: str | None = None) -> dict[str, Any]:  # fmt: skip
@@ -331,7 +327,7 @@ def _combined_rows(
     return rows
 
 
-def present(columns: Sequence[str]) -> list[str]:
+def measures_present(columns: Sequence[str]) -> list[str]:
     """The measures of :data:`MEASURES` among ``columns``, in its order."""
     return [m for m in MEASURES if m in columns]
 
@@ -365,7 +361,7 @@ def arena_predictors(
     profiling runs. ρ's interval: :func:`~analysis.predictors.inference.rho_interval` on the
     hierarchical bootstrap (conditions, then seeds within them, the same draws for every
     measure); its p: the exact permutation p over conditions. Returns :data:`COLUMNS`."""
-    names = present(measures.columns)
+    names = measures_present(measures.columns)
     rng = np.random.default_rng(seed)
     rows: list[dict[str, Any]] = []
     conds = [c for c in measures["condition"].unique(maintain_order=True)]
@@ -414,7 +410,7 @@ def arena_predictors(
             for j, name in enumerate(names):
                 if name == ref or (name in AVDMS and names.index(name) < names.index(ref)):
                     continue
-                r12 = spearman(meas0[:, names.index(ref)], meas0[:, j])
+                r12 = finite_spearman(meas0[:, names.index(ref)], meas0[:, j])
                 d, lo, hi, p = rho_difference(rho[ref], ci[ref], rho[name], ci[name], r12, m)
                 stat = f"paired_rho_failure_vs_{ref}"
                 rows.append(_row(name, value, stat, d, lo, hi, m, "condition", n_fail, p,
@@ -446,7 +442,9 @@ def _judged(rows: list[dict[str, Any]], mode: str) -> list[dict[str, Any]]:
             continue
         p = r["p_value"] if r["role"] == "primary" else r["p_holm"]  # the primary: uncorrected
         r["survives"] = bool(p < ALPHA)
-        r["verdict"] = _verdict_dir(r["estimate"]) if r["survives"] else "no difference shown"
+        r["verdict"] = (
+            ("better" if r["estimate"] > 0 else "worse") if r["survives"] else "no difference shown"
+        )
     return rows
 
 
@@ -513,7 +511,7 @@ def footage_predictors(
     clustered by clip (:func:`~analysis.predictors.inference.auroc_interval`); paired
     differences by the (clustered) DeLong covariance. Returns :data:`COLUMNS`."""
     del seed  # every interval here is analytic: nothing is drawn
-    names = present(clips.columns)
+    names = measures_present(clips.columns)
     rows: list[dict[str, Any]] = []
     for (value,), g in clips.group_by(param, maintain_order=True):
         wrong = ~g["correct"].to_numpy().astype(bool)
