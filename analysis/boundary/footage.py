@@ -61,7 +61,7 @@ from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.complexity.source_metrics import METRICS
-from analysis.predictors.footage import footage_predictor_tables
+from analysis.predictors.footage import footage_predictor_tables, scene_end
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
 from avdm.registry import check_detector, make_model
@@ -122,7 +122,7 @@ def read_labels(path: str | Path) -> pl.DataFrame:
         except pl.exceptions.PolarsError:
             onset = None
         if onset is None or (onset.drop_nulls() < 0).any() or (onset.drop_nulls() % 1).any():
-            raise ValueError(
+            raise UserError(
                 f"labels table {str(path)!r}: hazard_onset_frame must be a frame number >= 0 "
                 "or empty"
             )
@@ -292,18 +292,6 @@ def clip_complexity(
         rows.append({"source": row["source"], **means, "complexity_frames": frames.height,
                      "startup_frames_left_out": startup})  # fmt: skip
     return pl.DataFrame(rows)
-
-
-def scene_end(row: dict[str, Any], fps: float, window_s: float) -> int | None:
-    """The first frame not of the scene the detector faced: the hazard's onset where the
-    labels give it (``hazard_onset_frame``), else the alert window's start before a collision;
-    None (every frame) for a clip without either."""
-    onset = row.get("hazard_onset_frame")
-    if onset is not None:
-        return int(onset)
-    if row["collision_frame"] is not None:
-        return int(row["collision_frame"] - round(window_s * fps))
-    return None
 
 
 def _key(source: str) -> str:

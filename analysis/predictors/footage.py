@@ -60,6 +60,18 @@ def clip_frames_task(source: str, specs: dict[str, str], fov_deg: float) -> dict
     return out | {"fps": fps}
 
 
+def scene_end(row: dict[str, Any], fps: float, window_s: float) -> int | None:
+    """The first frame not of the scene the detector faced: the hazard's onset where the
+    labels give it (``hazard_onset_frame``), else the alert window's start before a collision;
+    None (every frame) for a clip without either."""
+    onset = row.get("hazard_onset_frame")
+    if onset is not None:
+        return int(onset)
+    if row["collision_frame"] is not None:
+        return int(row["collision_frame"] - round(window_s * fps))
+    return None
+
+
 def footage_predictor_tables(
     s: Any,
     labels: pl.DataFrame,
@@ -71,8 +83,6 @@ def footage_predictor_tables(
     report section). ``clips`` is ``boundary_clips.parquet`` (one row per clip and value with
     ``correct`` and each measure's mean); ``complexity_dir`` where ``complexity`` wrote its
     per-frame table."""
-
-    from analysis.boundary.footage import scene_end  # lazy: cycle break (it imports this module)
 
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {f"{v:g}": with_override(s.detector, s.param, v) for v in values}

@@ -30,7 +30,8 @@ import math
 import numpy as np
 import scipy.stats
 
-CONFIDENCE = 0.95
+from analysis.stats import CONFIDENCE
+
 Z = float(scipy.stats.norm.ppf(0.5 + CONFIDENCE / 2))  # 1.96
 EXACT_UP_TO = 8  # 8! = 40,320 permutations: exact; beyond, Monte Carlo
 PERMUTATIONS = 20_000  # Monte Carlo permutations: p's own standard error <= 0.0035

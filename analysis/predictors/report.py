@@ -17,6 +17,7 @@ import polars as pl
 import pyarrow.parquet as pq
 from matplotlib.figure import Figure
 
+from analysis.predictors.statistics import HEADLINE, MIN_CONDITIONS, MIN_FAILURES
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles, write_parquet
 
@@ -77,8 +78,6 @@ def label(measure: str) -> str:
 def plot_predictors(table: pl.DataFrame, path: Path, title: str) -> Path:
     """Each measure's predictive power with its 95 % interval, ranked, one panel per headline
     statistic present, one colour per parameter value; with none, one panel saying why."""
-    from analysis.predictors.statistics import MIN_CONDITIONS, MIN_FAILURES
-
     stats = [s for s in STATS if table.filter(pl.col("statistic") == s).height]
     fig = Figure(figsize=(6 * max(1, len(stats)), 5.5), layout="constrained")
     axes = np.atleast_1d(fig.subplots(1, max(1, len(stats))))
@@ -133,11 +132,9 @@ def _p(v: Any) -> str:
     return "—" if v is None else f"{v:.2g}" if v >= 0.001 else "< 0.001"
 
 
-def headline(table: pl.DataFrame, param: str, mode: str) -> str:
+def predictor_headline(table: pl.DataFrame, param: str, mode: str) -> str:
     """The section's first sentence: the paper's question (the AVDM against P.910 TI, named in
     advance) answered in plain words, per parameter value, with n and how sure."""
-    from analysis.predictors.statistics import HEADLINE, MIN_CONDITIONS, MIN_FAILURES
-
     unit = "conditions" if mode == "arena" else "clips"
     prim = table.filter(pl.col("role") == "primary")
     if not table.height or not prim.height:
@@ -167,11 +164,9 @@ def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
     """The ``## Which measure predicts it`` section of ``boundary.md``: the answer first, then
     every measure's statistic, then each comparison with n, p, Holm's p and whether it
     survives."""
-    from analysis.predictors.statistics import MIN_CONDITIONS, MIN_FAILURES
-
     lines = [
         "## Which measure predicts where it breaks\n",
-        headline(table, param, mode) + "\n",
+        predictor_headline(table, param, mode) + "\n",
         "![each measure's predictive power, ranked, 95 % intervals](predictors.png)\n",
         f"Every measure per value of `{param}`, with its 95 % interval over the "
         f"{'conditions (seeds resampled within them)' if mode == 'arena' else 'clips'} "

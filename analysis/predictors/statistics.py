@@ -3,7 +3,7 @@
 ``vdc-analyse boundary`` finds where a detector's success falls; this module asks which of the
 complexity measures vdc computes (:data:`MEASURES`) orders the cases as the detector fails
 them. One table, ``predictors.parquet``, one row per measure, parameter value and statistic
-(:data:`COLUMNS`): the estimate, its 95 % interval, ``n`` (the units the statistic used),
+(:data:`PREDICTOR_COLUMNS`): the estimate, its 95 % interval, ``n`` (the units the statistic used),
 ``n_failures`` (the failing units, or the fewer class), ``unit`` (``condition``, ``clip`` or
 ``frame``), and for comparisons ``p_value``, ``p_holm``, ``role``, ``survives`` and ``verdict``.
 Intervals and tests: :mod:`analysis.predictors.inference`, over the units that vary.
@@ -52,7 +52,7 @@ from analysis.predictors.inference import (
     rho_difference,
     rho_interval,
 )
-from analysis.stats import mean_ci
+from analysis.stats import ALPHA, mean_ci
 
 BOOTSTRAP = 1000  # resamples for every interval
 RIDGE = 0.1  # the combined logistic's L2 penalty on standardised coefficients (few units)
@@ -82,8 +82,10 @@ COMBINED = (
     ("avdm",),
     ("avdm_natural",),
 )
-COLUMNS = ("measure", "value", "statistic", "estimate", "ci_low", "ci_high", "n", "n_failures",
-           "unit", "p_value", "p_holm", "role", "survives", "verdict")  # fmt: skip
+PREDICTOR_COLUMNS = (
+    *("measure", "value", "statistic", "estimate", "ci_low", "ci_high", "n", "n_failures"),
+    *("unit", "p_value", "p_holm", "role", "survives", "verdict"),
+)
 HEADLINE = {  # the statistic each mode ranks measures by
     "arena": "rho_failure",
     "footage": "clip_auroc",
@@ -91,7 +93,6 @@ HEADLINE = {  # the statistic each mode ranks measures by
 # The paper's question, named before any data: does the paper's AVDM predict failure better
 # than P.910 TI? Judged at 5 % alone; every other comparison is Holm-corrected.
 PRIMARY = ("avdm", "ti_p910")
-ALPHA = 0.05
 # Below these no comparison gets a verdict ("too few ... to judge"): the units that give 80 %
 # power at two-sided 5 % for the effects the question is about (docs/boundary.md, "How many
 # conditions and clips"). Arena: two dependent Spearman rho of 0.71 and 0.31 (the default
@@ -360,7 +361,7 @@ def arena_predictors(
     mean of its seeds' shares (as ``boundary`` computes it); its measure the mean over its
     profiling runs. ρ's interval: :func:`~analysis.predictors.inference.rho_interval` on the
     hierarchical bootstrap (conditions, then seeds within them, the same draws for every
-    measure); its p: the exact permutation p over conditions. Returns :data:`COLUMNS`."""
+    measure); its p: the exact permutation p over conditions. Returns :data:`PREDICTOR_COLUMNS`."""
     names = measures_present(measures.columns)
     rng = np.random.default_rng(seed)
     rows: list[dict[str, Any]] = []
@@ -509,7 +510,7 @@ def footage_predictors(
     scene the detector faced); ``frames``: one row per frame and value (clip, ``param``,
     frame, positive, keep, one column per measure). AUROC intervals: Newcombe's, frames
     clustered by clip (:func:`~analysis.predictors.inference.auroc_interval`); paired
-    differences by the (clustered) DeLong covariance. Returns :data:`COLUMNS`."""
+    differences by the (clustered) DeLong covariance. Returns :data:`PREDICTOR_COLUMNS`."""
     del seed  # every interval here is analytic: nothing is drawn
     names = measures_present(clips.columns)
     rows: list[dict[str, Any]] = []
