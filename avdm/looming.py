@@ -14,7 +14,8 @@ focal length ``f = (W / 2) / tan(hfov / 2)`` px):
   photograph, read as a cylinder) pans left by ``rotation_dps / fps`` deg per frame, and the
   object, whose bearing is fixed in the world, moves with it; it is on the axis at contact.
 * the object wears a second photograph (a disc of it); nothing of it is drawn before the
-  **hazard onset**, the first frame its image radius reaches 1 px with its centre in view.
+  **hazard onset**, the first frame from ``enter_frame`` on at which its image radius reaches
+  1 px with its centre in view.
 * light and contrast: ``out = 255 · light · (0.5 + contrast · (image − 0.5))`` with images on
   [0, 1]; then Gaussian sensor noise of ``noise_sd`` grey levels; rounded to uint8.
 """
@@ -80,13 +81,15 @@ def render_looming(
     light: float = 1.0,
     noise_sd: float = 0.0,
     seed: int = 0,
+    enter_frame: int = 0,
 ) -> Looming:
     """Render an object approaching over ``background`` (see the module for the geometry).
 
     ``background``, ``texture``: photographs (H, W[, 3]); ``size``: (H, W) of the frames;
     ``contact_frame``: the frame at which the object reaches the camera (may lie beyond the
     clip); ``rv_s``: object radius over approach speed (s); ``miss_radii``: lateral offset in
-    object radii (0: a collision). Returns :class:`Looming`."""
+    object radii (0: a collision); ``enter_frame``: the object is not in the scene before this
+    frame (it enters it, e.g. from behind a corner). Returns :class:`Looming`."""
     h, w = size
     if h < 4 or w < 4 or n_frames < 1 or not (fps > 0 and rv_s > 0 and 0 < hfov_deg < 180):
         raise ValueError("render_looming needs a raster of at least 4x4, frames, fps > 0, "
@@ -123,7 +126,7 @@ def render_looming(
             yaw_left = math.radians(rotation_dps * (contact_frame - t) / fps)
             ang = side + yaw_left
             cx = w / 2 + f * math.tan(ang) if abs(ang) < math.radians(89) else math.inf
-            visible = r >= 1.0 and abs(cx - w / 2) < w / 2
+            visible = r >= 1.0 and abs(cx - w / 2) < w / 2 and t >= enter_frame
             if onset is None and visible:
                 onset = t
             if onset is not None and math.isfinite(cx):
