@@ -114,6 +114,15 @@ class LoomingFootageResult:
     files: tuple[Path, ...]  # every file written, labels.csv last
     reused: int  # clips found complete from an earlier run
 
+    def report(self) -> list[str]:
+        """Lines for the command line: what was written."""
+        counts = self.labels["label"].value_counts().sort("label").iter_rows()
+        made = ", ".join(f"{n} {label}" for label, n in counts)
+        return [
+            f"{self.labels.height} clips ({made}; {self.reused} reused from an earlier run)",
+            f"wrote {self.files[-1]}",
+        ]
+
 
 def draw_conditions(settings: LoomingFootageSettings, k: int) -> dict[str, float | str]:
     """Clip ``k``'s conditions, from its own generator (seed, k)."""
