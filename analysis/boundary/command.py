@@ -110,7 +110,15 @@ class BoundarySettings(ExecutorSettings):
     )
     tf: tuple[float, ...] = option((0.0, 1.0, 3.0), "arena: wall TFs, Hz, comma-separated")
     scenes: tuple[str, ...] = option(
-        ("grating", "natural"), "arena: a wall scene (repeat the flag for several)"
+        ("grating", "natural"),
+        "arena: wall scenes, comma-separated: grating[-p<period_m>][-c<contrast>], "
+        "natural[-c<contrast>], photo-<scikit-image photograph>[-c<contrast>]",
+    )
+    tf_draws: int = option(
+        0,
+        "arena grid: per scene, this many wall TFs drawn from --tf-range (one in each of as "
+        "many equal strata, uniform within it, seeded by --seed and the scene) instead of --tf",
+        type=non_negative_int,
     )
     seed: int = option(1, "first random seed", type=non_negative_int)
     seeds: int = option(5, "arena: runs per condition and value (seeds --seed, --seed+1, ...)")
@@ -189,7 +197,7 @@ class BoundarySettings(ExecutorSettings):
             self.tf_bounds()
             self.grid_values()
             number_list(self.tf, "tf")
-            name_list(self.scenes, "scenes", ("grating", "natural"))
+            self.scene_list()
             if self.per_scene and self.budget < 2 * len(self.scene_list()):
                 raise ValueError("--per-scene needs --budget of at least 2 runs per scene")
             from analysis.collision import CollisionSettings
@@ -218,14 +226,33 @@ class BoundarySettings(ExecutorSettings):
         return bounds
 
     def scene_list(self) -> list[str]:
-        return name_list(self.scenes, "scenes", ("grating", "natural"))
+        from analysis.boundary.scenes import check_scenes
+
+        names = check_scenes(_items(self.scenes))
+        if len(set(names)) != len(names):
+            raise ValueError(f"--scenes repeats a scene: {self.scenes!r}")
+        return names
+
+    def scene_tfs(self, index: int, scene: str) -> list[float]:
+        """The wall TFs (Hz) of the scene ``scene``, the ``index``-th of ``--scenes``: --tf,
+        or --tf-draws TFs drawn from --tf-range (stratified; to 0.01 Hz, a folder name)."""
+        if self.tf_draws == 0:
+            return number_list(self.tf, "tf")
+        import numpy as np
+
+        lo, hi = self.tf_bounds()
+        # the scene's own generator: adding a scene does not move the others' TFs
+        rng = np.random.default_rng([self.seed, index, sum(map(ord, scene))])
+        n = self.tf_draws
+        draws = lo + (np.arange(n) + rng.random(n)) * (hi - lo) / n
+        return sorted({round(float(v), 2) for v in draws})
 
     def conditions(self) -> list[tuple[str, float]]:
         """(scene, TF) of the grid, in the order given."""
         return [
             (scene, tf)
-            for scene in name_list(self.scenes, "scenes", ("grating", "natural"))
-            for tf in number_list(self.tf, "tf")
+            for i, scene in enumerate(self.scene_list())
+            for tf in self.scene_tfs(i, scene)
         ]
 
 

@@ -50,6 +50,7 @@ from analysis.boundary.command import (
     write_arena_outputs,
 )
 from analysis.boundary.fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
+from analysis.boundary.scenes import scene_fields
 from vdc.executors import Feedback
 
 FIRST_BATCH = 4
@@ -358,8 +359,9 @@ def profile_runs(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path
             tf = round(float(tf), 2)
             cond = condition_name(scene, tf)
             settings = SimSettings(
-                scene=scene, tf_hz=tf, minutes=s.minutes, seed=s.seed, model=s.profile_model
-            )
+                **scene_fields(scene), tf_hz=tf, minutes=s.minutes, seed=s.seed,
+                model=s.profile_model,
+            )  # fmt: skip
             cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": s.seed}
             path = folder / "profile" / cond / f"seed{s.seed}.rrd"
             items.append((f"profile-{cond}-seed{s.seed}", settings, path, cols))

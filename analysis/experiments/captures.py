@@ -116,14 +116,16 @@ def profiling_items(s: Any, folder: Path) -> list[tuple[str, Any, Path, dict[str
     """A boundary campaign's profiling runs (``s``: its ``BoundarySettings``): one (as
     ``reproduce`` profiles: ring turns, no detector) per (scene, TF, seed)."""
     from analysis.boundary.command import condition_name
+    from analysis.boundary.scenes import scene_fields
 
     items = []
     for scene, tf in s.conditions():
         cond = condition_name(scene, tf)
         for seed in range(s.seed, s.seed + s.seeds):
             settings = SimSettings(
-                scene=scene, tf_hz=tf, minutes=s.minutes, seed=seed, model=s.profile_model
-            )
+                **scene_fields(scene), tf_hz=tf, minutes=s.minutes, seed=seed,
+                model=s.profile_model,
+            )  # fmt: skip
             cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": seed}
             items.append(
                 (
@@ -143,13 +145,14 @@ def collision_run_item(
     detector's ``value``: (key, settings, recording path, row columns), as the grid and the
     adaptive design both record it (so either reuses the other's finished runs)."""
     from analysis.boundary.command import condition_name, with_override
+    from analysis.boundary.scenes import scene_fields
 
     cond = condition_name(scene, tf_hz)
     tag = f"{s.param}{value:g}"
     settings = SimSettings(
         behaviour="collision",
         model=with_override(s.detector, s.param, value),
-        scene=scene,
+        **scene_fields(scene),
         tf_hz=tf_hz,
         minutes=s.minutes,
         seed=seed,
