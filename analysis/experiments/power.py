@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from scipy.stats import norm
 
 SPEARMAN_Z_VARIANCE = 1.06  # Fieller, Hartley & Pearson 1957: var(z of Spearman) ≈ 1.06/(n-3)
@@ -91,9 +92,49 @@ def clips_for_auroc_difference(
         raise ValueError(f"AUROCs must differ and lie in [0.5, 1), got {auc1}, {auc2}")
     if not (0 < failure_share < 1 and -1 < r < 1):
         raise ValueError("failure_share must be in (0, 1) and r in (-1, 1)")
-    clips = 4
-    while auroc_difference_power(auc1, auc2, r, clips, failure_share, alpha) < power:
-        clips += 1
-        if clips > 1_000_000:
-            raise ValueError("more than a million clips: the difference is too small to test")
+    def enough(n: int) -> bool:
+        return auroc_difference_power(auc1, auc2, r, n, failure_share, alpha) >= power
+
+    hi = 4
+    while not enough(hi):  # power grows with the clips: double, then bisect
+        hi *= 2
+        if hi > 10_000_000:
+            raise ValueError("more than ten million clips: the difference is too small to test")
+    lo = hi // 2
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if enough(mid) else (mid, hi)
+    clips = hi
     return clips, max(1, round(clips * failure_share))
+
+
+# --- what counts as a failure (docs/power_plan.md) ------------------------------------------
+
+MIN_TTC_S = 0.5  # an alert later than this before contact is a miss: no time left to turn
+OUTCOMES = ("hit", "miss", "early alert", "false alarm", "correct rejection")
+
+
+def footage_outcome(
+    alert: np.ndarray,
+    fps: float,
+    collision_frame: int | None,
+    hazard_onset_frame: int | None,
+    min_ttc_s: float = MIN_TTC_S,
+) -> str:
+    """A clip's outcome for a detector's ``alert`` (T,) (> 0: alert), by the plan's rules:
+
+    * an alert before the hazard's onset (or anywhere, when nothing is ever in view) on a clip
+      with a hazard is an **early alert** (the scene alone set it off);
+    * collision: the first alert from the onset on is a **hit** when it leaves at least
+      ``min_ttc_s`` before contact, else (late, or none) a **miss**;
+    * near miss (no collision frame): any alert from the onset on is a **false alarm**, none a
+      **correct rejection**.
+    """
+    on = np.flatnonzero(np.asarray(alert, dtype=np.float64) > 0)
+    onset = hazard_onset_frame if hazard_onset_frame is not None else len(alert)
+    if on.size and on[0] < onset:
+        return "early alert"
+    if collision_frame is None:
+        return "false alarm" if on.size else "correct rejection"
+    last_in_time = collision_frame - math.ceil(min_ttc_s * fps - 1e-9)
+    return "hit" if on.size and on[0] <= last_in_time else "miss"

@@ -100,3 +100,25 @@ def test_bad_inputs_are_refused() -> None:
         conditions_for_correlation_difference(0.5, 0.5, 0.3)
     with pytest.raises(ValueError, match="AUROCs must differ"):
         clips_for_auroc_difference(0.7, 0.7, 0.5, 0.4)
+
+
+def test_footage_outcomes_score_the_failure_modes_apart() -> None:
+    from analysis.experiments.power import footage_outcome
+
+    fps, onset, contact = 25.0, 50, 149
+    alert = np.zeros(150)
+
+    def at(frame: int) -> np.ndarray:
+        a = alert.copy()
+        a[frame:] = 1
+        return a
+
+    assert footage_outcome(at(40), fps, contact, onset) == "early alert"
+    assert footage_outcome(at(100), fps, contact, onset) == "hit"
+    # 0.5 s at 25 fps = 12.5 frames: frame 136 leaves 13 frames (0.52 s), 137 only 0.48 s
+    assert footage_outcome(at(136), fps, contact, onset) == "hit"
+    assert footage_outcome(at(137), fps, contact, onset) == "miss"
+    assert footage_outcome(alert, fps, contact, onset) == "miss"
+    assert footage_outcome(at(100), fps, None, onset) == "false alarm"
+    assert footage_outcome(alert, fps, None, onset) == "correct rejection"
+    assert footage_outcome(at(100), fps, None, None) == "early alert"  # nothing ever in view
