@@ -92,6 +92,7 @@ def clips_for_auroc_difference(
         raise ValueError(f"AUROCs must differ and lie in [0.5, 1), got {auc1}, {auc2}")
     if not (0 < failure_share < 1 and -1 < r < 1):
         raise ValueError("failure_share must be in (0, 1) and r in (-1, 1)")
+
     def enough(n: int) -> bool:
         return auroc_difference_power(auc1, auc2, r, n, failure_share, alpha) >= power
 
