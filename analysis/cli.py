@@ -347,14 +347,9 @@ COMMANDS = {
         "analysis.experiments.looming_footage:LoomingFootageSettings",
         _campaign("analysis.experiments.looming_footage:looming_footage", "clip"),
         "render a labelled collection of looming clips over real photographs",
-        "Render --clips clips of an object approaching the camera over scikit-image's "
-        "photographs, each with its own camera yaw (deg/s), contrast, light level and sensor "
-        "noise, a collision or a near miss, encoded as H.264; labels.csv gives each clip's "
-        "collision_frame and hazard_onset_frame by construction and its conditions (the "
-        "--labels table of `vdc-analyse boundary`). Clips already written are reused.",
-        "example:\n  vdc-analyse looming-footage --clips 200 --out footage/looming\n"
-        "  vdc-analyse boundary --labels footage/looming/labels.csv --fov-deg 60 "
-        "--detector flow-ttc --param tau_alert_s --values 0.5,1",
+        "Render --clips H.264 clips of an object approaching over scikit-image's photographs "
+        "(camera yaw, contrast, light, noise; collisions and near misses) and labels.csv with "
+        "collision_frame and hazard_onset_frame (docs/boundary.md). Clips written are reused.",
         inputs=_inputs("footage/looming", None),
     ),
     "adaptation": Command(

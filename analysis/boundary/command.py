@@ -46,6 +46,7 @@ import polars as pl
 from analysis.boundary.fit import describe_boundary as describe_boundary  # re-exported
 from analysis.boundary.plot import plot_boundary as plot_boundary  # re-exported: its old home
 from analysis.boundary.report_tables import interval, markdown_table
+from analysis.boundary.scenes import check_scenes, draw_tfs
 from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy
 from vdc.cli_support import non_negative_int, option, positive_float
@@ -110,14 +111,12 @@ class BoundarySettings(ExecutorSettings):
     )
     tf: tuple[float, ...] = option((0.0, 1.0, 3.0), "arena: wall TFs, Hz, comma-separated")
     scenes: tuple[str, ...] = option(
-        ("grating", "natural"),
-        "arena: wall scenes, comma-separated: grating[-p<period_m>][-c<contrast>], "
-        "natural[-c<contrast>], photo-<scikit-image photograph>[-c<contrast>]",
+        ("grating", "natural"), "arena: wall scenes, comma-separated (docs/boundary.md#scenes)"
     )
     tf_draws: int = option(
         0,
         "arena grid: per scene, this many wall TFs drawn from --tf-range (one in each of as "
-        "many equal strata, uniform within it, seeded by --seed and the scene) instead of --tf",
+        "many equal strata, uniform in it, seeded by --seed and the scene) instead of --tf",
         type=non_negative_int,
     )
     seed: int = option(1, "first random seed", type=non_negative_int)
@@ -226,34 +225,18 @@ class BoundarySettings(ExecutorSettings):
         return bounds
 
     def scene_list(self) -> list[str]:
-        from analysis.boundary.scenes import check_scenes
+        return check_scenes(_items(self.scenes))
 
-        names = check_scenes(_items(self.scenes))
-        if len(set(names)) != len(names):
-            raise ValueError(f"--scenes repeats a scene: {self.scenes!r}")
-        return names
-
-    def scene_tfs(self, index: int, scene: str) -> list[float]:
-        """The wall TFs (Hz) of the scene ``scene``, the ``index``-th of ``--scenes``: --tf,
-        or --tf-draws TFs drawn from --tf-range (stratified; to 0.01 Hz, a folder name)."""
+    def scene_tfs(self, scene: str) -> list[float]:
+        """The wall TFs (Hz) of ``scene``: --tf, or --tf-draws TFs drawn from --tf-range
+        (:func:`analysis.boundary.scenes.draw_tfs`)."""
         if self.tf_draws == 0:
             return number_list(self.tf, "tf")
-        import numpy as np
-
-        lo, hi = self.tf_bounds()
-        # the scene's own generator: adding a scene does not move the others' TFs
-        rng = np.random.default_rng([self.seed, index, sum(map(ord, scene))])
-        n = self.tf_draws
-        draws = lo + (np.arange(n) + rng.random(n)) * (hi - lo) / n
-        return sorted({round(float(v), 2) for v in draws})
+        return draw_tfs(self.seed, scene, self.tf_draws, self.tf_bounds())
 
     def conditions(self) -> list[tuple[str, float]]:
         """(scene, TF) of the grid, in the order given."""
-        return [
-            (scene, tf)
-            for i, scene in enumerate(self.scene_list())
-            for tf in self.scene_tfs(i, scene)
-        ]
+        return [(scene, tf) for scene in self.scene_list() for tf in self.scene_tfs(scene)]
 
 
 def _join(values: Any) -> str:

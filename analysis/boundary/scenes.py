@@ -14,7 +14,10 @@ path-safe. :func:`scene_fields` gives the ``vdc-capture sim`` settings it stands
 from __future__ import annotations
 
 import re
+import zlib
 from pathlib import Path
+
+import numpy as np
 
 # scikit-image's photographs shipped as files (nothing downloaded): file name per scene name
 PHOTOS = {
@@ -79,6 +82,18 @@ def check_scenes(names: list[str]) -> list[str]:
     """``names`` when every one is a scene (see :func:`scene_fields`); ValueError otherwise."""
     if not names:
         raise ValueError(f"--scenes is empty: expected some of {HELP}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"--scenes repeats a scene: {', '.join(names)}")
     for n in names:
         scene_fields(n)
     return names
+
+
+def draw_tfs(seed: int, scene: str, n: int, bounds: tuple[float, float]) -> list[float]:
+    """``n`` wall TFs (Hz) for ``scene``: one uniform draw in each of ``n`` equal strata of
+    ``bounds`` (LO, HI), rounded to 0.01 Hz (a folder name), from the scene's own generator
+    (seed, CRC-32 of its name): adding or reordering scenes moves no scene's TFs."""
+    lo, hi = bounds
+    rng = np.random.default_rng([seed, zlib.crc32(scene.encode())])
+    draws = lo + (np.arange(n) + rng.random(n)) * (hi - lo) / n
+    return sorted({round(float(v), 2) for v in draws})

@@ -358,10 +358,8 @@ def profile_runs(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path
         for tf in np.linspace(lo, hi, PROFILE_POINTS):
             tf = round(float(tf), 2)
             cond = condition_name(scene, tf)
-            settings = SimSettings(
-                **scene_fields(scene), tf_hz=tf, minutes=s.minutes, seed=s.seed,
-                model=s.profile_model,
-            )  # fmt: skip
+            run = {"tf_hz": tf, "minutes": s.minutes, "seed": s.seed, "model": s.profile_model}
+            settings = SimSettings(**scene_fields(scene), **run)
             cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": s.seed}
             path = folder / "profile" / cond / f"seed{s.seed}.rrd"
             items.append((f"profile-{cond}-seed{s.seed}", settings, path, cols))
