@@ -69,3 +69,13 @@ def test_a_run_of_a_scene_is_configured_with_its_wall(tmp_path: Path) -> None:
     _, photo, _, _ = collision_run_item(s, "photo-grass", 1.5, 0.5, 1, tmp_path, {})
     assert photo.to_config().wall.image_path.endswith("grass.png")
     assert photo.to_config().collision.detector == "flow-ttc:tau_alert_s=0.5"
+
+
+def test_the_flow_detector_drives_the_robot_with_its_threshold_in_seconds() -> None:
+    from capture.config import CollisionConfig
+
+    assert CollisionConfig("flow-ttc", threshold=0.5).detector_spec() == (
+        "flow-ttc:tau_alert_s=0.5"
+    )
+    with pytest.raises(ValueError, match="time to contact"):
+        CollisionConfig("flow-ttc", threshold=20.0)  # 20 s: a spike rate, not a time
