@@ -66,8 +66,8 @@ def photo_path(photo: str) -> Path:
         raise ValueError(
             f"unknown photograph {photo!r} for an arena scene: known are {', '.join(PHOTOS)}"
         )
-    try:  # inside: the photographs are an optional extra (scikit-image)
-        import skimage.data
+    try:
+        import skimage.data  # lazy: optional extra (test: scikit-image)
     except ImportError:
         raise ValueError(
             "photo-* arena scenes show scikit-image's photographs: pip install scikit-image"

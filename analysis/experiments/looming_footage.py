@@ -38,6 +38,7 @@ import math
 from fractions import Fraction
 from pathlib import Path
 
+import av
 import numpy as np
 import polars as pl
 
@@ -144,7 +145,7 @@ def draw_conditions(settings: LoomingFootageSettings, k: int) -> dict[str, float
 
 def _photo(name: str) -> np.ndarray:
     try:
-        from skimage import data
+        from skimage import data  # lazy: optional extra (test: scikit-image)
     except ImportError:
         raise ValueError(
             "looming-footage renders over scikit-image's photographs: pip install scikit-image"
@@ -155,8 +156,6 @@ def _photo(name: str) -> np.ndarray:
 def encode_h264(path: Path, frames: np.ndarray, fps: float) -> None:
     """Grey frames (T, H, W) uint8 as H.264 (libx264, yuv420p, CRF 18, no B-frames), written
     to ``path`` via ``<stem>.partial.mp4`` and a rename."""
-    import av
-
     partial = path.with_name(path.stem + ".partial.mp4")
     with av.open(str(partial), "w") as out:
         stream = out.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))

@@ -60,13 +60,13 @@ def test_tfs_are_drawn_per_scene_from_the_range_one_per_stratum() -> None:
 def test_a_run_of_a_scene_is_configured_with_its_wall(tmp_path: Path) -> None:
     s = BoundarySettings(scenes=SCENES, tf_draws=2, tf_range="0:4", detector="flow-ttc",
                          param="tau_alert_s", values="0.5", seeds=1, minutes=0.1)  # fmt: skip
-    _, settings, _, cols = collision_run_item(
+    run = collision_run_item(
         s, "grating-p0.2-c0.3", 1.5, 0.5, 1, tmp_path, {"scene": "grating-p0.2-c0.3"}
     )
-    wall = settings.to_config().wall
+    wall = run.settings.to_config().wall
     assert (wall.scene, wall.period_m, wall.contrast) == ("grating", 0.2, 0.3)
-    assert cols["condition"] == "grating-p0.2-c0.3-tf1.5"
-    _, photo, _, _ = collision_run_item(s, "photo-grass", 1.5, 0.5, 1, tmp_path, {})
+    assert run.columns["condition"] == "grating-p0.2-c0.3-tf1.5"
+    photo = collision_run_item(s, "photo-grass", 1.5, 0.5, 1, tmp_path, {}).settings
     assert photo.to_config().wall.image_path.endswith("grass.png")
     assert photo.to_config().collision.detector == "flow-ttc:tau_alert_s=0.5"
 
