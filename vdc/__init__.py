@@ -58,6 +58,9 @@ _API = {
     "ComplexitySettings": "analysis.complexity.command",
     "complexity": "analysis.complexity.command",
     "complexity_of_frames": "analysis.complexity.command",
+    # a robot-learning dataset (LeRobot), episode by episode
+    "DatasetSettings": "analysis.dataset.command",
+    "dataset": "analysis.dataset.command",
     # many recordings as one dataset, and inline viewing (extras: catalog, notebook)
     "CatalogSettings": "analysis.catalog.build",
     "open_catalog": "analysis.catalog.server",
