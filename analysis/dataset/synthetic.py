@@ -45,15 +45,19 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import sys
 from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
+import av
 import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+from vdc.errors import UserError
 
 CODECS = {"libsvtav1": "av1", "libx264": "h264"}
 STATE_DIM = 6
@@ -97,8 +101,12 @@ STANDARD_FAULTS = Faults(
 
 def _scene(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """(canvas RGB uint8 of the view plus a margin, object RGB uint8): real photographs."""
-    from skimage import data
-
+    try:  # here, not at the top: scikit-image (its photographs) is in the test extra only
+        from skimage import data
+    except ImportError:
+        raise UserError(
+            "writing a test dataset needs scikit-image (pip install scikit-image)"
+        ) from None
     bg = cv2.resize(data.astronaut(), (width + 2 * MARGIN_PX, height + 2 * MARGIN_PX),
                     interpolation=cv2.INTER_AREA)  # fmt: skip
     side = max(8, height // 4)
@@ -179,8 +187,8 @@ class _Encoder:
     """One MP4 (one video stream) written frame by frame at given times."""
 
     def __init__(self, path: Path, codec: str, fps: float, shape: tuple[int, int]) -> None:
-        import av
-
+        # SVT-AV1 prints its configuration on stderr for every file unless told: errors only
+        os.environ.setdefault("SVT_LOG", "1")
         path.parent.mkdir(parents=True, exist_ok=True)
         self.container = av.open(str(path), "w")
         opts = {"g": "2", "crf": "30"}
@@ -196,8 +204,6 @@ class _Encoder:
         self.last_pts = -1
 
     def add(self, t_s: float, rgb: np.ndarray) -> None:
-        import av
-
         frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
         pts = max(round(t_s / TIME_BASE), self.last_pts + 1)
         frame.pts, frame.time_base = pts, TIME_BASE
