@@ -109,17 +109,17 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
 
 
 def _campaign(entry: str, unit: str, *inputs: str) -> Callable[[argparse.Namespace], int]:
-    """A sub-command that runs ``module:function(*inputs, settings, out, feedback)`` (inputs:
-    arguments by name), a progress bar over its ``unit``s; prints ``report()``, exits with
-    its ``exit_status`` (default 0)."""
+    """A sub-command that runs ``module:function(*inputs, settings, out, feedback)`` with a progress
+    bar over its ``unit``s, prints ``report()`` and exits with ``exit_status`` (default 0)."""
 
     def run(args: argparse.Namespace) -> int:
         module, name = entry.split(":")
         fn = getattr(importlib.import_module(module), name)
         with progress_bar(None, name, unit) as bar:
             settings = settings_from_args(load_settings_class(args.settings_target), args)
-            given = [getattr(args, a) for a in inputs]
-            res = fn(*given, settings, args.out, Feedback(say, bar.update))
+            res = fn(
+                *map(args.__getattribute__, inputs), settings, args.out, Feedback(say, bar.update)
+            )
         print("\n".join(res.report()))
         return getattr(res, "exit_status", 0)
 
@@ -169,7 +169,8 @@ def cmd_catalog(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from analysis.experiments.reproduce import ReproduceSettings, reproduce
+    from analysis.experiments.plan import ReproduceSettings
+    from analysis.experiments.reproduce import reproduce
 
     plan = ReproduceSettings.make(args.quick, **flag_values(ReproduceSettings, args))
     res = reproduce(plan, args.out, log=say)
@@ -285,7 +286,7 @@ COMMANDS = {
         models=True,
     ),
     "profile": Command(
-        "analysis.profile:ProfileSettings",
+        "analysis.recordings.segments:ProfileSettings",
         _over_recordings("analysis.profile:profile"),
         "3D circle profiles, 'AVDM > 100' histograms and heat maps (paper Figs. 6-7)",
         "For every recording segment (one wall TF) or condition: a 3D circle profile (x, y "
@@ -401,7 +402,7 @@ COMMANDS = {
         "analysis.dataset.command:DatasetSettings",
         _campaign("analysis.dataset.command:dataset", "camera", "recording"),
         "profile a LeRobot dataset episode by episode, its camera faults flagged",
-        "A LeRobot dataset (v3.0, v2.1), each camera of each episode decoded once: docs/dataset.md",
+        "Each camera of each episode of a LeRobot dataset (v3.0, v2.1); see docs/dataset.md.",
         inputs=_inputs("results/dataset", "a LeRobot dataset folder", one=True),
     ),
     "catalog": Command(
@@ -419,7 +420,7 @@ COMMANDS = {
         inputs=_catalog_inputs,
     ),
     "reproduce": Command(
-        "analysis.experiments.reproduce:ReproduceSettings",
+        "analysis.experiments.plan:ReproduceSettings",
         cmd_reproduce,
         "reproduce the paper end to end and write a claim-by-claim report",
         "Run the SF-TF sweep, the open-loop approach, closed-loop profiling (grating TF 0, 1, "
