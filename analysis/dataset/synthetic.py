@@ -101,8 +101,8 @@ STANDARD_FAULTS = Faults(
 
 def _scene(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """(canvas RGB uint8 of the view plus a margin, object RGB uint8): real photographs."""
-    try:  # here, not at the top: scikit-image (its photographs) is in the test extra only
-        from skimage import data
+    try:  # scikit-image (its photographs) comes with the test extra only
+        from skimage import data  # lazy: optional extra
     except ImportError:
         raise UserError(
             "writing a test dataset needs scikit-image (pip install scikit-image)"
