@@ -31,6 +31,7 @@ class DatasetSettings:
     repeat is), which flags fail a run, and where the episodes run."""
 
     metrics: str = option(
+        # unless told: ``vdc-analyse complexity``'s default set (the angular ones need --fov-deg)
         ",".join(DEFAULT_METRICS),
         "the complexity metrics per frame: comma-separated names as vdc-analyse complexity's "
         "--metrics (omega_dps and flow_dps need --fov-deg)",

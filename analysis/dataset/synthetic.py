@@ -51,7 +51,6 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
-import av
 import cv2
 import numpy as np
 import pyarrow as pa
@@ -189,6 +188,8 @@ class _Encoder:
     def __init__(self, path: Path, codec: str, fps: float, shape: tuple[int, int]) -> None:
         # SVT-AV1 prints its configuration on stderr for every file unless told: errors only
         os.environ.setdefault("SVT_LOG", "1")
+        import av  # lazy: start-up
+
         path.parent.mkdir(parents=True, exist_ok=True)
         self.container = av.open(str(path), "w")
         opts = {"g": "2", "crf": "30"}
@@ -204,6 +205,8 @@ class _Encoder:
         self.last_pts = -1
 
     def add(self, t_s: float, rgb: np.ndarray) -> None:
+        import av  # lazy: start-up
+
         frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
         pts = max(round(t_s / TIME_BASE), self.last_pts + 1)
         frame.pts, frame.time_base = pts, TIME_BASE

@@ -7,7 +7,6 @@ import os
 from collections.abc import Iterator
 from typing import Any
 
-import av
 
 from vdc.frame_metrics import luma_plane, stream_format
 from vdc.sources import Reader, SourceFrame, display_grey, frames_missing_in
@@ -26,6 +25,8 @@ class WindowReader(Reader):
     opened; a file that will not open raises ValueError naming it."""
 
     def __init__(self, path: str, from_s: float, to_s: float | None, fps: float) -> None:
+        import av  # lazy: start-up
+
         self.path, self.from_s, self.to_s, self.fps = path, from_s, to_s, fps
         if not os.path.exists(path):
             raise ValueError(f"{path}: no such file")
@@ -72,6 +73,8 @@ class WindowReader(Reader):
             ) from None
 
     def _decode(self) -> Iterator[SourceFrame]:
+        import av  # lazy: start-up
+
         s = self.stream
         if self.from_s > 0:  # the key frame at or before the window
             self.container.seek(int(self.from_s / s.time_base), stream=s, backward=True)
