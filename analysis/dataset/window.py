@@ -7,7 +7,6 @@ import os
 from collections.abc import Iterator
 from typing import Any
 
-
 from vdc.frame_metrics import luma_plane, stream_format
 from vdc.sources import Reader, SourceFrame, display_grey, frames_missing_in
 
