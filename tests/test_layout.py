@@ -70,7 +70,8 @@ def test_the_command_lines_are_generated_not_written() -> None:
     lines = sum(
         len((ROOT / m / "cli.py").read_text().splitlines()) for m in ("capture", "analysis")
     )
-    assert lines < 750, f"capture/cli.py + analysis/cli.py: {lines} lines (keep well under 800)"
+    # 770: the sub-command `dataset` (issue 46) adds its 7-line entry to analysis/cli.py
+    assert lines < 770, f"capture/cli.py + analysis/cli.py: {lines} lines (keep well under 800)"
 
 
 def test_no_module_imports_pyplot_or_changes_the_backend() -> None:
