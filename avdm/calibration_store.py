@@ -8,17 +8,68 @@ user's cache folder (the one file outside the package that ``avdm`` reads or wri
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import dataclasses
 import hashlib
 import json
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from functools import cache
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 CALIBRATION_FILE = "calibrations.json"
+
+
+@dataclasses.dataclass(frozen=True)
+class FitNote:
+    """What a calibration fit is doing, for the caller to show (``avdm`` prints nothing).
+
+    ``stage``: ``"fitting"`` (a fit starts: ``total`` stimuli to measure), ``"step"`` (one
+    stimulus measured) or ``"cached"`` (the fit is done and written to ``cache_file``; empty
+    when the cache folder cannot be written)."""
+
+    stage: str
+    model: str  # avdm or avdm-natural
+    fps: float  # Hz
+    deg_per_px: float
+    size_hw: tuple[int, int]  # the raster the fit runs on, px
+    total: int = 0
+    cache_file: str = ""
+
+    def camera(self) -> str:
+        """``33 Hz, 0.7071 deg/px, 72x99 px`` (H x W)."""
+        h, w = self.size_hw
+        return f"{self.fps:g} Hz, {self.deg_per_px:.4g} deg/px, {h}x{w} px"
+
+
+_REPORT: contextvars.ContextVar[Callable[[FitNote], None] | None] = contextvars.ContextVar(
+    "vdc_fit_report", default=None
+)
+
+
+@contextlib.contextmanager
+def fit_progress(report: Callable[[FitNote], None] | None) -> Iterator[None]:
+    """Within the block, every calibration fit (however deep in ``make_model`` it starts)
+    tells ``report`` what it fits, each step and where it cached the result: a fit takes
+    seconds to minutes, and the caller decides how to show it (a bar, a log line). Nested, both
+    the outer and the inner ``report`` hear every note."""
+    outer = _REPORT.get()
+    if outer is not None and report is not None:
+        inner = report
+
+        def report(note: FitNote) -> None:
+            outer(note)
+            inner(note)
+
+    token = _REPORT.set(report if report is not None else outer)
+    try:
+        yield
+    finally:
+        _REPORT.reset(token)
 
 
 @cache
@@ -159,14 +210,35 @@ def calibration_for(
     cached = read_cached(path, key)
     if cached is not None:
         return {**cached, "source": "cache", "cache_file": str(path)}
+    report = _REPORT.get()
     if multiscale:
-        from avdm.calibration import fit_multiscale
+        from avdm.calibration import CLUTTER_SEEDS, fit_multiscale
 
         size = (params.height_px, params.width_px)  # its scales depend on the raster
-        fit = fit_multiscale(params, size=size, progress=progress)
+        total = 2 * len(CLUTTER_SEEDS) * 10  # two passes over the seeds x 10 speeds
     else:
-        from avdm.calibration import fit_decoding
+        from avdm.calibration import fit_decoding, valid_periods_px, valid_tfs_hz
 
-        fit = fit_decoding(params, size=CAL_SIZE, contrasts=CAL_CONTRASTS, progress=progress)
+        size = CAL_SIZE
+        total = len(valid_periods_px(size[1])) * len(valid_tfs_hz(fps)) * len(CAL_CONTRASTS)
+    name = "avdm-natural" if multiscale else "avdm"
+    note = FitNote("fitting", name, fps, deg_per_px, size, total)
+    step = progress
+    if report is not None:
+        report(note)
+        stepped = dataclasses.replace(note, stage="step")
+
+        def step() -> None:
+            report(stepped)
+            if progress is not None:
+                progress()
+
+    if multiscale:
+        fit = fit_multiscale(params, size=size, progress=step)
+    else:
+        fit = fit_decoding(params, size=size, contrasts=CAL_CONTRASTS, progress=step)
     entry = {"key": key, **key, **fit.to_dict()}
-    return {**entry, "source": "fitted", "cache_file": write_cached(path, entry)}
+    written = write_cached(path, entry)
+    if report is not None:
+        report(dataclasses.replace(note, stage="cached", cache_file=written))
+    return {**entry, "source": "fitted", "cache_file": written}

@@ -282,7 +282,7 @@ def record_video(
     the cells of a calibration fit when this camera needs one. A missing, empty or unreadable
     source raises ValueError before the file exists; a file cut short keeps the frames before
     the cut."""
-    from avdm.calibration_store import calibration_for
+    from avdm.calibration_store import FitNote, calibration_for, fit_progress
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel, new_frame_rate
     from capture.output import claim_output
@@ -312,10 +312,17 @@ def record_video(
         # the one context every model of this recording is built with, online and offline
         context = camera_model_context(w, h, model_fps, settings.fov_deg)
         deg_per_px = float(context["deg_per_px"])
-        built = make_model(settings.model, **context)
-        cal = calibration_for(
-            model_fps, deg_per_px, progress=calibration_progress, params=_calibrated(built)
-        )
+        # a new camera's fit runs inside make_model: count its steps there
+        steps = None
+        if calibration_progress is not None:
+
+            def steps(note: FitNote) -> None:
+                if note.stage == "step":
+                    calibration_progress(1)
+
+        with fit_progress(steps):
+            built = make_model(settings.model, **context)
+        cal = calibration_for(model_fps, deg_per_px, params=_calibrated(built))
         model = TrueTimeModel(built)
         live = options.viewer_url()
         info = device.info
