@@ -20,7 +20,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from analysis.rrd_reader import Recording
+from analysis.recordings.reader import Recording
 from capture.config import SimConfig, WallConfig
 from capture.output import partial_path
 from capture.render import OverheadRenderer
@@ -277,7 +277,7 @@ def test_the_tracker_joined_to_frames_flags_the_turns_the_simulator_made() -> No
     poses give, frame for frame."""
     from types import SimpleNamespace
 
-    from analysis.ego_motion import turning_flags, yaw_rate_dps
+    from analysis.recordings.ego_motion import turning_flags, yaw_rate_dps
     from capture.robot_capture import ColiasRobotDevice
 
     seconds = 12.0
