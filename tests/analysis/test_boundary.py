@@ -15,11 +15,11 @@ from analysis.boundary.command import BoundarySettings, find_boundary
 from analysis.experiments.adaptation import AdaptationSettings, adaptation
 from analysis.experiments.boundary_campaign import boundary
 from analysis.recordings.reader import Recording
-from vdc.executors import Feedback
 from avdm.policy import load_policy
 from tests.figures import assert_figure, recording_figures
 from tests.helpers import assert_one_line_error, write_video
 from tests.in_process import run_in_process
+from vdc.executors import Feedback
 
 # LGMD+ (arena tuning) at its released T_ffi = 12 is blinded by a 3 Hz drift (it crashes);
 # at T_ffi = 30, the paper's adjusted threshold, it is not (tests/capture/test_collision_mode)
