@@ -111,7 +111,8 @@ def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dic
 #
 # Policy: a camera's frame rate and angular resolution are used as given, never snapped to a
 # "nominal" neighbour: 29.97 Hz (30000/1001) and 30 Hz get fits of their own (their decoding
-# constants differ by ~0.25 %; a fit takes well under a second). The fit uses the default AVDM
+# constants differ by ~0.25 %). A fit of avdm-natural takes about a minute and a half of one
+# core (docs/video.md); callers show its progress through fit_progress. The fit uses the default AVDM
 # on 72-px-high frames 99 px wide (the robot camera's raster, which the valid band of periods
 # was designed for): the decoding constants depend on frame rate and degrees per pixel, not on
 # the frame's size. The key holds everything that changes the fit, so a stale entry is never
