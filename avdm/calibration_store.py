@@ -21,6 +21,16 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from avdm.avdm_model import AvdmParams
+from avdm.calibration import (
+    CLUTTER_SEEDS,
+    fit_decoding,
+    fit_multiscale,
+    valid_periods_px,
+    valid_tfs_hz,
+)
+from avdm.version import __version__
+
 CALIBRATION_FILE = "calibrations.json"
 
 
@@ -83,14 +93,14 @@ def shipped_calibrations() -> tuple[dict[str, Any], ...]:
 # (keyed separately, to 1e-9), the texture row (the calibration gratings are uniform down
 # every column, so every row sees the same pattern) and the preferred direction (the gratings
 # drift in it, so a mirrored model meets mirrored stimuli: the same fit).
-NOT_DYNAMICS = frozenset({"a", "b", "fps", "deg_per_px", "texture_row", "direction"})
+NOT_DECODING_DYNAMICS = frozenset({"a", "b", "fps", "deg_per_px", "texture_row", "direction"})
 
 
 def dynamics(params: Any) -> dict[str, Any]:
     """The parameters of ``params`` (a params object or its flat dict) that change the model's
-    dynamics, hence its calibration: every field but those in ``NOT_DYNAMICS``."""
+    dynamics, hence its calibration: every field but those in ``NOT_DECODING_DYNAMICS``."""
     values = params if isinstance(params, dict) else params.to_dict()
-    return {k: v for k, v in values.items() if k not in NOT_DYNAMICS}
+    return {k: v for k, v in values.items() if k not in NOT_DECODING_DYNAMICS}
 
 
 def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any] | None:
@@ -111,8 +121,8 @@ def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dic
 #
 # Policy: a camera's frame rate and angular resolution are used as given, never snapped to a
 # "nominal" neighbour: 29.97 Hz (30000/1001) and 30 Hz get fits of their own (their decoding
-# constants differ by ~0.25 %). A fit of avdm-natural takes about a minute and a half of one
-# core (docs/video.md); callers show its progress through fit_progress. The fit uses the default AVDM
+# constants differ by ~0.25 %). An avdm-natural fit takes about a minute and a half of a core
+# (docs/video.md); callers show its progress through fit_progress. The fit uses the default AVDM
 # on 72-px-high frames 99 px wide (the robot camera's raster, which the valid band of periods
 # was designed for): the decoding constants depend on frame rate and degrees per pixel, not on
 # the frame's size. The key holds everything that changes the fit, so a stale entry is never
@@ -130,10 +140,7 @@ def cache_dir() -> Path:
     return Path(base) / "vdc"
 
 
-def calibration_key(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any]:
-    from avdm import __version__
-    from avdm.avdm_model import AvdmParams
-
+def decoding_key(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any]:
     kind = "avdm" if params is None or isinstance(params, AvdmParams) else "avdm-multiscale"
     key: dict[str, Any] = {
         "fps": float(f"{fps:.9g}"),
@@ -195,7 +202,6 @@ def calibration_for(
     honest deg/s. The entry carries ``a``, ``b``, the fit's quality (``r2``,
     ``rms_rel_error``, ``max_rel_error``, ``n_points``) and ``source``: ``shipped``, ``cache``
     or ``fitted``. ``progress`` is called once per stimulus of a new fit."""
-    from avdm.avdm_model import AvdmParams
 
     if params is None:
         params = AvdmParams(fps=fps, deg_per_px=deg_per_px)
@@ -206,20 +212,16 @@ def calibration_for(
         shipped = lookup_calibration(fps, deg_per_px, params)
         if shipped is not None:
             return {**shipped, "source": "shipped"}
-    key = calibration_key(fps, deg_per_px, params)
+    key = decoding_key(fps, deg_per_px, params)
     path = cache_path(key, f"{key['model']}-{key['fps']:g}Hz")
     cached = read_cached(path, key)
     if cached is not None:
         return {**cached, "source": "cache", "cache_file": str(path)}
     report = _REPORT.get()
     if multiscale:
-        from avdm.calibration import CLUTTER_SEEDS, fit_multiscale
-
         size = (params.height_px, params.width_px)  # its scales depend on the raster
         total = 2 * len(CLUTTER_SEEDS) * 10  # two passes over the seeds x 10 speeds
     else:
-        from avdm.calibration import fit_decoding, valid_periods_px, valid_tfs_hz
-
         size = CAL_SIZE
         total = len(valid_periods_px(size[1])) * len(valid_tfs_hz(fps)) * len(CAL_CONTRASTS)
     name = "avdm-natural" if multiscale else "avdm"

@@ -22,7 +22,6 @@ from hypothesis import strategies as st
 
 from analysis.recordings.reader import Recording
 from capture.config import SimConfig, WallConfig
-from capture.output import partial_path
 from capture.render import OverheadRenderer
 from capture.robot_capture import WallController
 from capture.serial_protocol import (
@@ -33,11 +32,12 @@ from capture.serial_protocol import (
     encode,
     encode_frame,
 )
-from capture.sim import SimulatedRobot
-from capture.tracker import calibrate as tracker_calibrate
+from capture.sim_robot import SimulatedRobot
+from capture.tracker import calibrate_homography as tracker_calibrate
 from capture.tracker import load_calibration as tracker_load
 from capture.tracker import robot_pose as tracker_pose
 from tests.helpers import ROOT, assert_file_grows, assert_one_line_error, run_cli, spawn, wait_until
+from vdc.recording import partial_path
 
 
 def test_crc_is_ccitt_false() -> None:
