@@ -106,18 +106,8 @@ def cmd_video(args: argparse.Namespace) -> int:
     from capture.video import VideoSettings, record_video
 
     s = settings_from_args(VideoSettings, args)
-    bars: list = []
-
-    def calibrating(n: int = 1) -> None:  # a bar only when a fit is really needed
-        if not bars:
-            bars.append(progress_bar(None, "calibrating for this camera (once)", quiet=args.quiet))
-        bars[0].update(n)
-
-    try:
-        res = record_video(s, args.out, _recording_options(args), calibration_progress=calibrating)
-    finally:
-        for bar in bars:
-            bar.close()
+    # a calibration fit for this camera is shown by run_command_line (CalibrationNotes)
+    res = record_video(s, args.out, _recording_options(args))
     rec = res.record
     _report_write_error(rec)
     if rec.write_error:

@@ -30,7 +30,7 @@ from typing import Any
 
 from avdm.avdm_model import AvdmParams
 from avdm.avdm_multiscale import AvdmMultiScaleParams
-from avdm.calibration_store import calibration_for
+from avdm.calibration_store import FitNote, calibration_for, fit_progress
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, new_frame_rate
 from capture.device import Batch, DeviceContext, Event
@@ -351,10 +351,17 @@ def record_video(
         # the one context every model of this recording is built with, online and offline
         context = camera_model_context(w, h, model_fps, settings.fov_deg)
         deg_per_px = float(context["deg_per_px"])
-        built = make_model(settings.model, **context)
-        cal = calibration_for(
-            model_fps, deg_per_px, progress=calibration_progress, params=_calibrated(built)
-        )
+        # a new camera's fit runs inside make_model: count its steps there
+        steps = None
+        if calibration_progress is not None:
+
+            def steps(note: FitNote) -> None:
+                if note.stage == "step":
+                    calibration_progress(1)
+
+        with fit_progress(steps):
+            built = make_model(settings.model, **context)
+        cal = calibration_for(model_fps, deg_per_px, params=_calibrated(built))
         model = TrueTimeModel(built)
         live = options.viewer_url()
         info = device.info
