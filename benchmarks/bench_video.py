@@ -90,11 +90,13 @@ def write_clip(path: Path, width: int, height: int, seconds: float, codec: str =
     return path
 
 
-def timed(fn: Callable[[], int]) -> tuple[int, float]:
-    """(frames, wall s) of ``fn()``, which returns its frames."""
-    t0 = time.perf_counter()
+def timed(fn: Callable[[], int]) -> tuple[int, float, float]:
+    """(frames, wall s, CPU s of this process, all threads) of ``fn()``, which returns its
+    frames. On one pinned core the CPU time is the wall time less what other processes took
+    of that core: the load disturbs it much less."""
+    c0, t0 = time.process_time(), time.perf_counter()
     n = fn()
-    return n, time.perf_counter() - t0
+    return n, time.perf_counter() - t0, time.process_time() - c0
 
 
 def decode_alone(path: Path) -> int:
@@ -144,34 +146,35 @@ CONFIGS: dict[str, Callable[[Path], int]] = {
 }
 
 
-def paces(short: Path, long: Path, runs: int) -> dict[str, tuple[float, float]]:
-    """Per configuration: (marginal ms per frame, end-to-end frames/s on the long clip), the
-    least time of ``runs`` interleaved runs of each on each clip."""
-    best: dict[str, list[float]] = {k: [np.inf, np.inf] for k in CONFIGS}
+def paces(short: Path, long: Path, runs: int) -> dict[str, tuple[float, float, float]]:
+    """Per configuration: (marginal wall ms per frame, marginal CPU ms per frame, end-to-end
+    frames/s on the long clip), each from the least time of ``runs`` interleaved runs of
+    each configuration on each clip."""
+    best = {k: np.full((2, 2), np.inf) for k in CONFIGS}  # [clip, wall|cpu]
     frames = [0, 0]
     for _ in range(runs):
         for name, fn in CONFIGS.items():
             for i, clip in enumerate((short, long)):
-                n, wall = timed(lambda fn=fn, clip=clip: fn(clip))
+                n, wall, cpu = timed(lambda fn=fn, clip=clip: fn(clip))
                 frames[i] = n
-                best[name][i] = min(best[name][i], wall)
+                best[name][i] = np.minimum(best[name][i], (wall, cpu))
     extra = frames[1] - frames[0]
-    return {k: ((b - a) / extra * 1e3, frames[1] / b) for k, (a, b) in best.items()}
+    return {k: (*((b[1] - b[0]) / extra * 1e3), frames[1] / b[1, 0]) for k, b in best.items()}
 
 
-def report(label: str, got: dict[str, tuple[float, float]]) -> dict[str, float]:
-    """Print one raster's lines; the shares of the decoder's pace by configuration."""
-    dec_ms = got["decoding alone (luma)"][0]
-    print(f"{label}: per frame once started (marginal), share of decoding's pace, real time")
+def report(label: str, got: dict[str, tuple[float, float, float]]) -> dict[str, float]:
+    """Print one raster's lines; the shares of the decoder's pace (wall) by configuration."""
+    dec_ms, dec_cpu, _ = got["decoding alone (luma)"]
+    print(f"{label}: marginal cost per frame, share of decoding's pace (wall; CPU), real time")
     shares = {}
-    for name, (ms, fps) in got.items():
-        share = dec_ms / ms
-        shares[name] = share
+    for name, (ms, cpu_ms, fps) in got.items():
+        shares[name] = share = dec_ms / ms
         key = name.removeprefix("vdc ")
         target = f" (target >= {TARGET_SHARE[key]:.2f})" if key in TARGET_SHARE else ""
         print(
-            f"  {name:<24} {ms:6.2f} ms/frame = {1e3 / ms:6.1f} frames/s, share {share:4.2f}"
-            f"{target}; end to end {fps / FPS:5.1f}x real time"
+            f"  {name:<24} {ms:6.2f} ms = {1e3 / ms:6.1f} frames/s ({cpu_ms:5.2f} ms CPU), "
+            f"share {share:4.2f}; {dec_cpu / cpu_ms:4.2f}{target}; end to end "
+            f"{fps / FPS:5.1f}x real time"
         )
     return shares
 
@@ -185,7 +188,7 @@ def one_core(clips: dict[str, tuple[Path, Path]], runs: int, siti_frames: int) -
         results[label] = paces(short, long, runs)
         shares[label] = report(label, results[label])
     label, (_, first) = next(iter(clips.items()))
-    n, wall = timed(lambda: sititools(first, siti_frames))
+    n, wall, _ = timed(lambda: sititools(first, siti_frames))
     st_ms = wall / n * 1e3
     got = results[label]
     print(
