@@ -91,7 +91,7 @@ def footage(seconds: float) -> None:
     import subprocess
     import sys
 
-    from analysis.complexity import ComplexitySettings, complexity
+    from analysis.complexity.command import ComplexitySettings, complexity
     from tests.helpers import write_pan
 
     cores = sorted(os.sched_getaffinity(0))

@@ -116,8 +116,8 @@ def decode_alone(path: Path) -> int:
 
 
 def ours(path: Path, metrics: str) -> int:
-    from analysis.complexity import ComplexitySettings
-    from analysis.source_metrics import measure_video
+    from analysis.complexity.command import ComplexitySettings
+    from analysis.complexity.source_metrics import measure_video
 
     s = ComplexitySettings(fov_deg=FOV, metrics=metrics)
     return measure_video(str(path), s, "bench").table.height
@@ -257,7 +257,7 @@ def main() -> None:
     ap.add_argument("--sititools-frames", type=int, default=50)
     ap.add_argument("--long", action="store_true", help="also the 10-min 1080p memory check")
     args = ap.parse_args()
-    from analysis.source_metrics import DEFAULT_METRICS
+    from analysis.complexity.source_metrics import DEFAULT_METRICS
 
     assert DEFAULT == ",".join(DEFAULT_METRICS), "bench_video: DEFAULT is not DEFAULT_METRICS"
     cv2.setNumThreads(1)
