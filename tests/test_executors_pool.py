@@ -138,3 +138,22 @@ def test_the_same_script_with_the_guard_runs(tmp_path) -> None:
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip() == "results [1, 2]"
     assert proc.stderr == ""
+
+
+def test_a_worker_has_the_environment_of_the_call_not_of_the_fork_server(tmp_path) -> None:
+    """The fork server starts with the first pool; a variable set after it (a cache folder, a
+    test's setting) still reaches the next pool's workers, as it did with fresh processes."""
+    script = """
+import os
+from vdc.executors import ExecutorSettings, run_tasks
+
+if __name__ == "__main__":
+    tasks = [("a", ("VDC_PACE_PROBE",))]
+    first = run_tasks(os.getenv, tasks, ExecutorSettings("local", 1))[0].result
+    os.environ["VDC_PACE_PROBE"] = "set later"
+    second = run_tasks(os.getenv, tasks, ExecutorSettings("local", 1))[0].result
+    print(repr(first), repr(second))
+"""
+    proc = _run(tmp_path, script)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "None 'set later'"

@@ -180,7 +180,8 @@ def test_pool_workers_end_when_their_parent_is_killed(sig, tmp_path: Path) -> No
     workers: list[int] = []
     try:
         running = [tmp_path / "a.running", tmp_path / "b.running"]
-        assert wait_until(lambda: all(p.exists() for p in running), 60), "no task started"
+        # a wait, not a speed: the fork server imports first, slowly on a machine at load 100+
+        assert wait_until(lambda: all(p.exists() for p in running), 300), "no task started"
         # the resource tracker, the fork server and, its children, the two pool workers
         workers = [p for p in _descendants(parent.pid) if _alive(p)]
         assert len(workers) >= 4, f"the pool did not start: descendants {workers}"

@@ -200,9 +200,17 @@ def _one_thread_on_dask(client: Any) -> None:
     client.register_plugin(OneThreadPerWorker())
 
 
-def _die_with_parent(parent_pid: int, threads: int = 1, pool_pid: int | None = None) -> None:
+def _die_with_parent(
+    parent_pid: int,
+    threads: int = 1,
+    pool_pid: int | None = None,
+    environ: dict[str, str] | None = None,
+) -> None:
     """Pool worker start-up: end this worker when the pool's process ends, by any signal,
-    SIGKILL included, and undo the signal handling it may have inherited.
+    SIGKILL included, and undo the signal handling it may have inherited. ``environ``: the
+    pool's process's environment when it started the pool (a worker forked from the fork
+    server would otherwise have the server's, from when the server started; what a library
+    read when the server imported it stays as it was).
 
     ``parent_pid`` is this worker's parent: the pool's process (``spawn``) or the fork server
     (``pool_pid`` is then the pool's process). The fork server does not end before its
@@ -218,6 +226,9 @@ def _die_with_parent(parent_pid: int, threads: int = 1, pool_pid: int | None = N
       parent decides what ends (it shuts the pool down)."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if environ is not None and environ != os.environ:
+        os.environ.clear()
+        os.environ.update(environ)
     if sys.platform.startswith("linux"):
         try:
             import ctypes
@@ -346,7 +357,12 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
             workers,
             mp_context=ctx,
             initializer=_die_with_parent,
-            initargs=(_worker_parent(ctx), max(1, usable_cpus() // workers), os.getpid()),
+            initargs=(
+                _worker_parent(ctx),
+                max(1, usable_cpus() // workers),
+                os.getpid(),
+                dict(os.environ),
+            ),
         )
         try:
             yield pool, None
