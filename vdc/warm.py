@@ -17,6 +17,41 @@ loads, and a worker is one core's worth of work (the pool has one worker per cor
 from __future__ import annotations
 
 import os
+import signal
+import sys
+
+
+def _in_fork_server() -> bool:
+    """Whether this import is the fork server's preload (``multiprocessing.forkserver.main``
+    on the stack), not an import elsewhere."""
+    frame = sys._getframe(1)
+    while frame is not None:
+        g = frame.f_globals
+        if frame.f_code.co_name == "main" and g.get("__name__") == "multiprocessing.forkserver":
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _end_with_parent() -> None:
+    """The fork server ends at once when the process that started it ends, however it ends
+    (``PR_SET_PDEATHSIG``), and its workers with it (each asks the same of the server,
+    ``vdc.executors``): the kernel ends them all, where otherwise the server would wait for
+    its workers and they would have to notice, which a machine at load 100 can delay for tens
+    of seconds. (If that process is already gone, the server's liveness pipe is closed and it
+    ends at its first look.)"""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # another libc: the workers' watch threads remain
+        pass
+
+
+if _in_fork_server():
+    _end_with_parent()
 
 # before NumPy (and through it OpenBLAS, or MKL, or an OpenMP runtime) loads
 BLAS_THREAD_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
