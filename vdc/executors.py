@@ -20,7 +20,7 @@ each of them: a script that calls a command at its top level without the
 Tasks are module-level functions with small, picklable arguments (paths, not arrays) that
 write their own outputs and return a small dict. Both sides use
 this module: ``vdc-analyse batch`` and the closed-loop campaigns (``collision-study``,
-``reproduce``, ``vdc-capture sweep``).
+``reproduce``, ``vdc-capture campaign``).
 """
 
 from __future__ import annotations
@@ -28,19 +28,26 @@ from __future__ import annotations
 import ast
 import concurrent.futures as cf
 import contextlib
+import ctypes
 import dataclasses
 import multiprocessing
 import os
+import select
 import signal
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import forkserver
 from pathlib import Path
 from typing import Any
 
+import cv2
+from threadpoolctl import threadpool_limits
+
 from vdc.cli_support import option
+from vdc.errors import UserError
 
 EXECUTORS = ("local", "dask")
 
@@ -90,14 +97,14 @@ class ExecutorSettings:
         if self.scheduler and self.executor == "local":
             object.__setattr__(self, "executor", "dask")  # a scheduler means Dask
         if self.executor not in EXECUTORS:
-            raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}")
+            raise UserError(f"--executor must be one of {', '.join(EXECUTORS)}")
         if self.jobs < 1:
-            raise ValueError(f"--jobs must be at least 1, got {self.jobs}")
+            raise UserError(f"--jobs must be at least 1, got {self.jobs}")
         if self.scheduler and not self.scheduler.startswith(("tcp://", "tls://", "inproc://")):
             path = Path(self.scheduler).expanduser()
             # Client(scheduler_file=...) neither expands ~ nor times out on a missing file
             if not path.is_file():
-                raise ValueError(
+                raise UserError(
                     f"--scheduler {self.scheduler!r} is neither tcp://HOST:PORT, tls://HOST:PORT "
                     "nor an existing scheduler file"
                 )
@@ -140,9 +147,9 @@ QUIET = Feedback()
 def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
     """The client, and the local cluster it runs on when vdc started one (else None)."""
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client, LocalCluster  # lazy: optional extra
     except ImportError:
-        raise ValueError(
+        raise UserError(
             '--executor dask needs the optional extra: pip install -e ".[dask]"'
         ) from None
     if settings.scheduler:
@@ -156,20 +163,20 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
             # unreachable or refused (OSError); tls:// without a client certificate in Dask's
             # configuration (TypeError "TLS expects a ssl_context")
             why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise ValueError(f"cannot reach the Dask scheduler {s}: {why}") from None
+            raise UserError(f"cannot reach the Dask scheduler {s}: {why}") from None
         try:
             # workers running another vdc, Python or pickle library would fail obscurely later
             client.get_versions(check=True)
         except Exception as exc:
             client.close()
-            raise ValueError(f"the Dask cluster at {s} does not match this client: {exc}") from None
+            raise UserError(f"the Dask cluster at {s} does not match this client: {exc}") from None
         _one_thread_on_dask(client)
         return client, None
     # our own cluster: loopback only (a Dask port runs pickled code as the user), processes
     # with one thread each (the models' Python loops hold the GIL)
     # workers forked from the local pool's warm fork server (vdc.warm preloaded), as the
     # local pool's are
-    import dask
+    import dask  # lazy: optional extra
 
     method = pool_context().get_start_method()
     with dask.config.set({"distributed.worker.multiprocessing-method": method}):
@@ -189,7 +196,7 @@ def _one_thread_on_dask(client: Any) -> None:
     """One OpenCV and one BLAS thread in every worker of the cluster, now and after a restart
     (a worker plugin: Dask's nanny sets the BLAS variables before a worker starts, but not
     OpenCV's threads, nor the BLAS of a cluster started without a nanny)."""
-    from distributed import WorkerPlugin
+    from distributed import WorkerPlugin  # lazy: optional extra
 
     class OneThreadPerWorker(WorkerPlugin):  # pickled by value (cloudpickle): a local class
         name = "vdc-one-thread-per-worker"
@@ -231,8 +238,6 @@ def _die_with_parent(
         os.environ.update(environ)
     if sys.platform.startswith("linux"):
         try:
-            import ctypes
-
             pr_set_pdeathsig = 1
             ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
         except (OSError, AttributeError):  # another libc: the watch thread still works
@@ -261,8 +266,6 @@ def _die_with_parent(
 
     def watch() -> None:
         if pidfd is not None:
-            import select
-
             select.select([pidfd], [], [])  # readable once the process has ended
             os._exit(1)
         while alive():
@@ -292,9 +295,6 @@ def one_thread_per_worker(threads: int = 1) -> None:
     os.environ[SINGLE_THREAD_ENV] = str(max(1, threads))
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"  # for what loads later, and the worker's own child processes
-    import cv2
-    from threadpoolctl import threadpool_limits
-
     cv2.setNumThreads(1)
     threadpool_limits(1)  # BLAS and OpenMP runtimes already loaded
 
@@ -323,8 +323,6 @@ def pool_context() -> multiprocessing.context.BaseContext:
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     ctx = multiprocessing.get_context("forkserver")
-    from multiprocessing import forkserver
-
     server = forkserver._forkserver  # the stdlib's one server: is it running yet?
     if getattr(server, "_forkserver_pid", None) is None:
         # not the default "__main__": the server must not run the caller's script
@@ -337,8 +335,6 @@ def _worker_parent(ctx: multiprocessing.context.BaseContext) -> int:
     """The process a new worker's parent is: the fork server (which ends when this process
     does, however it ends: its pipe from this process closes), or this process."""
     if ctx.get_start_method() == "forkserver":
-        from multiprocessing import forkserver
-
         pid = getattr(forkserver._forkserver, "_forkserver_pid", None)
         if pid is not None:
             return pid
@@ -392,7 +388,7 @@ def check_shared_paths(client: Any, paths: Sequence[str | Path]) -> None:
         seen = client.run(os.path.exists, str(Path(path).resolve()))
         blind = sorted(w for w, ok in seen.items() if not ok)
         if blind:
-            raise ValueError(
+            raise UserError(
                 f"{len(blind)} of {len(seen)} Dask worker(s) cannot see {path} (e.g. {blind[0]}): "
                 "recordings and --out must be on a filesystem shared by every worker"
             )

@@ -16,6 +16,7 @@ loads, and a worker is one core's worth of work (the pool has one worker per cor
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
 import sys
@@ -43,8 +44,6 @@ def _end_with_parent() -> None:
     if not sys.platform.startswith("linux"):
         return
     try:
-        import ctypes
-
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):  # another libc: the workers' watch threads remain
         pass
