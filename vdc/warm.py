@@ -63,9 +63,6 @@ import matplotlib  # noqa: E402, F401
 import numba  # noqa: E402, F401
 import numpy as np  # noqa: E402
 
-import avdm.registry  # noqa: E402  - the models, their kernels' modules
-import avdm.true_time  # noqa: E402, F401
-import vdc.frame_batches  # noqa: E402
 import vdc.frame_metrics  # noqa: E402
 import vdc.recording  # noqa: E402
 import vdc.resize  # noqa: E402
