@@ -15,20 +15,19 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import pytest
+import threadpoolctl
 
+import vdc.frame_metrics as fm
 from tests.helpers import ROOT
 
 BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "VDC_WORKER_THREADS")
 
 
 def worker_state(_k: int) -> dict:
-    """What a worker sees before it has done any work of its own."""
-    import cv2
-    import threadpoolctl
-
-    import vdc.frame_metrics as fm
-
+    """What a worker sees before it has done any work of its own (this module's imports: a
+    warm worker had the kernels loaded before it imported them)."""
     return {
         "blas": [i["num_threads"] for i in threadpoolctl.threadpool_info()],
         "opencv": cv2.getNumThreads(),

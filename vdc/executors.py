@@ -147,7 +147,7 @@ QUIET = Feedback()
 def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
     """The client, and the local cluster it runs on when vdc started one (else None)."""
     try:
-        from distributed import Client, LocalCluster  # lazy: optional extra
+        from distributed import Client, LocalCluster, WorkerPlugin  # lazy: optional extra
     except ImportError:
         raise UserError(
             '--executor dask needs the optional extra: pip install -e ".[dask]"'
@@ -170,7 +170,7 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
         except Exception as exc:
             client.close()
             raise UserError(f"the Dask cluster at {s} does not match this client: {exc}") from None
-        _one_thread_on_dask(client)
+        _one_thread_on_dask(client, WorkerPlugin)
         return client, None
     # our own cluster: loopback only (a Dask port runs pickled code as the user), processes
     # with one thread each (the models' Python loops hold the GIL)
@@ -188,17 +188,17 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
             dashboard_address="127.0.0.1:0",
         )
     client = Client(cluster)
-    _one_thread_on_dask(client)
+    _one_thread_on_dask(client, WorkerPlugin)
     return client, cluster
 
 
-def _one_thread_on_dask(client: Any) -> None:
+def _one_thread_on_dask(client: Any, plugin_base: type) -> None:
     """One OpenCV and one BLAS thread in every worker of the cluster, now and after a restart
     (a worker plugin: Dask's nanny sets the BLAS variables before a worker starts, but not
     OpenCV's threads, nor the BLAS of a cluster started without a nanny)."""
-    from distributed import WorkerPlugin  # lazy: optional extra
 
-    class OneThreadPerWorker(WorkerPlugin):  # pickled by value (cloudpickle): a local class
+    # distributed.WorkerPlugin; a local class, pickled by value (cloudpickle)
+    class OneThreadPerWorker(plugin_base):
         name = "vdc-one-thread-per-worker"
 
         def setup(self, worker: Any) -> None:
