@@ -173,6 +173,8 @@ def no_fov_note(settings: DatasetSettings) -> str | None:
 def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -> DatasetResult:
     ds = open_dataset(root)
     problems: list[Problem] = list(ds.problems)
+    for p in problems:  # each unreadable file said as it is met: one line, file and episode
+        feedback.log(f"error: {p.line()}")
     wanted = settings.episode_list()
     videos = [v for v in ds.videos if wanted is None or v.episode in wanted]
     notes = [n for n in [no_fov_note(settings)] if n]
@@ -194,6 +196,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         problem = _problem_of(by_key[outcome.key], outcome.error)
         if problem not in problems:  # a data file's problem: once, not once per camera
             problems.append(problem)
+            feedback.log(f"error: {problem.line()}")
 
     run_tasks(_task, tasks, settings.executor_settings(), done,
               feedback.log, shared_paths=(root,))  # fmt: skip
