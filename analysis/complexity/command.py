@@ -14,7 +14,8 @@ the
   and dropped frames (each lost frame once: ``frames + dropped_frames == container_frames``
   where the source states its count; ``lost_after_last`` of them after the last frame,
   ``missing_s`` those in seconds; ``vdc.sources.end_fields``), and each metric's mean, max
-  and p95 (P.910 clause 7.8.4 recommends the mean and the max per sequence);
+  and p95 (P.910 clause 7.8.4 recommends the mean and the max per sequence), and
+  ``omega_valid_share``, the share of frames the AVDM's reading is valid on;
 * ``complexity_correlations.parquet``: Spearman ρ of every pair of metrics per clip;
 * ``complexity_collection.png``: clips ranked by the AVDM and by TI, and the AVDM against TI
   and SI; ``complexity.html``: that figure with the clip table;
@@ -45,6 +46,7 @@ from analysis.complexity.source_metrics import (
     RASTERS,
     ComplexityMeter,
     complexity_task,
+    flags_of,
     fov_free,
     measured_settings,
     metrics_present,
@@ -195,7 +197,7 @@ def complexity_of_frames(
     grey frames and Y planes, this function gives that command's table.
 
     Returns a DataFrame: frame, t_s, repeat, then one column per metric of
-    ``settings.metrics`` (see the module)."""
+    ``settings.metrics`` (see the module), then ``omega_valid`` (bool) with ``omega_dps``."""
 
     settings = settings or ComplexitySettings()
     frames = np.asarray(frames)
@@ -225,7 +227,9 @@ def complexity_of_frames(
         meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics)
         out |= meter.update(small, t, repeat)
     df = pl.DataFrame({"frame": np.arange(len(frames), dtype=np.int64), "t_s": t, "repeat": repeat})
-    return df.with_columns(*[pl.Series(m, out[m]).fill_nan(None) for m in metrics])
+    df = df.with_columns(*[pl.Series(m, out[m]).fill_nan(None) for m in metrics])
+    flags = [pl.Series(f, out[f]).fill_nan(None).cast(pl.Boolean) for f in flags_of(metrics)]
+    return df.with_columns(*flags)
 
 
 def expand_sources(
@@ -362,7 +366,8 @@ def is_vdc_output(rec: Any) -> bool:
 
 def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
     """A clip's row of ``clips.parquet``: what the source is, then each metric's mean, max and
-    95th percentile over its frames (where defined)."""
+    95th percentile over its frames (where defined), and ``omega_valid_share``: the share of
+    frames whose AVDM reading is inside its variant's valid regime."""
     row = {
         "recording_id": table["recording_id"][0],
         **{
@@ -380,6 +385,9 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
         row[f"{m}_mean"] = float(v.mean()) if v.len() else None
         row[f"{m}_max"] = float(v.max()) if v.len() else None
         row[f"{m}_p95"] = float(v.quantile(0.95, "linear")) if v.len() else None
+    for flag in (f for f in flags_of(tuple(metrics_present(table))) if f in table.columns):
+        v = table[flag].drop_nulls()  # the share of frames whose reading its model vouches for
+        row[f"{flag}_share"] = float(v.cast(pl.Float64).mean()) if v.len() else None
     return row
 
 

@@ -6,6 +6,10 @@ Columns (one per metric, its unit or variant in the name):
   robot camera's pitch, 70°/99 px):
 
   * ``omega_dps``: the AVDM's angular velocity (deg/s), on new frames over true time;
+    ``omega_valid`` (bool, with it): whether that reading is inside the variant's own valid
+    regime, as the variant flags it per frame (``avdm``: TF ≤ fps/4 and ≤ 1 px per frame;
+    ``avdm-natural``: texture at some scale and ≤ 1 sample per frame at the coarsest); False
+    during the warm-up, null for a model without the flag;
   * ``flow_dps``: mean horizontal dense optic-flow speed (OpenCV DIS), mean |u_x| in
     px/frame × deg/px ÷ the true time between new frames, deg/s. Horizontal because the
     AVDM's correlators are horizontal, and because the vertical flow of vertically uniform
@@ -77,6 +81,9 @@ class MeasureSettings(Protocol):
 
 
 MODEL_METRICS = ("omega_dps", "flow_dps", "zlib_ratio")
+# a metric's validity flag, a column beside the metrics (not one of them: never averaged,
+# ranked or correlated), present whenever the metric is
+FLAGS = {"omega_dps": "omega_valid"}
 # in deg/s: a video source needs its camera's field of view for these
 ANGULAR_METRICS = ("omega_dps", "flow_dps")
 METRICS = (
@@ -184,7 +191,9 @@ class ComplexityMeter:
                 self.model_fps = new_frame_rate(self.fps, repeat, self.s.max_repeats)
                 ctx = self.context | {"fps": self.model_fps}
                 self.model = TrueTimeModel(make_model(self.s.model, **ctx))
-            out["omega_dps"] = self.model.run(frames, t_s, repeat)["omega_dps"]
+            res = self.model.run(frames, t_s, repeat)  # repeats hold the last new frame's
+            out["omega_dps"] = res["omega_dps"]
+            out["omega_valid"] = res.get("omega_valid", np.full(len(frames), np.nan))
         if self.camera is not None:
             rows = np.stack([self.camera.row(f) for f in frames])
             out |= {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
@@ -207,6 +216,11 @@ class ComplexityMeter:
         return out
 
 
+def flags_of(metrics: tuple[str, ...]) -> tuple[str, ...]:
+    """The validity flags (:data:`FLAGS`) that come with ``metrics``."""
+    return tuple(FLAGS[m] for m in metrics if m in FLAGS)
+
+
 def fov_free(metrics: tuple[str, ...], width: int | None = None) -> tuple[str, ...]:
     """The ``metrics`` a video can give without its field of view: all but the angular ones
     (deg/s), and but zlib_ratio unless ``width`` sets the model raster (else the FOV does)."""
@@ -222,11 +236,14 @@ def _frame_table(
     metrics: tuple[str, ...] = METRICS,
 ) -> pl.DataFrame:
     """The per-frame table of one source: recording_id, frame, t_s, repeat, the ``metrics``
-    in :data:`METRICS` order, and the source raster's name and size."""
+    in :data:`METRICS` order, their :data:`FLAGS` (bool), and the source raster's name and
+    size."""
     df = pl.concat(parts, how="diagonal_relaxed")
-    for m in metrics:
+    flags = flags_of(metrics)
+    for m in (*metrics, *flags):
         if m not in df.columns:
             df = df.with_columns(pl.lit(None, pl.Float64).alias(m))
+    df = df.with_columns(pl.col(f).cast(pl.Float64).fill_nan(None).cast(pl.Boolean) for f in flags)
     return df.with_columns(
         pl.lit(recording_id).alias("recording_id"),
         pl.lit(raster).alias("raster"),
@@ -239,6 +256,7 @@ def _frame_table(
         "t_s",
         "repeat",
         *metrics,
+        *flags,
         "raster",
         "raster_width_px",
         "raster_height_px",
@@ -380,7 +398,7 @@ def measure_video(
         parts = []
         while (fb := batches.next_batch()) is not None:
             res = meter.update(fb.images, fb.t_s, fb.repeat) if meter is not None else {}
-            res = {m: v for m, v in res.items() if m in metrics}
+            res = {m: v for m, v in res.items() if m in (*metrics, *flags_of(metrics))}
             values = {n: fb.native_metrics[:, k] for k, n in enumerate(NATIVE_METRICS)}
             values = {n: v for n, v in values.items() if n in metrics}
             parts.append(

@@ -220,8 +220,8 @@ def test_complexity_of_a_video_recording_of_the_file_and_of_an_array(clips, tmp_
     res = complexity([rec], ComplexitySettings(metrics="all"), tmp_path / "cx")
     df = pl.read_parquet(tmp_path / "cx" / "complexity.parquet")
     assert df.columns == [
-        "recording_id", "frame", "t_s", "repeat", *METRICS, "raster", "raster_width_px",
-        "raster_height_px",
+        "recording_id", "frame", "t_s", "repeat", *METRICS, "omega_valid", "raster",
+        "raster_width_px", "raster_height_px",
     ]  # fmt: skip
     assert df.height == 150 and set(df["raster"]) == {"native"}
     assert set(df["raster_width_px"]) == {198}  # the source's width, not the model's 99 px
