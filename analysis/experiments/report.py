@@ -148,6 +148,41 @@ def numbers_markdown(table: pl.DataFrame) -> str:
     return "\n".join(lines)
 
 
+# The report's symbols and terms, each with what it means and its unit. The key lists those
+# the page uses (matched literally), so it explains everything there and nothing that is not.
+NOTATION = (
+    ("ω̂", "the AVDM's estimate of the angular velocity of the image, deg/s (ω, no hat: the true "
+     "one)"),
+    ("λ̂", "the AVDM's estimate of the texture's spatial period, px"),
+    ("R̄", "the AVDM's mean correlator response, its motion energy; √R̄ is on the [0, 1] "
+     "intensity scale"),
+    ("upc", "units per circle: a grating's cycles across an image standing for 360° (SF 10 upc: "
+     "a 36° period)"),
+    ("SF", "a grating's spatial frequency, upc"),
+    ("TF", "temporal frequency, Hz: the cycles passing a point each second (the walls' drift)"),
+    ("ρ", "Spearman's rank correlation, from −1 (falls throughout) to +1 (rises throughout)"),
+    ("Page's L", "Page's test for a trend rising across three or more ordered conditions, seeds "
+     "as blocks; p is one-sided"),
+    ("sign test", "the trend test for two conditions: how many seeds rise; p is one-sided"),
+    ("95 % interval", "where the mean across seeds lies with 95 % confidence (Student's t, "
+     "clipped to the quantity's range): mean [low, high]"),
+    ("p", "the chance of a trend at least this strong if there were none; below 0.05 counts"),
+)  # fmt: skip
+
+
+def notation_markdown(text: str) -> list[str]:
+    """The key to the notation ``text`` uses: a Markdown table of :data:`NOTATION`'s entries
+    that occur in it (``p`` where a p-value is given: ``p =`` or a ``| p |`` column)."""
+    used = [
+        (symbol, meaning)
+        for symbol, meaning in NOTATION
+        if (symbol in text if symbol != "p" else ("p =" in text or "| p |" in text))
+    ]
+    if not used:
+        return []
+    return ["| symbol | meaning |", "|---|---|", *(f"| {s} | {m} |" for s, m in used)]
+
+
 def write_report(
     out: Path, plan: ReproduceSettings, claims: list[Claim], elapsed_s: float
 ) -> list[Path]:
@@ -184,6 +219,8 @@ def write_report(
         f"| {i} | {c.claim} | {c.paper} | {c.measured} | **{c.verdict}** |"
         for i, c in enumerate(claims, 1)
     ]
+    key = notation_markdown("\n".join([*md, *(ln for _, lines in sections[:4] for ln in lines)]))
+    md += ["", "## Notation", "", *key] if key else []
     for title, lines in sections[:4]:
         md += ["", f"## {title}", "", *lines]
     md += ["", "## Figures", ""]
@@ -204,13 +241,14 @@ def write_report(
     tables = "".join(
         f"<h2>{html.escape(title)}</h2>{_md_html(lines)}" for title, lines in sections[:4]
     )
+    key_html = f"<h2>Notation</h2>{_md_html(key)}" if key else ""
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>vdc reproduction</title>
 <style>body{{font-family:sans-serif;max-width:1200px;margin:2em auto}}
 table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px;vertical-align:top}}
 .holds{{background:#d4f4d4}}.partly{{background:#fff3c4}}.does-not-hold{{background:#f8d0d0}}
 </style></head><body><h1>vdc: reproducing the paper</h1><p>{html.escape(head)}</p>
 <h2>Claims</h2><table><tr><th>#</th><th>claim</th><th>paper</th><th>measured</th><th>verdict</th></tr>
-{rows}</table>{tables}<h2>Figures</h2>{figs}
+{rows}</table>{key_html}{tables}<h2>Figures</h2>{figs}
 <h2>Environment</h2>{_md_html(sections[4][1])}</body></html>"""
     html_path = out / "report.html"
     html_path.write_text(page, encoding="utf-8")
