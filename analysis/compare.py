@@ -11,7 +11,7 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.profile import correlation_panel, response_densities, save_figure
+from analysis.profile import correlation_panel, response_densities, save_figure, units_label
 from analysis.recordings.analysis_rrd import write_variants_rrd
 from analysis.recordings.loading import LoadedRecording, Notices, load_recording
 from analysis.recordings.recompute import (
@@ -115,11 +115,12 @@ def compare_figure(
             df[out].to_numpy()[win],
             lw=0.9,
             color=f"C{i}",
-            label=f"{name} ({out})",
+            label=f"{name} ({out}, {units_label([(name, out)])})",
         )
     ax_t.axhline(s.threshold_dps, color="k", ls="--", lw=0.8)
     ax_t.set_xlabel("time (s)")
-    ax_t.set_ylabel("response")
+    unit = units_label([(name, primary_output(outputs[name])) for name in names])
+    ax_t.set_ylabel(f"response ({unit})" if ":" not in unit else "response (units in the legend)")
     ax_t.set_title("the busiest minute of the recording")
     ax_t.legend(fontsize=8, loc="upper right")
     ax_t.grid(alpha=0.3)
@@ -134,7 +135,7 @@ def compare_figure(
             f"{100 * row['frac_over_threshold']:.1f} % > {s.threshold_dps:g}"
         )
         series.append((label, df[primary_output(df)].to_numpy()))
-    response_densities(ax_d, series, s.threshold_dps, "distributions", fontsize=8)
+    response_densities(ax_d, series, s.threshold_dps, "distributions", fontsize=8, unit=unit)
 
     ax_c = fig.add_subplot(grid[1, 1])
     pairs = ((r["model_a"], r["model_b"], r["pearson"]) for r in corr.iter_rows(named=True))

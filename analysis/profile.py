@@ -29,6 +29,7 @@ from analysis.recordings.segments import (
     segment_summary,
     segments_from_tables,
 )
+from avdm.registry import VARIANTS, parse_model_spec
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
 
@@ -54,10 +55,12 @@ def response_densities(
     threshold_dps: float,
     title: str,
     fontsize: float = 8,
+    unit: str = "",
 ) -> None:
     """Draw on the matplotlib axes ``ax`` the densities of response series ``(label, values
     (N,) in the model's unit)`` as step histograms on shared bins (up to their 99.5th
-    percentile), log scale, the threshold dashed: the profile's and the comparison's panel."""
+    percentile), log scale, the threshold dashed: the profile's and the comparison's panel.
+    ``unit`` names the responses' unit(s) on the x axis (:func:`units_label`)."""
     finite = [v for _, v in series if len(v)]
     top = max([float(np.nanpercentile(v, 99.5)) for v in finite] + [1.0])
     bins = np.linspace(0, top, 60)
@@ -65,10 +68,44 @@ def response_densities(
         ax.hist(values, bins=bins, histtype="step", lw=1.2, label=label, density=True)
     ax.axvline(threshold_dps, color="k", ls="--", lw=1)
     ax.set_yscale("log")
-    ax.set_xlabel("response")
-    ax.set_ylabel("density")
+    ax.set_xlabel(f"response ({unit})" if unit else "response")
+    # density=True: the share of frames per 1 unit of response
+    one = unit and ":" not in unit  # one unit for every series (units_label)
+    ax.set_ylabel(f"density (per {unit})" if one else "density (per unit of response)")
     ax.legend(fontsize=fontsize)
     ax.set_title(title)
+
+
+# a column's unit, from the suffix its name carries (names say their unit: omega_dps)
+_SUFFIX_UNITS = {"_dps": "deg/s", "_hz": "Hz", "_px": "px", "_deg": "deg"}
+
+
+def response_unit(model: str, output: str) -> str:
+    """The unit of ``model``'s primary ``output`` as an axis shows it: the one its name
+    carries, except an AVDM decoded as the released code does (a = 100, b = 1, no contrast
+    term: ``avdm-released-units``), whose ``omega_dps`` keeps its name but is in relative
+    units, the units the paper's "AVDM > 100" was set in."""
+    name, overrides = parse_model_spec(model)
+    variant = VARIANTS.get(name)
+    decoding = {**(variant.overrides if variant is not None else {}), **overrides}
+    if output == "omega_dps" and decoding.get("contrast_term") is False:
+        return "relative units"
+    return next((u for suffix, u in _SUFFIX_UNITS.items() if output.endswith(suffix)), "")
+
+
+def units_label(segs: Sequence[ProfileSegment | tuple[str, str]]) -> str:
+    """The unit of the responses of ``segs`` (profile segments, or ``(model, output)`` pairs)
+    for an axis: one unit, or each with its models (``deg/s: avdm; relative units:
+    avdm-released-units``) where they differ."""
+    by_unit: dict[str, list[str]] = {}
+    for g in segs:
+        model, output = g if isinstance(g, tuple) else (g.model, g.output)
+        models = by_unit.setdefault(response_unit(model, output) or "model units", [])
+        if model not in models:
+            models.append(model)
+    if len(by_unit) == 1:
+        return next(iter(by_unit))
+    return "; ".join(f"{unit}: {', '.join(models)}" for unit, models in by_unit.items())
 
 
 def correlation_panel(
@@ -137,7 +174,7 @@ def segment_figure(seg: ProfileSegment, s: ProfileSettings) -> Figure:
     ax3.set_zlabel("time (min)")
     ax3.set_box_aspect((2 * hx, 2 * hy, 1.2))
     ax3.set_title("circle profile: size ∝ response", fontsize=10)
-    fig.colorbar(sc, ax=ax3, shrink=0.6, pad=0.12, label=f"{seg.output}")
+    fig.colorbar(sc, ax=ax3, shrink=0.6, pad=0.12, label=f"{seg.output} ({units_label([seg])})")
 
     ax_h = fig.add_subplot(1, 3, 2)
     edges, counts = histogram_over(seg.response, s)
@@ -145,7 +182,7 @@ def segment_figure(seg: ProfileSegment, s: ProfileSettings) -> Figure:
     ax_h.bar(
         edges[:-1], counts, width=np.diff(edges), align="edge", color="C1", edgecolor="k", lw=0.3
     )
-    ax_h.set_xlabel(f"{seg.output} (bins of {s.bin_dps:g})")
+    ax_h.set_xlabel(f"{seg.output} ({units_label([seg])}, bins of {s.bin_dps:g})")
     ax_h.set_ylabel("frames")
     ax_h.set_title(
         f"responses > {s.threshold_dps:g}: {counts.sum()} frames ({100 * frac:.1f} %)", fontsize=10
@@ -167,7 +204,7 @@ def segment_figure(seg: ProfileSegment, s: ProfileSettings) -> Figure:
         f"{centre.mean() if len(centre) else float('nan'):.1f}",
         fontsize=10,
     )
-    fig.colorbar(im, ax=ax_m, shrink=0.8, label=f"mean {seg.output}")
+    fig.colorbar(im, ax=ax_m, shrink=0.8, label=f"mean {seg.output} ({units_label([seg])})")
     fig.suptitle(seg.label)
     return fig
 
@@ -187,14 +224,14 @@ def _time_series_figure(seg: ProfileSegment, s: ProfileSettings) -> Figure:
     ax_t.plot(seg.t_s, seg.response, lw=0.8, color="C0")
     ax_t.axhline(s.threshold_dps, color="k", ls="--", lw=1, label=f"threshold {s.threshold_dps:g}")
     ax_t.set_xlabel("time (s)")
-    ax_t.set_ylabel(seg.output)
+    ax_t.set_ylabel(f"{seg.output} ({units_label([seg])})")
     ax_t.set_title("response over time (no poses: a time series, not an arena map)")
     ax_t.legend(fontsize=8)
     ax_t.grid(alpha=0.3)
     edges, counts = histogram_over(seg.response, s)
     over = int(counts.sum())
     ax_h.bar(edges[:-1], counts, width=np.diff(edges), align="edge", color="C1", edgecolor="0.4")
-    ax_h.set_xlabel(f"{seg.output} (bins of {s.bin_dps:g})")
+    ax_h.set_xlabel(f"{seg.output} ({units_label([seg])}, bins of {s.bin_dps:g})")
     ax_h.set_ylabel("frames")
     share = 100 * over / max(1, len(seg.response))
     ax_h.set_title(f"responses > {s.threshold_dps:g}: {over} frames ({share:.1f} %)")
@@ -215,11 +252,15 @@ def plot_overview(segs: Sequence[ProfileSegment], s: ProfileSettings, path: Path
     fracs = [100 * float((g.response > s.threshold_dps).mean()) for g in segs]
     ax_b.bar(range(len(segs)), fracs, color="C1")
     ax_b.set_xticks(range(len(segs)), labels, fontsize=7)
-    ax_b.set_ylabel(f"% of frames with response > {s.threshold_dps:g}")
+    unit = units_label(segs)
+    over = f"% of frames with response > {s.threshold_dps:g}"
+    ax_b.set_ylabel(f"{over} {unit}" if ":" not in unit else f"{over}\n({unit})")
     ax_b.set_title(f"'AVDM > {s.threshold_dps:g}' per segment")
     ax_b.grid(axis="y", alpha=0.3)
     series = [(label.replace("\n", " "), g.response) for label, g in zip(labels, segs, strict=True)]
-    response_densities(ax_d, series, s.threshold_dps, "response distributions", fontsize=7)
+    response_densities(
+        ax_d, series, s.threshold_dps, "response distributions", fontsize=7, unit=unit
+    )
     return save_figure(fig, path)
 
 

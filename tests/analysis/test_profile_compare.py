@@ -42,7 +42,11 @@ def test_profile_per_recording_segment(recordings, tmp_path: Path) -> None:
     figures = saved_figures(record)
     for png in pngs:  # each segment: circles, histogram of responses > 80, arena map
         assert_figure(png, figures, title="responses > 80", labels=("frames", "x (m)"), min_axes=3)
-    assert_figure(out / "profiles.png", figures, title="'AVDM > 80' per segment")
+    # every axis says its unit (issue 43): the bars' share and the responses in deg/s
+    overview = assert_figure(out / "profiles.png", figures, title="'AVDM > 80' per segment")
+    labels = {ax["ylabel"] for ax in overview["axes"]} | {ax["xlabel"] for ax in overview["axes"]}
+    assert "% of frames with response > 80 deg/s" in labels, labels
+    assert {"response (deg/s)", "density (per deg/s)"} <= labels, labels
     assert (summary["threshold_dps"] == 80).all()
     # the profile's own statistics agree with the tables'
     t = run_in_process(
@@ -95,7 +99,7 @@ def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -
     assert corr.filter(pl.col("model_b") == "avdm-on")["pearson"][0] > 0.9
     assert_figure(
         out / "compare.png", saved_figures(record), title="the busiest minute",
-        labels=("time (s)", "density"), min_axes=3,
+        labels=("time (s)", "density (per deg/s)", "response (deg/s)"), min_axes=3,
     )  # fmt: skip
     # the variants file opens alongside the source: same recording id, /model_variants/...
     source = Recording(rec)
@@ -127,3 +131,20 @@ def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -
 def test_bad_options_give_one_line(recordings, tmp_path: Path, args, needle) -> None:
     args = [str(recordings["tf3_a"]) if a == "REC" else a for a in args]
     assert_one_line_error(run_in_process("analysis", *args, "--out", str(tmp_path / "o")), needle)
+
+
+@pytest.mark.parametrize(
+    ("model", "output", "unit"),
+    [
+        ("avdm", "omega_dps", "deg/s"),
+        ("avdm-natural", "omega_dps", "deg/s"),
+        # decoded as the released code does: the registry calls it relative units, not deg/s
+        ("avdm-released-units", "omega_dps", "relative units"),
+        ("avdm:a=100,b=1,contrast_term=false", "omega_dps", "relative units"),
+        ("lgmd-plus", "spike_rate_hz", "Hz"),
+    ],
+)
+def test_a_profile_axis_names_the_unit_of_its_model(model: str, output: str, unit: str) -> None:
+    from analysis.profile import response_unit
+
+    assert response_unit(model, output) == unit
