@@ -234,3 +234,74 @@ def working_camera(
         raise ValueError(f"{source!r} states no frame rate")
     h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
     return (h, w), fps, camera_model_context(w, h, fps, fov_deg)
+
+
+# the working-raster frames held while the models' rate is decided on the stream's evidence:
+# 64 MB is 16 000 frames of the default 85 x 48 raster (9 min at 30 fps); a longer stream is
+# decided on what that holds and only checked after it
+LOOKAHEAD_BYTES = 64 * 2**20
+LOOKAHEAD_FRAMES = 20_000
+
+
+class RateLookahead:
+    """A :class:`FrameBatcher`'s batches, the first of them read ahead and held until the
+    rate the models are built at is decided on the stream's evidence
+    (``avdm.true_time.model_rate``): the whole stream where its working-raster frames fit in
+    ``limit_bytes`` (and ``limit_frames``), else as many as do, with the rest only checking
+    the decision (:meth:`final_rate`). A live camera (``live``) runs at its own rate: its
+    frames are stamped on arrival and nothing is read ahead. ``next_batch`` hands out the held
+    batches, then the rest, as the batcher would."""
+
+    def __init__(
+        self,
+        batcher: FrameBatcher,
+        max_repeats: int,
+        live: bool = False,
+        limit_bytes: int = LOOKAHEAD_BYTES,
+        limit_frames: int = LOOKAHEAD_FRAMES,
+    ) -> None:
+        from avdm.true_time import ModelRate, model_rate
+
+        self.batcher, self.max_repeats = batcher, max_repeats
+        self._held: list[FrameBatch] = []
+        self._flags: list[np.ndarray] = []
+        held_bytes = held_frames = 0
+        while not live and held_bytes < limit_bytes and held_frames < limit_frames:
+            fb = batcher.next_batch()
+            if fb is None:
+                break
+            self._held.append(fb)
+            self._flags.append(fb.repeat)
+            held_bytes += fb.images.nbytes + fb.native_metrics.nbytes
+            held_frames += len(fb.frame)
+        # None: the decision saw the whole stream
+        self.decided_on: int | None = None if batcher.ended else held_frames
+        fps = batcher.fps
+        self.rate = (
+            ModelRate(fps, 1.0, "live camera")
+            if live
+            else model_rate(fps, self.flags(), max_repeats, self.decided_on)
+        )
+
+    def flags(self) -> np.ndarray:
+        """(T,) bool: the repeat flags of the frames read so far."""
+        return np.concatenate(self._flags) if self._flags else np.zeros(0, dtype=bool)
+
+    def next_batch(self) -> FrameBatch | None:
+        if self._held:
+            return self._held.pop(0)
+        fb = self.batcher.next_batch()
+        if fb is not None:
+            self._flags.append(fb.repeat)
+        return fb
+
+    def final_rate(self) -> Any:
+        """The decision (``avdm.true_time.ModelRate``) once the stream is read: the same rate,
+        with a note where the stream was longer than the frames it was decided on and its
+        cadence breaks after them."""
+        from avdm.true_time import model_rate
+
+        if self.decided_on is None or self.rate.reason == "live camera":
+            return self.rate
+        later = model_rate(self.batcher.fps, self.flags(), self.max_repeats, self.decided_on)
+        return later if later.fps == self.rate.fps else self.rate
