@@ -103,7 +103,7 @@ RATE_REASONS = (
     "ambiguous cadence",  # the container's rate, with a note
     "too few frames to judge",  # the container's rate, with a note where there are repeats
     "regular cadence",  # fps / k: every frame shown k times (k = 2, 3, ...; 2.5: 3:2 pulldown)
-    "live camera",  # a camera's frames: its own rate, stamped by the host's clock
+    "camera frames",  # a camera (live, simulated, a robot's): its own rate, nothing judged
 )
 
 
@@ -206,10 +206,17 @@ class TrueTimeModel:
     repeat flags (T,) bool) and continues from the state of earlier batches; outputs for
     repeated frames hold the last new frame's values. Without repeats and with evenly spaced
     times at the model's own ``fps`` the outputs equal ``model.run(frames)`` exactly.
+
+    ``cadence`` True: the new frames are a regular cadence's (:func:`model_rate`: every frame
+    shown k times, 3:2 pulldown), whose originals were evenly spaced at the model's rate; the
+    true time between them is taken in whole model intervals (3:2 pulldown shows them 2 and 3
+    container frames apart, 0.8 and 1.2 intervals, which would read the original's motion
+    alternately 25 % fast and 17 % slow), and a lost frame still counts as an interval.
     """
 
-    def __init__(self, model: Model) -> None:
+    def __init__(self, model: Model, cadence: bool = False) -> None:
         self.model = model
+        self.cadence = cadence
         self.name = model.name
         self.outputs = model.outputs
         self.params = model.params
@@ -234,6 +241,8 @@ class TrueTimeModel:
             dt = np.diff(prev_t)
             nominal = 1.0 / self.fps
             dt = np.where(np.isfinite(dt) & (dt > 0), dt, nominal)
+            if self.cadence:
+                dt = np.maximum(np.rint(dt / nominal), 1.0) * nominal
             scale = nominal / dt
             for k in self._angular:
                 res[k] = res[k] * scale

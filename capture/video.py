@@ -37,7 +37,7 @@ from vdc.cli_support import (
     option,
     positive_float,
 )
-from vdc.frame_batches import FrameBatcher
+from vdc.frame_batches import FrameBatcher, RateLookahead
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 from vdc.sources import (
     Reader,
@@ -121,7 +121,7 @@ class VideoSource(DeviceContext):
             raise ValueError(f"{settings.source!r} states no frame rate: pass --fps")
         self.fps = float(fps)
         self._batches: FrameBatcher | None = None
-        self._peeked: Batch | None = None
+        self._ahead: RateLookahead | None = None
         self._size: tuple[int, int] | None = None
 
     def working_size(self) -> tuple[int, int]:
@@ -158,23 +158,29 @@ class VideoSource(DeviceContext):
     def last_t_s(self) -> float | None:
         return self._batches.last_t_s if self._batches else None
 
-    def peek(self) -> Batch | None:
-        """The first batch, read now and handed out again by the first :meth:`read`: the
-        rate of new frames is known before the model is built (``new_frame_rate``)."""
+    def model_rate(self) -> Any:
+        """The rate the models are built at and why (``avdm.true_time.ModelRate``), decided
+        before the model is built on the stream's repeats: the source is read ahead
+        (``vdc.frame_batches.RateLookahead``, the whole of it where it fits) and its frames
+        handed out again by :meth:`read`. A live camera runs at its own rate."""
         self.connect()
-        if self._peeked is None:
-            self._peeked = self._next()
-        return self._peeked
+        assert self._batches is not None
+        if self._ahead is None:
+            live = self.info["kind"] == "camera"
+            self._ahead = RateLookahead(self._batches, self.settings.max_repeats, live)
+        return self._ahead.rate
+
+    def final_rate(self) -> Any:
+        """:meth:`model_rate` once read: a note where a stream longer than the frames it was
+        decided on breaks its cadence later."""
+        return self._ahead.final_rate() if self._ahead is not None else None
 
     def read(self) -> Batch | None:
-        if self._peeked is not None:
-            batch, self._peeked = self._peeked, None
-            return batch
         return self._next()
 
     def _next(self) -> Batch | None:
         assert self._batches is not None, "connect() first"
-        fb = self._batches.next_batch()
+        fb = (self._ahead or self._batches).next_batch()
         if fb is None:
             return None
         frame, dropped, dt, notes = fb.frame, fb.dropped_before, fb.dt_s, fb.notes
@@ -245,6 +251,11 @@ class VideoRecordResult:
     # those of them lost after the last frame read (counted in ``dropped``; None: unknown)
     container_frames: int | None = None
     lost_after_last: int | None = None
+    # the rate the models ran at and why (``avdm.true_time.RATE_REASONS``), and the one line
+    # said about it (None: the container's rate, without doubt)
+    model_fps: float | None = None
+    model_fps_reason: str | None = None
+    model_fps_note: str | None = None
 
 
 def recording_id(settings: VideoSettings, out: str | Path | None = None) -> str:
@@ -284,7 +295,7 @@ def record_video(
     the cut."""
     from avdm.calibration_store import calibration_for
     from avdm.registry import make_model
-    from avdm.true_time import TrueTimeModel, new_frame_rate
+    from avdm.true_time import TrueTimeModel
     from capture.output import claim_output
     from capture.recording_start import start_recording
     from capture.run import finish_output, run_capture
@@ -304,11 +315,14 @@ def record_video(
     recorder = None
     try:
         h, w = device.working_size()
-        # the models follow the rate of new frames, whatever the container says: a clip whose
-        # every frame is shown twice at 50 Hz is profiled as the 25-Hz original (docs/video.md)
-        first = device.peek()
-        rate = new_frame_rate(device.fps, first.repeat, settings.max_repeats) if first else None
-        model_fps = rate or device.fps
+        # the models follow the rate of new frames where the whole stream's repeats keep a
+        # cadence: a clip whose every frame is shown twice at 50 Hz is profiled as the 25-Hz
+        # original; repeats that come and go with the motion leave the container's rate
+        # (docs/video.md)
+        rate = device.model_rate()
+        model_fps = rate.fps
+        if rate.note and options.log is not None:
+            options.log(f"{settings.source}: {rate.note}")
         # the one context every model of this recording is built with, online and offline
         context = camera_model_context(w, h, model_fps, settings.fov_deg)
         deg_per_px = float(context["deg_per_px"])
@@ -316,7 +330,7 @@ def record_video(
         cal = calibration_for(
             model_fps, deg_per_px, progress=calibration_progress, params=_calibrated(built)
         )
-        model = TrueTimeModel(built)
+        model = TrueTimeModel(built, rate.reason == "regular cadence")
         live = options.viewer_url()
         info = device.info
         recorder = start_recording(
@@ -360,6 +374,9 @@ def record_video(
                     "color_range": info["color_range"],
                     "repeat_tol": settings.repeat_tol,
                     "max_repeats": settings.max_repeats,
+                    # the rate the models run at and why (avdm.true_time.RATE_REASONS)
+                    "model_fps": model_fps,
+                    "model_fps_reason": rate.reason,
                 },
                 "camera": {
                     "fps": device.fps,
@@ -396,6 +413,9 @@ def record_video(
     error = getattr(device.reader, "error", None)
     finished = result.stop_reason == "finished"  # a signal or a full disk is not a cut file
     ends = device.end_fields(finished)
+    final = device.final_rate() or rate
+    if final.note != rate.note and options.log is not None:  # the cadence broke later
+        options.log(f"{settings.source}: {final.note}")
     if error is None and finished:
         # the frames end well before the duration the header states: the file was cut
         error = ends["cut_note"]
@@ -410,4 +430,7 @@ def record_video(
         device.reader.first_problem,
         ends["container_frames"],
         ends["lost_after_last"],
+        model_fps,
+        final.reason,
+        final.note,
     )

@@ -250,7 +250,8 @@ class RateLookahead:
     ``limit_bytes`` (and ``limit_frames``), else as many as do, with the rest only checking
     the decision (:meth:`final_rate`). A live camera (``live``) runs at its own rate: its
     frames are stamped on arrival and nothing is read ahead. ``next_batch`` hands out the held
-    batches, then the rest, as the batcher would."""
+    batches, then the rest, as the batcher would; ``progress`` hears of each batch as it is
+    decoded (most of a clip's time is spent there while it is read ahead)."""
 
     def __init__(
         self,
@@ -259,10 +260,11 @@ class RateLookahead:
         live: bool = False,
         limit_bytes: int = LOOKAHEAD_BYTES,
         limit_frames: int = LOOKAHEAD_FRAMES,
+        progress: Callable[[int], Any] | None = None,
     ) -> None:
         from avdm.true_time import ModelRate, model_rate
 
-        self.batcher, self.max_repeats = batcher, max_repeats
+        self.batcher, self.max_repeats, self.progress = batcher, max_repeats, progress
         self._held: list[FrameBatch] = []
         self._flags: list[np.ndarray] = []
         held_bytes = held_frames = 0
@@ -272,13 +274,15 @@ class RateLookahead:
                 break
             self._held.append(fb)
             self._flags.append(fb.repeat)
+            if progress is not None:
+                progress(len(fb.frame))
             held_bytes += fb.images.nbytes + fb.native_metrics.nbytes
             held_frames += len(fb.frame)
         # None: the decision saw the whole stream
         self.decided_on: int | None = None if batcher.ended else held_frames
         fps = batcher.fps
         self.rate = (
-            ModelRate(fps, 1.0, "live camera")
+            ModelRate(fps, 1.0, "camera frames")
             if live
             else model_rate(fps, self.flags(), max_repeats, self.decided_on)
         )
@@ -293,6 +297,8 @@ class RateLookahead:
         fb = self.batcher.next_batch()
         if fb is not None:
             self._flags.append(fb.repeat)
+            if self.progress is not None:
+                self.progress(len(fb.frame))
         return fb
 
     def final_rate(self) -> Any:
@@ -301,7 +307,7 @@ class RateLookahead:
         cadence breaks after them."""
         from avdm.true_time import model_rate
 
-        if self.decided_on is None or self.rate.reason == "live camera":
+        if self.decided_on is None or self.rate.reason == "camera frames":
             return self.rate
         later = model_rate(self.batcher.fps, self.flags(), self.max_repeats, self.decided_on)
         return later if later.fps == self.rate.fps else self.rate

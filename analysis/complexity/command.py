@@ -186,7 +186,7 @@ def complexity_of_frames(
     Returns a DataFrame: frame, t_s, repeat, then one column per metric of
     ``settings.metrics`` (see the module)."""
     from analysis.complexity.source_metrics import MODEL_METRICS
-    from avdm.true_time import repeats_of
+    from avdm.true_time import model_rate, repeats_of
     from vdc.frame_metrics import NativeMeter, decide_ranges, leaves_limited
     from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
     from vdc.resize import area_resize
@@ -216,7 +216,10 @@ def complexity_of_frames(
     out = {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
     if any(m in metrics for m in MODEL_METRICS):
         small = np.stack([area_resize(f, (h, w)) for f in frames])  # as FrameBatcher
-        meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics)
+        rate = model_rate(fps, repeat, settings.max_repeats)  # on all the frames' evidence
+        meter = ComplexityMeter(
+            fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics, rate=rate
+        )
         out |= meter.update(small, t, repeat)
     df = pl.DataFrame({"frame": np.arange(len(frames), dtype=np.int64), "t_s": t, "repeat": repeat})
     return df.with_columns(*[pl.Series(m, out[m]).fill_nan(None) for m in metrics])
@@ -368,7 +371,8 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
             for k in (
                 "source", "kind", "codec", "width_px", "height_px", "fps", "duration_s",
                 "frames", "repeated_frames", "dropped_frames", "container_frames",
-                "lost_after_last", "header_duration_s", "missing_s", "model_fps", *RANGE_COLUMNS,
+                "lost_after_last", "header_duration_s", "missing_s", "model_fps",
+                "model_fps_reason", *RANGE_COLUMNS,
             )
         },
         "raster": table["raster"][0],
@@ -520,6 +524,9 @@ def complexity(
         if info.get("cut_note") or info.get("decode_error"):
             why = info.get("cut_note") or f"decoding stopped ({info['decode_error']})"
             say(f"{info['source']}: {why}; its row covers {info['frames']} frames")
+    for info in infos:  # the models' rate, where it is not the container's or is in doubt
+        if info.get("model_fps_note"):
+            say(f"{info['source']}: {info['model_fps_note']}")
     uncounted = [  # files whose end cannot be counted (parts of older runs do not say)
         i["source"]
         for i in infos
