@@ -126,6 +126,12 @@ class _PyAvReader(Reader):
         # MP4 edit list's B-frame delay, an MPEG-TS clock); a frame that decodes later than
         # it follows lost frames
         self._start_s = float(start * tb) if start is not None and tb else None
+        if "matroska" in self.container.format.name:  # FFmpeg's is the first frame it read
+            from vdc.matroska_index import declared_start_s
+
+            declared = declared_start_s(path)  # the file's own index: damage cannot move it
+            if declared is not None and (self._start_s is None or declared < self._start_s):
+                self._start_s = declared
         self.info = {
             "kind": "file",
             "codec": self.stream.codec_context.name,
@@ -528,18 +534,24 @@ def end_fields(
     and ``dropped`` before and between them: ``dropped_frames`` (with those lost after the
     last frame), ``container_frames`` (the count the source states, None where it states
     none), ``lost_after_last`` (None: unknown), ``header_duration_s``, ``missing_s`` (the
-    lost end in seconds, :func:`header_shortfall`) and ``cut_note``. ``ended``: False for a
-    source read only in part (a capture stopped by a signal): nothing is lost after it."""
+    seconds the header states that the frames do not cover: the lost end,
+    :func:`header_shortfall`, and the lost start, ``first_frame_s``) and ``cut_note``.
+    ``ended``: False for a source read only in part (a capture stopped by a signal): nothing
+    is lost after it."""
     container = info.get("container_frames")
     after = frames_lost_after(container, frames, dropped) if ended else None
     header_s = info.get("header_duration_s", info.get("duration_s")) or None
-    end_s = None if last_t_s is None else last_t_s + float(info.get("first_frame_s") or 0.0)
+    first_s = float(info.get("first_frame_s") or 0.0)
+    end_s = None if last_t_s is None else last_t_s + first_s
+    missing = header_shortfall(header_s, end_s, fps)
+    if missing is not None and frames_missing_in(first_s, fps):  # and the lost start
+        missing += first_s
     return {
         "dropped_frames": int(dropped) + (after or 0),
         "container_frames": container,
         "lost_after_last": after,
         "header_duration_s": header_s,
-        "missing_s": header_shortfall(header_s, end_s, fps),
+        "missing_s": missing,
         "cut_note": cut_short_note(header_s, end_s, fps, after) if ended else None,
     }
 
