@@ -13,7 +13,7 @@ robot camera's (70°/99 px, the resolution the models were designed and calibrat
 Repeated frames (each frame shown twice, pulldown, webcams faster than their sensor) and
 dropped frames (gaps in the timestamps; before the first frame, the gap from the stream's start
 to it) are detected per frame and recorded, and the frames lost after the last one are those the
-container states less those read and dropped (``vdc.sources.end_fields``); the online model
+container states less those read and dropped (``vdc.stream_counts.end_fields``); the online model
 sees only new frames, over true time (avdm.true_time). The device has no pose, arena or walls:
 its batches carry None there and the recording holds none of those entities.
 """

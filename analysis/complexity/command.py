@@ -13,7 +13,7 @@ the
 * ``clips.parquet``: one row per clip: source, codec, resolution, fps, duration, repeated
   and dropped frames (each lost frame once: ``frames + dropped_frames == container_frames``
   where the source states its count; ``lost_after_last`` of them after the last frame,
-  ``missing_s`` those in seconds; ``vdc.sources.end_fields``), and each metric's mean, max
+  ``missing_s`` those in seconds; ``vdc.stream_counts.end_fields``), and each metric's mean, max
   and p95 (P.910 clause 7.8.4 recommends the mean and the max per sequence);
 * ``complexity_correlations.parquet``: Spearman ρ of every pair of metrics per clip;
 * ``complexity_collection.png``: clips ranked by the AVDM and by TI, and the AVDM against TI

@@ -45,7 +45,7 @@ from avdm.registry import make_model
 from avdm.true_time import ModelRate, TrueTimeModel, model_rate, repeat_flags
 from vdc.frame_metrics import NativeMeter, decide_ranges
 from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context, working_size
-from vdc.sources import end_fields
+from vdc.stream_counts import end_fields
 
 if TYPE_CHECKING:
     from analysis.recordings.loading import LoadedRecording
@@ -433,7 +433,7 @@ def measure_video(
             "duration_s": float(batches.last_t_s or 0.0),
             "frames": table.height,
             "repeated_frames": batches.repeats_total,
-            # each lost frame once (vdc.sources.end_fields): before the first frame, a gap
+            # each lost frame once (vdc.stream_counts.end_fields): before the first frame, a gap
             # in the times (a bad packet's or a late frame's cost) or after the last
             **batches.end_fields(),
             "source_problems": reader.problems,
