@@ -22,7 +22,7 @@ import dataclasses
 import os
 import re
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -549,6 +549,31 @@ def source_name(source: str) -> str:
     else:
         stem = p.stem
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", stem)[:60] or "clip"
+
+
+def unique_source_names(sources: Sequence[str]) -> list[str]:
+    """Each source's name (:func:`source_name`: its file's stem), unique within the
+    run, so that no two sources share a recording id, a part, a figure or an ``.rrd``: where
+    two share one, the parent folder's name is put before it (``day1-take``), then, where
+    they still do (``take.mp4`` and ``take.mkv`` in one folder), the file's suffix after it
+    (``day1-take-mkv``), and last a number."""
+    names = [source_name(s) for s in sources]
+
+    def clashes() -> set[str]:
+        return {n for n in names if names.count(n) > 1}
+
+    for widen in (
+        lambda src, n: f"{source_name(str(Path(src).parent))}-{n}",
+        lambda src, n: f"{n}-{Path(src).suffix.lstrip('.').lower() or 'x'}",
+    ):
+        dup = clashes()
+        names = [widen(src, n) if n in dup else n for src, n in zip(sources, names, strict=True)]
+    seen: dict[str, int] = {}
+    for i, n in enumerate(list(names)):
+        if n in clashes() or n in seen:
+            seen[n] = seen.get(n, 0) + 1
+            names[i] = f"{n}-{seen[n]}"
+    return names
 
 
 def open_reader(source: str, fps: float | None = None) -> Reader:

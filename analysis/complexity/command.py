@@ -63,7 +63,7 @@ from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tas
 from vdc.frame_metrics import RANGE_CHOICES, RANGE_COLUMNS
 from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL
-from vdc.sources import source_name
+from vdc.sources import unique_source_names
 
 
 @dataclasses.dataclass(frozen=True)
@@ -333,13 +333,10 @@ def plan_sources(
                 "the recording or video it measured"
             )
         sources = [s for s in sources if s not in derived]
-    names = [source_name(s) for s in sources]
-    dup = {n for n in names if names.count(n) > 1}
+    names = unique_source_names(sources)
     distinct = DistinctRecordings()  # two files of one recording would mix their rows
     tasks = []
     for src, name in zip(sources, names, strict=True):
-        if name in dup:
-            name = f"{source_name(str(Path(src).parent))}-{name}"
         digest = hashlib.sha1(repr((_stamp(src), settings.measured())).encode()).hexdigest()
         if src.endswith(".rrd") and opened[src] is not None:
             rid = opened[src].recording_id

@@ -117,3 +117,29 @@ def test_times_that_repeat_or_go_backwards_are_dropped_and_counted(tmp_path, suf
     assert (info["frames"], info["container_frames"]) == (n - 2, n)
     assert info["frames"] + info["dropped_frames"] == n, info
     assert info["source_problems"] == 2  # each named: "repeats the time", "out of time order"
+
+
+def test_two_clips_with_one_stem_in_one_folder_keep_apart(tmp_path):
+    """``take.mp4`` and ``take.mkv`` side by side (and a ``take.mp4`` in another folder): each
+    gets its own recording id, rows, figure and ``.rrd``; nothing overwrites another's."""
+    from analysis.complexity.command import ComplexitySettings, complexity
+    from tests.analysis.test_lost_frames import N as FRAMES
+    from tests.analysis.test_lost_frames import write_clip
+
+    folder = tmp_path / "day1"
+    folder.mkdir()
+    (tmp_path / "day2").mkdir()
+    write_clip(folder / "take.mp4")
+    write_clip(folder / "take.mkv", first_pts=3)  # another clip: not the same file twice
+    write_clip(tmp_path / "day2" / "take.mp4", n=FRAMES - 4)
+    res = complexity(
+        [tmp_path], ComplexitySettings(metrics="si_p910,mafd", rrd=True), tmp_path / "out"
+    )
+    ids = res.clips["recording_id"].to_list()
+    assert len(ids) == 3 and len(set(ids)) == 3, ids
+    per_id = res.table.group_by("recording_id").len()
+    assert sorted(per_id["len"].to_list()) == [FRAMES - 4, FRAMES, FRAMES]
+    for suffix in ("png", "rrd"):
+        written = {p.name for p in (tmp_path / "out").glob(f"complexity_*.{suffix}")}
+        written.discard("complexity_collection.png")  # the collection's, not a clip's
+        assert written == {f"complexity_{i}.{suffix}" for i in ids}
