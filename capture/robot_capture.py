@@ -17,6 +17,7 @@ never announces (older firmware) is recorded with its model marked unverified.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import sys
 import time
@@ -30,15 +31,34 @@ import serial
 
 from avdm.registry import canonical_name, make_model
 from capture.colias_link import SerialLink
-from capture.config import SCENES, WallConfig
+from capture.config import (
+    SCENES,
+    ArenaConfig,
+    RobotConfig,
+    WallConfig,
+    config_section,
+    parse_schedule,
+)
 from capture.device import Batch, DeviceContext, Event
-from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
+from capture.output import claim_output
+from capture.recording_start import camera_line, start_recording
+from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
-from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose
+from capture.tracker import (
+    MarkerLayout,
+    calibrate_homography,
+    load_calibration,
+    robot_pose,
+    save_calibration,
+)
+from vdc.blueprints import default_blueprint
 from vdc.cli_support import non_negative_float, option, positive_float
-from vdc.recording import camera_model_context
+from vdc.errors import UserError
+from vdc.parquet_io import WroteFiles
+from vdc.provenance import machine_info, package_versions
+from vdc.recording import LINK_STATS, camera_model_context
 
-LINK_STATS = (
+LINK_COUNTERS = (
     "packets",
     "bad_crc",
     "bad_length",
@@ -82,10 +102,10 @@ def open_camera(source: str) -> cv2.VideoCapture:
     else:
         is_pattern = "%" in source
         if not is_pattern and not Path(source).exists():
-            raise ValueError(f"overhead camera {source!r}: no such file or camera index")
+            raise UserError(f"overhead camera {source!r}: no such file or camera index")
         cap = cv2.VideoCapture(source, cv2.CAP_IMAGES if is_pattern else cv2.CAP_ANY)
     if not cap.isOpened():
-        raise ValueError(f"overhead camera {source!r} cannot be opened")
+        raise UserError(f"overhead camera {source!r} cannot be opened")
     return cap
 
 
@@ -122,7 +142,7 @@ class ColiasRobotDevice(DeviceContext):
         try:
             self.link.open()
         except (serial.SerialException, OSError) as exc:
-            raise ValueError(
+            raise UserError(
                 f"cannot open the robot's serial port {cfg.port!r}: "
                 f"{getattr(exc, 'strerror', None) or exc}"
             ) from None
@@ -146,7 +166,7 @@ class ColiasRobotDevice(DeviceContext):
         self.lost = 0
         self.duplicates = 0
         self.tracking = True
-        self._reported = dict.fromkeys(LINK_STATS, 0)
+        self._reported = dict.fromkeys(LINK_COUNTERS, 0)
         self._disconnect_events: list[str] = []
         self._connected = True
 
@@ -161,17 +181,17 @@ class ColiasRobotDevice(DeviceContext):
             got = a.model  # a model this host does not know: it cannot be --model's
         robot_outputs = [f"{n} [{u}]" for n, u in a.outputs]
         if got != want:
-            raise ValueError(
+            raise UserError(
                 f"the robot runs {a.model} (outputs {', '.join(robot_outputs) or 'none'}), not "
                 f"--model {self.cfg.model}: give --model {a.model}, or load {want} on the robot"
             )
         try:
             host = make_model(want, **a.model_context())
         except ValueError as exc:
-            raise ValueError(f"the robot's announced camera does not fit {want}: {exc}") from None
+            raise UserError(f"the robot's announced camera does not fit {want}: {exc}") from None
         host_outputs = [f"{o.name} [{o.unit}]" for o in host.outputs]
         if robot_outputs != host_outputs:
-            raise ValueError(
+            raise UserError(
                 f"the robot's {a.model} sends {len(robot_outputs)} outputs "
                 f"({', '.join(robot_outputs) or 'none'}) but {want} has {len(host_outputs)} "
                 f"({', '.join(host_outputs)}): the robot's firmware and vdc disagree on the model"
@@ -204,7 +224,7 @@ class ColiasRobotDevice(DeviceContext):
             self._cam_next += 1
             grey = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
             if self.h is None:
-                self.h = calibrate(grey, self.cfg.layout)
+                self.h = calibrate_homography(grey, self.cfg.layout)
             self.samples.append((stamp, robot_pose(grey, self.h)))
             if not self._video:
                 return
@@ -304,7 +324,7 @@ class ColiasRobotDevice(DeviceContext):
         stats = self.link_stats()
         changes = [
             f"{k} +{stats[k] - self._reported[k]}"
-            for k in LINK_STATS[1:]
+            for k in LINK_COUNTERS[1:]
             if stats[k] > self._reported[k]
         ]
         for text in self._disconnect_events:
@@ -362,7 +382,7 @@ class WallController:
         try:
             self.ser = serial.Serial(port, 115200, timeout=0.1)
         except (serial.SerialException, OSError) as exc:
-            raise ValueError(
+            raise UserError(
                 f"cannot open the wall controller port {port!r}: "
                 f"{getattr(exc, 'strerror', None) or exc}"
             ) from None
@@ -416,8 +436,6 @@ class RobotSettings:
     )
 
     def wall(self) -> WallConfig:
-        from capture.config import parse_schedule
-
         schedule: tuple[tuple[float, float], ...] = ((self.tf_hz, 48 * 3600.0),)
         if self.tf_schedule:
             text = self.tf_schedule
@@ -428,12 +446,18 @@ class RobotSettings:
         return WallConfig(tf_schedule=schedule, period_m=self.period_m, scene=self.scene)
 
 
-@dataclasses.dataclass
-class RobotRecordResult:
-    """A robot recording and the serial link's counts."""
+@dataclasses.dataclass(kw_only=True)
+class RobotRecordResult(WroteFiles):
+    """A robot recording and the serial link's counts; ``paths``: the recording, and the
+    tracker's calibration when it was saved."""
 
     record: RecordResult
     link_stats: dict[str, int]
+    calibration_file: Path | None = None
+
+    @property
+    def paths(self) -> list[Path]:  # type: ignore[override]
+        return [self.record.path, *([self.calibration_file] if self.calibration_file else [])]
 
 
 def record_robot(
@@ -449,15 +473,6 @@ def record_robot(
     outputs), raises ValueError before the file exists. A robot that does not announce itself
     is recorded with ``model.verified`` false, and ``warn`` (default: stderr) says so in one
     line."""
-    import hashlib
-
-    from capture.config import ArenaConfig, RobotConfig, config_section
-    from capture.output import claim_output
-    from capture.recording_start import camera_line, start_recording
-    from capture.run import finish_output, run_capture
-    from vdc.blueprints import default_blueprint
-    from vdc.provenance import machine_info, package_versions
-    from vdc.recording import LINK_STATS as LINK_STATS_ENTITY
 
     wall = settings.wall()
     schedule = wall.tf_schedule
@@ -497,7 +512,7 @@ def record_robot(
             rid,
             live_url=live,
             blueprint=default_blueprint(
-                model.name, model.outputs, [("serial link counts", [LINK_STATS_ENTITY])]
+                model.name, model.outputs, [("serial link counts", [LINK_STATS])]
             ),
             model=model,
             context=context,
@@ -542,7 +557,7 @@ def record_robot(
                 },
                 "link": {
                     "protocol": "vdc serial v1 (docs/robot.md)",
-                    "stats": ",".join(LINK_STATS),
+                    "stats": ",".join(LINK_COUNTERS),
                     "announce": "received" if verified else "none (older firmware?)",
                 },
                 "provenance": {**package_versions(), **machine_info()},
@@ -550,11 +565,9 @@ def record_robot(
         )
         recorder.log_arena(arena, RobotConfig().radius_m)
         if settings.save_calibration:
-            from capture.tracker import save_calibration
-
             h = device.calibrate_tracker()
             if h is None:
-                raise ValueError("no overhead frame yet to calibrate from")
+                raise UserError("no overhead frame yet to calibrate from")
             save_calibration(h, Path(settings.save_calibration))
         if options.log is not None:
             options.log(
@@ -563,4 +576,8 @@ def record_robot(
         result = run_capture(device, None, recorder, total_frames=None, progress=options.progress)
     finally:
         finish_output(claim, recorder)
-    return RobotRecordResult(RecordResult.of(path, rid, result, None), device.link_stats())
+    return RobotRecordResult(
+        record=RecordResult.of(path, rid, result, None),
+        link_stats=device.link_stats(),
+        calibration_file=Path(settings.save_calibration) if settings.save_calibration else None,
+    )

@@ -18,10 +18,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from avdm.base import Model
 from avdm.true_time import TrueTimeModel
 from capture.device import Batch, CaptureDevice
+from capture.live_view import spawn_viewer
 from capture.output import OutputClaim
 from capture.recorder import Recorder, RecordingWriteError
 
@@ -101,7 +103,6 @@ class CaptureOptions:
     def viewer_url(self) -> str | None:
         """Where the recording streams live as well: a new viewer (``spawn``), ``live_url``,
         or nowhere (None)."""
-        from capture.live_view import spawn_viewer
 
         return spawn_viewer() if self.spawn else self.live_url
 
@@ -229,7 +230,6 @@ def run_capture(
     progress: bool = True,
 ) -> CaptureResult:
     """Read the device to its end (or a signal), logging every batch; always closes cleanly."""
-    from tqdm import tqdm
 
     t0 = time.perf_counter()
     frames = 0

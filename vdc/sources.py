@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import heapq
 import os
 import re
 import time
@@ -29,6 +30,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vdc.errors import UserError
 from vdc.frame_metrics import luma_plane, stream_format
 from vdc.stream_counts import frames_missing_in
 
@@ -103,20 +105,20 @@ class Reader:
 
 class _PyAvReader(Reader):
     def __init__(self, path: str) -> None:
-        import av
+        import av  # lazy: start-up
 
         p = Path(path)
         if not p.exists():
-            raise ValueError(f"video {path!r}: no such file")
+            raise UserError(f"video {path!r}: no such file")
         if p.stat().st_size == 0:
-            raise ValueError(f"video {path!r} is empty")
+            raise UserError(f"video {path!r} is empty")
         try:
             self.container = av.open(path)
         except av.FFmpegError as exc:
-            raise ValueError(f"cannot read {path!r} as a video: {_ffmpeg_reason(exc)}") from None
+            raise UserError(f"cannot read {path!r} as a video: {_ffmpeg_reason(exc)}") from None
         if not self.container.streams.video:
             self.container.close()
-            raise ValueError(f"{path!r} holds no video stream")
+            raise UserError(f"{path!r} holds no video stream")
         self.stream = self.container.streams.video[0]
         # a plane views the frame's reference-counted buffer, which FFmpeg's pools hand out
         # again only when no frame references it
@@ -159,7 +161,7 @@ class _PyAvReader(Reader):
         if first is None:
             self.container.close()
             why = f": {self.error}" if self.error else ""
-            raise ValueError(f"{path!r} holds no decodable video frame{why}")
+            raise UserError(f"{path!r} holds no decodable video frame{why}")
         self._first = first
         self.info["src_height_px"], self.info["src_width_px"] = first.luma.shape[:2]
 
@@ -218,7 +220,7 @@ class _PyAvReader(Reader):
         one packet that will not decode costs its own frames only: its error is appended to
         ``note`` and decoding goes on (a whole-stream decode stops at the first bad packet). A
         container that cannot be demuxed further ends here (``error``)."""
-        import av
+        import av  # lazy: start-up
 
         try:
             for packet in self.container.demux(self.stream):
@@ -254,7 +256,6 @@ class _PyAvReader(Reader):
         batcher's dropped frames): each lost frame is counted there, once; what no gap shows
         (a second frame at a time already shown; in a variable-rate stream, every loss) is
         counted on the next frame delivered (``SourceFrame.lost_before``)."""
-        import heapq
 
         variable = bool(self.info.get("variable_rate"))
         tb = float(self.stream.time_base or 0)
@@ -349,11 +350,11 @@ class _CameraReader(Reader):
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
         self.cap = cv2.VideoCapture(int(source))
         if not self.cap.isOpened():
-            raise ValueError(f"camera {source} cannot be opened (no such camera)")
+            raise UserError(f"camera {source} cannot be opened (no such camera)")
         ok, first = self.cap.read()
         if not ok or first is None:
             self.cap.release()
-            raise ValueError(f"camera {source} gives no frame")
+            raise UserError(f"camera {source} gives no frame")
         self.first = first
         cam_fps = self.cap.get(cv2.CAP_PROP_FPS)
         self.fps = fps or (cam_fps if cam_fps and cam_fps > 0 else 30.0)
@@ -409,10 +410,10 @@ class _ImageSequenceReader(Reader):
 
     def __init__(self, pattern: str, fps: float | None) -> None:
         if fps is None:
-            raise ValueError("an image sequence needs --fps (its frame rate)")
+            raise UserError("an image sequence needs --fps (its frame rate)")
         fields = list(_PATTERN_FIELD.finditer(pattern))
         if len(fields) != 1:
-            raise ValueError(
+            raise UserError(
                 f"image sequence {pattern!r}: give one number field such as %05d "
                 "(a file with % in its name is read as a video when it exists)"
             )
@@ -428,7 +429,7 @@ class _ImageSequenceReader(Reader):
                 if m and (not field.group(2) or len(m.group(1)) >= int(field.group(2))):
                     found.setdefault(int(m.group(1)), entry)
         if not found:
-            raise ValueError(f"image sequence {pattern!r} cannot be opened (no matching files)")
+            raise UserError(f"image sequence {pattern!r} cannot be opened (no matching files)")
         width = f"{field.group(1)}{field.group(2)}d"
         self.name_of = lambda k: Path(head + format(k, width) + tail).name
         self.paths = found
@@ -440,7 +441,7 @@ class _ImageSequenceReader(Reader):
             if first is not None:
                 break
         if first is None:
-            raise ValueError(f"image sequence {pattern!r}: no image in it can be read")
+            raise UserError(f"image sequence {pattern!r}: no image in it can be read")
         self.problems, self.first_problem = 0, None  # counted again when the frames are read
         h, w = first.shape
         self.info = {
