@@ -361,6 +361,15 @@ COMMANDS = {
         "--detector examples.looming:Looming --param threshold --values 0.05,0.15",
         inputs=_inputs("results/boundary", None),
     ),
+    "looming-footage": Command(
+        "analysis.experiments.looming_footage:LoomingFootageSettings",
+        _campaign("analysis.experiments.looming_footage:looming_footage", "clip"),
+        "render a labelled collection of looming clips over real photographs",
+        "Render --clips H.264 clips of an object approaching over scikit-image's photographs "
+        "(camera yaw, contrast, light, noise; collisions and near misses) and labels.csv with "
+        "collision_frame and hazard_onset_frame (docs/boundary.md). Clips written are reused.",
+        inputs=_inputs("footage/looming", None),
+    ),
     "adaptation": Command(
         "analysis.experiments.adaptation:AdaptationSettings",
         _campaign("analysis.experiments.adaptation:adaptation", "run"),

@@ -7,7 +7,7 @@ import sys
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from capture.colias_link import LinkLost
+from capture.serial_link import LinkLost
 from vdc.cli_support import (
     Command,
     command_line,
@@ -69,7 +69,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_emulate_robot(args: argparse.Namespace) -> int:
-    from capture.colias_link import EmulateSettings, emulate_robot
+    from capture.robot_emulator import EmulateSettings, emulate_robot
 
     link = args.link
 
@@ -210,7 +210,7 @@ COMMANDS = {
         models=True,
     ),
     "emulate-robot": Command(
-        "capture.colias_link:EmulateSettings",
+        "capture.robot_emulator:EmulateSettings",
         cmd_emulate_robot,
         "a simulated Colias-IV on a pseudo-terminal, speaking the serial protocol",
         "Open a pseudo-terminal behind --link, print it, wait for the host's START and stream "

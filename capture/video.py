@@ -142,6 +142,41 @@ class VideoSource(DeviceContext):
             )
         return self._size
 
+    def properties(self) -> dict[str, dict[str, Any]]:
+        """The recording's ``video`` and ``camera`` property sections: what this source is."""
+        info, settings = self.info, self.settings
+        h, w = self.working_size()
+        video = {k: info[k] for k in ("kind", "codec", "nominal_fps", "src_width_px")}
+        video |= {"src_height_px": info["src_height_px"], "fov_deg": settings.fov_deg}
+        video |= {
+            "rotation_deg": info["rotation_deg"],
+            # the duration the file's header states (s, from the stream's start): a cut file
+            # ends before it; the frames it states it holds (None: it states none); its first
+            # frame's time after the stream's start (s)
+            "header_duration_s": info.get("duration_s") or None,
+            "container_frames": info.get("container_frames"),
+            "first_frame_s": info.get("first_frame_s", 0.0),
+            "bit_depth": info["bit_depth"],
+            "color_range": info["color_range"],
+            "repeat_tol": settings.repeat_tol,
+            "max_repeats": settings.max_repeats,
+        }
+        rate = self.model_rate()  # the rate the models run at, and why (RATE_REASONS)
+        video |= {"model_fps": rate.fps, "model_fps_reason": rate.reason}
+        camera = {"fps": self.fps, "width_px": w, "height_px": h, "hfov_deg": settings.fov_deg}
+        return {"video": {"path": settings.source, **video}, "camera": camera}
+
+    def description(self) -> str:
+        """What a recording of this source holds, in a sentence (its ``/description``)."""
+        info, settings = self.info, self.settings
+        h, w = self.working_size()
+        return (
+            f"the {settings.kind} {settings.source} ({info['codec']}, "
+            f"{info['src_width_px']}x{info['src_height_px']}, {self.fps:.6g} fps, "
+            f"{settings.fov_deg:g} deg wide) as {w}x{h} px luma; per frame its timing "
+            "(repeats, drops) and the standard metrics on the native frames"
+        )
+
     def connect(self) -> None:
         if self._batches is None:
             s = self.settings
@@ -348,12 +383,7 @@ def record_video(
             context=context,
             model_fields={"true_time": True},
             model_note="run on the new frames over true time: repeats are held, not re-counted",
-            what=(
-                f"the {settings.kind} {settings.source} ({info['codec']}, "
-                f"{info['src_width_px']}x{info['src_height_px']}, {device.fps:.6g} fps, "
-                f"{settings.fov_deg:g} deg wide) as {w}x{h} px luma; per frame its timing "
-                "(repeats, drops) and the standard metrics on the native frames"
-            ),
+            what=device.description(),
             analyse=[
                 "vdc-analyse complexity REC --out results/complexity",
                 "vdc-analyse tables REC --out results/tables",
@@ -361,35 +391,7 @@ def record_video(
             ],
             sections={
                 "run": {"recording_id": rid, "source": "video", "behaviour": "video"},
-                "video": {
-                    "path": settings.source,
-                    "kind": info["kind"],
-                    "codec": info["codec"],
-                    "nominal_fps": info["nominal_fps"],
-                    "src_width_px": info["src_width_px"],
-                    "src_height_px": info["src_height_px"],
-                    "fov_deg": settings.fov_deg,
-                    "rotation_deg": info["rotation_deg"],
-                    # the duration the file's header states (s, from the stream's start): a
-                    # cut file ends before it; the frames it states it holds (None: it states
-                    # none); its first frame's time after the stream's start (s)
-                    "header_duration_s": info.get("duration_s") or None,
-                    "container_frames": info.get("container_frames"),
-                    "first_frame_s": info.get("first_frame_s", 0.0),
-                    "bit_depth": info["bit_depth"],
-                    "color_range": info["color_range"],
-                    "repeat_tol": settings.repeat_tol,
-                    "max_repeats": settings.max_repeats,
-                    # the rate the models run at and why (avdm.true_time.RATE_REASONS)
-                    "model_fps": model_fps,
-                    "model_fps_reason": rate.reason,
-                },
-                "camera": {
-                    "fps": device.fps,
-                    "width_px": w,
-                    "height_px": h,
-                    "hfov_deg": settings.fov_deg,
-                },
+                **device.properties(),
                 "calibration": {
                     k: cal[k]
                     for k in (

@@ -46,6 +46,7 @@ import polars as pl
 from analysis.boundary.fit import describe_boundary, fit_section
 from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
+from analysis.boundary.scenes import check_scenes, draw_tfs
 from analysis.collision import CollisionSettings, collision_metrics
 from analysis.recordings.loading import load_recording
 from analysis.stats import mean_ci, share_ci
@@ -113,7 +114,13 @@ class BoundarySettings(ExecutorSettings):
     )
     tf: tuple[float, ...] = option((0.0, 1.0, 3.0), "arena: wall TFs, Hz, comma-separated")
     scenes: tuple[str, ...] = option(
-        ("grating", "natural"), "arena: a wall scene (repeat the flag for several)"
+        ("grating", "natural"), "arena: wall scenes, comma-separated (docs/boundary.md#scenes)"
+    )
+    tf_draws: int = option(
+        0,
+        "arena grid: per scene, this many wall TFs drawn from --tf-range (one in each of as "
+        "many equal strata, uniform in it, seeded by --seed and the scene) instead of --tf",
+        type=non_negative_int,
     )
     seed: int = option(1, "first random seed", type=non_negative_int)
     seeds: int = option(5, "arena: runs per condition and value (seeds --seed, --seed+1, ...)")
@@ -191,7 +198,7 @@ class BoundarySettings(ExecutorSettings):
             self.tf_bounds()
             self.grid_values()
             number_list(self.tf, "tf")
-            name_list(self.scenes, "scenes", ("grating", "natural"))
+            self.scene_list()
             if self.per_scene and self.budget < 2 * len(self.scene_list()):
                 raise UserError("--per-scene needs --budget of at least 2 runs per scene")
 
@@ -216,15 +223,18 @@ class BoundarySettings(ExecutorSettings):
         return bounds
 
     def scene_list(self) -> list[str]:
-        return name_list(self.scenes, "scenes", ("grating", "natural"))
+        return check_scenes(_items(self.scenes))
+
+    def scene_tfs(self, scene: str) -> list[float]:
+        """The wall TFs (Hz) of ``scene``: --tf, or --tf-draws TFs drawn from --tf-range
+        (:func:`analysis.boundary.scenes.draw_tfs`)."""
+        if self.tf_draws == 0:
+            return number_list(self.tf, "tf")
+        return draw_tfs(self.seed, scene, self.tf_draws, self.tf_bounds())
 
     def conditions(self) -> list[tuple[str, float]]:
         """(scene, TF) of the grid, in the order given."""
-        return [
-            (scene, tf)
-            for scene in name_list(self.scenes, "scenes", ("grating", "natural"))
-            for tf in number_list(self.tf, "tf")
-        ]
+        return [(scene, tf) for scene in self.scene_list() for tf in self.scene_tfs(scene)]
 
 
 def _join(values: Any) -> str:

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.batch import parse_shard, readable_part
+from analysis.batch import PARTS, parse_shard, readable_part
 from analysis.complexity import figures
 from analysis.complexity.source_metrics import (
     ANGULAR_METRICS,
@@ -42,7 +42,6 @@ from analysis.complexity.source_metrics import (
     DIS_PRESETS,
     METRICS,
     MODEL_METRICS,
-    PARTS,
     RASTERS,
     ComplexityMeter,
     complexity_task,

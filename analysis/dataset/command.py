@@ -9,7 +9,12 @@ from typing import Any
 
 import polars as pl
 
-from analysis.complexity.source_metrics import ANGULAR_METRICS, MODEL_METRICS, parse_metrics
+from analysis.complexity.source_metrics import (
+    ANGULAR_METRICS,
+    DEFAULT_METRICS,
+    MODEL_METRICS,
+    parse_metrics,
+)
 from analysis.dataset.flags import FLAGS, finish, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
 from analysis.dataset.measure import measure_episode
@@ -19,10 +24,6 @@ from vdc.executors import ExecutorSettings, Feedback, executor_field, run_tasks
 from vdc.parquet_io import WroteFiles, table_set, write_tables
 from vdc.recording import FOOTAGE_MODEL
 
-# the metrics measured unless told: those of ``vdc-analyse complexity``'s default set that a
-# dataset's frames give (the angular ones need --fov-deg)
-DEFAULT_METRICS = "omega_dps,si_p910,ti_p910,mafd,flow_dps,codec_bpp"
-
 
 @dataclasses.dataclass(frozen=True)
 class DatasetSettings:
@@ -30,7 +31,8 @@ class DatasetSettings:
     repeat is), which flags fail a run, and where the episodes run."""
 
     metrics: str = option(
-        DEFAULT_METRICS,
+        # unless told: ``vdc-analyse complexity``'s default set (the angular ones need --fov-deg)
+        ",".join(DEFAULT_METRICS),
         "the complexity metrics per frame: comma-separated names as vdc-analyse complexity's "
         "--metrics (omega_dps and flow_dps need --fov-deg)",
     )

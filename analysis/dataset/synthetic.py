@@ -97,7 +97,7 @@ STANDARD_FAULTS = Faults(
 
 def _scene(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """(canvas RGB uint8 of the view plus a margin, object RGB uint8): real photographs."""
-    from skimage import data
+    from skimage import data  # lazy: optional extra
 
     bg = cv2.resize(data.astronaut(), (width + 2 * MARGIN_PX, height + 2 * MARGIN_PX),
                     interpolation=cv2.INTER_AREA)  # fmt: skip
@@ -179,7 +179,7 @@ class _Encoder:
     """One MP4 (one video stream) written frame by frame at given times."""
 
     def __init__(self, path: Path, codec: str, fps: float, shape: tuple[int, int]) -> None:
-        import av
+        import av  # lazy: start-up
 
         path.parent.mkdir(parents=True, exist_ok=True)
         self.container = av.open(str(path), "w")
@@ -196,7 +196,7 @@ class _Encoder:
         self.last_pts = -1
 
     def add(self, t_s: float, rgb: np.ndarray) -> None:
-        import av
+        import av  # lazy: start-up
 
         frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
         pts = max(round(t_s / TIME_BASE), self.last_pts + 1)

@@ -59,6 +59,7 @@ from analysis.boundary.fit import (
     tf_to_dps,
     with_fit,
 )
+from analysis.boundary.scenes import scene_fields
 from analysis.experiments.captures import RunItem, collision_run_item
 from capture.sim import SimSettings
 from vdc.executors import Feedback
@@ -378,9 +379,8 @@ def profile_runs(s: BoundarySettings, folder: Path) -> list[RunItem]:
         for tf in np.linspace(lo, hi, PROFILE_POINTS):
             tf = round(float(tf), 2)
             cond = condition_name(scene, tf)
-            settings = SimSettings(
-                scene=scene, tf_hz=tf, minutes=s.minutes, seed=s.seed, model=s.profile_model
-            )
+            run = {"tf_hz": tf, "minutes": s.minutes, "seed": s.seed, "model": s.profile_model}
+            settings = SimSettings(**scene_fields(scene), **run)
             cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": s.seed}
             path = folder / "profile" / cond / f"seed{s.seed}.rrd"
             items.append(RunItem(f"profile-{cond}-seed{s.seed}", settings, path, cols))

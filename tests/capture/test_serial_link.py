@@ -409,7 +409,7 @@ def test_a_host_that_reads_late_still_gets_the_robots_end(tmp_path: Path) -> Non
     run (1 s of frames, without images, fits in the pty's buffers)."""
     import serial
 
-    from capture.colias_link import EmulateSettings, emulate_robot
+    from capture.robot_emulator import EmulateSettings, emulate_robot
     from capture.serial_protocol import TYPE_END, TYPE_START
 
     link = tmp_path / "robot"
