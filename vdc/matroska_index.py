@@ -13,6 +13,7 @@ RFC 8794; Matroska: RFC 9559).
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 from typing import BinaryIO
 
@@ -41,8 +42,6 @@ def _vint(fh: BinaryIO, keep_marker: bool) -> int | None:
 
 def _children(data: bytes) -> list[tuple[int, bytes]]:
     """The (ID, payload) elements in ``data``, up to the first that does not parse."""
-    import io
-
     fh, out = io.BytesIO(data), []
     while True:
         eid, size = _vint(fh, True), _vint(fh, False)

@@ -32,6 +32,7 @@ import numpy as np
 
 from vdc.errors import UserError
 from vdc.frame_metrics import luma_plane, stream_format
+from vdc.matroska_index import declared_start_s
 from vdc.stream_counts import frames_missing_in
 
 # images and camera frames: 8-bit grey, full range
@@ -134,8 +135,6 @@ class _PyAvReader(Reader):
         # it follows lost frames
         self._start_s = float(start * tb) if start is not None and tb else None
         if "matroska" in self.container.format.name:  # FFmpeg's is the first frame it read
-            from vdc.matroska_index import declared_start_s
-
             declared = declared_start_s(path)  # the file's own index: damage cannot move it
             if declared is not None and (self._start_s is None or declared < self._start_s):
                 self._start_s = declared
@@ -199,7 +198,7 @@ class _PyAvReader(Reader):
         of the most common one (within 10 %). A constant-rate stream with holes in its times
         (a capture that lost frames) keeps it; a variable one does not, and its gaps then say
         nothing about lost frames (its container's rate is an average or a guess)."""
-        import av
+        import av  # lazy: start-up
 
         times = []
         try:
