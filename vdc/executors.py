@@ -230,6 +230,52 @@ def pool_size(jobs: int, n_tasks: int) -> int:
     return n
 
 
+def end_workers(pool: cf.ProcessPoolExecutor) -> None:
+    """Kill the local pool's workers and wait until each has ended: when this returns, none is
+    running and every file they held is closed (a process's files are closed before its exit
+    can be collected). SIGKILL, as ``PR_SET_PDEATHSIG`` would send: a task's own SIGTERM
+    handler (a capture's clean stop) would finish a truncated run and mark it done, where a
+    killed one leaves its partial file for a re-run to record again."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for p in procs:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            p.kill()
+    for p in procs:
+        with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+            p.join()
+
+
+@contextlib.contextmanager
+def _workers_end_before_parent(pool: cf.ProcessPoolExecutor) -> Iterator[None]:
+    """While the block runs, SIGTERM to this (main-thread) process first ends and collects the
+    pool's workers, then ends the process by SIGTERM as before (status -15, 143 in a shell).
+    Without it the workers learnt of the parent's death from the kernel (PR_SET_PDEATHSIG)
+    only as it died: on a busy machine a worker could still hold its partial recording and
+    its lock after the parent's exit had been reported, and a re-run found them taken."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers belong to the main thread; PDEATHSIG still ends the workers
+        return
+
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous == signal.SIG_IGN:
+        yield  # the caller chose to outlive SIGTERM: so do the workers' tasks
+        return
+
+    def on_term(signum: int, frame: Any) -> None:
+        end_workers(pool)
+        if callable(previous):  # the caller's own handler decides what happens next
+            previous(signum, frame)
+            return
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+
+    signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 @contextlib.contextmanager
 def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf.Executor, Any]]:
     """The executor (and the Dask client, or None) for ``n_tasks`` tasks; closed on exit.
@@ -245,7 +291,13 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
             initargs=(os.getpid(), max(1, usable_cpus() // workers)),
         )
         try:
-            yield pool, None
+            with _workers_end_before_parent(pool):
+                yield pool, None
+        except BaseException:
+            # the parent abandons the work (Ctrl-C, an error): its workers must not go on
+            # writing, nor be left for the kernel to end after the parent has gone
+            end_workers(pool)
+            raise
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
         return
