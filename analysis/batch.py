@@ -29,10 +29,10 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from analysis.loading import load_recording
 from analysis.profile import safe_key
-from analysis.rrd_reader import Recording, RecordingError
-from analysis.tables import (
+from analysis.recordings.loading import load_recording
+from analysis.recordings.reader import Recording, RecordingError
+from analysis.recordings.recompute import (
     DistinctRecordings,
     SummarySettings,
     check_models,

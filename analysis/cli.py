@@ -125,7 +125,7 @@ def _campaign(entry: str, unit: str) -> Callable[[argparse.Namespace], int]:
 
 
 def cmd_complexity(args: argparse.Namespace) -> int:
-    from analysis.complexity import ComplexitySettings, complexity, expand_sources
+    from analysis.complexity.command import ComplexitySettings, complexity, expand_sources
 
     settings = settings_from_args(ComplexitySettings, args)
     # walked once, its skip notes said here: complexity() then takes the files themselves
@@ -146,9 +146,9 @@ def cmd_complexity(args: argparse.Namespace) -> int:
 
 
 def cmd_catalog(args: argparse.Namespace) -> int:
-    from analysis.catalog import CatalogSettings
-    from analysis.catalog_query import query_to
-    from analysis.catalog_server import dataset_url, serve
+    from analysis.catalog.build import CatalogSettings
+    from analysis.catalog.query import query_to
+    from analysis.catalog.server import dataset_url, serve
 
     s = settings_from_args(CatalogSettings, args)
     if args.action == "query":
@@ -273,8 +273,8 @@ COMMANDS = {
         inputs=_inputs("results/calibration", None),
     ),
     "tables": Command(
-        "analysis.tables:TablesSettings",
-        _over_recordings("analysis.tables:tables"),
+        "analysis.recordings.recompute:TablesSettings",
+        _over_recordings("analysis.recordings.recompute:tables"),
         "recordings -> frames, model_outputs, events, summary Parquet tables",
         "Read recordings and write frames.parquet, model_outputs.parquet, events.parquet and "
         "summary.parquet into --out. Without --model the online model's logged outputs are "
@@ -330,7 +330,7 @@ COMMANDS = {
         inputs=_inputs("results/collision-study", None),
     ),
     "boundary": Command(
-        "analysis.boundary:BoundarySettings",
+        "analysis.boundary.command:BoundarySettings",
         _campaign("analysis.experiments.boundary_campaign:boundary", "run"),
         "where a detector breaks as complexity rises (arena grid or labelled footage)",
         "Arena: closed-loop runs over scene x TF x --param values x seeds (finished runs "
@@ -375,7 +375,7 @@ COMMANDS = {
         inputs=_summarise_inputs,
     ),
     "complexity": Command(
-        "analysis.complexity:ComplexitySettings",
+        "analysis.complexity.command:ComplexitySettings",
         cmd_complexity,
         "the AVDM beside P.910 SI/TI, optic flow and compression, per frame",
         "For recordings (video, arena, robot), video files, image sequences and folders of "
@@ -396,7 +396,7 @@ COMMANDS = {
         ),
     ),
     "catalog": Command(
-        "analysis.catalog:CatalogSettings",
+        "analysis.catalog.build:CatalogSettings",
         cmd_catalog,
         "browse and query many recordings as one Rerun dataset (a catalog server)",
         "serve: every recording under the folders as a segment of one dataset (properties "

@@ -25,12 +25,12 @@ import rerun as rr
 import rerun.blueprint as rrb
 from matplotlib.figure import Figure
 
-from analysis.analysis_rrd import log_arena_outline
-from analysis.ego_motion import turning_before
-from analysis.loading import LoadedRecording
 from analysis.profile import safe_key
+from analysis.recordings.analysis_rrd import log_arena_outline
+from analysis.recordings.ego_motion import turning_before
+from analysis.recordings.loading import LoadedRecording
+from analysis.recordings.recompute import SummarySettings, events_table
 from analysis.stats import Estimate, mean_ci, share_ci
-from analysis.tables import SummarySettings, events_table
 from vdc.cli_support import option
 from vdc.parquet_io import WroteFiles
 from vdc.recording import APP_ID
@@ -350,8 +350,8 @@ def collision(
     per recording, ``collision_study.png`` and ``collision.rrd``."""
     import hashlib
 
-    from analysis.loading import Notices, load_recording
-    from analysis.tables import DistinctRecordings
+    from analysis.recordings.loading import Notices, load_recording
+    from analysis.recordings.recompute import DistinctRecordings
     from vdc.parquet_io import table_set, write_parquet
 
     items, notes = [], Notices(notice)

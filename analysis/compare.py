@@ -11,10 +11,9 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.loading import LoadedRecording, Notices, load_recording
 from analysis.profile import correlation_panel, response_densities
-from analysis.stats import spearman
-from analysis.tables import (
+from analysis.recordings.loading import LoadedRecording, Notices, load_recording
+from analysis.recordings.recompute import (
     SummarySettings,
     TablesSettings,
     frames_in_statistics,
@@ -23,6 +22,7 @@ from analysis.tables import (
     recompute,
     summary_statistics,
 )
+from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model
 from vdc.cli_support import option
 from vdc.parquet_io import WroteFiles
@@ -214,8 +214,8 @@ def compare(
     With ``out``: ``compare_summary.parquet``, ``compare_correlations.parquet``,
     ``compare.png`` and ``variants.rrd`` (the traces under ``/model_variants/<name>/``, with
     the source's recording id, so ``rerun REC variants.rrd`` shows them together)."""
-    from analysis.analysis_rrd import write_variants_rrd
     from analysis.profile import save_figure
+    from analysis.recordings.analysis_rrd import write_variants_rrd
     from vdc.parquet_io import table_set, write_parquet
 
     loaded = load_recording(recording, settings)

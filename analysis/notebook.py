@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from vdc.cli_support import UserError
+from vdc.errors import UserError
 
 NOTEBOOK_EXTRA = "pip install 'visual-dynamic-complexity[notebook]'"
 
@@ -44,7 +44,7 @@ def show(
     path = Path(target)
     if not path.is_file():
         raise UserError(f"{str(path)!r}: no such recording")
-    from analysis.rrd_reader import Recording
+    from analysis.recordings.reader import Recording
     from vdc.recording import APP_ID
 
     rec = rr.RecordingStream(APP_ID, recording_id=Recording(path).recording_id)

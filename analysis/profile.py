@@ -17,8 +17,9 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.loading import Notices
-from analysis.segments import (  # noqa: F401 - the profile's data, re-exported
+from analysis.recordings.loading import Notices
+from analysis.recordings.recompute import build_tables
+from analysis.recordings.segments import (  # noqa: F401 - the profile's data, re-exported
     ProfileSegment,
     ProfileSettings,
     heat_map,
@@ -27,7 +28,6 @@ from analysis.segments import (  # noqa: F401 - the profile's data, re-exported
     segment_summary,
     segments_from_tables,
 )
-from analysis.tables import build_tables
 from vdc.parquet_io import WroteFiles
 
 
@@ -273,7 +273,7 @@ def profile(
     draw one with :func:`plot_segment`)."""
     import hashlib
 
-    from analysis.analysis_rrd import write_profile_rrd
+    from analysis.recordings.analysis_rrd import write_profile_rrd
     from vdc.parquet_io import table_set, write_parquet
 
     notes = Notices(notice)

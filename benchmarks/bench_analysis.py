@@ -14,9 +14,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from analysis.loading import load_recording
-from analysis.rrd_reader import Recording
-from analysis.tables import recompute
+from analysis.recordings.loading import load_recording
+from analysis.recordings.reader import Recording
+from analysis.recordings.recompute import recompute
 
 
 def capture(minutes: int, out: Path) -> Path:

@@ -5,7 +5,8 @@
 
 (on a quiet machine; 15 min for --quick on one shared by six jobs)
 
-Protocol (analysis/avdm_truth.py): 8 photographs shipped in scikit-image, a 70° camera panning
+Protocol (analysis/complexity/avdm_truth.py): 8 photographs shipped in scikit-image, a 70° camera
+panning
 at 1, 2, 5, 10, 20, 40, 80, 160 and 300 deg/s in both directions, at 25 and 30 fps, at the
 robot camera's pitch (0.71 deg/px) and a video pitch (0.22 deg/px), raw and through H.264.
 The readers: the registered models avdm, avdm-natural and hrc (a Hassenstein-Reichardt
@@ -37,7 +38,7 @@ import numpy as np
 import polars as pl
 from tqdm import tqdm
 
-from analysis.avdm_truth import (
+from analysis.complexity.avdm_truth import (
     FARNEBACK,
     FOV_DEG,
     IMAGES,

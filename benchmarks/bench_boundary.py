@@ -41,7 +41,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from analysis.boundary import BoundarySettings
+from analysis.boundary.command import BoundarySettings
 from analysis.experiments.boundary_campaign import boundary, grid_items
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
@@ -184,8 +184,8 @@ def economy(args: argparse.Namespace) -> None:
 
     import polars as pl
 
-    from analysis.boundary import condition_complexity
-    from analysis.boundary_fit import grid_fits
+    from analysis.boundary.command import condition_complexity
+    from analysis.boundary.fit import grid_fits
 
     if not args.grid:
         raise SystemExit("--economy needs --grid DIR (a finished default grid)")
@@ -196,7 +196,7 @@ def economy(args: argparse.Namespace) -> None:
     values = (12.0, 45.0)
     runs = runs.filter(pl.col("t_ffi").is_in(values))
     fitted, _ = grid_fits(runs, complexity, "t_ffi", 0.9)
-    from analysis.boundary import boundaries, condition_statistics
+    from analysis.boundary.command import boundaries, condition_statistics
 
     bracket = boundaries(
         condition_statistics(runs, complexity, ["condition", "t_ffi"]), "t_ffi", 0.9
@@ -244,7 +244,7 @@ def economy_per_scene(args: argparse.Namespace) -> None:
 
     import polars as pl
 
-    from analysis.boundary import condition_complexity
+    from analysis.boundary.command import condition_complexity
     from analysis.experiments.adaptive import grid_fits_per_scene
 
     if not args.grid:

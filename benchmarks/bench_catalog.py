@@ -18,8 +18,8 @@ from pathlib import Path
 
 import rerun as rr
 
-from analysis.catalog import CatalogSettings, scan
-from analysis.catalog_server import open_catalog
+from analysis.catalog.build import CatalogSettings, scan
+from analysis.catalog.server import open_catalog
 from capture.sim import SimSettings, record_sim
 
 

@@ -55,7 +55,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
 
-    from analysis.boundary import BoundarySettings
+    from analysis.boundary.command import BoundarySettings
     from avdm.registry import make_model
     from vdc.recording import camera_model_context
 

@@ -72,8 +72,8 @@ def line(label: str, n: int, wall: float, cpu: float) -> float:
 
 
 def ours(path: Path, metrics: str) -> int:
-    from analysis.complexity import ComplexitySettings
-    from analysis.source_metrics import measure_video
+    from analysis.complexity.command import ComplexitySettings
+    from analysis.complexity.source_metrics import measure_video
 
     s = ComplexitySettings(fov_deg=FOV, metrics=metrics)
     return measure_video(str(path), s, "bench").table.height
@@ -121,7 +121,7 @@ def collection(folder: Path, out: Path, cores: list[int], seconds: float) -> Non
     time. Beside it, the CPU time of the pool's workers: the measuring itself, which the
     second worker halves on the wall clock; the rest of the wall time (starting the workers,
     the tables, the figure) is paid once whatever the number of workers."""
-    from analysis.complexity import ComplexitySettings, complexity
+    from analysis.complexity.command import ComplexitySettings, complexity
 
     clips = sorted(str(p) for p in folder.glob("*.mp4"))
     runs = {}
@@ -191,7 +191,7 @@ def main() -> None:
     ap.add_argument("--sititools-frames", type=int, default=50)
     ap.add_argument("--long", action="store_true", help="also the 10-min 1080p memory check")
     args = ap.parse_args()
-    from analysis.source_metrics import DEFAULT_METRICS
+    from analysis.complexity.source_metrics import DEFAULT_METRICS
 
     assert DEFAULT == ",".join(DEFAULT_METRICS), "bench_video: DEFAULT is not DEFAULT_METRICS"
     cv2.setNumThreads(1)

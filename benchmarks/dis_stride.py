@@ -15,9 +15,9 @@ import cv2
 import numpy as np
 import polars as pl
 
-from analysis.boundary import WARMUP_FRAMES
-from analysis.loading import load_recording
-from analysis.source_metrics import DIS_PRESETS
+from analysis.boundary.command import WARMUP_FRAMES
+from analysis.complexity.source_metrics import DIS_PRESETS
+from analysis.recordings.loading import load_recording
 from capture.run import REPLACE_OUTPUT
 from capture.sim import SimSettings, record_sim
 

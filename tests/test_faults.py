@@ -25,7 +25,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.rrd_reader import Recording
+from analysis.recordings.reader import Recording
 from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn, wait_until
 from tests.in_process import run_in_process
 from vdc.executors import pool_size, usable_cpus

@@ -1,5 +1,5 @@
 """``import vdc.catalog``: many recordings as one dataset, from Python (the facade over
-``analysis.catalog``; the command line is ``vdc-analyse catalog``).
+``analysis.catalog.build``; the command line is ``vdc-analyse catalog``).
 
 * ``vdc.catalog.query(folders_or_url, where=...)``: the frames of the matching segments, one table;
 * ``vdc.catalog.open_catalog(folders)``: a context manager with the running dataset;
@@ -8,9 +8,9 @@
 Importing it loads Rerun and polars: ``import vdc`` alone stays light.
 """
 
-from analysis.catalog import CatalogSettings, scan
-from analysis.catalog_query import query, query_to, segment_table, select_segments
-from analysis.catalog_server import Catalog, dataset_url, open_catalog, serve
+from analysis.catalog.build import CatalogSettings, scan
+from analysis.catalog.query import query, query_to, segment_table, select_segments
+from analysis.catalog.server import Catalog, dataset_url, open_catalog, serve
 
 __all__ = [
     "Catalog",

@@ -15,15 +15,13 @@ import textwrap
 from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
+from vdc.errors import UserError
+
 EXIT_BAD_INPUT = 2
 
 # dataclasses.field(metadata=API_ONLY): a settings field without a flag (set from Python only,
 # or through another flag); the layout test holds every other field to a flag of its name
 API_ONLY = {"api_only": True}
-
-
-class UserError(Exception):
-    """A problem with the user's input: printed as one line, exit status 2."""
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -18,7 +18,7 @@
 Timelines: ``frame`` (camera frame index) and ``time`` (duration since the run started);
 hardware runs add ``capture_time``. Recording properties are sections of flat key-value pairs
 (``PROPERTY_SECTIONS``). The recorder modules (``capture.recorder``, ``capture.live_view``)
-write this and ``analysis.rrd_reader`` reads it; both import the names from here.
+write this and ``analysis.recordings.reader`` reads it; both import the names from here.
 """
 
 from __future__ import annotations

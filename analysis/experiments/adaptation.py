@@ -34,7 +34,7 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.boundary import (
+from analysis.boundary.command import (
     condition_complexity,
     condition_name,
     condition_statistics,

@@ -6,10 +6,10 @@ continuous TF range (``--tf-range LO:HI``), in batches, where the boundary is st
 1. **The profile.** Profiling runs (as the grid's: ring turns, no detector, seed ``--seed``) at
    the range's ends and middle, per scene, measure the AVDM's straight-driving response; a TF
    in between is mapped to its complexity (deg/s) by linear interpolation
-   (:func:`analysis.boundary_fit.tf_to_dps`), and back.
+   (:func:`analysis.boundary.fit.tf_to_dps`), and back.
 2. **The first batch** per value: 4 runs at TFs evenly spread over the range (scenes in turn).
 3. **Each next batch** (``max(2, --jobs)`` runs per value): the success curve is fitted to the
-   value's runs so far (:func:`analysis.boundary_fit.fit_crossing`: a monotone logistic curve
+   value's runs so far (:func:`analysis.boundary.fit.fit_crossing`: a monotone logistic curve
    of success against complexity, the boundary's 95 % profile-likelihood interval), and the
    batch's complexities are drawn from the normalised likelihood of the crossing: runs go
    where the crossing plausibly is, more where it is more plausible. Each is made a TF of a
@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary import (
+from analysis.boundary.command import (
     BoundaryResult,
     BoundarySettings,
     boundaries,
@@ -49,7 +49,7 @@ from analysis.boundary import (
     published,
     write_arena_outputs,
 )
-from analysis.boundary_fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
+from analysis.boundary.fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
 from vdc.executors import Feedback
 
 FIRST_BATCH = 4
@@ -389,7 +389,7 @@ def adaptive_boundary(
     same files as the grid (``boundary.md``, ``boundary.png``, ``boundary_runs.parquet``: one
     row per run the design placed, ``boundary.parquet`` with the fitted columns,
     ``boundary_profiles.parquet``, ``policy.csv``)."""
-    from analysis.boundary_fit import fit_columns, with_fit
+    from analysis.boundary.fit import fit_columns, with_fit
     from vdc.parquet_io import table_set
 
     rec = out / "recordings"
@@ -496,7 +496,8 @@ def _per_scene_outputs(
 
 
 def campaign_conditions(runs: pl.DataFrame, by: str) -> pl.DataFrame:
-    """Per-condition statistics (:func:`analysis.boundary.condition_statistics`) of an adaptive
+    """Per-condition statistics (:func:`analysis.boundary.command.condition_statistics`) of an
+    adaptive
     campaign's runs, each condition at its own interpolated complexity."""
     complexity = runs.select(
         "condition",
@@ -516,9 +517,9 @@ def per_scene_bounds(
     design: str = "adaptive",
 ) -> pl.DataFrame:
     """``boundary.parquet`` per (value, scene): the bracket of that scene's conditions
-    (:func:`analysis.boundary.boundaries`), the fitted columns of ``fits[(value, scene)]``
+    (:func:`analysis.boundary.command.boundaries`), the fitted columns of ``fits[(value, scene)]``
     (TF through ``to_tf(scene, deg/s)``), the ``design``."""
-    from analysis.boundary_fit import fit_columns
+    from analysis.boundary.fit import fit_columns
 
     parts = []
     for v, sc in fits:
@@ -566,11 +567,12 @@ def grid_fits_per_scene(
 
 
 def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3) -> Any:
-    """The policy (:func:`analysis.boundary.fit_policy`) from an adaptive campaign's runs: each
+    """The policy (:func:`analysis.boundary.command.fit_policy`) from an adaptive campaign's
+    runs: each
     scene's TF range cut in ``bins`` equal parts, the runs of a part pooled as one condition
     (``<scene>-tf<LO>-<HI>``); parts where some value has no run are left out (the policy
     compares the values on the same conditions). None when no part has every value."""
-    from analysis.boundary import fit_policy
+    from analysis.boundary.command import fit_policy
 
     lo, hi = s.tf_bounds()
     edges = np.linspace(lo, hi, bins + 1)

@@ -1,7 +1,8 @@
-"""The arena campaign of ``vdc-analyse boundary`` (see :mod:`analysis.boundary`): closed-loop
+"""The arena campaign of ``vdc-analyse boundary`` (see :mod:`analysis.boundary.command`):
+closed-loop
 runs over the grid and the profiling runs, recorded on the executors and reused when finished,
 each measured once; and :func:`boundary`, the command's entry, which sends a labelled collection
-to footage mode (:mod:`analysis.footage`) instead."""
+to footage mode (:mod:`analysis.boundary.footage`) instead."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from typing import Any
 
 import polars as pl
 
-from analysis.boundary import (
+from analysis.boundary.command import (
     ROW_VERSION,
     WARMUP_FRAMES,
     BoundaryResult,
@@ -26,7 +27,7 @@ from analysis.boundary import (
     run_row,
     write_arena_outputs,
 )
-from analysis.boundary_fit import grid_fits, with_fit
+from analysis.boundary.fit import grid_fits, with_fit
 from analysis.experiments.captures import collision_run_item, profiling_items
 from vdc.executors import QUIET, ExecutorSettings, Feedback, run_tasks_or_raise
 
@@ -160,7 +161,7 @@ def require_evidence(
     """UserError, in one line, where the runs hold no evidence to place a boundary on (or fit
     a policy to): no run had an avoidance or a crash, or (``complexity`` given) a condition's
     complexity could not be measured. The line says how long runs need to be."""
-    from vdc.cli_support import UserError
+    from vdc.errors import UserError
 
     if not runs.height or int(runs["avoidances"].sum() + runs["crashes"].sum()) == 0:
         raise UserError(
@@ -183,7 +184,7 @@ def boundary(
     """Run the grid (arena) or the labelled clips (footage mode: ``settings.labels``) and
     write the tables, the figure, the report and, in the arena, ``policy.csv`` into ``out``."""
     if settings.labels is not None:
-        from analysis.footage import footage_boundary
+        from analysis.boundary.footage import footage_boundary
 
         return footage_boundary(settings, Path(out), feedback)
     if settings.design == "adaptive":

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from analysis.rrd_reader import Recording, RecordingError
+from analysis.recordings.reader import Recording, RecordingError
 from capture.run import REPLACE_OUTPUT
 from capture.sim import SimSettings, record_sim
 from vdc.executors import (
@@ -115,7 +115,7 @@ def run_captures(
 def profiling_items(s: Any, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
     """A boundary campaign's profiling runs (``s``: its ``BoundarySettings``): one (as
     ``reproduce`` profiles: ring turns, no detector) per (scene, TF, seed)."""
-    from analysis.boundary import condition_name
+    from analysis.boundary.command import condition_name
 
     items = []
     for scene, tf in s.conditions():
@@ -142,7 +142,7 @@ def collision_run_item(
     """One closed-loop run of a boundary campaign (``s``: its ``BoundarySettings``) at the
     detector's ``value``: (key, settings, recording path, row columns), as the grid and the
     adaptive design both record it (so either reuses the other's finished runs)."""
-    from analysis.boundary import condition_name, with_override
+    from analysis.boundary.command import condition_name, with_override
 
     cond = condition_name(scene, tf_hz)
     tag = f"{s.param}{value:g}"

@@ -1,4 +1,5 @@
-"""Every complexity measure of an arena grid's conditions, for :mod:`analysis.predictors`.
+"""Every complexity measure of an arena grid's conditions, for
+:mod:`analysis.predictors.statistics`.
 
 Each profiling run of ``vdc-analyse boundary`` (ring turns, no detector: the scene alone) is
 measured on the camera's raster (99 × 72 px, 8-bit full range) over its straight-driving frames
@@ -88,9 +89,9 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
     ``sampled_frames`` (of those, measured by the sampled measures)."""
     import cv2
 
-    from analysis.boundary import WARMUP_FRAMES
-    from analysis.loading import load_recording
-    from analysis.source_metrics import DIS_PRESETS
+    from analysis.boundary.command import WARMUP_FRAMES
+    from analysis.complexity.source_metrics import DIS_PRESETS
+    from analysis.recordings.loading import load_recording
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel
     from vdc.frame_metrics import NativeMeter
@@ -149,7 +150,7 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
         paper = loaded.logged[profiler].select("frame", pl.col("omega_dps").alias("avdm"))
         df = df.join(paper, on="frame", how="left")
     straight = df.filter((pl.col("frame") >= warmup) & pl.col("turning").not_())
-    from analysis.predictors import MEASURES
+    from analysis.predictors.statistics import MEASURES
 
     row: dict[str, Any] = {
         "recording_id": loaded.recording_id,
@@ -222,11 +223,12 @@ def predictors_for_folder(
 ) -> Any:
     """The predictors of a finished arena boundary (``vdc-analyse boundary --out folder``):
     measures its profiling runs (cached beside them), computes the tables and writes
-    ``predictors.parquet``, ``predictor_measures.parquet``, ``predictors.png`` and the section
-    of ``boundary.md`` into ``folder``. Returns :class:`analysis.predictors.PredictorResult`."""
-    from analysis.boundary import BoundarySettings
+    ``predictors.parquet``, ``predictor_measures.parquet``, ``predictors.png`` and the
+    section of ``boundary.md`` into ``folder``. Returns
+    :class:`analysis.predictors.report.PredictorResult`."""
+    from analysis.boundary.command import BoundarySettings
     from analysis.experiments.captures import profiling_items
-    from analysis.predictor_report import PredictorResult, settings_meta
+    from analysis.predictors.report import PredictorResult, settings_meta
     from vdc.parquet_io import table_set
 
     folder = Path(folder)
@@ -264,8 +266,8 @@ def arena_predictor_tables(
     s: Any, runs: pl.DataFrame, measures: pl.DataFrame, stage: Path
 ) -> tuple[pl.DataFrame, list[Path], str]:
     """The predictor table of a grid written into ``stage``: (table, paths, report section)."""
-    from analysis.predictor_report import write_predictors
-    from analysis.predictors import arena_predictors
+    from analysis.predictors.report import write_predictors
+    from analysis.predictors.statistics import arena_predictors
 
     table = arena_predictors(runs, measures, s.param, s.target)
     meta = {"settings": dataclasses.asdict(s), "every": int(measures["every"][0])}
@@ -288,7 +290,7 @@ def arena_predictor_tables(
 
 def predictors(source: str | Path | Any) -> Any:
     """The predictor tables of a boundary's output: its folder (``vdc-analyse boundary
-    --out``) or the :class:`analysis.boundary.BoundaryResult` it returned. Reads
+    --out``) or the :class:`analysis.boundary.command.BoundaryResult` it returned. Reads
     ``predictors.parquet`` and the measures table it was computed from; if the folder has
     none yet (a grid measured by an older vdc, or ``--no-predictors``), computes them from the
     recordings there (arena; the measurements are cached beside the runs)."""
@@ -310,7 +312,7 @@ def predictors(source: str | Path | Any) -> Any:
     md = md_path.read_text() if md_path.exists() else ""
     cut = md.find("## Which measure predicts")
     paths = [pred] + ([measures] if measures else []) + [folder / "predictors.png"]
-    from analysis.predictor_report import PredictorResult
+    from analysis.predictors.report import PredictorResult
 
     return PredictorResult(
         pl.read_parquet(pred),

@@ -61,8 +61,8 @@ from analysis.profile import (
     segment_summary,
     segments_from_tables,
 )
-from analysis.rrd_reader import Recording
-from analysis.tables import SummarySettings, build_tables, summary_rows
+from analysis.recordings.reader import Recording
+from analysis.recordings.recompute import SummarySettings, build_tables, summary_rows
 from capture.sim import SimSettings
 from vdc.parquet_io import WroteFiles, write_parquet
 

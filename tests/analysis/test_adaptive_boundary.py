@@ -1,4 +1,4 @@
-"""The fitted boundary with its 95 % interval (``analysis.boundary_fit``) against constructed
+"""The fitted boundary with its 95 % interval (``analysis.boundary.fit``) against constructed
 truth, its undetermined and beyond-the-range states, the adaptive loop on simulated detectors
 of known boundary, and a tiny real adaptive campaign through the command line."""
 
@@ -12,7 +12,7 @@ import polars as pl
 import pytest
 import scipy.special
 
-from analysis.boundary_fit import describe_fit, dps_to_tf, fit_columns, fit_crossing, tf_to_dps
+from analysis.boundary.fit import describe_fit, dps_to_tf, fit_columns, fit_crossing, tf_to_dps
 from analysis.experiments.adaptation import AdaptationSettings
 from analysis.experiments.adaptive import ProfileMap, design_runs, in_fitted_range
 from avdm.policy import load_policy

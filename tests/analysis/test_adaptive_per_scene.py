@@ -13,7 +13,7 @@ import numpy as np
 import polars as pl
 import scipy.special
 
-from analysis.boundary import BoundarySettings
+from analysis.boundary.command import BoundarySettings
 from analysis.experiments.adaptive import (
     ProfileMap,
     adaptive_boundary,

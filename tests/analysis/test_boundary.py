@@ -11,10 +11,10 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.boundary import BoundarySettings, find_boundary
+from analysis.boundary.command import BoundarySettings, find_boundary
 from analysis.experiments.adaptation import AdaptationSettings, adaptation
 from analysis.experiments.boundary_campaign import boundary
-from analysis.rrd_reader import Recording
+from analysis.recordings.reader import Recording
 from avdm.policy import load_policy
 from tests.figures import assert_figure, recording_figures
 from tests.helpers import assert_one_line_error, write_video

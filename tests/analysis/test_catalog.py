@@ -18,12 +18,12 @@ import pytest
 import rerun as rr
 
 from analysis.batch import BatchSettings, batch
-from analysis.catalog import CatalogSettings
-from analysis.catalog_query import query, segment_table
-from analysis.catalog_server import open_catalog
+from analysis.catalog.build import CatalogSettings
+from analysis.catalog.query import query, segment_table
+from analysis.catalog.server import open_catalog
 from analysis.compare import CompareSettings, compare
-from analysis.complexity import ComplexitySettings, complexity
-from analysis.tables import TablesSettings, tables
+from analysis.complexity.command import ComplexitySettings, complexity
+from analysis.recordings.recompute import TablesSettings, tables
 from tests.browser import CHROMIUM
 from tests.helpers import assert_one_line_error, make_sim_recording, run_cli, spawn
 

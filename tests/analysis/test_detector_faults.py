@@ -17,13 +17,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.boundary import BoundarySettings, describe_boundary, interval
+from analysis.boundary.command import BoundarySettings, describe_boundary, interval
 from analysis.experiments.boundary_campaign import boundary
 from analysis.experiments.captures import run_captures
 from avdm.registry import check_detector
 from capture.sim import SimSettings
 from tests.helpers import ROOT, assert_one_line_error, module_on_path, write_video
-from vdc.cli_support import UserError
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, Feedback
 
 # a user's module of detectors that do not fit, written into a temporary folder

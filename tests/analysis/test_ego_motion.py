@@ -12,8 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from analysis.ego_motion import YAW_WINDOW_S, turning_flags, yaw_rate_dps
-from analysis.tables import SummarySettings, TablesSettings, tables
+from analysis.recordings.ego_motion import YAW_WINDOW_S, turning_flags, yaw_rate_dps
+from analysis.recordings.recompute import SummarySettings, TablesSettings, tables
 from tests.in_process import run_in_process
 
 FPS = 33.0  # the arena robot's camera
@@ -150,7 +150,7 @@ def test_an_alert_that_starts_a_turn_is_not_counted_as_while_turning() -> None:
     straight again, a turn from frame 190 and an alert at 200 in the middle of it. Only the
     second alert happened while the robot was already turning; the per-frame turning flag
     (a centred slope and a hold) marks both, because it sees the turn the first one starts."""
-    from analysis.ego_motion import turning_before, turning_flags, yaw_rate_dps
+    from analysis.recordings.ego_motion import turning_before, turning_flags, yaw_rate_dps
 
     fps = 33.0
     t = np.arange(300) / fps

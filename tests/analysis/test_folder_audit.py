@@ -16,13 +16,13 @@ import numpy as np
 import pytest
 
 from analysis.batch import BatchSettings, batch
-from analysis.boundary import BoundarySettings
-from analysis.complexity import ComplexitySettings, complexity
+from analysis.boundary.command import BoundarySettings
+from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.experiments.boundary_campaign import boundary
-from analysis.tables import TablesSettings, tables
+from analysis.recordings.recompute import TablesSettings, tables
 from capture.sim import SimSettings, record_sim
 from tests.helpers import ROOT, assert_one_line_error, module_on_path, write_video
-from vdc.cli_support import UserError
+from vdc.errors import UserError
 from vdc.parquet_io import table_set
 
 PLUGINS = """
@@ -141,7 +141,7 @@ def test_footage_without_evidence_is_one_line(plugins: Path, tmp_path: Path) -> 
 
 
 def test_the_catalog_names_a_dangling_link_and_serves_the_others(collection: Path) -> None:
-    from analysis.catalog_query import query
+    from analysis.catalog.query import query
 
     notes: list[str] = []
     q = query([collection], notice=notes.append)

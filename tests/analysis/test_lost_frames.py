@@ -69,8 +69,8 @@ def zero_packets(src: Path, dst: Path, first: bool, last_gop: bool) -> Path:
 
 def measured(path: Path) -> dict:
     """What the Python API's per-source measurement says of a file (its clip row's counts)."""
-    from analysis.complexity import ComplexitySettings
-    from analysis.source_metrics import measure_video
+    from analysis.complexity.command import ComplexitySettings
+    from analysis.complexity.source_metrics import measure_video
 
     return measure_video(str(path), ComplexitySettings(metrics=PIXEL_METRICS), "t").info
 
@@ -142,8 +142,8 @@ def test_unreadable_first_and_last_images_are_counted(tmp_path):
         cv2.imwrite(str(tmp_path / f"img_{k:03d}.png"), np.full((24, 32), 30 * k, np.uint8))
     for k in (0, 7):
         (tmp_path / f"img_{k:03d}.png").write_bytes(b"not a png")
-    from analysis.complexity import ComplexitySettings
-    from analysis.source_metrics import measure_video
+    from analysis.complexity.command import ComplexitySettings
+    from analysis.complexity.source_metrics import measure_video
 
     pattern = str(tmp_path / "img_%03d.png")
     s = ComplexitySettings(metrics=PIXEL_METRICS, fps=FPS)
@@ -197,7 +197,7 @@ def test_the_three_entry_points_count_the_same(tmp_path, capsys):
     frames, dropped = counts[0]
     assert frames < N - 2 * GOP + 1 and frames + dropped == N == api["container_frames"]
     assert api["lost_after_last"] >= GOP
-    from analysis.rrd_reader import Recording
+    from analysis.recordings.reader import Recording
 
     events = Recording(tmp_path / "bad" / "clip.rrd").events()
     first = events.filter((pl.col("kind") == "dropped_frames") & (pl.col("frame") == 0))

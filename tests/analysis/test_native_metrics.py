@@ -16,7 +16,7 @@ import pytest
 from siti_tools.siti import ColorRange, SiTiCalculator
 from skimage import data
 
-from analysis.complexity import ComplexitySettings, complexity
+from analysis.complexity.command import ComplexitySettings, complexity
 from tests.helpers import assert_one_line_error, ffmpeg_siti, write_pan
 from tests.in_process import run_in_process
 from vdc.frame_metrics import NativeMeter, luma_plane, stream_format

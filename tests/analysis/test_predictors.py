@@ -1,4 +1,5 @@
-"""The predictor statistics (:mod:`analysis.predictors`) against constructed truth: a measure
+"""The predictor statistics (:mod:`analysis.predictors.statistics`) against constructed truth: a
+measure
 built to predict the failures perfectly gets ρ 1 and AUROC 1; one built to carry no
 information gets intervals that cover 0 and 0.5; a measure that ranks clips but not moments is
 told apart from one that tracks the moments."""
@@ -10,8 +11,8 @@ import polars as pl
 import pytest
 import scipy.stats
 
-from analysis.predictor_report import plot_predictors, predictors_report
-from analysis.predictors import (
+from analysis.predictors.report import plot_predictors, predictors_report
+from analysis.predictors.statistics import (
     arena_predictors,
     auroc,
     footage_predictors,
@@ -170,7 +171,7 @@ def test_the_arena_grid_gains_its_predictors_from_cached_measures(tmp_path) -> N
     pred = pl.read_parquet(tmp_path / "predictors.parquet")
     measures = pl.read_parquet(tmp_path / "predictor_measures.parquet")
     assert measures.height == 3 * 2  # one row per profiling run
-    from analysis.predictors import MEASURES
+    from analysis.predictors.statistics import MEASURES
 
     for m in MEASURES:  # every measure measured, on the camera's raster
         assert measures[m].is_finite().all(), m
@@ -251,7 +252,7 @@ def test_frame_classes_leave_out_the_start_up_and_the_window() -> None:
     """A busy clip alerts from its third frame on: its only quiet frames are the start-up,
     where the AVDM is still rising from 0; with the start-up left out, no quiet frame is left
     to make a within-clip AUROC of 1 from that artefact."""
-    from analysis.predictors import frame_classes
+    from analysis.predictors.statistics import frame_classes
 
     frames = np.arange(100)
     alert = (frames >= 2).astype(float)

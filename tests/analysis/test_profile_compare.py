@@ -9,7 +9,7 @@ import polars as pl
 import pytest
 import rerun as rr
 
-from analysis.rrd_reader import Recording
+from analysis.recordings.reader import Recording
 from tests.figures import assert_figure, figure_env, saved_figures
 from tests.helpers import assert_one_line_error
 from tests.in_process import run_in_process

@@ -15,7 +15,7 @@ import polars as pl
 import pytest
 from skimage import data
 
-from analysis.complexity import ComplexitySettings, complexity, complexity_of_frames
+from analysis.complexity.command import ComplexitySettings, complexity, complexity_of_frames
 from avdm.stimuli import panned_image
 from avdm.true_time import new_frame_rate
 from vdc.frame_metrics import luma_plane
@@ -91,7 +91,7 @@ def test_repeated_frames_at_a_higher_rate_read_the_originals_profile(clips, tmp_
 
     # the capture too: vdc-capture video builds its online model at the new frames' rate, and
     # complexity on the recording finds the same rate again from the container's
-    from analysis.rrd_reader import Recording
+    from analysis.recordings.reader import Recording
     from capture.video import VideoSettings, record_video
 
     rec = record_video(VideoSettings(source=str(clips[3]), fov_deg=FOV), tmp_path / "x3.rrd")

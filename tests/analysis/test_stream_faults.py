@@ -14,7 +14,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.complexity import ComplexitySettings, complexity
+from analysis.complexity.command import ComplexitySettings, complexity
 from tests.in_process import run_in_process
 
 N_FRAMES, FPS = 50, 25
@@ -246,7 +246,7 @@ class NanAlert:
 
 
 def test_a_nan_alert_is_counted_and_said_not_read_silently_as_none(tmp_path, monkeypatch):
-    from analysis.footage import clip_task, nan_alert_note
+    from analysis.boundary.footage import clip_task, nan_alert_note
 
     (tmp_path / "nan_alert_plugin.py").write_text(NAN_PLUGIN)
     monkeypatch.syspath_prepend(str(tmp_path))

@@ -190,7 +190,7 @@ def test_a_poor_calibration_is_not_offered(tmp_path: Path) -> None:
 
 
 def test_complexity_refuses_a_model_without_omega_in_one_line() -> None:
-    from analysis.complexity import ComplexitySettings
+    from analysis.complexity.command import ComplexitySettings
 
     with pytest.raises(ValueError, match="lgmd-plus is a collision detector"):
         ComplexitySettings(model="lgmd-plus")

@@ -9,7 +9,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.rrd_reader import Recording
+from analysis.recordings.reader import Recording
 from capture.output import partial_path
 from capture.recorder import Recorder
 from tests.helpers import assert_one_line_error, start_long_capture
@@ -213,7 +213,7 @@ def test_bad_files_give_one_line_and_exit_2(recordings, tmp_path: Path) -> None:
 def test_outputs_cut_unevenly_by_a_crash_keep_every_frame_they_reached(tmp_path: Path) -> None:
     """A capture killed mid-write can leave one output of the last frames logged and another
     not; the frames table and the logged outputs keep every frame (missing values null)."""
-    from analysis.loading import load_recording
+    from analysis.recordings.loading import load_recording
 
     path = tmp_path / "uneven.rrd"
     rec = Recorder(path, "uneven")

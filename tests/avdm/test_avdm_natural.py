@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.avdm_truth import Cell, cell_frames, measure_cell
+from analysis.complexity.avdm_truth import Cell, cell_frames, measure_cell
 from avdm import make_model
 from avdm.avdm_multiscale import MULTISCALE_OUTPUT_NAMES
 from avdm.calibration_store import calibration_for, lookup_calibration

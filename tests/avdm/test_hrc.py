@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.avdm_truth import Cell, cell_frames
+from analysis.complexity.avdm_truth import Cell, cell_frames
 from avdm import canonical_name, make_model, make_params, parse_model_spec
 from avdm.hrc import HRC_OUTPUT_NAMES, Hrc, HrcParams
 from avdm.registry import check_detector, require_angular_velocity

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from analysis.rrd_reader import Recording
+from analysis.recordings.reader import Recording
 from capture.campaign import CaptureSweepSettings, parse_grid
 from capture.sim import SimSettings
 from tests.helpers import assert_one_line_error

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.rrd_reader import Recording
+from analysis.recordings.reader import Recording
 from avdm import make_model
 from capture.closed_loop import ClosedLoopRobot, CollisionMotion
 from capture.config import (

@@ -13,7 +13,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.rrd_reader import Recording
+from analysis.recordings.reader import Recording
 from tests.helpers import ROOT, assert_one_line_error, run_cli, write_video
 
 LOOMING = "examples.looming:Looming"

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from analysis.rrd_reader import Recording
+from analysis.recordings.reader import Recording
 from avdm import make_model
 from capture.config import SimConfig, WallConfig, parse_schedule
 from capture.sim import SimulatedRobot

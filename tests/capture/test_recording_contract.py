@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.loading import load_recording
-from analysis.rrd_reader import Recording, RecordingError
-from analysis.tables import build_tables
+from analysis.recordings.loading import load_recording
+from analysis.recordings.reader import Recording, RecordingError
+from analysis.recordings.recompute import build_tables
 from avdm.stimuli import grating
 from capture.config import CameraConfig
 from capture.recorder import Recorder

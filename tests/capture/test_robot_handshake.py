@@ -20,9 +20,9 @@ import cv2
 import numpy as np
 import pytest
 
-from analysis.loading import load_recording
-from analysis.rrd_reader import Recording
-from analysis.tables import recompute
+from analysis.recordings.loading import load_recording
+from analysis.recordings.reader import Recording
+from analysis.recordings.recompute import recompute
 from avdm.registry import make_model
 from capture.robot_capture import (
     ColiasRobotDevice,

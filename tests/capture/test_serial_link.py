@@ -20,7 +20,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from analysis.rrd_reader import Recording
+from analysis.recordings.reader import Recording
 from capture.config import SimConfig, WallConfig
 from capture.output import partial_path
 from capture.render import OverheadRenderer
@@ -250,8 +250,8 @@ def test_end_to_end_on_a_pty_with_corruption_and_a_disconnect(tmp_path: Path) ->
     assert "capture_time" in timelines
     # ego-motion from the tracker's poses (10 Hz, joined to 33-Hz frames): the turning flag
     # agrees with the one the simulator's exact poses give, frame for frame
-    from analysis.ego_motion import turning_flags, yaw_rate_dps
-    from analysis.tables import load_recording
+    from analysis.recordings.ego_motion import turning_flags, yaw_rate_dps
+    from analysis.recordings.recompute import load_recording
 
     table = load_recording(out).frames.drop_nulls("turning")
     fps = cfg.camera.fps

@@ -12,10 +12,10 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.complexity import ComplexitySettings, complexity, complexity_of_frames
-from analysis.rrd_reader import Recording
-from analysis.source_metrics import METRICS
-from analysis.tables import TablesSettings, tables
+from analysis.complexity.command import ComplexitySettings, complexity, complexity_of_frames
+from analysis.complexity.source_metrics import METRICS
+from analysis.recordings.reader import Recording
+from analysis.recordings.recompute import TablesSettings, tables
 from avdm import make_model
 from avdm.calibration_store import calibration_for
 from avdm.stimuli import grating
@@ -331,7 +331,7 @@ def test_rotation_metadata_is_honoured(tmp_path: Path) -> None:
 def natural_clip(tmp_path_factory) -> Path:
     """A real photograph panned at 40 deg/s, filmed at a video pitch (320 px across 70°) and
     encoded as H.264: natural texture through a real codec."""
-    from analysis.avdm_truth import Cell, cell_frames
+    from analysis.complexity.avdm_truth import Cell, cell_frames
 
     frames = cell_frames(Cell("coffee", 40.0, 1, 30.0, "video", "none"), 90)
     return write_video(tmp_path_factory.mktemp("natural") / "pan.mp4", frames, 30.0)

@@ -7,7 +7,8 @@ A source is a recording (``.rrd``), a video file, an image-sequence pattern
 ``OUT/parts/<clip>-<hash>.parquet``: a re-run skips finished sources, and a source that fails
 (a corrupt file) is listed in ``failures.parquet`` without stopping the others. Then:
 
-* ``complexity.parquet``: one row per frame (columns: ``analysis.source_metrics``; only the
+* ``complexity.parquet``: one row per frame (columns: ``analysis.complexity.source_metrics``; only
+the
   metrics ``--metrics`` asks for, and without ``--fov-deg`` a video's angular ones left out);
 * ``clips.parquet``: one row per clip: source, codec, resolution, fps, duration, repeated
   and dropped frames (each lost frame once: ``frames + dropped_frames == container_frames``
@@ -33,9 +34,8 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis import complexity_figures as figures
-from analysis.analysis_rrd import OUTPUT_MARKER, write_complexity_rrd
-from analysis.source_metrics import (
+from analysis.complexity import figures
+from analysis.complexity.source_metrics import (
     ANGULAR_METRICS,
     DEFAULT_METRICS,
     DIS_PRESETS,
@@ -51,6 +51,7 @@ from analysis.source_metrics import (
     present,
     rank_correlations,
 )
+from analysis.recordings.analysis_rrd import OUTPUT_MARKER, write_complexity_rrd
 from vdc.cli_support import (
     API_ONLY,
     non_negative_float,
@@ -184,7 +185,7 @@ def complexity_of_frames(
 
     Returns a DataFrame: frame, t_s, repeat, then one column per metric of
     ``settings.metrics`` (see the module)."""
-    from analysis.source_metrics import MODEL_METRICS
+    from analysis.complexity.source_metrics import MODEL_METRICS
     from avdm.true_time import repeats_of
     from vdc.frame_metrics import NativeMeter, decide_ranges, leaves_limited
     from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
@@ -306,8 +307,8 @@ def plan_sources(
     measured again). A recording vdc derived from another (its ``vdc_output`` property: a
     ``complexity_<id>.rrd`` copied away from its folder's manifest) is not a source: left
     out, and ``notice`` hears how many."""
-    from analysis.rrd_reader import Recording, RecordingError
-    from analysis.tables import DistinctRecordings
+    from analysis.recordings.reader import Recording, RecordingError
+    from analysis.recordings.recompute import DistinctRecordings
 
     opened: dict[str, Any] = {}
     for s in sources:
@@ -352,7 +353,7 @@ def plan_sources(
 
 
 def is_vdc_output(rec: Any) -> bool:
-    """Whether a recording (``analysis.rrd_reader.Recording``) is one vdc derived from
+    """Whether a recording (``analysis.recordings.reader.Recording``) is one vdc derived from
     another (it carries the ``vdc_output`` property :func:`write_complexity_rrd` sets)."""
     return OUTPUT_MARKER in rec.properties()
 

@@ -292,7 +292,7 @@ def _span(low: Any, high: Any, unit: str, digits: int) -> str:
 
 
 def with_fit(bounds: pl.DataFrame, fitted: pl.DataFrame, by: str, design: str) -> pl.DataFrame:
-    """The bracketing boundaries (:func:`analysis.boundary.boundaries`: ``where``,
+    """The bracketing boundaries (:func:`analysis.boundary.command.boundaries`: ``where``,
     ``boundary_low_dps``, ``boundary_high_dps``; its interpolated point renamed
     ``bracket_dps``) with the fitted columns (:func:`fit_columns`) beside them, and the
     ``design``."""
@@ -361,7 +361,7 @@ def describe_fitted(row: dict[str, Any]) -> str:
 
 def describe_boundary(row: dict[str, Any]) -> str:
     """One boundary as a phrase: "31.2 deg/s (between 20.5 and 35.0)"; a row with the fitted
-    columns (``analysis.boundary_fit``) as the fitted boundary with its 95 % interval; never a
+    columns (``analysis.boundary.fit``) as the fitted boundary with its 95 % interval; never a
     number that is not one (a phrase with "nan" in it is no verdict)."""
     if "fit_state" in row:
         return describe_fitted(row)
@@ -383,7 +383,7 @@ def describe_boundary(row: dict[str, Any]) -> str:
 FIT_NOTE = (
     "The boundary is where a monotone logistic curve of success against complexity, fitted "
     "to every run (binomial counts; overdispersion between seeds corrected), crosses the "
-    "target; its 95 % interval is the profile-likelihood interval (`analysis/boundary_fit.py`). "
+    "target; its 95 % interval is the profile-likelihood interval (`analysis/boundary/fit.py`). "
     "*Undetermined*: the runs cannot place it (the interval is unbounded); *beyond the "
     "design's range* only where success is above the target at 95 % confidence everywhere on it."
 )

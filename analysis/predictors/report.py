@@ -1,5 +1,6 @@
 """The predictors' figure, report section and files (``predictors.png``, the section of
-``boundary.md``, ``predictors.parquet``): what :mod:`analysis.predictors` computed, ranked and
+``boundary.md``, ``predictors.parquet``): what :mod:`analysis.predictors.statistics` computed,
+ranked and
 written."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Many recordings as one Rerun dataset (``vdc-analyse catalog``): what is registered. With
-:mod:`analysis.catalog_server` (a server onto the folders, the web viewer) and
-:mod:`analysis.catalog_query` (queries, by folder or by a running catalog's URL), the only
+:mod:`analysis.catalog.server` (a server onto the folders, the web viewer) and
+:mod:`analysis.catalog.query` (queries, by folder or by a running catalog's URL), the only
 modules that know Rerun's catalog API (``rr.server``, ``rr.catalog``), pinned with the SDK to
 0.41.
 
@@ -39,7 +39,8 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from vdc.cli_support import UserError, non_negative_int, option
+from vdc.cli_support import non_negative_int, option
+from vdc.errors import UserError
 from vdc.recording import (
     APP_ID,
     FRAME_TIMELINE,
@@ -136,9 +137,9 @@ def _rerun_binary() -> str:
 
 def repair(path: Path, out: Path) -> Path:
     """A copy of a recording without footer (a capture cut short), with one: its complete
-    messages (``analysis.rrd_reader.complete_prefix``), rewritten by ``rerun rrd optimize``,
+    messages (``analysis.recordings.reader.complete_prefix``), rewritten by ``rerun rrd optimize``,
     which writes the footer. ValueError if it fails."""
-    from analysis.rrd_reader import complete_prefix
+    from analysis.recordings.reader import complete_prefix
 
     out.parent.mkdir(parents=True, exist_ok=True)
     good, count = complete_prefix(path)
@@ -169,8 +170,8 @@ def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
     """The summary layer's properties of one recording: what it is, and the numbers of the
     ``summary`` table (mean ω̂ and the share over 100 deg/s after the warm-up; success rate
     of a collision run)."""
-    from analysis.loading import load_recording
-    from analysis.tables import SummarySettings, events_table, primary_output
+    from analysis.recordings.loading import load_recording
+    from analysis.recordings.recompute import SummarySettings, events_table, primary_output
 
     loaded = load_recording(path)
     props = loaded.props
@@ -226,7 +227,7 @@ def _write_summary_layer(recording_id: str, props: dict[str, Any], path: Path) -
 
 
 def _read_summary(path: Path) -> dict[str, Any] | None:
-    from analysis.rrd_reader import Recording
+    from analysis.recordings.reader import Recording
 
     try:
         return Recording(path).properties().get(SUMMARY)
@@ -248,7 +249,7 @@ def _batch_layers(
     """``batch`` outputs as layers: each (recording, variant) part written once as an ``.rrd``
     of its outputs under ``/model_variants/<variant>/...`` → (layer, recording id, file); a
     part that cannot be read is added to ``left``."""
-    from analysis.analysis_rrd import write_variants_rrd
+    from analysis.recordings.analysis_rrd import write_variants_rrd
 
     for part in sorted(folder.glob("parts/recording_id=*/model=*/model_outputs.parquet")):
         try:
@@ -314,7 +315,7 @@ def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = N
     """Find the recordings and the analysis outputs under ``folders`` (see the module). A file
     that cannot be served is left out with a one-line reason, never taking the others down;
     between files of one recording id the complete one is registered, whatever their names."""
-    from analysis.rrd_reader import Recording, RecordingError
+    from analysis.recordings.reader import Recording, RecordingError
 
     say = notice or (lambda _m: None)
     segments: dict[str, CatalogSegment] = {}
@@ -401,7 +402,7 @@ def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = N
 
 
 def _entities(path: Path) -> set[str]:
-    from analysis.rrd_reader import Recording
+    from analysis.recordings.reader import Recording
 
     return set(Recording(path).signals())
 

@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.catalog import BASE, SUMMARY, CatalogSettings, is_catalog_url
-from analysis.catalog_server import Catalog, _require_catalog, open_catalog
-from vdc.cli_support import UserError
+from analysis.catalog.build import BASE, SUMMARY, CatalogSettings, is_catalog_url
+from analysis.catalog.server import Catalog, _require_catalog, open_catalog
+from vdc.errors import UserError
 from vdc.recording import (
     FRAME_TIMELINE,
     MODEL_VARIANTS_ROOT,
@@ -140,7 +140,7 @@ def _select(
 ) -> Iterator[_Selection]:
     """The segments matching ``where`` with the chosen layers, from folders (a catalog started
     for the query) or from one catalog URL (a running server, as a lab's shared one)."""
-    from analysis.rrd_reader import Recording
+    from analysis.recordings.reader import Recording
 
     urls = [s for s in sources if is_catalog_url(s)]
     if urls:
@@ -199,7 +199,7 @@ def query(
     ``folders`` are folders of recordings (a catalog is started for the query and stopped
     after it), or one catalog URL, ``"rerun+http://HOST:PORT"``: a catalog already serving
     (``vdc-analyse catalog serve``, a lab's shared server), read as it is."""
-    from analysis.loading import FRAMES_COLUMNS, from_signals, signals_table
+    from analysis.recordings.loading import FRAMES_COLUMNS, from_signals, signals_table
 
     sources = [folders] if isinstance(folders, (str, Path)) else list(folders)
     with _select(sources, where, layers, settings, notice) as sel:

@@ -1,7 +1,7 @@
 """Loading a recording for analysis: its properties, its ``frames`` table (poses, wall TF,
 frame timing, wall gap, the robot's own yaw rate and turns), every model output the capture
 logged online and the native-frame metrics, as one ``LoadedRecording``; the tables, summaries
-and recomputation built on it are in ``analysis.tables``.
+and recomputation built on it are in ``analysis.recordings.recompute``.
 
 ``frames`` columns: recording_id, frame, t_s, x_m, y_m, heading_rad, wall_tf_hz, wall_gap_m
 (distance from the robot's centre to the nearest wall), repeat, dropped_before (video frame
@@ -19,8 +19,8 @@ from typing import Any, Protocol
 import numpy as np
 import polars as pl
 
-from analysis.ego_motion import turning_flags, yaw_rate_dps
-from analysis.rrd_reader import Recording, RecordingError
+from analysis.recordings.ego_motion import turning_flags, yaw_rate_dps
+from analysis.recordings.reader import Recording, RecordingError
 from vdc.recording import (
     FRAME_TIMING,
     MODEL_ROOT,
@@ -32,13 +32,13 @@ from vdc.recording import (
     entity_name,
 )
 
-# what counts as the robot turning (analysis/ego_motion.py), unless the settings say otherwise
+# what counts as the robot turning (analysis/recordings/ego_motion.py), unless the settings say otherwise
 TURN_THRESHOLD_DPS = 30.0
 TURN_HOLD_FRAMES = 10  # the AVDM remembers a turn for its 10-frame window
 
 
 class TurnRule(Protocol):
-    """What counts as a turn: ``analysis.tables.SummarySettings`` is one."""
+    """What counts as a turn: ``analysis.recordings.recompute.SummarySettings`` is one."""
 
     @property
     def turn_threshold_dps(self) -> float: ...

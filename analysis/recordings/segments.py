@@ -1,7 +1,7 @@
 """Profile segments, the data of a profile: its settings, one segment per recording and
 condition (positions, times and the response), the histogram over the threshold, the mean
 response per arena cell and a segment's summary. ``analysis.profile`` draws and writes them,
-``analysis.analysis_rrd`` logs them; both import them from here.
+``analysis.recordings.analysis_rrd`` logs them; both import them from here.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import re
 import numpy as np
 import polars as pl
 
-from analysis.tables import SummarySettings, TablesSettings, summary_statistics
+from analysis.recordings.recompute import SummarySettings, TablesSettings, summary_statistics
 from vdc.cli_support import API_ONLY, option
 
 

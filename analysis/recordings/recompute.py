@@ -1,7 +1,7 @@
 """Recordings → polars tables → Parquet, and model recomputation (the table contract is in
 docs/architecture.md).
 
-* ``frames``: one row per frame, as ``analysis.loading`` reads it from a recording (its columns
+* ``frames``: one row per frame, as ``analysis.recordings.loading`` reads it from a recording (its columns
   are listed there);
 * ``model_outputs``: recording_id, model, frame, t_s, one column per output (long over models);
 * ``events``: recording_id, frame, t_s, kind, x_m, y_m, heading_rad, dtc_m (distance to
@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.loading import (
+from analysis.recordings.loading import (
     TURN_HOLD_FRAMES,
     TURN_THRESHOLD_DPS,
     LoadedRecording,
@@ -34,7 +34,7 @@ from analysis.loading import (
     load_recording,
     logged_params,
 )
-from analysis.rrd_reader import RecordingError
+from analysis.recordings.reader import RecordingError
 from avdm.base import Model, primary_output_name
 from avdm.registry import canonical_name, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
@@ -61,7 +61,7 @@ class SummarySettings:
     )
     # the models' first 2·Tw frames are left out of statistics
     warmup_frames: int = dataclasses.field(default=20, metadata=API_ONLY)
-    # the robot's own turns (analysis/ego_motion.py): flagged in the frames table, and left
+    # the robot's own turns (analysis/recordings/ego_motion.py): flagged in the frames table, and left
     # out of the summaries with exclude_turns
     turn_threshold_dps: float = option(
         TURN_THRESHOLD_DPS,

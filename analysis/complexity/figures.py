@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.source_metrics import METRICS, normalised, present
+from analysis.complexity.source_metrics import METRICS, normalised, present
 
 _LABELS = {
     "omega_dps": "AVDM ω̂ (deg/s)",

@@ -48,11 +48,12 @@ from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context
 from vdc.sources import end_fields
 
 if TYPE_CHECKING:
-    from analysis.loading import LoadedRecording
+    from analysis.recordings.loading import LoadedRecording
 
 
 class MeasureSettings(Protocol):
-    """What measuring a source needs of its settings (``analysis.complexity.ComplexitySettings``
+    """What measuring a source needs of its settings
+    (``analysis.complexity.command.ComplexitySettings``
     has it all)."""
 
     model: str
@@ -460,7 +461,7 @@ def measure_source(
     """One source measured: a recording (``.rrd``, its own id) or a video
     (``recording_id``)."""
     if source.endswith(".rrd"):
-        from analysis.loading import load_recording
+        from analysis.recordings.loading import load_recording
 
         return measure_recording(load_recording(source), settings, progress)
     return measure_video(source, settings, recording_id, progress)
@@ -477,7 +478,7 @@ def complexity_task(
     """One source as an executor task of ``vdc-analyse complexity``: measure it and write its
     part (the "done" mark) atomically. Module-level, small arguments (``settings``: the
     ``ComplexitySettings`` fields, checked by the caller), a small result. It lives here, not
-    in ``analysis.complexity``, so that a pool worker imports only what measuring needs: not
+    in ``analysis.complexity.command``, so that a pool worker imports only what measuring needs: not
     the figures, Rerun or the command line (1.25 against about 0.5 s of CPU per worker, paid
     on the wall clock whatever the number of workers)."""
     from vdc.parquet_io import write_parquet

@@ -1,5 +1,5 @@
 """A catalog server onto folders of recordings (``vdc-analyse catalog serve``), and the web
-viewer beside it; what it registers is :func:`analysis.catalog.scan`'s."""
+viewer beside it; what it registers is :func:`analysis.catalog.build.scan`'s."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from analysis.catalog import (
+from analysis.catalog.build import (
     BASE,
     CATALOG_EXTRA,
     CatalogSettings,
@@ -23,7 +23,7 @@ from analysis.catalog import (
     is_catalog_url,
     scan,
 )
-from vdc.cli_support import UserError
+from vdc.errors import UserError
 
 
 def dataset_name(folders: Sequence[str | Path], settings: CatalogSettings) -> str:

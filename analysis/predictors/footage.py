@@ -1,4 +1,5 @@
-"""Footage mode's predictors (:mod:`analysis.predictors`): every measure per frame of every
+"""Footage mode's predictors (:mod:`analysis.predictors.statistics`): every measure per frame of
+every
 clip, beside the detector's alert at every parameter value.
 
 The measures are those ``vdc-analyse complexity`` wrote for the clips
@@ -27,7 +28,7 @@ def clip_frames_task(source: str, specs: dict[str, str], fov_deg: float) -> dict
     """An executor task: one clip read as ``vdc-capture video`` reads it, the paper's AVDM and
     the detector at every value (``specs``: value's key → model spec) run on it. Returns the
     source frame numbers, ``avdm`` (deg/s) and each value's ``alert``, as lists."""
-    from analysis.complexity import ComplexitySettings
+    from analysis.complexity.command import ComplexitySettings
     from avdm.registry import make_model
     from avdm.true_time import TrueTimeModel
     from vdc.frame_batches import FrameBatcher, working_camera
@@ -62,10 +63,10 @@ def footage_predictor_tables(
     report section). ``clips`` is ``boundary_clips.parquet`` (one row per clip and value with
     ``correct`` and each measure's mean); ``complexity_dir`` where ``complexity`` wrote its
     per-frame table."""
-    from analysis.boundary import WARMUP_FRAMES, number_list, with_override
-    from analysis.predictor_report import write_predictors
-    from analysis.predictors import MEASURES, footage_predictors, frame_classes
-    from analysis.source_metrics import METRICS
+    from analysis.boundary.command import WARMUP_FRAMES, number_list, with_override
+    from analysis.complexity.source_metrics import METRICS
+    from analysis.predictors.report import write_predictors
+    from analysis.predictors.statistics import MEASURES, footage_predictors, frame_classes
     from vdc.executors import run_tasks_or_raise
 
     values = number_list(s.values, "values", minimum=-math.inf)

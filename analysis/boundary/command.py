@@ -3,7 +3,8 @@
 Arena mode runs a campaign over a grid (scene × wall TF × the detector's sensitivity parameter ×
 seeds) of closed-loop collision runs on the executors (finished runs are reused), profiles every
 condition with the AVDM and measures each run's collision performance (success rate, avoidances
-and crashes per 30 min, distance to collision). Footage mode (:mod:`analysis.footage`) does the
+and crashes per 30 min, distance to collision). Footage mode (:mod:`analysis.boundary.footage`)
+does the
 same on a labelled collection of clips. Both give performance against complexity with 95 %
 intervals and **the boundary**: the complexity at which success falls below the target.
 
@@ -28,7 +29,7 @@ A policy is fitted from the grid (:func:`fit_policy`) and written as ``policy.cs
 This module holds the settings, the measurements and statistics, the boundary, the policy fit,
 the figure and the report; the campaign that records the arena's runs is
 :mod:`analysis.experiments.boundary_campaign` (the command's entry, :func:`boundary`), the
-footage mode :mod:`analysis.footage`.
+footage mode :mod:`analysis.boundary.footage`.
 """
 
 from __future__ import annotations
@@ -42,9 +43,9 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary_fit import describe_boundary as describe_boundary  # re-exported
-from analysis.boundary_plot import plot_boundary as plot_boundary  # re-exported: its old home
-from analysis.report_tables import interval, markdown_table
+from analysis.boundary.fit import describe_boundary as describe_boundary  # re-exported
+from analysis.boundary.plot import plot_boundary as plot_boundary  # re-exported: its old home
+from analysis.boundary.report_tables import interval, markdown_table
 from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy
 from vdc.cli_support import non_negative_int, option, positive_float
@@ -245,7 +246,7 @@ def run_row(path: str | Path, kind: str, false_alarm_m: float = 0.30) -> dict[st
     (``online_dps``) and over straight driving (``straight_dps``); "profile": the online AVDM's
     mean over straight driving (``profile_dps``)."""
     from analysis.collision import CollisionSettings, collision_metrics
-    from analysis.loading import load_recording
+    from analysis.recordings.loading import load_recording
 
     loaded = load_recording(path)
     fr = loaded.frames.select("frame", "turning").filter(pl.col("frame") >= WARMUP_FRAMES)
@@ -538,7 +539,7 @@ def arena_report(
     s: BoundarySettings, conditions: pl.DataFrame, bounds: pl.DataFrame, policy: Policy | None
 ) -> str:
     """``boundary.md``: the boundary per value, performance per condition, the policy."""
-    from analysis.boundary_fit import fit_section
+    from analysis.boundary.fit import fit_section
 
     design = (
         f"Grid: scenes {', '.join(s.scene_list())}; wall TF {_join(s.tf)} Hz; {s.param} = "

@@ -24,7 +24,7 @@ Hit rate, false alarms and success come with exact 95 % intervals across clips, 
 groups of clips of similar complexity (``--groups N``; by default up to 5 groups of at least 4
 clips). The boundary is the crossing of a monotone logistic curve fitted to the collision clips
 themselves, each a hit or a miss at its complexity, with its 95 % interval
-(:mod:`analysis.boundary_fit`); the groups' bracket is given beside it.
+(:mod:`analysis.boundary.fit`); the groups' bracket is given beside it.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary import (
+from analysis.boundary.command import (
     BoundaryResult,
     BoundarySettings,
     boundaries,
@@ -49,10 +49,10 @@ from analysis.boundary import (
     published,
     with_override,
 )
-from analysis.boundary_fit import fit_columns, fit_crossing, fit_section, with_fit
+from analysis.boundary.fit import fit_columns, fit_crossing, fit_section, with_fit
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
-from vdc.cli_support import UserError
+from vdc.errors import UserError
 from vdc.executors import Feedback
 from vdc.frame_batches import working_camera
 
@@ -138,7 +138,7 @@ def detector_alerts(
     """The detector ``spec`` run on a clip as ``vdc-capture video`` would run it (its repeat
     rules too): the source frames' numbers (T,) int64, its ``alert`` output (T,) float64 and
     the frame rate (Hz)."""
-    from analysis.complexity import ComplexitySettings
+    from analysis.complexity.command import ComplexitySettings
     from avdm.registry import make_model
     from vdc.frame_batches import FrameBatcher
     from vdc.sources import open_reader
@@ -223,8 +223,8 @@ def clip_complexity(
     """Each clip's complexity: the mean of every metric of ``vdc-analyse complexity`` over the
     frames before the alert window (a collision clip) or over all frames (the scene the
     detector faced, not the object on its way in). Columns: source, then one per metric."""
-    from analysis.complexity import ComplexitySettings, complexity
-    from analysis.source_metrics import METRICS
+    from analysis.complexity.command import ComplexitySettings, complexity
+    from analysis.complexity.source_metrics import METRICS
 
     s = ComplexitySettings(fov_deg=fov_deg, metrics="all", **executor)
     res = complexity(labels["source"].to_list(), s, out)
@@ -395,7 +395,7 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
         )
         md = footage_report(s, summary, stats, bounds, clips)
         if not s.no_predictors:  # every measure judged by the clips (and frames) it gets wrong
-            from analysis.footage_predictors import footage_predictor_tables
+            from analysis.predictors.footage import footage_predictor_tables
 
             _, more, section = footage_predictor_tables(s, labels, clips, out / "complexity", stage)
             paths += more
@@ -405,7 +405,7 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
 
 def clip_fits(clips: pl.DataFrame, by: str, target: float) -> tuple[pl.DataFrame, dict[float, Any]]:
     """The fitted boundary per value over the collision clips themselves (each a hit or a
-    miss at its complexity, ``analysis.boundary_fit``), not over groups; no wall TF."""
+    miss at its complexity, ``analysis.boundary.fit``), not over groups; no wall TF."""
     rows, fits = [], {}
     hit = clips.filter(pl.col("collision"))
     domain = (float(clips[COMPLEXITY].min()), float(clips[COMPLEXITY].max()))

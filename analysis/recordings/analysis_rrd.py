@@ -23,7 +23,7 @@ import polars as pl
 import rerun as rr
 import rerun.blueprint as rrb
 
-from analysis.segments import ProfileSegment, ProfileSettings, heat_map, histogram_over
+from analysis.recordings.segments import ProfileSegment, ProfileSettings, heat_map, histogram_over
 from avdm.base import primary_output_name
 from vdc.recording import (
     APP_ID,
@@ -198,7 +198,7 @@ def write_complexity_rrd(df: pl.DataFrame, recording_id: str, path: Path) -> Pat
     rec.save(str(path))
     # an output, not a source: a folder scan that meets it skips it (plan_sources)
     rec.send_property(OUTPUT_MARKER, rr.AnyValues(command="complexity", of=recording_id))
-    from analysis.source_metrics import normalised, present
+    from analysis.complexity.source_metrics import normalised, present
 
     norm = normalised(df)
     idx = [

@@ -1,0 +1,37 @@
+"""``vdc-analyse boundary``: where a detector breaks, against complexity.
+
+A boundary campaign reads, in order: ``command`` (settings, per-run and per-condition statistics,
+the boundary per scene, the result) → ``fit`` (the fitted success curve, its crossing and
+interval) → ``plot`` and ``report_tables`` (the figure and the report). ``footage`` is the
+labelled-footage mode. The arena campaign itself records simulated runs, so it lives with the
+experiments: ``analysis.experiments.boundary_campaign.boundary`` (``vdc.boundary``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from vdc.lazy import lazy_face
+
+if TYPE_CHECKING:
+    from analysis.boundary.command import BoundaryResult, BoundarySettings
+    from analysis.boundary.fit import fit_crossing
+    from analysis.boundary.footage import footage_boundary
+    from analysis.boundary.plot import plot_boundary
+
+# the public face: name -> the module that defines it (loaded on first use)
+_FACE = {
+    "BoundarySettings": "analysis.boundary.command",
+    "BoundaryResult": "analysis.boundary.command",
+    "fit_crossing": "analysis.boundary.fit",
+    "footage_boundary": "analysis.boundary.footage",
+    "plot_boundary": "analysis.boundary.plot",
+}
+__all__ = [
+    "BoundaryResult",
+    "BoundarySettings",
+    "fit_crossing",
+    "footage_boundary",
+    "plot_boundary",
+]
+__getattr__, __dir__ = lazy_face(__name__, _FACE)
