@@ -31,7 +31,7 @@ from analysis.recordings.ego_motion import turning_before
 from analysis.recordings.loading import LoadedRecording
 from analysis.recordings.recompute import SummarySettings, events_table
 from analysis.stats import Estimate, mean_ci, share_ci
-from vdc.cli_support import option
+from vdc.cli_support import Settings, option
 from vdc.parquet_io import WroteFiles
 from vdc.recording import APP_ID
 
@@ -45,7 +45,7 @@ COLLISION_ROOT = "/collision"
 
 
 @dataclasses.dataclass(frozen=True)
-class CollisionSettings:
+class CollisionSettings(Settings):
     """``vdc-analyse collision``: what counts as a false alarm, and the density maps' bins."""
 
     false_alarm_m: float = option(
@@ -339,7 +339,7 @@ class CollisionResult(WroteFiles):
 
 
 def collision(
-    recordings: Sequence[str | Path],
+    recordings: str | Path | Sequence[str | Path],
     settings: CollisionSettings = CollisionSettings(),
     out: str | Path | None = None,
     *,
@@ -356,7 +356,9 @@ def collision(
 
     items, notes = [], Notices(notice)
     distinct = DistinctRecordings()
-    for path in recordings:
+    from vdc.folders import path_list
+
+    for path in path_list(recordings):  # a single path given as a str: a list of one
         loaded = load_recording(path)
         distinct.add(loaded.recording_id, path)
         notes.of(loaded)

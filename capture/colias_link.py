@@ -50,7 +50,7 @@ from capture.serial_protocol import (
     encode_frame,
 )
 from capture.sim_robot import SimulatedRobot
-from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
+from vdc.cli_support import Settings, non_negative_float, non_negative_int, option, positive_float
 
 
 @dataclasses.dataclass(frozen=True)
@@ -510,7 +510,7 @@ class SerialLink:
 
 
 @dataclasses.dataclass(frozen=True)
-class EmulateSettings:
+class EmulateSettings(Settings):
     """``vdc-capture emulate-robot`` as a settings object (one field per flag, same names)."""
 
     link: str = option("/tmp/vdc-robot", "stable path (symlink) to the emulated port")

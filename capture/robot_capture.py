@@ -36,7 +36,7 @@ from capture.robot_contract import accepted_model, announcement_change, frame_pr
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
 from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
 from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose
-from vdc.cli_support import non_negative_float, option, positive_float
+from vdc.cli_support import Settings, non_negative_float, option, positive_float
 from vdc.recording import camera_model_context
 
 LINK_STATS = (
@@ -406,7 +406,7 @@ def _warn(message: str) -> None:
 
 
 @dataclasses.dataclass(frozen=True)
-class RobotSettings:
+class RobotSettings(Settings):
     """``vdc-capture robot`` as a settings object (one field per flag, same names)."""
 
     port: str = option(help="the robot's serial device", required=True)

@@ -20,7 +20,7 @@ from capture.config import SCENES, SimConfig
 from capture.recording_start import model_sections
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
 from capture.sim_robot import SimulatedRobot, load_wall_image, ring_turn_event  # noqa: F401
-from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
+from vdc.cli_support import Settings, non_negative_float, non_negative_int, option, positive_float
 from vdc.provenance import machine_info, package_versions
 
 
@@ -47,7 +47,7 @@ def recording_properties(
 
 
 @dataclasses.dataclass(frozen=True)
-class SimSettings:
+class SimSettings(Settings):
     """``vdc-capture sim`` as a settings object: one field per flag, same names and defaults.
 
     ``to_config()`` turns it into the full :class:`SimConfig` (where every value is checked);

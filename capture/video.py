@@ -32,6 +32,7 @@ from capture.device import Batch, DeviceContext, Event
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
 from vdc.cli_support import (
     API_ONLY,
+    Settings,
     non_negative_float,
     non_negative_int,
     option,
@@ -48,7 +49,7 @@ from vdc.sources import (
 
 
 @dataclasses.dataclass(frozen=True)
-class VideoSettings:
+class VideoSettings(Settings):
     """``vdc-capture video``: one field per flag, same names and defaults."""
 
     source: str = option(

@@ -31,7 +31,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-from vdc.cli_support import option
+from vdc.cli_support import Settings, option
 
 EXECUTORS = ("local", "dask")
 
@@ -69,7 +69,7 @@ def executor_field(name: str) -> Any:
 
 
 @dataclasses.dataclass(frozen=True)
-class ExecutorSettings:
+class ExecutorSettings(Settings):
     """Where tasks run: ``executor`` local|dask, ``jobs`` workers (local pool, or a local Dask
     cluster), ``scheduler`` an existing Dask cluster's address or scheduler file."""
 

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from vdc.cli_support import non_negative_int, option
+from vdc.cli_support import Settings, non_negative_int, option
 from vdc.errors import UserError
 from vdc.recording import (
     APP_ID,
@@ -56,7 +56,7 @@ CATALOG_EXTRA = "pip install 'visual-dynamic-complexity[catalog]'"
 
 
 @dataclasses.dataclass(frozen=True)
-class CatalogSettings:
+class CatalogSettings(Settings):
     """``vdc-analyse catalog serve``: the dataset's name and where the server listens."""
 
     dataset: str | None = option(
@@ -311,7 +311,9 @@ def _register(path: Path, rec: Any, cache: Path, say: Callable[[str], None]) -> 
     return CatalogSegment(rid, registered, path, summary)
 
 
-def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = None) -> Found:
+def scan(
+    folders: str | Path | Sequence[str | Path], notice: Callable[[str], None] | None = None
+) -> Found:
     """Find the recordings and the analysis outputs under ``folders`` (see the module). A file
     that cannot be served is left out with a one-line reason, never taking the others down;
     between files of one recording id the complete one is registered, whatever their names."""
@@ -323,6 +325,9 @@ def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = N
     layers: dict[str, list[tuple[str, Path]]] = {}
     left: list[tuple[str, str]] = []
     outputs: list[tuple[str, Path]] = []
+    from vdc.folders import path_list
+
+    folders = path_list(folders)  # one folder given as a str is a list of one, not of letters
     batch_folders: list[Path] = []
     cache = _cache(Path(folders[0]))
     for folder in map(Path, folders):

@@ -54,6 +54,7 @@ from analysis.complexity.source_metrics import (
 from analysis.recordings.analysis_rrd import OUTPUT_MARKER, write_complexity_rrd
 from vdc.cli_support import (
     API_ONLY,
+    Settings,
     non_negative_float,
     non_negative_int,
     option,
@@ -67,7 +68,7 @@ from vdc.sources import source_name
 
 
 @dataclasses.dataclass(frozen=True)
-class ComplexitySettings:
+class ComplexitySettings(Settings):
     """``vdc-analyse complexity``: the AVDM variant, the baselines' few free choices, how
     video sources are read (as ``vdc-capture video`` reads them), and where the sources run."""
 
@@ -230,11 +231,11 @@ def expand_sources(
     itself, unfinished captures and dangling links (``vdc.folders.scan_folder``), which
     ``notice`` hears about in one line per folder. A folder without any source, a missing
     file or a pattern that matches nothing raises ValueError."""
-    from vdc.folders import scan_folder
+    from vdc.folders import path_list, scan_folder
     from vdc.sources import VIDEO_SUFFIXES
 
     sources: list[str] = []
-    for item in map(str, items):
+    for item in path_list(items):
         p = Path(item)
         if p.is_dir():
             scan = scan_folder(p, (*VIDEO_SUFFIXES, ".rrd"), skip_dirs=(PARTS,))
@@ -446,9 +447,9 @@ def _run_inline(
 
 
 def complexity(
-    sources: Sequence[str | Path],
+    sources: str | Path | Sequence[str | Path],
     settings: ComplexitySettings = ComplexitySettings(),
-    out: str | Path = "results/complexity",
+    out: str | Path | None = "results/complexity",
     *,
     progress: Callable[[int], None] | None = None,
     clip_progress: Callable[[int], None] | None = None,
@@ -458,10 +459,19 @@ def complexity(
     """``vdc-analyse complexity`` on recordings, video files, image sequences and folders
     (see the module). ``progress`` counts frames (a single source), ``clip_progress`` sources
     as they finish. A bad single source raises ValueError; in a collection, failed sources
-    are listed in ``result.failures`` and ``failures.parquet``."""
+    are listed in ``result.failures`` and ``failures.parquet``. ``out=None`` writes nothing
+    (the work is done in a folder removed before this returns) and returns the tables."""
     from analysis.batch import parse_shard, readable_part
     from vdc.parquet_io import read_metadata, table_set, write_parquet
 
+    if out is None:
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="vdc-complexity-") as tmp:
+            res = complexity(sources, settings, tmp, progress=progress,
+                             clip_progress=clip_progress, notice=notice, log=log)  # fmt: skip
+        res.paths = []  # nothing written remains
+        return res
     out = Path(out)
     notes: list[str] = []
 

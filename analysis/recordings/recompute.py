@@ -39,12 +39,12 @@ from avdm.base import Model, primary_output_name
 from avdm.registry import canonical_name, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
-from vdc.cli_support import API_ONLY, non_negative_int, option, positive_float
+from vdc.cli_support import API_ONLY, Settings, non_negative_int, option, positive_float
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
 
 @dataclasses.dataclass(frozen=True)
-class SummarySettings:
+class SummarySettings(Settings):
     """How summaries are computed (stored in the Parquet metadata as ``settings``)."""
 
     threshold_dps: float = option(
@@ -407,7 +407,7 @@ def check_models(loaded: LoadedRecording, specs: Sequence[str]) -> None:
 
 
 def build_tables(
-    paths: Sequence[str | Path],
+    paths: str | Path | Sequence[str | Path],
     specs: Sequence[str] | None,
     settings: SummarySettings = SummarySettings(),
     progress: Callable[[int], None] | None = None,
@@ -422,7 +422,9 @@ def build_tables(
     distinct = DistinctRecordings()
     left: list[tuple[str, Exception]] = []  # said once the others are read (or raised)
     checked = False
-    for path in sorted(paths, key=str):
+    from vdc.folders import path_list
+
+    for path in sorted(path_list(paths)):  # a single path given as a str: a list of one
         try:
             loaded = load_recording(path, settings)
         except (RecordingError, OSError) as exc:  # one bad file leaves the others be
@@ -520,7 +522,7 @@ class TablesResult(WroteFiles):
 
 
 def tables(
-    recordings: Sequence[str | Path],
+    recordings: str | Path | Sequence[str | Path],
     settings: TablesSettings = TablesSettings(),
     out: str | Path | None = None,
     *,
