@@ -163,6 +163,20 @@ class RobotConfig:
         _in_range("sensor_lateral_m", self.sensor_lateral_m, 0.0, 0.5, " m")
 
 
+def check_below_nyquist(tf_hz: float, flag: str, fps: float | None = None) -> None:
+    """ValueError in one line naming ``flag`` when the wall TF ``tf_hz`` is not below the
+    Nyquist frequency of a camera at ``fps`` (default: the simulated camera's): a wall that
+    drifts faster than half the frame rate aliases to a slower, even backward, drift, and a
+    profile over it is not monotone."""
+    fps = CameraConfig.fps if fps is None else fps
+    if not tf_hz < fps / 2:
+        raise ValueError(
+            f"{flag} reaches {tf_hz:g} Hz, not below the camera's Nyquist frequency "
+            f"{fps / 2:g} Hz (a {fps:g} Hz camera): a faster wall aliases; keep TFs below "
+            f"{fps / 2:g} Hz"
+        )
+
+
 @dataclasses.dataclass(frozen=True)
 class CameraConfig:
     """The on-board camera: pinhole, horizontal, looking forward, area-averaged pixels."""

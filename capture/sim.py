@@ -108,6 +108,11 @@ class SimSettings(Settings):
     overhead: bool = option(False, "also log an overhead camera")
     overhead_fps: float = option(5.0, "overhead camera rate, Hz", type=positive_float)
 
+    def __post_init__(self) -> None:
+        from capture.config import check_below_nyquist
+
+        check_below_nyquist(self.tf_hz, "--tf-hz")  # before any run: a faster wall aliases
+
     def to_config(self) -> SimConfig:
         from capture.config import (
             ArenaConfig,

@@ -186,9 +186,11 @@ class BoundarySettings(ExecutorSettings):
         if self.per_scene and self.design != "adaptive":
             raise ValueError("--per-scene is for --design adaptive")
         if self.labels is None:
-            self.tf_bounds()
+            from capture.config import check_below_nyquist  # the arena's camera bounds TF
+
+            check_below_nyquist(self.tf_bounds()[1], f"--tf-range {self.tf_range}")
             self.grid_values()
-            number_list(self.tf, "tf")
+            check_below_nyquist(max(number_list(self.tf, "tf")), "--tf")
             name_list(self.scenes, "scenes", ("grating", "natural"))
             if self.per_scene and self.budget < 2 * len(self.scene_list()):
                 raise ValueError("--per-scene needs --budget of at least 2 runs per scene")
