@@ -29,7 +29,6 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from analysis.profile import safe_key
 from analysis.recordings.loading import load_recording
 from analysis.recordings.reader import Recording, RecordingError
 from analysis.recordings.recompute import (
@@ -39,15 +38,17 @@ from analysis.recordings.recompute import (
     events_table,
     model_outputs_table,
     model_params,
+    publish_tables,
     recompute,
     summary_table,
-    write_tables,
 )
+from analysis.recordings.segments import safe_key
 from avdm.registry import canonical_name, parse_model_spec
 from vdc.cli_support import option
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
 from vdc.folders import expand_recordings
-from vdc.parquet_io import read_metadata, write_parquet
+from vdc.parquet_io import WroteFiles, read_metadata, write_parquet
 
 PARTS = "parts"
 
@@ -73,9 +74,9 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
         i_s, n_s = text.split("/")
         i, n = int(i_s), int(n_s)
     except ValueError:
-        raise ValueError(f"--shard {text!r}: expected I/N, e.g. 0/4") from None
+        raise UserError(f"--shard {text!r}: expected I/N, e.g. 0/4") from None
     if not (n >= 1 and 0 <= i < n):
-        raise ValueError(f"--shard {text!r}: need 0 <= I < N")
+        raise UserError(f"--shard {text!r}: need 0 <= I < N")
     return i, n
 
 
@@ -100,7 +101,7 @@ class BatchSettings(SummarySettings):
         super().__post_init__()
         object.__setattr__(self, "models", tuple(self.models or ()))
         if not self.models:
-            raise ValueError("give at least one --model")
+            raise UserError("give at least one --model")
         for spec in self.models:
             parse_model_spec(spec)
         self.executor_settings()
@@ -175,7 +176,7 @@ def analyse_task(path: str, spec: str, out: str, settings: dict[str, Any], force
 
 
 @dataclasses.dataclass
-class BatchResult:
+class BatchResult(WroteFiles):
     """What a batch did: tasks run, skipped and failed (with their errors), and the tables."""
 
     planned: int  # tasks in this shard
@@ -281,11 +282,11 @@ def summarise_batch(out: str | Path) -> tuple[dict[str, pl.DataFrame], list[Path
     out = Path(out)
     done = sorted((out / PARTS).glob("recording_id=*/model=*/summary.parquet"))
     if not done:
-        raise ValueError(f"{str(out)!r} has no finished batch parts (run vdc-analyse batch)")
+        raise UserError(f"{str(out)!r} has no finished batch parts (run vdc-analyse batch)")
     for p in done:
         for part in (p, p.parent / "model_outputs.parquet", *p.parent.parent.glob("*.parquet")):
             if not readable_part(part):
-                raise ValueError(
+                raise UserError(
                     f"the batch part {str(part)!r} is damaged or missing: run the same "
                     "vdc-analyse batch again to recompute it"
                 )
@@ -315,4 +316,4 @@ def summarise_batch(out: str | Path) -> tuple[dict[str, pl.DataFrame], list[Path
             "recording_id", "model", "wall_tf_hz"
         ),
     }
-    return tables, write_tables(tables, out, meta)
+    return tables, publish_tables(tables, out, meta)

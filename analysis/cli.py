@@ -145,6 +145,23 @@ def cmd_complexity(args: argparse.Namespace) -> int:
     return 1 if res.failures else 0
 
 
+def cmd_dataset(args: argparse.Namespace) -> int:
+    from analysis.dataset.command import DatasetSettings, dataset
+
+    settings = settings_from_args(DatasetSettings, args)
+    with progress_bar(None, "episodes", "camera") as bar:
+        res = dataset(args.dataset, settings, args.out, Feedback(say, bar.update))
+    print("\n".join(res.report()))
+    for line in res.problems:  # each unreadable input: one line, the others still profiled
+        print(f"{PROG} dataset: error: {line}", file=sys.stderr)
+    return res.exit_status
+
+
+def _dataset_inputs(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dataset", metavar="PATH", help="a LeRobot dataset folder (v3.0 or v2.1)")
+    p.add_argument("--out", default="results/dataset", help="output folder (default: %(default)s)")
+
+
 def cmd_catalog(args: argparse.Namespace) -> int:
     from analysis.catalog.build import CatalogSettings
     from analysis.catalog.query import query_to
@@ -167,7 +184,8 @@ def cmd_catalog(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from analysis.experiments.reproduce import ReproduceSettings, reproduce
+    from analysis.experiments.plan import ReproduceSettings
+    from analysis.experiments.reproduce import reproduce
 
     plan = ReproduceSettings.make(args.quick, **flag_values(ReproduceSettings, args))
     res = reproduce(plan, args.out, log=say)
@@ -283,7 +301,7 @@ COMMANDS = {
         models=True,
     ),
     "profile": Command(
-        "analysis.profile:ProfileSettings",
+        "analysis.recordings.segments:ProfileSettings",
         _over_recordings("analysis.profile:profile"),
         "3D circle profiles, 'AVDM > 100' histograms and heat maps (paper Figs. 6-7)",
         "For every recording segment (one wall TF) or condition: a 3D circle profile (x, y "
@@ -395,6 +413,24 @@ COMMANDS = {
             "results/complexity", "recordings, videos, image patterns or folders", dest="sources"
         ),
     ),
+    "dataset": Command(
+        "analysis.dataset.command:DatasetSettings",
+        cmd_dataset,
+        "profile a LeRobot robot-learning dataset episode by episode, its faults flagged",
+        "For a LeRobot dataset (v3.0: episodes as windows of shared videos; v2.1: a video per "
+        "episode; AV1, H.264, HEVC; PNG image features), read with pyarrow and PyAV: every "
+        "camera of every episode decoded once (one task each: --executor, --jobs) beside the "
+        "episode's data. Writes episodes.parquet (episode x camera: counts, drift in ms, "
+        "dropped, repeated and frozen frames, idle head and tail in s, complexity metrics, "
+        "blur and exposure shares, camera shift in px, lag behind the state in ms with an "
+        "interval, flags), frames.parquet (per frame), problems.parquet and dataset.html "
+        "(worst first, thumbnails around flagged frames). Exit 1 when --fail-on flags an "
+        "episode; 2 when input is unreadable (one line each; the other episodes are profiled).",
+        "examples:\n"
+        "  vdc-analyse dataset data/my_dataset --out results/my_dataset\n"
+        "  vdc-analyse dataset data/my_dataset --fov-deg 70 --fail-on frozen,dropped,drift",
+        inputs=_dataset_inputs,
+    ),
     "catalog": Command(
         "analysis.catalog.build:CatalogSettings",
         cmd_catalog,
@@ -410,7 +446,7 @@ COMMANDS = {
         inputs=_catalog_inputs,
     ),
     "reproduce": Command(
-        "analysis.experiments.reproduce:ReproduceSettings",
+        "analysis.experiments.plan:ReproduceSettings",
         cmd_reproduce,
         "reproduce the paper end to end and write a claim-by-claim report",
         "Run the SF-TF sweep, the open-loop approach, closed-loop profiling (grating TF 0, 1, "

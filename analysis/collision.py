@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -25,14 +26,15 @@ import rerun as rr
 import rerun.blueprint as rrb
 from matplotlib.figure import Figure
 
-from analysis.profile import safe_key
 from analysis.recordings.analysis_rrd import log_arena_outline
 from analysis.recordings.ego_motion import turning_before
-from analysis.recordings.loading import LoadedRecording
-from analysis.recordings.recompute import SummarySettings, events_table
+from analysis.recordings.loading import LoadedRecording, Notices, load_recording
+from analysis.recordings.recompute import DistinctRecordings, SummarySettings, events_table
+from analysis.recordings.segments import safe_key
 from analysis.stats import Estimate, mean_ci, share_ci
 from vdc.cli_support import Settings, option
-from vdc.parquet_io import WroteFiles
+from vdc.errors import UserError
+from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from vdc.recording import APP_ID
 
 # what the paper reports for its three phases (30 min each) [BRIEF]
@@ -55,16 +57,16 @@ class CollisionSettings(Settings):
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.false_alarm_m) and self.false_alarm_m > 0):
-            raise ValueError(f"--false-alarm-m must be > 0, got {self.false_alarm_m}")
+            raise UserError(f"--false-alarm-m must be > 0, got {self.false_alarm_m}")
         if not (math.isfinite(self.bin_m) and 0.005 <= self.bin_m <= 0.2):
-            raise ValueError(f"--bin-m must be between 0.005 and 0.2 m, got {self.bin_m}")
+            raise UserError(f"--bin-m must be between 0.005 and 0.2 m, got {self.bin_m}")
 
 
 def require_collision_recording(loaded: LoadedRecording) -> None:
     """Raise ValueError unless the recording comes from collision mode."""
     run = loaded.props.get("run", {})
     if run.get("behaviour") != "collision" or "detector" not in loaded.props:
-        raise ValueError(
+        raise UserError(
             f"{str(loaded.rec.path)!r} is not a collision-mode recording (record one with "
             "`vdc-capture sim --behaviour collision`): it has no avoidance/crash events to study"
         )
@@ -348,11 +350,6 @@ def collision(
     """``vdc-analyse collision`` (Fig. 8): metrics of closed-loop recordings, ordered by
     phase. With ``out``: ``collision_summary.parquet``, ``collision_events.parquet``, a PNG
     per recording, ``collision_study.png`` and ``collision.rrd``."""
-    import hashlib
-
-    from analysis.recordings.loading import Notices, load_recording
-    from analysis.recordings.recompute import DistinctRecordings
-    from vdc.parquet_io import table_set, write_parquet
 
     items, notes = [], Notices(notice)
     distinct = DistinctRecordings()

@@ -11,7 +11,8 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.profile import correlation_panel, response_densities
+from analysis.profile import correlation_panel, response_densities, save_figure
+from analysis.recordings.analysis_rrd import write_variants_rrd
 from analysis.recordings.loading import LoadedRecording, Notices, load_recording
 from analysis.recordings.recompute import (
     SummarySettings,
@@ -25,7 +26,8 @@ from analysis.recordings.recompute import (
 from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model
 from vdc.cli_support import option
-from vdc.parquet_io import WroteFiles
+from vdc.errors import UserError
+from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
 
 def variant_statistics(
@@ -153,10 +155,10 @@ class CompareSettings(TablesSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         if len(self.models) < 2:
-            raise ValueError("compare needs at least two --model variants")
+            raise UserError("compare needs at least two --model variants")
         names = [canonical_name(m) for m in self.models]
         if len(set(names)) != len(names):
-            raise ValueError(f"the same variant is given twice: {', '.join(names)}")
+            raise UserError(f"the same variant is given twice: {', '.join(names)}")
 
 
 @dataclasses.dataclass
@@ -214,9 +216,6 @@ def compare(
     With ``out``: ``compare_summary.parquet``, ``compare_correlations.parquet``,
     ``compare.png`` and ``variants.rrd`` (the traces under ``/model_variants/<name>/``, with
     the source's recording id, so ``rerun REC variants.rrd`` shows them together)."""
-    from analysis.profile import save_figure
-    from analysis.recordings.analysis_rrd import write_variants_rrd
-    from vdc.parquet_io import table_set, write_parquet
 
     loaded = load_recording(recording, settings)
     notes = Notices(notice)

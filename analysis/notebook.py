@@ -8,7 +8,11 @@ import os
 from pathlib import Path
 from typing import Any
 
+import rerun as rr
+
+from analysis.recordings.reader import Recording
 from vdc.errors import UserError
+from vdc.recording import APP_ID
 
 NOTEBOOK_EXTRA = "pip install 'visual-dynamic-complexity[notebook]'"
 
@@ -18,7 +22,7 @@ def _viewer_class() -> Any:
     # rerun_notebook is first imported; a value the user set wins)
     os.environ.setdefault("RERUN_NOTEBOOK_ASSET", "serve-local")
     try:
-        from rerun.notebook import Viewer
+        from rerun.notebook import Viewer  # lazy: optional extra
     except ImportError:
         raise UserError(f"vdc.show needs the notebook extra: {NOTEBOOK_EXTRA}") from None
     return Viewer
@@ -34,7 +38,6 @@ def show(
     """Display a recording inline: ``show("run.rrd")``; or a segment of a running catalog:
     ``show(cat, "grating-tf3-s1-...")`` with ``cat`` from ``vdc.catalog.open_catalog``.
     Returns the widget (Rerun's ``notebook.Viewer``); in a notebook it shows itself."""
-    import rerun as rr
 
     viewer_cls = _viewer_class()
     if segment is not None:
@@ -44,8 +47,6 @@ def show(
     path = Path(target)
     if not path.is_file():
         raise UserError(f"{str(path)!r}: no such recording")
-    from analysis.recordings.reader import Recording
-    from vdc.recording import APP_ID
 
     rec = rr.RecordingStream(APP_ID, recording_id=Recording(path).recording_id)
     rr.log_file_from_path(path, recording=rec)

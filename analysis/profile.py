@@ -8,6 +8,7 @@ A *segment* is the part of one recording under one wall TF (a TF schedule gives 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -17,18 +18,18 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
+from analysis.recordings.analysis_rrd import write_profile_rrd
 from analysis.recordings.loading import Notices
 from analysis.recordings.recompute import build_tables
-from analysis.recordings.segments import (  # noqa: F401 - the profile's data, re-exported
+from analysis.recordings.segments import (
     ProfileSegment,
     ProfileSettings,
     heat_map,
     histogram_over,
-    safe_key,
     segment_summary,
     segments_from_tables,
 )
-from vdc.parquet_io import WroteFiles
+from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
 
 def _arena_outline(ax, hx: float, hy: float, z: float | None = None) -> None:
@@ -271,10 +272,6 @@ def profile(
     With ``out``: a PNG per profile, ``profiles.png``, ``profile_summary.parquet`` and
     ``profiles.rrd``; with ``out=None`` only the result (segments and summary in hand;
     draw one with :func:`plot_segment`)."""
-    import hashlib
-
-    from analysis.recordings.analysis_rrd import write_profile_rrd
-    from vdc.parquet_io import table_set, write_parquet
 
     notes = Notices(notice)
     tables, meta = build_tables(recordings, settings.models or None, settings, progress, notes)

@@ -13,7 +13,9 @@ import scipy.stats
 
 
 def spearman(x: np.ndarray, y: np.ndarray) -> float:
-    """Spearman rank correlation (average ranks for ties); NaN if either side is constant."""
+    """Spearman rank correlation (average ranks for ties) of the pairs as given (polars ranks a
+    NaN as a value: :func:`analysis.predictors.statistics.finite_spearman` drops such pairs);
+    NaN if either side is constant."""
     df = pl.DataFrame({"x": x, "y": y})
     if df["x"].n_unique() < 2 or df["y"].n_unique() < 2:
         return float("nan")

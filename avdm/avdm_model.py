@@ -50,6 +50,7 @@ import numba
 import numpy as np
 
 from avdm.base import FrameStream, Output, Params
+from avdm.errors import ParameterError
 
 CHANNELS = ("on", "off", "on_off_mean")
 POOLINGS = ("active_mean", "all_mean")
@@ -309,7 +310,7 @@ class Avdm(FrameStream):
 
     def __init__(self, params: AvdmParams, name: str = "avdm") -> None:
         if params.a is None or params.b is None:
-            raise ValueError(
+            raise ParameterError(
                 "avdm needs decoding constants a and b: build it with avdm.registry.make_model "
                 "(which fills in the shipped calibration) or pass a=...,b=..."
             )
@@ -336,12 +337,12 @@ class Avdm(FrameStream):
     def _allocate(self, h: int, w: int, dtype: np.dtype) -> None:
         p = self.params
         if p.texture_row >= h:
-            raise ValueError(
+            raise ParameterError(
                 f"frames have {h} rows but avdm texture_row={p.texture_row}: "
                 f"use frames with more rows or set texture_row below {h}"
             )
         if w <= p.sd:
-            raise ValueError(f"frames of width {w} px are too narrow for sd={p.sd}")
+            raise ParameterError(f"frames of width {w} px are too narrow for sd={p.sd}")
         self._hist = np.zeros((p.photoreceptor_lag, h * w), dtype=np.float32)
         self._qhist = np.zeros((p.delay + 1, 2, h * w), dtype=np.float32)
         valid = np.ones((h, w), dtype=np.float32)

@@ -62,6 +62,7 @@ import numba
 import numpy as np
 
 from avdm.base import FrameStream, Output, Params
+from avdm.errors import ParameterError
 
 MULTISCALE_OUTPUTS: tuple[Output, ...] = (
     Output("omega_dps", "deg/s", "decoded angular velocity ω̂ (finest trusted scale)"),
@@ -115,7 +116,7 @@ class AvdmMultiScaleParams(Params):
         if not (isinstance(self.min_width_px, int) and 4 <= self.min_width_px <= 100_000):
             raise bad("min_width_px", "must be an integer from 4 to 100000")
         if not (0 < self.v_low < self.v_high <= 4.0):
-            raise ValueError(
+            raise ParameterError(
                 f"avdm-natural parameters v_low={self.v_low}, v_high={self.v_high}: "
                 "need 0 < v_low < v_high <= 4"
             )
@@ -378,7 +379,7 @@ class AvdmMultiScale(FrameStream):
 
     def __init__(self, params: AvdmMultiScaleParams, name: str = "avdm-natural") -> None:
         if params.a is None or params.b is None:
-            raise ValueError(
+            raise ParameterError(
                 "avdm-natural needs decoding constants a and b: build it with "
                 "avdm.registry.make_model (which fits them) or pass a=...,b=..."
             )
@@ -389,7 +390,7 @@ class AvdmMultiScale(FrameStream):
     def _allocate(self, h: int, w: int, dtype: np.dtype) -> None:
         p = self.params
         if (h, w) != (p.height_px, p.width_px):
-            raise ValueError(
+            raise ParameterError(
                 f"frames of {h}x{w} px (HxW) but this avdm-natural is calibrated for "
                 f"{p.height_px}x{p.width_px}: build it for the frames' raster, e.g. "
                 "make_model(spec, **vdc.recording.camera_model_context(W, H, fps, fov))"

@@ -18,6 +18,8 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from avdm.errors import ParameterError
+
 # The output a model is summarised, profiled and plotted by: the angular velocity when a model
 # has one, else its first output (the detectors' spike rate or membrane potential).
 PRIMARY_OUTPUT = "omega_dps"
@@ -27,7 +29,7 @@ def primary_output_name(names: Sequence[str]) -> str:
     """The one rule for a model's primary output, given its output names in order."""
     names = list(names)
     if not names:
-        raise ValueError("a model with no outputs has no primary output")
+        raise ParameterError("a model with no outputs has no primary output")
     return PRIMARY_OUTPUT if PRIMARY_OUTPUT in names else names[0]
 
 
@@ -88,7 +90,7 @@ def require_alert(model: Model) -> None:
     """ValueError, in one line, unless ``model`` is a detector: it has an ``alert`` output (1 =
     collision ahead), what drives the robot's avoidance and what footage is scored on."""
     if "alert" not in {o.name for o in model.outputs}:
-        raise ValueError(
+        raise ParameterError(
             f"detector {model.name!r} has no 'alert' output (1 = collision ahead): give its "
             "model an output named alert"
         )
@@ -119,27 +121,29 @@ def check_frames(frames: np.ndarray, *, min_h: int = 1, min_w: int = 2) -> np.nd
     """
     arr = np.asarray(frames)
     if arr.ndim != 3:
-        raise ValueError(f"frames must have shape (T, H, W), got an array of shape {arr.shape}")
+        raise ParameterError(f"frames must have shape (T, H, W), got an array of shape {arr.shape}")
     t, h, w = arr.shape
     if t == 0 or h == 0 or w == 0:
-        raise ValueError(f"frames must not be empty, got shape {arr.shape}")
+        raise ParameterError(f"frames must not be empty, got shape {arr.shape}")
     if h < min_h or w < min_w:
-        raise ValueError(f"frames of {h}x{w} px (HxW) are too small: need at least {min_h}x{min_w}")
+        raise ParameterError(
+            f"frames of {h}x{w} px (HxW) are too small: need at least {min_h}x{min_w}"
+        )
     if arr.dtype == np.uint8:
         return np.ascontiguousarray(arr)
     if arr.dtype in (np.float32, np.float64):
         if not np.isfinite(arr).all():
-            raise ValueError("frames contain NaN or infinite values")
+            raise ParameterError("frames contain NaN or infinite values")
         return np.ascontiguousarray(arr)
     if (
         arr.dtype == np.bool_
         or np.issubdtype(arr.dtype, np.integer)
         or np.issubdtype(arr.dtype, np.floating)
     ):
-        raise ValueError(
+        raise ParameterError(
             f"frames must be uint8 (0-255) or float32/float64 (0-1), got dtype {arr.dtype}"
         )
-    raise ValueError(f"frames must be numeric images, got dtype {arr.dtype}")
+    raise ParameterError(f"frames must be numeric images, got dtype {arr.dtype}")
 
 
 class FrameStream:
@@ -175,11 +179,11 @@ class FrameStream:
             self._allocate(h, w, frames.dtype)
             self._shape, self._dtype = (h, w), frames.dtype
         elif (h, w) != self._shape:
-            raise ValueError(
+            raise ParameterError(
                 f"frame shape changed from {self._shape} to {(h, w)} (HxW); call reset() first"
             )
         elif (frames.dtype == np.uint8) != (self._dtype == np.uint8):
-            raise ValueError(
+            raise ParameterError(
                 f"frame dtype changed from {self._dtype} to {frames.dtype} (intensity scale "
                 "would change); call reset() first"
             )
@@ -196,6 +200,8 @@ class FrameStream:
         """Process one frame (H, W); return ``{output: float}``."""
         arr = np.asarray(frame)
         if arr.ndim != 2:
-            raise ValueError(f"a frame must have shape (H, W), got an array of shape {arr.shape}")
+            raise ParameterError(
+                f"a frame must have shape (H, W), got an array of shape {arr.shape}"
+            )
         row = self._advance(check_frames(arr[None], min_h=1, min_w=self.min_width))[0]
         return {n: float(row[c]) for c, n in enumerate(self.output_names)}

@@ -21,7 +21,9 @@ from typing import Any
 import numpy as np
 
 from avdm.avdm_model import Avdm, AvdmParams
-from avdm.stimuli import grating
+from avdm.avdm_multiscale import AvdmMultiScale
+from avdm.errors import ParameterError
+from avdm.stimuli import clutter_image, grating, panned_image
 
 MIN_PERIODS_ACROSS = 2.0
 MIN_PERIOD_PX = 4.0
@@ -66,7 +68,7 @@ def valid_periods_px(width: int) -> np.ndarray:
     """Log-spaced spatial periods (px) inside the valid band for an image ``width`` px wide."""
     hi = width / MIN_PERIODS_ACROSS
     if hi < MIN_PERIOD_PX:
-        raise ValueError(f"images {width} px wide are too narrow to calibrate (need >= 8 px)")
+        raise ParameterError(f"images {width} px wide are too narrow to calibrate (need >= 8 px)")
     return np.geomspace(MIN_PERIOD_PX, hi, 8)
 
 
@@ -154,7 +156,7 @@ def fit_decoding(
         and c.tf_hz <= params.fps * MAX_TF_FRACTION
     ]
     if len(used) < 3:
-        raise ValueError(
+        raise ParameterError(
             f"only {len(used)} grating cells are in the valid band (responsive, no aliasing); "
             "widen the grid or check the model parameters"
         )
@@ -228,8 +230,6 @@ def clutter_pans(
     """Pan a camera of ``size`` (H, W) at ``params.deg_per_px`` across 1/f clutter at each
     speed and read it with a multi-scale AVDM of ``params``. Returns one response per (speed,
     seed)."""
-    from avdm.avdm_multiscale import AvdmMultiScale
-    from avdm.stimuli import clutter_image, panned_image
 
     fov = size[1] * params.deg_per_px
     warm = 2 * params.tw
@@ -278,7 +278,7 @@ def fit_multiscale(
         )
         used = [p for p in pans if p.omega_dps > 0]
         if len(used) < 3:
-            raise ValueError(
+            raise ParameterError(
                 f"only {len(used)} clutter pans gave a reading; check the model parameters"
             )
         x = np.log([p.omega_dps for p in used])

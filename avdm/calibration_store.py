@@ -18,6 +18,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from avdm.avdm_model import AvdmParams
+from avdm.calibration import fit_decoding, fit_multiscale
+from avdm.version import __version__
+
 CALIBRATION_FILE = "calibrations.json"
 
 
@@ -32,14 +36,14 @@ def shipped_calibrations() -> tuple[dict[str, Any], ...]:
 # (keyed separately, to 1e-9), the texture row (the calibration gratings are uniform down
 # every column, so every row sees the same pattern) and the preferred direction (the gratings
 # drift in it, so a mirrored model meets mirrored stimuli: the same fit).
-NOT_DYNAMICS = frozenset({"a", "b", "fps", "deg_per_px", "texture_row", "direction"})
+NOT_DECODING_DYNAMICS = frozenset({"a", "b", "fps", "deg_per_px", "texture_row", "direction"})
 
 
 def dynamics(params: Any) -> dict[str, Any]:
     """The parameters of ``params`` (a params object or its flat dict) that change the model's
-    dynamics, hence its calibration: every field but those in ``NOT_DYNAMICS``."""
+    dynamics, hence its calibration: every field but those in ``NOT_DECODING_DYNAMICS``."""
     values = params if isinstance(params, dict) else params.to_dict()
-    return {k: v for k, v in values.items() if k not in NOT_DYNAMICS}
+    return {k: v for k, v in values.items() if k not in NOT_DECODING_DYNAMICS}
 
 
 def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any] | None:
@@ -78,10 +82,7 @@ def cache_dir() -> Path:
     return Path(base) / "vdc"
 
 
-def calibration_key(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any]:
-    from avdm import __version__
-    from avdm.avdm_model import AvdmParams
-
+def decoding_key(fps: float, deg_per_px: float, params: Any = None) -> dict[str, Any]:
     kind = "avdm" if params is None or isinstance(params, AvdmParams) else "avdm-multiscale"
     key: dict[str, Any] = {
         "fps": float(f"{fps:.9g}"),
@@ -143,7 +144,6 @@ def calibration_for(
     honest deg/s. The entry carries ``a``, ``b``, the fit's quality (``r2``,
     ``rms_rel_error``, ``max_rel_error``, ``n_points``) and ``source``: ``shipped``, ``cache``
     or ``fitted``. ``progress`` is called once per stimulus of a new fit."""
-    from avdm.avdm_model import AvdmParams
 
     if params is None:
         params = AvdmParams(fps=fps, deg_per_px=deg_per_px)
@@ -154,19 +154,15 @@ def calibration_for(
         shipped = lookup_calibration(fps, deg_per_px, params)
         if shipped is not None:
             return {**shipped, "source": "shipped"}
-    key = calibration_key(fps, deg_per_px, params)
+    key = decoding_key(fps, deg_per_px, params)
     path = cache_path(key, f"{key['model']}-{key['fps']:g}Hz")
     cached = read_cached(path, key)
     if cached is not None:
         return {**cached, "source": "cache", "cache_file": str(path)}
     if multiscale:
-        from avdm.calibration import fit_multiscale
-
         size = (params.height_px, params.width_px)  # its scales depend on the raster
         fit = fit_multiscale(params, size=size, progress=progress)
     else:
-        from avdm.calibration import fit_decoding
-
         fit = fit_decoding(params, size=CAL_SIZE, contrasts=CAL_CONTRASTS, progress=progress)
     entry = {"key": key, **key, **fit.to_dict()}
     return {**entry, "source": "fitted", "cache_file": write_cached(path, entry)}

@@ -75,6 +75,7 @@ import numpy as np
 
 from avdm.avdm_multiscale import _reflect
 from avdm.base import FrameStream, Output, Params
+from avdm.errors import ParameterError
 
 HRC_OUTPUTS: tuple[Output, ...] = (
     Output("omega_dps", "deg/s", "speed read from |R̄| on the calibrated rising branch"),
@@ -288,7 +289,7 @@ class Hrc(FrameStream):
 
     def __init__(self, params: HrcParams, name: str = "hrc") -> None:
         if None in (params.r_peak, params.v_peak_dps, params.knee, params.change_max):
-            raise ValueError(
+            raise ParameterError(
                 "hrc needs its response curve (r_peak, v_peak_dps, knee, change_max): build "
                 "it with avdm.registry.make_model (which measures it) or pass all four"
             )
@@ -301,7 +302,7 @@ class Hrc(FrameStream):
         s = p.spacing_px()
         self._rows, self._cols = lattice(h, s), lattice(w, s)
         if len(self._cols) < 2:
-            raise ValueError(
+            raise ParameterError(
                 f"frames {w} px wide hold fewer than 2 ommatidia {s} px apart: the hrc needs "
                 f"a wider frame or a smaller spacing_deg (now {p.spacing_deg})"
             )

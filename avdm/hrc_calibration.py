@@ -22,10 +22,15 @@ from typing import Any
 
 import numpy as np
 
+from avdm.calibration import CLUTTER_SEEDS, VIEW_FRACTION
+from avdm.calibration_store import cache_path, read_cached, write_cached
+from avdm.errors import ParameterError
 from avdm.hrc import Hrc, HrcParams, response_curve
+from avdm.stimuli import clutter_image
+from avdm.version import __version__
 
 # the decoding constants and the validity threshold do not change the measured curve
-NOT_DYNAMICS = frozenset({"r_peak", "v_peak_dps", "knee", "change_max", "valid_fraction"})
+NOT_HRC_DYNAMICS = frozenset({"r_peak", "v_peak_dps", "knee", "change_max", "valid_fraction"})
 CAL_SPEEDS_DPS = tuple(float(v) for v in np.geomspace(0.5, 600.0, 19))
 CAL_FOV_DEG = 70.0
 CAL_ASPECT = 72.0 / 99.0  # H/W of the calibration raster (the robot camera's)
@@ -45,8 +50,6 @@ def clutter_pan(
     motion toward +x): frames (T, H, W). The clutter (``avdm.stimuli.clutter_image``, periodic)
     is made at the camera's pitch, ``1/VIEW_FRACTION`` times the view's width, and shifted by
     exact sub-pixel Fourier shifts; levels 0–255 rounded, as a camera delivers them."""
-    from avdm.calibration import VIEW_FRACTION
-    from avdm.stimuli import clutter_image
 
     h, w = size
     wide = math.ceil(w / VIEW_FRACTION)
@@ -67,7 +70,6 @@ def measure_curve(
     """(speeds (S,), mean R̄ (S,), mean C̄ (S,) over the clutter seeds): the raw response and
     the non-directional change of an HRC of ``params`` (decoding constants ignored) to image
     motion toward +x at each speed."""
-    from avdm.calibration import CLUTTER_SEEDS
 
     size = calibration_raster(params.deg_per_px)
     probe = params.replace(r_peak=1.0, v_peak_dps=1.0, knee=1.0, change_max=1.0)
@@ -90,11 +92,11 @@ def fit_curve(speeds: np.ndarray, resp: np.ndarray, change: np.ndarray) -> dict[
     measured peak with a positive response: r_peak, v_peak_dps, knee and the fit's quality;
     and ``change_max``, C̄ at v_peak (log-log interpolated): a scene changing faster than
     the clutter at the peak is past the peak, where a reading cannot be trusted."""
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares  # lazy: start-up
 
     i_peak = int(np.argmax(resp))
     if resp[i_peak] <= 0:
-        raise ValueError("the hrc gave no positive response on the calibration clutter")
+        raise ParameterError("the hrc gave no positive response on the calibration clutter")
     use = (speeds <= 2.0 * speeds[i_peak]) & (resp > 0)
     v, y = speeds[use], np.log(resp[use])
 
@@ -123,15 +125,13 @@ def fit_curve(speeds: np.ndarray, resp: np.ndarray, change: np.ndarray) -> dict[
     }
 
 
-def calibration_key(params: HrcParams) -> dict[str, Any]:
-    from avdm import __version__
-
-    dyn = {k: v for k, v in params.to_dict().items() if k not in NOT_DYNAMICS}
+def hrc_key(params: HrcParams) -> dict[str, Any]:
+    dyn = {k: v for k, v in params.to_dict().items() if k not in NOT_HRC_DYNAMICS}
     dyn["fps"] = float(f"{params.fps:.9g}")
     dyn["deg_per_px"] = float(f"{params.deg_per_px:.9g}")
     return {
         "model": "hrc",
-        "curve": sorted(NOT_DYNAMICS - {"valid_fraction"}),  # what an entry holds
+        "curve": sorted(NOT_HRC_DYNAMICS - {"valid_fraction"}),  # what an entry holds
         "dynamics": dyn,
         "speeds_dps": list(CAL_SPEEDS_DPS),
         "raster_hw": list(calibration_raster(params.deg_per_px)),
@@ -142,9 +142,8 @@ def calibration_key(params: HrcParams) -> dict[str, Any]:
 def hrc_calibration(params: HrcParams) -> dict[str, Any]:
     """The response curve for ``params``' camera and dynamics: remembered, cached on disk, or
     measured now and cached. ``source`` says which (``memo``, ``cache`` or ``fitted``)."""
-    from avdm.calibration_store import cache_path, read_cached, write_cached
 
-    key = calibration_key(params)
+    key = hrc_key(params)
     text = json.dumps(key, sort_keys=True)
     if text in _MEMO:
         return {**_MEMO[text], "source": "memo"}

@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from avdm.base import Output, check_frames
+from avdm.errors import ParameterError
 from avdm.lgmd_params import (
     LGMD_OUTPUT_NAMES,
     LGMD_OUTPUTS,
@@ -312,12 +313,12 @@ class _LgmdBase:
         """Change parameter ``name`` from the next frame on, keeping all state (``params`` keep
         the value the model was built with). Only ``live_params`` can change."""
         if name not in self.live_params:
-            raise ValueError(
+            raise ParameterError(
                 f"{self.name}: parameter {name!r} cannot change while it runs (these can: "
                 f"{', '.join(self.live_params)})"
             )
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a positive number, got {value}")
+            raise ParameterError(f"{name} must be a positive number, got {value}")
         self._cfg[self.live_params[name]] = float(value)
 
     def _allocate(self, h: int, w: int) -> None:
@@ -334,11 +335,11 @@ class _LgmdBase:
             self._allocate(h, w)
             self._is_u8 = is_u8
         elif (h, w) != self._shape:
-            raise ValueError(
+            raise ParameterError(
                 f"frame shape changed from {self._shape} to {(h, w)} (HxW); call reset() first"
             )
         elif is_u8 != self._is_u8:
-            raise ValueError("frame dtype changed between uint8 and float; call reset() first")
+            raise ParameterError("frame dtype changed between uint8 and float; call reset() first")
         out = np.empty((frames.shape[0], _N_OUT))
         self._kernel(frames, is_u8, out)
         return out
@@ -355,7 +356,9 @@ class _LgmdBase:
         """Process one frame (H, W); ``{output: float}``."""
         arr = np.asarray(frame)
         if arr.ndim != 2:
-            raise ValueError(f"a frame must have shape (H, W), got an array of shape {arr.shape}")
+            raise ParameterError(
+                f"a frame must have shape (H, W), got an array of shape {arr.shape}"
+            )
         row = self._advance(check_frames(arr[None], min_h=3, min_w=3))[0]
         return {n: float(row[c]) for c, n in enumerate(LGMD_OUTPUT_NAMES)}
 
@@ -465,7 +468,7 @@ class LgmdColias(_LgmdBase):
         _, h, w = frames.shape
         b = self.params.border
         if h <= 2 * b or w <= 2 * b:
-            raise ValueError(
+            raise ParameterError(
                 f"frames of {h}x{w} px (HxW) leave nothing inside the "
                 f"lgmd-colias border={b}: use larger frames or a smaller border"
             )

@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from avdm.base import Output, Params
+from avdm.errors import ParameterError
 
 LGMD_OUTPUTS: tuple[Output, ...] = (
     Output("spike_rate_hz", "spikes/s", "spike frequency over the last n_ts frames"),
@@ -58,18 +59,18 @@ def _check_params(
     for name in positive:
         v = getattr(obj, name)
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-            raise ValueError(f"lgmd parameter {name}={v!r}: must be a positive number")
+            raise ParameterError(f"lgmd parameter {name}={v!r}: must be a positive number")
     fps = obj.fps
     if frame_interval_ms(fps) < 1:
-        raise ValueError(f"lgmd parameter fps={fps!r}: must be at most 1000")
+        raise ParameterError(f"lgmd parameter fps={fps!r}: must be at most 1000")
     for name in non_negative:
         v = getattr(obj, name)
         if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-            raise ValueError(f"lgmd parameter {name}={v!r}: must be a number >= 0")
+            raise ParameterError(f"lgmd parameter {name}={v!r}: must be a number >= 0")
     for name, lo, hi in integers:
         v = getattr(obj, name)
         if not (isinstance(v, int) and lo <= v <= hi):
-            raise ValueError(f"lgmd parameter {name}={v!r}: must be an integer {lo}-{hi}")
+            raise ParameterError(f"lgmd parameter {name}={v!r}: must be an integer {lo}-{hi}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,7 +136,7 @@ class LgmdPlusParams(Params):
             integers=(("n_ts", 1, 1000),),
         )
         if not 0 <= self.dc < 1:
-            raise ValueError(f"lgmd parameter dc={self.dc!r}: must be below 1")
+            raise ParameterError(f"lgmd parameter dc={self.dc!r}: must be below 1")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from avdm.base import Output, check_frames, run_by_steps
+from avdm.errors import ParameterError
 
 ENTRY_POINT_GROUP = "vdc.models"
 _REF_RE = re.compile(r"^(?P<module>[A-Za-z_][\w.]*):(?P<factory>[A-Za-z_][\w.]*)$")
@@ -100,12 +101,12 @@ def _import_module(module: str, ref: str) -> Any:
     try:
         return _import_here_or_beside(module)
     except _Missing:
-        raise ValueError(
+        raise ParameterError(
             f"model plug-in {ref!r}: no module named {module!r} (install its package, or run "
             "from the folder that holds it, or add that folder to PYTHONPATH)"
         ) from None
     except Exception as exc:  # the user's module: say what broke, in one line
-        raise ValueError(
+        raise ParameterError(
             f"model plug-in {ref!r}: importing {module!r} failed: {type(exc).__name__}: {exc}"
         ) from None
 
@@ -115,16 +116,16 @@ def load_factory(ref: str) -> Callable[..., Any]:
     """The callable named by ``module:attribute`` (ValueError in one line if it is not there)."""
     m = _REF_RE.match(ref)
     if m is None:
-        raise ValueError(f"model plug-in {ref!r} is not of the form package.module:factory")
+        raise ParameterError(f"model plug-in {ref!r} is not of the form package.module:factory")
     obj: Any = _import_module(m.group("module"), ref)
     for part in m.group("factory").split("."):
         if not hasattr(obj, part):
-            raise ValueError(
+            raise ParameterError(
                 f"model plug-in {ref!r}: module {m.group('module')!r} has no {m.group('factory')!r}"
             )
         obj = getattr(obj, part)
     if not callable(obj):
-        raise ValueError(f"model plug-in {ref!r}: {m.group('factory')!r} is not callable")
+        raise ParameterError(f"model plug-in {ref!r}: {m.group('factory')!r} is not callable")
     return obj
 
 
@@ -186,9 +187,9 @@ def _outputs(raw: Any, ref: str) -> tuple[Output, ...]:
             elif isinstance(o, tuple | list) and len(o) in (2, 3):
                 items.append(Output(str(o[0]), str(o[1]), str(o[2]) if len(o) == 3 else ""))
             else:
-                raise ValueError(f"model plug-in {ref!r}: output {o!r} is not (name, unit)")
+                raise ParameterError(f"model plug-in {ref!r}: output {o!r} is not (name, unit)")
     if not items:
-        raise ValueError(f"model plug-in {ref!r}: its model declares no outputs")
+        raise ParameterError(f"model plug-in {ref!r}: its model declares no outputs")
     return tuple(items)
 
 
@@ -197,7 +198,7 @@ class PluginModel:
 
     def __init__(self, inner: Any, name: str, params: Mapping[str, Any], ref: str) -> None:
         if not callable(getattr(inner, "step", None)):
-            raise ValueError(f"model plug-in {ref!r}: the factory's result has no step(frame)")
+            raise ParameterError(f"model plug-in {ref!r}: the factory's result has no step(frame)")
         self.inner = inner
         self.name = name
         self.params = PluginParams(params)
@@ -212,11 +213,13 @@ class PluginModel:
     def step(self, frame: np.ndarray) -> dict[str, float]:
         arr = np.asarray(frame)
         if arr.ndim != 2:
-            raise ValueError(f"a frame must have shape (H, W), got an array of shape {arr.shape}")
+            raise ParameterError(
+                f"a frame must have shape (H, W), got an array of shape {arr.shape}"
+            )
         out = self.inner.step(check_frames(arr[None])[0])
         missing = [n for n in self._names if n not in out]
         if missing:
-            raise ValueError(
+            raise ParameterError(
                 f"model plug-in {self._ref!r}: step() returned no {', '.join(missing)} "
                 f"(it declares outputs {', '.join(self._names)})"
             )
@@ -235,7 +238,7 @@ class PluginModel:
         elif hasattr(self.inner, name):
             setattr(self.inner, name, value)
         else:
-            raise ValueError(
+            raise ParameterError(
                 f"model plug-in {self._ref!r} has no parameter {name!r} to change while it runs "
                 "(give its model that attribute or a set_param(name, value) method)"
             )
@@ -255,7 +258,7 @@ def build_plugin(
         inner = factory(**kwargs)
     except Exception as exc:  # the user's code: report it in one line
         detail = str(exc).splitlines()[0] if str(exc) else ""
-        raise ValueError(
+        raise ParameterError(
             f"model plug-in {ref!r} failed to build with {kwargs or 'no parameters'}: "
             f"{type(exc).__name__}: {detail}"
         ) from None

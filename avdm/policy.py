@@ -35,6 +35,7 @@ import numpy as np
 import polars as pl
 
 from avdm.base import Output, run_by_steps
+from avdm.errors import ParameterError
 
 COMPLEXITY_COLUMN = "complexity_dps"
 STATISTICS = ("median", "mean")
@@ -56,15 +57,15 @@ class Policy:
     def __post_init__(self) -> None:
         x, y = np.asarray(self.complexity_dps, float), np.asarray(self.values, float)
         if len(x) == 0 or len(x) != len(y):
-            raise ValueError("a policy needs at least one row of complexity and value")
+            raise ParameterError("a policy needs at least one row of complexity and value")
         if not (np.isfinite(x).all() and np.isfinite(y).all()):
-            raise ValueError("a policy's complexities and values must be finite numbers")
+            raise ParameterError("a policy's complexities and values must be finite numbers")
         if len(x) > 1 and not (np.diff(x) > 0).all():
-            raise ValueError("a policy's complexity_dps must increase from row to row")
+            raise ParameterError("a policy's complexity_dps must increase from row to row")
         if self.statistic not in STATISTICS:
-            raise ValueError(f"a policy's statistic must be one of {', '.join(STATISTICS)}")
+            raise ParameterError(f"a policy's statistic must be one of {', '.join(STATISTICS)}")
         if not (math.isfinite(self.window_s) and self.window_s > 0):
-            raise ValueError(f"a policy's window_s must be > 0 s, got {self.window_s}")
+            raise ParameterError(f"a policy's window_s must be > 0 s, got {self.window_s}")
 
     def value(self, complexity_dps: float) -> float:
         """The parameter at this complexity (deg/s)."""
@@ -100,7 +101,7 @@ def load_policy(path: str | Path) -> Policy:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise ValueError(f"policy file {str(path)!r}: {exc.strerror or exc}") from None
+        raise ParameterError(f"policy file {str(path)!r}: {exc.strerror or exc}") from None
     meta: dict[str, str] = {}
     lines = text.splitlines()
     for line in lines:
@@ -110,16 +111,16 @@ def load_policy(path: str | Path) -> Policy:
                 meta[key.strip()] = value.strip()
     where = f"policy file {str(path)!r}"
     if "param" not in meta:
-        raise ValueError(f"{where} has no '# param: NAME' line (is it a vdc policy?)")
+        raise ParameterError(f"{where} has no '# param: NAME' line (is it a vdc policy?)")
     body = "\n".join(ln for ln in lines if not ln.startswith("#"))
     try:
         df = pl.read_csv(body.encode(), infer_schema_length=None)
     except Exception as exc:  # polars' many parse errors: one line for the user
-        raise ValueError(f"{where} is not a readable CSV table: {exc}") from None
+        raise ParameterError(f"{where} is not a readable CSV table: {exc}") from None
     param = meta["param"]
     missing = [c for c in (COMPLEXITY_COLUMN, param) if c not in df.columns]
     if missing:
-        raise ValueError(f"{where} has no column {', '.join(missing)}")
+        raise ParameterError(f"{where} has no column {', '.join(missing)}")
     try:
         df = df.with_columns(pl.col(COMPLEXITY_COLUMN, param).cast(pl.Float64)).sort(
             COMPLEXITY_COLUMN
@@ -134,7 +135,7 @@ def load_policy(path: str | Path) -> Policy:
             meta.get("statistic", "median"),
         )
     except (ValueError, pl.exceptions.PolarsError) as exc:
-        raise ValueError(f"{where}: {exc}") from None
+        raise ParameterError(f"{where}: {exc}") from None
 
 
 class PolicyModel:
@@ -146,16 +147,16 @@ class PolicyModel:
         self, inner: Any, policy: Policy, profiler: Any, context: Mapping[str, Any]
     ) -> None:
         if "fps" not in context:
-            raise ValueError("a policy needs the camera's frame rate (fps) to size its window")
+            raise ParameterError("a policy needs the camera's frame rate (fps) to size its window")
         if not callable(getattr(inner, "set_param", None)):
-            raise ValueError(f"{inner.name}: its parameters cannot change while it runs")
+            raise ParameterError(f"{inner.name}: its parameters cannot change while it runs")
         self.inner = inner
         self.policy = policy
         self.name = inner.name
         self.params = inner.params
         self.profiler = profiler  # policy.profile_model, built for the same camera
         if "omega_dps" not in {o.name for o in self.profiler.outputs}:
-            raise ValueError(f"policy profile model {policy.profile_model!r} has no omega_dps")
+            raise ParameterError(f"policy profile model {policy.profile_model!r} has no omega_dps")
         self.outputs = (
             *inner.outputs,
             Output("policy_value", "", f"{policy.param} set by the policy"),

@@ -19,7 +19,9 @@ from avdm.avdm_multiscale import AvdmMultiScale, AvdmMultiScaleParams
 from avdm.base import PRIMARY_OUTPUT as PRIMARY_OUTPUT_NAME
 from avdm.base import Model, Params, require_alert
 from avdm.calibration_store import calibration_for
+from avdm.errors import ParameterError
 from avdm.hrc import Hrc, HrcParams
+from avdm.hrc_calibration import hrc_calibration
 from avdm.lgmd import LgmdColias, LgmdPlus
 from avdm.lgmd_params import LgmdColiasParams, LgmdPlusParams
 from avdm.plugins import (
@@ -30,6 +32,7 @@ from avdm.plugins import (
     is_reference,
     load_factory,
 )
+from avdm.policy import PolicyModel, load_policy
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,7 +71,6 @@ def _complete_hrc(params: Params) -> Params:
         return params
     # the response curve measured on 1/f clutter for this camera and these dynamics: once,
     # then cached (avdm.hrc_calibration); what the user fixed wins
-    from avdm.hrc_calibration import hrc_calibration
 
     cal = hrc_calibration(params)
     return params.replace(
@@ -144,24 +146,24 @@ _FALSE = {"0", "false", "no", "off"}
 def _parse_value(key: str, raw: str, typ: type) -> Any:
     raw = raw.strip()
     if raw == "":
-        raise ValueError(f"model override {key}= has no value")
+        raise ParameterError(f"model override {key}= has no value")
     if typ is bool:
         low = raw.lower()
         if low in _TRUE:
             return True
         if low in _FALSE:
             return False
-        raise ValueError(f"model override {key}={raw!r}: expected true or false")
+        raise ParameterError(f"model override {key}={raw!r}: expected true or false")
     if typ is int:
         try:
             return int(raw)
         except ValueError:
-            raise ValueError(f"model override {key}={raw!r}: expected an integer") from None
+            raise ParameterError(f"model override {key}={raw!r}: expected an integer") from None
     if typ is float:
         try:
             return float(raw)
         except ValueError:
-            raise ValueError(f"model override {key}={raw!r}: expected a number") from None
+            raise ParameterError(f"model override {key}={raw!r}: expected a number") from None
     return raw
 
 
@@ -173,7 +175,7 @@ POLICY_KEY = "policy"
 def _split_spec(spec: str) -> tuple[str, str | None, str | None]:
     """``(name, plug-in reference or None, override text or None)`` of a spec."""
     if not isinstance(spec, str) or not spec.strip():
-        raise ValueError("empty model spec: expected a name such as 'avdm' or 'avdm:beta=0.5'")
+        raise ParameterError("empty model spec: expected a name such as 'avdm' or 'avdm:beta=0.5'")
     text = spec.strip()
     parts = text.split(":", 2)
     named = parts[0] in VARIANTS or parts[0] in entry_point_models()
@@ -182,7 +184,7 @@ def _split_spec(spec: str) -> tuple[str, str | None, str | None]:
         return ref, ref, parts[2] if len(parts) == 3 else None
     m = _SPEC_RE.match(text)
     if m is None:
-        raise ValueError(
+        raise ParameterError(
             f"malformed model spec {spec!r}: expected name, name:key=value,... or "
             "package.module:factory[:key=value,...]"
         )
@@ -193,7 +195,7 @@ def _split_spec(spec: str) -> tuple[str, str | None, str | None]:
     if name in installed:
         return name, installed[name], m.group("over")
     known = sorted(VARIANTS) + sorted(installed)
-    raise ValueError(
+    raise ParameterError(
         f"unknown model {name!r}: known models are {', '.join(known)} (or a plug-in, "
         "package.module:factory)"
     )
@@ -218,16 +220,18 @@ def parse_model_spec(spec: str) -> tuple[str, dict[str, Any]]:
     overrides: dict[str, Any] = {}
     if over is not None:
         if not over.strip():
-            raise ValueError(f"model spec {spec!r} has ':' but no key=value overrides")
+            raise ParameterError(f"model spec {spec!r} has ':' but no key=value overrides")
         for item in over.split(","):
             if "=" not in item:
-                raise ValueError(f"model override {item.strip()!r} in {spec!r} is not key=value")
+                raise ParameterError(
+                    f"model override {item.strip()!r} in {spec!r} is not key=value"
+                )
             key, raw = (s.strip() for s in item.split("=", 1))
             if key == POLICY_KEY:
                 overrides[key] = _parse_value(key, raw, str)
                 continue
             if key not in types and not open_kw:
-                raise ValueError(
+                raise ParameterError(
                     f"unknown parameter {key!r} for model {name!r}: "
                     f"known parameters are {', '.join(types) or '(none)'}"
                 )
@@ -311,7 +315,6 @@ def make_model(spec: str, **context: Any) -> Model:
         model = KINDS[VARIANTS[name].kind].build(params, full)
     if policy is None:
         return model
-    from avdm.policy import PolicyModel, load_policy
 
     plan = load_policy(policy)
     profiler = make_model(plan.profile_model, **context)
@@ -333,7 +336,7 @@ def require_angular_velocity(spec: str, what: str) -> None:
             return
     if name not in VARIANTS or VARIANTS[name].kind not in ANGULAR_VELOCITY_KINDS:
         avdms = sorted(n for n, v in VARIANTS.items() if v.kind in ANGULAR_VELOCITY_KINDS)
-        raise ValueError(
+        raise ParameterError(
             f"{what} needs a model's angular velocity (omega_dps); {name} is a collision "
             f"detector without one: give an angular-velocity model ({', '.join(avdms)})"
         )
@@ -368,13 +371,13 @@ def check_detector(
     except Exception as exc:  # the user's code: one line
         first = str(exc).splitlines()[0] if str(exc) else ""
         why = first if isinstance(exc, ValueError) else f"{type(exc).__name__}: {first}"
-        raise ValueError(
+        raise ParameterError(
             f"{what} {model.name!r} cannot run on a {h}x{w} frame (HxW): {why}"
         ) from None
     names = [o.name for o in model.outputs] if not alert else ["alert"]
     lacking = [n for n in names if not isinstance(out, Mapping) or n not in out]
     if lacking and not alert:
-        raise ValueError(
+        raise ParameterError(
             f"model {model.name!r}: step() on a {h}x{w} frame (HxW) returned no "
             f"{', '.join(lacking)} (it declares {', '.join(names)})"
         )
@@ -385,7 +388,7 @@ def check_detector(
         isinstance(value, int | float | np.integer | np.floating) and np.isfinite(value)
     )
     if not finite:
-        raise ValueError(
+        raise ParameterError(
             f"detector {model.name!r} returned alert={value!r} on a {h}x{w} frame (HxW): it "
             "must be a finite number (1 = collision ahead, 0 = not) or a bool"
         )

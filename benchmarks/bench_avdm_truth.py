@@ -42,7 +42,7 @@ from analysis.complexity.avdm_truth import (
     FARNEBACK,
     FOV_DEG,
     IMAGES,
-    VARIANTS,
+    TRUTH_VARIANTS,
     Cell,
     cell_frames,
     lk_grid,
@@ -63,7 +63,7 @@ def speed(pitch: str) -> list[str]:
     h, w = frames.shape[1:]
     ctx = camera_model_context(w, h, 30.0, FOV_DEG)
     lines, rates = [], {}
-    for spec in VARIANTS:
+    for spec in TRUTH_VARIANTS:
         m = make_model(spec, **ctx)
         m.run(frames[:5])  # compile
         m.reset()

@@ -37,6 +37,7 @@ times and speed-ups: how the campaign scales on a cluster.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import tempfile
 import time
 from pathlib import Path
@@ -139,7 +140,7 @@ def coverage(repeats: int = 20, spread: float = 0.3, slope: float = 0.5) -> None
     import numpy as np
     import scipy.special
 
-    from analysis.experiments.adaptive import ProfileMap, design_runs
+    from analysis.experiments.adaptive import DesignSettings, ProfileMap, design_runs
 
     s = BoundarySettings(design="adaptive")
     profile = ProfileMap({k: (np.array(a), np.array(b)) for k, (a, b) in PROFILE.items()})
@@ -159,8 +160,8 @@ def coverage(repeats: int = 20, spread: float = 0.3, slope: float = 0.5) -> None
             return out
 
         rows, fits = design_runs(
-            [1.0], ["grating", "natural"], profile, s.tf_bounds(), run_batch, target=s.target,
-            budget=s.budget, precision_dps=s.precision, batch=2, seed=r,
+            [1.0], ["grating", "natural"], profile, s.tf_bounds(), run_batch,
+            dataclasses.replace(DesignSettings.of(s), batch=2, seed=r),
         )  # fmt: skip
         f = fits[1.0]
         hit = f.low <= truth <= f.high

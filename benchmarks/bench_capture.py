@@ -17,7 +17,8 @@ from avdm.registry import make_model
 from capture.config import SimConfig, WallConfig
 from capture.recorder import Recorder
 from capture.run import batch_bytes, log_batch
-from capture.sim import SimulatedRobot, recording_properties
+from capture.sim import recording_properties
+from capture.sim_robot import SimulatedRobot
 from vdc.blueprints import default_blueprint
 
 

@@ -1,4 +1,4 @@
-"""``vdc-capture sweep``: a grid of simulated runs (a campaign), each one executor task.
+"""``vdc-capture campaign``: a grid of simulated runs (a campaign), each one executor task.
 
 The grid is a few ``FIELD=V1,V2,...`` items over :class:`capture.sim.SimSettings` (the
 ``vdc-capture sim`` flags, same names), e.g.::
@@ -28,8 +28,10 @@ from typing import Any
 import polars as pl
 
 from avdm.registry import make_params
-from capture.sim import SimSettings
+from capture.run import REPLACE_OUTPUT
+from capture.sim import SimSettings, record_sim
 from vdc.cli_support import option
+from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback, TaskOutcome, run_tasks
 from vdc.parquet_io import WroteFiles, write_parquet
 
@@ -57,9 +59,9 @@ def _convert(field: str, kind: str, text: str) -> Any:
         if base == "bool":
             if text.lower() in _TRUE | _FALSE:
                 return text.lower() in _TRUE
-            raise ValueError(text)
+            raise UserError(text)
     except ValueError:
-        raise ValueError(f"grid item {field}: {text!r} is not a {base}") from None
+        raise UserError(f"grid item {field}: {text!r} is not a {base}") from None
     return text
 
 
@@ -90,7 +92,7 @@ def _values(field: str, kind: str, text: str) -> list[Any]:
     if m and kind.startswith("int"):
         lo, hi = int(m[1]), int(m[2])
         if hi < lo:
-            raise ValueError(f"grid item {field}={text}: the range runs backwards")
+            raise UserError(f"grid item {field}={text}: the range runs backwards")
         return list(range(lo, hi + 1))
     # a TF schedule holds commas itself: give several schedules separated by ';'
     if field == "tf_schedule":
@@ -101,7 +103,7 @@ def _values(field: str, kind: str, text: str) -> list[Any]:
         parts = text.split(",")
     values = [_convert(field, kind, v) for v in parts if v.strip()]
     if not values:
-        raise ValueError(f"grid item {field}= has no value")
+        raise UserError(f"grid item {field}= has no value")
     return values
 
 
@@ -114,17 +116,17 @@ def parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
         name, sep, text = item.partition("=")
         field = name.strip().lstrip("-").replace("-", "_")
         if not sep:
-            raise ValueError(f"grid item {item!r}: expected FIELD=V1,V2,...")
+            raise UserError(f"grid item {item!r}: expected FIELD=V1,V2,...")
         if field not in types:
-            raise ValueError(
+            raise UserError(
                 f"grid item {item!r}: {field!r} is not a vdc-capture sim setting "
                 f"(one of {', '.join(types)})"
             )
         if field in grid:
-            raise ValueError(f"grid item {field} is given twice")
+            raise UserError(f"grid item {field} is given twice")
         grid[field] = _values(field, types[field], text)
     if not grid:
-        raise ValueError("the grid is empty: give items such as tf_hz=0,1,3 seed=1..3")
+        raise UserError("the grid is empty: give items such as tf_hz=0,1,3 seed=1..3")
     return grid
 
 
@@ -134,8 +136,8 @@ def _token(value: Any) -> str:
 
 
 @dataclasses.dataclass(frozen=True)
-class CaptureSweepSettings(ExecutorSettings):
-    """``vdc-capture sweep``: the grid items, ``force`` to record finished runs again, and
+class CampaignSettings(ExecutorSettings):
+    """``vdc-capture campaign``: the grid items, ``force`` to record finished runs again, and
     where the runs go (``executor``, ``jobs``, ``scheduler``)."""
 
     grid: tuple[str, ...] = option(
@@ -155,7 +157,7 @@ class CaptureSweepSettings(ExecutorSettings):
         varied = {k: v for k, v in grid.items() if len(v) > 1}
         n_runs = math.prod(len(v) for v in varied.values())
         if n_runs > MAX_RUNS:
-            raise ValueError(
+            raise UserError(
                 f"the grid makes {n_runs:,} runs, more than {MAX_RUNS:,}: give fewer values "
                 "(or several sweeps)"
             )
@@ -174,7 +176,7 @@ class CaptureSweepSettings(ExecutorSettings):
 
 
 @dataclasses.dataclass
-class CaptureSweepResult(WroteFiles):
+class CampaignResult(WroteFiles):
     runs: pl.DataFrame  # one row per finished run
     planned: int
     skipped: int  # finished by an earlier invocation
@@ -201,8 +203,6 @@ def _settings_columns(settings: SimSettings, exclude: dict[str, Any]) -> dict[st
 def record_run(key: str, values: dict[str, Any], settings: SimSettings, out: str) -> dict[str, Any]:
     """One run of the grid, as an executor task: record it, then write its row (the done
     mark) atomically. Module-level, small arguments, a small result."""
-    from capture.run import REPLACE_OUTPUT
-    from capture.sim import record_sim
 
     rec = Path(out) / RECORDINGS / f"{key}.rrd"
     res = record_sim(settings, rec, REPLACE_OUTPUT)  # a partial file of a killed run is replaced
@@ -235,9 +235,9 @@ def collect_runs(out: str | Path, keys: Sequence[str]) -> pl.DataFrame:
     return df.with_columns(pl.col(events).fill_null(0)).sort("run")
 
 
-def capture_sweep(
-    settings: CaptureSweepSettings, out: str | Path, feedback: Feedback = QUIET
-) -> CaptureSweepResult:
+def campaign(
+    settings: CampaignSettings, out: str | Path, feedback: Feedback = QUIET
+) -> CampaignResult:
     """Record every run of the grid that has no row yet (all with ``force``) on the executor,
     then write ``OUT/runs.parquet``. A failed run is listed and does not stop the others."""
     t0 = time.perf_counter()
@@ -269,7 +269,7 @@ def capture_sweep(
     if table.height:
         meta = {"grid": list(settings.grid)}
         paths.append(write_parquet(table, out / "runs.parquet", meta))
-    return CaptureSweepResult(
+    return CampaignResult(
         table, len(runs), len(runs) - len(todo), outcomes, failures, paths,
         time.perf_counter() - t0,
     )  # fmt: skip

@@ -152,15 +152,15 @@ def cmd_video(args: argparse.Namespace) -> int:
     return rec.exit_status
 
 
-def cmd_sweep(args: argparse.Namespace) -> int:
-    from capture.campaign import CaptureSweepSettings, capture_sweep
+def cmd_campaign(args: argparse.Namespace) -> int:
+    from capture.campaign import CampaignSettings, campaign
     from vdc.executors import Feedback
 
-    settings = settings_from_args(CaptureSweepSettings, args)
+    settings = settings_from_args(CampaignSettings, args)
     total = len(settings.runs())
     # disable=None: a bar on terminals, silence in pipes and CI logs
-    with progress_bar(total, "sweep", "run", args.quiet) as bar:
-        res = capture_sweep(settings, args.out, Feedback(say, bar.update))
+    with progress_bar(total, "campaign", "run", args.quiet) as bar:
+        res = campaign(settings, args.out, Feedback(say, bar.update))
     ran = len(res.outcomes) - len(res.failures)
     print(
         f"{res.planned} runs: {res.skipped} already done, {ran} recorded, "
@@ -191,10 +191,8 @@ def add_output_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _sweep_inputs(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--out", default="results/capture-sweep", help="output folder (default: %(default)s)"
-    )
+def _campaign_inputs(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", default="results/campaign", help="output folder (default: %(default)s)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -250,9 +248,9 @@ COMMANDS = {
         "  vdc-capture video 0 --fov-deg 60 --spawn       # a webcam, live",
         inputs=lambda p: add_output_options(p, "recordings/video-<name>-<hash>.rrd"),
     ),
-    "sweep": Command(
-        "capture.campaign:CaptureSweepSettings",
-        cmd_sweep,
+    "campaign": Command(
+        "capture.campaign:CampaignSettings",
+        cmd_campaign,
         "a grid of simulated runs (a campaign), on all cores or a Dask cluster",
         "Record one simulated run per point of a grid over `vdc-capture sim`'s settings. Each "
         "GRID item is FIELD=V1,V2,... (a sim flag name; integers also as A..B); items with one "
@@ -262,13 +260,13 @@ COMMANDS = {
         "does not stop the others (exit status 1). At the end the rows become "
         "OUT/runs.parquet.",
         "examples:\n"
-        "  vdc-capture sweep behaviour=collision model=lgmd-plus-arena minutes=30 "
+        "  vdc-capture campaign behaviour=collision model=lgmd-plus-arena minutes=30 "
         "threshold=40,56,80 tf_hz=0,1,3 seed=1..5\n"
-        "  vdc-capture sweep tf_hz=0,1,3 seed=1..3 minutes=5 --executor dask "
+        "  vdc-capture campaign tf_hz=0,1,3 seed=1..3 minutes=5 --executor dask "
         "--scheduler tcp://head:8786\n"
-        "  vdc-analyse batch results/capture-sweep/recordings/*.rrd --model avdm --model "
+        "  vdc-analyse batch results/campaign/recordings/*.rrd --model avdm --model "
         "avdm:beta=0.5",
-        inputs=_sweep_inputs,
+        inputs=_campaign_inputs,
         models=True,
     ),
 }
@@ -284,7 +282,16 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
 
 
+# old sub-command names -> their names now: they still run, and say so (one line on stderr)
+ALIASES = {"sweep": "campaign"}  # `vdc-analyse sweep` is Fig. 3's, an unrelated command
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    old = next((a for a in argv if not a.startswith("-")), "")
+    if old in ALIASES:
+        print(f"{PROG} {old} is now {PROG} {ALIASES[old]} (an alias of it)", file=sys.stderr)
+        argv[argv.index(old)] = ALIASES[old]
     # a lost link closes the recording cleanly with everything received: exit 1, not 2
     stopped = {LinkLost: "; the recording holds every frame received before"}
     return run_command_line(PROG, build_parser(command_of(argv, COMMANDS)), argv, stopped)

@@ -21,6 +21,7 @@ logged under ``/model/controller/t_ffi``; the spike-rate alert threshold stays f
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 
@@ -29,6 +30,7 @@ from capture.config import CollisionConfig, SimConfig
 from capture.device import Batch, Event
 from capture.sim_robot import SimulatedRobot
 from vdc.arena_geometry import distance_ahead
+from vdc.errors import UserError
 
 FORWARD, AVOIDING, CRASH_TURN = 0, 1, 2
 CONTROLLER = "controller"  # on-board outputs of the decision itself
@@ -161,7 +163,6 @@ class ClosedLoopRobot(SimulatedRobot):
     def _nan_alert(self, frame: int) -> None:
         """A NaN alert reads as no alert; the first one is said in one line on stderr, and
         ``nan_alert_frames`` counts them all."""
-        import sys
 
         if self.nan_alert_frames == 0:
             print(
@@ -173,9 +174,9 @@ class ClosedLoopRobot(SimulatedRobot):
 
     def __init__(self, config: SimConfig, batch_size: int = 1000) -> None:
         if config.behaviour != "collision":
-            raise ValueError("ClosedLoopRobot needs behaviour='collision'")
+            raise UserError("ClosedLoopRobot needs behaviour='collision'")
         if config.arena.ring_enabled:
-            raise ValueError("the light ring must be off in collision mode (ring_enabled=False)")
+            raise UserError("the light ring must be off in collision mode (ring_enabled=False)")
         super().__init__(config, batch_size)
         ctx = config.camera.model_context()
         self._detector_spec = config.collision.detector_spec()

@@ -32,7 +32,7 @@ import numpy as np
 import serial
 
 from avdm.registry import canonical_name, make_model
-from capture.config import SimConfig
+from capture.config import CameraConfig, SimConfig, WallConfig
 from capture.serial_protocol import (
     TYPE_ANNOUNCE,
     TYPE_END,
@@ -51,6 +51,7 @@ from capture.serial_protocol import (
 )
 from capture.sim_robot import SimulatedRobot
 from vdc.cli_support import Settings, non_negative_float, non_negative_int, option, positive_float
+from vdc.errors import UserError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,9 +74,9 @@ class EmulatorConfig:
         for name in ("corrupt_rate", "drop_rate"):
             v = getattr(self, name)
             if not 0.0 <= v < 1.0:
-                raise ValueError(f"{name}={v!r} must be in [0, 1)")
+                raise UserError(f"{name}={v!r} must be in [0, 1)")
         if not (isinstance(self.decimation, int) and 1 <= self.decimation <= 1000):
-            raise ValueError(f"decimation={self.decimation!r} must be an integer 1-1000")
+            raise UserError(f"decimation={self.decimation!r} must be an integer 1-1000")
 
 
 class RobotEmulator:
@@ -114,12 +115,12 @@ class RobotEmulator:
         link = self.link
         if link.is_symlink():
             if not os.readlink(link).startswith("/dev/pts/"):
-                raise ValueError(
+                raise UserError(
                     f"--link {str(link)!r} is a link to {os.readlink(link)!r}, not to an "
                     "emulator's terminal; choose another path"
                 )
         elif link.exists():
-            raise ValueError(f"--link {str(link)!r} exists and is not a link; choose another path")
+            raise UserError(f"--link {str(link)!r} exists and is not a link; choose another path")
 
     def open_port(self) -> str:
         self._check_link()
@@ -268,7 +269,7 @@ class RobotEmulator:
             self.spec = canonical_name(self.spec)
         except ValueError as exc:  # a robot cannot run what it does not know: it says nothing
             self._finish()
-            raise ValueError(f"the host asked for a model this robot cannot run: {exc}") from None
+            raise UserError(f"the host asked for a model this robot cannot run: {exc}") from None
         self.report["model"] = self.spec
         self._model = model
         self._announce(model)
@@ -553,7 +554,6 @@ def emulate_robot(settings: EmulateSettings, announce: Callable[[str], None] | N
     """Run a simulated Colias-IV on a pseudo-terminal behind ``settings.link`` until its run
     ends; ``announce`` gets the pty's name once it exists. Returns what was injected (frames
     intact, corrupted, dropped, lost in disconnects). ValueError if no host sends START."""
-    from capture.config import CameraConfig, WallConfig
 
     emu = EmulatorConfig(
         corrupt_rate=settings.corrupt_rate,
@@ -567,7 +567,7 @@ def emulate_robot(settings: EmulateSettings, announce: Callable[[str], None] | N
         silent=settings.silent,
     )
     if not (settings.width_px <= 255 and settings.height_px <= 255):
-        raise ValueError("--width-px and --height-px are at most 255 (a FRAME's u8 fields)")
+        raise UserError("--width-px and --height-px are at most 255 (a FRAME's u8 fields)")
     if settings.model:
         make_model(settings.model)  # an unknown model fails before the port opens
     sim = SimConfig(
@@ -588,4 +588,4 @@ def emulate_robot(settings: EmulateSettings, announce: Callable[[str], None] | N
     try:
         return robot.run(wait_for_host_s=settings.wait, announce=announce)
     except TimeoutError as exc:
-        raise ValueError(str(exc)) from None
+        raise UserError(str(exc)) from None

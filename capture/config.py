@@ -13,6 +13,9 @@ import math
 import re
 from typing import Any
 
+from avdm.registry import VARIANTS, add_overrides, is_plugin
+from avdm.version import __version__
+from vdc.errors import UserError
 from vdc.recording import camera_model_context
 
 SCENES = ("grating", "natural")
@@ -22,7 +25,7 @@ DETECTORS = ("lgmd-plus", "lgmd-colias")
 
 def _check(cond: bool, name: str, value: Any, why: str) -> None:
     if not cond:
-        raise ValueError(f"{name}={value!r}: {why}")
+        raise UserError(f"{name}={value!r}: {why}")
 
 
 def _finite(v: Any) -> bool:
@@ -164,13 +167,13 @@ class RobotConfig:
 
 
 def check_below_nyquist(tf_hz: float, flag: str, fps: float | None = None) -> None:
-    """ValueError in one line naming ``flag`` when the wall TF ``tf_hz`` is not below the
+    """UserError in one line naming ``flag`` when the wall TF ``tf_hz`` is not below the
     Nyquist frequency of a camera at ``fps`` (default: the simulated camera's): a wall that
     drifts faster than half the frame rate aliases to a slower, even backward, drift, and a
     profile over it is not monotone."""
     fps = CameraConfig.fps if fps is None else fps
     if not tf_hz < fps / 2:
-        raise ValueError(
+        raise UserError(
             f"{flag} reaches {tf_hz:g} Hz, not below the camera's Nyquist frequency "
             f"{fps / 2:g} Hz (a {fps:g} Hz camera): a faster wall aliases; keep TFs below "
             f"{fps / 2:g} Hz"
@@ -266,8 +269,6 @@ class CollisionConfig:
     phase: str = ""  # a label for the study's tables, e.g. "TF 3 Hz, adjusted threshold"
 
     def __post_init__(self) -> None:
-        from avdm.registry import is_plugin
-
         plugin = is_plugin(self.detector)  # a bad spec fails here, in one line
         _check(
             plugin or self.base_detector in DETECTORS,
@@ -311,7 +312,6 @@ class CollisionConfig:
     @property
     def base_detector(self) -> str:
         """The detector's model kind (``lgmd-plus`` for ``lgmd-plus-arena:t_sr=80``)."""
-        from avdm.registry import VARIANTS
 
         name = self.detector.split(":", 1)[0].strip()
         return VARIANTS[name].kind if name in VARIANTS else name
@@ -320,7 +320,6 @@ class CollisionConfig:
         """The registry spec of the detector with its threshold applied."""
         if math.isnan(self.threshold):
             return self.detector
-        from avdm.registry import add_overrides
 
         if self.base_detector == "lgmd-plus":  # a spike-rate threshold
             return add_overrides(self.detector, f"t_sr={self.threshold:g}")
@@ -387,7 +386,6 @@ class SimConfig:
 
     def digest(self) -> str:
         """8 hex digits identifying this exact configuration (same config → same run)."""
-        from avdm import __version__  # a new vdc version records anew instead of reusing
 
         text = json.dumps({**self.to_sections(), "vdc": __version__}, sort_keys=True, default=str)
         return hashlib.sha1(text.encode()).hexdigest()[:8]
@@ -411,25 +409,25 @@ def parse_schedule(text: str) -> tuple[tuple[float, float], ...]:
     """``"0:30m,3:30m"`` → ``((0.0, 1800.0), (3.0, 1800.0))``: TF Hz and duration (s|m|h,
     seconds without a unit) per segment. Raises ValueError naming the bad segment."""
     if not text or not text.strip():
-        raise ValueError("empty TF schedule: expected e.g. 0:30m,3:30m (TF Hz : duration)")
+        raise UserError("empty TF schedule: expected e.g. 0:30m,3:30m (TF Hz : duration)")
     out = []
     for part in text.split(","):
         m = _SEGMENT.match(part)
         if m is None:
-            raise ValueError(
+            raise UserError(
                 f"TF schedule segment {part.strip()!r} is not TF:DURATION (e.g. 3:30m, 0:90s)"
             )
         try:
             tf = float(m.group(1))
             dur = float(m.group(2)) * _UNIT_S[m.group(3)]
         except ValueError:
-            raise ValueError(
+            raise UserError(
                 f"TF schedule segment {part.strip()!r} has a non-numeric value"
             ) from None
         if not (math.isfinite(tf) and 0 <= tf <= 100):
-            raise ValueError(f"TF {tf:g} Hz in schedule segment {part.strip()!r}: must be 0–100 Hz")
+            raise UserError(f"TF {tf:g} Hz in schedule segment {part.strip()!r}: must be 0–100 Hz")
         if not (math.isfinite(dur) and dur > 0):
-            raise ValueError(f"duration in schedule segment {part.strip()!r} must be > 0")
+            raise UserError(f"duration in schedule segment {part.strip()!r} must be > 0")
         out.append((tf, dur))
     return tuple(out)
 

@@ -20,6 +20,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from vdc.errors import UserError
 from vdc.recording import PARTIAL_SUFFIX, lock_path, partial_path
 
 __all__ = ["OutputClaim", "claim_output", "lock_path", "partial_path"]
@@ -27,14 +28,14 @@ __all__ = ["OutputClaim", "claim_output", "lock_path", "partial_path"]
 
 def _check_name(path: Path) -> None:
     if path.suffix != ".rrd":
-        raise ValueError(f"output {str(path)!r} must end in .rrd")
+        raise UserError(f"output {str(path)!r} must end in .rrd")
     if path.name.endswith(PARTIAL_SUFFIX):
-        raise ValueError(
+        raise UserError(
             f"output {str(path)!r} ends in {PARTIAL_SUFFIX}, the name of captures in progress; "
             "choose another --out"
         )
     if path.is_dir():
-        raise ValueError(f"output {str(path)!r} is a directory; give a file name ending in .rrd")
+        raise UserError(f"output {str(path)!r} is a directory; give a file name ending in .rrd")
 
 
 class OutputClaim:
@@ -62,7 +63,7 @@ class OutputClaim:
                     try:
                         os.link(self.partial, self.path)  # exclusive: fails if the name exists
                     except FileExistsError:
-                        raise ValueError(
+                        raise UserError(
                             f"{str(self.path)!r} appeared while recording; the recording is kept "
                             f"as {str(self.partial)!r}"
                         ) from None
@@ -100,13 +101,13 @@ def claim_output(path: Path, force: bool) -> OutputClaim:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise ValueError(f"cannot create the folder {str(path.parent)!r}: {exc.strerror}") from None
+        raise UserError(f"cannot create the folder {str(path.parent)!r}: {exc.strerror}") from None
     lock = lock_path(path)
     for _ in range(20):  # the lock file can be replaced between open and flock: retry
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
         except OSError as exc:
-            raise ValueError(
+            raise UserError(
                 f"cannot write in the folder {str(path.parent)!r}: {exc.strerror}"
             ) from None
         try:
@@ -114,11 +115,11 @@ def claim_output(path: Path, force: bool) -> OutputClaim:
         except OSError as exc:
             os.close(fd)
             if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
-                raise ValueError(
+                raise UserError(
                     f"another capture is writing {str(path)!r} right now; wait for it or "
                     "choose another --out"
                 ) from None
-            raise ValueError(f"cannot lock {str(lock)!r}: {exc.strerror}") from None
+            raise UserError(f"cannot lock {str(lock)!r}: {exc.strerror}") from None
         try:
             same = os.fstat(fd).st_ino == os.stat(lock).st_ino
         except FileNotFoundError:
@@ -127,25 +128,25 @@ def claim_output(path: Path, force: bool) -> OutputClaim:
             break
         os.close(fd)
     else:  # pragma: no cover - needs 20 lost races in a row
-        raise ValueError(f"could not lock {str(lock)!r}; try again")
+        raise UserError(f"could not lock {str(lock)!r}; try again")
     claim = OutputClaim(path, force, fd)
     try:
         # a probe write: a folder that accepts a lock file but no data (a full disk) fails here
         os.ftruncate(fd, 0)  # the pid names the live writer (vdc.recording.capture_writing)
         os.write(fd, f"{os.getpid()}\n".encode())
         if not force and path.exists():
-            raise ValueError(
+            raise UserError(
                 f"{str(path)!r} already exists (same configuration recorded before?): "
                 "pass --force to record it again, or choose --out"
             )
         if not force and claim.partial.exists():
-            raise ValueError(
+            raise UserError(
                 f"{str(claim.partial)!r} holds a capture that was cut short (killed?); analyse it "
                 "as it is, rename or remove it, or pass --force to replace it"
             )
     except OSError as exc:
         claim.release()
-        raise ValueError(
+        raise UserError(
             f"cannot write in the folder {str(path.parent)!r}: {exc.strerror}"
         ) from None
     except BaseException:

@@ -27,6 +27,7 @@ import rerun.blueprint as rrb
 from avdm.base import Output
 from capture.config import ArenaConfig
 from capture.live_view import LiveView, Tee, warn_line
+from vdc.errors import UserError
 from vdc.recording import (
     APP_ID,
     ARENA_RING,
@@ -204,7 +205,7 @@ class Recorder:
         (``vdc.recording.PROPERTY_SECTIONS``) is refused with ValueError, before any is sent."""
         unknown = [name for name in sections if name not in PROPERTY_SECTIONS]
         if unknown:
-            raise ValueError(
+            raise UserError(
                 f"property section(s) {', '.join(map(repr, unknown))} are not in the recording "
                 f"contract; allowed: {', '.join(PROPERTY_SECTIONS)} (vdc.recording)"
             )
@@ -430,7 +431,7 @@ class Recorder:
         """Sparse events of one ``kind``; those with a known arena position (N, 2) are also
         drawn there. A ``kind`` outside ``vdc.recording.EVENT_KINDS`` is refused (ValueError)."""
         if kind not in EVENT_KINDS:
-            raise ValueError(
+            raise UserError(
                 f"event kind {kind!r} is not in the recording contract; allowed: "
                 f"{', '.join(EVENT_KINDS)} (vdc.recording)"
             )

@@ -16,11 +16,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from capture.recorder import Recorder
+
 if TYPE_CHECKING:  # the Rerun SDK loads only when a recording starts
     import rerun.blueprint as rrb
 
     from avdm.base import Model
-    from capture.recorder import Recorder
 
 
 def model_sections(
@@ -99,7 +100,6 @@ def start_recording(
     """Open the recording of a capture at ``partial`` and write what every capture writes
     first: the properties (``sections`` and the model description of :func:`model_sections`),
     the model's output units and the description document. Returns the recorder."""
-    from capture.recorder import Recorder
 
     recorder = Recorder(partial, recording_id, blueprint=blueprint, live_url=live_url)
     recorder.send_properties(

@@ -21,7 +21,9 @@ import numba
 import numpy as np
 
 from capture.config import ArenaConfig, CameraConfig, WallConfig
+from capture.tracker import CORNER_IDS, ROBOT_ID, MarkerLayout, draw_marker
 from vdc.arena_geometry import ray_to_wall
+from vdc.errors import UserError
 
 TEXTURE_SUBCOLS = 4
 TEXTURE_SUBROWS = 2
@@ -227,7 +229,7 @@ class CameraRenderer:
         self._texture = None
         if wall.scene == "natural":
             if texture is None:
-                raise ValueError("a natural-scene wall needs its texture")
+                raise UserError("a natural-scene wall needs its texture")
             z = np.asarray(texture, dtype=np.float64)
             self._texture = np.ascontiguousarray(mean * (1.0 + wall.contrast * z), np.float32)
 
@@ -253,8 +255,6 @@ class OverheadRenderer:
     def __init__(
         self, arena: ArenaConfig, robot_radius_m: float, px_per_m: float, markers: bool = False
     ) -> None:
-        from capture.tracker import MarkerLayout
-
         self.arena = arena
         self.px_per_m = px_per_m
         self.radius_m = robot_radius_m
@@ -282,8 +282,6 @@ class OverheadRenderer:
         )
         cv2.rectangle(base, self.to_px(-hx, hy), self.to_px(hx, -hy), 200, 2)  # walls
         if markers:  # ArUco corner markers for the tracker's calibration
-            from capture.tracker import CORNER_IDS, draw_marker
-
             for marker_id, (cx, cy) in zip(CORNER_IDS, self.layout.corner_centres(), strict=True):
                 px, py = self._to_px_f(cx, cy)
                 draw_marker(base, marker_id, (px, py), self.layout.corner_size_m * px_per_m, 0.0)
@@ -307,8 +305,6 @@ class OverheadRenderer:
         img = self._base.copy()
         x, y, hd = (float(v) for v in pose)
         if self.markers:  # the robot's marker, x axis along its heading, on a dark disc
-            from capture.tracker import ROBOT_ID, draw_marker
-
             c = self._to_px_f(x, y)
             cv2.circle(
                 img,

@@ -17,6 +17,7 @@ never announces (older firmware) is recorded with its model marked unverified.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import sys
 import time
@@ -30,16 +31,36 @@ import serial
 
 from avdm.registry import canonical_name, make_model
 from capture.colias_link import SerialLink
-from capture.config import SCENES, WallConfig
+from capture.config import (
+    SCENES,
+    ArenaConfig,
+    RobotConfig,
+    WallConfig,
+    config_section,
+    parse_schedule,
+)
 from capture.device import Batch, DeviceContext, Event
+from capture.output import claim_output
+from capture.recording_start import camera_line, start_recording
 from capture.robot_contract import accepted_model, announcement_change, frame_problem
-from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
+from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
-from capture.tracker import MarkerLayout, calibrate, load_calibration, robot_pose
+from capture.tracker import (
+    MarkerLayout,
+    calibrate_homography,
+    load_calibration,
+    robot_pose,
+    save_calibration,
+)
+from capture.wall_controller import WallController as WallController  # re-exported
+from vdc.blueprints import default_blueprint
 from vdc.cli_support import Settings, non_negative_float, option, positive_float
-from vdc.recording import camera_model_context
+from vdc.errors import UserError
+from vdc.parquet_io import WroteFiles
+from vdc.provenance import machine_info, package_versions
+from vdc.recording import LINK_STATS, camera_model_context
 
-LINK_STATS = (
+LINK_COUNTERS = (
     "packets",
     "bad_crc",
     "bad_length",
@@ -83,10 +104,10 @@ def open_camera(source: str) -> cv2.VideoCapture:
     else:
         is_pattern = "%" in source
         if not is_pattern and not Path(source).exists():
-            raise ValueError(f"overhead camera {source!r}: no such file or camera index")
+            raise UserError(f"overhead camera {source!r}: no such file or camera index")
         cap = cv2.VideoCapture(source, cv2.CAP_IMAGES if is_pattern else cv2.CAP_ANY)
     if not cap.isOpened():
-        raise ValueError(f"overhead camera {source!r} cannot be opened")
+        raise UserError(f"overhead camera {source!r} cannot be opened")
     return cap
 
 
@@ -123,7 +144,7 @@ class ColiasRobotDevice(DeviceContext):
         try:
             self.link.open()
         except (serial.SerialException, OSError) as exc:
-            raise ValueError(
+            raise UserError(
                 f"cannot open the robot's serial port {cfg.port!r}: "
                 f"{getattr(exc, 'strerror', None) or exc}"
             ) from None
@@ -139,7 +160,7 @@ class ColiasRobotDevice(DeviceContext):
             problem = None if first is None else self._frame_problem(first)
             if problem is not None:
                 said = "announced" if self.announced is not None else "assumed (no announcement)"
-                raise ValueError(
+                raise UserError(
                     f"the robot's first frame does not match what was {said}: {problem}"
                 )
         except BaseException:
@@ -157,7 +178,7 @@ class ColiasRobotDevice(DeviceContext):
         self.lost = 0
         self.duplicates = 0
         self.tracking = True
-        self._reported = dict.fromkeys(LINK_STATS, 0)
+        self._reported = dict.fromkeys(LINK_COUNTERS, 0)
         self._disconnect_events: list[str] = []
         self.link_error: str | None = None  # why the run ended early: the robot broke its word
         self._connected = True
@@ -208,7 +229,7 @@ class ColiasRobotDevice(DeviceContext):
             self._cam_next += 1
             grey = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
             if self.h is None:
-                self.h = calibrate(grey, self.cfg.layout)
+                self.h = calibrate_homography(grey, self.cfg.layout)
             self.samples.append((stamp, robot_pose(grey, self.h)))
             if not self._video:
                 return
@@ -329,7 +350,7 @@ class ColiasRobotDevice(DeviceContext):
         stats = self.link_stats()
         changes = [
             f"{k} +{stats[k] - self._reported[k]}"
-            for k in LINK_STATS[1:]
+            for k in LINK_COUNTERS[1:]
             if stats[k] > self._reported[k]
         ]
         # a fault that ends the run is noted at the last frame kept, a reconnection at the first
@@ -378,29 +399,6 @@ class ColiasRobotDevice(DeviceContext):
             self._connected = False
 
 
-class WallController:
-    """Optional LED wall controller on a second serial port; a line protocol (ASCII, \\n):
-    ``TF <hz> PERIOD <m> SCENE <grating|natural>`` whenever the TF in force changes."""
-
-    def __init__(self, port: str, wall: WallConfig) -> None:
-        try:
-            self.ser = serial.Serial(port, 115200, timeout=0.1)
-        except (serial.SerialException, OSError) as exc:
-            raise ValueError(
-                f"cannot open the wall controller port {port!r}: "
-                f"{getattr(exc, 'strerror', None) or exc}"
-            ) from None
-        self.wall = wall
-        self.last: float | None = None
-
-    def update(self, tf_hz: float) -> None:
-        if tf_hz != self.last:
-            line = f"TF {tf_hz:.3f} PERIOD {self.wall.drift_period_m:.4f} SCENE {self.wall.scene}\n"
-            self.ser.write(line.encode("ascii"))
-            self.ser.flush()
-            self.last = tf_hz
-
-
 def _warn(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
@@ -440,8 +438,6 @@ class RobotSettings(Settings):
     )
 
     def wall(self) -> WallConfig:
-        from capture.config import parse_schedule
-
         schedule: tuple[tuple[float, float], ...] = ((self.tf_hz, 48 * 3600.0),)
         if self.tf_schedule:
             text = self.tf_schedule
@@ -452,15 +448,22 @@ class RobotSettings(Settings):
         return WallConfig(tf_schedule=schedule, period_m=self.period_m, scene=self.scene)
 
 
-@dataclasses.dataclass
-class RobotRecordResult:
-    """A robot recording and the serial link's counts."""
+@dataclasses.dataclass(kw_only=True)
+class RobotRecordResult(WroteFiles):
+    """A robot recording and the serial link's counts; ``paths``: the recording, and the
+    tracker's calibration when it was saved."""
 
     record: RecordResult
     link_stats: dict[str, int]
     # why the run ended early, when the robot broke what it announced (a frame of another
     # size or output count, another announcement mid-run); the frames before it are kept
     link_error: str | None = None
+
+    calibration_file: Path | None = None
+
+    @property
+    def paths(self) -> list[Path]:  # type: ignore[override]
+        return [self.record.path, *([self.calibration_file] if self.calibration_file else [])]
 
 
 def record_robot(
@@ -476,15 +479,6 @@ def record_robot(
     outputs), raises ValueError before the file exists. A robot that does not announce itself
     is recorded with ``model.verified`` false, and ``warn`` (default: stderr) says so in one
     line."""
-    import hashlib
-
-    from capture.config import ArenaConfig, RobotConfig, config_section
-    from capture.output import claim_output
-    from capture.recording_start import camera_line, start_recording
-    from capture.run import finish_output, run_capture
-    from vdc.blueprints import default_blueprint
-    from vdc.provenance import machine_info, package_versions
-    from vdc.recording import LINK_STATS as LINK_STATS_ENTITY
 
     wall = settings.wall()
     schedule = wall.tf_schedule
@@ -524,7 +518,7 @@ def record_robot(
             rid,
             live_url=live,
             blueprint=default_blueprint(
-                model.name, model.outputs, [("serial link counts", [LINK_STATS_ENTITY])]
+                model.name, model.outputs, [("serial link counts", [LINK_STATS])]
             ),
             model=model,
             context=context,
@@ -569,7 +563,7 @@ def record_robot(
                 },
                 "link": {
                     "protocol": "vdc serial v1 (docs/robot.md)",
-                    "stats": ",".join(LINK_STATS),
+                    "stats": ",".join(LINK_COUNTERS),
                     "announce": "received" if verified else "none (older firmware?)",
                 },
                 "provenance": {**package_versions(), **machine_info()},
@@ -577,11 +571,9 @@ def record_robot(
         )
         recorder.log_arena(arena, RobotConfig().radius_m)
         if settings.save_calibration:
-            from capture.tracker import save_calibration
-
             h = device.calibrate_tracker()
             if h is None:
-                raise ValueError("no overhead frame yet to calibrate from")
+                raise UserError("no overhead frame yet to calibrate from")
             save_calibration(h, Path(settings.save_calibration))
         if options.log is not None:
             options.log(
@@ -591,5 +583,8 @@ def record_robot(
     finally:
         finish_output(claim, recorder)
     return RobotRecordResult(
-        RecordResult.of(path, rid, result, None), device.link_stats(), device.link_error
+        record=RecordResult.of(path, rid, result, None),
+        link_stats=device.link_stats(),
+        calibration_file=Path(settings.save_calibration) if settings.save_calibration else None,
+        link_error=device.link_error,
     )

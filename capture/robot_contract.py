@@ -17,6 +17,7 @@ from collections.abc import Mapping, Sequence
 from avdm.base import Model
 from avdm.registry import canonical_name, make_model, same_model
 from capture.serial_protocol import Announcement, FramePacket
+from vdc.errors import UserError
 
 
 def accepted_model(a: Announcement, asked: str) -> Model:
@@ -27,20 +28,20 @@ def accepted_model(a: Announcement, asked: str) -> Model:
     robot_outputs = [f"{n} [{u}]" for n, u in a.outputs]
     problem = a.problem()
     if problem is not None:
-        raise ValueError(f"the robot announces {problem}: its firmware sends a broken camera")
+        raise UserError(f"the robot announces {problem}: its firmware sends a broken camera")
     # by parameters, not spelling: a robot running avdm:beta=0.25 runs avdm (beta 0.25)
     if not same_model(a.model, want, **a.model_context()):
-        raise ValueError(
+        raise UserError(
             f"the robot runs {a.model} (outputs {', '.join(robot_outputs) or 'none'}), not "
             f"--model {asked}: give --model {a.model}, or load {want} on the robot"
         )
     try:
         host = make_model(want, **a.model_context())
     except ValueError as exc:
-        raise ValueError(f"the robot's announced camera does not fit {want}: {exc}") from None
+        raise UserError(f"the robot's announced camera does not fit {want}: {exc}") from None
     host_outputs = [f"{o.name} [{o.unit}]" for o in host.outputs]
     if robot_outputs != host_outputs:
-        raise ValueError(
+        raise UserError(
             f"the robot's {a.model} sends {len(robot_outputs)} outputs "
             f"({', '.join(robot_outputs) or 'none'}) but {want} has {len(host_outputs)} "
             f"({', '.join(host_outputs)}): the robot's firmware and vdc disagree on the model"

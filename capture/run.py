@@ -18,10 +18,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from avdm.base import Model
 from avdm.true_time import TrueTimeModel
 from capture.device import Batch, CaptureDevice
+from capture.live_view import spawn_viewer
 from capture.output import OutputClaim
 from capture.recorder import Recorder, RecordingWriteError
 
@@ -103,7 +105,6 @@ class CaptureOptions:
     def viewer_url(self) -> str | None:
         """Where the recording streams live as well: a new viewer (``spawn``), ``live_url``,
         or nowhere (None)."""
-        from capture.live_view import spawn_viewer
 
         return spawn_viewer() if self.spawn else self.live_url
 
@@ -247,7 +248,6 @@ def run_capture(
     progress: bool = True,
 ) -> CaptureResult:
     """Read the device to its end (or a signal), logging every batch; always closes cleanly."""
-    from tqdm import tqdm
 
     t0 = time.perf_counter()
     frames = 0

@@ -14,14 +14,30 @@ from typing import Any
 
 import numpy as np
 
-from avdm import __version__
-from avdm.base import Model
-from capture.config import SCENES, SimConfig
-from capture.recording_start import model_sections
-from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
+from avdm.base import Model, Output
+from avdm.registry import make_model
+from avdm.version import __version__
+from capture.closed_loop import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
+from capture.config import (
+    SCENES,
+    ArenaConfig,
+    CameraConfig,
+    CollisionConfig,
+    OverheadConfig,
+    RobotConfig,
+    SimConfig,
+    WallConfig,
+    parse_schedule,
+)
+from capture.output import claim_output
+from capture.recording_start import model_sections, start_recording
+from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from capture.sim_robot import SimulatedRobot, load_wall_image, ring_turn_event  # noqa: F401
+from vdc.blueprints import default_blueprint
 from vdc.cli_support import Settings, non_negative_float, non_negative_int, option, positive_float
+from vdc.errors import UserError
 from vdc.provenance import machine_info, package_versions
+from vdc.recording import model_path
 
 
 def recording_properties(
@@ -114,16 +130,6 @@ class SimSettings(Settings):
         check_below_nyquist(self.tf_hz, "--tf-hz")  # before any run: a faster wall aliases
 
     def to_config(self) -> SimConfig:
-        from capture.config import (
-            ArenaConfig,
-            CameraConfig,
-            CollisionConfig,
-            OverheadConfig,
-            RobotConfig,
-            WallConfig,
-            parse_schedule,
-        )
-
         if self.tf_schedule is not None:
             schedule = parse_schedule(self.tf_schedule)
             total = sum(d for _, d in schedule)
@@ -132,7 +138,7 @@ class SimSettings(Settings):
             duration = (self.minutes if self.minutes is not None else 30.0) * 60
             schedule = ((self.tf_hz, duration),)
         if self.image and self.scene != "natural":
-            raise ValueError("--image gives a natural scene: use it with --scene natural")
+            raise UserError("--image gives a natural scene: use it with --scene natural")
         wall = WallConfig(
             scene=self.scene,
             period_m=self.period_m,
@@ -158,7 +164,7 @@ class SimSettings(Settings):
                 ("--phase", bool(self.phase)),
             ):
                 if given:
-                    raise ValueError(f"{flag} belongs to --behaviour collision")
+                    raise UserError(f"{flag} belongs to --behaviour collision")
             col = CollisionConfig()
             model = self.model or "avdm"
         return SimConfig(
@@ -183,13 +189,6 @@ def record_sim(
     """Simulate a run and write it to ``out`` (default ``recordings/<run id>.rrd``), as
     ``options`` say (replace, stream live, a bar, a line of log). Ctrl-C or SIGTERM (in the
     main thread) ends the run cleanly: the result says so and the file is valid."""
-    from avdm.registry import make_model
-    from capture.closed_loop import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
-    from capture.output import claim_output
-    from capture.recording_start import start_recording
-    from capture.run import finish_output, run_capture
-    from vdc.blueprints import default_blueprint
-    from vdc.recording import model_path
 
     config = settings.to_config()
     ctx = config.camera.model_context()
@@ -263,8 +262,6 @@ def record_sim(
         )
         recorder.log_arena(config.arena, config.robot.radius_m)
         if detector is not None:
-            from avdm.base import Output
-
             recorder.log_model_meta(detector.name, detector.outputs)
             recorder.log_model_meta(
                 CONTROLLER, tuple(Output(k, u, d) for k, (u, d) in CONTROLLER_OUTPUTS.items())

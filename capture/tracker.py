@@ -18,6 +18,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vdc.errors import UserError
+
 DICTIONARY = cv2.aruco.DICT_4X4_50
 CORNER_IDS = (0, 1, 2, 3)
 ROBOT_ID = 10
@@ -55,18 +57,18 @@ def detect(image: np.ndarray) -> dict[int, np.ndarray]:
     return {int(i): c.reshape(4, 2) for i, c in zip(ids.ravel(), corners, strict=True)}
 
 
-def calibrate(image: np.ndarray, layout: MarkerLayout) -> np.ndarray:
+def calibrate_homography(image: np.ndarray, layout: MarkerLayout) -> np.ndarray:
     """Homography (3, 3) from image pixels to arena metres, from the four corner markers.
 
     Raises ValueError naming the markers it could not see."""
     found = detect(image)
     missing = [i for i in CORNER_IDS if i not in found]
     if missing:
-        raise ValueError(f"overhead calibration: corner marker(s) {missing} not visible")
+        raise UserError(f"overhead calibration: corner marker(s) {missing} not visible")
     px = np.array([found[i].mean(axis=0) for i in CORNER_IDS], dtype=np.float64)
     h, _ = cv2.findHomography(px, layout.corner_centres(), 0)
     if h is None:
-        raise ValueError("overhead calibration: the corner markers give no homography")
+        raise UserError("overhead calibration: the corner markers give no homography")
     return h
 
 
@@ -79,9 +81,9 @@ def load_calibration(path: Path) -> np.ndarray:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
         h = np.array(data["homography_px_to_m"], dtype=np.float64)
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"cannot read the tracker calibration {str(path)!r}: {exc}") from None
+        raise UserError(f"cannot read the tracker calibration {str(path)!r}: {exc}") from None
     if h.shape != (3, 3):
-        raise ValueError(f"tracker calibration {str(path)!r} is not a 3x3 homography")
+        raise UserError(f"tracker calibration {str(path)!r} is not a 3x3 homography")
     return h
 
 

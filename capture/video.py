@@ -28,8 +28,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from avdm.avdm_model import AvdmParams
+from avdm.avdm_multiscale import AvdmMultiScaleParams
+from avdm.calibration_store import calibration_for
+from avdm.registry import make_model
+from avdm.true_time import TrueTimeModel, new_frame_rate
 from capture.device import Batch, DeviceContext, Event
-from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult
+from capture.output import claim_output
+from capture.recording_start import start_recording
+from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
+from vdc.blueprints import video_blueprint
 from vdc.cli_support import (
     API_ONLY,
     Settings,
@@ -38,7 +46,10 @@ from vdc.cli_support import (
     option,
     positive_float,
 )
+from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher
+from vdc.parquet_io import WroteFiles
+from vdc.provenance import machine_info, package_versions
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 from vdc.sources import (
     Reader,
@@ -84,13 +95,13 @@ class VideoSettings(Settings):
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.fov_deg) and 1.0 <= self.fov_deg <= 360.0):
-            raise ValueError(f"--fov-deg must be between 1 and 360 degrees, got {self.fov_deg:g}")
+            raise UserError(f"--fov-deg must be between 1 and 360 degrees, got {self.fov_deg:g}")
         if self.fps is not None and not (math.isfinite(self.fps) and 0 < self.fps <= 10_000):
-            raise ValueError(f"--fps must be between 0 and 10000 Hz, got {self.fps:g}")
+            raise UserError(f"--fps must be between 0 and 10000 Hz, got {self.fps:g}")
         if self.width is not None and not 8 <= self.width <= 4096:
-            raise ValueError(f"--width must be between 8 and 4096 px, got {self.width}")
+            raise UserError(f"--width must be between 8 and 4096 px, got {self.width}")
         if not (self.repeat_tol >= 0 and self.max_repeats >= 0):
-            raise ValueError("--repeat-tol and --max-repeats must be >= 0")
+            raise UserError("--repeat-tol and --max-repeats must be >= 0")
 
     @property
     def kind(self) -> str:
@@ -119,7 +130,7 @@ class VideoSource(DeviceContext):
         self.info = self.reader.info
         fps = settings.fps or self.info["nominal_fps"]
         if not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"{settings.source!r} states no frame rate: pass --fps")
+            raise UserError(f"{settings.source!r} states no frame rate: pass --fps")
         self.fps = float(fps)
         self._batches: FrameBatcher | None = None
         self._peeked: Batch | None = None
@@ -136,8 +147,8 @@ class VideoSource(DeviceContext):
         if self._batches is None:
             s = self.settings
             self._batches = FrameBatcher(
-                self.reader, self.working_size(), self.fps, s.batch_frames, s.repeat_tol,
-                s.max_repeats,
+                self.reader, self.working_size(), self.fps, batch_frames=s.batch_frames,
+                repeat_tol=s.repeat_tol, max_repeats=s.max_repeats,
             )  # fmt: skip
 
     @property
@@ -230,8 +241,8 @@ class VideoSource(DeviceContext):
         self.reader.close()
 
 
-@dataclasses.dataclass
-class VideoRecordResult:
+@dataclasses.dataclass(kw_only=True)
+class VideoRecordResult(WroteFiles):
     """A video recording, with what was found about the source's frames."""
 
     record: RecordResult
@@ -246,6 +257,11 @@ class VideoRecordResult:
     # those of them lost after the last frame read (counted in ``dropped``; None: unknown)
     container_frames: int | None = None
     lost_after_last: int | None = None
+
+    @property
+    def paths(self) -> list[Path]:  # type: ignore[override]
+        """The files it wrote: the recording (a calibration it fitted is a per-user cache)."""
+        return [self.record.path]
 
 
 def recording_id(settings: VideoSettings, out: str | Path | None = None) -> str:
@@ -264,8 +280,6 @@ def recording_id(settings: VideoSettings, out: str | Path | None = None) -> str:
 
 def _calibrated(model: Any) -> Any:
     """The params whose calibration the recording reports (the AVDM kinds), else None."""
-    from avdm.avdm_model import AvdmParams
-    from avdm.avdm_multiscale import AvdmMultiScaleParams
 
     p = model.params
     return p if isinstance(p, AvdmParams | AvdmMultiScaleParams) else None
@@ -283,20 +297,12 @@ def record_video(
     the cells of a calibration fit when this camera needs one. A missing, empty or unreadable
     source raises ValueError before the file exists; a file cut short keeps the frames before
     the cut."""
-    from avdm.calibration_store import calibration_for
-    from avdm.registry import make_model
-    from avdm.true_time import TrueTimeModel, new_frame_rate
-    from capture.output import claim_output
-    from capture.recording_start import start_recording
-    from capture.run import finish_output, run_capture
-    from vdc.blueprints import video_blueprint
-    from vdc.provenance import machine_info, package_versions
 
     rid = recording_id(settings, out)
     path = options.output_path(out, rid)
     src = Path(settings.source)
     if settings.kind == "file" and path.exists() and src.exists() and src.samefile(path):
-        raise ValueError(
+        raise UserError(
             f"the output {str(path)!r} is the source video: writing it would destroy the input; "
             "choose another --out"
         )
@@ -401,14 +407,14 @@ def record_video(
         # the frames end well before the duration the header states: the file was cut
         error = ends["cut_note"]
     return VideoRecordResult(
-        RecordResult.of(path, rid, result, total),
-        info,
-        device.repeats_total,
-        ends["dropped_frames"],
-        error,
-        cal,
-        device.reader.problems,
-        device.reader.first_problem,
-        ends["container_frames"],
-        ends["lost_after_last"],
+        record=RecordResult.of(path, rid, result, total),
+        info=info,
+        repeats=device.repeats_total,
+        dropped=ends["dropped_frames"],
+        decode_error=error,
+        calibration=cal,
+        lost=device.reader.problems,
+        first_loss=device.reader.first_problem,
+        container_frames=ends["container_frames"],
+        lost_after_last=ends["lost_after_last"],
     )

@@ -105,7 +105,7 @@ def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.P
     """Start a 60-minute simulated capture to ``out`` and wait until its partial file (where a
     capture writes until it ends) holds at least ``min_bytes`` (failing if it does not within
     60 s); the caller stops it."""
-    from capture.output import partial_path
+    from vdc.recording import partial_path
 
     argv = ["-m", "capture", "sim", "--tf-hz", "3", "--minutes", "60", "--out", str(out)]
     proc = spawn(

@@ -496,7 +496,7 @@ def test_a_damaged_batch_part_is_recomputed_not_counted_as_done(tmp_path: Path) 
 def test_a_sweep_killed_mid_run_leaves_no_worker_and_resumes(tmp_path: Path) -> None:
     out = tmp_path / "sweep"
     env = {**os.environ, "VDC_OVERSUBSCRIBE": "1"}  # two workers even on a one-core runner
-    cmd = [PY, "-m", "capture", "sweep", "minutes=10", "seed=1,2", "--jobs", "2"]
+    cmd = [PY, "-m", "capture", "campaign", "minutes=10", "seed=1,2", "--jobs", "2"]
     cmd += ["--out", str(out), "--quiet"]
     parent = spawn(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     recs = out / "recordings"

@@ -31,6 +31,8 @@ import importlib
 from importlib.metadata import version as _version
 from typing import Any
 
+from vdc.lazy import api_stub as _api_stub
+
 # name -> module that defines it
 _API = {
     # capture
@@ -41,21 +43,24 @@ _API = {
     "RobotSettings": "capture.robot_capture",
     "record_robot": "capture.robot_capture",
     "CaptureOptions": "capture.run",
-    "CaptureSweepSettings": "capture.campaign",
-    "capture_sweep": "capture.campaign",
+    "CampaignSettings": "capture.campaign",
+    "campaign": "capture.campaign",
     # reading recordings
     "Recording": "analysis.recordings.reader",
     "load_recording": "analysis.recordings.loading",
     # analysis
     "TablesSettings": "analysis.recordings.recompute",
     "tables": "analysis.recordings.recompute",
-    "ProfileSettings": "analysis.profile",
+    "ProfileSettings": "analysis.recordings.segments",
     "profile": "analysis.profile",
     "CompareSettings": "analysis.compare",
     "compare": "analysis.compare",
     "ComplexitySettings": "analysis.complexity.command",
     "complexity": "analysis.complexity.command",
     "complexity_of_frames": "analysis.complexity.command",
+    # a robot-learning dataset (LeRobot), episode by episode
+    "DatasetSettings": "analysis.dataset.command",
+    "dataset": "analysis.dataset.command",
     # many recordings as one dataset, and inline viewing (extras: catalog, notebook)
     "CatalogSettings": "analysis.catalog.build",
     "open_catalog": "analysis.catalog.server",
@@ -71,7 +76,7 @@ _API = {
     "calibrate": "analysis.experiments.calibrate",
     "CollisionStudySettings": "analysis.experiments.collision_study",
     "collision_study": "analysis.experiments.collision_study",
-    "ReproduceSettings": "analysis.experiments.reproduce",
+    "ReproduceSettings": "analysis.experiments.plan",
     "reproduce": "analysis.experiments.reproduce",
     # where a detector breaks, and a learnt policy tested where it was not learnt
     "BoundarySettings": "analysis.boundary.command",
@@ -118,3 +123,9 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return sorted([*globals(), *_API, *_MODULES])
+
+
+def _stub() -> str:
+    """The text of ``vdc/__init__.pyi`` (``vdc.lazy.api_stub``): regenerate it with
+    ``python -c 'import vdc; open("vdc/__init__.pyi", "w").write(vdc._stub())'``."""
+    return _api_stub(_API, _RENAMED, _MODULES, "__version__: str")

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import math
 import sys
 import textwrap
 from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
+
+from tqdm import tqdm
 
 from vdc.errors import UserError
 
@@ -169,7 +172,6 @@ def say(message: str) -> None:
 def progress_bar(total: int | None, desc: str, unit: str = "cell", quiet: bool = False) -> Any:
     """A tqdm bar on stderr for long work: on terminals only (``disable=None`` keeps pipes and
     CI logs clean), or never with ``quiet``."""
-    from tqdm import tqdm
 
     disable = True if quiet else None
     return tqdm(total=total, desc=desc, unit=unit, disable=disable, leave=False, file=sys.stderr)
@@ -379,7 +381,6 @@ def settings_from_args(cls: type, args: argparse.Namespace, **extra: Any) -> Any
 
 def load_settings_class(target: str) -> type:
     """``"package.module:ClassName"`` → the class (the command lines name their settings so)."""
-    import importlib
 
     module, _, name = target.partition(":")
     return getattr(importlib.import_module(module), name)
@@ -406,7 +407,7 @@ def command_line(
     """The parser of a command line. The flags of sub-command ``command`` are generated from
     its settings (only its modules load, so a command line starts fast); None generates every
     sub-command's (the CLI reference), "" none (the top-level help)."""
-    from avdm.registry import describe_models
+    from avdm.registry import describe_models  # lazy: start-up
 
     parser = OneLineParser(
         prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -469,21 +470,34 @@ def reference_page(
     return lines
 
 
+def raised_on_purpose(exc: BaseException) -> bool:
+    """Whether ``exc`` is an error vdc raises on purpose for bad input: a :class:`UserError` or
+    the models' ``avdm.errors.ParameterError`` (looked up, not imported: if avdm is not loaded,
+    no model raised one, and a command line's start stays light)."""
+    models = sys.modules.get("avdm.errors")
+    return isinstance(exc, UserError) or (
+        models is not None and isinstance(exc, models.ParameterError)
+    )
+
+
 def run_command_line(
     prog: str,
     parser: argparse.ArgumentParser,
     argv: Sequence[str] | None,
     stopped: dict[type[Exception], str] | None = None,
 ) -> int:
-    """Parse ``argv`` and run the sub-command. Bad input (:class:`UserError`, ValueError, an
-    OSError on a named file) is one line and exit status 2; an exception of a type in
-    ``stopped`` (work stopped with what was done kept) is its message plus that text, exit
-    1; Ctrl-C is exit 130. Anything else is a bug, and its traceback is kept."""
+    """Parse ``argv`` and run the sub-command. Bad input (the errors vdc raises on purpose:
+    :class:`UserError`, the models' :class:`ParameterError`; an OSError on a named file) is one
+    line and exit status 2; an exception of a type in ``stopped`` (work stopped with what was
+    done kept) is its message plus that text, exit 1; Ctrl-C is exit 130. Anything else (a
+    ValueError from NumPy or polars included) is a bug: its traceback is kept, exit 1."""
     args = parser.parse_args(argv)
     where = f"{prog} {args.command}"
     try:
         return int(args.func(args) or 0)
-    except (UserError, ValueError) as exc:
+    except ValueError as exc:
+        if not raised_on_purpose(exc):
+            raise
         fail(where, str(exc))
     except OSError as exc:
         fail(where, f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": "))

@@ -8,5 +8,5 @@ with status 2. Any other exception is a bug and keeps its traceback.
 from __future__ import annotations
 
 
-class UserError(Exception):
+class UserError(ValueError):
     """A problem with the user's input: printed as one line, exit status 2."""

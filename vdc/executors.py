@@ -12,13 +12,14 @@
 Tasks are module-level functions with small, picklable arguments (paths, not arrays) that
 write their own outputs and return a small dict. Both sides use
 this module: ``vdc-analyse batch`` and the closed-loop campaigns (``collision-study``,
-``reproduce``, ``vdc-capture sweep``).
+``reproduce``, ``vdc-capture campaign``).
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import ctypes
 import dataclasses
 import multiprocessing
 import os
@@ -31,7 +32,10 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
+import cv2
+
 from vdc.cli_support import Settings, option
+from vdc.errors import UserError
 
 EXECUTORS = ("local", "dask")
 
@@ -81,14 +85,14 @@ class ExecutorSettings(Settings):
         if self.scheduler and self.executor == "local":
             object.__setattr__(self, "executor", "dask")  # a scheduler means Dask
         if self.executor not in EXECUTORS:
-            raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}")
+            raise UserError(f"--executor must be one of {', '.join(EXECUTORS)}")
         if self.jobs < 1:
-            raise ValueError(f"--jobs must be at least 1, got {self.jobs}")
+            raise UserError(f"--jobs must be at least 1, got {self.jobs}")
         if self.scheduler and not self.scheduler.startswith(("tcp://", "tls://", "inproc://")):
             path = Path(self.scheduler).expanduser()
             # Client(scheduler_file=...) neither expands ~ nor times out on a missing file
             if not path.is_file():
-                raise ValueError(
+                raise UserError(
                     f"--scheduler {self.scheduler!r} is neither tcp://HOST:PORT, tls://HOST:PORT "
                     "nor an existing scheduler file"
                 )
@@ -131,9 +135,9 @@ QUIET = Feedback()
 def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
     """The client, and the local cluster it runs on when vdc started one (else None)."""
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client, LocalCluster  # lazy: optional extra
     except ImportError:
-        raise ValueError(
+        raise UserError(
             '--executor dask needs the optional extra: pip install -e ".[dask]"'
         ) from None
     if settings.scheduler:
@@ -147,13 +151,13 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
             # unreachable or refused (OSError); tls:// without a client certificate in Dask's
             # configuration (TypeError "TLS expects a ssl_context")
             why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise ValueError(f"cannot reach the Dask scheduler {s}: {why}") from None
+            raise UserError(f"cannot reach the Dask scheduler {s}: {why}") from None
         try:
             # workers running another vdc, Python or pickle library would fail obscurely later
             client.get_versions(check=True)
         except Exception as exc:
             client.close()
-            raise ValueError(f"the Dask cluster at {s} does not match this client: {exc}") from None
+            raise UserError(f"the Dask cluster at {s} does not match this client: {exc}") from None
         return client, None
     # our own cluster: loopback only (a Dask port runs pickled code as the user), processes
     # with one thread each (the models' Python loops hold the GIL)
@@ -182,8 +186,6 @@ def _die_with_parent(parent_pid: int, threads: int = 1) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if sys.platform.startswith("linux"):
         try:
-            import ctypes
-
             pr_set_pdeathsig = 1
             ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
         except (OSError, AttributeError):  # another libc: the watch thread still works
@@ -212,12 +214,7 @@ def one_thread_per_worker(threads: int = 1) -> None:
     ``threads`` > 1: the cores the pool leaves this worker (fewer workers than cores), which
     vdc's own pipelines may use (``vdc.pipeline.usable_threads``)."""
     os.environ[SINGLE_THREAD_ENV] = str(max(1, threads))
-    try:
-        import cv2
-
-        cv2.setNumThreads(1)
-    except ImportError:  # pragma: no cover - OpenCV is a dependency
-        pass
+    cv2.setNumThreads(1)
 
 
 def pool_size(jobs: int, n_tasks: int) -> int:
@@ -324,7 +321,7 @@ def check_shared_paths(client: Any, paths: Sequence[str | Path]) -> None:
         seen = client.run(os.path.exists, str(Path(path).resolve()))
         blind = sorted(w for w, ok in seen.items() if not ok)
         if blind:
-            raise ValueError(
+            raise UserError(
                 f"{len(blind)} of {len(seen)} Dask worker(s) cannot see {path} (e.g. {blind[0]}): "
                 "recordings and --out must be on a filesystem shared by every worker"
             )

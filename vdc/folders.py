@@ -22,6 +22,8 @@ import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
+from vdc.errors import UserError
+
 OUTPUTS_MANIFEST = ".vdc-outputs.json"
 PARTIAL = ".partial.rrd"
 
@@ -134,12 +136,12 @@ def expand_recordings(
         elif p.exists():
             found.append(item)
         else:
-            raise ValueError(f"{item!r}: no such file or folder")
+            raise UserError(f"{item!r}: no such file or folder")
     if dangling and notice is not None:
         notice(
             f"skipped {len(dangling)} entr{'y' if len(dangling) == 1 else 'ies'}: "
             f"{len(dangling)} {DANGLING} (first: {dangling[0]})"
         )
     if not found:
-        raise ValueError(f"no .rrd recordings in {', '.join(map(repr, given))}")
+        raise UserError(f"no .rrd recordings in {', '.join(map(repr, given))}")
     return found

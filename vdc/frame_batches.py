@@ -12,8 +12,15 @@ from typing import Any
 
 import numpy as np
 
+from avdm.true_time import repeats_of
+from vdc.errors import UserError
+from vdc.frame_metrics import NativeMeter, decide_ranges, full_range_p910
+from vdc.pipeline import pipelined
+from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
+from vdc.resize import area_resize
+
 # images and camera frames: 8-bit grey, full range
-from vdc.sources import Reader, SourceFrame
+from vdc.sources import Reader, SourceFrame, end_fields
 
 
 @dataclasses.dataclass
@@ -70,6 +77,7 @@ class FrameBatcher:
         reader: Reader,
         size: tuple[int, int] | None,
         fps: float,
+        *,
         batch_frames: int = 128,
         repeat_tol: float = 0.5,
         max_repeats: int = 3,
@@ -79,9 +87,6 @@ class FrameBatcher:
         color_range: str = "auto",
         reopen: Callable[[], Reader] | None = None,
     ) -> None:
-        from vdc.frame_metrics import NativeMeter, decide_ranges
-        from vdc.recording import NATIVE_METRICS
-
         self.reader, self.size, self.fps = reader, size, float(fps)
         self.batch_frames, self.repeat_tol, self.max_repeats = batch_frames, repeat_tol, max_repeats
         self._tag = reader.info.get("color_range_tag", reader.info["color_range"])
@@ -96,8 +101,6 @@ class FrameBatcher:
         self.meter.copy_previous = not reader.planes_persist
         reader.grey = size is not None  # no working raster: no grey conversion (0.3 ms at 720p)
         if threads > 1:
-            from vdc.pipeline import pipelined
-
             if size is None:  # no resize: the metrics are the only stage after decoding
                 stages = [lambda fr: self._resize(self._measure(fr))]
             else:
@@ -122,7 +125,6 @@ class FrameBatcher:
         fr, row = item
         if self.size is None:
             return None, fr.t_s, fr.note, row
-        from vdc.resize import area_resize  # OpenCV's INTER_AREA within a level, 9x cheaper
 
         return area_resize(fr.luma, self.size), fr.t_s, fr.note, row
 
@@ -133,9 +135,6 @@ class FrameBatcher:
             close()
 
     def next_batch(self) -> FrameBatch | None:
-        from avdm.true_time import repeats_of
-        from vdc.recording import NATIVE_METRICS
-
         images, times, notes, native = [], [], [], []
         for small, t, note, row in self._it:
             images.append(small)
@@ -178,7 +177,6 @@ class FrameBatcher:
         ``container_frames``, ``lost_after_last``, ``header_duration_s``, ``missing_s`` and
         ``cut_note``. ``ended`` (default: read to the source's end) False: a source read in
         part (a capture stopped by a signal), nothing counted after its last frame."""
-        from vdc.sources import end_fields
 
         done = self.ended if ended is None else ended
         return end_fields(
@@ -188,7 +186,6 @@ class FrameBatcher:
     def _correct_p910(self, metrics: np.ndarray, first: int) -> None:
         """Full-range P.910 values for this batch's frames that were measured in limited
         range before a later frame of the batch left it (in place)."""
-        from vdc.recording import NATIVE_METRICS
 
         fix = self.p910_late_corrections()
         k = np.arange(first, min(len(fix), first + len(metrics)))
@@ -201,8 +198,6 @@ class FrameBatcher:
         earlier batches in limited range (an untagged stream whose luma left the limited
         range only after them); K = 0 when none need it."""
         if self._reopen is not None and self.meter.lacks_full_alternative:
-            from vdc.frame_metrics import full_range_p910
-
             again = self._reopen()
             try:
                 again.grey = False  # the native planes only
@@ -217,7 +212,6 @@ class FrameBatcher:
     def color_ranges(self) -> dict[str, str | None]:
         """The range each SI/TI variant read and how it was decided
         (``vdc.frame_metrics.decide_ranges``), once the frames so far are seen."""
-        from vdc.frame_metrics import decide_ranges
 
         return decide_ranges(self._tag, self.requested_range, self.meter.left_limited_range)
 
@@ -227,10 +221,9 @@ def working_camera(
 ) -> tuple[tuple[int, int], float, dict[str, Any]]:
     """The clip's working raster (H, W), frame rate and model context, as ``vdc-capture
     video`` derives them from the source's own facts."""
-    from vdc.recording import camera_model_context, working_size
 
     fps = float(info["nominal_fps"])
     if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"{source!r} states no frame rate")
+        raise UserError(f"{source!r} states no frame rate")
     h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
     return (h, w), fps, camera_model_context(w, h, fps, fov_deg)

@@ -37,6 +37,7 @@ import cv2
 import numba
 import numpy as np
 
+from vdc.errors import UserError
 from vdc.recording import NATIVE_METRICS
 
 RANGES = ("limited", "full")
@@ -84,11 +85,11 @@ def decide_ranges(
       the format is ``yuvj``); P.910 full when the luma leaves the limited range (the only
       range siti-tools then accepts), else limited (siti-tools' default)."""
     if requested not in RANGE_CHOICES:
-        raise ValueError(
+        raise UserError(
             f"colour range must be one of {', '.join(RANGE_CHOICES)}, got {requested!r}"
         )
     if tagged not in (None, *RANGES):
-        raise ValueError(f"a stream's colour range is limited, full or None, got {tagged!r}")
+        raise UserError(f"a stream's colour range is limited, full or None, got {tagged!r}")
     if requested != "auto":
         return {
             "color_range_p910": requested,
@@ -309,13 +310,11 @@ class NativeMeter:
 
     def __post_init__(self) -> None:
         if self.bit_depth not in (8, 10, 12):
-            raise ValueError(f"bit depth must be 8, 10 or 12, got {self.bit_depth}")
+            raise UserError(f"bit depth must be 8, 10 or 12, got {self.bit_depth}")
         if self.color_range not in RANGES:
-            raise ValueError(f"colour range must be limited or full, got {self.color_range!r}")
+            raise UserError(f"colour range must be limited or full, got {self.color_range!r}")
         if self.p910_range not in (None, "detect", *RANGES):
-            raise ValueError(
-                f"P.910 range must be limited, full or detect, got {self.p910_range!r}"
-            )
+            raise UserError(f"P.910 range must be limited, full or detect, got {self.p910_range!r}")
         self._detect = self.p910_range == "detect"
         # the P.910 range in use: while detecting, limited until the luma leaves it
         self.p910_now = "limited" if self._detect else (self.p910_range or self.color_range)
@@ -324,7 +323,7 @@ class NativeMeter:
         self._legacy = legacy_lut(self.bit_depth, self.color_range)
         unknown = set(self.metrics) - set(NATIVE_METRICS)
         if unknown:
-            raise ValueError(f"not native metrics: {', '.join(sorted(unknown))}")
+            raise UserError(f"not native metrics: {', '.join(sorted(unknown))}")
         self._want_p910 = bool({"si_p910", "ti_p910"} & set(self.metrics))
         self._want_legacy = bool({"si_legacy", "ti_legacy"} & set(self.metrics))
         self._prev: np.ndarray | None = None
@@ -351,7 +350,7 @@ class NativeMeter:
         source through a meter in full range gives the same bits)."""
         k = self.left_limited_at
         if k is None or len(values) != k:
-            raise ValueError(f"expected the full-range values of {k} frames, got {len(values)}")
+            raise UserError(f"expected the full-range values of {k} frames, got {len(values)}")
         self._full_alt = [(float(a), float(b)) for a, b in values]
 
     def p910_corrections(self) -> np.ndarray:
@@ -371,10 +370,10 @@ class NativeMeter:
     def update(self, y: np.ndarray, packet_bytes: int | None = None) -> dict[str, float]:
         want = np.uint8 if self.bit_depth == 8 else np.uint16
         if y.ndim != 2 or y.dtype != want or min(y.shape) < 3:
-            raise ValueError(f"expected ({self.bit_depth}-bit) luma (H, W) {want.__name__}")
+            raise UserError(f"expected ({self.bit_depth}-bit) luma (H, W) {want.__name__}")
         prev = self._prev
         if prev is not None and prev.shape != y.shape:
-            raise ValueError(f"the frame size changed from {prev.shape} to {y.shape}")
+            raise UserError(f"the frame size changed from {prev.shape} to {y.shape}")
         have = prev is not None
         want_a, want_b = self._want_p910, self._want_legacy
         n_int, n_all = (y.shape[0] - 2) * (y.shape[1] - 2), float(y.size)
@@ -471,5 +470,5 @@ def full_range_p910(natives: Iterable[np.ndarray], bit_depth: int, frames: int) 
         out[seen] = m["si_p910"], m["ti_p910"]
         seen += 1
     if seen < frames:
-        raise ValueError(f"the source gave {seen} frames on a second reading, not {frames}")
+        raise UserError(f"the source gave {seen} frames on a second reading, not {frames}")
     return out

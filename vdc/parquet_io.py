@@ -15,6 +15,7 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from vdc.errors import UserError
 from vdc.folders import write_outputs
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import pid_alive
@@ -119,7 +120,7 @@ def table_set(out_dir: Path) -> Iterator[Path]:
     writer."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():  # e.g. an input recording given as --out
-        raise ValueError(f"--out {str(out_dir)!r} is a file, not a folder; give a folder")
+        raise UserError(f"--out {str(out_dir)!r} is a file, not a folder; give a folder")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     _remove_stale_staging(out_dir)
     stage = out_dir.with_name(f".{out_dir.name}{_STAGING}{os.getpid()}")

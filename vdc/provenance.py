@@ -13,6 +13,8 @@ import platform
 from importlib import metadata
 from pathlib import Path
 
+import llvmlite.binding as llvm
+
 # vdc's own distribution on the package index ("vdc" there is an unrelated project); its
 # version is reported under the key "vdc"
 DISTRIBUTION = "visual-dynamic-complexity"
@@ -57,8 +59,6 @@ def machine_info() -> dict[str, str]:
     """The CPU model, Numba's compile target and the widest vector extension it may use."""
     info = {"cpu_model": _cpu_model(), "platform": platform.platform(terse=True)}
     try:
-        import llvmlite.binding as llvm
-
         info["numba_target_cpu"] = llvm.get_host_cpu_name()
         features = llvm.get_host_cpu_features()
         simd = [f for f in ("avx512f", "avx2", "avx", "sse4.2", "neon") if features.get(f)]

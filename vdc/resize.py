@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 
+import cv2
 import numba
 import numpy as np
 
@@ -71,8 +72,6 @@ def area_resize(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     h, w = size
     whole = img.shape[0] % h == 0 and img.shape[1] % w == 0
     if h > img.shape[0] or w > img.shape[1] or whole:
-        import cv2
-
         return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
     fy, wy = area_weights(img.shape[0], h)
     fx, wx = area_weights(img.shape[1], w)

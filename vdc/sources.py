@@ -18,6 +18,7 @@ counted (:func:`frames_lost_after`; unknown, None, where the container states no
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import math
 import os
 import re
@@ -29,6 +30,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vdc.errors import UserError
 from vdc.frame_metrics import luma_plane, stream_format
 
 # images and camera frames: 8-bit grey, full range
@@ -98,20 +100,20 @@ class Reader:
 
 class _PyAvReader(Reader):
     def __init__(self, path: str) -> None:
-        import av
+        import av  # lazy: start-up
 
         p = Path(path)
         if not p.exists():
-            raise ValueError(f"video {path!r}: no such file")
+            raise UserError(f"video {path!r}: no such file")
         if p.stat().st_size == 0:
-            raise ValueError(f"video {path!r} is empty")
+            raise UserError(f"video {path!r} is empty")
         try:
             self.container = av.open(path)
         except av.FFmpegError as exc:
-            raise ValueError(f"cannot read {path!r} as a video: {_ffmpeg_reason(exc)}") from None
+            raise UserError(f"cannot read {path!r} as a video: {_ffmpeg_reason(exc)}") from None
         if not self.container.streams.video:
             self.container.close()
-            raise ValueError(f"{path!r} holds no video stream")
+            raise UserError(f"{path!r} holds no video stream")
         self.stream = self.container.streams.video[0]
         # a plane views the frame's reference-counted buffer, which FFmpeg's pools hand out
         # again only when no frame references it
@@ -146,7 +148,7 @@ class _PyAvReader(Reader):
         if first is None:
             self.container.close()
             why = f": {self.error}" if self.error else ""
-            raise ValueError(f"{path!r} holds no decodable video frame{why}")
+            raise UserError(f"{path!r} holds no decodable video frame{why}")
         self._first = first
         self.info["src_height_px"], self.info["src_width_px"] = first.luma.shape[:2]
 
@@ -182,7 +184,7 @@ class _PyAvReader(Reader):
         one packet that will not decode costs its own frames only: its error is appended to
         ``note`` and decoding goes on (a whole-stream decode stops at the first bad packet). A
         container that cannot be demuxed further ends here (``error``)."""
-        import av
+        import av  # lazy: start-up
 
         try:
             for packet in self.container.demux(self.stream):
@@ -215,7 +217,6 @@ class _PyAvReader(Reader):
         same time) is dropped, counted (``late_frames``, a problem) and never delivered, so
         time never runs backwards. What a frame cost shows as a gap in the times (the
         batcher's dropped frames): each lost frame is counted there, once."""
-        import heapq
 
         note: list[str] = []
         held: list[tuple[float, int, Any]] = []  # (time, arrival, frame): a min-heap
@@ -281,11 +282,11 @@ class _CameraReader(Reader):
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
         self.cap = cv2.VideoCapture(int(source))
         if not self.cap.isOpened():
-            raise ValueError(f"camera {source} cannot be opened (no such camera)")
+            raise UserError(f"camera {source} cannot be opened (no such camera)")
         ok, first = self.cap.read()
         if not ok or first is None:
             self.cap.release()
-            raise ValueError(f"camera {source} gives no frame")
+            raise UserError(f"camera {source} gives no frame")
         self.first = first
         cam_fps = self.cap.get(cv2.CAP_PROP_FPS)
         self.fps = fps or (cam_fps if cam_fps and cam_fps > 0 else 30.0)
@@ -341,10 +342,10 @@ class _ImageSequenceReader(Reader):
 
     def __init__(self, pattern: str, fps: float | None) -> None:
         if fps is None:
-            raise ValueError("an image sequence needs --fps (its frame rate)")
+            raise UserError("an image sequence needs --fps (its frame rate)")
         fields = list(_PATTERN_FIELD.finditer(pattern))
         if len(fields) != 1:
-            raise ValueError(
+            raise UserError(
                 f"image sequence {pattern!r}: give one number field such as %05d "
                 "(a file with % in its name is read as a video when it exists)"
             )
@@ -360,7 +361,7 @@ class _ImageSequenceReader(Reader):
                 if m and (not field.group(2) or len(m.group(1)) >= int(field.group(2))):
                     found.setdefault(int(m.group(1)), entry)
         if not found:
-            raise ValueError(f"image sequence {pattern!r} cannot be opened (no matching files)")
+            raise UserError(f"image sequence {pattern!r} cannot be opened (no matching files)")
         width = f"{field.group(1)}{field.group(2)}d"
         self.name_of = lambda k: Path(head + format(k, width) + tail).name
         self.paths = found
@@ -372,7 +373,7 @@ class _ImageSequenceReader(Reader):
             if first is not None:
                 break
         if first is None:
-            raise ValueError(f"image sequence {pattern!r}: no image in it can be read")
+            raise UserError(f"image sequence {pattern!r}: no image in it can be read")
         self.problems, self.first_problem = 0, None  # counted again when the frames are read
         h, w = first.shape
         self.info = {

@@ -43,14 +43,18 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary.fit import describe_boundary as describe_boundary  # re-exported
-from analysis.boundary.plot import plot_boundary as plot_boundary  # re-exported: its old home
+from analysis.boundary.fit import describe_boundary, fit_section
+from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
+from analysis.collision import CollisionSettings, collision_metrics
+from analysis.recordings.loading import load_recording
 from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy
+from avdm.registry import add_overrides, parse_model_spec
 from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings
-from vdc.parquet_io import WroteFiles
+from vdc.parquet_io import WroteFiles, write_tables
 
 TARGET_HELP = "the success rate a detector must keep (default: {default}, the paper's 90 %)"
 COMPLEXITY_MEASURES = ("profile", "online")
@@ -71,11 +75,11 @@ def number_list(text: Any, name: str, *, minimum: float = 0.0) -> list[float]:
     try:
         values = [float(v) for v in _items(text)]
     except ValueError:
-        raise ValueError(f"--{name} must be numbers separated by commas, got {text!r}") from None
+        raise UserError(f"--{name} must be numbers separated by commas, got {text!r}") from None
     if not values or not all(math.isfinite(v) and v >= minimum for v in values):
-        raise ValueError(f"--{name} must be numbers >= {minimum:g}, comma-separated: {text!r}")
+        raise UserError(f"--{name} must be numbers >= {minimum:g}, comma-separated: {text!r}")
     if len(set(values)) != len(values):
-        raise ValueError(f"--{name} repeats a value: {text!r}")
+        raise UserError(f"--{name} repeats a value: {text!r}")
     return values
 
 
@@ -83,13 +87,12 @@ def name_list(text: Any, name: str, allowed: Sequence[str]) -> list[str]:
     values = _items(text)
     bad = [v for v in values if v not in allowed]
     if not values or bad:
-        raise ValueError(f"--{name} must be some of {', '.join(allowed)}, got {text!r}")
+        raise UserError(f"--{name} must be some of {', '.join(allowed)}, got {text!r}")
     return values
 
 
 def with_override(spec: str, key: str, value: float) -> str:
     """``spec`` with ``key=value`` added to its overrides."""
-    from avdm.registry import add_overrides
 
     return add_overrides(spec, f"{key}={value:g}")
 
@@ -172,19 +175,18 @@ class BoundarySettings(ExecutorSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        from avdm.registry import parse_model_spec
 
         parse_model_spec(self.detector)  # a bad detector or plug-in fails before anything runs
         if not 0 < self.target < 1:
-            raise ValueError(f"--target must be between 0 and 1, got {self.target}")
+            raise UserError(f"--target must be between 0 and 1, got {self.target}")
         if self.seeds < 1:
-            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
         if self.budget < 2 or (self.groups is not None and self.groups < 1):
-            raise ValueError("--budget must be at least 2 and --groups at least 1")
+            raise UserError("--budget must be at least 2 and --groups at least 1")
         if self.design == "adaptive" and (self.complexity != "profile" or self.labels):
-            raise ValueError("--design adaptive is for the arena with --complexity profile")
+            raise UserError("--design adaptive is for the arena with --complexity profile")
         if self.per_scene and self.design != "adaptive":
-            raise ValueError("--per-scene is for --design adaptive")
+            raise UserError("--per-scene is for --design adaptive")
         if self.labels is None:
             from capture.config import check_below_nyquist  # the arena's camera bounds TF
 
@@ -193,14 +195,12 @@ class BoundarySettings(ExecutorSettings):
             check_below_nyquist(max(number_list(self.tf, "tf")), "--tf")
             name_list(self.scenes, "scenes", ("grating", "natural"))
             if self.per_scene and self.budget < 2 * len(self.scene_list()):
-                raise ValueError("--per-scene needs --budget of at least 2 runs per scene")
-            from analysis.collision import CollisionSettings
+                raise UserError("--per-scene needs --budget of at least 2 runs per scene")
 
             CollisionSettings(false_alarm_m=self.false_alarm_m)
 
     def grid_values(self) -> list[float]:
         values = number_list(self.values, "values")
-        from avdm.registry import parse_model_spec
 
         for v in values:  # the parameter exists and takes these values
             parse_model_spec(with_override(self.detector, self.param, v))
@@ -214,9 +214,7 @@ class BoundarySettings(ExecutorSettings):
         except ValueError:
             bounds = (math.nan, math.nan)
         if not (0 <= bounds[0] < bounds[1] < math.inf):
-            raise ValueError(
-                f"--tf-range must be LO:HI Hz with 0 <= LO < HI, got {self.tf_range!r}"
-            )
+            raise UserError(f"--tf-range must be LO:HI Hz with 0 <= LO < HI, got {self.tf_range!r}")
         return bounds
 
     def scene_list(self) -> list[str]:
@@ -247,8 +245,6 @@ def run_row(path: str | Path, kind: str, false_alarm_m: float = 0.30) -> dict[st
     (``analysis.collision``) plus the on-board AVDM's mean over all frames after the warm-up
     (``online_dps``) and over straight driving (``straight_dps``); "profile": the online AVDM's
     mean over straight driving (``profile_dps``)."""
-    from analysis.collision import CollisionSettings, collision_metrics
-    from analysis.recordings.loading import load_recording
 
     loaded = load_recording(path)
     fr = loaded.frames.select("frame", "turning").filter(pl.col("frame") >= WARMUP_FRAMES)
@@ -507,7 +503,6 @@ def write_arena_outputs(
     ``boundary_{runs,conditions}.parquet``, ``boundary.parquet``, ``boundary_profiles.parquet``
     (``tables["profiles"]`` None: none), ``boundary.png``, ``policy.csv`` (``policy`` None:
     none); returns their paths and the report (``boundary.md``, not yet written)."""
-    from vdc.parquet_io import write_tables
 
     named = {
         "boundary_runs": tables["runs"],
@@ -541,7 +536,6 @@ def arena_report(
     s: BoundarySettings, conditions: pl.DataFrame, bounds: pl.DataFrame, policy: Policy | None
 ) -> str:
     """``boundary.md``: the boundary per value, performance per condition, the policy."""
-    from analysis.boundary.fit import fit_section
 
     design = (
         f"Grid: scenes {', '.join(s.scene_list())}; wall TF {_join(s.tf)} Hz; {s.param} = "

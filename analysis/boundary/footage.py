@@ -41,20 +41,30 @@ from analysis.boundary.command import (
     BoundaryResult,
     BoundarySettings,
     boundaries,
-    describe_boundary,
-    interval,
-    markdown_table,
     number_list,
-    plot_boundary,
     published,
     with_override,
 )
-from analysis.boundary.fit import fit_columns, fit_crossing, fit_section, with_fit
+from analysis.boundary.fit import (
+    describe_boundary,
+    fit_columns,
+    fit_crossing,
+    fit_section,
+    with_fit,
+)
+from analysis.boundary.plot import plot_boundary
+from analysis.boundary.report_tables import interval, markdown_table
+from analysis.complexity.command import ComplexitySettings, complexity
+from analysis.complexity.source_metrics import METRICS
+from analysis.predictors.footage import footage_predictor_tables
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
+from avdm.registry import check_detector, make_model
 from vdc.errors import UserError
-from vdc.executors import Feedback
-from vdc.frame_batches import working_camera
+from vdc.executors import Feedback, run_tasks_or_raise
+from vdc.frame_batches import FrameBatcher, working_camera
+from vdc.parquet_io import table_set, write_tables
+from vdc.sources import open_reader
 
 LABEL_COLUMNS = ("clip", "label", "collision_frame")
 COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg/s)
@@ -67,7 +77,7 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     frame, or clips that are not there."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"labels table {str(path)!r} not found")
+        raise UserError(f"labels table {str(path)!r} not found")
     try:
         df = (
             pl.read_parquet(path)
@@ -75,24 +85,24 @@ def read_labels(path: str | Path) -> pl.DataFrame:
             else pl.read_csv(path, infer_schema_length=None)
         )
     except Exception as exc:  # polars' many parse errors: one line for the user
-        raise ValueError(f"labels table {str(path)!r} cannot be read: {exc}") from None
+        raise UserError(f"labels table {str(path)!r} cannot be read: {exc}") from None
     missing = [c for c in LABEL_COLUMNS if c not in df.columns]
     if missing:
-        raise ValueError(
+        raise UserError(
             f"labels table {str(path)!r} has no column {', '.join(missing)} (it needs "
             f"{', '.join(LABEL_COLUMNS)}; collision_frame empty where nothing collides)"
         )
     if df.height == 0:
-        raise ValueError(f"labels table {str(path)!r} lists no clips")
+        raise UserError(f"labels table {str(path)!r} lists no clips")
     try:
         frames = df["collision_frame"].cast(pl.Float64)
     except pl.exceptions.PolarsError:
-        raise ValueError(
+        raise UserError(
             f"labels table {str(path)!r}: collision_frame must be a frame number or empty"
         ) from None
     bad = frames.drop_nulls().filter((frames.drop_nulls() < 0) | (frames.drop_nulls() % 1 != 0))
     if bad.len():
-        raise ValueError(
+        raise UserError(
             f"labels table {str(path)!r}: collision_frame must be a frame number >= 0 or "
             f"empty, got {bad[0]:g}"
         )
@@ -103,14 +113,14 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     )
     if df["clip"].n_unique() != df.height:
         dup = df.filter(pl.col("clip").is_duplicated())["clip"][0]
-        raise ValueError(f"labels table {str(path)!r} lists clip {dup!r} twice")
+        raise UserError(f"labels table {str(path)!r} lists clip {dup!r} twice")
     sources = [
         str((path.parent / c).resolve()) if not Path(c).is_absolute() else c for c in df["clip"]
     ]
     unknown = [c for c, s in zip(df["clip"], sources, strict=True) if not Path(s).exists()]
     if unknown:
         more = f" (and {len(unknown) - 3} more)" if len(unknown) > 3 else ""
-        raise ValueError(
+        raise UserError(
             f"labels table {str(path)!r} names clips that are not there: "
             f"{', '.join(unknown[:3])}{more} (clips are relative to the table's folder)"
         )
@@ -122,7 +132,6 @@ def clip_camera(
 ) -> tuple[tuple[int, int], dict[str, Any]]:
     """The clip's working raster (H, W) and the camera facts a model is built with for it (as
     ``vdc-capture video``)."""
-    from vdc.sources import open_reader
 
     reader = open_reader(source)
     try:
@@ -138,10 +147,6 @@ def detector_alerts(
     """The detector ``spec`` run on a clip as ``vdc-capture video`` would run it (its repeat
     rules too): the source frames' numbers (T,) int64, its ``alert`` output (T,) float64 and
     the frame rate (Hz)."""
-    from analysis.complexity.command import ComplexitySettings
-    from avdm.registry import make_model
-    from vdc.frame_batches import FrameBatcher
-    from vdc.sources import open_reader
 
     reader = open_reader(source)
     try:
@@ -149,7 +154,9 @@ def detector_alerts(
         model = make_model(spec, **ctx)
         require_alert(model)
         video = ComplexitySettings  # the repeat rules vdc-capture video reads sources with
-        batches = FrameBatcher(reader, shape, fps, 128, video.repeat_tol, video.max_repeats)
+        batches = FrameBatcher(
+            reader, shape, fps, repeat_tol=video.repeat_tol, max_repeats=video.max_repeats
+        )
         frames, alerts = [], []
         while (fb := batches.next_batch()) is not None:
             frames.append(fb.frame)
@@ -223,14 +230,12 @@ def clip_complexity(
     """Each clip's complexity: the mean of every metric of ``vdc-analyse complexity`` over the
     frames before the alert window (a collision clip) or over all frames (the scene the
     detector faced, not the object on its way in). Columns: source, then one per metric."""
-    from analysis.complexity.command import ComplexitySettings, complexity
-    from analysis.complexity.source_metrics import METRICS
 
     s = ComplexitySettings(fov_deg=fov_deg, metrics="all", **executor)
     res = complexity(labels["source"].to_list(), s, out)
     if res.failures:
         src, err = res.failures[0]
-        raise ValueError(f"clip {src!r} cannot be measured: {err}")
+        raise UserError(f"clip {src!r} cannot be measured: {err}")
     ids = {
         _key(r["source"]): (r["recording_id"], r["fps"]) for r in res.clips.iter_rows(named=True)
     }
@@ -242,7 +247,7 @@ def clip_complexity(
             end = row["collision_frame"] - round(window_s * fps)
             frames = frames.filter(pl.col("frame") < end)
             if frames.height == 0:
-                raise ValueError(
+                raise UserError(
                     f"clip {row['clip']!r} has no frame before its alert window ({window_s:g} s "
                     "before the collision frame) to measure the scene on: use a longer clip or a "
                     "shorter --alert-window-s"
@@ -292,16 +297,12 @@ def share_row(name: str, flags: pl.Series) -> dict[str, float]:
 
 def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> BoundaryResult:
     """Footage mode of :func:`analysis.experiments.boundary_campaign.boundary`."""
-    from vdc.executors import run_tasks_or_raise
-    from vdc.parquet_io import table_set, write_tables
 
     if s.fov_deg is None:
-        raise ValueError("footage mode needs --fov-deg (the camera's horizontal field of view)")
+        raise UserError("footage mode needs --fov-deg (the camera's horizontal field of view)")
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {v: with_override(s.detector, s.param, v) for v in values}
     labels = read_labels(s.labels or "")
-
-    from avdm.registry import check_detector
 
     # each value built and stepped on one frame of the clips' raster, before any clip runs: a
     # factory that raises, a model without alert or one whose step cannot give it fails now
@@ -395,8 +396,6 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
         )
         md = footage_report(s, summary, stats, bounds, clips)
         if not s.no_predictors:  # every measure judged by the clips (and frames) it gets wrong
-            from analysis.predictors.footage import footage_predictor_tables
-
             _, more, section = footage_predictor_tables(s, labels, clips, out / "complexity", stage)
             paths += more
             md += "\n" + section

@@ -10,6 +10,8 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
+from analysis.boundary.fit import draw_fit
+
 
 def plot_boundary(
     conditions: pl.DataFrame,
@@ -58,13 +60,9 @@ def plot_boundary(
         b = bounds.filter(pl.col(by) == value).row(0, named=True)
         per_scene = [k for k in (fits or {}) if isinstance(k, tuple) and k[0] == value]
         if per_scene:  # --per-scene: a curve per scene, keyed (value, scene)
-            from analysis.boundary.fit import draw_fit
-
             for key in per_scene:
                 draw_fit(ax_s, fits[key], color, ls=_SCENE_LINES.get(key[1], "-"))
         elif fits is not None and value in fits:  # the fitted curve, its band and interval
-            from analysis.boundary.fit import draw_fit
-
             draw_fit(ax_s, fits[value], color)
         elif b["where"] == "within":
             ax_s.axvspan(b["boundary_low_dps"], b["boundary_high_dps"], color=color, alpha=0.08)

@@ -38,7 +38,15 @@ from typing import Any
 
 import numpy as np
 import polars as pl
+import rerun as rr
 
+from analysis.recordings.analysis_rrd import write_variants_rrd
+from analysis.recordings.loading import load_recording
+from analysis.recordings.reader import Recording, RecordingError, complete_prefix
+from analysis.recordings.recompute import SummarySettings, events_table, primary_output
+from avdm.calibration_store import cache_dir
+from avdm.registry import make_model
+from vdc.blueprints import default_blueprint, video_blueprint
 from vdc.cli_support import Settings, non_negative_int, option
 from vdc.errors import UserError
 from vdc.recording import (
@@ -114,8 +122,6 @@ class Found:
 
 
 def _cache(folder: Path) -> Path:
-    from avdm.calibration_store import cache_dir
-
     key = hashlib.sha1(str(folder.resolve()).encode()).hexdigest()[:12]
     return cache_dir() / "catalog" / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', folder.name)}-{key}"
 
@@ -130,7 +136,7 @@ def _stamp(path: Path) -> str:
 def _rerun_binary() -> str:
     """The ``rerun`` executable itself (the console script is a Python shim whose child
     survives a signal to the shim)."""
-    import rerun_cli
+    import rerun_cli  # lazy: optional extra
 
     return str(Path(rerun_cli.__file__).parent / "rerun")
 
@@ -139,12 +145,11 @@ def repair(path: Path, out: Path) -> Path:
     """A copy of a recording without footer (a capture cut short), with one: its complete
     messages (``analysis.recordings.reader.complete_prefix``), rewritten by ``rerun rrd optimize``,
     which writes the footer. ValueError if it fails."""
-    from analysis.recordings.reader import complete_prefix
 
     out.parent.mkdir(parents=True, exist_ok=True)
     good, count = complete_prefix(path)
     if count == 0:
-        raise ValueError("could not be repaired: no complete message")
+        raise UserError("could not be repaired: no complete message")
     prefix = out.with_name(out.name + f".prefix-{os.getpid()}")
     tmp = out.with_name(out.name + f".tmp-{os.getpid()}")
     try:
@@ -158,7 +163,7 @@ def repair(path: Path, out: Path) -> Path:
         )
         if proc.returncode != 0 or not tmp.exists():
             why = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
-            raise ValueError(f"could not be repaired: {why[0]}")
+            raise UserError(f"could not be repaired: {why[0]}")
         tmp.replace(out)
     finally:
         prefix.unlink(missing_ok=True)
@@ -170,8 +175,6 @@ def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
     """The summary layer's properties of one recording: what it is, and the numbers of the
     ``summary`` table (mean ω̂ and the share over 100 deg/s after the warm-up; success rate
     of a collision run)."""
-    from analysis.recordings.loading import load_recording
-    from analysis.recordings.recompute import SummarySettings, events_table, primary_output
 
     loaded = load_recording(path)
     props = loaded.props
@@ -214,8 +217,6 @@ def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
 
 
 def _write_summary_layer(recording_id: str, props: dict[str, Any], path: Path) -> None:
-    import rerun as rr
-
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + f".tmp-{os.getpid()}")
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
@@ -227,8 +228,6 @@ def _write_summary_layer(recording_id: str, props: dict[str, Any], path: Path) -
 
 
 def _read_summary(path: Path) -> dict[str, Any] | None:
-    from analysis.recordings.reader import Recording
-
     try:
         return Recording(path).properties().get(SUMMARY)
     except Exception:  # an older or damaged cache file: computed again
@@ -249,7 +248,6 @@ def _batch_layers(
     """``batch`` outputs as layers: each (recording, variant) part written once as an ``.rrd``
     of its outputs under ``/model_variants/<variant>/...`` → (layer, recording id, file); a
     part that cannot be read is added to ``left``."""
-    from analysis.recordings.analysis_rrd import write_variants_rrd
 
     for part in sorted(folder.glob("parts/recording_id=*/model=*/model_outputs.parquet")):
         try:
@@ -317,7 +315,6 @@ def scan(
     """Find the recordings and the analysis outputs under ``folders`` (see the module). A file
     that cannot be served is left out with a one-line reason, never taking the others down;
     between files of one recording id the complete one is registered, whatever their names."""
-    from analysis.recordings.reader import Recording, RecordingError
 
     say = notice or (lambda _m: None)
     segments: dict[str, CatalogSegment] = {}
@@ -407,8 +404,6 @@ def scan(
 
 
 def _entities(path: Path) -> set[str]:
-    from analysis.recordings.reader import Recording
-
     return set(Recording(path).signals())
 
 
@@ -445,8 +440,6 @@ def _drop_colliding(
 def _blueprint_file(found: Found) -> Path:
     """vdc's blueprint for the dataset's segments (the first segment's model: a video's for
     video recordings, the arena's otherwise), as an ``.rbl`` in the cache."""
-    from avdm.registry import make_model
-    from vdc.blueprints import default_blueprint, video_blueprint
 
     first = found.segments[0]
     model = make_model(first.summary.get("model") or "avdm")

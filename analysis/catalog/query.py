@@ -16,7 +16,10 @@ import polars as pl
 
 from analysis.catalog.build import BASE, SUMMARY, CatalogSettings, is_catalog_url
 from analysis.catalog.server import Catalog, _require_catalog, open_catalog
+from analysis.recordings.loading import FRAMES_COLUMNS, from_signals, signals_table
+from analysis.recordings.reader import Recording
 from vdc.errors import UserError
+from vdc.parquet_io import table_set, write_parquet
 from vdc.recording import (
     FRAME_TIMELINE,
     MODEL_VARIANTS_ROOT,
@@ -140,7 +143,6 @@ def _select(
 ) -> Iterator[_Selection]:
     """The segments matching ``where`` with the chosen layers, from folders (a catalog started
     for the query) or from one catalog URL (a running server, as a lab's shared one)."""
-    from analysis.recordings.reader import Recording
 
     urls = [s for s in sources if is_catalog_url(s)]
     if urls:
@@ -199,7 +201,6 @@ def query(
     ``folders`` are folders of recordings (a catalog is started for the query and stopped
     after it), or one catalog URL, ``"rerun+http://HOST:PORT"``: a catalog already serving
     (``vdc-analyse catalog serve``, a lab's shared server), read as it is."""
-    from analysis.recordings.loading import FRAMES_COLUMNS, from_signals, signals_table
 
     sources = [folders] if isinstance(folders, (str, Path)) else list(folders)
     with _select(sources, where, layers, settings, notice) as sel:
@@ -245,7 +246,6 @@ def query_to(
 ) -> list[tuple[Path, pl.DataFrame]]:
     """``vdc-analyse catalog query``: :func:`query` written to ``out`` as ``frames.parquet``
     and ``model_outputs.parquet`` (published whole), with the selection in their metadata."""
-    from vdc.parquet_io import table_set, write_parquet
 
     res = query(folders, settings.where_dict(), settings.layers or None, settings, notice)
     meta = {"folders": [str(f) for f in folders], "where": settings.where_dict()}

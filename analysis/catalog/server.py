@@ -7,11 +7,15 @@ import contextlib
 import dataclasses
 import re
 import shutil
+import signal
+import socket
 import subprocess
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 from analysis.catalog.build import (
     BASE,
@@ -44,8 +48,8 @@ class Catalog:
 
 def _require_catalog() -> Any:
     try:
-        import datafusion  # noqa: F401 - the catalog's query engine
-        import rerun as rr
+        import datafusion  # noqa: F401 - the catalog's query engine  # lazy: optional extra
+        import rerun as rr  # lazy: optional extra
     except ImportError:
         raise UserError(f"the catalog needs its extra: {CATALOG_EXTRA}") from None
     return rr
@@ -87,7 +91,6 @@ def serve(
     """``vdc-analyse catalog serve``: register the folders and serve them until Ctrl-C or
     SIGTERM (or ``stop()`` returns True); ``ready`` gets the catalog and the web viewer's
     address (None without ``settings.web``). Every process started is ended on the way out."""
-    import signal
 
     if any(is_catalog_url(f) for f in folders):
         raise UserError("serve registers folders; a catalog URL is served already (query it)")
@@ -121,7 +124,6 @@ def serve(
 def _require_free_port(host: str, port: int, flag: str) -> None:
     """UserError, in one line, if another process holds ``port`` on ``host`` (checked before
     anything is started or announced)."""
-    import socket
 
     with socket.socket() as s:
         # as the servers' own listeners do: a connection of a server that just ended, left in
@@ -138,8 +140,6 @@ def _require_free_port(host: str, port: int, flag: str) -> None:
 
 
 def _free_port(host: str) -> int:
-    import socket
-
     with socket.socket() as s:
         s.bind((host, 0))
         return int(s.getsockname()[1])
@@ -150,8 +150,6 @@ def _web_viewer(url: str, settings: CatalogSettings) -> tuple[subprocess.Popen, 
     returns the process and the address to open. It is ended with this process however this
     one ends: by :func:`serve` on the way out, and by the kernel (``setpriv --pdeathsig``,
     where util-linux has it) if this process is killed outright."""
-    import socket
-    import tempfile
 
     if settings.web_port:
         _require_free_port(settings.host, settings.web_port, "--web-port")
@@ -170,7 +168,6 @@ def _web_viewer(url: str, settings: CatalogSettings) -> tuple[subprocess.Popen, 
         with contextlib.suppress(OSError), socket.create_connection((settings.host, port), 0.5):
             break
         time.sleep(0.2)
-    from urllib.parse import quote
 
     return proc, f"http://{settings.host}:{port}/?url={quote(url, safe='')}"
 

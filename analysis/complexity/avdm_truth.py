@@ -8,8 +8,8 @@ The protocol (``benchmarks/bench_avdm_truth.py`` runs it whole; the tests run on
 * the frames are made at a *video pitch* (320 px across 70°, 0.22 deg/px) and optionally go
   through H.264 (libx264, CRF 23, the codec's default quality); the *robot pitch* (99 px,
   0.71 deg/px) is the video frames area-resized as ``vdc-capture video`` resizes them;
-* each registered model (``VARIANTS``: ``avdm``, ``avdm-natural`` and the Hassenstein–Reichardt
-  correlator ``hrc``) and three of OpenCV's optic flows (``FLOW_READERS``: DIS, as
+* each registered model (``TRUTH_VARIANTS``: ``avdm``, ``avdm-natural`` and the Hassenstein–
+  Reichardt correlator ``hrc``) and three of OpenCV's optic flows (``FLOW_READERS``: DIS, as
   ``complexity``'s ``flow_dps`` computes it; Farnebäck; pyramidal Lucas–Kanade on a grid of
   points) read the speed; a flow reads the mean |horizontal flow| in deg/s; a cell's reading is
   the mean after the warm-up.
@@ -22,6 +22,7 @@ Spearman's ρ between reading and truth per image.
 from __future__ import annotations
 
 import dataclasses
+import io
 import math
 from collections.abc import Callable, Sequence
 from fractions import Fraction
@@ -32,18 +33,21 @@ from pathlib import Path
 import cv2
 import numpy as np
 import polars as pl
+from matplotlib.figure import Figure
 
+from analysis.stats import spearman
 from avdm.registry import make_model
 from avdm.stimuli import panned_image
+from vdc.errors import UserError
 from vdc.recording import camera_model_context
 
 FOV_DEG = 70.0
-VIEW_FRACTION = 0.65  # the camera sees this share of the photograph's width
+TRUTH_VIEW_FRACTION = 0.65  # the camera sees this share of the photograph's width
 VIDEO_SIZE = (232, 320)  # (H, W): 0.22 deg/px, a small video's pitch at 70°
 ROBOT_SIZE = (72, 99)  # the robot camera's raster, 0.71 deg/px
 SPEEDS_DPS = (1.0, 2.0, 5.0, 10.0, 20.0, 40.0, 80.0, 160.0, 300.0)
 IMAGES = ("camera", "astronaut", "coffee", "chelsea", "rocket", "brick", "grass", "gravel")
-VARIANTS = ("avdm", "avdm-natural", "hrc")
+TRUTH_VARIANTS = ("avdm", "avdm-natural", "hrc")
 FLOW_READERS = ("dis", "farneback", "lk")
 
 
@@ -55,9 +59,9 @@ def photograph(name: str) -> np.ndarray:
     package's own data folder are used. Remembered (read-only): the protocol reads each many
     times."""
     try:
-        from skimage import data
+        from skimage import data  # lazy: optional extra
     except ImportError:  # pragma: no cover - the test extra installs it
-        raise ValueError(
+        raise UserError(
             "the validation photographs need scikit-image: pip install scikit-image"
         ) from None
     img = getattr(data, name)()
@@ -71,9 +75,8 @@ def photograph(name: str) -> np.ndarray:
 def h264_roundtrip(frames: np.ndarray, fps: float, crf: int = 23) -> np.ndarray:
     """Encode grey frames (T, H, W) uint8 as H.264 (yuv420p, libx264) in memory and decode
     them back to luma: what a real clip's frames look like after the codec."""
-    import io
 
-    import av
+    import av  # lazy: start-up
 
     buf = io.BytesIO()
     with av.open(buf, "w", format="matroska") as out:
@@ -112,7 +115,7 @@ def _pan(image: str, omega_dps: float, direction: int, fps: float, n_frames: int
         photograph(image),
         size=VIDEO_SIZE,
         fov_deg=FOV_DEG,
-        image_deg=FOV_DEG / VIEW_FRACTION,
+        image_deg=FOV_DEG / TRUTH_VIEW_FRACTION,
         fps=fps,
         omega_dps=omega_dps,
         n_frames=n_frames,
@@ -191,9 +194,9 @@ def lk_speed_dps(frames: np.ndarray, fps: float, deg_per_px: float) -> np.ndarra
 FLOW_SPEED = {"dis": dis_speed_dps, "farneback": farneback_speed_dps, "lk": lk_speed_dps}
 
 
-def measure_cell(
+def measure_truth_cell(
     cell: Cell,
-    variants: Sequence[str] = VARIANTS,
+    variants: Sequence[str] = TRUTH_VARIANTS,
     n_frames: int = 45,
     warm: int = 20,
     flows: Sequence[str] = FLOW_READERS,
@@ -254,13 +257,13 @@ def protocol_cells(
 
 def run_protocol(
     cells: Sequence[Cell],
-    variants: Sequence[str] = VARIANTS,
+    variants: Sequence[str] = TRUTH_VARIANTS,
     progress: Callable[[], None] | None = None,
 ) -> pl.DataFrame:
     """Every cell measured: one row per (cell, reader)."""
     rows = []
     for c in cells:
-        rows.extend(measure_cell(c, variants))
+        rows.extend(measure_truth_cell(c, variants))
         if progress is not None:
             progress()
     return pl.DataFrame(rows)
@@ -271,7 +274,6 @@ def summarise_truth(table: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
     pitches and codecs, and the mean share of frames flagged valid (NaN for a reader without
     a flag); per reader: worst direction asymmetry over 2–300 deg/s, and the smallest
     Spearman ρ over (image, fps, pitch, codec) groups)."""
-    from analysis.stats import spearman
 
     t = table.with_columns(
         ((pl.col("omega_dps") - pl.col("omega_true_dps")).abs() / pl.col("omega_true_dps")).alias(
@@ -341,7 +343,6 @@ def summarise_truth(table: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame]:
 def plot_truth(table: pl.DataFrame, path: str | Path) -> Path:
     """Reading against truth (log-log), each reader's median and 10–90 % band over images,
     directions, fps, pitches and codecs; the ±25 % band around the truth shaded."""
-    from matplotlib.figure import Figure
 
     fig = Figure(figsize=(7.5, 5.5), layout="constrained")
     ax = fig.add_subplot()

@@ -34,24 +34,30 @@ from typing import Any
 import numpy as np
 import polars as pl
 
+from analysis.batch import parse_shard, readable_part
 from analysis.complexity import figures
 from analysis.complexity.source_metrics import (
     ANGULAR_METRICS,
     DEFAULT_METRICS,
     DIS_PRESETS,
     METRICS,
+    MODEL_METRICS,
     PARTS,
     RASTERS,
     ComplexityMeter,
     complexity_task,
     fov_free,
     measured_settings,
+    metrics_present,
     parse_metrics,
     part_path,
-    present,
     rank_correlations,
 )
 from analysis.recordings.analysis_rrd import OUTPUT_MARKER, write_complexity_rrd
+from analysis.recordings.reader import Recording, RecordingError
+from analysis.recordings.recompute import DistinctRecordings
+from avdm.registry import require_angular_velocity
+from avdm.true_time import repeats_of
 from vdc.cli_support import (
     API_ONLY,
     Settings,
@@ -60,11 +66,20 @@ from vdc.cli_support import (
     option,
     positive_float,
 )
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
-from vdc.frame_metrics import RANGE_CHOICES, RANGE_COLUMNS
-from vdc.parquet_io import WroteFiles
-from vdc.recording import FOOTAGE_MODEL
-from vdc.sources import source_name
+from vdc.folders import scan_folder
+from vdc.frame_metrics import (
+    RANGE_CHOICES,
+    RANGE_COLUMNS,
+    NativeMeter,
+    decide_ranges,
+    leaves_limited,
+)
+from vdc.parquet_io import WroteFiles, read_metadata, table_set, write_parquet
+from vdc.recording import FOOTAGE_MODEL, NATIVE_METRICS, camera_model_context, working_size
+from vdc.resize import area_resize
+from vdc.sources import VIDEO_SUFFIXES, source_name
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,22 +145,19 @@ class ComplexitySettings(Settings):
     force: bool = option(False, "measure finished sources again")
 
     def __post_init__(self) -> None:
-        from analysis.batch import parse_shard
-        from avdm.registry import require_angular_velocity
-
         require_angular_velocity(self.model, "complexity")
         parse_metrics(self.metrics)
         if self.flow_preset not in DIS_PRESETS:
-            raise ValueError(f"--flow-preset must be one of {', '.join(DIS_PRESETS)}")
+            raise UserError(f"--flow-preset must be one of {', '.join(DIS_PRESETS)}")
         if not 1 <= self.jpeg_quality <= 100:
-            raise ValueError(f"--jpeg-quality must be 1-100, got {self.jpeg_quality}")
+            raise UserError(f"--jpeg-quality must be 1-100, got {self.jpeg_quality}")
         if not 0 <= self.zlib_level <= 9:
-            raise ValueError(f"--zlib-level must be 0-9, got {self.zlib_level}")
+            raise UserError(f"--zlib-level must be 0-9, got {self.zlib_level}")
         if self.width is not None and not 8 <= self.width <= 4096:
-            raise ValueError(f"--width must be between 8 and 4096 px, got {self.width}")
+            raise UserError(f"--width must be between 8 and 4096 px, got {self.width}")
         if self.color_range not in RANGE_CHOICES:
             choices = ", ".join(RANGE_CHOICES)
-            raise ValueError(f"--color-range must be one of {choices}, got {self.color_range!r}")
+            raise UserError(f"--color-range must be one of {choices}, got {self.color_range!r}")
         self.executor_settings()
         parse_shard(self.shard)
 
@@ -186,19 +198,14 @@ def complexity_of_frames(
 
     Returns a DataFrame: frame, t_s, repeat, then one column per metric of
     ``settings.metrics`` (see the module)."""
-    from analysis.complexity.source_metrics import MODEL_METRICS
-    from avdm.true_time import repeats_of
-    from vdc.frame_metrics import NativeMeter, decide_ranges, leaves_limited
-    from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
-    from vdc.resize import area_resize
 
     settings = settings or ComplexitySettings()
     frames = np.asarray(frames)
     if frames.ndim != 3 or frames.dtype != np.uint8 or len(frames) == 0:
-        raise ValueError(f"frames must be a non-empty (T, H, W) uint8 array, got {frames.shape}")
+        raise UserError(f"frames must be a non-empty (T, H, W) uint8 array, got {frames.shape}")
     native = frames if native is None else np.asarray(native)
     if native.shape[0] != frames.shape[0]:
-        raise ValueError("native must hold one image per frame")
+        raise UserError("native must hold one image per frame")
     metrics = settings.metric_names()
     h, w = working_size(frames.shape[1], frames.shape[2], fov_deg, width)
     t = np.arange(len(frames)) / fps if t_s is None else np.asarray(t_s, np.float64)
@@ -231,8 +238,7 @@ def expand_sources(
     itself, unfinished captures and dangling links (``vdc.folders.scan_folder``), which
     ``notice`` hears about in one line per folder. A folder without any source, a missing
     file or a pattern that matches nothing raises ValueError."""
-    from vdc.folders import path_list, scan_folder
-    from vdc.sources import VIDEO_SUFFIXES
+    from vdc.folders import path_list
 
     sources: list[str] = []
     for item in path_list(items):
@@ -243,7 +249,7 @@ def expand_sources(
             if note and notice is not None:
                 notice(note)
             if not scan.found:
-                raise ValueError(
+                raise UserError(
                     f"folder {item!r} holds no videos ({', '.join(VIDEO_SUFFIXES[:5])}, ...) "
                     f"or .rrd recordings{f' ({note})' if note else ''}"
                 )
@@ -256,10 +262,10 @@ def expand_sources(
             if not folder.is_dir() or not any(
                 f.name.startswith(head) for f in folder.iterdir() if f.is_file()
             ):
-                raise ValueError(f"image sequence {item!r} matches no files")
+                raise UserError(f"image sequence {item!r} matches no files")
             sources.append(item)
         else:
-            raise ValueError(f"{item!r}: no such file or folder")
+            raise UserError(f"{item!r}: no such file or folder")
     return sources
 
 
@@ -276,7 +282,7 @@ def without_fov(sources: Sequence[str], settings: ComplexitySettings) -> str | N
     if not left:
         return None
     if not kept and len(videos) == len(sources):
-        raise ValueError(
+        raise UserError(
             f"{', '.join(left)} need the camera's field of view: give --fov-deg (the horizontal "
             "field of view, degrees) or ask for pixel metrics (--metrics)"
         )
@@ -308,8 +314,6 @@ def plan_sources(
     measured again). A recording vdc derived from another (its ``vdc_output`` property: a
     ``complexity_<id>.rrd`` copied away from its folder's manifest) is not a source: left
     out, and ``notice`` hears how many."""
-    from analysis.recordings.reader import Recording, RecordingError
-    from analysis.recordings.recompute import DistinctRecordings
 
     opened: dict[str, Any] = {}
     for s in sources:
@@ -326,7 +330,7 @@ def plan_sources(
                 f"{derived[0]}): outputs, not sources"
             )
         if len(derived) == len(sources):
-            raise ValueError(
+            raise UserError(
                 f"{derived[0]!r} is an output of vdc-analyse complexity, not a source; give "
                 "the recording or video it measured"
             )
@@ -349,7 +353,7 @@ def plan_sources(
         tasks.append({"source": src, "recording_id": rid, "key": f"{name}-{digest[:8]}"})
     keys = [t["key"] for t in tasks]
     if len(set(keys)) != len(keys):  # the same name and content twice
-        raise ValueError("two sources are the same file; give each once")
+        raise UserError("two sources are the same file; give each once")
     return tasks
 
 
@@ -374,7 +378,7 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
         },
         "raster": table["raster"][0],
     }  # fmt: skip
-    for m in present(table):
+    for m in metrics_present(table):
         v = table[m].drop_nulls().cast(pl.Float64)
         row[f"{m}_mean"] = float(v.mean()) if v.len() else None
         row[f"{m}_max"] = float(v.max()) if v.len() else None
@@ -461,8 +465,6 @@ def complexity(
     as they finish. A bad single source raises ValueError; in a collection, failed sources
     are listed in ``result.failures`` and ``failures.parquet``. ``out=None`` writes nothing
     (the work is done in a folder removed before this returns) and returns the tables."""
-    from analysis.batch import parse_shard, readable_part
-    from vdc.parquet_io import read_metadata, table_set, write_parquet
 
     if out is None:
         import tempfile
@@ -518,7 +520,7 @@ def complexity(
             parts.append(pl.read_parquet(path))
             infos.append(read_metadata(path)["info"])
     if not parts:
-        raise ValueError(
+        raise UserError(
             "no source could be measured: "
             + "; ".join(f"{src}: {err}" for src, err in failures[:3])
         )
@@ -552,8 +554,8 @@ def complexity(
     meta = {
         "settings": settings.measured(),
         "recordings": sorted(table["recording_id"].unique().to_list()),
-        "metrics": present(table),
-        "rasters": {m: RASTERS[m] for m in present(table)},
+        "metrics": metrics_present(table),
+        "rasters": {m: RASTERS[m] for m in metrics_present(table)},
         "raster_note": "model: the AVDM's working raster (70/99 deg per px); source: the "
         "native frames where the source has them, else the camera's raster (column raster)",
     }

@@ -12,8 +12,10 @@ from typing import Any
 
 import numpy as np
 import polars as pl
+from matplotlib.figure import Figure
 
-from analysis.complexity.source_metrics import METRICS, normalised, present
+from analysis.complexity.source_metrics import METRICS, metrics_present, normalised
+from analysis.profile import correlation_panel, save_figure
 
 _LABELS = {
     "omega_dps": "AVDM ω̂ (deg/s)",
@@ -27,16 +29,13 @@ _RANK_ORDER = ("omega_dps", "ti_p910", "si_p910", "flow_dps", *METRICS)
 
 def ranking(clips: pl.DataFrame) -> list[str]:
     """The measured metrics in the order the figure and the report rank clips by."""
-    have = present(clips, "_mean")
+    have = metrics_present(clips, "_mean")
     return list(dict.fromkeys(m for m in _RANK_ORDER if m in have))
 
 
 def plot_collection(clips: pl.DataFrame, path: Path) -> Path:
     """The collection at a glance: clips ranked by their mean AVDM response and by their mean
     TI (P.910), and each clip's mean AVDM against its mean TI and SI."""
-    from matplotlib.figure import Figure
-
-    from analysis.profile import save_figure
 
     n = clips.height
     fig = Figure(figsize=(14, 6 + 0.15 * min(n, 60)), layout="constrained")
@@ -117,15 +116,11 @@ raster. Per-frame values: complexity.parquet; every statistic: clips.parquet.</p
 
 
 def plot_complexity(df: pl.DataFrame, corr: pl.DataFrame, path: Path) -> Path:
-    from matplotlib.figure import Figure
-
-    from analysis.profile import correlation_panel, save_figure
-
     norm = normalised(df)
     t = df["t_s"].to_numpy()
     fig = Figure(figsize=(16, 5.5), layout="constrained")
     (ax, axc) = fig.subplots(1, 2, gridspec_kw={"width_ratios": [2.2, 1]})
-    metrics = present(df)
+    metrics = metrics_present(df)
     for m in metrics:
         ax.plot(t, norm[m], lw=1.6 if m == "omega_dps" else 0.8, label=m, alpha=0.9)
     ax.set_xlabel("time (s)")

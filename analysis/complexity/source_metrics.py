@@ -41,11 +41,18 @@ import cv2
 import numpy as np
 import polars as pl
 
+from analysis.batch import PARTS
+from analysis.recordings.loading import load_recording
+from analysis.stats import spearman
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel, new_frame_rate, repeat_flags
+from vdc.errors import UserError
+from vdc.frame_batches import FrameBatcher
 from vdc.frame_metrics import NativeMeter, decide_ranges
+from vdc.parquet_io import write_parquet
+from vdc.pipeline import usable_threads
 from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context, working_size
-from vdc.sources import end_fields
+from vdc.sources import end_fields, open_reader
 
 if TYPE_CHECKING:
     from analysis.recordings.loading import LoadedRecording
@@ -110,7 +117,7 @@ def parse_metrics(text: str | tuple[str, ...] | list[str]) -> tuple[str, ...]:
         return METRICS
     unknown = [n for n in names if n not in METRICS]
     if unknown or not names:
-        raise ValueError(
+        raise UserError(
             f"--metrics: {'unknown ' + ', '.join(unknown) if unknown else 'no metric named'}; "
             f"choose from {', '.join(METRICS)} (or all)"
         )
@@ -257,7 +264,7 @@ def measure_recording(
     cam = loaded.props.get("camera", {})
     path = loaded.rec.path
     if not ctx or "width_px" not in cam:
-        raise ValueError(f"{str(path)!r} does not record its camera (fps, width, FOV)")
+        raise UserError(f"{str(path)!r} does not record its camera (fps, width, FOV)")
     # the container's rate (the camera's), from which the meter finds the new frames' rate
     # again: a video capture built its model at that rate (``model_context``), not at this one
     fps, deg_per_px = float(cam.get("fps", ctx["fps"])), float(ctx["deg_per_px"])
@@ -337,15 +344,12 @@ def measure_video(
     decoded once: the source-raster metrics on its native frames, the model-raster ones on
     the working raster ``vdc-capture video`` uses (the same frames, times and repeat flags:
     its recording then gives the same table)."""
-    from vdc.frame_batches import FrameBatcher
-    from vdc.pipeline import usable_threads
-    from vdc.sources import open_reader
 
     metrics = chosen_metrics(settings)
     if settings.fov_deg is None:  # the pixel metrics only (complexity notes it, once)
         metrics = fov_free(metrics, settings.width)
         if not metrics:
-            raise ValueError(
+            raise UserError(
                 f"{source!r} is a video: give --fov-deg (the camera's horizontal field of view) "
                 "for the AVDM and the flow in deg/s, or ask for pixel metrics (--metrics)"
             )
@@ -356,7 +360,7 @@ def measure_video(
         info = reader.info
         fps = settings.fps or info["nominal_fps"]
         if not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"{source!r} states no frame rate: pass --fps")
+            raise UserError(f"{source!r} states no frame rate: pass --fps")
         size = ctx = meter = None
         if model_metrics:
             fov = settings.fov_deg or float(settings.width or 0) * ROBOT_DEG_PER_PX
@@ -364,8 +368,9 @@ def measure_video(
             ctx = camera_model_context(size[1], size[0], fps, fov)
         native = tuple(m for m in NATIVE_METRICS if m in metrics)
         batches = FrameBatcher(
-            reader, size, fps, 128, settings.repeat_tol, settings.max_repeats, native,
-            usable_threads(), settings.jpeg_quality, settings.color_range,
+            reader, size, fps, batch_frames=128, repeat_tol=settings.repeat_tol,
+            max_repeats=settings.max_repeats, metrics=native, threads=usable_threads(),
+            jpeg_quality=settings.jpeg_quality, color_range=settings.color_range,
             # a file or image sequence can be read again (a camera cannot): no second SI/TI
             # pass for the range decision (vdc.frame_batches)
             reopen=None if info["kind"] == "camera" else lambda: open_reader(source, settings.fps),
@@ -435,7 +440,6 @@ def with_p910_corrections(table: pl.DataFrame, fix: np.ndarray) -> pl.DataFrame:
     )
 
 
-PARTS = "parts"  # a collection's per-source tables: <out>/parts/<key>.parquet
 # the settings that say where and which sources run, not what their numbers are
 RUN_FIELDS = ("executor", "jobs", "scheduler", "shard", "force", "rrd")
 
@@ -461,8 +465,6 @@ def measure_source(
     """One source measured: a recording (``.rrd``, its own id) or a video
     (``recording_id``)."""
     if source.endswith(".rrd"):
-        from analysis.recordings.loading import load_recording
-
         return measure_recording(load_recording(source), settings, progress)
     return measure_video(source, settings, recording_id, progress)
 
@@ -481,7 +483,6 @@ def complexity_task(
     in ``analysis.complexity.command``, so that a pool worker imports only what measuring needs: not
     the figures, Rerun or the command line (1.25 against about 0.5 s of CPU per worker, paid
     on the wall clock whatever the number of workers)."""
-    from vdc.parquet_io import write_parquet
 
     s = SimpleNamespace(**settings)
     m = measure_source(source, recording_id, s, progress)
@@ -493,7 +494,6 @@ def complexity_task(
 def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
     """Spearman ρ of every pair of metrics (of those in ``df``) over the frames where both
     are defined."""
-    from analysis.stats import spearman
 
     rows = []
     present = [m for m in METRICS if m in df.columns]
@@ -510,7 +510,7 @@ def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
     })  # fmt: skip
 
 
-def present(df: pl.DataFrame, suffix: str = "") -> list[str]:
+def metrics_present(df: pl.DataFrame, suffix: str = "") -> list[str]:
     """The metrics (:data:`METRICS` order) a table has columns for (``m + suffix``)."""
     return [m for m in METRICS if m + suffix in df.columns]
 
@@ -518,7 +518,7 @@ def present(df: pl.DataFrame, suffix: str = "") -> list[str]:
 def normalised(df: pl.DataFrame) -> dict[str, np.ndarray]:
     """Each metric divided by its 99th percentile (so all share one axis)."""
     out = {}
-    for m in present(df):
+    for m in metrics_present(df):
         v = df[m].cast(pl.Float64).fill_null(np.nan).to_numpy()
         top = np.nanpercentile(v, 99) if np.isfinite(v).any() else np.nan
         out[m] = v / top if top and np.isfinite(top) and top > 0 else v * np.nan

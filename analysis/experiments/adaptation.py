@@ -38,18 +38,22 @@ from analysis.boundary.command import (
     condition_complexity,
     condition_name,
     condition_statistics,
-    interval,
-    markdown_table,
     name_list,
     number_list,
 )
+from analysis.boundary.report_tables import interval, markdown_table
+from analysis.experiments.adaptive import in_fitted_range
 from analysis.experiments.boundary_campaign import run_grid
+from analysis.experiments.captures import RunItem, check_detectors
 from analysis.stats import mean_ci
 from avdm.policy import load_policy
-from avdm.registry import add_overrides
+from avdm.registry import add_overrides, parse_model_spec
+from capture.config import CollisionConfig, parse_schedule
+from capture.sim import SimSettings
 from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback
-from vdc.parquet_io import WroteFiles
+from vdc.parquet_io import WroteFiles, table_set, write_tables
 
 CONTROLLERS = ("fixed", "hand", "adaptive", "policy")
 BETTER, WORSE, SAME = "better", "worse", "no difference"
@@ -83,17 +87,16 @@ class AdaptationSettings(ExecutorSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        from avdm.registry import parse_model_spec
 
         if not self.policy:
-            raise ValueError("give the policy to test: --policy FILE (from vdc-analyse boundary)")
+            raise UserError("give the policy to test: --policy FILE (from vdc-analyse boundary)")
         load_policy(self.policy)  # a bad policy file fails before anything runs
         parse_model_spec(self.policy_spec())
         parse_model_spec(self.hand_spec())
         if not 0 < self.target < 1:
-            raise ValueError(f"--target must be between 0 and 1, got {self.target}")
+            raise UserError(f"--target must be between 0 and 1, got {self.target}")
         if self.seeds < 1:
-            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
         self.conditions()
 
     def policy_spec(self) -> str:
@@ -103,8 +106,6 @@ class AdaptationSettings(ExecutorSettings):
         return add_overrides(self.detector, self.hand) if self.hand else self.detector
 
     def adaptive_allowed(self) -> bool:
-        from capture.config import CollisionConfig
-
         return CollisionConfig(detector=self.detector).base_detector == "lgmd-plus"
 
     def conditions(self) -> list[tuple[str, str, float | None, str | None]]:
@@ -115,8 +116,6 @@ class AdaptationSettings(ExecutorSettings):
             for tf in number_list(self.tf, "tf")
         ]
         if self.schedule:
-            from capture.config import parse_schedule
-
             parse_schedule(self.schedule)
             out.append(
                 (
@@ -127,13 +126,12 @@ class AdaptationSettings(ExecutorSettings):
                 )
             )
         if not out:
-            raise ValueError("no held-out condition: give --tf and --scenes or --schedule")
+            raise UserError("no held-out condition: give --tf and --scenes or --schedule")
         return out
 
 
-def adaptation_items(s: AdaptationSettings, folder: Path) -> list[tuple[str, Any, Path, dict]]:
+def adaptation_items(s: AdaptationSettings, folder: Path) -> list[RunItem]:
     """One closed-loop run per (condition, controller, seed)."""
-    from capture.sim import SimSettings
 
     controllers = [c for c in CONTROLLERS if c != "adaptive" or s.adaptive_allowed()]
     specs = {
@@ -159,14 +157,8 @@ def adaptation_items(s: AdaptationSettings, folder: Path) -> list[tuple[str, Any
                     adaptive_gain=s.adaptive_gain,
                 )
                 cols = {"condition": cond, "controller": ctrl, "seed": seed}
-                items.append(
-                    (
-                        f"{cond}-{ctrl}-seed{seed}",
-                        settings,
-                        folder / cond / ctrl / f"seed{seed}.rrd",
-                        cols,
-                    )
-                )
+                path = folder / cond / ctrl / f"seed{seed}.rrd"
+                items.append(RunItem(f"{cond}-{ctrl}-seed{seed}", settings, path, cols))
     return items
 
 
@@ -232,14 +224,12 @@ def adaptation(
 ) -> AdaptationResult:
     """Run the held-out conditions with every controller; write ``adaptation.md``,
     ``adaptation.png`` and the Parquet tables into ``out``."""
-    from vdc.parquet_io import table_set, write_tables
 
     out = Path(out)
     policy = load_policy(s.policy)
     fitted = set()
     if policy.evidence is not None and "condition" in policy.evidence.columns:
         fitted = set(policy.evidence["condition"].to_list())
-    from analysis.experiments.adaptive import in_fitted_range
 
     notices = [
         f"{cond} was in the policy's fit: it is not held out"
@@ -249,9 +239,8 @@ def adaptation(
     for n in notices:
         feedback.log(f"note: {n}")
     items = adaptation_items(s, out / "recordings")
-    from analysis.experiments.captures import check_detectors
 
-    check_detectors(st.to_config() for _, st, _, _ in items)  # one line before any run
+    check_detectors(it.settings.to_config() for it in items)  # one line before any run
     feedback.log(f"adaptation: {len(s.conditions())} held-out condition(s), {len(items)} run(s)")
     runs = run_grid(items, "collision", s, s.false_alarm_m, feedback)
     complexity = condition_complexity(runs, "online_dps")

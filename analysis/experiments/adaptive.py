@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 import polars as pl
+import scipy.stats
 
 from analysis.boundary.command import (
     BoundaryResult,
@@ -46,14 +47,46 @@ from analysis.boundary.command import (
     boundaries,
     condition_name,
     condition_statistics,
+    fit_policy,
     published,
     write_arena_outputs,
 )
-from analysis.boundary.fit import CrossingFit, dps_to_tf, fit_crossing, tf_to_dps
+from analysis.boundary.fit import (
+    CrossingFit,
+    dps_to_tf,
+    fit_columns,
+    fit_crossing,
+    tf_to_dps,
+    with_fit,
+)
+from analysis.experiments.captures import RunItem, collision_run_item
+from capture.sim import SimSettings
 from vdc.executors import Feedback
+from vdc.parquet_io import table_set
 
 FIRST_BATCH = 4
 PROFILE_POINTS = 3  # profiling TFs per scene: the range's ends and middle
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class DesignSettings:
+    """What an adaptive design (:func:`design_runs`, :func:`design_runs_per_scene`) aims at and
+    may spend: the success ``target`` (share), runs per value (``budget``), the interval width
+    that settles a value (``precision_dps``, deg/s), runs per batch and the placement's seed."""
+
+    target: float
+    budget: int
+    precision_dps: float
+    batch: int
+    seed: int
+
+    @classmethod
+    def of(cls, s: BoundarySettings) -> DesignSettings:
+        """A boundary campaign's design: a batch fills the pool (at least two runs)."""
+        b = max(2, s.jobs)
+        return cls(
+            target=s.target, budget=s.budget, precision_dps=s.precision, batch=b, seed=s.seed
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,17 +141,14 @@ def design_runs(
     profile: ProfileMap,
     tf_range: tuple[float, float],
     run_batch: Callable[[list[dict[str, Any]]], list[dict[str, Any]]],
+    design: DesignSettings,
     *,
-    target: float,
-    budget: int,
-    precision_dps: float,
-    batch: int,
-    seed: int,
     log: Callable[[str], None] = lambda _m: None,
 ) -> tuple[list[dict[str, Any]], dict[float, CrossingFit]]:
     """The adaptive loop (see the module). ``run_batch`` gets the batch's runs (value, scene,
     tf_hz, seed, batch, complexity_dps) and returns one row per run with those keys and the
     run's ``avoidances`` and ``crashes``. Returns every row and the last fit per value."""
+    target, budget, precision_dps, batch, seed = dataclasses.astuple(design)  # field order
     rng = np.random.default_rng(seed)
     lo, hi = tf_range
     domain = (
@@ -186,8 +216,6 @@ def first_failure(
     of their success, ``k`` of ``n``, below ``target``); inf when none does. The per-scene
     design's boundary is the *first* crossing: runs past this one are not fitted (a detector
     can fail in the middle of a scene's range and recover at its end)."""
-    import scipy.stats
-
     x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
     ok = n_a > 0
     upper = np.ones_like(x_a)
@@ -204,8 +232,6 @@ def first_recovery(
     """The least complexity above ``failed`` (the first clearly failing run's) among runs that
     clearly succeed again (the exact binomial 95 % lower bound of their success above
     ``target``): where the success recovers; inf when none does (or none failed)."""
-    import scipy.stats
-
     x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
     ok = (n_a > 0) & (x_a > failed)
     lower = np.zeros_like(x_a)
@@ -260,12 +286,8 @@ def design_runs_per_scene(
     profile: ProfileMap,
     tf_range: tuple[float, float],
     run_batch: Callable[[list[dict[str, Any]]], list[dict[str, Any]]],
+    design: DesignSettings,
     *,
-    target: float,
-    budget: int,
-    precision_dps: float,
-    batch: int,
-    seed: int,
     log: Callable[[str], None] = lambda _m: None,
 ) -> tuple[list[dict[str, Any]], dict[tuple[float, str], CrossingFit]]:
     """The per-scene adaptive loop (``--per-scene``): each (value, scene) its own design.
@@ -278,6 +300,7 @@ def design_runs_per_scene(
     TFs of that scene. A (value, scene) stops as :func:`design_runs`' values do (or at its
     share of the budget). ``run_batch`` as :func:`design_runs`'; returns every row and the
     last fit per (value, scene)."""
+    target, budget, precision_dps, batch, seed = dataclasses.astuple(design)  # field order
     rng = np.random.default_rng(seed)
     lo, hi = tf_range
     per_scene = max(2, budget // len(scenes))
@@ -347,10 +370,8 @@ def design_runs_per_scene(
     return [r for key in keys for r in rows[key]], fits
 
 
-def profile_runs(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+def profile_runs(s: BoundarySettings, folder: Path) -> list[RunItem]:
     """The profiling runs: per scene, ``PROFILE_POINTS`` TFs over the range, seed ``--seed``."""
-    from capture.sim import SimSettings
-
     lo, hi = s.tf_bounds()
     items = []
     for scene in s.scene_list():
@@ -362,16 +383,12 @@ def profile_runs(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path
             )
             cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": s.seed}
             path = folder / "profile" / cond / f"seed{s.seed}.rrd"
-            items.append((f"profile-{cond}-seed{s.seed}", settings, path, cols))
+            items.append(RunItem(f"profile-{cond}-seed{s.seed}", settings, path, cols))
     return items
 
 
-def run_items(
-    s: BoundarySettings, placed: list[dict[str, Any]], folder: Path
-) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+def run_items(s: BoundarySettings, placed: list[dict[str, Any]], folder: Path) -> list[RunItem]:
     """Closed-loop runs for the placed (value, scene, TF, seed)s, as the grid records them."""
-    from analysis.experiments.captures import collision_run_item
-
     return [
         collision_run_item(
             s, p["scene"], p["tf_hz"], p["value"], p["seed"], folder, {s.param: p["value"]} | p
@@ -389,9 +406,6 @@ def adaptive_boundary(
     same files as the grid (``boundary.md``, ``boundary.png``, ``boundary_runs.parquet``: one
     row per run the design placed, ``boundary.parquet`` with the fitted columns,
     ``boundary_profiles.parquet``, ``policy.csv``)."""
-    from analysis.boundary.fit import fit_columns, with_fit
-    from vdc.parquet_io import table_set
-
     rec = out / "recordings"
     scenes, values = s.scene_list(), s.grid_values()
     prof_items = profile_runs(s, rec)
@@ -415,11 +429,7 @@ def adaptive_boundary(
         pmap,
         s.tf_bounds(),
         run_batch,
-        target=s.target,
-        budget=s.budget,
-        precision_dps=s.precision,
-        batch=max(2, s.jobs),
-        seed=s.seed,
+        DesignSettings.of(s),
         log=feedback.log,
     )
     runs = pl.DataFrame(rows).drop("value").sort(s.param, "batch", "seed")
@@ -463,8 +473,6 @@ def _per_scene_outputs(
     """``--per-scene``: the loop (:func:`design_runs_per_scene`) and the files, with one row of
     ``boundary.parquet`` per (value, scene) (a ``scene`` column; the TF columns through that
     scene's profile; the bracket from that scene's runs)."""
-    from vdc.parquet_io import table_set
-
     scenes, values = s.scene_list(), s.grid_values()
     rows, fits = design_runs_per_scene(
         values,
@@ -472,11 +480,7 @@ def _per_scene_outputs(
         pmap,
         s.tf_bounds(),
         run_batch,
-        target=s.target,
-        budget=s.budget,
-        precision_dps=s.precision,
-        batch=max(2, s.jobs),
-        seed=s.seed,
+        DesignSettings.of(s),
         log=feedback.log,
     )
     runs = pl.DataFrame(rows).drop("value").sort(s.param, "batch", "seed")
@@ -519,8 +523,6 @@ def per_scene_bounds(
     """``boundary.parquet`` per (value, scene): the bracket of that scene's conditions
     (:func:`analysis.boundary.command.boundaries`), the fitted columns of ``fits[(value, scene)]``
     (TF through ``to_tf(scene, deg/s)``), the ``design``."""
-    from analysis.boundary.fit import fit_columns
-
     parts = []
     for v, sc in fits:
         mine = conditions.filter((pl.col(by) == v) & pl.col("condition").str.starts_with(f"{sc}-"))
@@ -572,8 +574,6 @@ def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3)
     scene's TF range cut in ``bins`` equal parts, the runs of a part pooled as one condition
     (``<scene>-tf<LO>-<HI>``); parts where some value has no run are left out (the policy
     compares the values on the same conditions). None when no part has every value."""
-    from analysis.boundary.command import fit_policy
-
     lo, hi = s.tf_bounds()
     edges = np.linspace(lo, hi, bins + 1)
     part = np.clip(np.searchsorted(edges, runs["tf_hz"].to_numpy(), side="right") - 1, 0, bins - 1)

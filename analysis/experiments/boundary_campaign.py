@@ -28,8 +28,26 @@ from analysis.boundary.command import (
     write_arena_outputs,
 )
 from analysis.boundary.fit import grid_fits, with_fit
-from analysis.experiments.captures import collision_run_item, profiling_items
+from analysis.boundary.footage import footage_boundary
+from analysis.experiments.adaptive import adaptive_boundary
+from analysis.experiments.captures import (
+    RunItem,
+    capture_is_done,
+    check_detectors,
+    collision_run_item,
+    profiling_items,
+)
+from analysis.experiments.predictor_runs import (
+    EVERY,
+    arena_predictor_tables,
+    cached_measures,
+    measures_table,
+)
+from capture.run import REPLACE_OUTPUT
+from capture.sim import record_sim
+from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback, run_tasks_or_raise
+from vdc.parquet_io import table_set
 
 
 def record_and_measure(
@@ -41,9 +59,6 @@ def record_and_measure(
     also gets every complexity measure of the predictors, in this worker right after its
     recording (``predictor_runs.cached_measures``, cached beside it the same way), under
     ``"measures"``: no second pool to start, import and warm up after the grid's."""
-    from analysis.experiments.captures import capture_is_done
-    from capture.run import REPLACE_OUTPUT
-    from capture.sim import record_sim
 
     path = Path(out)
     run_id = settings.to_config().run_id()
@@ -66,14 +81,12 @@ def record_and_measure(
         tmp.replace(cache)
         row |= {"reused": False}
     if kind == "profile" and measure_every > 0:
-        from analysis.experiments.predictor_runs import cached_measures
-
         row["measures"] = cached_measures(path, measure_every)
     return row | {"key": key}
 
 
 def _record_all(
-    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
+    items: Sequence[RunItem],
     kind: str,
     executor: ExecutorSettings,
     false_alarm_m: float,
@@ -82,24 +95,24 @@ def _record_all(
 ) -> list[dict[str, Any]]:
     """:func:`record_and_measure` of every item on ``executor``: the results in the items'
     order, ``columns`` first."""
-    from analysis.experiments.captures import check_detectors
 
     # a detector that cannot be one: one line before the first run, not one failure per run
-    check_detectors(settings.to_config() for _, settings, _, _ in items)
+    check_detectors(it.settings.to_config() for it in items)
     tasks = []
-    for key, settings, path, _ in items:
-        settings.to_config()  # a bad configuration fails before any process starts
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tasks.append((key, (key, settings, str(path), kind, false_alarm_m, measure_every)))
+    for it in items:
+        it.settings.to_config()  # a bad configuration fails before any process starts
+        it.path.parent.mkdir(parents=True, exist_ok=True)
+        task = (it.key, it.settings, str(it.path), kind, false_alarm_m, measure_every)
+        tasks.append((it.key, task))
     results = run_tasks_or_raise(
         record_and_measure,
         tasks,
         executor.executor_settings(),
         "run",
         feedback,
-        shared_paths=[items[0][2].parent] if items else [],
+        shared_paths=[items[0].path.parent] if items else [],
     )
-    rows = [{**cols, **results[key]} for key, _, _, cols in items if key in results]
+    rows = [{**it.columns, **results[it.key]} for it in items if it.key in results]
     reused = sum(bool(r.get("reused")) for r in rows)
     if reused:
         feedback.log(f"reused {reused} of {len(items)} {kind} run(s) that an earlier run finished")
@@ -107,7 +120,7 @@ def _record_all(
 
 
 def run_grid(
-    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
+    items: Sequence[RunItem],
     kind: str,
     executor: ExecutorSettings,
     false_alarm_m: float,
@@ -121,7 +134,7 @@ def run_grid(
 
 
 def run_profiles(
-    items: Sequence[tuple[str, Any, Path, dict[str, Any]]],
+    items: Sequence[RunItem],
     executor: ExecutorSettings,
     feedback: Feedback,
     measure_every: int = 0,
@@ -133,9 +146,7 @@ def run_profiles(
     got = {r["key"]: r.pop("measures") for r in rows if "measures" in r}
     measures = None
     if measure_every > 0:
-        from analysis.experiments.predictor_runs import measures_table
-
-        measures = measures_table([(key, cols) for key, _, _, cols in items], got)
+        measures = measures_table([(it.key, it.columns) for it in items], got)
     return pl.DataFrame(rows).sort("key"), measures
 
 
@@ -161,7 +172,6 @@ def require_evidence(
     """UserError, in one line, where the runs hold no evidence to place a boundary on (or fit
     a policy to): no run had an avoidance or a crash, or (``complexity`` given) a condition's
     complexity could not be measured. The line says how long runs need to be."""
-    from vdc.errors import UserError
 
     if not runs.height or int(runs["avoidances"].sum() + runs["crashes"].sum()) == 0:
         raise UserError(
@@ -184,12 +194,8 @@ def boundary(
     """Run the grid (arena) or the labelled clips (footage mode: ``settings.labels``) and
     write the tables, the figure, the report and, in the arena, ``policy.csv`` into ``out``."""
     if settings.labels is not None:
-        from analysis.boundary.footage import footage_boundary
-
         return footage_boundary(settings, Path(out), feedback)
     if settings.design == "adaptive":
-        from analysis.experiments.adaptive import adaptive_boundary
-
         return adaptive_boundary(settings, Path(out), run_grid, feedback)
     return arena_boundary(settings, Path(out), feedback)
 
@@ -214,14 +220,12 @@ def grid_items(s: BoundarySettings, folder: Path) -> list[tuple[str, Any, Path, 
 
 def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> BoundaryResult:
     """Arena mode of :func:`boundary`."""
-    from vdc.parquet_io import table_set
 
     rec = out / "recordings"
     items = grid_items(s, rec)
     prof = profiling_items(s, rec) if s.complexity == "profile" else []
-    from analysis.experiments.captures import check_detectors
 
-    check_detectors(settings.to_config() for _, settings, _, _ in items[:1])  # before a word
+    check_detectors(it.settings.to_config() for it in items[:1])  # before a word
     feedback.log(
         f"boundary of {s.detector} over {s.param} = {list(s.grid_values())}: {len(s.conditions())} "
         f"condition(s) x {len(s.grid_values())} value(s) x {s.seeds} seed(s) of "
@@ -229,10 +233,8 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
         + (f", plus {len(prof)} profiling run(s)" if prof else "")
     )
     runs = run_grid(items, "collision", s, s.false_alarm_m, feedback)
-    require_evidence(runs, None, s, items[0][1])  # never a verdict from no evidence
+    require_evidence(runs, None, s, items[0].settings)  # never a verdict from no evidence
     if prof:
-        from analysis.experiments.predictor_runs import EVERY
-
         # every complexity measure of a profiling run, by the worker that just recorded it
         every = 0 if s.no_predictors else EVERY
         profiles, measures = run_profiles(prof, s, feedback, every)
@@ -240,7 +242,7 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
     else:
         profiles = measures = None
         complexity = condition_complexity(runs, "online_dps")
-    require_evidence(runs, complexity, s, items[0][1])
+    require_evidence(runs, complexity, s, items[0].settings)
     conditions = condition_statistics(runs, complexity, ["condition", s.param])
     fitted, fits = grid_fits(runs, complexity, s.param, s.target)
     bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "grid")
@@ -257,8 +259,6 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
             policy, f"{s.detector}: success against complexity", x_label, fits,
         )  # fmt: skip
         if measures is not None:
-            from analysis.experiments.predictor_runs import arena_predictor_tables
-
             _, more, section = arena_predictor_tables(s, runs, measures, stage)
             paths += more
             md += "\n" + section

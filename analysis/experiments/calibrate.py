@@ -19,6 +19,7 @@ from avdm.calibration import CalibrationResult, fit_decoding, valid_periods_px, 
 from avdm.calibration_store import CALIBRATION_FILE
 from avdm.registry import canonical_name, make_params
 from vdc.cli_support import Settings, option, parse_size, positive_float
+from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles
 from vdc.provenance import package_versions
 
@@ -143,7 +144,7 @@ class CalibrateSettings(Settings):
             f"{self.model}{sep}a=1,b=1", fps=self.fps, deg_per_px=self.resolved_deg_per_px
         )
         if not isinstance(params, AvdmParams):
-            raise ValueError(
+            raise UserError(
                 f"calibrate fits the grating-calibrated AVDM (avdm and its variants); "
                 f"{self.model.split(':')[0]} is fitted on clutter automatically for each camera "
                 "on first use (avdm.calibration.fit_multiscale)"

@@ -8,12 +8,15 @@ of fresh processes, or a Dask cluster), so a campaign of many long runs spreads 
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from analysis.boundary.command import condition_name, with_override
 from analysis.recordings.reader import Recording, RecordingError
+from avdm.registry import check_detector
 from capture.run import REPLACE_OUTPUT
 from capture.sim import SimSettings, record_sim
 from vdc.executors import (
@@ -45,7 +48,6 @@ def check_detectors(configs: Iterable[Any]) -> None:
     stepped on one frame of the camera's raster (:func:`avdm.registry.check_detector`), before any
     run: a detector that cannot be one is a ValueError in one line, not one failure per run.
     ``configs``: :class:`capture.config.SimConfig` items."""
-    from avdm.registry import check_detector
 
     seen = set()
     for config in configs:
@@ -112,10 +114,21 @@ def run_captures(
     return paths
 
 
-def profiling_items(s: Any, folder: Path) -> list[tuple[str, Any, Path, dict[str, Any]]]:
+@dataclasses.dataclass(frozen=True)
+class RunItem:
+    """One simulated run of a campaign: its ``key`` (unique in the campaign), the
+    ``capture.sim.SimSettings`` it records with, the recording's ``path`` and the ``columns``
+    its row of the runs table starts with."""
+
+    key: str
+    settings: SimSettings
+    path: Path
+    columns: dict[str, Any]
+
+
+def profiling_items(s: Any, folder: Path) -> list[RunItem]:
     """A boundary campaign's profiling runs (``s``: its ``BoundarySettings``): one (as
     ``reproduce`` profiles: ring turns, no detector) per (scene, TF, seed)."""
-    from analysis.boundary.command import condition_name
 
     items = []
     for scene, tf in s.conditions():
@@ -125,24 +138,17 @@ def profiling_items(s: Any, folder: Path) -> list[tuple[str, Any, Path, dict[str
                 scene=scene, tf_hz=tf, minutes=s.minutes, seed=seed, model=s.profile_model
             )
             cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": seed}
-            items.append(
-                (
-                    f"profile-{cond}-seed{seed}",
-                    settings,
-                    folder / "profile" / cond / f"seed{seed}.rrd",
-                    cols,
-                )
-            )
+            path = folder / "profile" / cond / f"seed{seed}.rrd"
+            items.append(RunItem(f"profile-{cond}-seed{seed}", settings, path, cols))
     return items
 
 
 def collision_run_item(
     s: Any, scene: str, tf_hz: float, value: float, seed: int, folder: Path, cols: dict[str, Any]
-) -> tuple[str, Any, Path, dict[str, Any]]:
+) -> RunItem:
     """One closed-loop run of a boundary campaign (``s``: its ``BoundarySettings``) at the
-    detector's ``value``: (key, settings, recording path, row columns), as the grid and the
+    detector's ``value``, as the grid and the
     adaptive design both record it (so either reuses the other's finished runs)."""
-    from analysis.boundary.command import condition_name, with_override
 
     cond = condition_name(scene, tf_hz)
     tag = f"{s.param}{value:g}"
@@ -157,4 +163,6 @@ def collision_run_item(
         profile_model=s.profile_model,
     )
     key = f"{cond}-{tag}-seed{seed}"
-    return key, settings, folder / cond / tag / f"seed{seed}.rrd", {"condition": cond} | cols
+    return RunItem(
+        key, settings, folder / cond / tag / f"seed{seed}.rrd", {"condition": cond} | cols
+    )

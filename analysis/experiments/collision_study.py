@@ -26,7 +26,9 @@ from analysis.experiments.captures import CaptureItem, check_detectors, run_capt
 from avdm.registry import add_overrides, parse_model_spec
 from capture.sim import SimSettings
 from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings
+from vdc.parquet_io import WroteFiles
 
 SEEDS_HELP = (  # --seeds of the campaigns (collision-study, reproduce)
     "runs per condition, seeds --seed, --seed+1, ...: every figure is given as a mean with its "
@@ -123,7 +125,7 @@ class CollisionStudySettings(ExecutorSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.seeds < 1:
-            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
         parse_model_spec(self.detector)  # a bad detector fails before anything runs
         if self.adjusted:
             parse_model_spec(add_overrides(self.detector, self.adjusted))
@@ -131,7 +133,7 @@ class CollisionStudySettings(ExecutorSettings):
 
 
 @dataclasses.dataclass
-class CollisionStudyResult:
+class CollisionStudyResult(WroteFiles):
     summary: pl.DataFrame  # one row per (phase, seed)
     phases: pl.DataFrame  # one row per phase: means and 95 % intervals across seeds
     markdown: str  # the per-phase and per-run tables beside the paper's numbers

@@ -7,6 +7,7 @@ from typing import Any, ClassVar
 
 from analysis.experiments.collision_study import SEEDS_HELP, seed_list
 from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings
 
 
@@ -68,7 +69,7 @@ class ReproduceSettings(ExecutorSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.seeds < 1:
-            raise ValueError(f"--seeds must be at least 1, got {self.seeds}")
+            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
 
     @property
     def seed_list(self) -> list[int]:

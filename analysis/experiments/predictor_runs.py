@@ -25,6 +25,7 @@ recording anything, and a re-run measures nothing again.
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import math
 import zlib
@@ -32,8 +33,23 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import polars as pl
+
+from analysis.boundary.command import WARMUP_FRAMES, BoundarySettings
+from analysis.complexity.source_metrics import DIS_PRESETS
+from analysis.experiments.captures import profiling_items
+from analysis.predictors.report import PredictorResult, settings_meta, write_predictors
+from analysis.predictors.statistics import MEASURES, arena_predictors
+from analysis.recordings.loading import load_recording
+from avdm.registry import make_model
+from avdm.true_time import TrueTimeModel
+from vdc.errors import UserError
+from vdc.executors import Feedback, run_tasks_or_raise
+from vdc.frame_metrics import NativeMeter
+from vdc.parquet_io import table_set
+from vdc.recording import NATIVE_METRICS
 
 MEASURE_VERSION = 2  # 1 lost codec_bpp (NaN)
 EVERY = 8  # the SI/TI family, flow and zlib on every 8th frame pair (their cost; see module)
@@ -61,12 +77,10 @@ def yuv420_planes(frames: np.ndarray) -> np.ndarray:
 def _codec_sizes(frames: np.ndarray, fps: float, state: dict[str, Any]) -> None:
     """Encode ``frames`` (T, H, W) uint8 into the H.264 stream kept in ``state`` and add the
     packets' bytes to ``state["bytes"]``."""
-    import av
+    import av  # lazy: start-up
 
     h, w = frames.shape[1:]
     if "stream" not in state:
-        import io
-
         state["buf"] = io.BytesIO()
         state["out"] = av.open(state["buf"], "w", format="h264")
         st = state["out"].add_stream("libx264", rate=round(fps))
@@ -87,21 +101,12 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
     """Every measure of one profiling run (see the module): their means over the straight-
     driving frames after the warm-up, with ``frames`` (straight frames after the warm-up) and
     ``sampled_frames`` (of those, measured by the sampled measures)."""
-    import cv2
-
-    from analysis.boundary.command import WARMUP_FRAMES
-    from analysis.complexity.source_metrics import DIS_PRESETS
-    from analysis.recordings.loading import load_recording
-    from avdm.registry import make_model
-    from avdm.true_time import TrueTimeModel
-    from vdc.frame_metrics import NativeMeter
-    from vdc.recording import NATIVE_METRICS
 
     warmup = WARMUP_FRAMES if warmup is None else warmup
     loaded = load_recording(path)
     ctx = loaded.camera_context()
     if not ctx:
-        raise ValueError(f"{str(path)!r} does not record its camera")
+        raise UserError(f"{str(path)!r} does not record its camera")
     fps, deg_per_px = float(ctx["fps"]), float(ctx["deg_per_px"])
     timing = loaded.frames.select("frame", "t_s", "repeat", "turning")
     natural = TrueTimeModel(make_model("avdm-natural", **ctx))
@@ -150,7 +155,6 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
         paper = loaded.logged[profiler].select("frame", pl.col("omega_dps").alias("avdm"))
         df = df.join(paper, on="frame", how="left")
     straight = df.filter((pl.col("frame") >= warmup) & pl.col("turning").not_())
-    from analysis.predictors.statistics import MEASURES
 
     row: dict[str, Any] = {
         "recording_id": loaded.recording_id,
@@ -196,7 +200,6 @@ def arena_measures(
 ) -> pl.DataFrame:
     """:func:`cached_measures` of every profiling run ``(path, columns)`` on ``executor`` (an
     ``ExecutorSettings``): one row per run, ``columns`` (condition, scene, tf_hz, seed) first."""
-    from vdc.executors import Feedback, run_tasks_or_raise
 
     tasks = [(str(p), (str(p), every)) for p, _ in items]
     got = run_tasks_or_raise(
@@ -226,15 +229,11 @@ def predictors_for_folder(
     ``predictors.parquet``, ``predictor_measures.parquet``, ``predictors.png`` and the
     section of ``boundary.md`` into ``folder``. Returns
     :class:`analysis.predictors.report.PredictorResult`."""
-    from analysis.boundary.command import BoundarySettings
-    from analysis.experiments.captures import profiling_items
-    from analysis.predictors.report import PredictorResult, settings_meta
-    from vdc.parquet_io import table_set
 
     folder = Path(folder)
     meta = settings_meta(folder)
     if meta.get("labels"):
-        raise ValueError(
+        raise UserError(
             f"{str(folder)!r} is a footage boundary: its predictors are written by the run"
         )
     fields = {f.name for f in dataclasses.fields(BoundarySettings)}
@@ -243,10 +242,10 @@ def predictors_for_folder(
     if executor is not None:
         s = dataclasses.replace(s, **executor)
     runs = pl.read_parquet(folder / "boundary_runs.parquet")
-    items = [(p, cols) for _, _, p, cols in profiling_items(s, folder / "recordings")]
+    items = [(it.path, it.columns) for it in profiling_items(s, folder / "recordings")]
     missing = [str(p) for p, _ in items if not p.exists()]
     if missing:
-        raise ValueError(
+        raise UserError(
             f"{len(missing)} profiling run(s) are missing (e.g. {missing[0]}): the predictors "
             "need the grid's profiling runs (--complexity profile)"
         )
@@ -266,8 +265,6 @@ def arena_predictor_tables(
     s: Any, runs: pl.DataFrame, measures: pl.DataFrame, stage: Path
 ) -> tuple[pl.DataFrame, list[Path], str]:
     """The predictor table of a grid written into ``stage``: (table, paths, report section)."""
-    from analysis.predictors.report import write_predictors
-    from analysis.predictors.statistics import arena_predictors
 
     table = arena_predictors(runs, measures, s.param, s.target)
     meta = {"settings": dataclasses.asdict(s), "every": int(measures["every"][0])}
@@ -299,7 +296,7 @@ def predictors(source: str | Path | Any) -> Any:
     else:
         folder = Path(source)
     if not folder.is_dir():
-        raise ValueError(f"{str(folder)!r} is not a boundary output folder")
+        raise UserError(f"{str(folder)!r} is not a boundary output folder")
     pred = folder / "predictors.parquet"
     if not pred.exists():
         return predictors_for_folder(folder)
@@ -312,7 +309,6 @@ def predictors(source: str | Path | Any) -> Any:
     md = md_path.read_text() if md_path.exists() else ""
     cut = md.find("## Which measure predicts")
     paths = [pred] + ([measures] if measures else []) + [folder / "predictors.png"]
-    from analysis.predictors.report import PredictorResult
 
     return PredictorResult(
         pl.read_parquet(pred),

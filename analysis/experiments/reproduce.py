@@ -33,36 +33,25 @@ from analysis.collision import (
 )
 from analysis.experiments.approach import ApproachConfig, plot_approach, run_approach
 from analysis.experiments.captures import CaptureItem, run_captures
-from analysis.experiments.claims import (  # noqa: F401 - re-exported: the claims' API
+from analysis.experiments.claims import (
     CALIBRATED,
     PROFILE_CONDITIONS,
     PROFILE_MODELS,
-    RELEASED,
     Claim,
-    Quantity,
     claims_frame,
-    collision_claims,
     evaluate_claims,
-    profiling_claims,
 )
 from analysis.experiments.collision_study import phase_items, study_phases
 from analysis.experiments.figures import plot_fig6_seeds
 from analysis.experiments.plan import ReproduceSettings
-from analysis.experiments.report import (  # noqa: F401 - re-exported
-    environment_markdown,
-    fig6_table_markdown,
+from analysis.experiments.report import (
     write_report,
 )
 from analysis.experiments.sweep import SweepConfig, monotonicity, paper_cells, plot_paper, run_sweep
-from analysis.profile import (
-    ProfileSettings,
-    plot_overview,
-    plot_segment,
-    segment_summary,
-    segments_from_tables,
-)
+from analysis.profile import plot_overview, plot_segment
 from analysis.recordings.reader import Recording
 from analysis.recordings.recompute import SummarySettings, build_tables, summary_rows
+from analysis.recordings.segments import ProfileSettings, segment_summary, segments_from_tables
 from capture.sim import SimSettings
 from vdc.parquet_io import WroteFiles, write_parquet
 

@@ -21,15 +21,15 @@ from matplotlib.figure import Figure
 
 from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model, make_params, require_angular_velocity
-from avdm.stimuli import grating, omega_true_dps, period_px_from_sf
+from avdm.stimuli import WAVEFORMS, grating, omega_true_dps, period_px_from_sf
 from vdc.cli_support import Settings, option, parse_size, positive_float
-from vdc.parquet_io import WroteFiles
+from vdc.errors import UserError
+from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
 PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
 PAPER_TF_HZ = (1.0, 5.0, 50.0)  # columns: response vs SF
 DEFAULT_TFS_HZ = (1, 2, 3, 5, 7, 10, 15, 20, 30, 40, 50, 60, 75, 100, 125, 150)
 DEFAULT_SFS_UPC = (1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20, 25, 30, 35, 40, 45, 50)
-WAVEFORMS = ("sine", "square")
 OUTPUT_COLUMNS = ("omega_dps", "lambda_px", "motion", "contrast")
 
 
@@ -67,15 +67,15 @@ def check_cells(cells: Sequence[tuple[float, float]], config: SweepConfig) -> No
     w = config.size[1]
     for sf, tf in cells:
         if not (math.isfinite(sf) and sf > 0):
-            raise ValueError(f"spatial frequency must be > 0 upc, got {sf:g}")
+            raise UserError(f"spatial frequency must be > 0 upc, got {sf:g}")
         if sf > w / 2:
-            raise ValueError(
+            raise UserError(
                 f"SF {sf:g} upc is above the spatial Nyquist limit of {w / 2:g} upc at {w} px wide"
             )
         if not (math.isfinite(tf) and tf > 0):
-            raise ValueError(f"temporal frequency must be > 0 Hz, got {tf:g}")
+            raise UserError(f"temporal frequency must be > 0 Hz, got {tf:g}")
         if tf > config.fps / 2:
-            raise ValueError(
+            raise UserError(
                 f"TF {tf:g} Hz is above the temporal Nyquist limit of {config.fps / 2:g} Hz"
             )
 
@@ -103,7 +103,7 @@ def run_sweep(
     warm = 2 * int(getattr(model.params, "tw", 10))
     n_frames = round(config.duration_s * config.fps)
     if n_frames <= warm:
-        raise ValueError(
+        raise UserError(
             f"duration {config.duration_s:g} s gives {n_frames} frames: need more than the "
             f"{warm}-frame warm-up"
         )
@@ -319,11 +319,11 @@ class SweepSettings(Settings):
 
     def __post_init__(self) -> None:
         if not 0 < self.contrast <= 1:
-            raise ValueError(f"--contrast must be in (0, 1], got {self.contrast:g}")
+            raise UserError(f"--contrast must be in (0, 1], got {self.contrast:g}")
         if self.waveform not in WAVEFORMS:
-            raise ValueError(f"waveform must be sine or square, got {self.waveform!r}")
+            raise UserError(f"waveform must be sine or square, got {self.waveform!r}")
         if not self.grid and (self.size[1] < 100 or self.fps < 300):
-            raise ValueError(
+            raise UserError(
                 "the paper layout needs SF up to 50 upc and TF up to 150 Hz: use --size of at "
                 "least 100 px wide and --fps of at least 300, or give --sf and --tf lists"
             )
@@ -377,7 +377,6 @@ def sweep(
 ) -> SweepResult:
     """``vdc-analyse sweep`` (paper Fig. 3). With ``out``: ``sweep.parquet``,
     ``monotonicity.parquet`` and ``sweep.png``. ``progress`` is called once per cell."""
-    from vdc.parquet_io import table_set, write_parquet
 
     config = settings.stimulus
     name = canonical_name(settings.model)

@@ -18,6 +18,17 @@ from typing import Any
 import numpy as np
 import polars as pl
 
+from analysis.boundary.command import WARMUP_FRAMES, number_list, with_override
+from analysis.complexity.command import ComplexitySettings
+from analysis.complexity.source_metrics import METRICS
+from analysis.predictors.report import write_predictors
+from analysis.predictors.statistics import MEASURES, footage_predictors, frame_classes
+from avdm.registry import make_model
+from avdm.true_time import TrueTimeModel
+from vdc.executors import run_tasks_or_raise
+from vdc.frame_batches import FrameBatcher, working_camera
+from vdc.sources import open_reader
+
 
 def _resolved(source: str) -> str:
     """A clip's key: its resolved path (as footage mode keys its clips)."""
@@ -28,11 +39,6 @@ def clip_frames_task(source: str, specs: dict[str, str], fov_deg: float) -> dict
     """An executor task: one clip read as ``vdc-capture video`` reads it, the paper's AVDM and
     the detector at every value (``specs``: value's key → model spec) run on it. Returns the
     source frame numbers, ``avdm`` (deg/s) and each value's ``alert``, as lists."""
-    from analysis.complexity.command import ComplexitySettings
-    from avdm.registry import make_model
-    from avdm.true_time import TrueTimeModel
-    from vdc.frame_batches import FrameBatcher, working_camera
-    from vdc.sources import open_reader
 
     reader = open_reader(source)
     try:
@@ -40,7 +46,9 @@ def clip_frames_task(source: str, specs: dict[str, str], fov_deg: float) -> dict
         paper = TrueTimeModel(make_model("avdm", **ctx))
         detectors = {k: make_model(spec, **ctx) for k, spec in specs.items()}
         video = ComplexitySettings
-        batches = FrameBatcher(reader, shape, fps, 128, video.repeat_tol, video.max_repeats)
+        batches = FrameBatcher(
+            reader, shape, fps, repeat_tol=video.repeat_tol, max_repeats=video.max_repeats
+        )
         out: dict[str, list] = {"frame": [], "avdm": []} | {k: [] for k in specs}
         while (fb := batches.next_batch()) is not None:
             out["frame"] += fb.frame.tolist()
@@ -63,11 +71,6 @@ def footage_predictor_tables(
     report section). ``clips`` is ``boundary_clips.parquet`` (one row per clip and value with
     ``correct`` and each measure's mean); ``complexity_dir`` where ``complexity`` wrote its
     per-frame table."""
-    from analysis.boundary.command import WARMUP_FRAMES, number_list, with_override
-    from analysis.complexity.source_metrics import METRICS
-    from analysis.predictors.report import write_predictors
-    from analysis.predictors.statistics import MEASURES, footage_predictors, frame_classes
-    from vdc.executors import run_tasks_or_raise
 
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {f"{v:g}": with_override(s.detector, s.param, v) for v in values}

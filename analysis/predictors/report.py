@@ -13,9 +13,11 @@ from typing import Any
 
 import numpy as np
 import polars as pl
+import pyarrow.parquet as pq
 from matplotlib.figure import Figure
 
-from vdc.parquet_io import WroteFiles
+from vdc.errors import UserError
+from vdc.parquet_io import WroteFiles, write_parquet
 
 
 def ranked(table: pl.DataFrame, statistic: str) -> pl.DataFrame:
@@ -187,7 +189,6 @@ def write_predictors(
 ) -> tuple[list[Path], str]:
     """Write ``predictors.parquet``, the measures table and ``predictors.png`` into ``stage``;
     return the paths and the report section."""
-    from vdc.parquet_io import write_parquet
 
     name = "predictor_measures.parquet" if mode == "arena" else "predictor_frames.parquet"
     paths = [
@@ -200,7 +201,6 @@ def write_predictors(
 
 def settings_meta(folder: Path) -> dict[str, Any]:
     """The boundary settings a folder's tables were written with (Parquet metadata)."""
-    import pyarrow.parquet as pq
 
     for name in ("boundary_runs.parquet", "boundary_clips.parquet"):
         p = folder / name
@@ -209,7 +209,7 @@ def settings_meta(folder: Path) -> dict[str, Any]:
             raw = kv.get(b"vdc.settings")
             if raw:
                 return json.loads(raw)
-    raise ValueError(f"{str(folder)!r} holds no boundary tables (boundary_runs.parquet)")
+    raise UserError(f"{str(folder)!r} holds no boundary tables (boundary_runs.parquet)")
 
 
 Log = Callable[[str], None]

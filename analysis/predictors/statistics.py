@@ -53,7 +53,8 @@ import polars as pl
 import scipy.special
 import scipy.stats
 
-CONFIDENCE = 0.95
+from analysis.stats import CONFIDENCE
+
 BOOTSTRAP = 1000  # resamples for every interval
 RIDGE = 0.1  # the combined logistic's L2 penalty on standardised coefficients (few units)
 # every measure, its column in the measures tables, in the order the reports list them
@@ -123,8 +124,9 @@ def auroc_matrix(scores: np.ndarray, positive: np.ndarray) -> np.ndarray:
     return out
 
 
-def spearman(x: np.ndarray, y: np.ndarray) -> float:
-    """Spearman ρ of the finite pairs; NaN if either side is constant or < 3 pairs."""
+def finite_spearman(x: np.ndarray, y: np.ndarray) -> float:
+    """Spearman ρ of the finite pairs (a NaN or inf on either side drops the pair, unlike
+    :func:`analysis.stats.spearman`); NaN if either side is constant or < 3 pairs."""
     x, y = np.asarray(x, float), np.asarray(y, float)
     ok = np.isfinite(x) & np.isfinite(y)
     return float(spearman_rows(x[None, ok], y[None, ok])[0])
@@ -316,7 +318,7 @@ def _combined_rows(
     return rows
 
 
-def present(columns: Sequence[str]) -> list[str]:
+def measures_present(columns: Sequence[str]) -> list[str]:
     """The measures of :data:`MEASURES` among ``columns``, in its order."""
     return [m for m in MEASURES if m in columns]
 
@@ -339,7 +341,7 @@ def arena_predictors(
     :data:`MEASURES`, the condition's scene as the run saw it). A condition's success is the
     mean of its seeds' shares (as ``boundary`` computes it); its measure the mean over its
     profiling runs. Returns :data:`COLUMNS`."""
-    names = present(measures.columns)
+    names = measures_present(measures.columns)
     rng = np.random.default_rng(seed)
     rows: list[dict[str, Any]] = []
     conds = [c for c in measures["condition"].unique(maintain_order=True)]
@@ -453,7 +455,7 @@ def footage_predictors(
     measure: its mean over the scene the detector faced); ``frames``: one row per frame and
     value (clip, ``param``, frame, positive, keep, one column per measure). Returns
     :data:`COLUMNS`."""
-    names = present(clips.columns)
+    names = measures_present(clips.columns)
     rng = np.random.default_rng(seed)
     rows: list[dict[str, Any]] = []
     for (value,), g in clips.group_by(param, maintain_order=True):

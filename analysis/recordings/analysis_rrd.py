@@ -34,6 +34,13 @@ from vdc.recording import (
     entity_name,
     variant_path,
 )
+import rerun as rr
+from vdc.recording import APP_ID
+from vdc.recording import COMPLEXITY_ROOT
+from vdc.recording import FRAME_TIMELINE
+from vdc.recording import TIME_TIMELINE
+from analysis.complexity.source_metrics import normalised
+from analysis.complexity.source_metrics import metrics_present
 
 PROFILE_ROOT = "/profile"
 TIME_SCALE_M = 1.0  # the profile's time axis spans this height in the 3D view
@@ -189,16 +196,13 @@ OUTPUT_MARKER = "vdc_output"  # the property that marks a recording vdc derived 
 def write_complexity_rrd(df: pl.DataFrame, recording_id: str, path: Path) -> Path:
     """The normalised metrics under ``/complexity/<metric>`` with the source's recording id,
     on its ``frame`` and ``time`` timelines (so it merges with the source in the viewer)."""
-    import rerun as rr
 
-    from vdc.recording import APP_ID, COMPLEXITY_ROOT, FRAME_TIMELINE, TIME_TIMELINE
 
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
     rec.save(str(path))
     # an output, not a source: a folder scan that meets it skips it (plan_sources)
     rec.send_property(OUTPUT_MARKER, rr.AnyValues(command="complexity", of=recording_id))
-    from analysis.complexity.source_metrics import normalised, present
 
     norm = normalised(df)
     idx = [
@@ -208,7 +212,7 @@ def write_complexity_rrd(df: pl.DataFrame, recording_id: str, path: Path) -> Pat
             duration=np.rint(df["t_s"].to_numpy() * 1e9).astype("timedelta64[ns]"),
         ),
     ]
-    for m in present(df):
+    for m in metrics_present(df):
         entity = f"{COMPLEXITY_ROOT}/{m}"
         rec.log(entity, rr.SeriesLines(names=[f"{m} (normalised)"]), static=True)
         rec.send_columns(entity, indexes=idx, columns=rr.Scalars.columns(scalars=norm[m]))

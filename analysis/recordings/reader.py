@@ -26,6 +26,7 @@ import polars as pl
 import pyarrow as pa
 import rerun as rr
 
+from vdc.errors import UserError
 from vdc.recording import (
     CAMERA,
     DESCRIPTION,
@@ -43,7 +44,7 @@ RRD_FILE_HEADER = 12  # magic, version, options
 RRD_MESSAGE_HEADER = 16  # kind (u64 LE), payload length (u64 LE)
 
 
-class RecordingError(ValueError):
+class RecordingError(UserError):
     """A file that is not a readable vdc recording (printed as one line at the CLI)."""
 
 

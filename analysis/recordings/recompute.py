@@ -41,6 +41,9 @@ from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
 from vdc.cli_support import API_ONLY, Settings, non_negative_int, option, positive_float
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
+from avdm.registry import check_detector
+from vdc.folders import expand_recordings
+from vdc.errors import UserError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,10 +88,10 @@ class SummarySettings(Settings):
         for name in ("threshold_dps", "near_wall_m", "centre_m", "turn_threshold_dps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name}={v!r} must be a number >= 0")
+                raise UserError(f"{name}={v!r} must be a number >= 0")
         for name in ("warmup_frames", "turn_hold_frames"):
             if getattr(self, name) < 0:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 0")
+                raise UserError(f"{name}={getattr(self, name)} must be >= 0")
 
     @property
     def motion(self) -> str:
@@ -232,7 +235,7 @@ def primary_output(outputs_df: pl.DataFrame) -> str:
         if c not in NON_OUTPUT_COLUMNS and outputs_df[c].null_count() < outputs_df.height
     ]
     if not cols:
-        raise ValueError("no model output columns")
+        raise UserError("no model output columns")
     return primary_output_name(cols)
 
 
@@ -301,7 +304,7 @@ def frames_in_statistics(
     ``motion`` overrides the settings: "all", "straight" or "turning" frames."""
     motion = motion or s.motion
     if motion not in MOTIONS:
-        raise ValueError(f"motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
+        raise UserError(f"motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
     df = df.filter(pl.col("frame") >= s.warmup_frames)
     if motion == "all":
         return df
@@ -391,7 +394,6 @@ def check_models(loaded: LoadedRecording, specs: Sequence[str]) -> None:
     """Each model in ``specs`` built with ``loaded``'s camera and stepped on one frame of its
     raster (:func:`avdm.registry.check_detector` without the alert), before any long run: a
     plug-in that cannot run is a ValueError in one line."""
-    from avdm.registry import check_detector
 
     ctx = loaded.camera_context()
     cam = loaded.props.get("camera", {})
@@ -478,7 +480,7 @@ def build_tables(
     return tables, meta
 
 
-def write_tables(
+def publish_tables(
     tables: dict[str, pl.DataFrame], out_dir: Path, meta: dict[str, Any]
 ) -> list[Path]:
     """Write each table to ``out_dir/<name>.parquet`` with ``meta`` in its metadata, as one set
@@ -534,10 +536,9 @@ def tables(
 
     ``progress`` is called with the number of frames done; ``notice`` with each note about a
     repaired recording (they are also in the result)."""
-    from vdc.folders import expand_recordings
 
     notes = Notices(notice)
     recordings = expand_recordings(recordings, notes)
     built, meta = build_tables(recordings, settings.models or None, settings, progress, notes)
-    paths = write_tables(built, Path(out), meta) if out is not None else []
+    paths = publish_tables(built, Path(out), meta) if out is not None else []
     return TablesResult(built, meta, paths, list(notes))

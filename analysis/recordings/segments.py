@@ -15,6 +15,7 @@ import polars as pl
 
 from analysis.recordings.recompute import SummarySettings, TablesSettings, summary_statistics
 from vdc.cli_support import API_ONLY, option
+from vdc.errors import UserError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,11 +35,11 @@ class ProfileSettings(TablesSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.by not in ("recording", "condition"):
-            raise ValueError(f"--by must be recording or condition, got {self.by!r}")
+            raise UserError(f"--by must be recording or condition, got {self.by!r}")
         if not (math.isfinite(self.bin_dps) and self.bin_dps > 0):
-            raise ValueError(f"--bin-dps must be > 0, got {self.bin_dps}")
+            raise UserError(f"--bin-dps must be > 0, got {self.bin_dps}")
         if not (math.isfinite(self.cell_m) and 0.005 <= self.cell_m <= 0.5):
-            raise ValueError(f"--cell-m must be between 0.005 and 0.5 m, got {self.cell_m}")
+            raise UserError(f"--cell-m must be between 0.005 and 0.5 m, got {self.cell_m}")
 
 
 @dataclasses.dataclass

@@ -14,7 +14,12 @@ import scipy.special
 
 from analysis.boundary.fit import describe_fit, dps_to_tf, fit_columns, fit_crossing, tf_to_dps
 from analysis.experiments.adaptation import AdaptationSettings
-from analysis.experiments.adaptive import ProfileMap, design_runs, in_fitted_range
+from analysis.experiments.adaptive import (
+    DesignSettings,
+    ProfileMap,
+    design_runs,
+    in_fitted_range,
+)
 from avdm.policy import load_policy
 from tests.figures import assert_figure, figure_env, saved_figures
 from tests.helpers import assert_one_line_error
@@ -106,9 +111,8 @@ def test_the_adaptive_loop_places_runs_near_the_boundary_and_stops_at_the_precis
             out.append(p | {"avoidances": int(k[0]), "crashes": int(n[0] - k[0])})
         return out
 
-    rows, fits = design_runs([1.0], ["grating", "natural"], profile, (0.0, 3.0), run_batch,
-                             target=TARGET, budget=30, precision_dps=4.0, batch=2,
-                             seed=1)  # fmt: skip
+    design = DesignSettings(target=TARGET, budget=30, precision_dps=4.0, batch=2, seed=1)
+    rows, fits = design_runs([1.0], ["grating", "natural"], profile, (0.0, 3.0), run_batch, design)
     fit = fits[1.0]
     assert fit.state == "within" and fit.width < 4.0 and len(rows) < 30  # stopped early
     assert fit.low <= 15.0 <= fit.high

@@ -15,6 +15,7 @@ import scipy.special
 
 from analysis.boundary.command import BoundarySettings
 from analysis.experiments.adaptive import (
+    DesignSettings,
     ProfileMap,
     adaptive_boundary,
     design_runs_per_scene,
@@ -56,7 +57,7 @@ def test_each_scene_gets_its_own_runs_and_interval_around_its_own_crossing() -> 
     rows, fits = design_runs_per_scene(
         [45.0], ["grating", "natural"], profile, (0.0, 3.0),
         lambda placed: simulated(rng, placed, dip=True),
-        target=TARGET, budget=16, precision_dps=0.5, batch=2, seed=1,  # 0.5: more runs
+        DesignSettings(target=TARGET, budget=16, precision_dps=0.5, batch=2, seed=1),  # 0.5: many
     )  # fmt: skip
     assert set(fits) == {(45.0, "grating"), (45.0, "natural")}
     assert len(rows) <= 16 and len({r["seed"] for r in rows}) == len(rows)
@@ -87,7 +88,7 @@ def test_a_scene_failing_from_its_least_complex_point_is_below_and_stops() -> No
 
     rows, fits = design_runs_per_scene(
         [12.0], ["grating", "natural"], profile, (0.0, 3.0), natural_blind,
-        target=TARGET, budget=8, precision_dps=2.0, batch=2, seed=1,
+        DesignSettings(target=TARGET, budget=8, precision_dps=2.0, batch=2, seed=1),
     )  # fmt: skip
     assert fits[(12.0, "natural")].state == "below"
     assert fits[(12.0, "natural")].high == PROFILE["natural"][1][0]
@@ -101,7 +102,7 @@ def fake_run_grid(rng: np.random.Generator):
 
     def run_grid(items: list, kind: str, *_: Any) -> pl.DataFrame:
         rows = []
-        for _key, _settings, _path, cols in items:
+        for cols in (it.columns for it in items):
             if kind == "profile":
                 dps = float(np.interp(cols["tf_hz"], *PROFILE[cols["scene"]]))
                 rows.append(cols | {"profile_dps": dps})

@@ -88,7 +88,9 @@ def native_metrics(path: Path, batch_frames: int = 128, color_range: str = "auto
     corrections applied), and the ranges the batcher decided."""
     reader = open_reader(str(path))
     try:
-        batcher = FrameBatcher(reader, (62, 99), 25.0, batch_frames, color_range=color_range)
+        batcher = FrameBatcher(
+            reader, (62, 99), 25.0, batch_frames=batch_frames, color_range=color_range
+        )
         rows = []
         while (fb := batcher.next_batch()) is not None:
             rows.append(fb.native_metrics)

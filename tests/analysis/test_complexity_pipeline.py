@@ -123,7 +123,7 @@ def test_reading_again_gives_the_full_range_values_of_a_second_pass(tmp_path, fi
 
     for name, again in (("beside", None), ("again", reopen)):
         reader = open_reader(str(path))
-        b = FrameBatcher(reader, (62, 99), 25.0, 4, color_range="auto", reopen=again)
+        b = FrameBatcher(reader, (62, 99), 25.0, batch_frames=4, color_range="auto", reopen=again)
         rows = np.concatenate([fb.native_metrics for fb in iter(b.next_batch, None)])
         got[name] = (rows, b.p910_late_corrections(), b.color_ranges())
         reader.close()

@@ -139,7 +139,7 @@ def test_campaigns_run_on_the_cluster(cluster, tmp_path: Path) -> None:
     c, _client = cluster
     out = tmp_path / "sweep"
     proc = run_cli(
-        "capture", "sweep", "behaviour=collision", "minutes=0.1", "tf_hz=0,3", "--out",
+        "capture", "campaign", "behaviour=collision", "minutes=0.1", "tf_hz=0,3", "--out",
         str(out), "--scheduler", c.scheduler_address, "--quiet",
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr

@@ -17,7 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.boundary.command import BoundarySettings, describe_boundary, interval
+from analysis.boundary.command import BoundarySettings
+from analysis.boundary.fit import describe_boundary
+from analysis.boundary.report_tables import interval
 from analysis.experiments.boundary_campaign import boundary
 from analysis.experiments.captures import run_captures
 from avdm.registry import check_detector

@@ -15,9 +15,9 @@ from analysis.predictors.report import plot_predictors, predictors_report
 from analysis.predictors.statistics import (
     arena_predictors,
     auroc,
+    finite_spearman,
     footage_predictors,
     loco_threshold,
-    spearman,
 )
 from tests.figures import assert_figure, recording_figures
 
@@ -39,7 +39,7 @@ def test_auroc_is_mann_whitney_u_and_spearman_is_scipys() -> None:
     u = scipy.stats.mannwhitneyu(x[y], x[~y]).statistic
     assert auroc(x, y) == pytest.approx(u / (y.sum() * (~y).sum()), abs=1e-12)
     z = rng.normal(size=40)
-    assert spearman(x, z) == pytest.approx(scipy.stats.spearmanr(x, z).statistic, abs=1e-12)
+    assert finite_spearman(x, z) == pytest.approx(scipy.stats.spearmanr(x, z).statistic, abs=1e-12)
     assert np.isnan(auroc(x, np.zeros(40, bool)))  # one class: undefined, not 0.5
 
 

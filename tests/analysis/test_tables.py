@@ -10,12 +10,12 @@ import polars as pl
 import pytest
 
 from analysis.recordings.reader import Recording
-from capture.output import partial_path
 from capture.recorder import Recorder
 from tests.helpers import assert_one_line_error, start_long_capture
 from tests.in_process import run_in_process
 from vdc.arena_geometry import distance_to_wall_along
 from vdc.parquet_io import read_metadata
+from vdc.recording import partial_path
 
 # the frames table's contract, column by column (docs/architecture.md)
 FRAMES_COLUMNS = (

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.complexity.avdm_truth import Cell, cell_frames, measure_cell
+from analysis.complexity.avdm_truth import Cell, cell_frames, measure_truth_cell
 from avdm import make_model
 from avdm.avdm_multiscale import MULTISCALE_OUTPUT_NAMES
 from avdm.calibration_store import calibration_for, lookup_calibration
@@ -64,7 +64,7 @@ def test_avdm_natural_reads_true_speed_in_both_directions(image, speed, fps) -> 
     test's."""
     read = {}
     for d in (1, -1):
-        rows = measure_cell(Cell(image, speed, d, fps, "robot", "h264"), ["avdm-natural"])
+        rows = measure_truth_cell(Cell(image, speed, d, fps, "robot", "h264"), ["avdm-natural"])
         read[d] = rows[0]["omega_dps"]
         low, high = NATURAL_BAND
         assert low < read[d] / speed < high, (d, read[d])
@@ -82,10 +82,10 @@ def test_faithful_avdm_holds_in_its_stated_range_and_fails_beyond_it() -> None:
     the robot raster at 30 fps through H.264; this cell reads 0.20x) and below its own
     reading at 40 deg/s relative to the truth; and flagged on some frames."""
     for d in (1, -1):
-        row = measure_cell(Cell("astronaut", 10.0, d, 30.0, "robot", "h264"), ["avdm"])[0]
+        row = measure_truth_cell(Cell("astronaut", 10.0, d, 30.0, "robot", "h264"), ["avdm"])[0]
         assert 0.25 < row["omega_dps"] / 10.0 < 2.0, (d, row["omega_dps"])
-    fast = measure_cell(Cell("astronaut", 160.0, 1, 30.0, "robot", "h264"), ["avdm"])[0]
-    mid = measure_cell(Cell("astronaut", 40.0, 1, 30.0, "robot", "h264"), ["avdm"])[0]
+    fast = measure_truth_cell(Cell("astronaut", 160.0, 1, 30.0, "robot", "h264"), ["avdm"])[0]
+    mid = measure_truth_cell(Cell("astronaut", 40.0, 1, 30.0, "robot", "h264"), ["avdm"])[0]
     assert fast["omega_dps"] / 160.0 < 0.42  # far below the truth at 7.5 px/frame
     assert fast["omega_dps"] / 160.0 < mid["omega_dps"] / 40.0
     assert fast["valid_share"] < 1.0  # and its flag says so on some frames

@@ -1,4 +1,4 @@
-"""``vdc-capture sweep``: grid specs, one recording and one row per run, resume, failures."""
+"""``vdc-capture campaign``: grid specs, one recording and one row per run, resume, failures."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from analysis.recordings.reader import Recording
-from capture.campaign import CaptureSweepSettings, parse_grid
+from capture.campaign import CampaignSettings, parse_grid
 from capture.sim import SimSettings
 from tests.helpers import assert_one_line_error
 from tests.in_process import run_in_process
@@ -38,9 +38,7 @@ def test_grid_items_take_the_sim_settings_types() -> None:
 def test_model_specs_keep_their_overrides_in_a_grid() -> None:
     grid = parse_grid(["model=avdm:beta=0.5,tw=6,avdm-on;avdm:tw=3", "profile_model=avdm"])
     assert grid["model"] == ["avdm:beta=0.5,tw=6", "avdm-on", "avdm:tw=3"]
-    keys = [
-        key for key, _, _ in CaptureSweepSettings(grid=("model=avdm:beta=0.5,tw=6,avdm",)).runs()
-    ]
+    keys = [key for key, _, _ in CampaignSettings(grid=("model=avdm:beta=0.5,tw=6,avdm",)).runs()]
     assert len(keys) == 2 and not any(k.startswith("modeltw") for k in keys)
 
 
@@ -50,7 +48,7 @@ def test_model_specs_keep_their_overrides_in_a_grid() -> None:
 )
 def test_runs_are_the_product_of_the_varied_items_with_distinct_keys(tfs, seeds) -> None:
     items = [f"tf_hz={','.join(map(str, tfs))}", f"seed={','.join(map(str, seeds))}", "minutes=1"]
-    runs = CaptureSweepSettings(grid=tuple(items), jobs=1).runs()
+    runs = CampaignSettings(grid=tuple(items), jobs=1).runs()
     assert len(runs) == len(tfs) * len(seeds)
     assert len({key for key, _, _ in runs}) == len(runs)
     pairs = {(s.tf_hz, s.seed) for _, _, s in runs}
@@ -62,7 +60,7 @@ def test_runs_are_the_product_of_the_varied_items_with_distinct_keys(tfs, seeds)
 
 
 def _sweep(out: Path, *args: str) -> object:
-    return run_in_process("capture", "sweep", *args, "--out", str(out), "--quiet", "--jobs", "2")
+    return run_in_process("capture", "campaign", *args, "--out", str(out), "--quiet", "--jobs", "2")
 
 
 def test_a_collision_grid_records_every_run_once_and_resumes(tmp_path: Path) -> None:
@@ -142,6 +140,16 @@ def test_a_failing_run_is_listed_and_the_others_finish(tmp_path: Path) -> None:
 )
 def test_bad_grids_are_one_line_errors(tmp_path: Path, args: list[str], needle: str) -> None:
     # in this process (tests.in_process): the grid is refused before any run starts
-    proc = run_in_process("capture", "sweep", *args, "--out", str(tmp_path / "o"))
+    proc = run_in_process("capture", "campaign", *args, "--out", str(tmp_path / "o"))
     assert_one_line_error(proc, needle)
     assert not (tmp_path / "o").exists()  # nothing recorded
+
+
+def test_the_old_name_sweep_runs_campaign_and_says_so(tmp_path: Path) -> None:
+    """``vdc-capture sweep`` became ``campaign`` (``vdc-analyse sweep`` is Fig. 3's, unrelated):
+    the old name still runs it, with one line on stderr saying so."""
+    proc = run_in_process("capture", "sweep", "model=avdm,nope", "--out", str(tmp_path / "o"))
+    lines = proc.stderr.strip().splitlines()
+    assert lines[0] == "vdc-capture sweep is now vdc-capture campaign (an alias of it)"
+    assert proc.returncode == 2 and len(lines) == 2, proc.stderr
+    assert "unknown model 'nope'" in lines[1]

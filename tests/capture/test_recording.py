@@ -16,7 +16,7 @@ import rerun as rr
 from analysis.recordings.reader import Recording
 from avdm import make_model
 from capture.config import SimConfig, WallConfig, parse_schedule
-from capture.sim import SimulatedRobot
+from capture.sim_robot import SimulatedRobot
 from tests.helpers import assert_one_line_error, run_cli, spawn, start_long_capture, wait_until
 from tests.in_process import run_in_process
 

@@ -22,7 +22,6 @@ from hypothesis import strategies as st
 
 from analysis.recordings.reader import Recording
 from capture.config import SimConfig, WallConfig
-from capture.output import partial_path
 from capture.render import OverheadRenderer
 from capture.robot_capture import WallController
 from capture.serial_protocol import (
@@ -33,9 +32,10 @@ from capture.serial_protocol import (
     encode,
     encode_frame,
 )
-from capture.sim import SimulatedRobot
+from capture.sim_robot import SimulatedRobot
 from capture.tracker import load_calibration as tracker_load
 from tests.helpers import ROOT, assert_file_grows, assert_one_line_error, run_cli, spawn, wait_until
+from vdc.recording import partial_path
 
 
 def test_crc_is_ccitt_false() -> None:
@@ -251,7 +251,7 @@ def test_end_to_end_on_a_pty_with_corruption_and_a_disconnect(tmp_path: Path) ->
     # ego-motion from the tracker's poses (10 Hz, joined to 33-Hz frames): the turning flag
     # agrees with the one the simulator's exact poses give, frame for frame
     from analysis.recordings.ego_motion import turning_flags, yaw_rate_dps
-    from analysis.recordings.recompute import load_recording
+    from analysis.recordings.loading import load_recording
 
     table = load_recording(out).frames.drop_nulls("turning")
     fps = cfg.camera.fps

@@ -17,7 +17,7 @@ from capture.config import (
 )
 from capture.render import CameraRenderer
 from capture.robot import RobotMotion
-from capture.sim import SimulatedRobot
+from capture.sim_robot import SimulatedRobot
 
 ARENA = ArenaConfig()
 CAMERA = CameraConfig()

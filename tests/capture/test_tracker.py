@@ -11,7 +11,7 @@ import pytest
 from capture import tracker
 from capture.config import ArenaConfig, SimConfig, WallConfig
 from capture.render import OverheadRenderer
-from capture.sim import SimulatedRobot
+from capture.sim_robot import SimulatedRobot
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +23,7 @@ def test_pose_error_below_5_mm_and_3_degrees_over_a_run(overhead: OverheadRender
     cfg = SimConfig(wall=WallConfig(tf_schedule=((0.0, 40.0),)), duration_s=40.0, seed=5)
     with SimulatedRobot(cfg, batch_size=100_000) as dev:
         poses = dev.read().poses[::11]  # 3 Hz over a 40-s run: driving and ring turns
-    h = tracker.calibrate(overhead.render(poses[0]), overhead.layout)
+    h = tracker.calibrate_homography(overhead.render(poses[0]), overhead.layout)
     pos_err, head_err = [], []
     for x, y, hd in poses:
         pose = tracker.robot_pose(overhead.render(np.array([x, y, hd])), h)
@@ -37,7 +37,7 @@ def test_pose_error_below_5_mm_and_3_degrees_over_a_run(overhead: OverheadRender
 
 def test_lost_track_gives_no_pose_and_calibration_round_trips(overhead, tmp_path: Path) -> None:
     frame = overhead.render(np.array([0.2, 0.1, 1.0]))
-    h = tracker.calibrate(frame, overhead.layout)
+    h = tracker.calibrate_homography(frame, overhead.layout)
     blank = frame.copy()
     px, py = overhead._to_px_f(0.2, 0.1)
     r = 40
@@ -54,4 +54,4 @@ def test_calibration_names_the_missing_corner(overhead: OverheadRenderer) -> Non
     cx, cy = overhead._to_px_f(*overhead.layout.corner_centres()[2])
     frame[int(cy) - 40 : int(cy) + 40, int(cx) - 40 : int(cx) + 40] = 30
     with pytest.raises(ValueError, match=r"\[2\] not visible"):
-        tracker.calibrate(frame, overhead.layout)
+        tracker.calibrate_homography(frame, overhead.layout)

@@ -68,6 +68,7 @@ def test_a_drifting_grating_through_h264_reads_its_true_angular_velocity(clips, 
     assert props["video"]["codec"] == "h264" and props["video"]["nominal_fps"] == 30.0
     assert props["camera"]["width_px"] == 99 and props["camera"]["height_px"] == 72
     assert props["calibration"]["source"] in ("fitted", "cache")
+    assert res.paths == [res.record.path] and res.files.o.name == "o.rrd"  # what it wrote
     assert props["calibration"]["a"] == res.calibration["a"]
     frames = rec.read_frames()
     assert frames.images.shape == (150, 72, 99)

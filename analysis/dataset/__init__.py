@@ -1,0 +1,38 @@
+"""``vdc-analyse dataset``: a LeRobot robot-learning dataset profiled episode by episode.
+
+Every camera of every episode is decoded once (an executor task each: the local pool or
+Dask), beside the episode's rows of data, and measured: counts, drift between the video's
+clock and the data's, dropped, repeated and frozen frames, idle head and tail, the default
+complexity metrics (and the AVDM's angular speed in deg/s with ``--fov-deg``), blur and
+exposure, the camera's shift against its reference view, and its lag behind the robot's
+state. Each measure that crosses its threshold (``analysis.dataset.flags.FLAGS``) flags the
+episode. The dataset is read, never imported: pyarrow and PyAV, no torch, no lerobot.
+
+Writes into ``out``: ``episodes.parquet`` (one row per episode × camera), ``frames.parquet``
+(one row per decoded frame), ``problems.parquet`` (what could not be read: file, episode,
+message) and ``dataset.html`` (the episodes worst first). An unreadable episode is a problem
+line, and the others are still profiled; the tables are published whole
+(``vdc.parquet_io.table_set``).
+
+Modules: ``command`` (settings, the command, its result) → ``layout`` (the dataset's files) →
+``window`` (an episode's frames) → ``measure`` (one camera of one episode) → ``flags`` (what the
+whole dataset decides) → ``page`` (dataset.html); ``synthetic`` (test datasets with faults).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from vdc.lazy import lazy_face
+
+if TYPE_CHECKING:
+    from analysis.dataset.command import DatasetResult, DatasetSettings, dataset
+
+# the public face: name -> the module that defines it (loaded on first use)
+_FACE = {
+    "DatasetSettings": "analysis.dataset.command",
+    "DatasetResult": "analysis.dataset.command",
+    "dataset": "analysis.dataset.command",
+}
+__all__ = ["DatasetResult", "DatasetSettings", "dataset"]
+__getattr__, __dir__ = lazy_face(__name__, _FACE)

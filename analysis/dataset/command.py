@@ -1,0 +1,259 @@
+"""The command ``vdc-analyse dataset``: its settings, the function and its result (the
+package's face, ``analysis.dataset``, names them)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import polars as pl
+
+from analysis.complexity.source_metrics import ANGULAR_METRICS, MODEL_METRICS, parse_metrics
+from analysis.dataset.flags import FLAGS, finish, severity
+from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
+from analysis.dataset.measure import measure_episode
+from analysis.dataset.page import write_page
+from vdc.cli_support import API_ONLY, non_negative_float, non_negative_int, option, positive_float
+from vdc.executors import ExecutorSettings, Feedback, executor_field, run_tasks
+from vdc.parquet_io import WroteFiles, table_set, write_tables
+from vdc.recording import FOOTAGE_MODEL
+
+# the metrics measured unless told: those of ``vdc-analyse complexity``'s default set that a
+# dataset's frames give (the angular ones need --fov-deg)
+DEFAULT_METRICS = "omega_dps,si_p910,ti_p910,mafd,flow_dps,codec_bpp"
+
+
+@dataclasses.dataclass(frozen=True)
+class DatasetSettings:
+    """``vdc-analyse dataset``: what is measured, the thresholds' one free choice (what a
+    repeat is), which flags fail a run, and where the episodes run."""
+
+    metrics: str = option(
+        DEFAULT_METRICS,
+        "the complexity metrics per frame: comma-separated names as vdc-analyse complexity's "
+        "--metrics (omega_dps and flow_dps need --fov-deg)",
+    )
+    fov_deg: float | None = option(
+        None,
+        "the cameras' horizontal field of view, degrees: the AVDM's angular speed (omega_dps) "
+        "and the shifts in degrees; without it they are left out, with one note",
+        type=positive_float,
+    )
+    model: str = option(
+        FOOTAGE_MODEL, "the AVDM variant for omega_dps (default: {default}, as complexity)"
+    )
+    flow_preset: str = option("medium", "DIS optic-flow preset (flow_dps)")
+    width: int | None = option(None, "working width of the AVDM, px (default: from the fov)")
+    jpeg_quality: int = dataclasses.field(default=75, metadata=API_ONLY)
+    repeat_tol: float = option(
+        0.5,
+        "a frame whose mean |difference| from the previous one is at most this (8-bit levels) "
+        "shows nothing new (a repeat, a frozen or an idle frame)",
+        type=non_negative_float,
+    )
+    max_repeats: int = option(3, "at most this many repeats in a row", type=non_negative_int)
+    fail_on: str = option(
+        "",
+        "FLAG,...: exit 1 when an episode has one of these flags (all: any flag); the flags: "
+        "frozen, dropped, drift, moved, moved_within, lag, idle, idle_tail, blurred, "
+        "underexposed, overexposed, short",
+    )
+    episodes: str | None = option(None, "only these episodes: comma-separated indices")
+    page: bool = option(True, "write dataset.html (the episodes worst first, with thumbnails)")
+    executor: str = executor_field("executor")
+    jobs: int = executor_field("jobs")
+    scheduler: str | None = executor_field("scheduler")
+
+    def __post_init__(self) -> None:
+        parse_metrics(self.metrics)
+        unknown = [f for f in self.fail_names() if f not in FLAGS]
+        if unknown:
+            raise ValueError(
+                f"--fail-on: unknown flag {unknown[0]!r}; choose from {', '.join(FLAGS)} or all"
+            )
+        self.episode_list()
+        self.executor_settings()
+
+    def fail_names(self) -> list[str]:
+        names = [n.strip() for n in self.fail_on.split(",") if n.strip()]
+        return list(FLAGS) if names == ["all"] else names
+
+    def episode_list(self) -> list[int] | None:
+        if self.episodes is None:
+            return None
+        try:
+            return [int(e) for e in self.episodes.split(",") if e.strip()]
+        except ValueError:
+            raise ValueError(
+                f"--episodes: give comma-separated indices, got {self.episodes!r}"
+            ) from None
+
+    def executor_settings(self) -> ExecutorSettings:
+        return ExecutorSettings(self.executor, self.jobs, self.scheduler)
+
+    def native_metrics(self) -> tuple[str, ...]:
+        """The metrics computed on the native frames (the MAFD always: repeats need it)."""
+        return (*(m for m in parse_metrics(self.metrics) if m not in MODEL_METRICS), "mafd")
+
+    def model_metrics(self) -> tuple[str, ...]:
+        """The metrics computed on the AVDM's raster: only with a field of view."""
+        if self.fov_deg is None:
+            return ()
+        return tuple(m for m in parse_metrics(self.metrics) if m in MODEL_METRICS)
+
+
+@dataclasses.dataclass(frozen=True)
+class DatasetResult(WroteFiles):
+    """What ``dataset`` wrote (``paths``: episodes.parquet, frames.parquet, problems.parquet,
+    dataset.html), the episodes table (polars; worst first), the problems as lines, the
+    episodes flagged by ``fail_on`` and the notes (e.g. no field of view)."""
+
+    paths: list[Path]
+    episodes: Any
+    problems: list[str]
+    failed: list[int]
+    notes: list[str]
+
+    def report(self) -> list[str]:
+        """Lines for people: what was profiled, what was flagged, what was written."""
+        eps = self.episodes
+        lines: list[str] = []  # the notes were said as the run started
+        if eps is not None:
+            flagged = eps.filter(pl.col("flag_count") > 0)
+            lines.append(
+                f"{eps['episode_index'].n_unique()} episode(s), {eps.height} camera stream(s) "
+                f"profiled; {flagged.height} flagged"
+            )
+            for r in flagged.head(10).iter_rows(named=True):
+                lines.append(f"  episode {r['episode_index']} {r['camera']}: {r['flags']}")
+            if flagged.height > 10:
+                lines.append(f"  ... and {flagged.height - 10} more (dataset.html)")
+        if self.failed:
+            lines.append(f"--fail-on: episode(s) {', '.join(map(str, self.failed))} flagged")
+        lines.append("wrote " + ", ".join(str(p) for p in self.paths))
+        return lines
+
+    @property
+    def exit_status(self) -> int:
+        """2 where input was unreadable, else 1 where ``fail_on`` flagged an episode, else 0."""
+        return 2 if self.problems else 1 if self.failed else 0
+
+
+def dataset(
+    path: str | Path,
+    settings: DatasetSettings | None = None,
+    out: str | Path = "results/dataset",
+    feedback: Feedback | None = None,
+) -> DatasetResult:
+    """Profile the LeRobot dataset at ``path`` episode by episode into ``out`` (see the
+    module). Needs the ``__main__`` guard in a script (it starts a process pool). A dataset
+    that cannot be read at all (no meta/info.json, an unknown codebase_version) raises
+    UserError; an unreadable episode is listed in ``problems``."""
+    return _run(Path(path), settings or DatasetSettings(), Path(out), feedback or Feedback())
+
+
+def _task(video: EpisodeVideo, settings: DatasetSettings, fps: float) -> dict[str, Any]:
+    return measure_episode(video, settings, fps)
+
+
+def no_fov_note(settings: DatasetSettings) -> str | None:
+    """One note where the angular measures are left out for want of a field of view."""
+    left = [m for m in parse_metrics(settings.metrics) if m in ANGULAR_METRICS]
+    if settings.fov_deg is not None or not left:
+        return None
+    return (
+        f"no --fov-deg: {', '.join(left)} and the shifts in degrees left out (they need the "
+        "cameras' horizontal field of view); the other measures are taken"
+    )
+
+
+def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -> DatasetResult:
+    ds = open_dataset(root)
+    problems: list[Problem] = list(ds.problems)
+    wanted = settings.episode_list()
+    videos = [v for v in ds.videos if wanted is None or v.episode in wanted]
+    notes = [n for n in [no_fov_note(settings)] if n]
+    for n in notes:
+        feedback.log(n)
+    feedback.log(
+        f"{root}: LeRobot {ds.version}, {len(set(v.episode for v in videos))} episode(s), "
+        f"{len(ds.cameras)} camera(s), {ds.fps:g} fps"
+    )
+    tasks = [(f"{v.episode}:{v.camera}", (v, settings, ds.fps)) for v in videos]
+    by_key = {f"{v.episode}:{v.camera}": v for v in videos}
+    results: dict[str, dict[str, Any]] = {}
+
+    def done(outcome: Any) -> None:
+        feedback.progress(1)
+        if outcome.error is None:
+            results[outcome.key] = outcome.result
+            return
+        problem = _problem_of(by_key[outcome.key], outcome.error)
+        if problem not in problems:  # a data file's problem: once, not once per camera
+            problems.append(problem)
+
+    run_tasks(_task, tasks, settings.executor_settings(), done,
+              feedback.log, shared_paths=(root,))  # fmt: skip
+    rows = [results[k]["row"] for k in sorted(results, key=_order)]
+    frames = [
+        results[k]["frames"].with_columns(
+            pl.lit(results[k]["row"]["episode_index"]).alias("episode_index"),
+            pl.lit(results[k]["row"]["camera"]).alias("camera"),
+        )
+        for k in sorted(results, key=_order)
+    ]
+    views = {(r["row"]["episode_index"], r["row"]["camera"]): r["views"] for r in results.values()}
+    widths = {cam: _width(ds.info, cam) for cam in ds.cameras}
+    meta = {"command": "dataset", "dataset": str(root), "version": ds.version,
+            "settings": dataclasses.asdict(settings)}  # fmt: skip
+    problem_table = pl.DataFrame(
+        {"file": [p.file for p in problems], "episode_index": [p.episode for p in problems],
+         "message": [p.message for p in problems]},
+        schema={"file": pl.String, "episode_index": pl.Int64, "message": pl.String},
+    )  # fmt: skip
+    eps = None
+    if rows:
+        eps, frame_table = finish(rows, pl.concat(frames, how="diagonal_relaxed"), views,
+                                  widths, settings.fov_deg)  # fmt: skip
+        eps = severity(eps)
+    with table_set(out) as stage:
+        tables = {"episodes": eps, "frames": frame_table if rows else None,
+                  "problems": problem_table}  # fmt: skip
+        paths = write_tables(stage, tables, meta)
+        if settings.page and eps is not None:
+            paths.append(write_page(stage / "dataset.html", ds, eps, frame_table, problems))
+    paths = [out / p.name for p in paths]
+    fail = set(settings.fail_names())
+    failed = []
+    if eps is not None and fail:
+        for r in eps.iter_rows(named=True):
+            if fail & set(filter(None, r["flags"].split(","))):
+                failed.append(int(r["episode_index"]))
+    return DatasetResult(paths, eps, [p.line() for p in problems], sorted(set(failed)), notes)
+
+
+def _problem_of(v: EpisodeVideo, error: str) -> Problem:
+    """The problem a failed task names: the file its message starts with (the episode's data
+    or its video; the camera said for a video), else the video and the whole message (an
+    unexpected error keeps its type)."""
+    msg = error.split(": ", 1)[1] if error.startswith("ValueError: ") else error
+    if msg.startswith(v.data_path + ": "):
+        return Problem(v.data_path, v.episode, msg[len(v.data_path) + 2 :])
+    if msg.startswith(v.path + ": "):
+        msg = msg[len(v.path) + 2 :]
+    return Problem(v.path, v.episode, f"{v.camera}: {msg}")
+
+
+def _order(key: str) -> tuple[int, str]:
+    e, cam = key.split(":", 1)
+    return int(e), cam
+
+
+def _width(info: dict, cam: str) -> int:
+    feat = info.get("features", {}).get(cam, {})
+    shape = feat.get("shape") or [0, 0]
+    names = feat.get("names") or []
+    if "width" in names:
+        return int(shape[names.index("width")])
+    return int(shape[1]) if len(shape) > 1 else 0

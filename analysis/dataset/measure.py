@@ -1,0 +1,302 @@
+"""One camera of one episode measured (one executor task): every frame of its window decoded
+once, through the same batcher as every other vdc source (``vdc.frame_batches``), beside the
+episode's rows of data. The measures that need the whole dataset (blur against the camera's
+own sharpness, the camera's shift against its reference view) are finished by the caller
+(``analysis.dataset.faults``)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import cv2
+import numpy as np
+import polars as pl
+
+from analysis.complexity.source_metrics import ComplexityMeter
+from analysis.dataset.layout import EpisodeVideo, read_episode_data
+from analysis.dataset.window import WindowReader
+from vdc.frame_batches import FrameBatcher
+from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
+from vdc.sources import frames_missing_in, open_reader
+
+# a frame is under-exposed when this share of its pixels is at most DARK (full-range grey),
+# over-exposed when this share is at least BRIGHT: a fifth of the view clipped is detail lost
+# that no gain brings back (a well-lit synthetic view clips 0-2 % of its pixels)
+CLIPPED_SHARE, DARK, BRIGHT = 0.2, 10, 245
+# the state moves when its speed is above this share of the episode's peak speed: a robot's
+# encoders jitter by far less, and a real motion passes it within a frame or two of starting
+STATE_MOVING_SHARE = 0.02
+# frozen: the image still while the state moves at least this share of its peak speed (a
+# motion the camera must show: slower, an object may move less than a block's noise)
+FROZEN_STATE_SHARE = 0.25
+# lag: the camera's motion against the state's, cross-correlated over at most this (s) either
+# way; measurable only where the peak correlation reaches LAG_MIN_R (below it the motions do
+# not match well enough for a peak to mean a delay)
+LAG_SEARCH_S, LAG_MIN_R = 0.4, 0.5
+# and only in episodes of at least LAG_MIN_S (2.9 s): the search leaves out LAG_SEARCH_S at
+# either end, and what is left must hold more than one bootstrap block (1.4 of them) for the
+# resampled episodes to differ
+LAG_MIN_S = 2 * LAG_SEARCH_S + 1.4 * 1.5
+SMOOTH_FRAMES = 3
+# the interval: a moving-block bootstrap of the frames, LAG_BOOT repeats of blocks LAG_BLOCK_S
+# long (one stroke of an arm, out or back: shorter blocks cut the strokes whose timing the
+# delay is read from, and the interval then spans the whole search)
+LAG_BOOT, LAG_BLOCK_S = 200, 1.5  # LAG_MIN_S counts 1.4 of these blocks
+# a frame shows nothing new (still) when no block of BLOCK_PX px changed by more than
+# STILL_LEVELS on average: an unchanged image coded again as a key frame (LeRobot's encoders
+# make every second frame one) changes its blocks by up to 8.2 levels with H.264 at CRF 30 on
+# the test datasets (up to 4 with AV1), while the object moving at a quarter of its peak speed
+# changes its block by 12 or more
+BLOCK_PX, STILL_LEVELS = 16, 10.0
+VIEW_MAX_WIDTH = 320  # the first and last views kept for the camera's shift, px wide at most
+
+
+def _view(grey: np.ndarray) -> np.ndarray:
+    """A view for the shift, at most :data:`VIEW_MAX_WIDTH` px wide (float32)."""
+    h, w = grey.shape
+    if w > VIEW_MAX_WIDTH:
+        grey = cv2.resize(grey, (VIEW_MAX_WIDTH, round(h * VIEW_MAX_WIDTH / w)),
+                          interpolation=cv2.INTER_AREA)  # fmt: skip
+    return grey.astype(np.float32)
+
+
+def local_change(grey: np.ndarray, prev: np.ndarray | None) -> float:
+    """The largest mean |difference| from ``prev`` over :data:`BLOCK_PX` square blocks (8-bit
+    grey levels; NaN without a previous frame): a small object that moves changes its block
+    by tens of levels, while a codec's noise on an unchanged image stays spread thin."""
+    if prev is None or prev.shape != grey.shape:
+        return math.nan
+    diff = cv2.absdiff(grey, prev).astype(np.float32)
+    h, w = diff.shape
+    bh, bw = max(1, h // BLOCK_PX), max(1, w // BLOCK_PX)
+    blocks = cv2.resize(
+        diff[: bh * BLOCK_PX, : bw * BLOCK_PX], (bw, bh), interpolation=cv2.INTER_AREA
+    )
+    return float(blocks.max())
+
+
+def _frame_stats(grey: np.ndarray) -> tuple[float, float, float, float]:
+    """(sharpness: variance of the Laplacian, mean grey, share <= DARK, share >= BRIGHT)."""
+    lap = cv2.Laplacian(grey, cv2.CV_32F, ksize=3)
+    _, sd = cv2.meanStdDev(lap)
+    hist = cv2.calcHist([grey], [0], None, [256], [0, 256]).ravel() / grey.size
+    mean = float(np.dot(hist, np.arange(256)))
+    return float(sd[0, 0]) ** 2, mean, float(hist[: DARK + 1].sum()), float(hist[BRIGHT:].sum())
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, length) of each run of True in ``mask``."""
+    out, start = [], None
+    for i, m in enumerate(np.append(mask, False)):
+        if m and start is None:
+            start = i
+        elif not m and start is not None:
+            out.append((start, i - start))
+            start = None
+    return out
+
+
+def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float, seed: int = 0) -> dict:
+    """The delay of the image's motion behind the state's (ms; positive: the camera late):
+    the peak of their cross-correlation on the data's frame grid, refined by a parabola
+    through its neighbours, and a 95 % interval from a moving-block bootstrap of the frames.
+    Both (N,) float64, per frame interval; NaN where a signal is unknown (a frozen or lost
+    frame), left out of every sum. ``lag_note`` says why there is no value."""
+    none = {"lag_ms": None, "lag_low_ms": None, "lag_high_ms": None, "lag_r": None}
+    # the same three-frame box on both (it delays neither against the other): a stream with
+    # a key frame every 2 frames alternates its noise from frame to frame, which the box
+    # averages away (clean episodes' lags: within 60 ms unsmoothed, 13 ms smoothed)
+    box = np.ones(SMOOTH_FRAMES) / SMOOTH_FRAMES
+    x = np.convolve(speed_state, box, "same")
+    y = np.convolve(motion, box, "same")
+    k_max = max(1, round(LAG_SEARCH_S * fps))
+    if len(x) < LAG_MIN_S * fps:
+        return none | {"lag_note": f"not measurable: shorter than {LAG_MIN_S:g} s"}
+    if np.nanstd(x) == 0 or np.nanstd(y) == 0:
+        return none | {"lag_note": "not measurable: nothing moves"}
+    # every lag's aligned pairs over the same frames i (x[i], y[i + k]): a bootstrap then
+    # resamples frames, never the delay between the two signals
+    i = np.arange(k_max, len(x) - k_max)
+    ks = np.arange(-k_max, k_max + 1)
+    xs = np.broadcast_to(x[i], (len(ks), len(i)))
+    ys = y[i[None, :] + ks[:, None]]
+    w0 = (np.isfinite(xs) & np.isfinite(ys)).astype(np.float64)
+    xs, ys = np.nan_to_num(xs), np.nan_to_num(ys)
+
+    def peak(idx: np.ndarray) -> tuple[float, float]:
+        w, a, b = w0[:, idx], xs[:, idx], ys[:, idx]
+        n = np.maximum(w.sum(axis=1, keepdims=True), 1)
+        a = (a - (w * a).sum(axis=1, keepdims=True) / n) * w
+        b = (b - (w * b).sum(axis=1, keepdims=True) / n) * w
+        den = np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
+        r = np.where(den > 0, (a * b).sum(axis=1) / np.where(den > 0, den, 1), -1.0)
+        j = int(np.argmax(r))
+        off = 0.0
+        if 0 < j < len(r) - 1:  # the parabola's vertex through the peak and its neighbours
+            curve = r[j - 1] - 2 * r[j] + r[j + 1]
+            off = 0.5 * (r[j - 1] - r[j + 1]) / curve if curve < 0 else 0.0
+        return (ks[j] + off) / fps * 1000, float(r[j])
+
+    m = len(i)
+    lag, r = peak(np.arange(m))
+    if r < LAG_MIN_R:
+        return none | {"lag_r": r, "lag_note": f"not measurable: motions match poorly (r {r:.2f})"}
+    rng = np.random.default_rng(seed)
+    block = min(max(2, round(LAG_BLOCK_S * fps)), m)
+    starts = np.arange(0, m - block + 1)
+    boots = []
+    for _ in range(LAG_BOOT):  # moving blocks: neighbouring frames' noise stays together
+        pick = rng.choice(starts, size=math.ceil(m / block))
+        boots.append(peak((pick[:, None] + np.arange(block)[None, :]).ravel()[:m])[0])
+    lo, hi = np.percentile(boots, [2.5, 97.5])
+    return {"lag_ms": lag, "lag_low_ms": float(min(lo, lag)), "lag_high_ms": float(max(hi, lag)),
+            "lag_r": r, "lag_note": None}  # fmt: skip
+
+
+def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str, Any]:
+    """Measure one camera of one episode at the dataset's ``fps`` (see the module). Returns
+    ``row`` (dict: the episode's measures), ``frames`` (polars DataFrame: one row per decoded
+    frame) and ``views`` (first, last: float32 grey images for the camera's shift). Unreadable input
+    raises ValueError naming the file."""
+    data = read_episode_data(video.data_path, video.episode)
+    reader = (
+        WindowReader(video.path, video.from_s, video.to_s, fps)
+        if video.kind == "video"
+        else open_reader(video.path, fps)
+    )
+    stats: list[tuple[float, float, float, float]] = []
+    change: list[tuple[float, float]] = []  # against the frame before, and the one before it
+    first_last: list[np.ndarray] = []
+    try:
+        h, w = reader.info["src_height_px"], reader.info["src_width_px"]
+        size = working_size(h, w, settings.fov_deg, settings.width) if settings.fov_deg else None
+        frames_it = reader.frames
+        last: list[Any] = [None, None]
+
+        def observed():  # each frame's grey seen once, on its way to the batcher
+            for fr in frames_it():
+                stats.append(_frame_stats(fr.luma))
+                change.append((local_change(fr.luma, last[0]), local_change(fr.luma, last[1])))
+                if not first_last:
+                    first_last.append(_view(fr.luma))
+                last[:] = [fr.luma, last[0]]
+                yield fr
+
+        reader.frames = observed  # type: ignore[method-assign]
+        batcher = FrameBatcher(
+            reader, size, fps, metrics=settings.native_metrics(),
+            repeat_tol=settings.repeat_tol, max_repeats=settings.max_repeats,
+        )  # fmt: skip
+        meter = None
+        if size is not None:
+            ctx = camera_model_context(size[1], size[0], fps, settings.fov_deg)
+            meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx,
+                                    metrics=settings.model_metrics())  # fmt: skip
+        parts = []
+        while (b := batcher.next_batch()) is not None:
+            cols = {"frame": b.frame, "t_s": b.t_s, "dt_s": b.dt_s, "repeat": b.repeat,
+                    "dropped_before": b.dropped_before}  # fmt: skip
+            for m in settings.native_metrics():
+                cols[m] = b.native_metrics[:, NATIVE_METRICS.index(m)]
+            if meter is not None:
+                out = meter.update(b.images, b.t_s, b.repeat)
+                for m in settings.model_metrics():
+                    cols[m] = out[m]
+            parts.append(pl.DataFrame(cols))
+        if last[0] is not None:
+            first_last.append(_view(last[0]))
+        error = reader.error
+    finally:
+        reader.close()
+    if error:
+        raise ValueError(error)
+    frames = pl.concat(parts)
+    st = np.asarray(stats, dtype=np.float64).reshape(-1, 4)
+    ch = np.asarray(change, dtype=np.float64).reshape(-1, 2)
+    frames = frames.with_columns(
+        pl.Series("sharpness", st[:, 0]), pl.Series("mean_grey", st[:, 1]),
+        pl.Series("change_max", ch[:, 0]),
+        pl.Series("change2_max", ch[:, 1]),
+        pl.Series("underexposed", st[:, 2] >= CLIPPED_SHARE),
+        pl.Series("overexposed", st[:, 3] >= CLIPPED_SHARE),
+    )  # fmt: skip
+    row, extra = episode_measures(video, data, frames, fps, batcher)
+    frames = frames.with_columns(*extra)
+    return {"row": row, "frames": frames, "views": first_last}
+
+
+def episode_measures(video, data, frames: pl.DataFrame, fps: float, batcher) -> tuple:
+    """(the episode's row, the per-frame columns ``still`` and ``state_moving``)."""
+    t_v = frames["t_s"].to_numpy()
+    mafd = frames["mafd"].to_numpy()
+    ts = data.timestamp
+    pose = data.state if data.state is not None else data.action
+    if pose is not None and len(pose) > 1:
+        speed = np.concatenate(([0.0], np.linalg.norm(np.diff(pose, axis=0), axis=1)))
+    else:
+        speed = np.zeros(len(ts))
+    peak = float(speed.max()) if len(speed) else 0.0
+    moving_data = speed > STATE_MOVING_SHARE * peak if peak > 0 else np.zeros(len(ts), bool)
+    # each frame at its own time on the data's clock: the state moved in the interval before
+    idx = np.clip(np.searchsorted(ts, t_v - 0.5 / fps), 0, len(ts) - 1)
+    state_moving = moving_data[idx]
+    # still: unchanged since the frame before and the one before that (within STILL_LEVELS):
+    # an encoder that skips every other frame's small changes (AV1 on a blurred view) shows
+    # no change for one interval, never for two while the scene moves
+    c1 = np.nan_to_num(frames["change_max"].to_numpy(), nan=np.inf) <= STILL_LEVELS
+    # (the second frame has no frame two before it: judged on the one before alone)
+    c2 = np.nan_to_num(frames["change2_max"].to_numpy(), nan=0.0) <= STILL_LEVELS
+    still = c1 & c2
+    fast = speed[idx] >= FROZEN_STATE_SHARE * peak if peak > 0 else np.zeros(len(t_v), bool)
+    frozen_frame = still & fast
+    # a run's first repeated frame passes only the one-interval test: counted back in
+    frozen = [(s - 1, n + 1) if s > 0 and c1[s - 1] else (s, n) for s, n in _runs(frozen_frame)]
+    for s, _ in frozen:
+        frozen_frame[s] = True
+    image_moves = np.flatnonzero(~still[1:]) + 1  # frames that differ from the one before
+    state_moves = np.flatnonzero(moving_data)
+    end = ts[-1] if len(ts) else 0.0
+    head_img = t_v[image_moves[0] - 1] if len(image_moves) else t_v[-1]
+    tail_img = t_v[-1] - t_v[image_moves[-1]] if len(image_moves) else t_v[-1]
+    head_state = ts[state_moves[0] - 1] if len(state_moves) else end
+    tail_state = end - ts[state_moves[-1]] if len(state_moves) else end
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rate = mafd / (frames["dt_s"].to_numpy() * fps)  # change per nominal interval
+    rate[frozen_frame] = np.nan  # a frozen frame says nothing of the scene's motion
+    # the lag on the data's clock once the drift between the clocks is taken out (a linear
+    # map making the first and last frames agree with the data's): a clock running fast is
+    # the drift's to report, a constant delay the lag's
+    t_c = t_v
+    if len(t_v) > 1 and len(ts) > 1 and t_v[-1] > t_v[0]:
+        t_c = ts[0] + (t_v - t_v[0]) * (ts[-1] - ts[0]) / (t_v[-1] - t_v[0])
+    motion = np.interp(ts, t_c[1:], rate[1:]) if len(t_v) > 1 else np.zeros(len(ts))
+    lag = lag_of(speed[1:], motion[1:], fps, seed=video.episode)
+    if pose is None:
+        lag |= {"lag_note": "not measurable: the dataset has no state or action"}
+    tail_gap = (video.to_s - video.from_s) - t_v[-1] - 1 / fps if video.to_s is not None else 0
+    dropped = batcher.dropped_total + frames_missing_in(max(tail_gap, 0.0), fps)
+    row = {
+        "episode_index": video.episode, "camera": video.camera, "video_path": video.path,
+        "from_s": video.from_s, "to_s": video.to_s, "frames_decoded": len(t_v),
+        "length": video.length, "data_timestamps": len(ts),
+        "drift_start_ms": (t_v[0] - ts[0]) * 1000 if len(ts) else None,
+        "drift_end_ms": (t_v[-1] - ts[-1]) * 1000 if len(ts) else None,
+        "dropped": int(dropped), "repeated": int(batcher.repeats_total),
+        "idle_head_s": float(min(head_img, head_state)),
+        "idle_tail_s": float(min(tail_img, tail_state)),
+        "underexposed_share": float(frames["underexposed"].mean()),
+        "overexposed_share": float(frames["overexposed"].mean()),
+        "sharpness_median": float(frames["sharpness"].median()),
+        **lag,
+    }  # fmt: skip
+    for m in frames.columns:
+        if m in ("si_p910", "ti_p910", "mafd", "codec_bpp", "si_legacy", "ti_legacy",
+                 "edge_density", "jpeg_bpp", "omega_dps", "flow_dps", "zlib_ratio"):  # fmt: skip
+            v = frames[m].fill_nan(None).mean()
+            row[f"{m}_mean"] = None if v is None else float(v)
+    return row, [
+        pl.Series("still", still),
+        pl.Series("state_moving", state_moving),
+        pl.Series("frozen", frozen_frame),
+    ]

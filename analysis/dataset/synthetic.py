@@ -1,0 +1,382 @@
+"""Small LeRobot datasets written in the exact on-disk layout, with faults injected at known
+places: the truth the dataset command is tested against, and the worked example of
+docs/dataset.md (``python -m analysis.dataset.synthetic OUT``).
+
+The scene is a real photograph (scikit-image's ``astronaut``) seen by a fixed third-person
+camera, with an object (scikit-image's ``coffee``: a white cup on a dark table) that the robot
+moves across it: the object's image position is a fixed linear function of
+``observation.state`` at the time the camera saw it. Each episode starts and ends at the home
+pose (state 0) and moves as ``sin²`` in between, so every episode's first frame is the camera's
+reference view.
+
+Layouts (LeRobot's ``codebase_version``):
+
+* ``v3.0``: ``meta/info.json``; ``meta/episodes/chunk-000/file-000.parquet`` (one row per
+  episode, with its window ``videos/{key}/from_timestamp`` .. ``to_timestamp``);
+  ``meta/tasks.parquet``; ``data/chunk-000/file-000.parquet`` (all episodes' frames:
+  ``timestamp`` (per episode, s), ``frame_index``, ``episode_index``, ``index``,
+  ``task_index``, ``observation.state``, ``action``); ``videos/{key}/chunk-000/file-000.mp4``
+  (all episodes one after another in one shared file);
+* ``v2.1``: ``meta/info.json``, ``meta/episodes.jsonl``, ``meta/tasks.jsonl``,
+  ``data/chunk-000/episode_{e:06d}.parquet`` and ``videos/chunk-000/{key}/episode_{e:06d}.mp4``
+  (one video per episode, its time from 0).
+
+Codecs: ``libsvtav1`` (LeRobot's default: a key frame every 2 frames, CRF 30) and ``libx264``
+(the same GOP, no B-frames), yuv420p.
+
+Faults (:class:`Faults`), each on the first camera of one episode and measured against the
+data's own timeline (``timestamp = frame_index / fps``):
+
+* ``frozen``: episode → (first frame, k): frames first..first+k-1 repeat the image of the
+  frame before them while the state moves;
+* ``dropped``: episode → (first frame, n): n frames missing from the video (a gap in its
+  times); the data keeps their rows;
+* ``drift_ms``: episode → d: the video's clock runs fast, its frames spaced so that the last
+  one comes d ms later than the data's last timestamp (the start is exact);
+* ``bump``: (episode e, p): the camera moved p px to the right from episode e on;
+* ``lag_ms``: episode → L: each frame shows the scene as it was L ms before its timestamp;
+* ``idle_head_s``: episode → s: nothing moves for the first s seconds;
+* ``blurred``: episodes filmed out of focus (a Gaussian blur, sigma 2.5 px);
+* ``overexposed``: episodes with the gain too high (luma × 2.2 + 70, clipped).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+CODECS = {"libsvtav1": "av1", "libx264": "h264"}
+STATE_DIM = 6
+MARGIN_PX = 24  # the canvas around the view that a bumped camera can move into
+TIME_BASE = Fraction(1, 90000)  # the video stream's clock: fine enough for any drift or lag
+
+
+@dataclasses.dataclass(frozen=True)
+class Faults:
+    """Where each fault goes (see the module): episode indices into the dataset."""
+
+    frozen: dict[int, tuple[int, int]] = dataclasses.field(default_factory=dict)
+    dropped: dict[int, tuple[int, int]] = dataclasses.field(default_factory=dict)
+    drift_ms: dict[int, float] = dataclasses.field(default_factory=dict)
+    bump: tuple[int, int] | None = None
+    lag_ms: dict[int, float] = dataclasses.field(default_factory=dict)
+    idle_head_s: dict[int, float] = dataclasses.field(default_factory=dict)
+    blurred: frozenset[int] = frozenset()
+    overexposed: frozenset[int] = frozenset()
+
+    def clean(self, episode: int) -> bool:
+        """Whether ``episode`` has no fault (a bumped camera's episodes are faulty)."""
+        bumped = self.bump is not None and episode >= self.bump[0]
+        return not bumped and not any(
+            episode in getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "bump"
+        )
+
+
+# the test datasets' faults: one per episode, clean episodes between (0, 8 and 9 before the bump)
+STANDARD_FAULTS = Faults(
+    frozen={1: (15, 12)},  # while the arm moves out fast (not at its turn)
+    dropped={2: (45, 5)},
+    drift_ms={3: 80.0},
+    lag_ms={4: 100.0},
+    idle_head_s={5: 1.0},
+    blurred=frozenset({6}),
+    overexposed=frozenset({7}),
+    bump=(10, 6),
+)
+
+
+def _scene(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """(canvas RGB uint8 of the view plus a margin, object RGB uint8): real photographs."""
+    from skimage import data
+
+    bg = cv2.resize(data.astronaut(), (width + 2 * MARGIN_PX, height + 2 * MARGIN_PX),
+                    interpolation=cv2.INTER_AREA)  # fmt: skip
+    side = max(8, height // 4)
+    obj = cv2.resize(data.coffee()[0:400, 100:500], (side, side), interpolation=cv2.INTER_AREA)
+    return bg, obj
+
+
+def trajectory(n: int, fps: float, idle_s: float, amplitude: float, seed: int) -> np.ndarray:
+    """(n, STATE_DIM) float64 joint positions at t = i / fps: still for ``idle_s``, then out
+    and back to the home pose (0) as sin²; joint 0 moves the object across the view, joint 1
+    up and down (a third of it), the others follow slowly."""
+    t = np.arange(n) / fps
+    dur = n / fps
+    u = np.clip((t - idle_s) / max(dur - idle_s - 1 / fps, 1e-9), 0, 1)
+    base = np.sin(np.pi * u) ** 2
+    rng = np.random.default_rng(seed)
+    gains = np.concatenate(([1.0, 0.33], rng.uniform(0.05, 0.2, STATE_DIM - 2)))
+    return amplitude * base[:, None] * gains[None, :]
+
+
+def state_at(state: np.ndarray, fps: float, t: float) -> np.ndarray:
+    """The state at time ``t`` (s), linearly interpolated (before 0: the first)."""
+    x = t * fps
+    i = int(np.clip(math.floor(x), 0, len(state) - 1))
+    j = min(i + 1, len(state) - 1)
+    a = float(np.clip(x - i, 0, 1))
+    return state[i] * (1 - a) + state[j] * a
+
+
+def render(bg: np.ndarray, obj: np.ndarray, s: np.ndarray, shape: tuple[int, int],
+           shift_px: int = 0) -> np.ndarray:  # fmt: skip
+    """The camera's (H, W, 3) uint8 view of the scene with the object at state ``s`` (px:
+    joint 0 horizontal from the left quarter, joint 1 vertical), the camera moved right by
+    ``shift_px``. Sub-pixel positions are rendered by a warp (bilinear)."""
+    h, w = shape
+    canvas = bg.astype(np.float32)
+    side = obj.shape[0]
+    x = MARGIN_PX + w * 0.2 + float(s[0])
+    y = MARGIN_PX + h * 0.4 + float(s[1])
+    m = np.float32([[1, 0, x], [0, 1, y]])
+    size = (canvas.shape[1], canvas.shape[0])
+    placed = cv2.warpAffine(obj.astype(np.float32), m, size, flags=cv2.INTER_LINEAR)
+    mask = cv2.warpAffine(np.ones((side, side), np.float32), m, size, flags=cv2.INTER_LINEAR)
+    canvas = canvas * (1 - mask[..., None]) + placed
+    ox = MARGIN_PX + shift_px
+    return np.clip(canvas[MARGIN_PX : MARGIN_PX + h, ox : ox + w], 0, 255).astype(np.uint8)
+
+
+def _episode_frames(
+    e: int, n: int, fps: float, shape: tuple[int, int], faults: Faults, scene: tuple, seed: int
+) -> tuple[np.ndarray, list[tuple[float, np.ndarray]]]:
+    """(state (n, STATE_DIM), [(video time since the episode's start s, RGB frame)])."""
+    bg, obj = scene
+    amplitude = shape[1] * (0.45 + 0.1 * ((e * 7) % 3))  # px: the object crosses the view
+    state = trajectory(n, fps, faults.idle_head_s.get(e, 0.0), amplitude, seed + e)
+    lag = faults.lag_ms.get(e, 0.0) / 1000
+    shift = faults.bump[1] if faults.bump is not None and e >= faults.bump[0] else 0
+    drift = faults.drift_ms.get(e, 0.0) / 1000
+    f0, k = faults.frozen.get(e, (n, 0))
+    d0, dn = faults.dropped.get(e, (n, 0))
+    frames: list[tuple[float, np.ndarray]] = []
+    img = None
+    for i in range(n):
+        if d0 <= i < d0 + dn:
+            continue  # lost: a gap in the video's times
+        if not (f0 <= i < f0 + k) or img is None:
+            img = render(bg, obj, state_at(state, fps, i / fps - lag), shape, shift)
+            if e in faults.blurred:
+                img = cv2.GaussianBlur(img, (0, 0), 2.5)
+            if e in faults.overexposed:
+                img = np.clip(img.astype(np.float32) * 2.2 + 70, 0, 255).astype(np.uint8)
+        t = i / fps + drift * i / max(n - 1, 1)
+        frames.append((t, img))
+    return state, frames
+
+
+class _Encoder:
+    """One MP4 (one video stream) written frame by frame at given times."""
+
+    def __init__(self, path: Path, codec: str, fps: float, shape: tuple[int, int]) -> None:
+        import av
+
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.container = av.open(str(path), "w")
+        opts = {"g": "2", "crf": "30"}
+        if codec == "libx264":
+            opts |= {"bf": "0", "preset": "veryfast"}
+        else:
+            opts |= {"preset": "12"}  # libsvtav1's fastest: the tests' CPU
+        s = self.container.add_stream(codec, rate=round(fps), options=opts)
+        s.width, s.height, s.pix_fmt = shape[1], shape[0], "yuv420p"
+        s.codec_context.time_base = TIME_BASE
+        s.time_base = TIME_BASE
+        self.stream = s
+        self.last_pts = -1
+
+    def add(self, t_s: float, rgb: np.ndarray) -> None:
+        import av
+
+        frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
+        pts = max(round(t_s / TIME_BASE), self.last_pts + 1)
+        frame.pts, frame.time_base = pts, TIME_BASE
+        self.last_pts = pts
+        for p in self.stream.encode(frame):
+            self.container.mux(p)
+
+    def close(self) -> None:
+        for p in self.stream.encode(None):
+            self.container.mux(p)
+        self.container.close()
+
+
+def _features(cameras: tuple[str, ...], shape: tuple[int, int], codec: str, fps: float) -> dict:
+    video_info = {
+        "video.height": shape[0], "video.width": shape[1], "video.codec": CODECS[codec],
+        "video.pix_fmt": "yuv420p", "video.is_depth_map": False, "video.fps": fps,
+        "video.channels": 3, "has_audio": False,
+    }  # fmt: skip
+    names = [f"joint_{j}" for j in range(STATE_DIM)]
+    feats: dict[str, Any] = {
+        cam: {"dtype": "video", "shape": [shape[0], shape[1], 3],
+              "names": ["height", "width", "channels"], "info": video_info}
+        for cam in cameras
+    }  # fmt: skip
+    feats |= {
+        "observation.state": {"dtype": "float32", "shape": [STATE_DIM], "names": names},
+        "action": {"dtype": "float32", "shape": [STATE_DIM], "names": names},
+        "timestamp": {"dtype": "float32", "shape": [1], "names": None},
+        "frame_index": {"dtype": "int64", "shape": [1], "names": None},
+        "episode_index": {"dtype": "int64", "shape": [1], "names": None},
+        "index": {"dtype": "int64", "shape": [1], "names": None},
+        "task_index": {"dtype": "int64", "shape": [1], "names": None},
+    }
+    return feats
+
+
+def _data_table(e: int, state: np.ndarray, fps: float, first_index: int) -> pa.Table:
+    n = len(state)
+    action = np.vstack([state[1:], state[-1:]])  # the next pose: the action leads the state
+    vec = pa.list_(pa.float32(), STATE_DIM)
+    return pa.table({
+        "observation.state": pa.array(list(state.astype(np.float32)), type=vec),
+        "action": pa.array(list(action.astype(np.float32)), type=vec),
+        "timestamp": pa.array((np.arange(n) / fps).astype(np.float32)),
+        "frame_index": pa.array(np.arange(n, dtype=np.int64)),
+        "episode_index": pa.array(np.full(n, e, dtype=np.int64)),
+        "index": pa.array(np.arange(first_index, first_index + n, dtype=np.int64)),
+        "task_index": pa.array(np.zeros(n, dtype=np.int64)),
+    })  # fmt: skip
+
+
+def write_dataset(
+    root: str | Path,
+    episodes: int = 12,
+    version: str = "v3.0",
+    codec: str = "libsvtav1",
+    fps: float = 30.0,
+    shape: tuple[int, int] = (96, 128),
+    seconds: tuple[float, float] = (3.0, 4.0),
+    faults: Faults = STANDARD_FAULTS,
+    cameras: tuple[str, ...] = ("observation.images.front",),
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Write a LeRobot dataset at ``root`` (see the module) and return its truth: ``lengths``
+    (frames per episode), ``faults``, ``fps``, ``cameras``. Episode lengths are spread evenly
+    over ``seconds``; the first camera carries the faults, the others see the clean scene
+    (their own, shifted a little). Faults name episodes below ``episodes``."""
+    if version not in ("v3.0", "v2.1"):
+        raise ValueError(f"version must be v3.0 or v2.1, got {version!r}")
+    if codec not in CODECS:
+        raise ValueError(f"codec must be one of {', '.join(CODECS)}, got {codec!r}")
+    root = Path(root)
+    (root / "meta").mkdir(parents=True, exist_ok=True)
+    scene = _scene(*shape)
+    span = np.linspace(seconds[0], seconds[1], episodes) if episodes > 1 else [seconds[0]]
+    lengths = [round(float(s) * fps) for s in span]
+    clean = Faults()
+    per_cam: dict[str, list] = {cam: [] for cam in cameras}  # [(state, frames)] per episode
+    states = []
+    for e, n in enumerate(lengths):
+        for c, cam in enumerate(cameras):
+            f = faults if c == 0 else clean
+            sc = scene if c == 0 else (np.roll(scene[0], 5 * c, axis=1), scene[1])
+            state, frames = _episode_frames(e, n, fps, shape, f, sc, seed)
+            per_cam[cam].append(frames)
+        states.append(state)
+    info: dict[str, Any] = {
+        "codebase_version": version, "robot_type": "synthetic_arm",
+        "total_episodes": episodes, "total_frames": int(sum(lengths)), "total_tasks": 1,
+        "chunks_size": 1000, "fps": fps, "splits": {"train": f"0:{episodes}"},
+        "features": _features(cameras, shape, codec, fps),
+    }  # fmt: skip
+    if version == "v3.0":
+        _write_v3(root, info, lengths, states, per_cam, codec, fps, shape)
+    else:
+        _write_v21(root, info, lengths, states, per_cam, codec, fps, shape)
+    return {"lengths": lengths, "faults": faults, "fps": fps, "cameras": cameras,
+            "version": version, "codec": codec, "shape": shape}  # fmt: skip
+
+
+def _write_v3(root, info, lengths, states, per_cam, codec, fps, shape) -> None:
+    info |= {
+        "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
+        "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+        "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
+    }  # fmt: skip
+    (root / "meta" / "info.json").write_text(json.dumps(info, indent=2))
+    tasks = pa.table({"task_index": [0], "__index_level_0__": ["move the cup"]})
+    pq.write_table(tasks, root / "meta" / "tasks.parquet")
+    data, start = [], 0
+    for e, state in enumerate(states):
+        data.append(_data_table(e, state, fps, start))
+        start += len(state)
+    (root / "data" / "chunk-000").mkdir(parents=True, exist_ok=True)
+    pq.write_table(pa.concat_tables(data), root / "data" / "chunk-000" / "file-000.parquet")
+    windows: dict[str, list[tuple[float, float]]] = {}
+    for cam, eps in per_cam.items():
+        enc = _Encoder(root / "videos" / cam / "chunk-000" / "file-000.mp4", codec, fps, shape)
+        t0, win = 0.0, []
+        for frames in eps:
+            for t, img in frames:
+                enc.add(t0 + t, img)
+            end = t0 + frames[-1][0] + 1 / fps  # the window ends one interval after its last
+            win.append((t0, end))
+            t0 = end
+        enc.close()
+        windows[cam] = win
+    cols: dict[str, list] = {
+        "episode_index": list(range(len(lengths))),
+        "tasks": [["move the cup"]] * len(lengths), "length": lengths,
+        "data/chunk_index": [0] * len(lengths), "data/file_index": [0] * len(lengths),
+        "dataset_from_index": list(np.cumsum([0, *lengths[:-1]]).tolist()),
+        "dataset_to_index": list(np.cumsum(lengths).tolist()),
+    }  # fmt: skip
+    for cam, win in windows.items():
+        cols[f"videos/{cam}/chunk_index"] = [0] * len(lengths)
+        cols[f"videos/{cam}/file_index"] = [0] * len(lengths)
+        cols[f"videos/{cam}/from_timestamp"] = [a for a, _ in win]
+        cols[f"videos/{cam}/to_timestamp"] = [b for _, b in win]
+    cols["meta/episodes/chunk_index"] = [0] * len(lengths)
+    cols["meta/episodes/file_index"] = [0] * len(lengths)
+    out = root / "meta" / "episodes" / "chunk-000"
+    out.mkdir(parents=True, exist_ok=True)
+    pq.write_table(pa.table(cols), out / "file-000.parquet")
+
+
+def _write_v21(root, info, lengths, states, per_cam, codec, fps, shape) -> None:
+    info |= {
+        "total_chunks": 1, "total_videos": len(lengths) * len(per_cam),
+        "data_path": "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet",
+        "video_path": "videos/chunk-{episode_chunk:03d}/{video_key}/"
+        "episode_{episode_index:06d}.mp4",
+    }  # fmt: skip
+    (root / "meta" / "info.json").write_text(json.dumps(info, indent=2))
+    lines = [json.dumps({"episode_index": e, "tasks": ["move the cup"], "length": n})
+             for e, n in enumerate(lengths)]  # fmt: skip
+    (root / "meta" / "episodes.jsonl").write_text("\n".join(lines) + "\n")
+    (root / "meta" / "tasks.jsonl").write_text('{"task_index": 0, "task": "move the cup"}\n')
+    (root / "data" / "chunk-000").mkdir(parents=True, exist_ok=True)
+    start = 0
+    for e, state in enumerate(states):
+        path = root / "data" / "chunk-000" / f"episode_{e:06d}.parquet"
+        pq.write_table(_data_table(e, state, fps, start), path)
+        start += len(state)
+    for cam, eps in per_cam.items():
+        for e, frames in enumerate(eps):
+            path = root / "videos" / "chunk-000" / cam / f"episode_{e:06d}.mp4"
+            enc = _Encoder(path, codec, fps, shape)
+            for t, img in frames:
+                enc.add(t, img)
+            enc.close()
+
+
+if __name__ == "__main__":  # python -m analysis.dataset.synthetic OUT [v3.0|v2.1] [codec]
+    args = sys.argv[1:]
+    if not args:
+        sys.exit("usage: python -m analysis.dataset.synthetic OUT [v3.0|v2.1] [libsvtav1|libx264]")
+    truth = write_dataset(args[0], version=args[1] if len(args) > 1 else "v3.0",
+                          codec=args[2] if len(args) > 2 else "libsvtav1")  # fmt: skip
+    print(f"wrote {len(truth['lengths'])} episodes ({truth['version']}, {truth['codec']}) "
+          f"to {args[0]}")  # fmt: skip

@@ -1,0 +1,110 @@
+"""``vdc-analyse dataset`` on the other layouts and on bad input: a LeRobot v2.1 dataset (a video
+per episode, H.264, two cameras), a v3.0 one with H.264, and copies of them broken one way each.
+Every unreadable file is one line naming it and its episode (exit 2), and every other episode
+is still profiled."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pyarrow.parquet as pq
+import pytest
+
+from analysis.dataset import DatasetSettings, dataset
+from analysis.dataset.synthetic import Faults, write_dataset
+from tests.helpers import assert_one_line_error
+from tests.in_process import run_in_process
+
+FRONT, WRIST = "observation.images.front", "observation.images.wrist"
+FAULTS = Faults(frozen={1: (12, 10)}, dropped={2: (30, 4)})
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory):
+    d = tmp_path_factory.mktemp("layouts")
+    v21 = d / "v21"
+    write_dataset(v21, episodes=4, version="v2.1", codec="libx264", seconds=(3.0, 3.3),
+                  faults=FAULTS, cameras=(FRONT, WRIST))  # fmt: skip
+    v3 = d / "v3"
+    write_dataset(v3, episodes=3, version="v3.0", codec="libx264", seconds=(2.0, 2.0),
+                  faults=Faults())  # fmt: skip
+    return {"v21": v21, "v3": v3, "tmp": d}
+
+
+def _copy(made, name: str, to: str):
+    dst = made["tmp"] / to
+    shutil.copytree(made[name], dst)
+    return dst
+
+
+def _run(root, out):
+    return dataset(root, DatasetSettings(jobs=2, page=False), out)
+
+
+def test_v21_h264_two_cameras(made) -> None:
+    res = _run(made["v21"], made["tmp"] / "out_v21")
+    assert res.problems == [] and res.exit_status == 0
+    flags = {
+        (r["episode_index"], r["camera"]): r["flags"] for r in res.episodes.iter_rows(named=True)
+    }
+    assert len(flags) == 8  # 4 episodes x 2 cameras
+    expected = {(1, FRONT): "frozen", (2, FRONT): "dropped"}
+    assert {k: v for k, v in flags.items() if v} == expected
+    row = res.episodes.filter(
+        (res.episodes["episode_index"] == 2) & (res.episodes["camera"] == FRONT)
+    )
+    assert row["dropped"][0] == 4 and row["frames_decoded"][0] + 4 == row["length"][0]
+
+
+def test_no_info_json_and_unknown_version_are_one_line(made) -> None:
+    bad = _copy(made, "v3", "no_info")
+    (bad / "meta" / "info.json").unlink()
+    proc = run_in_process("analysis", "dataset", str(bad), "--out", str(made["tmp"] / "o1"))
+    assert_one_line_error(proc, "meta/info.json", "not a LeRobot dataset")
+    bad = _copy(made, "v3", "v9")
+    info = json.loads((bad / "meta" / "info.json").read_text())
+    (bad / "meta" / "info.json").write_text(json.dumps(info | {"codebase_version": "v9.9"}))
+    proc = run_in_process("analysis", "dataset", str(bad), "--out", str(made["tmp"] / "o2"))
+    assert_one_line_error(proc, "info.json", "'v9.9'", "v3.0")
+
+
+def test_a_window_past_its_file_is_named_and_the_others_profiled(made) -> None:
+    bad = _copy(made, "v3", "past")
+    index = bad / "meta" / "episodes" / "chunk-000" / "file-000.parquet"
+    t = pq.read_table(index).to_pydict()
+    t[f"videos/{FRONT}/to_timestamp"][2] += 5.0  # five seconds past the shared file's end
+    import pyarrow as pa
+
+    pq.write_table(pa.table(t), index)
+    out = made["tmp"] / "o3"
+    proc = run_in_process("analysis", "dataset", str(bad), "--out", str(out))
+    assert proc.returncode == 2, proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and "file-000.mp4 (episode 2)" in errors[0]
+    assert "past the file's end" in errors[0]
+    assert "Traceback" not in proc.stderr
+    eps = pq.read_table(out / "episodes.parquet").to_pydict()
+    assert sorted(eps["episode_index"]) == [0, 1]
+
+
+def test_missing_corrupt_and_cut_videos_and_a_corrupt_parquet(made) -> None:
+    bad = _copy(made, "v21", "broken")
+    videos = bad / "videos" / "chunk-000"
+    (videos / FRONT / "episode_000001.mp4").unlink()  # missing
+    (videos / WRIST / "episode_000002.mp4").write_bytes(b"\x00not a video" * 100)  # corrupt
+    cut = videos / FRONT / "episode_000003.mp4"
+    cut.write_bytes(cut.read_bytes()[: cut.stat().st_size // 3])  # cut short
+    (bad / "data" / "chunk-000" / "episode_000000.parquet").write_bytes(b"PAR1 garbage")
+    res = _run(bad, made["tmp"] / "o4")
+    assert res.exit_status == 2
+    lines = res.problems
+    assert len(lines) == 4, lines  # one per unreadable file and episode
+    assert any("episode_000000.parquet (episode 0)" in ln and "Parquet" in ln for ln in lines)
+    assert any("episode_000001.mp4 (episode 1)" in ln and "no such file" in ln for ln in lines)
+    assert any("episode_000002.mp4 (episode 2)" in ln for ln in lines)
+    assert any("episode_000003.mp4 (episode 3)" in ln for ln in lines)
+    done = {(r["episode_index"], r["camera"]) for r in res.episodes.iter_rows(named=True)}
+    # the others are profiled: episode 1's wrist camera, 2's front, 3's wrist
+    assert done == {(1, WRIST), (2, FRONT), (3, WRIST)}
+    assert pq.read_table(res.files.problems).num_rows == 4
