@@ -34,6 +34,7 @@ from analysis.recordings.segments import safe_key
 from analysis.stats import Estimate, mean_ci, share_ci
 from vdc.cli_support import Settings, option
 from vdc.errors import UserError
+from vdc.folders import path_list
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from vdc.recording import APP_ID
 
@@ -353,8 +354,6 @@ def collision(
 
     items, notes = [], Notices(notice)
     distinct = DistinctRecordings()
-    from vdc.folders import path_list
-
     for path in path_list(recordings):  # a single path given as a str: a list of one
         loaded = load_recording(path)
         distinct.add(loaded.recording_id, path)

@@ -15,6 +15,7 @@ from typing import Any
 
 from avdm.registry import VARIANTS, add_overrides, is_plugin
 from avdm.version import __version__
+from vdc.cli_support import SIM_CAMERA_FPS
 from vdc.errors import UserError
 from vdc.recording import camera_model_context
 
@@ -166,27 +167,13 @@ class RobotConfig:
         _in_range("sensor_lateral_m", self.sensor_lateral_m, 0.0, 0.5, " m")
 
 
-def check_below_nyquist(tf_hz: float, flag: str, fps: float | None = None) -> None:
-    """UserError in one line naming ``flag`` when the wall TF ``tf_hz`` is not below the
-    Nyquist frequency of a camera at ``fps`` (default: the simulated camera's): a wall that
-    drifts faster than half the frame rate aliases to a slower, even backward, drift, and a
-    profile over it is not monotone."""
-    fps = CameraConfig.fps if fps is None else fps
-    if not tf_hz < fps / 2:
-        raise UserError(
-            f"{flag} reaches {tf_hz:g} Hz, not below the camera's Nyquist frequency "
-            f"{fps / 2:g} Hz (a {fps:g} Hz camera): a faster wall aliases; keep TFs below "
-            f"{fps / 2:g} Hz"
-        )
-
-
 @dataclasses.dataclass(frozen=True)
 class CameraConfig:
     """The on-board camera: pinhole, horizontal, looking forward, area-averaged pixels."""
 
     width_px: int = 99
     height_px: int = 72
-    fps: float = 33.0
+    fps: float = SIM_CAMERA_FPS
     hfov_deg: float = 70.0
     height_m: float = 0.03
     supersample: int = 8  # sub-columns per pixel (area averaging across the stripes)

@@ -34,7 +34,14 @@ from capture.recording_start import model_sections, start_recording
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from capture.sim_robot import SimulatedRobot, load_wall_image, ring_turn_event  # noqa: F401
 from vdc.blueprints import default_blueprint
-from vdc.cli_support import Settings, non_negative_float, non_negative_int, option, positive_float
+from vdc.cli_support import (
+    Settings,
+    check_below_nyquist,
+    non_negative_float,
+    non_negative_int,
+    option,
+    positive_float,
+)
 from vdc.errors import UserError
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import model_path
@@ -125,8 +132,6 @@ class SimSettings(Settings):
     overhead_fps: float = option(5.0, "overhead camera rate, Hz", type=positive_float)
 
     def __post_init__(self) -> None:
-        from capture.config import check_below_nyquist
-
         check_below_nyquist(self.tf_hz, "--tf-hz")  # before any run: a faster wall aliases
 
     def to_config(self) -> SimConfig:

@@ -13,6 +13,7 @@ from analysis.collision import CollisionSettings as CollisionSettings
 from analysis.experiments.collision_study import CollisionStudySettings as CollisionStudySettings
 from analysis.compare import CompareSettings as CompareSettings
 from analysis.complexity.command import ComplexitySettings as ComplexitySettings
+from analysis.dataset.command import DatasetSettings as DatasetSettings
 from vdc.executors import ExecutorSettings as ExecutorSettings
 from vdc.executors import Feedback as Feedback
 from avdm.policy import Policy as Policy
@@ -35,6 +36,7 @@ from analysis.experiments.collision_study import collision_study as collision_st
 from analysis.compare import compare as compare
 from analysis.complexity.command import complexity as complexity
 from analysis.complexity.command import complexity_of_frames as complexity_of_frames
+from analysis.dataset.command import dataset as dataset
 from avdm.registry import describe_models as describe_models
 from avdm.policy import load_policy as load_policy
 from analysis.recordings.loading import load_recording as load_recording
@@ -65,6 +67,7 @@ __all__ = [
     "CollisionStudySettings",
     "CompareSettings",
     "ComplexitySettings",
+    "DatasetSettings",
     "ExecutorSettings",
     "Feedback",
     "Policy",
@@ -87,6 +90,7 @@ __all__ = [
     "compare",
     "complexity",
     "complexity_of_frames",
+    "dataset",
     "describe_models",
     "load_policy",
     "load_recording",

@@ -11,9 +11,14 @@ import argparse
 import dataclasses
 import importlib
 import math
+import numbers
+import os
 import sys
 import textwrap
+import types
+import typing
 from collections.abc import Callable, Sequence
+from pathlib import PurePath
 from typing import Any, NoReturn
 
 from tqdm import tqdm
@@ -57,12 +62,6 @@ _NO = object()  # "does not conform"
 def _conform(value: Any, tp: Any) -> Any:
     """``value`` as a field of type ``tp`` takes it (an int for a float is a float, a Path for a
     text a str, a list for a tuple a tuple), or ``_NO``. Types it cannot judge pass."""
-    import numbers
-    import os
-    import types
-    import typing
-    from pathlib import PurePath
-
     origin = typing.get_origin(tp)
     if tp is Any or isinstance(tp, typing.TypeVar):
         return value
@@ -109,8 +108,6 @@ def check_field_types(settings: Any) -> None:
     """Refuse (:class:`SettingsTypeError`, one line naming the field) a settings dataclass
     whose fields hold values of other types than their annotations say, and normalise the
     harmless differences (an int for a float, a Path for a str, a list for a tuple)."""
-    import typing
-
     cls = type(settings)
     types_ = _field_types(cls)
     for f in dataclasses.fields(settings):
@@ -155,6 +152,24 @@ class Settings:
 
     def __post_init__(self) -> None:
         check_field_types(self)
+
+
+# the simulated arena camera's frame rate (capture.config.CameraConfig.fps): analysis checks
+# the TFs it asks of the arena against it without importing capture
+SIM_CAMERA_FPS = 33.0
+
+
+def check_below_nyquist(tf_hz: float, flag: str, fps: float = SIM_CAMERA_FPS) -> None:
+    """UserError in one line naming ``flag`` when the wall TF ``tf_hz`` is not below the
+    Nyquist frequency of a camera at ``fps`` (default: the simulated arena's): a wall that
+    drifts faster than half the frame rate aliases to a slower, even backward, drift, and a
+    profile over it is not monotone."""
+    if not tf_hz < fps / 2:
+        raise UserError(
+            f"{flag} reaches {tf_hz:g} Hz, not below the camera's Nyquist frequency "
+            f"{fps / 2:g} Hz (a {fps:g} Hz camera): a faster wall aliases; keep TFs below "
+            f"{fps / 2:g} Hz"
+        )
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -49,6 +49,7 @@ from avdm.registry import make_model
 from vdc.blueprints import default_blueprint, video_blueprint
 from vdc.cli_support import Settings, non_negative_int, option
 from vdc.errors import UserError
+from vdc.folders import path_list
 from vdc.recording import (
     APP_ID,
     FRAME_TIMELINE,
@@ -322,8 +323,6 @@ def scan(
     layers: dict[str, list[tuple[str, Path]]] = {}
     left: list[tuple[str, str]] = []
     outputs: list[tuple[str, Path]] = []
-    from vdc.folders import path_list
-
     folders = path_list(folders)  # one folder given as a str is a list of one, not of letters
     batch_folders: list[Path] = []
     cache = _cache(Path(folders[0]))

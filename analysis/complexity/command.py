@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -68,7 +69,7 @@ from vdc.cli_support import (
 )
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
-from vdc.folders import scan_folder
+from vdc.folders import path_list, scan_folder
 from vdc.frame_metrics import (
     RANGE_CHOICES,
     RANGE_COLUMNS,
@@ -238,8 +239,6 @@ def expand_sources(
     itself, unfinished captures and dangling links (``vdc.folders.scan_folder``), which
     ``notice`` hears about in one line per folder. A folder without any source, a missing
     file or a pattern that matches nothing raises ValueError."""
-    from vdc.folders import path_list
-
     sources: list[str] = []
     for item in path_list(items):
         p = Path(item)
@@ -467,8 +466,6 @@ def complexity(
     (the work is done in a folder removed before this returns) and returns the tables."""
 
     if out is None:
-        import tempfile
-
         with tempfile.TemporaryDirectory(prefix="vdc-complexity-") as tmp:
             res = complexity(sources, settings, tmp, progress=progress,
                              clip_progress=clip_progress, notice=notice, log=log)  # fmt: skip

@@ -36,14 +36,13 @@ from analysis.recordings.loading import (
 )
 from analysis.recordings.reader import RecordingError
 from avdm.base import Model, primary_output_name
-from avdm.registry import canonical_name, make_model, parse_model_spec
+from avdm.registry import canonical_name, check_detector, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
 from vdc.cli_support import API_ONLY, Settings, non_negative_int, option, positive_float
-from vdc.parquet_io import WroteFiles, table_set, write_parquet
-from avdm.registry import check_detector
-from vdc.folders import expand_recordings
 from vdc.errors import UserError
+from vdc.folders import expand_recordings, path_list
+from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
 
 @dataclasses.dataclass(frozen=True)
@@ -424,8 +423,6 @@ def build_tables(
     distinct = DistinctRecordings()
     left: list[tuple[str, Exception]] = []  # said once the others are read (or raised)
     checked = False
-    from vdc.folders import path_list
-
     for path in sorted(path_list(paths)):  # a single path given as a str: a list of one
         try:
             loaded = load_recording(path, settings)

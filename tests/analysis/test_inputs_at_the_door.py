@@ -15,6 +15,12 @@ from tests.helpers import assert_one_line_error, run_cli
 NYQUIST_HZ = CameraConfig().fps / 2  # 16.5 Hz: a grating drifting faster aliases
 
 
+def test_analysis_checks_against_the_arena_cameras_own_rate() -> None:
+    from vdc.cli_support import SIM_CAMERA_FPS  # what analysis holds TFs to, not importing capture
+
+    assert CameraConfig().fps == SIM_CAMERA_FPS == 33.0
+
+
 @pytest.mark.parametrize(
     ("make", "needle"),
     [
