@@ -108,18 +108,20 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
     return 0
 
 
-def _campaign(entry: str, unit: str) -> Callable[[argparse.Namespace], int]:
-    """A sub-command that runs ``module:function(settings, out, feedback)`` with a
-    progress bar over its ``unit``s and prints the result's ``report()`` lines."""
+def _campaign(entry: str, unit: str, *inputs: str) -> Callable[[argparse.Namespace], int]:
+    """A sub-command that runs ``module:function(*inputs, settings, out, feedback)`` with a progress
+    bar over its ``unit``s, prints ``report()`` and exits with ``exit_status`` (default 0)."""
 
     def run(args: argparse.Namespace) -> int:
         module, name = entry.split(":")
         fn = getattr(importlib.import_module(module), name)
         with progress_bar(None, name, unit) as bar:
             settings = settings_from_args(load_settings_class(args.settings_target), args)
-            res = fn(settings, args.out, Feedback(say, bar.update))
+            res = fn(
+                *map(args.__getattribute__, inputs), settings, args.out, Feedback(say, bar.update)
+            )
         print("\n".join(res.report()))
-        return 0
+        return getattr(res, "exit_status", 0)
 
     return run
 
@@ -143,23 +145,6 @@ def cmd_complexity(args: argparse.Namespace) -> int:
     for source, error in res.failures:
         print(f"FAILED {source}: {error}", file=sys.stderr)
     return 1 if res.failures else 0
-
-
-def cmd_dataset(args: argparse.Namespace) -> int:
-    from analysis.dataset.command import DatasetSettings, dataset
-
-    settings = settings_from_args(DatasetSettings, args)
-    with progress_bar(None, "episodes", "camera") as bar:
-        res = dataset(args.dataset, settings, args.out, Feedback(say, bar.update))
-    print("\n".join(res.report()))
-    for line in res.problems:  # each unreadable input: one line, the others still profiled
-        print(f"{PROG} dataset: error: {line}", file=sys.stderr)
-    return res.exit_status
-
-
-def _dataset_inputs(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", metavar="PATH", help="a LeRobot dataset folder (v3.0 or v2.1)")
-    p.add_argument("--out", default="results/dataset", help="output folder (default: %(default)s)")
 
 
 def cmd_catalog(args: argparse.Namespace) -> int:
@@ -361,6 +346,15 @@ COMMANDS = {
         "--detector examples.looming:Looming --param threshold --values 0.05,0.15",
         inputs=_inputs("results/boundary", None),
     ),
+    "looming-footage": Command(
+        "analysis.experiments.looming_footage:LoomingFootageSettings",
+        _campaign("analysis.experiments.looming_footage:looming_footage", "clip"),
+        "render a labelled collection of looming clips over real photographs",
+        "Render --clips H.264 clips of an object approaching over scikit-image's photographs "
+        "(camera yaw, contrast, light, noise; collisions and near misses) and labels.csv with "
+        "collision_frame and hazard_onset_frame (docs/boundary.md). Clips written are reused.",
+        inputs=_inputs("footage/looming", None),
+    ),
     "adaptation": Command(
         "analysis.experiments.adaptation:AdaptationSettings",
         _campaign("analysis.experiments.adaptation:adaptation", "run"),
@@ -415,21 +409,10 @@ COMMANDS = {
     ),
     "dataset": Command(
         "analysis.dataset.command:DatasetSettings",
-        cmd_dataset,
-        "profile a LeRobot robot-learning dataset episode by episode, its faults flagged",
-        "For a LeRobot dataset (v3.0: episodes as windows of shared videos; v2.1: a video per "
-        "episode; AV1, H.264, HEVC; PNG image features), read with pyarrow and PyAV: every "
-        "camera of every episode decoded once (one task each: --executor, --jobs) beside the "
-        "episode's data. Writes episodes.parquet (episode x camera: counts, drift in ms, "
-        "dropped, repeated and frozen frames, idle head and tail in s, complexity metrics, "
-        "blur and exposure shares, camera shift in px, lag behind the state in ms with an "
-        "interval, flags), frames.parquet (per frame), problems.parquet and dataset.html "
-        "(worst first, thumbnails around flagged frames). Exit 1 when --fail-on flags an "
-        "episode; 2 when input is unreadable (one line each; the other episodes are profiled).",
-        "examples:\n"
-        "  vdc-analyse dataset data/my_dataset --out results/my_dataset\n"
-        "  vdc-analyse dataset data/my_dataset --fov-deg 70 --fail-on frozen,dropped,drift",
-        inputs=_dataset_inputs,
+        _campaign("analysis.dataset.command:dataset", "camera", "recording"),
+        "profile a LeRobot dataset episode by episode, its camera faults flagged",
+        "Each camera of each episode of a LeRobot dataset (v3.0, v2.1); see docs/dataset.md.",
+        inputs=_inputs("results/dataset", "a LeRobot dataset folder", one=True),
     ),
     "catalog": Command(
         "analysis.catalog.build:CatalogSettings",

@@ -94,6 +94,33 @@ def share_ci(
     )
 
 
+def condition_share_bounds(
+    x: Sequence[float], k: Sequence[float], n: Sequence[float], phi: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per condition (runs at one complexity): (complexity, lower, upper) 95 % bounds of its
+    success that count the spread between its seeds: :func:`analysis.stats.share_ci` (the
+    wider of the seeds' t-interval and the pooled exact interval); a lone run, whose seed
+    spread cannot be seen, the exact interval of its counts divided by the fit's dispersion
+    ``phi`` (its effective number of trials). One run's exact bound alone made a seed that
+    differed by chance "clearly fail"."""
+    x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
+    ok = n_a > 0
+    xs, lows, highs = [], [], []
+    for c in np.unique(x_a[ok]):
+        sel = ok & (x_a == c)
+        if sel.sum() >= 2:
+            e = share_ci(k_a[sel].astype(int), n_a[sel].astype(int))
+            lo, hi = e.low, e.high
+        else:
+            kk, nn = k_a[sel][0] / phi, n_a[sel][0] / phi
+            lo = 0.0 if kk <= 0 else float(scipy.stats.beta.ppf(0.025, kk, nn - kk + 1))
+            hi = 1.0 if kk >= nn else float(scipy.stats.beta.ppf(0.975, kk + 1, nn - kk))
+        xs.append(c)
+        lows.append(lo)
+        highs.append(hi)
+    return np.array(xs), np.array(lows), np.array(highs)
+
+
 @dataclasses.dataclass(frozen=True)
 class Trend:
     """A one-sided test that a quantity rises along ordered conditions, seeds as blocks."""

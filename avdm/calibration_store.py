@@ -8,21 +8,78 @@ user's cache folder (the one file outside the package that ``avdm`` reads or wri
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import dataclasses
 import hashlib
 import json
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from functools import cache
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from avdm.avdm_model import AvdmParams
-from avdm.calibration import fit_decoding, fit_multiscale
+from avdm.calibration import (
+    CLUTTER_SEEDS,
+    fit_decoding,
+    fit_multiscale,
+    valid_periods_px,
+    valid_tfs_hz,
+)
 from avdm.version import __version__
 
 CALIBRATION_FILE = "calibrations.json"
+
+
+@dataclasses.dataclass(frozen=True)
+class FitNote:
+    """What a calibration fit is doing, for the caller to show (``avdm`` prints nothing).
+
+    ``stage``: ``"fitting"`` (a fit starts: ``total`` stimuli to measure), ``"step"`` (one
+    stimulus measured) or ``"cached"`` (the fit is done and written to ``cache_file``; empty
+    when the cache folder cannot be written)."""
+
+    stage: str
+    model: str  # avdm or avdm-natural
+    fps: float  # Hz
+    deg_per_px: float
+    size_hw: tuple[int, int]  # the raster the fit runs on, px
+    total: int = 0
+    cache_file: str = ""
+
+    def camera(self) -> str:
+        """``33 Hz, 0.7071 deg/px, 72x99 px`` (H x W)."""
+        h, w = self.size_hw
+        return f"{self.fps:g} Hz, {self.deg_per_px:.4g} deg/px, {h}x{w} px"
+
+
+_REPORT: contextvars.ContextVar[Callable[[FitNote], None] | None] = contextvars.ContextVar(
+    "vdc_fit_report", default=None
+)
+
+
+@contextlib.contextmanager
+def fit_progress(report: Callable[[FitNote], None] | None) -> Iterator[None]:
+    """Within the block, every calibration fit (however deep in ``make_model`` it starts)
+    tells ``report`` what it fits, each step and where it cached the result: a fit takes
+    seconds to minutes, and the caller decides how to show it (a bar, a log line). Nested, both
+    the outer and the inner ``report`` hear every note."""
+    outer = _REPORT.get()
+    if outer is not None and report is not None:
+        inner = report
+
+        def report(note: FitNote) -> None:
+            outer(note)
+            inner(note)
+
+    token = _REPORT.set(report if report is not None else outer)
+    try:
+        yield
+    finally:
+        _REPORT.reset(token)
 
 
 @cache
@@ -64,7 +121,8 @@ def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dic
 #
 # Policy: a camera's frame rate and angular resolution are used as given, never snapped to a
 # "nominal" neighbour: 29.97 Hz (30000/1001) and 30 Hz get fits of their own (their decoding
-# constants differ by ~0.25 %; a fit takes well under a second). The fit uses the default AVDM
+# constants differ by ~0.25 %). An avdm-natural fit takes about a minute and a half of a core
+# (docs/video.md); callers show its progress through fit_progress. The fit uses the default AVDM
 # on 72-px-high frames 99 px wide (the robot camera's raster, which the valid band of periods
 # was designed for): the decoding constants depend on frame rate and degrees per pixel, not on
 # the frame's size. The key holds everything that changes the fit, so a stale entry is never
@@ -159,10 +217,31 @@ def calibration_for(
     cached = read_cached(path, key)
     if cached is not None:
         return {**cached, "source": "cache", "cache_file": str(path)}
+    report = _REPORT.get()
     if multiscale:
         size = (params.height_px, params.width_px)  # its scales depend on the raster
-        fit = fit_multiscale(params, size=size, progress=progress)
+        total = 2 * len(CLUTTER_SEEDS) * 10  # two passes over the seeds x 10 speeds
     else:
-        fit = fit_decoding(params, size=CAL_SIZE, contrasts=CAL_CONTRASTS, progress=progress)
+        size = CAL_SIZE
+        total = len(valid_periods_px(size[1])) * len(valid_tfs_hz(fps)) * len(CAL_CONTRASTS)
+    name = "avdm-natural" if multiscale else "avdm"
+    note = FitNote("fitting", name, fps, deg_per_px, size, total)
+    step = progress
+    if report is not None:
+        report(note)
+        stepped = dataclasses.replace(note, stage="step")
+
+        def step() -> None:
+            report(stepped)
+            if progress is not None:
+                progress()
+
+    if multiscale:
+        fit = fit_multiscale(params, size=size, progress=step)
+    else:
+        fit = fit_decoding(params, size=size, contrasts=CAL_CONTRASTS, progress=step)
     entry = {"key": key, **key, **fit.to_dict()}
-    return {**entry, "source": "fitted", "cache_file": write_cached(path, entry)}
+    written = write_cached(path, entry)
+    if report is not None:
+        report(dataclasses.replace(note, stage="cached", cache_file=written))
+    return {**entry, "source": "fitted", "cache_file": written}

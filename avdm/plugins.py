@@ -65,20 +65,38 @@ def entry_point_models() -> dict[str, str]:
 def _from_current_folder(module: str) -> Any:
     """``module`` found in the current folder (a plug-in beside the user's data, as ``python -m``
     would find it), loaded without adding the folder to ``sys.path`` for the whole process: only
-    its top-level package or module is looked up there; its submodules follow its own path."""
+    its top-level package or module is looked up there; its submodules follow its own path.
+    A plain folder (no ``__init__.py``, such as the clone's ``examples/``) is a namespace package
+    there, as ``python -m`` from that folder would take it. None if the current folder has no
+    ``module`` (the top-level name found there is forgotten again)."""
     top = module.partition(".")[0]
-    if top not in sys.modules:
-        spec = importlib.machinery.PathFinder.find_spec(top, [os.getcwd()])
-        if spec is None or spec.loader is None:
-            return None
-        loaded = importlib.util.module_from_spec(spec)
-        sys.modules[top] = loaded
-        try:
+    if top in sys.modules:
+        return None  # the plain import already knew ``top`` and found no ``module`` under it
+    spec = importlib.machinery.PathFinder.find_spec(top, [os.getcwd()])
+    if spec is None or (spec.loader is None and spec.submodule_search_locations is None):
+        return None
+    # a namespace spec has no loader: module_from_spec gives it the namespace loader and its
+    # __path__ (the folder), whose exec_module does nothing
+    loaded = importlib.util.module_from_spec(spec)
+    sys.modules[top] = loaded
+    try:
+        if spec.loader is not None:
             spec.loader.exec_module(loaded)
-        except BaseException:
-            del sys.modules[top]
-            raise
-    return importlib.import_module(module)
+        return importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        _forget(top)
+        if exc.name is not None and module.startswith(exc.name):
+            return None  # a folder of that name, without the module asked for
+        raise
+    except BaseException:
+        _forget(top)
+        raise
+
+
+def _forget(top: str) -> None:
+    """Drop a top-level name loaded from the current folder, and its submodules."""
+    for name in [n for n in sys.modules if n == top or n.startswith(top + ".")]:
+        del sys.modules[name]
 
 
 class _Missing(Exception):

@@ -20,6 +20,7 @@ from avdm.base import PRIMARY_OUTPUT as PRIMARY_OUTPUT_NAME
 from avdm.base import Model, Params, require_alert
 from avdm.calibration_store import calibration_for
 from avdm.errors import ParameterError
+from avdm.flow_ttc import FlowTtc, FlowTtcParams
 from avdm.hrc import Hrc, HrcParams
 from avdm.hrc_calibration import hrc_calibration
 from avdm.lgmd import LgmdColias, LgmdPlus
@@ -95,6 +96,7 @@ KINDS: dict[str, Kind] = {
     "hrc": Kind(HrcParams, lambda p, n: Hrc(p, n), _complete_hrc),  # type: ignore[arg-type]
     "lgmd-plus": Kind(LgmdPlusParams, lambda p, n: LgmdPlus(p, n), _as_is),  # type: ignore[arg-type]
     "lgmd-colias": Kind(LgmdColiasParams, lambda p, n: LgmdColias(p, n), _as_is),  # type: ignore[arg-type]
+    "flow-ttc": Kind(FlowTtcParams, lambda p, n: FlowTtc(p, n), _as_is),  # type: ignore[arg-type]
 }
 
 VARIANTS: dict[str, Variant] = {
@@ -135,6 +137,12 @@ VARIANTS: dict[str, Variant] = {
     ),
     "lgmd-colias": Variant(
         "lgmd-colias", {}, "LGMD+ as ported to the Colias-IV firmware (integer, OFF-biased)"
+    ),
+    "flow-ttc": Variant(
+        "flow-ttc",
+        {},
+        "optic-flow time-to-contact detector (Farneback flow; tau = 2 / divergence): alerts "
+        "below tau_alert_s = 1 s; no frame differences",
     ),
 }
 

@@ -13,6 +13,12 @@ worker:
 Executor times include starting and stopping the workers, as a user sees them. Then the
 scheduling overhead per task: 2,000 (pool) and 500 (Dask) no-op tasks on 2 workers, start-up
 subtracted.
+
+``--footage``: instead, a collection of 4 clips (720p25 H.264, ``--seconds`` each, a panned
+photograph) through ``vdc-analyse complexity`` with the default metrics, 1 worker on one core
+against 2 workers on two, on the local pool and on a local Dask cluster: the library call in
+this process (its fork server already warm from a first collection), and the command line in
+a fresh process each time (which starts its own fork server), as a user sees both.
 """
 
 from __future__ import annotations
@@ -79,10 +85,64 @@ def overhead_ms(settings: ExecutorSettings, n: int) -> float:
     return (wall - startup_s(settings)) / n * 1e3
 
 
+def footage(seconds: float) -> None:
+    """A collection of 4 clips on 1 and 2 workers (see the module)."""
+    import os
+    import subprocess
+    import sys
+
+    from analysis.complexity.command import ComplexitySettings, complexity
+    from tests.helpers import write_pan
+
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) < 2:
+        sys.exit("bench_batch --footage needs 2 cores")
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    with tempfile.TemporaryDirectory(prefix="vdc-bench-footage-") as tmp:
+        folder = Path(tmp)
+        clips = [
+            str(write_pan(folder / f"clip{i}.mp4", 1280, 720, round(seconds * 25), step_px=7))
+            for i in range(4)
+        ]
+        print(f"4 clips of {seconds:g} s (720p25 H.264), default metrics; load "
+              f"{os.getloadavg()[0]:.1f}", flush=True)  # fmt: skip
+        rows = []
+        for executor in ("local", "dask"):
+            walls = {}
+            for jobs in (1, 2):
+                os.sched_setaffinity(0, set(cores[:jobs]))  # the workers inherit it
+                s = ComplexitySettings(fov_deg=70.0, executor=executor, jobs=jobs, force=True)
+                complexity(clips[:2], s, folder / "warm")  # fork server, calibration cached
+                lib = timed(lambda s=s: complexity(clips, s, folder / "lib"))
+                cmd = [sys.executable, "-m", "analysis", "complexity", *clips, "--fov-deg", "70",
+                       "--executor", executor, "--jobs", str(jobs), "--force",
+                       "--out", str(folder / "cli")]  # fmt: skip
+                cli = timed(lambda cmd=cmd: subprocess.run(cmd, env=env, check=True,
+                                                           capture_output=True))  # fmt: skip
+                walls[jobs] = lib, cli
+                rows.append((executor, jobs, lib, cli))
+            os.sched_setaffinity(0, set(cores))
+            (l1, c1), (l2, c2) = walls[1], walls[2]
+            rows.append((executor, "2 vs 1", l1 / l2, c1 / c2))
+        print(f"{'executor':<10}{'workers':>8}{'library s':>11}{'command s':>11}")
+        for executor, jobs, lib, cli in rows:
+            if jobs == "2 vs 1":
+                print(f"{executor:<10}{jobs:>8}{lib:>10.2f}x{cli:>10.2f}x  (target >= 1.9x)")
+            else:
+                print(f"{executor:<10}{jobs:>8}{lib:>11.1f}{cli:>11.1f}")
+        print(f"load at the end {os.getloadavg()[0]:.1f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--minutes", type=float, default=3.0, help="length of each recording")
+    ap.add_argument("--footage", action="store_true", help="a collection of 4 clips instead")
+    ap.add_argument("--seconds", type=float, default=20.0, help="--footage: each clip's length")
     args = ap.parse_args()
+    if args.footage:
+        footage(args.seconds)
+        return
     with tempfile.TemporaryDirectory(prefix="vdc-bench-batch-") as tmp:
         folder = Path(tmp)
         print(f"recording 8 x {args.minutes:g}-minute runs ...", flush=True)

@@ -7,7 +7,7 @@ import sys
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from capture.colias_link import LinkLost
+from capture.serial_link import LinkLost
 from vdc.cli_support import (
     Command,
     command_line,
@@ -69,7 +69,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_emulate_robot(args: argparse.Namespace) -> int:
-    from capture.colias_link import EmulateSettings, emulate_robot
+    from capture.robot_emulator import EmulateSettings, emulate_robot
 
     link = args.link
 
@@ -111,18 +111,8 @@ def cmd_video(args: argparse.Namespace) -> int:
     from capture.video import VideoSettings, record_video
 
     s = settings_from_args(VideoSettings, args)
-    bars: list = []
-
-    def calibrating(n: int = 1) -> None:  # a bar only when a fit is really needed
-        if not bars:
-            bars.append(progress_bar(None, "calibrating for this camera (once)", quiet=args.quiet))
-        bars[0].update(n)
-
-    try:
-        res = record_video(s, args.out, _recording_options(args), calibration_progress=calibrating)
-    finally:
-        for bar in bars:
-            bar.close()
+    # a calibration fit for this camera is shown by run_command_line (CalibrationNotes)
+    res = record_video(s, args.out, _recording_options(args))
     rec = res.record
     _report_write_error(rec)
     if rec.write_error:
@@ -215,7 +205,7 @@ COMMANDS = {
         models=True,
     ),
     "emulate-robot": Command(
-        "capture.colias_link:EmulateSettings",
+        "capture.robot_emulator:EmulateSettings",
         cmd_emulate_robot,
         "a simulated Colias-IV on a pseudo-terminal, speaking the serial protocol",
         "Open a pseudo-terminal behind --link, print it, wait for the host's START and stream "

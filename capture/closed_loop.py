@@ -195,7 +195,7 @@ class ClosedLoopRobot(SimulatedRobot):
         self.detector = make_model(self._detector_spec, **ctx)
         self.profiler = make_model(c.model, **ctx)
         p = self.detector.params
-        self._base = float(getattr(p, "t_sr", getattr(p, "n_alert", 0)))
+        self._base = float(getattr(p, "t_sr", getattr(p, "n_alert", getattr(p, "tau_alert_s", 0))))
         self._t_ffi0 = float(getattr(p, "t_ffi", 0.0))
         self._policy_param = getattr(getattr(self.detector, "policy", None), "param", None)
         window = max(1, round(c.collision.adaptive_window_s * c.camera.fps))
@@ -265,6 +265,8 @@ class ClosedLoopRobot(SimulatedRobot):
                 detail = (
                     f"{self._base:g} consecutive spikes"
                     if c.collision.base_detector == "lgmd-colias"
+                    else f"time to contact {d['tau_s']:.2f} s < {self._base:g} s"
+                    if c.collision.base_detector == "flow-ttc"
                     else f"{self.detector.name} alert"
                 )
             for k, v in d.items():

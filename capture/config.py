@@ -21,7 +21,7 @@ from vdc.recording import camera_model_context
 
 SCENES = ("grating", "natural")
 BEHAVIOURS = ("profile", "collision")
-DETECTORS = ("lgmd-plus", "lgmd-colias")
+DETECTORS = ("lgmd-plus", "lgmd-colias", "flow-ttc")
 
 
 def _check(cond: bool, name: str, value: Any, why: str) -> None:
@@ -242,7 +242,8 @@ class CollisionConfig:
 
     detector: str = "lgmd-plus"
     # alert threshold: spike rate (spikes/s) for lgmd-plus, consecutive spike count for
-    # lgmd-colias; NaN = the detector's own default (56 spikes/s, 4 spikes)
+    # lgmd-colias, time to contact (s) for flow-ttc; NaN = the detector's own default
+    # (56 spikes/s, 4 spikes, 1 s)
     threshold: float = float("nan")
     # beyond the paper (lgmd-plus only): the FFI threshold follows the on-board AVDM,
     # T_ffi = max(T_ffi0, adaptive_gain × mean ω̂ over the last adaptive_window_s seconds),
@@ -271,8 +272,11 @@ class CollisionConfig:
                 self.threshold,
                 "applies to the LGMD detectors; set a plug-in's own parameter in its spec",
             )
-            hi = 2000.0 if self.base_detector == "lgmd-plus" else 100.0
-            _in_range("collision threshold", self.threshold, 1.0, hi)
+            if self.base_detector == "flow-ttc":
+                _in_range("collision threshold (time to contact)", self.threshold, 0.05, 10.0, " s")
+            else:
+                hi = 2000.0 if self.base_detector == "lgmd-plus" else 100.0
+                _in_range("collision threshold", self.threshold, 1.0, hi)
         _check(
             not (self.adaptive and (plugin or self.base_detector != "lgmd-plus")),
             "adaptive",
@@ -310,6 +314,8 @@ class CollisionConfig:
 
         if self.base_detector == "lgmd-plus":  # a spike-rate threshold
             return add_overrides(self.detector, f"t_sr={self.threshold:g}")
+        if self.base_detector == "flow-ttc":  # a time to contact, s
+            return add_overrides(self.detector, f"tau_alert_s={self.threshold:g}")
         return add_overrides(self.detector, f"n_alert={round(self.threshold)}")
 
 

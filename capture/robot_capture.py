@@ -1,6 +1,6 @@
 """Capture from a real Colias-IV: serial packets + overhead tracker poses, joined on capture time.
 
-The robot sends its frames and on-board model outputs over the serial link (capture.colias_link);
+The robot sends its frames and on-board model outputs over the serial link (capture.serial_link);
 an overhead camera (a device index, a video file, or an image sequence such as
 ``frames/%05d.png``) gives poses through the ArUco tracker (capture.tracker). Every robot frame
 gets the host's receive time (``capture_time``); its pose is the tracker sample nearest in host
@@ -30,7 +30,6 @@ import numpy as np
 import serial
 
 from avdm.registry import canonical_name, make_model
-from capture.colias_link import SerialLink
 from capture.config import (
     SCENES,
     ArenaConfig,
@@ -44,6 +43,7 @@ from capture.output import claim_output
 from capture.recording_start import camera_line, start_recording
 from capture.robot_contract import accepted_model, announcement_change, frame_problem
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
+from capture.serial_link import SerialLink
 from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
 from capture.tracker import (
     MarkerLayout,

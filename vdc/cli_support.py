@@ -192,6 +192,36 @@ def progress_bar(total: int | None, desc: str, unit: str = "cell", quiet: bool =
     return tqdm(total=total, desc=desc, unit=unit, disable=disable, leave=False, file=sys.stderr)
 
 
+class CalibrationNotes:
+    """Shows the calibration fits a command starts (``avdm.calibration_store.fit_progress``):
+    one line when a fit starts (what is fitted, for which camera), a bar on a terminal while
+    it runs, one line when it is cached; with ``quiet``, the lines only."""
+
+    def __init__(self, quiet: bool = False) -> None:
+        self.quiet = quiet
+        self.bar: Any = None
+
+    def __call__(self, note: Any) -> None:
+        if note.stage == "fitting":
+            say(
+                f"calibrating {note.model} for this camera ({note.camera()}): "
+                f"{note.total} stimuli, once; the fit is then cached"
+            )
+            self.bar = progress_bar(note.total, "calibrating", "stimulus", quiet=self.quiet)
+        elif note.stage == "step" and self.bar is not None:
+            self.bar.update(1)
+        elif note.stage == "cached":
+            if self.bar is not None:
+                self.bar.close()
+                self.bar = None
+            where = (
+                f"cached in {note.cache_file}"
+                if note.cache_file
+                else "not cached (no cache folder)"
+            )
+            say(f"calibrated {note.model} for {note.camera()}: {where}")
+
+
 def fail(prog: str, message: str) -> NoReturn:
     """Print ``prog: error: message`` on stderr and exit with status 2."""
     print(f"{prog}: error: {message}", file=sys.stderr)
@@ -506,10 +536,14 @@ def run_command_line(
     line and exit status 2; an exception of a type in ``stopped`` (work stopped with what was
     done kept) is its message plus that text, exit 1; Ctrl-C is exit 130. Anything else (a
     ValueError from NumPy or polars included) is a bug: its traceback is kept, exit 1."""
+    from avdm.calibration_store import fit_progress  # lazy: start-up
+
     args = parser.parse_args(argv)
     where = f"{prog} {args.command}"
     try:
-        return int(args.func(args) or 0)
+        # a model built for a new camera fits its calibration first: say so, not a silent minute
+        with fit_progress(CalibrationNotes(quiet=bool(getattr(args, "quiet", False)))):
+            return int(args.func(args) or 0)
     except ValueError as exc:
         if not raised_on_purpose(exc):
             raise

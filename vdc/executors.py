@@ -1,13 +1,21 @@
 """Where tasks run: one ``concurrent.futures`` loop, several backends.
 
-* ``local`` (default): a process pool over the usable cores, started fresh (``spawn``: polars
-  and Numba threads must not be forked). If a worker dies the stdlib pool breaks and every
-  pending task fails with it; :func:`run_tasks` then starts a new pool once for the tasks that
-  had not finished (finished ones wrote their results already).
+* ``local`` (default): a process pool over the usable cores. Its workers are forked from a
+  fork server that has already imported what every worker needs and loaded the Numba kernels
+  (``vdc.warm``), so a second worker duplicates no start-up; the server imports nothing that
+  starts threads (polars', Rerun's), which each worker imports itself. Where there is no fork
+  server (Windows), workers start fresh (``spawn``). If a worker dies the stdlib pool breaks
+  and every pending task fails with it; :func:`run_tasks` then starts a new pool once for the
+  tasks that had not finished (finished ones wrote their results already).
 * ``dask``: an existing cluster (``scheduler`` = ``tcp://host:port``, ``tls://...`` or a
   scheduler file) or, without one, a local cluster on 127.0.0.1 (dashboard on 127.0.0.1 too);
   ``client.get_executor`` gives real ``concurrent.futures`` futures. Needs the optional extra
   ``pip install "visual-dynamic-complexity[dask]"``.
+
+Every worker, local or Dask, runs one OpenCV thread and one BLAS thread
+(:func:`one_thread_per_worker`). Starting workers runs a plain script again from the top in
+each of them: a script that calls a command at its top level without the
+``if __name__ == "__main__":`` guard ends with one line saying so (:func:`check_main_guard`).
 
 Tasks are module-level functions with small, picklable arguments (paths, not arrays) that
 write their own outputs and return a small dict. Both sides use
@@ -17,22 +25,26 @@ this module: ``vdc-analyse batch`` and the closed-loop campaigns (``collision-st
 
 from __future__ import annotations
 
+import ast
 import concurrent.futures as cf
 import contextlib
 import ctypes
 import dataclasses
 import multiprocessing
 import os
+import select
 import signal
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import forkserver
 from pathlib import Path
 from typing import Any
 
 import cv2
+from threadpoolctl import threadpool_limits
 
 from vdc.cli_support import Settings, option
 from vdc.errors import UserError
@@ -135,7 +147,7 @@ QUIET = Feedback()
 def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
     """The client, and the local cluster it runs on when vdc started one (else None)."""
     try:
-        from distributed import Client, LocalCluster  # lazy: optional extra
+        from distributed import Client, LocalCluster, WorkerPlugin  # lazy: optional extra
     except ImportError:
         raise UserError(
             '--executor dask needs the optional extra: pip install -e ".[dask]"'
@@ -158,32 +170,72 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
         except Exception as exc:
             client.close()
             raise UserError(f"the Dask cluster at {s} does not match this client: {exc}") from None
+        _one_thread_on_dask(client, WorkerPlugin)
         return client, None
     # our own cluster: loopback only (a Dask port runs pickled code as the user), processes
     # with one thread each (the models' Python loops hold the GIL)
-    cluster = LocalCluster(
-        n_workers=max(1, min(settings.jobs, n_tasks)),
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address="127.0.0.1:0",
-    )
-    return Client(cluster), cluster
+    # workers forked from the local pool's warm fork server (vdc.warm preloaded), as the
+    # local pool's are
+    import dask  # lazy: optional extra
+
+    method = pool_context().get_start_method()
+    with dask.config.set({"distributed.worker.multiprocessing-method": method}):
+        cluster = LocalCluster(
+            n_workers=max(1, min(settings.jobs, n_tasks)),
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address="127.0.0.1:0",
+        )
+    client = Client(cluster)
+    _one_thread_on_dask(client, WorkerPlugin)
+    return client, cluster
 
 
-def _die_with_parent(parent_pid: int, threads: int = 1) -> None:
-    """Pool worker start-up: end this worker when the process that started it ends, by any
-    signal, SIGKILL included, and undo the signal handling it may have inherited.
+def _one_thread_on_dask(client: Any, plugin_base: type) -> None:
+    """One OpenCV and one BLAS thread in every worker of the cluster, now and after a restart
+    (a worker plugin: Dask's nanny sets the BLAS variables before a worker starts, but not
+    OpenCV's threads, nor the BLAS of a cluster started without a nanny)."""
+
+    # distributed.WorkerPlugin; a local class, pickled by value (cloudpickle)
+    class OneThreadPerWorker(plugin_base):
+        name = "vdc-one-thread-per-worker"
+
+        def setup(self, worker: Any) -> None:
+            one_thread_per_worker(1)
+
+    client.register_plugin(OneThreadPerWorker())
+
+
+def _die_with_parent(
+    parent_pid: int,
+    threads: int = 1,
+    pool_pid: int | None = None,
+    environ: dict[str, str] | None = None,
+) -> None:
+    """Pool worker start-up: end this worker when the pool's process ends, by any signal,
+    SIGKILL included, and undo the signal handling it may have inherited. ``environ``: the
+    pool's process's environment when it started the pool (a worker forked from the fork
+    server would otherwise have the server's, from when the server started; what a library
+    read when the server imported it stays as it was).
+
+    ``parent_pid`` is this worker's parent: the pool's process (``spawn``) or the fork server
+    (``pool_pid`` is then the pool's process). The fork server does not end before its
+    workers (they hold its liveness pipe), so a worker watches the pool's process itself.
 
     * Linux: the kernel sends SIGKILL when the parent dies (``PR_SET_PDEATHSIG``); the parent
       may already be gone by then, so that is checked once after asking;
-    * elsewhere, and as a second line: a daemon thread that checks every half second whether
-      the worker has been handed to another parent;
+    * a daemon thread waits for the pool's process to end (a pidfd, Linux 5.3+: no polling),
+      or checks every half second whether it still runs (elsewhere, or with ``spawn``:
+      whether the worker has been handed to another parent);
     * SIGTERM is the default again (a capture's handler, or an ignored SIGTERM, must not keep
       a worker alive), and SIGINT is ignored: Ctrl-C reaches the whole process group, and the
       parent decides what ends (it shuts the pool down)."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if environ is not None and environ != os.environ:
+        os.environ.clear()
+        os.environ.update(environ)
     if sys.platform.startswith("linux"):
         try:
             pr_set_pdeathsig = 1
@@ -192,9 +244,31 @@ def _die_with_parent(parent_pid: int, threads: int = 1) -> None:
             pass
     if os.getppid() != parent_pid:
         os._exit(1)
+    pidfd = None
+    if pool_pid is not None:
+        try:
+            pidfd = os.pidfd_open(pool_pid)
+        except (AttributeError, OSError):  # not Linux 5.3+; or already gone: the loop sees it
+            pidfd = None
+
+    def alive() -> bool:
+        if os.getppid() != parent_pid:
+            return False
+        if pool_pid is None:
+            return True
+        try:
+            os.kill(pool_pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:  # pragma: no cover - another user's process: ours ended
+            return False
+        return True
 
     def watch() -> None:
-        while os.getppid() == parent_pid:
+        if pidfd is not None:
+            select.select([pidfd], [], [])  # readable once the process has ended
+            os._exit(1)
+        while alive():
             time.sleep(0.5)
         os._exit(1)
 
@@ -209,12 +283,20 @@ SINGLE_THREAD_ENV = "VDC_WORKER_THREADS"
 
 def one_thread_per_worker(threads: int = 1) -> None:
     """Keep this process to one thread of computation: the pool has a worker per core, and
-    OpenCV's and FFmpeg's own threads would otherwise compete for the same cores (measured:
-    8 clips on 2 workers ran only 1.19x faster than on one worker that used both cores).
-    ``threads`` > 1: the cores the pool leaves this worker (fewer workers than cores), which
-    vdc's own pipelines may use (``vdc.pipeline.usable_threads``)."""
+    OpenCV's, FFmpeg's and the BLAS library's own threads would otherwise compete for the same
+    cores (measured: 8 clips on 2 workers ran only 1.19x faster than on one worker that used
+    both cores; a calibration fit took 11.3 s of CPU with OpenBLAS's default threads on a busy
+    machine, 0.6 s with one). ``threads`` > 1: the cores the pool leaves this worker (fewer
+    workers than cores), which vdc's own pipelines may use (``vdc.pipeline.usable_threads``).
+
+    The BLAS limit is set at run time (threadpoolctl), so it holds whenever NumPy was loaded:
+    in the fork server before (``vdc.warm`` sets the environment first), or in a worker that
+    imported it with the script it re-ran; it also holds for a BLAS loaded later."""
     os.environ[SINGLE_THREAD_ENV] = str(max(1, threads))
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = "1"  # for what loads later, and the worker's own child processes
     cv2.setNumThreads(1)
+    threadpool_limits(1)  # BLAS and OpenMP runtimes already loaded
 
 
 def pool_size(jobs: int, n_tasks: int) -> int:
@@ -273,19 +355,56 @@ def _workers_end_before_parent(pool: cf.ProcessPoolExecutor) -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+# what the fork server imports before it forks the first worker (the modules it lists)
+WARM_PRELOAD = ["vdc.warm"]
+
+
+def pool_context() -> multiprocessing.context.BaseContext:
+    """The local pool's start method: a warm ``forkserver`` (``vdc.warm`` preloaded, started
+    now so that it warms while the caller plans), or ``spawn`` where there is none.
+
+    The fork server is one per process (the standard library's): vdc sets its preload list
+    only if it is not running yet. Started by someone else without ``vdc.warm``, its workers
+    start cold but still right (each imports what it needs)."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    server = forkserver._forkserver  # the stdlib's one server: is it running yet?
+    if getattr(server, "_forkserver_pid", None) is None:
+        # not the default "__main__": the server must not run the caller's script
+        ctx.set_forkserver_preload(WARM_PRELOAD)
+    forkserver.ensure_running()
+    return ctx
+
+
+def _worker_parent(ctx: multiprocessing.context.BaseContext) -> int:
+    """The process a new worker's parent is: the fork server (which ends when this process
+    does, however it ends: its pipe from this process closes), or this process."""
+    if ctx.get_start_method() == "forkserver":
+        pid = getattr(forkserver._forkserver, "_forkserver_pid", None)
+        if pid is not None:
+            return pid
+    return os.getpid()
+
+
 @contextlib.contextmanager
 def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf.Executor, Any]]:
     """The executor (and the Dask client, or None) for ``n_tasks`` tasks; closed on exit.
 
     Local pool workers end with the process that started them, however it ends."""
     if settings.executor == "local":
-        ctx = multiprocessing.get_context("spawn")
+        ctx = pool_context()
         workers = pool_size(settings.jobs, n_tasks)
         pool = cf.ProcessPoolExecutor(
             workers,
             mp_context=ctx,
             initializer=_die_with_parent,
-            initargs=(os.getpid(), max(1, usable_cpus() // workers)),
+            initargs=(
+                _worker_parent(ctx),
+                max(1, usable_cpus() // workers),
+                os.getpid(),
+                dict(os.environ),
+            ),
         )
         try:
             with _workers_end_before_parent(pool):
@@ -327,6 +446,74 @@ def check_shared_paths(client: Any, paths: Sequence[str | Path]) -> None:
             )
 
 
+def _is_main_guard(node: ast.stmt) -> bool:
+    """``if __name__ == "__main__":`` (either order of the comparison)."""
+    if not isinstance(node, ast.If) or not isinstance(node.test, ast.Compare):
+        return False
+    t = node.test
+    sides = [t.left, *t.comparators]
+    names = [x.id for x in sides if isinstance(x, ast.Name)]
+    consts = [x.value for x in sides if isinstance(x, ast.Constant)]
+    return len(sides) == 2 and names == ["__name__"] and consts == ["__main__"]
+
+
+def unguarded_main_line() -> tuple[str, int] | None:
+    """(script, line) when this call comes from the top level of a script that worker
+    processes would run again from the top (a plain ``python script.py``, or ``python -m
+    pkg.mod``), outside ``if __name__ == "__main__":``; else None (a guarded script, a
+    package's ``__main__``, ``python -c``, a notebook or a console command).
+
+    Why: a local pool's and a local Dask cluster's workers import the script again to find
+    what it defines; unguarded, that import starts workers of its own, which Python forbids,
+    and every worker dies with a page of tracebacks."""
+    main = sys.modules.get("__main__")
+    spec = getattr(main, "__spec__", None)
+    name = getattr(spec, "name", None)
+    if name is not None and (name == "__main__" or name.endswith(".__main__")):
+        return None  # multiprocessing does not import a package's __main__ again
+    path = getattr(main, "__file__", None)
+    if main is None or not path:
+        return None
+    frame = sys._getframe(1)
+    lines = []
+    while frame is not None:
+        if frame.f_globals is main.__dict__ and frame.f_code.co_name == "<module>":
+            lines.append(frame.f_lineno)
+        frame = frame.f_back
+    if not lines:
+        return None
+    try:
+        tree = ast.parse(Path(path).read_text(encoding="utf-8"), filename=path)
+    except (OSError, SyntaxError, UnicodeDecodeError, ValueError):
+        return None
+    guarded = [n for n in tree.body if _is_main_guard(n)]
+    for line in lines:
+        if not any(g.lineno <= line <= (g.end_lineno or g.lineno) for g in guarded):
+            return str(path), line
+    return None
+
+
+def check_main_guard(settings: ExecutorSettings) -> None:
+    """End a plain script that starts local workers from its top level without
+    ``if __name__ == "__main__":`` with one line saying what to add, exit status 2, before
+    any worker starts (each would run the script again; see :func:`unguarded_main_line`).
+    An existing Dask cluster's workers do not run the script: no check then."""
+    if settings.scheduler:
+        return
+    where = unguarded_main_line()
+    if where is None:
+        return
+    script, line = where
+    print(
+        f"{Path(script).name}, line {line}: vdc runs its work in worker processes, which "
+        "import this script again: put the script's top-level code under if __name__ == "
+        '"__main__": (see the examples in the docs)',
+        file=sys.stderr,
+        flush=True,
+    )
+    raise SystemExit(2)
+
+
 def run_tasks(
     fn: Callable[..., dict[str, Any]],
     tasks: Sequence[tuple[str, tuple]],
@@ -339,6 +526,7 @@ def run_tasks(
     outcome with its error and does not stop the others. Futures are dropped as they finish
     (a held Dask future is recomputed if its worker dies). On Dask, ``shared_paths`` (e.g.
     the first input and the output folder) are checked on every worker first."""
+    check_main_guard(settings)
     outcomes: dict[str, TaskOutcome] = {}
     todo = list(tasks)
     restarted = False

@@ -46,12 +46,19 @@ import polars as pl
 from analysis.boundary.fit import describe_boundary, fit_section
 from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
+from analysis.boundary.scenes import check_scenes, draw_tfs
 from analysis.collision import CollisionSettings, collision_metrics
 from analysis.recordings.loading import load_recording
 from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy
 from avdm.registry import add_overrides, parse_model_spec
-from vdc.cli_support import check_below_nyquist, non_negative_int, option, positive_float
+from vdc.cli_support import (
+    check_below_nyquist,
+    non_negative_float,
+    non_negative_int,
+    option,
+    positive_float,
+)
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings
 from vdc.parquet_io import WroteFiles, write_tables
@@ -113,7 +120,13 @@ class BoundarySettings(ExecutorSettings):
     )
     tf: tuple[float, ...] = option((0.0, 1.0, 3.0), "arena: wall TFs, Hz, comma-separated")
     scenes: tuple[str, ...] = option(
-        ("grating", "natural"), "arena: a wall scene (repeat the flag for several)"
+        ("grating", "natural"), "arena: wall scenes, comma-separated (docs/boundary.md#scenes)"
+    )
+    tf_draws: int = option(
+        0,
+        "arena grid: per scene, this many wall TFs drawn from --tf-range (one in each of as "
+        "many equal strata, uniform in it, seeded by --seed and the scene) instead of --tf",
+        type=non_negative_int,
     )
     seed: int = option(1, "first random seed", type=non_negative_int)
     seeds: int = option(5, "arena: runs per condition and value (seeds --seed, --seed+1, ...)")
@@ -144,6 +157,12 @@ class BoundarySettings(ExecutorSettings):
         "footage mode: an alert at most this long before the collision frame is a hit, an "
         "earlier one a false alarm",
         type=positive_float,
+    )
+    min_ttc_s: float = option(
+        0.5,
+        "footage mode: a first alert later than this before the collision is a miss (too late "
+        "to turn away), s; 0 counts an alert at the moment of impact as a hit",
+        type=non_negative_float,
     )
     profile_model: str = option("avdm", "arena: the AVDM variant that profiles the conditions")
     design: str = option(
@@ -191,7 +210,7 @@ class BoundarySettings(ExecutorSettings):
             check_below_nyquist(self.tf_bounds()[1], f"--tf-range {self.tf_range}")
             self.grid_values()
             check_below_nyquist(max(number_list(self.tf, "tf")), "--tf")
-            name_list(self.scenes, "scenes", ("grating", "natural"))
+            self.scene_list()
             if self.per_scene and self.budget < 2 * len(self.scene_list()):
                 raise UserError("--per-scene needs --budget of at least 2 runs per scene")
 
@@ -216,15 +235,18 @@ class BoundarySettings(ExecutorSettings):
         return bounds
 
     def scene_list(self) -> list[str]:
-        return name_list(self.scenes, "scenes", ("grating", "natural"))
+        return check_scenes(_items(self.scenes))
+
+    def scene_tfs(self, scene: str) -> list[float]:
+        """The wall TFs (Hz) of ``scene``: --tf, or --tf-draws TFs drawn from --tf-range
+        (:func:`analysis.boundary.scenes.draw_tfs`)."""
+        if self.tf_draws == 0:
+            return number_list(self.tf, "tf")
+        return draw_tfs(self.seed, scene, self.tf_draws, self.tf_bounds())
 
     def conditions(self) -> list[tuple[str, float]]:
         """(scene, TF) of the grid, in the order given."""
-        return [
-            (scene, tf)
-            for scene in name_list(self.scenes, "scenes", ("grating", "natural"))
-            for tf in number_list(self.tf, "tf")
-        ]
+        return [(scene, tf) for scene in self.scene_list() for tf in self.scene_tfs(scene)]
 
 
 def _join(values: Any) -> str:
@@ -305,7 +327,8 @@ def condition_complexity(rows: pl.DataFrame, column: str) -> pl.DataFrame:
     """Per condition: the mean of ``column`` across its runs with the 95 % interval."""
     out = []
     for (cond,), g in rows.group_by("condition", maintain_order=True):
-        e = mean_ci(g[column].cast(pl.Float64).to_numpy())
+        # a speed (deg/s) is not negative: the t-interval stops at 0
+        e = mean_ci(g[column].cast(pl.Float64).to_numpy(), bounds=(0.0, math.inf))
         out.append(
             {
                 "condition": cond,
@@ -560,6 +583,8 @@ def arena_report(
     columns = {
         "complexity (deg/s)": ("complexity", 1.0),
         "success (%)": ("success", 100.0),
+        # a success rate alone hides a detector that turns from everything
+        "false alarms / 30 min": ("false_alarms_per_30min", 1.0),
         "avoidances / 30 min": ("avoidances_per_30min", 1.0),
         "crashes / 30 min": ("crashes_per_30min", 1.0),
         "median DTC (cm)": ("dtc_median_m", 100.0),
@@ -575,7 +600,8 @@ def arena_report(
     if policy is not None:
         lines += [
             "## The learnt policy (policy.csv)\n",
-            f"{s.param} against the on-board AVDM's running mean over {policy.window_s:g} s "
+            f"{s.param} against the on-board AVDM's running {policy.statistic} over "
+            f"{policy.window_s:g} s "
             f"(interpolated between rows). Use it with `--model "
             f"'{s.detector}:policy=policy.csv'`; test it on conditions it was not fitted on "
             "with `vdc-analyse adaptation`.\n",

@@ -16,11 +16,16 @@ hit or miss per clip in footage mode), a binomial likelihood.
   its span on each side, ``b`` on 0 and 60 log-spaced steepnesses up to a step (500 log-odds
   per span), ``f`` on 0 to 0.75 (below the target) in steps of 0.15, profiled out as ``b``
   is; every likelihood evaluated in NumPy (``scipy.special`` for the stable logs).
-  Seeds of one condition often differ by more than binomial noise (a run's approaches are not
-  independent): the likelihood is divided by the Pearson dispersion ``phi`` (at least 1) of
-  the runs about the best fit, the quasi-likelihood correction (runs with one trial each, as
-  clips, have none); with ``phi`` estimated, the cut-offs below are F quantiles with
-  ``runs - 2`` degrees of freedom in place of chi2's.
+  Seeds of one condition often differ by more than binomial noise, and a whole scene can
+  depart from the curve (LGMD+'s do): the likelihood is divided by the Pearson dispersion
+  ``phi`` (at least 1) of the *conditions'* pooled counts about the best fit, the
+  quasi-likelihood correction with the condition as the unit (:func:`dispersion`; runs with
+  one trial each, as clips, have none); with ``phi`` estimated, the cut-offs below are F
+  quantiles with ``conditions - 2`` degrees of freedom in place of chi2's. (A per-run
+  dispersion treated a condition's seeds as independent: 35-65 % coverage under a scene
+  effect of sd 0.5 on the log-odds.) The steepness is profiled continuously (a parabola
+  through the grid's best and its neighbours), and the interval's ends are interpolated
+  between grid points.
 * **The 95 % interval** is the profile-likelihood interval of ``t``: every ``t`` whose best
   curve is within ``chi2(1, 0.95) / 2`` (deviance 3.84, scaled by ``phi``) of the best one.
   Where that set reaches an edge of the widened range, that side is unbounded.
@@ -104,12 +109,22 @@ def fit_crossing(
     n: Sequence[float] | np.ndarray,
     target: float,
     domain: tuple[float, float] | None = None,
+    condition: Sequence[Any] | np.ndarray | None = None,
+    *,
+    band: bool = True,
 ) -> CrossingFit:
     """Fit the monotone logistic curve to runs at complexity ``x`` (R,) with ``k`` successes of
     ``n`` trials each and find where it crosses ``target``; ``domain`` is the range the design
-    could visit (default: the runs' own range). Runs with no trial are left out."""
+    could visit (default: the runs' own range). Runs with no trial are left out.
+
+    ``condition`` (R,) names the condition (scene and TF) of each run, default: runs at the
+    same complexity share one. The dispersion is the conditions' (their pooled counts about
+    the curve, :func:`dispersion`), so a condition that departs from the curve as a whole
+    widens the interval, not only seeds that differ. ``band=False`` skips the 95 % band of
+    curves (the coverage tests need only the interval)."""
     x, k, n = (np.asarray(v, float).ravel() for v in (x, k, n))
     keep = (n > 0) & np.isfinite(x) & np.isfinite(k)
+    cond = np.asarray(x if condition is None else condition).ravel()[keep]
     x, k, n = x[keep], k[keep], n[keep]
     lo, hi = domain if domain is not None else ((x.min(), x.max()) if x.size else (0.0, 1.0))
     lo, hi = float(min(lo, hi)), float(max(lo, hi))
@@ -129,33 +144,29 @@ def fit_crossing(
     floor_of = np.repeat(floors, SLOPES.size)  # (S,) every (floor, steepness) pair
     slope_of = np.tile(SLOPES, floors.size)
     ll = np.empty((N_T, slope_of.size))
-    for j, (g, b) in enumerate(zip(floor_of, slope_of, strict=True)):  # (N_T, R) per pair
-        e = _eta(target, g, b, u[None, :], tu[:, None])
-        log_q = math.log1p(-g) + scipy.special.log_expit(-e)
-        log_p = np.logaddexp(
-            math.log(g) if g > 0 else -np.inf, math.log1p(-g) + scipy.special.log_expit(e)
-        )
-        ll[:, j] = (k * log_p + (n - k) * log_q).sum(axis=1)
+    for j0 in range(0, slope_of.size, SLOPES.size):  # one floor at a time: (N_T, slopes, R)
+        g = floor_of[j0]
+        e = _eta(target, g, SLOPES[None, :, None], u[None, None, :], tu[:, None, None])
+        log_e = scipy.special.log_expit(e)
+        log_q = math.log1p(-g) + log_e - e  # log(1 - g) + log expit(-e)
+        log_p = log_e if g == 0 else np.logaddexp(math.log(g), math.log1p(-g) + log_e)
+        ll[:, j0 : j0 + SLOPES.size] = log_p @ k + log_q @ (n - k)
     best = np.unravel_index(np.argmax(ll), ll.shape)
     p_best = _curve(target, floor_of[best[1]], slope_of[best[1]], u, tu[best[0]])
     p_best = np.clip(p_best, 0.01, 0.99)  # a step's 1 - 1e-9 would make one crash a 'misfit'
-    phi = 1.0
-    if x.size > 2 and (n > 1).any():  # Pearson dispersion of the runs about the best fit
-        pearson = ((k - n * p_best) ** 2 / np.maximum(n * p_best * (1 - p_best), 1e-12)).sum()
-        phi = max(1.0, float(pearson / (x.size - 2)))
-        # phi is estimated: the F quantiles in place of chi2's (the quasi-likelihood test)
-        cut_1 = float(scipy.stats.f.ppf(0.95, 1, x.size - 2))
-        cut_2 = 2.0 * float(scipy.stats.f.ppf(0.95, 2, x.size - 2))
+    phi, df = dispersion(k, n, p_best, cond)
+    if df > 0:  # phi is estimated: the F quantiles in place of chi2's (quasi-likelihood)
+        cut_1 = float(scipy.stats.f.ppf(0.95, 1, df))
+        cut_2 = 2.0 * float(scipy.stats.f.ppf(0.95, 2, df))
     else:
         cut_1, cut_2 = DEVIANCE_1, DEVIANCE_2
-    dev = 2.0 * (ll.max() - ll) / phi  # (N_T, S)
-    profile = dev.min(axis=1)
-    inside = np.flatnonzero(profile <= cut_1)
-    low = -math.inf if inside[0] == 0 else float(t_grid[inside[0]])
-    high = math.inf if inside[-1] == N_T - 1 else float(t_grid[inside[-1]])
+    top = _refined_max(ll, floors.size)  # (N_T,) the profile over a continuous steepness
+    dev = 2.0 * (max(top.max(), ll.max()) - ll) / phi  # (N_T, S)
+    profile = 2.0 * (max(top.max(), ll.max()) - np.maximum(top, ll.max(1))) / phi
+    low, high = _crossings(t_grid, profile, cut_1)
     plateau = np.flatnonzero(profile <= profile.min() + 1e-9)  # a step leaves a flat optimum
     boundary = float(t_grid[plateau].mean())
-    w = np.exp(-0.5 * dev).sum(axis=1)
+    w = np.exp(-0.5 * profile)
     weights = w / w.sum()
     if low > hi:
         state = "beyond"
@@ -168,17 +179,73 @@ def fit_crossing(
     cu = (curve_x - lo) / span
     curve_p = _curve(target, floor_of[best[1]], slope_of[best[1]], cu, tu[best[0]])
     band_low, band_high = np.ones_like(cu), np.zeros_like(cu)
-    ti, sj = np.nonzero(dev <= cut_2)
+    ti, sj = np.nonzero(dev <= cut_2) if band else (np.zeros(0, int), np.zeros(0, int))
     for start in range(0, ti.size, 4096):  # every curve of the joint 95 % set
         sl = slice(start, start + 4096)
         g, b = floor_of[sj[sl], None], slope_of[sj[sl], None]
         p = _curve(target, g, b, cu[None, :], tu[ti[sl], None])
         band_low = np.minimum(band_low, p.min(0))
         band_high = np.maximum(band_high, p.max(0))
+    if not band:
+        band_low, band_high = curve_p.copy(), curve_p.copy()
     return CrossingFit(
         state, boundary, low, high, (lo, hi), phi, int(x.size), t_grid, weights, curve_x,
         curve_p, band_low, band_high,
     )  # fmt: skip
+
+
+def dispersion(k: np.ndarray, n: np.ndarray, p: np.ndarray, cond: np.ndarray) -> tuple[float, int]:
+    """The Pearson dispersion ``phi`` (at least 1) and its degrees of freedom, of the
+    conditions' pooled counts about the fitted success ``p`` (R,): χ² over C conditions /
+    (C − 2). Runs of one condition share its departure from the curve (a scene effect), so
+    the condition, not the run, is the unit; seeds that differ more than binomially inflate
+    their condition's count too. Fewer than 3 conditions: the runs' own dispersion (R − 2
+    degrees of freedom); runs of one trial each (clips) carry none: (1, 0)."""
+    _, inv = np.unique(cond, return_inverse=True)
+    c = inv.max() + 1
+    kc = np.bincount(inv, k, c)
+    nc = np.bincount(inv, n, c)
+    pc = np.bincount(inv, n * p, c) / nc  # the curve's success, trial-weighted
+    if c > 2 and (nc > 1).any():
+        chi2 = ((kc - nc * pc) ** 2 / np.maximum(nc * pc * (1 - pc), 1e-12)).sum()
+        return max(1.0, float(chi2 / (c - 2))), int(c - 2)
+    if k.size > 2 and (n > 1).any():
+        chi2 = ((k - n * p) ** 2 / np.maximum(n * p * (1 - p), 1e-12)).sum()
+        return max(1.0, float(chi2 / (k.size - 2))), int(k.size - 2)
+    return 1.0, 0
+
+
+def _refined_max(ll: np.ndarray, floors: int) -> np.ndarray:
+    """Per boundary candidate, the log-likelihood maximised over a continuous steepness: the
+    vertex of the parabola through the best grid steepness and its two neighbours (in log
+    steepness, where the grid is even). The grid's 17 % steps alone made the profile jagged
+    with many trials, and its interval too narrow (a nuisance on a coarse grid)."""
+    s = SLOPES.size
+    a = ll.reshape(ll.shape[0], floors, s)[:, :, 1:]  # the log-spaced steepnesses (not 0)
+    j = np.clip(a.argmax(2), 1, s - 3)
+    y0, y1, y2 = (np.take_along_axis(a, (j + d)[..., None], 2)[..., 0] for d in (-1, 0, 1))
+    curv = y2 - 2 * y1 + y0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        vertex = np.where(curv < 0, y1 - (y2 - y0) ** 2 / (8 * curv), y1)
+    vertex = np.minimum(vertex, y1 + np.abs(y2 - y0))  # a flat, noisy top: no overshoot
+    return np.maximum(vertex, a.max(2)).max(1)
+
+
+def _crossings(t: np.ndarray, profile: np.ndarray, cut: float) -> tuple[float, float]:
+    """The interval's ends: where the profile deviance crosses ``cut``, interpolated
+    linearly between grid points (the ends snapped to the grid covered 69 % with long runs);
+    ±inf where the set reaches an end of the widened range."""
+    inside = np.flatnonzero(profile <= cut)
+    i, j = inside[0], inside[-1]
+
+    def between(a: int, b: int) -> float:
+        pa, pb = profile[a], profile[b]
+        f = (cut - pa) / (pb - pa) if pb != pa else 0.5
+        return float(t[a] + f * (t[b] - t[a]))
+
+    low = -math.inf if i == 0 else between(i - 1, i)
+    high = math.inf if j == len(t) - 1 else between(j, j + 1)
+    return low, high
 
 
 def _eta(target: float, floor: Any, slope: Any, u: Any, t: Any) -> Any:
@@ -281,6 +348,8 @@ def _finite(v: Any) -> bool:
 
 
 def _span(low: Any, high: Any, unit: str, digits: int) -> str:
+    if _finite(low) and low < 0 and unit != "Hz":  # a speed (deg/s) is not negative
+        low = 0.0
     lo_ok, hi_ok = _finite(low), _finite(high)
     if lo_ok and hi_ok:
         return f"{low:.{digits}f}, {high:.{digits}f} {unit}"
@@ -334,6 +403,7 @@ def grid_fits(
             (g["avoidances"] + g["crashes"]).to_numpy(),
             target,
             domain,
+            g["condition"].to_numpy(),  # its seeds share the condition's departure
         )
         fits[value] = f
         rows.append({by: value} | fit_columns(f, to_tf))
@@ -382,8 +452,10 @@ def describe_boundary(row: dict[str, Any]) -> str:
 
 FIT_NOTE = (
     "The boundary is where a monotone logistic curve of success against complexity, fitted "
-    "to every run (binomial counts; overdispersion between seeds corrected), crosses the "
-    "target; its 95 % interval is the profile-likelihood interval (`analysis/boundary/fit.py`). "
+    "to every run (binomial counts), crosses the target; its 95 % interval is the "
+    "profile-likelihood interval, widened by the conditions' overdispersion (a scene that "
+    "departs from the curve, seeds that differ) with F quantiles on conditions − 2 degrees "
+    "of freedom, its ends interpolated (`analysis/boundary/fit.py`). "
     "*Undetermined*: the runs cannot place it (the interval is unbounded); *beyond the "
     "design's range* only where success is above the target at 95 % confidence everywhere on it."
 )
@@ -414,8 +486,11 @@ def fit_section(bounds: pl.DataFrame, by: str) -> list[str]:
     for r in bounds.iter_rows(named=True):
         dps = _span(r["boundary_dps_low"], r["boundary_dps_high"], "", 1).strip() or "—"
         tf = _span(r["boundary_tf_low"], r["boundary_tf_high"], "", 2).strip() or "—"
-        point = f"{r['boundary_dps']:.1f}" if _finite(r["boundary_dps"]) else "—"
-        tf_point = f"{r['boundary_tf_hz']:.2f}" if _finite(r["boundary_tf_hz"]) else "—"
+        # a point estimate only where the interval is bounded: an undetermined boundary's
+        # best fit can lie anywhere along a flat likelihood, even past the design's range
+        placed = r["fit_state"] == "within"
+        point = f"{r['boundary_dps']:.1f}" if placed and _finite(r["boundary_dps"]) else "—"
+        tf_point = f"{r['boundary_tf_hz']:.2f}" if placed and _finite(r["boundary_tf_hz"]) else "—"
         lines.append(
             f"| {r[by]:g} |{scene_cell(r)} {r['fit_state']} | {point} | {dps} | {tf_point} | "
             f"{tf} | {r['fit_runs']} |"

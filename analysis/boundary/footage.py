@@ -5,15 +5,19 @@ The labels table (CSV or Parquet) has one row per clip:
 * ``clip``: the video file (or image-sequence pattern), relative to the table's folder;
 * ``label``: free text (what the clip shows, e.g. ``looming`` or ``background``);
 * ``collision_frame``: the source frame (0-based) at which the object reaches the camera, or
-  empty when nothing collides.
+  empty when nothing collides;
+* ``hazard_onset_frame`` (optional): the frame at which the hazard enters the scene; the
+  clip's complexity is measured on the frames before it.
 
 Each clip is read as ``vdc-capture video`` reads it (the working raster, its true frame rate)
 and the detector runs on it; the clip's complexity is measured as ``vdc-analyse complexity``
 measures it (the AVDM and the baselines). Per clip:
 
 * a collision clip is a **hit** when the detector's first alert comes at most
-  ``alert_window_s`` before the collision frame (and not after it); an earlier first alert is a
-  **false alarm** (it would have turned away from nothing), none in time a **miss**;
+  ``alert_window_s`` and at least ``min_ttc_s`` before the collision frame; an earlier first
+  alert is an **early alert** (a false alarm: it would have turned away from nothing), none,
+  or one later than ``min_ttc_s`` before the collision (too late to turn), a **miss**;
+  ``failure`` names which (scored apart by the predictors: their signs oppose);
 * a clip without a collision is a false alarm when the detector alerts at all;
 * **success** = the share of collision clips that are hits (as in the arena, where success is
   avoidances among avoidances and crashes); a clip is **correct** when it is a hit, or has no
@@ -38,6 +42,7 @@ import numpy as np
 import polars as pl
 
 from analysis.boundary.command import (
+    WARMUP_FRAMES,
     BoundaryResult,
     BoundarySettings,
     boundaries,
@@ -56,7 +61,7 @@ from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.complexity.source_metrics import METRICS
-from analysis.predictors.footage import footage_predictor_tables
+from analysis.predictors.footage import footage_predictor_tables, scene_end
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
 from avdm.registry import check_detector, make_model
@@ -111,6 +116,17 @@ def read_labels(path: str | Path) -> pl.DataFrame:
         pl.col("label").cast(pl.Utf8),
         frames.cast(pl.Int64).alias("collision_frame"),
     )
+    if "hazard_onset_frame" in df.columns:  # optional: where the hazard enters the scene
+        try:
+            onset = df["hazard_onset_frame"].cast(pl.Float64)
+        except pl.exceptions.PolarsError:
+            onset = None
+        if onset is None or (onset.drop_nulls() < 0).any() or (onset.drop_nulls() % 1).any():
+            raise UserError(
+                f"labels table {str(path)!r}: hazard_onset_frame must be a frame number >= 0 "
+                "or empty"
+            )
+        df = df.with_columns(onset.cast(pl.Int64).alias("hazard_onset_frame"))
     if df["clip"].n_unique() != df.height:
         dup = df.filter(pl.col("clip").is_duplicated())["clip"][0]
         raise UserError(f"labels table {str(path)!r} lists clip {dup!r} twice")
@@ -172,9 +188,16 @@ def judge_clip(
     fps: float,
     collision_frame: int | None,
     window_s: float,
+    min_ttc_s: float = 0.0,
 ) -> dict[str, Any]:
     """Hit, miss or false alarm of one clip (see the module). A NaN alert counts as no
-    alert, and its frames are counted (``alert_nan_frames``): :func:`nan_alert_note`."""
+    alert, and its frames are counted (``alert_nan_frames``): :func:`nan_alert_note`.
+
+    ``failure`` scores the ways to be wrong apart (issue 42; their signs oppose on real
+    footage): ``miss`` (no alert, or a first alert less than ``min_ttc_s`` before the
+    collision: too late to turn away), ``early`` (a first alert more than ``window_s``
+    before it), ``false_alarm`` (an alert on a clip without collision); ``hit`` and ``quiet``
+    (no alert, nothing collides) are right."""
     flags, undefined = alert_frames(alert)
     on = np.flatnonzero(flags)
     first = int(frames[on[0]]) if on.size else None
@@ -189,11 +212,15 @@ def judge_clip(
         row["false_alarm"] = first is not None
     elif first is not None and first <= collision_frame:
         row["ttc_first_alert_s"] = (collision_frame - first) / fps
-        if row["ttc_first_alert_s"] <= window_s + 1e-9:
-            row["hit"] = True
-        else:
+        if row["ttc_first_alert_s"] > window_s + 1e-9:
             row["false_alarm"] = True
+        elif row["ttc_first_alert_s"] >= min_ttc_s - 1e-9:  # 1e-9: frame / fps rounding
+            row["hit"] = True
     row["correct"] = row["hit"] or (collision_frame is None and not row["false_alarm"])
+    if collision_frame is None:
+        row["failure"] = "false_alarm" if row["false_alarm"] else "quiet"
+    else:
+        row["failure"] = "hit" if row["hit"] else "early" if row["false_alarm"] else "miss"
     return row
 
 
@@ -213,14 +240,19 @@ def nan_alert_note(clips: pl.DataFrame, detector: str) -> str | None:
 
 
 def clip_task(
-    source: str, spec: str, collision_frame: int | None, fov_deg: float, window_s: float
+    source: str,
+    spec: str,
+    collision_frame: int | None,
+    fov_deg: float,
+    window_s: float,
+    min_ttc_s: float = 0.0,
 ) -> dict[str, Any]:
     """An executor task: one clip judged (its complexity is measured separately, once)."""
     frames, alert, fps = detector_alerts(source, spec, fov_deg)
     return {
         "fps": fps,
         "frames": len(frames),
-        **judge_clip(frames, alert, fps, collision_frame, window_s),
+        **judge_clip(frames, alert, fps, collision_frame, window_s, min_ttc_s),
     }
 
 
@@ -243,8 +275,8 @@ def clip_complexity(
     for row in labels.iter_rows(named=True):
         rid, fps = ids[_key(row["source"])]
         frames = res.table.filter(pl.col("recording_id") == rid)
-        if row["collision_frame"] is not None:
-            end = row["collision_frame"] - round(window_s * fps)
+        end = scene_end(row, fps, window_s)
+        if end is not None:
             frames = frames.filter(pl.col("frame") < end)
             if frames.height == 0:
                 raise UserError(
@@ -252,8 +284,13 @@ def clip_complexity(
                     "before the collision frame) to measure the scene on: use a longer clip or a "
                     "shorter --alert-window-s"
                 )
+        # the models' start-up (the AVDM rises from 0, running means fill) is not the scene:
+        # its frames are left out where the clip has frames after it
+        startup = WARMUP_FRAMES if (frames["frame"] >= WARMUP_FRAMES).any() else 0
+        frames = frames.filter(pl.col("frame") >= startup)
         means = {m: frames[m].cast(pl.Float64).mean() for m in METRICS}
-        rows.append({"source": row["source"], **means, "complexity_frames": frames.height})
+        rows.append({"source": row["source"], **means, "complexity_frames": frames.height,
+                     "startup_frames_left_out": startup})  # fmt: skip
     return pl.DataFrame(rows)
 
 
@@ -328,7 +365,14 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
     tasks = [
         (
             f"{row['clip']} {s.param}={v:g}",
-            (row["source"], spec, row["collision_frame"], s.fov_deg, s.alert_window_s),
+            (
+                row["source"],
+                spec,
+                row["collision_frame"],
+                s.fov_deg,
+                s.alert_window_s,
+                s.min_ttc_s,
+            ),
         )
         for v, spec in specs.items()
         for row in labels.iter_rows(named=True)

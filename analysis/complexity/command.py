@@ -13,7 +13,7 @@ the
 * ``clips.parquet``: one row per clip: source, codec, resolution, fps, duration, repeated
   and dropped frames (each lost frame once: ``frames + dropped_frames == container_frames``
   where the source states its count; ``lost_after_last`` of them after the last frame,
-  ``missing_s`` those in seconds; ``vdc.sources.end_fields``), and each metric's mean, max
+  ``missing_s`` those in seconds; ``vdc.stream_counts.end_fields``), and each metric's mean, max
   and p95 (P.910 clause 7.8.4 recommends the mean and the max per sequence);
 * ``complexity_correlations.parquet``: Spearman ρ of every pair of metrics per clip;
 * ``complexity_collection.png``: clips ranked by the AVDM and by TI, and the AVDM against TI
@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.batch import parse_shard, readable_part
+from analysis.batch import PARTS, parse_shard, readable_part
 from analysis.complexity import figures
 from analysis.complexity.source_metrics import (
     ANGULAR_METRICS,
@@ -43,7 +43,6 @@ from analysis.complexity.source_metrics import (
     DIS_PRESETS,
     METRICS,
     MODEL_METRICS,
-    PARTS,
     RASTERS,
     ComplexityMeter,
     complexity_task,
@@ -58,7 +57,7 @@ from analysis.recordings.analysis_rrd import OUTPUT_MARKER, write_complexity_rrd
 from analysis.recordings.reader import Recording, RecordingError
 from analysis.recordings.recompute import DistinctRecordings
 from avdm.registry import require_angular_velocity
-from avdm.true_time import repeats_of
+from avdm.true_time import model_rate, repeats_of
 from vdc.cli_support import (
     API_ONLY,
     Settings,
@@ -80,7 +79,7 @@ from vdc.frame_metrics import (
 from vdc.parquet_io import WroteFiles, read_metadata, table_set, write_parquet
 from vdc.recording import FOOTAGE_MODEL, NATIVE_METRICS, camera_model_context, working_size
 from vdc.resize import area_resize
-from vdc.sources import VIDEO_SUFFIXES, source_name
+from vdc.sources import VIDEO_SUFFIXES, unique_source_names
 
 
 @dataclasses.dataclass(frozen=True)
@@ -225,7 +224,10 @@ def complexity_of_frames(
     out = {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
     if any(m in metrics for m in MODEL_METRICS):
         small = np.stack([area_resize(f, (h, w)) for f in frames])  # as FrameBatcher
-        meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics)
+        rate = model_rate(fps, repeat, settings.max_repeats)  # on all the frames' evidence
+        meter = ComplexityMeter(
+            fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics, rate=rate
+        )
         out |= meter.update(small, t, repeat)
     df = pl.DataFrame({"frame": np.arange(len(frames), dtype=np.int64), "t_s": t, "repeat": repeat})
     return df.with_columns(*[pl.Series(m, out[m]).fill_nan(None) for m in metrics])
@@ -334,13 +336,10 @@ def plan_sources(
                 "the recording or video it measured"
             )
         sources = [s for s in sources if s not in derived]
-    names = [source_name(s) for s in sources]
-    dup = {n for n in names if names.count(n) > 1}
+    names = unique_source_names(sources)
     distinct = DistinctRecordings()  # two files of one recording would mix their rows
     tasks = []
     for src, name in zip(sources, names, strict=True):
-        if name in dup:
-            name = f"{source_name(str(Path(src).parent))}-{name}"
         digest = hashlib.sha1(repr((_stamp(src), settings.measured())).encode()).hexdigest()
         if src.endswith(".rrd") and opened[src] is not None:
             rid = opened[src].recording_id
@@ -372,7 +371,8 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
             for k in (
                 "source", "kind", "codec", "width_px", "height_px", "fps", "duration_s",
                 "frames", "repeated_frames", "dropped_frames", "container_frames",
-                "lost_after_last", "header_duration_s", "missing_s", "model_fps", *RANGE_COLUMNS,
+                "lost_after_last", "header_duration_s", "missing_s", "model_fps",
+                "model_fps_reason", *RANGE_COLUMNS,
             )
         },
         "raster": table["raster"][0],
@@ -529,6 +529,9 @@ def complexity(
         if info.get("cut_note") or info.get("decode_error"):
             why = info.get("cut_note") or f"decoding stopped ({info['decode_error']})"
             say(f"{info['source']}: {why}; its row covers {info['frames']} frames")
+    for info in infos:  # the models' rate, where it is not the container's or is in doubt
+        if info.get("model_fps_note"):
+            say(f"{info['source']}: {info['model_fps_note']}")
     uncounted = [  # files whose end cannot be counted (parts of older runs do not say)
         i["source"]
         for i in infos

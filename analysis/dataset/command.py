@@ -9,7 +9,12 @@ from typing import Any
 
 import polars as pl
 
-from analysis.complexity.source_metrics import ANGULAR_METRICS, MODEL_METRICS, parse_metrics
+from analysis.complexity.source_metrics import (
+    ANGULAR_METRICS,
+    DEFAULT_METRICS,
+    MODEL_METRICS,
+    parse_metrics,
+)
 from analysis.dataset.flags import FLAGS, finish, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
 from analysis.dataset.measure import measure_episode
@@ -26,10 +31,6 @@ from vdc.executors import ExecutorSettings, Feedback, executor_field, run_tasks
 from vdc.parquet_io import WroteFiles, table_set, write_tables
 from vdc.recording import FOOTAGE_MODEL
 
-# the metrics measured unless told: those of ``vdc-analyse complexity``'s default set that a
-# dataset's frames give (the angular ones need --fov-deg)
-DEFAULT_METRICS = "omega_dps,si_p910,ti_p910,mafd,flow_dps,codec_bpp"
-
 
 @dataclasses.dataclass(frozen=True)
 class DatasetSettings(Settings):
@@ -37,7 +38,8 @@ class DatasetSettings(Settings):
     repeat is), which flags fail a run, and where the episodes run."""
 
     metrics: str = option(
-        DEFAULT_METRICS,
+        # unless told: ``vdc-analyse complexity``'s default set (the angular ones need --fov-deg)
+        ",".join(DEFAULT_METRICS),
         "the complexity metrics per frame: comma-separated names as vdc-analyse complexity's "
         "--metrics (omega_dps and flow_dps need --fov-deg)",
     )
@@ -178,6 +180,8 @@ def no_fov_note(settings: DatasetSettings) -> str | None:
 def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -> DatasetResult:
     ds = open_dataset(root)
     problems: list[Problem] = list(ds.problems)
+    for p in problems:  # each unreadable file said as it is met: one line, file and episode
+        feedback.log(f"error: {p.line()}")
     wanted = settings.episode_list()
     videos = [v for v in ds.videos if wanted is None or v.episode in wanted]
     notes = [n for n in [no_fov_note(settings)] if n]
@@ -199,6 +203,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         problem = _problem_of(by_key[outcome.key], outcome.error)
         if problem not in problems:  # a data file's problem: once, not once per camera
             problems.append(problem)
+            feedback.log(f"error: {problem.line()}")
 
     run_tasks(_task, tasks, settings.executor_settings(), done,
               feedback.log, shared_paths=(root,))  # fmt: skip

@@ -22,7 +22,7 @@ from vdc.sources import open_reader
 STRIP_HALF = 4  # frames either side of the flagged one
 THUMB_WIDTH = 128  # px
 
-COLUMNS = (
+EPISODE_COLUMNS = (
     "episode_index", "camera", "flags", "frames_decoded", "length", "dropped",
     "drift_start_ms", "drift_end_ms", "frozen_longest_s", "idle_head_s", "idle_tail_s",
     "lag_ms", "lag_low_ms", "lag_high_ms", "shift_px", "shift_within_px", "blurred_share",
@@ -117,7 +117,7 @@ def write_page(
     fig = plot_measures(eps, path.with_suffix(".png"))
     figure = base64.b64encode(fig.read_bytes()).decode()
     fig.unlink()
-    cols = [c for c in COLUMNS if c in eps.columns]
+    cols = [c for c in EPISODE_COLUMNS if c in eps.columns]
 
     def cell(v: Any) -> str:
         if isinstance(v, float):

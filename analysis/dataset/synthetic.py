@@ -45,6 +45,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import sys
 from fractions import Fraction
 from pathlib import Path
@@ -54,6 +55,8 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+from vdc.errors import UserError
 
 CODECS = {"libsvtav1": "av1", "libx264": "h264"}
 STATE_DIM = 6
@@ -97,8 +100,12 @@ STANDARD_FAULTS = Faults(
 
 def _scene(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """(canvas RGB uint8 of the view plus a margin, object RGB uint8): real photographs."""
-    from skimage import data
-
+    try:  # scikit-image (its photographs) comes with the test extra only
+        from skimage import data  # lazy: optional extra
+    except ImportError:
+        raise UserError(
+            "writing a test dataset needs scikit-image (pip install scikit-image)"
+        ) from None
     bg = cv2.resize(data.astronaut(), (width + 2 * MARGIN_PX, height + 2 * MARGIN_PX),
                     interpolation=cv2.INTER_AREA)  # fmt: skip
     side = max(8, height // 4)
@@ -179,7 +186,9 @@ class _Encoder:
     """One MP4 (one video stream) written frame by frame at given times."""
 
     def __init__(self, path: Path, codec: str, fps: float, shape: tuple[int, int]) -> None:
-        import av
+        # SVT-AV1 prints its configuration on stderr for every file unless told: errors only
+        os.environ.setdefault("SVT_LOG", "1")
+        import av  # lazy: start-up
 
         path.parent.mkdir(parents=True, exist_ok=True)
         self.container = av.open(str(path), "w")
@@ -196,7 +205,7 @@ class _Encoder:
         self.last_pts = -1
 
     def add(self, t_s: float, rgb: np.ndarray) -> None:
-        import av
+        import av  # lazy: start-up
 
         frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
         pts = max(round(t_s / TIME_BASE), self.last_pts + 1)

@@ -24,7 +24,7 @@ class WindowReader(Reader):
     opened; a file that will not open raises ValueError naming it."""
 
     def __init__(self, path: str, from_s: float, to_s: float | None, fps: float) -> None:
-        import av
+        import av  # lazy: start-up
 
         self.path, self.from_s, self.to_s, self.fps = path, from_s, to_s, fps
         if not os.path.exists(path):
@@ -72,7 +72,7 @@ class WindowReader(Reader):
             ) from None
 
     def _decode(self) -> Iterator[SourceFrame]:
-        import av
+        import av  # lazy: start-up
 
         s = self.stream
         if self.from_s > 0:  # the key frame at or before the window

@@ -39,7 +39,6 @@ from typing import Any
 
 import numpy as np
 import polars as pl
-import scipy.stats
 
 from analysis.boundary.command import (
     BoundaryResult,
@@ -59,7 +58,9 @@ from analysis.boundary.fit import (
     tf_to_dps,
     with_fit,
 )
+from analysis.boundary.scenes import scene_fields
 from analysis.experiments.captures import RunItem, collision_run_item
+from analysis.stats import condition_share_bounds
 from capture.sim import SimSettings
 from vdc.executors import Feedback
 from vdc.parquet_io import table_set
@@ -210,37 +211,31 @@ PER_SCENE_FIRST = 3  # per-scene design: the first batch per scene, the range's 
 
 
 def first_failure(
-    x: Sequence[float], k: Sequence[float], n: Sequence[float], target: float
+    x: Sequence[float], k: Sequence[float], n: Sequence[float], target: float, phi: float = 1.0
 ) -> float:
-    """The least complexity among runs that clearly fail (the exact binomial 95 % upper bound
-    of their success, ``k`` of ``n``, below ``target``); inf when none does. The per-scene
+    """The least complexity among conditions that clearly fail (the 95 % upper bound of their
+    success below ``target``, seed spread counted:
+    :func:`analysis.stats.condition_share_bounds`); inf when none does. The per-scene
     design's boundary is the *first* crossing: runs past this one are not fitted (a detector
     can fail in the middle of a scene's range and recover at its end)."""
-    x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
-    ok = n_a > 0
-    upper = np.ones_like(x_a)
-    upper[ok] = np.where(
-        k_a[ok] >= n_a[ok], 1.0, scipy.stats.beta.ppf(0.975, k_a[ok] + 1, n_a[ok] - k_a[ok])
-    )
-    failing = x_a[ok & (upper < target)]
+    xs, _, upper = condition_share_bounds(x, k, n, phi)
+    failing = xs[upper < target]
     return float(failing.min()) if failing.size else math.inf
 
 
 def first_recovery(
-    x: Sequence[float], k: Sequence[float], n: Sequence[float], target: float, failed: float
+    x: Sequence[float],
+    k: Sequence[float],
+    n: Sequence[float],
+    target: float,
+    failed: float,
+    phi: float = 1.0,
 ) -> float:
-    """The least complexity above ``failed`` (the first clearly failing run's) among runs that
-    clearly succeed again (the exact binomial 95 % lower bound of their success above
-    ``target``): where the success recovers; inf when none does (or none failed)."""
-    x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
-    ok = (n_a > 0) & (x_a > failed)
-    lower = np.zeros_like(x_a)
-    lower[ok] = np.where(
-        k_a[ok] <= 0,
-        0.0,
-        scipy.stats.beta.ppf(0.025, np.maximum(k_a[ok], 1), n_a[ok] - k_a[ok] + 1),
-    )
-    back = x_a[ok & (lower > target)]
+    """The least complexity above ``failed`` (the first clearly failing condition's) among
+    conditions that clearly succeed again (the 95 % lower bound of their success above
+    ``target``, seed spread counted): where the success recovers; inf when none does."""
+    xs, lower, _ = condition_share_bounds(x, k, n, phi)
+    back = xs[(xs > failed) & (lower > target)]
     return float(back.min()) if back.size else math.inf
 
 
@@ -256,11 +251,17 @@ def fit_first_crossing(
     x = [r["complexity_dps"] for r in rows]
     k = [r["avoidances"] for r in rows]
     n = [r["avoidances"] + r["crashes"] for r in rows]
-    cut = first_failure(x, k, n, target)
-    back = first_recovery(x, k, n, target, cut)
-    keep = [i for i, xi in enumerate(x) if xi < back]
-    fit = fit_crossing([x[i] for i in keep], [k[i] for i in keep], [n[i] for i in keep], target,
-                       domain)  # fmt: skip
+    # twice: binomial bounds find the falling side, whose runs' dispersion then widens a lone
+    # run's bounds (a dispersion with runs past a recovery in it would be the dip's)
+    phi = 1.0
+    for _ in range(2):
+        cut = first_failure(x, k, n, target, phi)
+        back = first_recovery(x, k, n, target, cut, phi)
+        keep = [i for i, xi in enumerate(x) if xi < back]
+        pick = [x[i] for i in keep], [k[i] for i in keep], [n[i] for i in keep]
+        if len(keep) > 2:
+            phi = fit_crossing(*pick, target, domain, band=False).dispersion
+    fit = fit_crossing(*pick, target, domain)
     if cut <= min(domain) + 1e-9:  # a run at the scene's least complex point clearly fails
         fit = dataclasses.replace(fit, state="below", boundary=math.nan, low=-math.inf, high=cut)
     return fit, cut
@@ -378,9 +379,8 @@ def profile_runs(s: BoundarySettings, folder: Path) -> list[RunItem]:
         for tf in np.linspace(lo, hi, PROFILE_POINTS):
             tf = round(float(tf), 2)
             cond = condition_name(scene, tf)
-            settings = SimSettings(
-                scene=scene, tf_hz=tf, minutes=s.minutes, seed=s.seed, model=s.profile_model
-            )
+            run = {"tf_hz": tf, "minutes": s.minutes, "seed": s.seed, "model": s.profile_model}
+            settings = SimSettings(**scene_fields(scene), **run)
             cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": s.seed}
             path = folder / "profile" / cond / f"seed{s.seed}.rrd"
             items.append(RunItem(f"profile-{cond}-seed{s.seed}", settings, path, cols))

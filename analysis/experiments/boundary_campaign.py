@@ -232,9 +232,16 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
         f"{s.minutes:g} min = {len(items)} run(s)"
         + (f", plus {len(prof)} profiling run(s)" if prof else "")
     )
+    # one line per stage on the log (a pipe has no bar): nothing silent between plan and results
+    stages = 3 if prof else 2
+    feedback.log(f"stage 1/{stages}: {len(items)} closed-loop run(s) of {s.detector}")
     runs = run_grid(items, "collision", s, s.false_alarm_m, feedback)
     require_evidence(runs, None, s, items[0].settings)  # never a verdict from no evidence
     if prof:
+        feedback.log(
+            f"stage 2/{stages}: {len(prof)} profiling run(s) (the AVDM's response to each "
+            "condition, driving straight)"
+        )
         # every complexity measure of a profiling run, by the worker that just recorded it
         every = 0 if s.no_predictors else EVERY
         profiles, measures = run_profiles(prof, s, feedback, every)
@@ -243,6 +250,11 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
         profiles = measures = None
         complexity = condition_complexity(runs, "online_dps")
     require_evidence(runs, complexity, s, items[0].settings)
+    feedback.log(
+        f"stage {stages}/{stages}: success per condition, the boundary per {s.param} value"
+        + ("" if s.no_fit else ", the policy")
+        + f"; writing {out}"
+    )
     conditions = condition_statistics(runs, complexity, ["condition", s.param])
     fitted, fits = grid_fits(runs, complexity, s.param, s.target)
     bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "grid")

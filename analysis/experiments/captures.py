@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from analysis.boundary.command import condition_name, with_override
+from analysis.boundary.scenes import scene_fields
 from analysis.recordings.reader import Recording, RecordingError
 from avdm.registry import check_detector
 from capture.run import REPLACE_OUTPUT
@@ -135,8 +136,9 @@ def profiling_items(s: Any, folder: Path) -> list[RunItem]:
         cond = condition_name(scene, tf)
         for seed in range(s.seed, s.seed + s.seeds):
             settings = SimSettings(
-                scene=scene, tf_hz=tf, minutes=s.minutes, seed=seed, model=s.profile_model
-            )
+                **scene_fields(scene), tf_hz=tf, minutes=s.minutes, seed=seed,
+                model=s.profile_model,
+            )  # fmt: skip
             cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": seed}
             path = folder / "profile" / cond / f"seed{seed}.rrd"
             items.append(RunItem(f"profile-{cond}-seed{seed}", settings, path, cols))
@@ -155,7 +157,7 @@ def collision_run_item(
     settings = SimSettings(
         behaviour="collision",
         model=with_override(s.detector, s.param, value),
-        scene=scene,
+        **scene_fields(scene),
         tf_hz=tf_hz,
         minutes=s.minutes,
         seed=seed,

@@ -60,6 +60,18 @@ def clip_frames_task(source: str, specs: dict[str, str], fov_deg: float) -> dict
     return out | {"fps": fps}
 
 
+def scene_end(row: dict[str, Any], fps: float, window_s: float) -> int | None:
+    """The first frame not of the scene the detector faced: the hazard's onset where the
+    labels give it (``hazard_onset_frame``), else the alert window's start before a collision;
+    None (every frame) for a clip without either."""
+    onset = row.get("hazard_onset_frame")
+    if onset is not None:
+        return int(onset)
+    if row["collision_frame"] is not None:
+        return int(row["collision_frame"] - round(window_s * fps))
+    return None
+
+
 def footage_predictor_tables(
     s: Any,
     labels: pl.DataFrame,
@@ -91,7 +103,10 @@ def footage_predictor_tables(
         table = mine.join(theirs, on="frame", how="left", maintain_order="left")
         cf = row["collision_frame"]
         wf = round(window * res["fps"])
-        scene = table.filter(pl.col("frame") < cf - wf) if cf is not None else table
+        end = scene_end(row, res["fps"], window)
+        scene = table.filter(pl.col("frame") < end) if end is not None else table
+        if (scene["frame"] >= WARMUP_FRAMES).any():  # the start-up is not the scene
+            scene = scene.filter(pl.col("frame") >= WARMUP_FRAMES)
         mean = scene["avdm"].fill_nan(None).mean()  # 0.0 on a still scene is a number, not NaN
         paper_means[row["clip"]] = float(mean) if mean is not None else math.nan
         for v in values:

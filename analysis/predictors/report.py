@@ -9,6 +9,7 @@ import dataclasses
 import json
 from collections.abc import Callable
 from pathlib import Path
+from textwrap import fill
 from typing import Any
 
 import numpy as np
@@ -16,6 +17,7 @@ import polars as pl
 import pyarrow.parquet as pq
 from matplotlib.figure import Figure
 
+from analysis.predictors.statistics import HEADLINE, MIN_CONDITIONS, MIN_FAILURES
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles, write_parquet
 
@@ -35,22 +37,56 @@ def ranked(table: pl.DataFrame, statistic: str) -> pl.DataFrame:
     )
 
 
+# measures and statistics as a person names them, with units (the table keeps the ids)
+LABELS = {
+    "avdm": "AVDM, paper (deg/s)",
+    "avdm_natural": "AVDM, natural (deg/s)",
+    "si_p910": "spatial information, P.910",
+    "ti_p910": "temporal information, P.910",
+    "si_legacy": "spatial information, P.910 (1999)",
+    "ti_legacy": "temporal information, P.910 (1999)",
+    "mafd": "mean absolute frame difference (grey levels)",
+    "flow_dps": "optic flow, DIS (deg/s)",
+    "edge_density": "edge density (share of pixels)",
+    "jpeg_bpp": "JPEG size (bits/pixel)",
+    "codec_bpp": "H.264 size (bits/pixel)",
+    "zlib_ratio": "zlib compression ratio",
+}
+STATS = {
+    "rho_failure": "rank correlation with the failure rate (Spearman ρ, over conditions)",
+    "loco_balanced_accuracy": "held-out balanced accuracy (one condition left out at a time)",
+    "clip_auroc": "AUROC: a clip the detector gets wrong",
+    "clip_auroc_miss": "AUROC: a missed collision (no alert, or too late)",
+    "clip_auroc_early": "AUROC: an alert too early",
+    "clip_auroc_false_alarm": "AUROC: an alert on a clip without collision",
+    "frame_auroc_pooled": "AUROC per frame: a false alert (frames pooled, clustered by clip)",
+    "frame_auroc_within_clip": "AUROC per frame within a clip (mean over clips)",
+}
+CHANCE = {"rho_failure": 0.0}  # the rest: AUROC-like, chance 0.5
+EMPTY = (
+    "no statistic could be computed: the arena needs at least 3 conditions with runs whose "
+    "success varies (4 for an interval on ρ, {conds} to compare two measures); footage needs "
+    "clips the detector gets wrong and clips it gets right ({fails} of each to compare)"
+)
+
+
+def label(measure: str) -> str:
+    """A measure, or a set of measures joined by ``+``, as a person names it."""
+    return " + ".join(LABELS.get(m, m) for m in measure.split("+"))
+
+
 def plot_predictors(table: pl.DataFrame, path: Path, title: str) -> Path:
     """Each measure's predictive power with its 95 % interval, ranked, one panel per headline
-    statistic present, one colour per parameter value."""
-    stats = [
-        s
-        for s in (
-            "rho_failure",
-            "loco_balanced_accuracy",
-            "clip_auroc",
-            "frame_auroc_pooled",
-            "frame_auroc_within_clip",
-        )
-        if table.filter(pl.col("statistic") == s).height
-    ]
-    fig = Figure(figsize=(5 * max(1, len(stats)), 5.5), layout="constrained")
+    statistic present, one colour per parameter value; with none, one panel saying why."""
+    stats = [s for s in STATS if table.filter(pl.col("statistic") == s).height]
+    fig = Figure(figsize=(6 * max(1, len(stats)), 5.5), layout="constrained")
     axes = np.atleast_1d(fig.subplots(1, max(1, len(stats))))
+    if not stats:  # never a blank figure: the reason, in the panel
+        ax = axes[0]
+        ax.text(0.5, 0.5, fill(EMPTY.format(conds=MIN_CONDITIONS, fails=MIN_FAILURES), 60),
+                ha="center", va="center", transform=ax.transAxes)  # fmt: skip
+        ax.set_axis_off()
+        ax.set_title("no estimate")
     for ax, stat in zip(axes, stats, strict=False):
         order = ranked(table, stat)["measure"].to_list()[::-1]
         t = table.filter(pl.col("statistic") == stat)
@@ -68,11 +104,11 @@ def plot_predictors(table: pl.DataFrame, path: Path, title: str) -> Path:
                 ax.errorbar(r["estimate"], y, xerr=[[r["estimate"] - lo], [hi - r["estimate"]]],
                             fmt="o", color=f"C{k % 10}", ms=4, capsize=2,
                             label=f"{v:g}" if r["measure"] == order[-1] else None)  # fmt: skip
-        ax.set_yticks(range(len(order)), order)
-        chance = 0.0 if stat == "rho_failure" else 0.5
-        ax.axvline(chance, color="k", lw=0.8, ls=":")
+        ax.set_yticks(range(len(order)), [label(m) for m in order], fontsize=7)
+        ax.axvline(CHANCE.get(stat, 0.5), color="k", lw=0.8, ls=":")
         # an empty panel says why rather than showing nothing
-        ax.set_title(stat if drawn else f"{stat}: no estimate (success did not vary)")
+        name = fill(STATS[stat], 45)
+        ax.set_title(name if drawn else f"{name}: no estimate (success did not vary)", fontsize=9)
         ax.set_xlabel("estimate and its 95 % interval (dotted: chance)")
         ax.grid(alpha=0.3)
         if drawn:
@@ -83,36 +119,70 @@ def plot_predictors(table: pl.DataFrame, path: Path, title: str) -> Path:
     return path
 
 
-def _fmt(r: dict[str, Any]) -> str:
-    e, lo, hi = r["estimate"], r["ci_low"], r["ci_high"]
-    if e is None:
+def _fmt(r: dict[str, Any] | None, digits: int = 2) -> str:
+    if r is None or r["estimate"] is None:
         return "—"
+    e, lo, hi = r["estimate"], r["ci_low"], r["ci_high"]
     if lo is None or hi is None:
-        return f"{e:.2f}"
-    return f"{e:.2f} [{lo:.2f}, {hi:.2f}]"
+        return f"{e:.{digits}f}"
+    return f"{e:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def _p(v: Any) -> str:
+    return "—" if v is None else f"{v:.2g}" if v >= 0.001 else "< 0.001"
+
+
+def predictor_headline(table: pl.DataFrame, param: str, mode: str) -> str:
+    """The section's first sentence: the paper's question (the AVDM against P.910 TI, named in
+    advance) answered in plain words, per parameter value, with n and how sure."""
+    unit = "conditions" if mode == "arena" else "clips"
+    prim = table.filter(pl.col("role") == "primary")
+    if not table.height or not prim.height:
+        why = EMPTY.format(conds=MIN_CONDITIONS, fails=MIN_FAILURES)
+        return f"These runs cannot say whether the AVDM predicts failure better than TI: {why}."
+    stat = HEADLINE[mode]
+    parts = []
+    for r in prim.iter_rows(named=True):
+        own = table.filter((pl.col("statistic") == stat) & (pl.col("value") == r["value"]))
+        get = {x["measure"]: x for x in own.iter_rows(named=True)}
+        both = f"AVDM {_fmt(get.get('avdm'))}, TI {_fmt(get.get('ti_p910'))}"
+        at = f"at {param} {r['value']:g} ({r['n']} {unit}; {both})"
+        v = r["verdict"] or ""
+        if v.startswith("too few"):
+            parts.append(f"{at}: too few to tell ({v.split('(')[1].rstrip(')')})")
+        elif v in ("better", "worse"):
+            parts.append(f"{at}: the AVDM predicts {v} than TI (p = {_p(r['p_value'])})")
+        else:
+            parts.append(f"{at}: no evidence that the AVDM does better or worse than TI")
+    return (
+        "**In one sentence:** does the paper's AVDM predict where this detector fails better "
+        f"than P.910 TI ({STATS[stat]}; 95 % intervals)? " + "; ".join(parts) + "."
+    )
 
 
 def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
-    """The ``## Which measure predicts it`` section of ``boundary.md``."""
+    """The ``## Which measure predicts it`` section of ``boundary.md``: the answer first, then
+    every measure's statistic, then each comparison with n, p, Holm's p and whether it
+    survives."""
     lines = [
         "## Which measure predicts where it breaks\n",
+        predictor_headline(table, param, mode) + "\n",
         "![each measure's predictive power, ranked, 95 % intervals](predictors.png)\n",
-        "Every measure's statistic per value of "
-        f"`{param}` with its 95 % bootstrap interval (`predictors.parquet`; the statistics: "
-        "`vdc.predictors` and docs/boundary.md).\n",
+        f"Every measure per value of `{param}`, with its 95 % interval over the "
+        f"{'conditions (seeds resampled within them)' if mode == 'arena' else 'clips'} "
+        "(`predictors.parquet`: each row names its unit and its n). The one comparison named "
+        "in advance is the paper's AVDM against P.910 TI; every other is Holm-corrected. No "
+        f"comparison is judged on fewer than {MIN_CONDITIONS} conditions or {MIN_FAILURES} "
+        "failing clips (80 % power for the effects in question; docs/boundary.md).\n",
     ]
-    stats = (
-        ["rho_failure", "loco_balanced_accuracy"]
-        if mode == "arena"
-        else ["clip_auroc", "frame_auroc_pooled", "frame_auroc_within_clip"]
-    )
     values = table["value"].unique(maintain_order=True).to_list()
-    for stat in stats:
+    for stat in STATS:
         t = table.filter(pl.col("statistic") == stat)
         if not t.height:
             continue
         order = ranked(table, stat)["measure"].to_list()
-        lines.append(f"### {stat}\n")
+        n = t["n"].max()
+        lines.append(f"### {STATS[stat]} (n = {n} {t['unit'][0]}s at most)\n")
         lines.append("| measure | " + " | ".join(f"{param} {v:g}" for v in values) + " |")
         lines.append("|---|" + "---|" * len(values))
         for m in order:
@@ -120,43 +190,33 @@ def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
             for v in values:
                 r = t.filter((pl.col("measure") == m) & (pl.col("value") == v))
                 cells.append(_fmt(r.row(0, named=True)) if r.height else "—")
-            lines.append(f"| {m} | " + " | ".join(cells) + " |")
+            lines.append(f"| {label(m)} | " + " | ".join(cells) + " |")
         lines.append("")
-    paired = table.filter(pl.col("statistic").str.starts_with("paired_"))
-    if paired.height:
-        lines.append("### The AVDM against each measure (paired, AVDM minus measure)\n")
-        counts = paired.group_by("statistic", "verdict").len().sort("statistic", "verdict")
-        for (stat,), g in counts.group_by("statistic", maintain_order=True):
-            parts = ", ".join(f"{r['verdict']} {r['len']}" for r in g.iter_rows(named=True))
-            lines.append(f"- `{stat}`: {parts}")
-        worse = paired.filter(pl.col("verdict") == "worse")
-        for r in worse.iter_rows(named=True):
-            lines.append(
-                f"  - worse than `{r['measure']}` at {param} {r['value']:g} "
-                f"(`{r['statistic']}`: {_fmt(r)})"
-            )
-        lines.append("")
-    comb = table.filter(pl.col("statistic").str.starts_with("cv_logloss"))
-    if comb.height:
+    cmp = table.filter(pl.col("role").is_not_null())
+    if cmp.height:
+        lines.append("### Comparisons (the AVDM minus the measure; Holm-corrected but the first)\n")
         lines.append(
-            "### Combined: held-out cross-entropy of a logistic model (lower is better; gain "
-            "over SI/TI, positive is better)\n"
+            f"| against | statistic | {param} | difference [95 %] | n | p | Holm p | survives | "
+            "verdict |"
         )
-        lines.append(f"| measures | {param} | cv_logloss | gain over SI/TI | verdict |")
-        lines.append("|---|---|---|---|---|")
-        loss = comb.filter(pl.col("statistic") == "cv_logloss")
-        for r in loss.iter_rows(named=True):
-            gain = comb.filter(
-                (pl.col("statistic") != "cv_logloss")
-                & (pl.col("measure") == r["measure"])
-                & (pl.col("value") == r["value"])
-            )
-            g = gain.row(0, named=True) if gain.height else None
+        lines.append("|---|---|---|---|---|---|---|---|---|")
+        cmp = cmp.sort(pl.col("role") != "primary", "statistic", "value")
+        for r in cmp.iter_rows(named=True):
+            ref = r["statistic"].rsplit("_vs_", 1)[-1]
+            head = r["statistic"].removeprefix("paired_").rsplit("_vs_", 1)[0]
+            stat = STATS.get(head, head).split(" (")[0]
+            who = f"{label(ref)} vs {label(r['measure'])}" if r["statistic"].startswith(
+                "paired_") else f"{label(r['measure'])} vs SI + TI"  # fmt: skip
+            if r["role"] == "primary":
+                who = f"**{who} (primary)**"
+            surv = "—" if r["survives"] is None else "yes" if r["survives"] else "no"
             lines.append(
-                f"| {r['measure']} | {r['value']:g} | {_fmt(r)} | "
-                f"{_fmt(g) if g else '—'} | {g['verdict'] if g else 'reference'} |"
+                f"| {who} | {stat} | {r['value']:g} | {_fmt(r, 3)} | {r['n']} | "
+                f"{_p(r['p_value'])} | {_p(r['p_holm'])} | {surv} | {r['verdict']} |"
             )
         lines.append("")
+    if not table.height:
+        lines.append(EMPTY.format(conds=MIN_CONDITIONS, fails=MIN_FAILURES).capitalize() + ".\n")
     return "\n".join(lines) + "\n"
 
 

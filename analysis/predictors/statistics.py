@@ -1,50 +1,39 @@
-"""Which complexity measure predicts where a detector breaks (issue 32).
+"""Which complexity measure predicts where a detector breaks (issues 32, 42).
 
 ``vdc-analyse boundary`` finds where a detector's success falls; this module asks which of the
-complexity measures vdc computes (the AVDM, paper ``avdm`` and ``avdm-natural``, P.910 and
-legacy SI/TI, MAFD, DIS flow, edge density, JPEG/codec/zlib compression) orders the cases as
-the detector fails them. One table, ``predictors.parquet``, one row per measure, parameter
-value and statistic: ``measure``, ``value``, ``statistic``, ``estimate``, ``ci_low``,
-``ci_high``, ``n`` and (paired and combined rows) ``verdict``.
+complexity measures vdc computes (:data:`MEASURES`) orders the cases as the detector fails
+them. One table, ``predictors.parquet``, one row per measure, parameter value and statistic
+(:data:`PREDICTOR_COLUMNS`): the estimate, its 95 % interval, ``n`` (the units the statistic used),
+``n_failures`` (the failing units, or the fewer class), ``unit`` (``condition``, ``clip`` or
+``frame``), and for comparisons ``p_value``, ``p_holm``, ``role``, ``survives`` and ``verdict``.
+Intervals and tests: :mod:`analysis.predictors.inference`, over the units that vary.
 
-Arena (units: conditions; every interval a percentile bootstrap over seeds, resampled within
-each condition: the detector's runs and the profiling runs each, the same resamples for every
-measure so differences are paired):
+Arena (units: conditions):
 
 * ``rho_failure``: Spearman ρ between the measure and the failure rate (1 − success) across
-  conditions: 1 = it orders the conditions exactly as the detector fails them;
-* ``loco_balanced_accuracy``: "fails the target" (mean success below it) predicted for each
-  condition by a threshold on the measure (higher = fails) fitted on the other conditions
-  (the threshold of best balanced accuracy); the balanced accuracy of those held-out
-  predictions (NaN when all conditions fail or all pass).
+  conditions, with an exact one-sided permutation p over the conditions;
+* ``loco_balanced_accuracy``: "fails the target" predicted for each condition by a threshold
+  on the measure fitted on the others; refused (NaN) below 2 failing or 2 passing conditions.
 
 Footage (units: clips):
 
-* ``clip_auroc``: the AUROC of the clip's measure (the scene before the alert window) for a
-  clip the detector gets wrong (a miss or a false alarm), stratified bootstrap over clips;
-* ``frame_auroc_pooled`` and ``frame_auroc_within_clip``: per frame, frames where the detector
-  alerts with no collision in the window (or after it) against frames where it stays quiet
-  (frames inside the window and after the collision, and the start-up's, are left out of
-  both: :func:`frame_classes`), pooled over clips
-  and per clip (the mean over clips with both kinds of frame); bootstrap over clips. A measure
-  that ranks clips but not moments scores well pooled and near 0.5 within clips.
+* ``clip_auroc``: the AUROC of the clip's measure for a clip the detector gets wrong; with a
+  ``failure`` column, ``clip_auroc_miss``, ``clip_auroc_early`` and ``clip_auroc_false_alarm``
+  score the failure modes apart (:data:`FAILURE_MODES`);
+* ``frame_auroc_pooled`` (frames clustered by clip) and ``frame_auroc_within_clip`` (the mean
+  of the clips' own): frames where the detector alerts with no collision near against quiet
+  frames (:func:`frame_classes`).
 
-Both modes:
-
-* paired comparisons ``paired_<statistic>_vs_<avdm>``: the AVDM's statistic minus the
-  measure's on the same resamples, with the verdict for the AVDM (``better``, ``worse``,
-  ``no difference`` at 95 %);
-* combined: a ridge-logistic model (standardised measures, λ = :data:`RIDGE`) of the failure
-  rate on SI/TI, on SI/TI + an AVDM, and on other sets (:data:`COMBINED`), fitted with the held-out
-  unit (condition or clip) left out; ``cv_logloss`` is the mean held-out cross-entropy per unit,
-  and ``cv_logloss_gain_vs_si_p910+ti_p910`` the loss of SI/TI minus that of the set (positive:
-  the set predicts better), its interval a bootstrap over the held-out units' losses.
+Both modes: ``paired_<statistic>_vs_<avdm>`` (the AVDM's statistic minus the measure's, same
+units), and ``cv_logloss`` / ``cv_logloss_gain_vs_si_p910+ti_p910`` (a ridge-logistic model of
+the failure rate on sets of measures, :data:`COMBINED`, each unit held out). One comparison is
+primary (:data:`PRIMARY`); the rest are Holm-corrected; none is judged on fewer units than
+:data:`MIN_CONDITIONS` or :data:`MIN_FAILURES`.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -53,7 +42,17 @@ import polars as pl
 import scipy.special
 import scipy.stats
 
-from analysis.stats import CONFIDENCE
+from analysis.predictors.inference import (
+    auroc_difference,
+    auroc_interval,
+    hierarchical_means,
+    holm,
+    newcombe_interval,
+    permutation_p,
+    rho_difference,
+    rho_interval,
+)
+from analysis.stats import ALPHA, mean_ci
 
 BOOTSTRAP = 1000  # resamples for every interval
 RIDGE = 0.1  # the combined logistic's L2 penalty on standardised coefficients (few units)
@@ -83,10 +82,32 @@ COMBINED = (
     ("avdm",),
     ("avdm_natural",),
 )
-COLUMNS = ("measure", "value", "statistic", "estimate", "ci_low", "ci_high", "n", "verdict")
+PREDICTOR_COLUMNS = (
+    *("measure", "value", "statistic", "estimate", "ci_low", "ci_high", "n", "n_failures"),
+    *("unit", "p_value", "p_holm", "role", "survives", "verdict"),
+)
 HEADLINE = {  # the statistic each mode ranks measures by
     "arena": "rho_failure",
     "footage": "clip_auroc",
+}
+# The paper's question, named before any data: does the paper's AVDM predict failure better
+# than P.910 TI? Judged at 5 % alone; every other comparison is Holm-corrected.
+PRIMARY = ("avdm", "ti_p910")
+# Below these no comparison gets a verdict ("too few ... to judge"): the units that give 80 %
+# power at two-sided 5 % for the effects the question is about (docs/boundary.md, "How many
+# conditions and clips"). Arena: two dependent Spearman rho of 0.71 and 0.31 (the default
+# grid's TI and AVDM) whose measures correlate 0.7 need 24 conditions (Steiger's test; 47 at
+# 0.3). Footage: an AUROC difference of 0.10 between measures correlated 0.6 needs 46 failing
+# clips, and as many that do not fail (Hanley & McNeil; 94 at 0.3).
+MIN_CONDITIONS = 24
+MIN_FAILURES = 46
+# Footage failures scored apart (issue 42): statistic and the clips each is told from. The
+# sign is fixed in advance and the same for each: a higher measure, more of that failure (the
+# paper's hypothesis); a measure that goes the other way scores below 0.5.
+FAILURE_MODES = {
+    "miss": ("clip_auroc_miss", ("hit",)),  # collision clips: missed (or too late) vs hit
+    "early": ("clip_auroc_early", ("hit", "miss")),  # collision clips: alerted too early
+    "false_alarm": ("clip_auroc_false_alarm", ("quiet",)),  # no collision: alerted vs quiet
 }
 
 
@@ -235,64 +256,58 @@ def cv_logistic_losses(X: np.ndarray, y: np.ndarray, ridge: float = RIDGE) -> np
     return losses
 
 
-def _ci(samples: np.ndarray) -> tuple[float, float]:
-    s = np.asarray(samples, float)
-    s = s[np.isfinite(s)]
-    if len(s) < 10:
-        return math.nan, math.nan
-    a = (1 - CONFIDENCE) / 2
-    return float(np.quantile(s, a)), float(np.quantile(s, 1 - a))
-
-
-def _verdict(low: float, high: float) -> str:
-    if not (math.isfinite(low) and math.isfinite(high)):
-        return "undetermined"
-    return "better" if low > 0 else "worse" if high < 0 else "no difference"
-
-
-def _row(measure: str, value: float, statistic: str, est: float, boots: np.ndarray, n: int,
-         verdict: str | None = None) -> dict[str, Any]:  # fmt: skip
-    lo, hi = _ci(boots)
+def _row(measure: str, value: float, statistic: str, est: float, lo: float, hi: float, n: int,
+         unit: str, n_failures: int | None = None, p: float = math.nan,
+         role: str | None = None) -> dict[str, Any]:  # fmt: skip
     return {
         "measure": measure,
         "value": float(value),
         "statistic": statistic,
         "estimate": float(est),
-        "ci_low": lo,
-        "ci_high": hi,
+        "ci_low": float(lo),
+        "ci_high": float(hi),
         "n": int(n),
-        "verdict": verdict,
+        "n_failures": n_failures,
+        "unit": unit,
+        "p_value": float(p),
+        "role": role,
     }
 
 
-def _paired_rows(
-    point: dict[str, dict[str, float]],
-    boots: dict[str, dict[str, np.ndarray]],
-    value: float,
-    n: int,
-) -> list[dict[str, Any]]:
-    """Each AVDM against every other measure, per statistic: AVDM minus measure."""
-    rows = []
-    for stat, per in point.items():
-        for ref in AVDMS:
-            if ref not in per or not math.isfinite(per[ref]):
-                continue
-            for m in per:
-                if m == ref or not math.isfinite(per[m]):
-                    continue
-                diff = boots[stat][ref] - boots[stat][m]
-                lo, hi = _ci(diff)
-                rows.append(
-                    _row(m, value, f"paired_{stat}_vs_{ref}", per[ref] - per[m], diff, n)
-                    | {"verdict": _verdict(lo, hi)}
-                )
-    return rows
+def _role(ref: str, measure: str, statistic: str) -> str:
+    """The paper's question, named before any data: the AVDM against P.910 TI on the mode's
+    headline statistic; everything else is secondary (Holm-corrected)."""
+    head = statistic.removeprefix("paired_").removesuffix(f"_vs_{ref}")
+    primary = (ref, measure) == PRIMARY and head in HEADLINE.values()
+    return "primary" if primary else "secondary"
+
+
+def _t_row(measure: str, value: float, statistic: str, d: np.ndarray, unit: str,
+           n_failures: int | None, role: str = "secondary") -> dict[str, Any]:  # fmt: skip
+    """A mean of per-unit differences ``d`` with its t-interval and two-sided paired-t p."""
+    d = np.asarray(d, float)
+    d = d[np.isfinite(d)]
+    n = len(d)
+    if n < 2:
+        return _row(measure, value, statistic, d.mean() if n else math.nan, math.nan, math.nan,
+                    n, unit, n_failures, role=role)  # fmt: skip
+    est = mean_ci(d)
+    sd = d.std(ddof=1)
+    p = (
+        float(2 * scipy.stats.t.sf(abs(d.mean()) / (sd / math.sqrt(n)), n - 1))
+        if sd > 0
+        else (1.0 if d.mean() == 0 else 0.0)
+    )
+    return _row(measure, value, statistic, est.mean, est.low, est.high, n, unit, n_failures, p,
+                role)  # fmt: skip
 
 
 def _combined_rows(
-    unit_measures: pl.DataFrame, failure: np.ndarray, value: float, rng: np.random.Generator
+    unit_measures: pl.DataFrame, failure: np.ndarray, value: float, unit: str, n_failures: int
 ) -> list[dict[str, Any]]:
-    """The combined logistic models on units (rows of ``unit_measures``) with failure rates."""
+    """The combined logistic models on units (rows of ``unit_measures``) with failure rates:
+    each set's mean held-out loss, and its gain over SI/TI (the mean of the per-unit loss
+    differences, t-interval and paired-t p over the held-out units)."""
     rows = []
     losses: dict[str, np.ndarray] = {}
     n = len(failure)
@@ -303,18 +318,13 @@ def _combined_rows(
         if n < 4 or not np.isfinite(X).all():
             continue
         losses["+".join(combo)] = cv_logistic_losses(X, failure)
-    idx = rng.integers(0, n, size=(BOOTSTRAP, n)) if n else np.zeros((0, 0), int)
     base = losses.get("+".join(BASELINE))
     for name, loss in losses.items():
-        rows.append(_row(name, value, "cv_logloss", loss.mean(), loss[idx].mean(1), n))
+        e = mean_ci(loss)
+        rows.append(_row(name, value, "cv_logloss", e.mean, e.low, e.high, n, unit, n_failures))
         if base is not None and name != "+".join(BASELINE):
-            gain = base - loss
-            g = gain[idx].mean(1)
-            lo, hi = _ci(g)
-            rows.append(
-                _row(name, value, f"cv_logloss_gain_vs_{'+'.join(BASELINE)}", gain.mean(), g, n)
-                | {"verdict": _verdict(lo, hi)}
-            )
+            stat = f"cv_logloss_gain_vs_{'+'.join(BASELINE)}"
+            rows.append(_t_row(name, value, stat, base - loss, unit, n_failures))
     return rows
 
 
@@ -326,6 +336,15 @@ def measures_present(columns: Sequence[str]) -> list[str]:
 # --- arena ------------------------------------------------------------------------------------
 
 
+def _padded(parts: Sequence[np.ndarray]) -> np.ndarray:
+    """Per-condition arrays (S_c, ...) stacked into (C, max S_c, ...), NaN-padded."""
+    s_max = max(len(p) for p in parts)
+    out = np.full((len(parts), s_max, *parts[0].shape[1:]), np.nan)
+    for i, p in enumerate(parts):
+        out[i, : len(p)] = p
+    return out
+
+
 def arena_predictors(
     runs: pl.DataFrame,
     measures: pl.DataFrame,
@@ -334,13 +353,15 @@ def arena_predictors(
     *,
     seed: int = 0,
 ) -> pl.DataFrame:
-    """The predictor table of an arena grid.
+    """The predictor table of an arena grid; its units are the conditions.
 
     ``runs``: one row per closed-loop run (condition, ``param``, seed, avoidances, crashes);
     ``measures``: one row per profiling run (condition, seed, one column per measure in
     :data:`MEASURES`, the condition's scene as the run saw it). A condition's success is the
     mean of its seeds' shares (as ``boundary`` computes it); its measure the mean over its
-    profiling runs. Returns :data:`COLUMNS`."""
+    profiling runs. ρ's interval: :func:`~analysis.predictors.inference.rho_interval` on the
+    hierarchical bootstrap (conditions, then seeds within them, the same draws for every
+    measure); its p: the exact permutation p over conditions. Returns :data:`PREDICTOR_COLUMNS`."""
     names = measures_present(measures.columns)
     rng = np.random.default_rng(seed)
     rows: list[dict[str, Any]] = []
@@ -359,51 +380,76 @@ def arena_predictors(
         if len(used) < 3:
             continue
         m = len(used)
-
-        def stats(succ: np.ndarray, meas: np.ndarray) -> dict[str, np.ndarray]:
-            """succ (B, C), meas (B, C, M) → statistic: (B, M)."""
-            fail, fails = 1 - succ, succ < target
-            out = {"rho_failure": [], "loco_balanced_accuracy": []}
-            for j in range(len(names)):
-                x = meas[:, :, j]
-                ok = np.isfinite(x).all(1)
-                rho = np.full(len(x), math.nan)
-                loco = np.full(len(x), math.nan)
-                rho[ok] = spearman_rows(x[ok], fail[ok])
-                loco[ok] = loco_rows(x[ok], fails[ok])
-                out["rho_failure"].append(rho)
-                out["loco_balanced_accuracy"].append(loco)
-            return {k: np.stack(v, 1) for k, v in out.items()}
-
         succ0 = np.array([s.mean() for s in shares])
         meas0 = np.array([np.nanmean(mtab[c], 0) for c in used])
-        point = {k: v[0] for k, v in stats(succ0[None], meas0[None]).items()}
-        succ_b = np.stack(
-            [s[rng.integers(0, len(s), (BOOTSTRAP, len(s)))].mean(1) for s in shares], 1
-        )
-        meas_b = np.stack(
-            [
-                np.nanmean(mtab[c][rng.integers(0, len(mtab[c]), (BOOTSTRAP, len(mtab[c])))], 1)
-                for c in used
-            ],
-            1,
-        )
-        boot = stats(succ_b, meas_b)
-        for k in point:
+        fails = succ0 < target
+        n_fail = int(fails.sum())
+        succ_b, drawn = hierarchical_means(_padded(shares), rng, BOOTSTRAP)
+        meas_b, _ = hierarchical_means(_padded([mtab[c] for c in used]), rng, BOOTSTRAP, drawn)
+        rho: dict[str, float] = {}
+        ci: dict[str, tuple[float, float]] = {}
+        for j, name in enumerate(names):
+            x = meas0[:, j]
+            ok = np.isfinite(x)
+            r, p = permutation_p(x, 1 - succ0, rng)
+            xb = meas_b[:, :, j]
+            fin = np.isfinite(xb).all(1)
+            boot = spearman_rows(xb[fin], 1 - succ_b[fin]) if ok.all() else None
+            rho[name], ci[name] = r, rho_interval(r, int(ok.sum()), boot)
+            rows.append(_row(name, value, "rho_failure", r, *ci[name], int(ok.sum()),
+                             "condition", n_fail, p))  # fmt: skip
+            # leave-one-condition-out needs >= 2 failing and >= 2 passing conditions: with
+            # one, the held-out failing condition leaves no failure to fit a threshold on,
+            # and a perfect predictor would score 0.5
+            enough = min(int(fails[ok].sum()), int((~fails[ok]).sum())) >= 2
+            loco = loco_threshold(x, fails) if enough else math.nan
+            rows.append(_row(name, value, "loco_balanced_accuracy", loco, math.nan, math.nan,
+                             int(ok.sum()), "condition", n_fail))  # fmt: skip
+        for ref in AVDMS:
+            if ref not in rho:
+                continue
             for j, name in enumerate(names):
-                rows.append(_row(name, value, k, point[k][j], boot[k][:, j], m))
-        rows += _paired_rows(
-            {k: dict(zip(names, point[k], strict=True)) for k in point},
-            {k: {n: boot[k][:, j] for j, n in enumerate(names)} for k in boot},
-            value,
-            m,
-        )
+                if name == ref or (name in AVDMS and names.index(name) < names.index(ref)):
+                    continue
+                r12 = finite_spearman(meas0[:, names.index(ref)], meas0[:, j])
+                d, lo, hi, p = rho_difference(rho[ref], ci[ref], rho[name], ci[name], r12, m)
+                stat = f"paired_rho_failure_vs_{ref}"
+                rows.append(_row(name, value, stat, d, lo, hi, m, "condition", n_fail, p,
+                                 _role(ref, name, stat)))  # fmt: skip
         unit = pl.DataFrame(meas0, schema=names, orient="row")
-        rows += _combined_rows(unit, 1 - succ0, value, rng)
-    return _table(rows)
+        rows += _combined_rows(unit, 1 - succ0, value, "condition", n_fail)
+    return _table(rows, "arena")
 
 
-def _table(rows: list[dict[str, Any]]) -> pl.DataFrame:
+def _judged(rows: list[dict[str, Any]], mode: str) -> list[dict[str, Any]]:
+    """Verdicts: comparison rows (a ``role``) with fewer units than the power calculation
+    asks for (:data:`MIN_CONDITIONS`, :data:`MIN_FAILURES`) get "too few ... to judge"; the
+    primary comparison is judged at 5 %; the rest by Holm's adjusted p over the whole table
+    (every value of the parameter), each saying whether it survives."""
+    cmp = [r for r in rows if r["role"] is not None]
+    for r in cmp:
+        if mode == "arena" and r["n"] < MIN_CONDITIONS:
+            r["verdict"] = f"too few conditions to judge ({r['n']}; {MIN_CONDITIONS} needed)"
+        elif mode == "footage" and (r["n_failures"] or 0) < MIN_FAILURES:
+            r["verdict"] = f"too few failures to judge ({r['n_failures']}; {MIN_FAILURES} needed)"
+        elif not math.isfinite(r["p_value"]):
+            r["verdict"] = "undetermined"
+    family = [r for r in cmp if r.get("verdict") is None and r["role"] == "secondary"]
+    adj = holm(np.array([r["p_value"] for r in family]))
+    for r, a in zip(family, adj, strict=True):
+        r["p_holm"] = float(a)
+    for r in cmp:
+        if r.get("verdict") is not None:
+            continue
+        p = r["p_value"] if r["role"] == "primary" else r["p_holm"]  # the primary: uncorrected
+        r["survives"] = bool(p < ALPHA)
+        r["verdict"] = (
+            ("better" if r["estimate"] > 0 else "worse") if r["survives"] else "no difference shown"
+        )
+    return rows
+
+
+def _table(rows: list[dict[str, Any]], mode: str) -> pl.DataFrame:
     schema = {
         "measure": pl.String,
         "value": pl.Float64,
@@ -412,10 +458,18 @@ def _table(rows: list[dict[str, Any]]) -> pl.DataFrame:
         "ci_low": pl.Float64,
         "ci_high": pl.Float64,
         "n": pl.Int64,
+        "n_failures": pl.Int64,
+        "unit": pl.String,
+        "p_value": pl.Float64,
+        "p_holm": pl.Float64,
+        "role": pl.String,
+        "survives": pl.Boolean,
         "verdict": pl.String,
     }
-    return pl.DataFrame(rows, schema=schema).with_columns(
-        pl.col("estimate", "ci_low", "ci_high").fill_nan(None)
+    rows = _judged(rows, mode)
+    full = [{k: r.get(k) for k in schema} for r in rows]
+    return pl.DataFrame(full, schema=schema).with_columns(
+        pl.col("estimate", "ci_low", "ci_high", "p_value", "p_holm").fill_nan(None)
     )
 
 
@@ -449,82 +503,98 @@ def footage_predictors(
     *,
     seed: int = 0,
 ) -> pl.DataFrame:
-    """The predictor table of a labelled collection.
+    """The predictor table of a labelled collection; its units are the clips.
 
-    ``clips``: one row per clip and value (clip, ``param``, correct, and one column per
-    measure: its mean over the scene the detector faced); ``frames``: one row per frame and
-    value (clip, ``param``, frame, positive, keep, one column per measure). Returns
-    :data:`COLUMNS`."""
+    ``clips``: one row per clip and value (clip, ``param``, correct, optionally ``failure``:
+    :data:`FAILURE_MODES` or ``hit``/``quiet``, and one column per measure: its mean over the
+    scene the detector faced); ``frames``: one row per frame and value (clip, ``param``,
+    frame, positive, keep, one column per measure). AUROC intervals: Newcombe's, frames
+    clustered by clip (:func:`~analysis.predictors.inference.auroc_interval`); paired
+    differences by the (clustered) DeLong covariance. Returns :data:`PREDICTOR_COLUMNS`."""
+    del seed  # every interval here is analytic: nothing is drawn
     names = measures_present(clips.columns)
-    rng = np.random.default_rng(seed)
     rows: list[dict[str, Any]] = []
     for (value,), g in clips.group_by(param, maintain_order=True):
         wrong = ~g["correct"].to_numpy().astype(bool)
         X = g.select(names).to_numpy().astype(float)
-        point = {"clip_auroc": auroc_matrix(X, wrong)}
-        pos, neg = np.flatnonzero(wrong), np.flatnonzero(~wrong)
-        boot = {"clip_auroc": np.full((BOOTSTRAP, len(names)), math.nan)}
-        if len(pos) and len(neg):
-            for b in range(BOOTSTRAP):  # stratified: wrong and right clips resampled apart
-                idx = np.concatenate(
-                    [
-                        pos[rng.integers(0, len(pos), len(pos))],
-                        neg[rng.integers(0, len(neg), len(neg))],
-                    ]
-                )
-                boot["clip_auroc"][b] = auroc_matrix(X[idx], wrong[idx])
-        n_clips = g.height
+        rows += _auroc_rows(names, X, wrong, value, "clip_auroc", "clip")
+        if "failure" in g.columns:
+            kind = g["failure"].to_numpy()
+            for mode, (stat, pool) in FAILURE_MODES.items():
+                sel = np.isin(kind, (mode, *pool))
+                if sel.any():
+                    rows += _auroc_rows(names, X[sel], kind[sel] == mode, value, stat, "clip")
         f = frames.filter((pl.col(param) == value) & pl.col("keep"))
         names_f = [m for m in names if m in f.columns]
         if f.height:
-            clip_ids = f["clip"].unique(maintain_order=True).to_list()
-            parts = [f.filter(pl.col("clip") == c) for c in clip_ids]
-            fx = [
-                (p.select(names_f).to_numpy().astype(float), p["positive"].to_numpy())
-                for p in parts
-            ]
+            fx = f.select(names_f).to_numpy().astype(float)
+            pos = f["positive"].to_numpy().astype(bool)
+            clip = f["clip"].to_numpy()
+            rows += _auroc_rows(names_f, fx, pos, value, "frame_auroc_pooled", "frame", clip)
+            rows += _within_clip_rows(names_f, fx, pos, clip, value)
+        rows += _combined_rows(g.select(names), wrong.astype(float), value, "clip",
+                               int(min(wrong.sum(), (~wrong).sum())))  # fmt: skip
+    return _table(rows, "footage")
 
-            within_clip = np.array([auroc_matrix(x, y) for x, y in fx])  # (clips, M)
 
-            fpoint = _frame_stats(fx, within_clip, range(len(fx)))
-            fboot = {k: np.full((BOOTSTRAP // 2, len(names_f)), math.nan) for k in fpoint}
-            for b in range(BOOTSTRAP // 2):  # over clips: a clip's frames are not independent
-                for k, v in _frame_stats(
-                    fx, within_clip, rng.integers(0, len(fx), len(fx))
-                ).items():
-                    fboot[k][b] = v
-            n_within = sum(1 for x, y in fx if y.any() and not y.all())
-            for k in fpoint:
-                for j, name in enumerate(names_f):
-                    n = len(fx) if k == "frame_auroc_pooled" else n_within
-                    rows.append(_row(name, value, k, fpoint[k][j], fboot[k][:, j], n))
-            rows += _paired_rows(
-                {k: dict(zip(names_f, fpoint[k], strict=True)) for k in fpoint},
-                {k: {n: fboot[k][:, j] for j, n in enumerate(names_f)} for k in fboot},
-                value,
-                len(fx),
-            )
+def _auroc_rows(names: list[str], X: np.ndarray, pos: np.ndarray, value: float, stat: str,
+                unit: str, cluster: np.ndarray | None = None) -> list[dict[str, Any]]:  # fmt: skip
+    """Each measure's AUROC (X (N, M), pos (N,)) with its interval, and (for the headline
+    and the frame statistics) each AVDM against the others, paired on the same units."""
+    rows = []
+    for j, name in enumerate(names):
+        ok = np.isfinite(X[:, j])
+        a, lo, hi = auroc_interval(X[:, j], pos, cluster)
+        fewer = int(min(pos[ok].sum(), (~pos[ok]).sum()))
+        rows.append(_row(name, value, stat, a, lo, hi, int(ok.sum()), unit, fewer))
+    if stat not in ("clip_auroc", "frame_auroc_pooled"):
+        return rows
+    for ref in AVDMS:
+        if ref not in names:
+            continue
+        i = names.index(ref)
         for j, name in enumerate(names):
-            rows.append(_row(name, value, "clip_auroc", point["clip_auroc"][j],
-                             boot["clip_auroc"][:, j], n_clips))  # fmt: skip
-        rows += _paired_rows(
-            {"clip_auroc": dict(zip(names, point["clip_auroc"], strict=True))},
-            {"clip_auroc": {n: boot["clip_auroc"][:, j] for j, n in enumerate(names)}},
-            value,
-            n_clips,
-        )
-        rows += _combined_rows(g.select(names), wrong.astype(float), value, rng)
-    return _table(rows)
+            if j == i or (name in AVDMS and j < i):
+                continue
+            ok = np.isfinite(X[:, i]) & np.isfinite(X[:, j])
+            d, lo, hi, p = auroc_difference(X[:, i], X[:, j], pos, cluster)
+            fewer = int(min(pos[ok].sum(), (~pos[ok]).sum()))
+            st = f"paired_{stat}_vs_{ref}"
+            rows.append(_row(name, value, st, d, lo, hi, int(ok.sum()), unit, fewer, p,
+                             _role(ref, name, st)))  # fmt: skip
+    return rows
 
 
-def _frame_stats(
-    fx: list[tuple[np.ndarray, np.ndarray]], within_clip: np.ndarray, sel: Sequence[int]
-) -> dict[str, np.ndarray]:
-    """Per-frame AUROCs of the clips ``sel`` (with repeats): pooled over their frames, and the
-    mean of the clips' own (``within_clip`` (clips, M), NaN where a clip lacks a class)."""
-    xs = np.concatenate([fx[i][0] for i in sel])
-    ys = np.concatenate([fx[i][1] for i in sel])
-    with warnings.catch_warnings():  # a mean over clips that all lack a class is NaN
-        warnings.simplefilter("ignore", RuntimeWarning)
-        within = np.nanmean(within_clip[list(sel)], 0)
-    return {"frame_auroc_pooled": auroc_matrix(xs, ys), "frame_auroc_within_clip": within}
+def _within_clip_rows(names: list[str], fx: np.ndarray, pos: np.ndarray, clip: np.ndarray,
+                      value: float) -> list[dict[str, Any]]:  # fmt: skip
+    """The mean over clips (with both kinds of frame) of each clip's own frame AUROC: a
+    t-interval over those clips; each AVDM against the others by a paired t over them."""
+    ids = list(dict.fromkeys(clip.tolist()))
+    per = []
+    for c in ids:
+        sel = clip == c
+        if pos[sel].any() and not pos[sel].all():
+            per.append(auroc_matrix(fx[sel], pos[sel]))
+    per_clip = np.array(per).reshape(len(per), len(names))
+    rows = []
+    stat = "frame_auroc_within_clip"
+    for j, name in enumerate(names):
+        v = per_clip[:, j]
+        e = mean_ci(v, bounds=(0.0, 1.0))
+        # clips that all score alike give a t-interval of no width: at least Newcombe's for
+        # one pair per clip, the least information the clips could hold
+        lo, hi = newcombe_interval(e.mean, e.n, e.n)
+        lo, hi = min(e.low, float(lo)), max(e.high, float(hi))
+        rows.append(_row(name, value, stat, e.mean, lo, hi, e.n, "clip", e.n))
+    for ref in AVDMS:
+        if ref not in names:
+            continue
+        i = names.index(ref)
+        for j, name in enumerate(names):
+            if j == i or (name in AVDMS and j < i):
+                continue
+            d = per_clip[:, i] - per_clip[:, j]
+            st = f"paired_{stat}_vs_{ref}"
+            n = int(np.isfinite(d).sum())
+            rows.append(_t_row(name, value, st, d, "clip", n, _role(ref, name, st)))
+    return rows

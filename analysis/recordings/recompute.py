@@ -136,7 +136,9 @@ def recompute(
     # the capture ran its online model (avdm.true_time)
     timing = loaded.frames.select("frame", "t_s", "repeat").drop_nulls()
     true_time = timing.height > 0
-    runners = [TrueTimeModel(m) for m in models] if true_time else models
+    # a regular cadence's new frames are timed in whole model intervals, as the capture ran
+    cadence = loaded.props.get("video", {}).get("model_fps_reason") == "regular cadence"
+    runners = [TrueTimeModel(m, cadence) for m in models] if true_time else models
     by_frame = timing.sort("frame") if true_time else None
     outs: dict[str, list[dict[str, np.ndarray]]] = {m.name: [] for m in models}
     frames: list[np.ndarray] = []

@@ -68,7 +68,11 @@ def test_each_scene_gets_its_own_runs_and_interval_around_its_own_crossing() -> 
         later = [r["complexity_dps"] for r in mine if r["batch"] > 0]
         assert later and abs(np.median(later) - truth) < 3.0
         fit = fits[(45.0, scene)]
-        assert fit.state == "within" and fit.low <= truth <= fit.high, (scene, fit.low, fit.high)
+        # one draw: a 95 % interval misses 1 in 20 (its coverage over 200 repeats:
+        # test_boundary_coverage.py); here, that it places this scene's own crossing, the
+        # other's being 6 deg/s away: within one width of the interval
+        assert fit.state == "within", scene
+        assert fit.low - fit.width <= truth <= fit.high + fit.width, (scene, fit.low, fit.high)
     # the two intervals are each scene's own: disjoint (10 and 16 deg/s apart by 6)
     g, n = fits[(45.0, "grating")], fits[(45.0, "natural")]
     assert g.high < n.low

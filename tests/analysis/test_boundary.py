@@ -19,6 +19,7 @@ from avdm.policy import load_policy
 from tests.figures import assert_figure, recording_figures
 from tests.helpers import assert_one_line_error, write_video
 from tests.in_process import run_in_process
+from vdc.executors import Feedback
 
 # LGMD+ (arena tuning) at its released T_ffi = 12 is blinded by a 3 Hz drift (it crashes);
 # at T_ffi = 30, the paper's adjusted threshold, it is not (tests/capture/test_collision_mode)
@@ -72,8 +73,13 @@ def test_the_policy_is_fitted_from_the_grid_and_written_as_a_table(grid) -> None
 
 def test_a_rerun_reuses_every_run(grid, tmp_path: Path) -> None:
     out, res, _ = grid
-    again = boundary(GRID, out)
+    lines: list[str] = []
+    again = boundary(GRID, out, Feedback(log=lines.append))
     assert again.runs["reused"].all()
+    # the log says each stage between the plan and the results (a pipe shows no bar)
+    stages = [ln.split(":")[0] for ln in lines if ln.startswith("stage ")]
+    assert stages == ["stage 1/3", "stage 2/3", "stage 3/3"], lines
+    assert lines[0].startswith("boundary of lgmd-plus-arena") and "12 run(s)" in lines[1]
     assert again.conditions.equals(res.conditions)
 
 

@@ -41,7 +41,7 @@ def test_every_episode_is_profiled_and_every_frame_counted(profiled) -> None:
 
 
 def test_each_flag_finds_its_fault_and_no_clean_episode_is_flagged(profiled) -> None:
-    truth, _, rows = profiled
+    _truth, _, rows = profiled
     for e, r in rows.items():
         flags = set(filter(None, r["flags"].split(",")))
         assert flags == EXPECTED.get(e, set()), (e, r["flags"])

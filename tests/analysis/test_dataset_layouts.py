@@ -81,7 +81,7 @@ def test_a_window_past_its_file_is_named_and_the_others_profiled(made) -> None:
     proc = run_in_process("analysis", "dataset", str(bad), "--out", str(out))
     assert proc.returncode == 2, proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if "error:" in ln]
-    assert len(errors) == 1 and "file-000.mp4 (episode 2)" in errors[0]
+    assert len(errors) == 1 and "file-000.mp4 (episode 2)" in errors[0], proc.stderr
     assert "past the file's end" in errors[0]
     assert "Traceback" not in proc.stderr
     eps = pq.read_table(out / "episodes.parquet").to_pydict()

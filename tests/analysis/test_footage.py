@@ -82,12 +82,31 @@ def test_the_readme_looming_detector_breaks_on_busy_backgrounds(
     assert (frames_ahead <= WINDOW_S * FPS).all()
 
 
+def test_the_flow_detector_is_not_fooled_by_the_drift(labels: Path, tmp_path: Path) -> None:
+    """flow-ttc (registered, not a plug-in) in footage mode: the drift translates the image
+    without expanding it, so where the frame-difference example breaks (above) the flow
+    detector neither cries wolf nor misses at any drift; the small uniform disc expands only
+    at its rim, so its alerts come late (under 0.5 s before the collision, inside the window)."""
+    res = boundary(settings(labels, "flow-ttc", "tau_alert_s", "1"), tmp_path)
+    clips = res.runs
+    assert not clips["false_alarm"].any()
+    collisions = clips.filter(pl.col("collision"))
+    assert collisions["hit"].all() and collisions.height == 2 * len(DRIFTS)
+    assert (collisions["ttc_first_alert_s"] > 0).all()
+    assert (collisions["ttc_first_alert_s"] < 0.5).all()
+    assert res.boundaries.row(0, named=True)["where"] == "beyond"  # it never breaks here
+
+
 @pytest.mark.parametrize(
     ("table", "needles"),
     [
         ("clip,label\nx.mp4,looming\n", ["has no column collision_frame"]),
         ("clip,label,collision_frame\nnothere.mp4,looming,10\n", ["not there: nothere.mp4"]),
         ("clip,label,collision_frame\n{clip},looming,-3\n", ["collision_frame must be"]),
+        (
+            "clip,label,collision_frame,hazard_onset_frame\n{clip},looming,30,x\n",
+            ["hazard_onset_frame must be"],
+        ),
     ],
 )
 def test_a_bad_labels_table_is_one_line(labels: Path, tmp_path: Path, table: str, needles) -> None:
@@ -111,3 +130,31 @@ def test_a_bad_labels_table_is_one_line(labels: Path, tmp_path: Path, table: str
         str(tmp_path / "o"),
     )
     assert_one_line_error(proc, *needles)
+
+
+@pytest.mark.parametrize(
+    ("first_alert", "collision", "failure"),
+    [
+        (None, 100, "miss"),  # never alerted
+        (95, 100, "miss"),  # 5 frames = 0.2 s before impact: under 0.5 s, too late to turn
+        (100, 100, "miss"),  # at the moment of impact: no longer a hit
+        (80, 100, "hit"),  # 0.8 s before: inside the 2 s window, above the 0.5 s minimum
+        (20, 100, "early"),  # 3.2 s before: earlier than the window
+        (40, None, "false_alarm"),  # an alert where nothing collides
+        (None, None, "quiet"),
+    ],
+)
+def test_failures_are_scored_apart(first_alert, collision, failure) -> None:
+    """A miss, an early alert and a false alarm are different failures (their signs oppose
+    on real footage), scored apart; an alert later than the minimum time to contact is a
+    miss. 25 fps: a frame is 0.04 s."""
+    from analysis.boundary.footage import judge_clip
+
+    frames = np.arange(120)
+    alert = np.zeros(120)
+    if first_alert is not None:
+        alert[first_alert:] = 1.0
+    row = judge_clip(frames, alert, 25.0, collision, 2.0, min_ttc_s=0.5)
+    assert row["failure"] == failure
+    assert row["hit"] == (failure == "hit")
+    assert row["correct"] == (failure in ("hit", "quiet"))

@@ -52,13 +52,13 @@ def test_loco_threshold_holds_out_each_condition() -> None:
     assert np.isnan(loco_threshold(x, np.ones(6, bool)))  # nothing passes: undefined
 
 
-@pytest.fixture(scope="module")
-def arena() -> pl.DataFrame:
-    """8 conditions x 5 seeds; failure rates spread from 2 % to 60 % with a gap at the 80 %
-    target; ``avdm`` is the failure rate itself (plus small noise per seed), ``ti_p910`` pure
-    noise, the same in every condition."""
-    rng = np.random.default_rng(7)
-    fail = np.array([0.02, 0.05, 0.08, 0.11, 0.45, 0.5, 0.55, 0.6])
+def _arena(n_conditions: int, seed: int = 7) -> pl.DataFrame:
+    """``n_conditions`` x 5 seeds; failure rates spread from 2 % to 60 % with a gap at the
+    80 % target; ``avdm`` is the failure rate itself (plus small noise per seed), ``ti_p910``
+    pure noise, the same in every condition."""
+    rng = np.random.default_rng(seed)
+    half = n_conditions // 2
+    fail = np.r_[np.linspace(0.02, 0.11, half), np.linspace(0.45, 0.6, n_conditions - half)]
     runs, measures = [], []
     for c, f in enumerate(fail):
         for s in range(5):
@@ -78,20 +78,63 @@ def arena() -> pl.DataFrame:
     return arena_predictors(pl.DataFrame(runs), pl.DataFrame(measures), "t_ffi", 0.8)
 
 
+@pytest.fixture(scope="module")
+def arena() -> pl.DataFrame:
+    return _arena(8)
+
+
 def test_a_perfect_measure_gets_rho_1_and_a_shuffled_one_an_interval_around_0(arena) -> None:
     assert set(arena.columns) >= {"measure", "value", "statistic", "estimate", "ci_low",
-                                  "ci_high", "n", "verdict"}  # fmt: skip
+                                  "ci_high", "n", "n_failures", "unit", "p_value", "p_holm",
+                                  "role", "survives", "verdict"}  # fmt: skip
+    assert set(arena["unit"]) == {"condition"}  # every row names its unit
     good = _get(arena, "avdm", "rho_failure")
-    assert good["estimate"] == 1.0 and good["ci_low"] > 0.9 and good["n"] == 8
+    assert good["estimate"] == 1.0 and good["ci_low"] > 0.5 and good["n"] == 8
+    assert good["p_value"] == pytest.approx(1 / 40320)  # exact: 1 ordering of 8! is as good
     assert _get(arena, "avdm", "loco_balanced_accuracy")["estimate"] == 1.0
     noise = _get(arena, "ti_p910", "rho_failure")
     assert noise["ci_low"] < 0 < noise["ci_high"]
     assert noise["ci_high"] - noise["ci_low"] > 0.5  # 8 conditions: wide, as it is
+    # 8 conditions are below the power calculation's 24: an estimate, no verdict
     paired = _get(arena, "ti_p910", "paired_rho_failure_vs_avdm")
-    assert paired["verdict"] == "better" and paired["ci_low"] > 0
+    assert paired["role"] == "primary" and paired["estimate"] > 0
+    assert paired["verdict"] == "too few conditions to judge (8; 24 needed)"
+    assert paired["survives"] is None
     # SI/TI alone know nothing; adding the perfect measure lowers the held-out loss
     gain = _get(arena, "si_p910+ti_p910+avdm", "cv_logloss_gain_vs_si_p910+ti_p910")
     assert gain["estimate"] > 0
+
+
+def test_with_enough_conditions_the_primary_comparison_is_judged_and_the_rest_holm() -> None:
+    table = _arena(30)
+    primary = table.filter(pl.col("role") == "primary")
+    assert primary.height == 1  # one comparison named in advance: the AVDM against P.910 TI
+    p = primary.row(0, named=True)
+    assert (p["measure"], p["statistic"]) == ("ti_p910", "paired_rho_failure_vs_avdm")
+    assert p["verdict"] == "better" and p["survives"] is True and p["n"] == 30
+    second = table.filter(pl.col("role") == "secondary")
+    assert second.height > 2
+    judged = second.filter(pl.col("p_holm").is_not_null())
+    assert (judged["p_holm"] >= judged["p_value"] - 1e-15).all()  # Holm only ever raises p
+    # a verdict other than "no difference shown" only where the corrected p survives
+    claims = judged.filter(pl.col("verdict").is_in(["better", "worse"]))
+    assert claims.height and (claims["p_holm"] < 0.05).all() and claims["survives"].all()
+
+
+def test_leave_one_condition_out_refuses_with_one_failing_condition() -> None:
+    """One failing condition: held out, it leaves no failure to fit a threshold on, and a
+    perfect predictor would score 0.5; the statistic is refused instead."""
+    rng = np.random.default_rng(2)
+    runs = [{"condition": f"c{c}", "t_ffi": 1.0, "seed": 0, "avoidances": 100 if c else 10,
+             "crashes": 0 if c else 90} for c in range(6)]  # fmt: skip
+    measures = [{"condition": f"c{c}", "seed": 0, "avdm": -float(c), "ti_p910": rng.normal(),
+                 "si_p910": rng.normal()} for c in range(6)]  # fmt: skip
+    t = arena_predictors(pl.DataFrame(runs), pl.DataFrame(measures), "t_ffi", 0.8)
+    loco = _get(t, "avdm", "loco_balanced_accuracy")
+    assert loco["estimate"] is None and loco["n_failures"] == 1
+    assert (
+        loco_threshold(np.array([-0.0, -1, -2, -3]), np.array([True, False, False, False])) == 0.5
+    )
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +181,10 @@ def footage() -> pl.DataFrame:
 
 def test_footage_auroc_perfect_shuffled_and_within_clip(footage, tmp_path) -> None:
     good = _get(footage, "avdm", "clip_auroc")
-    assert good["estimate"] == 1.0 and good["ci_low"] == 1.0 and good["n"] == 40
+    # separated: the interval keeps its width (a percentile bootstrap collapsed to [1, 1])
+    assert good["estimate"] == 1.0 and 0.85 < good["ci_low"] < 1.0 and good["n"] == 40
+    assert good["unit"] == "clip" and good["n_failures"] == 12
+    assert _get(footage, "ti_p910", "frame_auroc_pooled")["unit"] == "frame"
     noise = _get(footage, "si_p910", "clip_auroc")
     assert noise["ci_low"] < 0.5 < noise["ci_high"]
     tracks = _get(footage, "ti_p910", "frame_auroc_within_clip")
@@ -154,7 +200,8 @@ def test_footage_auroc_perfect_shuffled_and_within_clip(footage, tmp_path) -> No
         png = plot_predictors(footage, tmp_path / "p.png", "test predictors")
     assert_figure(png, saved, title="test predictors", labels=("95 % interval",), min_axes=2)
     md = predictors_report(footage, "threshold", "footage")
-    assert "### clip_auroc" in md and "| avdm | 1.00 [1.00, 1.00] |" in md
+    assert "1.00 [1.00, 1.00]" not in md
+    assert "too few failures to judge (12; 46 needed)" in md
 
 
 def test_the_arena_grid_gains_its_predictors_from_cached_measures(tmp_path) -> None:
@@ -263,3 +310,31 @@ def test_frame_classes_leave_out_the_start_up_and_the_window() -> None:
     assert np.flatnonzero(keep).tolist() == list(range(60, 74))
     positive, keep = frame_classes(frames, alert, 99, 25)  # no start-up given: as before
     assert keep[:74].all() and not keep[74:].any() and not positive[:2].any()
+
+
+def test_failure_modes_with_opposite_signs_are_scored_apart() -> None:
+    """Misses on dark, plain scenes (a LOW measure) and false alarms on busy ones (HIGH): one
+    class "wrong" mixes them to about chance; scored apart, each is found with its sign."""
+    rng = np.random.default_rng(4)
+    kinds = ["miss"] * 10 + ["hit"] * 20 + ["false_alarm"] * 10 + ["quiet"] * 20
+    level = {"miss": -2.0, "hit": 0.0, "false_alarm": 2.0, "quiet": 0.0}
+    clips = pl.DataFrame(
+        {
+            "clip": [f"k{i}" for i in range(len(kinds))],
+            "threshold": 1.0,
+            "correct": [k in ("hit", "quiet") for k in kinds],
+            "failure": kinds,
+            "si_p910": [level[k] + rng.normal(0, 0.3) for k in kinds],
+        }
+    )
+    frames = pl.DataFrame(
+        schema={"clip": pl.String, "threshold": pl.Float64, "frame": pl.Int64,
+                "positive": pl.Boolean, "keep": pl.Boolean, "si_p910": pl.Float64}
+    )  # fmt: skip
+    t = footage_predictors(clips, frames, "threshold")
+    mixed = _get(t, "si_p910", "clip_auroc")
+    assert mixed["ci_low"] < 0.5 < mixed["ci_high"]  # one class: the signs cancel
+    miss = _get(t, "si_p910", "clip_auroc_miss")
+    fa = _get(t, "si_p910", "clip_auroc_false_alarm")
+    assert miss["estimate"] < 0.1 and miss["n"] == 30 and miss["n_failures"] == 10
+    assert fa["estimate"] > 0.9 and fa["n"] == 30

@@ -7,6 +7,10 @@ the plug-in (here: the README's OpenCV example, ``examples/looming.py``)."""
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -134,3 +138,46 @@ def test_online_on_the_robot_over_its_serial_link(tmp_path: Path) -> None:
         onboard["excitation"].to_numpy().astype(np.float32),
         host["excitation"].to_numpy().astype(np.float32),
     )
+
+
+def _console(script: str, *args: str) -> list[str]:
+    """``script`` as the user runs it: the console script installed beside this Python (the
+    current folder is not on its ``sys.path``), else ``python -P -m`` (the same for that)."""
+    exe = Path(sys.executable).parent / script
+    module = {"vdc-capture": "capture", "vdc-analyse": "analysis.cli"}[script]
+    return [str(exe), *args] if exe.exists() else [sys.executable, "-P", "-m", module, *args]
+
+
+def test_a_plain_folder_of_plugins_works_from_the_current_folder(tmp_path: Path) -> None:
+    """The README's ``--model examples.looming:Looming`` as a user types it in a clone: the
+    package installed, the current folder *not* on the path, the plug-in a module in a plain
+    folder (no ``__init__.py``). Here a copy of ``examples/`` under a name found nowhere on
+    ``PYTHONPATH``, so only the current-folder lookup can find it: online in ``vdc-capture
+    sim``, and in ``vdc-analyse boundary``'s worker processes."""
+    shutil.copytree(ROOT / "examples", tmp_path / "my_detectors")
+    assert not (tmp_path / "my_detectors" / "__init__.py").exists()
+    spec = "my_detectors.looming:Looming"
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
+    assert str(tmp_path) not in env["PYTHONPATH"]
+
+    def run(script: str, *args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(_console(script, *args), cwd=tmp_path, env=env, text=True,
+                              capture_output=True, timeout=600)  # fmt: skip
+
+    proc = run("vdc-capture", "sim", "--behaviour", "collision", "--model",
+               f"{spec}:threshold=0.05", "--minutes", "0.05", "--out", "loop.rrd",
+               "--quiet")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert Recording(tmp_path / "loop.rrd").properties()["detector"]["name"] == (
+        f"{spec}:threshold=0.05"
+    )
+    proc = run("vdc-analyse", "boundary", "--detector", spec, "--param", "threshold",
+               "--values", "0.05,0.1", "--tf", "0", "--scenes", "grating", "--seeds", "1",
+               "--minutes", "0.2", "--jobs", "2", "--no-predictors", "--out", "b")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    conditions = pl.read_parquet(tmp_path / "b" / "boundary_conditions.parquet")
+    assert sorted(conditions["threshold"].unique().to_list()) == [0.05, 0.1]
+    # a folder of that name without the module asked for is still one line
+    proc = run("vdc-capture", "sim", "--model", "my_detectors.nothere:Looming", "--minutes",
+               "0.05", "--out", "x.rrd")  # fmt: skip
+    assert_one_line_error(proc, "no module named 'my_detectors.nothere'")

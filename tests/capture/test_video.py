@@ -417,3 +417,44 @@ def test_a_file_named_like_a_pattern_or_a_camera_is_a_file(clips, tmp_path, name
     res = record_video(settings, tmp_path / "out.rrd")
     assert res.record.frames == 150
     assert "camera" not in Recording(tmp_path / "out.rrd").recording_id
+
+
+def test_a_new_cameras_calibration_says_what_it_fits_and_that_it_is_cached(
+    tmp_path: Path,
+) -> None:
+    """The first clip from a camera with no shipped or cached fit: ``vdc-capture video``
+    says what it fits (avdm-natural, for which camera), counts its stimuli and says where it
+    cached the fit, before the run (a log line per stage on a pipe; a bar on a terminal); the
+    second clip from that camera fits nothing and says nothing of it."""
+    import os
+    import re
+
+    from tests.helpers import run_cli, write_pan
+
+    clip = write_pan(tmp_path / "clip.mp4", 64, 48, 30)  # 25 fps, 64x48: a raster of its own
+    env = {**os.environ, "VDC_CACHE_DIR": str(tmp_path / "cache")}  # nothing fitted yet
+    first = run_cli("capture", "video", str(clip), "--fov-deg", "40", "--out",
+                    str(tmp_path / "a.rrd"), env=env)  # fmt: skip
+    assert first.returncode == 0, first.stderr
+    lines = first.stderr.splitlines()
+    start = [ln for ln in lines if ln.startswith("calibrating avdm-natural for this camera")]
+    # the working raster at the robot camera's pitch: round(40 / (70/99)) = 57 px wide, 43 high
+    assert len(start) == 1 and re.fullmatch(
+        r"calibrating avdm-natural for this camera \(25 Hz, 0\.7\d* deg/px, 43x57 px\): "
+        r"60 stimuli, once; the fit is then cached",
+        start[0],
+    ), start
+    (done,) = [ln for ln in lines if ln.startswith("calibrated avdm-natural for")]
+    cached = Path(done.split("cached in ")[1])
+    assert cached.is_file() and cached.parent.parent == tmp_path / "cache"
+    assert (
+        lines.index(start[0])
+        < lines.index(done)
+        < next(i for i, ln in enumerate(lines) if ln.startswith("recording "))
+    )  # both before the run starts
+    props = Recording(tmp_path / "a.rrd").properties()
+    assert props["calibration"]["source"] in ("fitted", "cache")
+    again = run_cli("capture", "video", str(clip), "--fov-deg", "40", "--out",
+                    str(tmp_path / "b.rrd"), env=env)  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    assert "calibrat" not in again.stderr
