@@ -310,11 +310,9 @@ def pool_size(jobs: int, n_tasks: int) -> int:
 
 
 def end_workers(pool: cf.ProcessPoolExecutor) -> None:
-    """Kill the local pool's workers and wait until each has ended: when this returns, none is
-    running and every file they held is closed (a process's files are closed before its exit
-    can be collected). SIGKILL, as ``PR_SET_PDEATHSIG`` would send: a task's own SIGTERM
-    handler (a capture's clean stop) would finish a truncated run and mark it done, where a
-    killed one leaves its partial file for a re-run to record again."""
+    """Kill the pool's workers and collect each: then none runs and their files are closed.
+    SIGKILL, as PDEATHSIG sends: a capture's own SIGTERM handler would finish a truncated run
+    and mark it done; killed, it leaves its partial file for a re-run."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
     for p in procs:
         with contextlib.suppress(OSError, ValueError, AttributeError):
@@ -326,11 +324,9 @@ def end_workers(pool: cf.ProcessPoolExecutor) -> None:
 
 @contextlib.contextmanager
 def _workers_end_before_parent(pool: cf.ProcessPoolExecutor) -> Iterator[None]:
-    """While the block runs, SIGTERM to this (main-thread) process first ends and collects the
-    pool's workers, then ends the process by SIGTERM as before (status -15, 143 in a shell).
-    Without it the workers learnt of the parent's death from the kernel (PR_SET_PDEATHSIG)
-    only as it died: on a busy machine a worker could still hold its partial recording and
-    its lock after the parent's exit had been reported, and a re-run found them taken."""
+    """While the block runs, SIGTERM first ends and collects the pool's workers, then ends
+    this process by SIGTERM as before: PDEATHSIG alone let a worker on a busy machine hold its
+    partial recording and lock after the parent's exit had been reported."""
     if threading.current_thread() is not threading.main_thread():
         yield  # signal handlers belong to the main thread; PDEATHSIG still ends the workers
         return
