@@ -406,9 +406,7 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
             with _workers_end_before_parent(pool):
                 yield pool, None
         except BaseException:
-            # the parent abandons the work (Ctrl-C, an error): its workers must not go on
-            # writing, nor be left for the kernel to end after the parent has gone
-            end_workers(pool)
+            end_workers(pool)  # the parent abandons the work (Ctrl-C, an error): so do they
             raise
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
