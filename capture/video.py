@@ -40,6 +40,7 @@ from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_ou
 from vdc.blueprints import video_blueprint
 from vdc.cli_support import (
     API_ONLY,
+    Settings,
     non_negative_float,
     non_negative_int,
     option,
@@ -59,7 +60,7 @@ from vdc.sources import (
 
 
 @dataclasses.dataclass(frozen=True)
-class VideoSettings:
+class VideoSettings(Settings):
     """``vdc-capture video``: one field per flag, same names and defaults."""
 
     source: str = option(

@@ -53,7 +53,13 @@ from analysis.recordings.loading import load_recording
 from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy
 from avdm.registry import add_overrides, parse_model_spec
-from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
+from vdc.cli_support import (
+    check_below_nyquist,
+    non_negative_float,
+    non_negative_int,
+    option,
+    positive_float,
+)
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings
 from vdc.parquet_io import WroteFiles, write_tables
@@ -202,9 +208,9 @@ class BoundarySettings(ExecutorSettings):
         if self.per_scene and self.design != "adaptive":
             raise UserError("--per-scene is for --design adaptive")
         if self.labels is None:
-            self.tf_bounds()
+            check_below_nyquist(self.tf_bounds()[1], f"--tf-range {self.tf_range}")
             self.grid_values()
-            number_list(self.tf, "tf")
+            check_below_nyquist(max(number_list(self.tf, "tf")), "--tf")
             self.scene_list()
             if self.per_scene and self.budget < 2 * len(self.scene_list()):
                 raise UserError("--per-scene needs --budget of at least 2 runs per scene")

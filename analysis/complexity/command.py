@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -59,6 +60,7 @@ from avdm.registry import require_angular_velocity
 from avdm.true_time import model_rate, repeats_of
 from vdc.cli_support import (
     API_ONLY,
+    Settings,
     non_negative_float,
     non_negative_int,
     option,
@@ -66,7 +68,7 @@ from vdc.cli_support import (
 )
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
-from vdc.folders import scan_folder
+from vdc.folders import path_list, scan_folder
 from vdc.frame_metrics import (
     RANGE_CHOICES,
     RANGE_COLUMNS,
@@ -81,7 +83,7 @@ from vdc.sources import VIDEO_SUFFIXES, unique_source_names
 
 
 @dataclasses.dataclass(frozen=True)
-class ComplexitySettings:
+class ComplexitySettings(Settings):
     """``vdc-analyse complexity``: the AVDM variant, the baselines' few free choices, how
     video sources are read (as ``vdc-capture video`` reads them), and where the sources run."""
 
@@ -239,9 +241,8 @@ def expand_sources(
     itself, unfinished captures and dangling links (``vdc.folders.scan_folder``), which
     ``notice`` hears about in one line per folder. A folder without any source, a missing
     file or a pattern that matches nothing raises ValueError."""
-
     sources: list[str] = []
-    for item in map(str, items):
+    for item in path_list(items):
         p = Path(item)
         if p.is_dir():
             scan = scan_folder(p, (*VIDEO_SUFFIXES, ".rrd"), skip_dirs=(PARTS,))
@@ -449,9 +450,9 @@ def _run_inline(
 
 
 def complexity(
-    sources: Sequence[str | Path],
+    sources: str | Path | Sequence[str | Path],
     settings: ComplexitySettings = ComplexitySettings(),
-    out: str | Path = "results/complexity",
+    out: str | Path | None = "results/complexity",
     *,
     progress: Callable[[int], None] | None = None,
     clip_progress: Callable[[int], None] | None = None,
@@ -461,8 +462,15 @@ def complexity(
     """``vdc-analyse complexity`` on recordings, video files, image sequences and folders
     (see the module). ``progress`` counts frames (a single source), ``clip_progress`` sources
     as they finish. A bad single source raises ValueError; in a collection, failed sources
-    are listed in ``result.failures`` and ``failures.parquet``."""
+    are listed in ``result.failures`` and ``failures.parquet``. ``out=None`` writes nothing
+    (the work is done in a folder removed before this returns) and returns the tables."""
 
+    if out is None:
+        with tempfile.TemporaryDirectory(prefix="vdc-complexity-") as tmp:
+            res = complexity(sources, settings, tmp, progress=progress,
+                             clip_progress=clip_progress, notice=notice, log=log)  # fmt: skip
+        res.paths = []  # nothing written remains
+        return res
     out = Path(out)
     notes: list[str] = []
 
