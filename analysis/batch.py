@@ -208,7 +208,7 @@ def plan_tasks(
 
 
 def batch(
-    recordings: Sequence[str | Path],
+    recordings: str | Path | Sequence[str | Path],
     settings: BatchSettings,
     out: str | Path,
     *,

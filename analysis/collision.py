@@ -32,8 +32,9 @@ from analysis.recordings.loading import LoadedRecording, Notices, load_recording
 from analysis.recordings.recompute import DistinctRecordings, SummarySettings, events_table
 from analysis.recordings.segments import safe_key
 from analysis.stats import Estimate, mean_ci, share_ci
-from vdc.cli_support import option
+from vdc.cli_support import Settings, option
 from vdc.errors import UserError
+from vdc.folders import path_list
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from vdc.recording import APP_ID
 
@@ -47,7 +48,7 @@ COLLISION_ROOT = "/collision"
 
 
 @dataclasses.dataclass(frozen=True)
-class CollisionSettings:
+class CollisionSettings(Settings):
     """``vdc-analyse collision``: what counts as a false alarm, and the density maps' bins."""
 
     false_alarm_m: float = option(
@@ -341,7 +342,7 @@ class CollisionResult(WroteFiles):
 
 
 def collision(
-    recordings: Sequence[str | Path],
+    recordings: str | Path | Sequence[str | Path],
     settings: CollisionSettings = CollisionSettings(),
     out: str | Path | None = None,
     *,
@@ -353,7 +354,7 @@ def collision(
 
     items, notes = [], Notices(notice)
     distinct = DistinctRecordings()
-    for path in recordings:
+    for path in path_list(recordings):  # a single path given as a str: a list of one
         loaded = load_recording(path)
         distinct.add(loaded.recording_id, path)
         notes.of(loaded)

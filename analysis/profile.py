@@ -300,7 +300,7 @@ class ProfileResult(WroteFiles):
 
 
 def profile(
-    recordings: Sequence[str | Path],
+    recordings: str | Path | Sequence[str | Path],
     settings: ProfileSettings = ProfileSettings(),
     out: str | Path | None = None,
     *,

@@ -267,6 +267,25 @@ def canonical_name(spec: str) -> str:
     return name + ":" + ",".join(f"{k}={overrides[k]}" for k in sorted(overrides))
 
 
+def same_model(a: str, b: str, **context: Any) -> bool:
+    """Whether specs ``a`` and ``b`` build the same model on the camera ``context``: the same
+    kind (or plug-in factory) with equal resolved parameters and the same policy, however
+    they are spelt (``avdm:beta=0.25`` is ``avdm``, whose ``beta`` is 0.25). False when
+    either cannot be built."""
+    try:
+        if canonical_name(a) == canonical_name(b):
+            return True
+        (na, oa), (nb, ob) = parse_model_spec(a), parse_model_spec(b)
+        if oa.get(POLICY_KEY) != ob.get(POLICY_KEY) or _split_spec(a)[1] != _split_spec(b)[1]:
+            return False
+        if _split_spec(a)[1] is None and VARIANTS[na].kind != VARIANTS[nb].kind:
+            return False
+        pa, pb = make_params(a, **context), make_params(b, **context)
+    except (ValueError, KeyError, TypeError):
+        return False
+    return type(pa) is type(pb) and pa == pb
+
+
 def make_params(spec: str, **context: Any) -> Params:
     """Fully resolved params for ``spec``.
 

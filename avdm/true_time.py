@@ -17,6 +17,8 @@ played as slow motion (each frame twice at the original rate) half of it, never 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from avdm.base import Model
@@ -71,26 +73,130 @@ def repeats_of(
     return flags
 
 
-def new_frame_rate(fps: float, repeat: np.ndarray, max_repeats: int = 3) -> float:
-    """The rate of new frames in a stream at ``fps`` Hz whose frames ``repeat`` (T,) bool
-    flags (its first batch): the rate the models are built for, whatever the container says.
+# a cadence holds where at least this share of the gaps between new frames keep it, over the
+# stream and in each of its quarters (a still moment or a lost frame breaks it locally); gaps
+# fewer than MIN_GAPS are too few to tell a cadence from chance (3:2 pulldown repeats every 5
+# frames: 16 gaps are 40 container frames, 8 of its cycles)
+CADENCE_SHARE, QUARTER_SHARE, MIN_GAPS = 0.9, 0.75, 16
+# below this share for every cadence the repeats come and go (motion, a codec's skips): no note
+AMBIGUOUS_SHARE = 0.5
 
-    A clip whose every frame is shown k times at k times the rate (k = 2, 3, ...; also 2.5,
-    3:2 pulldown) brings a new frame every k container frames: its models run at fps / k,
-    and so see what they see on the original (docs/video.md: repeated frames). The rate stays
-    ``fps`` for sporadic repeats (a camera that now and then delivers a frame twice:
-    :class:`TrueTimeModel` then scales the angular outputs by the true time between new
-    frames), for a mix that is no regular pattern, and where the runs reach ``max_repeats``
-    (a still scene, whose frames :func:`repeat_flags` calls new after that many)."""
-    n = len(repeat)
-    new = n - int(np.count_nonzero(repeat))
-    if n < 4 or new == 0:
-        return float(fps)
-    ratio = n / new
-    k = round(ratio * 2) / 2  # whole and half repeats per new frame (3:2 pulldown: 2.5)
-    if k < 1.5 or abs(ratio - k) > 0.1 or k - 1 >= max_repeats:
-        return float(fps)
-    return float(fps) / k
+
+@dataclasses.dataclass(frozen=True)
+class ModelRate:
+    """The rate the models of a stream are built at, and why.
+
+    ``fps``: the rate (Hz); ``repeats_per_frame``: container frames per new frame (1 at the
+    container's rate; 2, 3, ... or 2.5 for 3:2 pulldown); ``reason``: a short phrase, the
+    ``model_fps_reason`` column (:data:`RATE_REASONS`); ``note``: the one line a command says
+    about it, None where the container's rate stands without doubt."""
+
+    fps: float
+    repeats_per_frame: float
+    reason: str
+    note: str | None = None
+
+
+RATE_REASONS = (
+    "no repeats",  # the container's rate
+    "repeats without a cadence",  # the container's rate: true time scales the outputs
+    "ambiguous cadence",  # the container's rate, with a note
+    "too few frames to judge",  # the container's rate, with a note where there are repeats
+    "regular cadence",  # fps / k: every frame shown k times (k = 2, 3, ...; 2.5: 3:2 pulldown)
+    "camera frames",  # a camera (live, simulated, a robot's): its own rate, nothing judged
+)
+
+
+def _cadence_share(gaps: np.ndarray, k: float) -> np.ndarray:
+    """Which gaps between new frames (container frames, (G,) int) keep a cadence of ``k``
+    container frames per new frame: all equal to k, or for k = m + 0.5 alternating m and
+    m + 1 (each gap checked against its neighbours)."""
+    if k == int(k):
+        return gaps == int(k)
+    lo, hi = int(k), int(k) + 1
+    ok = np.zeros(len(gaps), dtype=bool)
+    pair = ((gaps[:-1] == lo) & (gaps[1:] == hi)) | ((gaps[:-1] == hi) & (gaps[1:] == lo))
+    ok[:-1] |= pair
+    ok[1:] |= pair
+    return ok
+
+
+def _best_cadence(gaps: np.ndarray, max_repeats: int) -> tuple[float, np.ndarray]:
+    """The cadence (container frames per new frame) most gaps keep, and which keep it."""
+    # runs of max_repeats repeats are a still scene's (repeat_flags): k - 1 < max_repeats
+    ks = [k / 2 for k in range(3, 2 * max_repeats + 2)]
+    best = max(ks, key=lambda k: (_cadence_share(gaps, k).mean(), -k))
+    return best, _cadence_share(gaps, best)
+
+
+def model_rate(
+    fps: float, repeat: np.ndarray, max_repeats: int = 3, decided_on: int | None = None
+) -> ModelRate:
+    """The rate the models of a stream at ``fps`` Hz are built at, on the evidence of the
+    whole stream's repeat flags ``repeat`` (T,) bool (:func:`repeat_flags`).
+
+    A clip whose every frame is shown k times at k times the rate (k = 2, 3, ...; 2.5 for 3:2
+    pulldown) brings a new frame every k container frames, in a regular cadence from start to
+    end: its models run at fps / k and so see what they see on the original (docs/video.md).
+    The gaps between new frames must keep that cadence (:data:`CADENCE_SHARE` of them over
+    the stream and :data:`QUARTER_SHARE` in each quarter): repeats that come and go with the
+    motion (a slow or stopping scene through a lossy codec, whose encoder had nothing to code)
+    never do, and leave the container's rate, with true time doing the rest
+    (:class:`TrueTimeModel`). Where a cadence holds over part of the stream only, or the
+    stream is too short to tell, the container's rate stands and the result's ``note`` says
+    so. ``decided_on``: the frames the decision was taken on where a stream is too long to
+    hold (the rest only checks it: a note where it breaks there); None: all of them."""
+    fps = float(fps)
+    repeat = np.asarray(repeat, dtype=bool)
+    head = repeat if decided_on is None else repeat[:decided_on]
+    container = f"the models run at the container's {fps:.6g} fps"
+    if not head.any():
+        return ModelRate(fps, 1.0, "no repeats")
+    gaps = np.diff(np.flatnonzero(~head))
+    n_rep = int(head.sum())
+    if len(gaps) < MIN_GAPS:
+        note = (
+            f"{n_rep} repeated frame(s) in {len(head)} are too few new frames to tell a "
+            f"cadence of repeats from chance: {container}"
+        )
+        return ModelRate(fps, 1.0, "too few frames to judge", note)
+    k, keeps = _best_cadence(gaps, max_repeats)
+    share = float(keeps.mean())
+    quarters = [float(q.mean()) for q in np.array_split(keeps, 4)]
+    what = (
+        f"every frame shown {k:g} times"
+        if k == int(k)
+        else f"frames shown {int(k)} and {int(k) + 1} times in turn"
+        + (" (3:2 pulldown)" if k == 2.5 else "")
+    )
+    if share >= CADENCE_SHARE and min(quarters) >= QUARTER_SHARE:
+        rate = ModelRate(
+            fps / k, k, "regular cadence",
+            f"the models run at {fps / k:.6g} fps, the rate of new frames, not the container's "
+            f"{fps:.6g}: {what} across the stream ({share:.0%} of {len(gaps)} gaps keep it)",
+        )  # fmt: skip
+        if decided_on is not None and decided_on < len(repeat):
+            rest = np.diff(np.flatnonzero(~repeat[decided_on:]))
+            if len(rest) >= MIN_GAPS and _cadence_share(rest, k).mean() < QUARTER_SHARE:
+                rate = dataclasses.replace(
+                    rate,
+                    note=f"{rate.note}; decided on the first {decided_on} frames, and the "
+                    "cadence breaks after them",
+                )
+        return rate
+    if share >= AMBIGUOUS_SHARE:
+        note = (
+            f"repeats keep a cadence of {what} in {share:.0%} of the clip but not across it "
+            f"(each quarter: {', '.join(f'{q:.0%}' for q in quarters)}): ambiguous, so {container}"
+        )
+        return ModelRate(fps, 1.0, "ambiguous cadence", note)
+    return ModelRate(fps, 1.0, "repeats without a cadence")
+
+
+def new_frame_rate(fps: float, repeat: np.ndarray, max_repeats: int = 3) -> float:
+    """The models' rate for a stream at ``fps`` Hz whose frames ``repeat`` (T,) bool flags:
+    :func:`model_rate`'s ``fps``."""
+    return model_rate(fps, repeat, max_repeats).fps
 
 
 class TrueTimeModel:
@@ -100,10 +206,17 @@ class TrueTimeModel:
     repeat flags (T,) bool) and continues from the state of earlier batches; outputs for
     repeated frames hold the last new frame's values. Without repeats and with evenly spaced
     times at the model's own ``fps`` the outputs equal ``model.run(frames)`` exactly.
+
+    ``cadence`` True: the new frames are a regular cadence's (:func:`model_rate`: every frame
+    shown k times, 3:2 pulldown), whose originals were evenly spaced at the model's rate; the
+    true time between them is taken in whole model intervals (3:2 pulldown shows them 2 and 3
+    container frames apart, 0.8 and 1.2 intervals, which would read the original's motion
+    alternately 25 % fast and 17 % slow), and a lost frame still counts as an interval.
     """
 
-    def __init__(self, model: Model) -> None:
+    def __init__(self, model: Model, cadence: bool = False) -> None:
         self.model = model
+        self.cadence = cadence
         self.name = model.name
         self.outputs = model.outputs
         self.params = model.params
@@ -128,6 +241,8 @@ class TrueTimeModel:
             dt = np.diff(prev_t)
             nominal = 1.0 / self.fps
             dt = np.where(np.isfinite(dt) & (dt > 0), dt, nominal)
+            if self.cadence:
+                dt = np.maximum(np.rint(dt / nominal), 1.0) * nominal
             scale = nominal / dt
             for k in self._angular:
                 res[k] = res[k] * scale

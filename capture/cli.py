@@ -94,6 +94,11 @@ def cmd_robot(args: argparse.Namespace) -> int:
     res = record_robot(settings_from_args(RobotSettings, args), args.out, _recording_options(args))
     rec = res.record
     _report_write_error(rec)
+    if res.link_error:
+        say(
+            f"{PROG}: error: {res.link_error}; stopped: {rec.path} is a readable recording of "
+            f"the {rec.frames} frames before it, with a link_error event"
+        )
     print(
         f"wrote {rec.path}: {rec.frames} frames, link: "
         + ", ".join(f"{k} {v}" for k, v in res.link_stats.items())

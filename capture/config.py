@@ -15,6 +15,7 @@ from typing import Any
 
 from avdm.registry import VARIANTS, add_overrides, is_plugin
 from avdm.version import __version__
+from vdc.cli_support import SIM_CAMERA_FPS
 from vdc.errors import UserError
 from vdc.recording import camera_model_context
 
@@ -172,7 +173,7 @@ class CameraConfig:
 
     width_px: int = 99
     height_px: int = 72
-    fps: float = 33.0
+    fps: float = SIM_CAMERA_FPS
     hfov_deg: float = 70.0
     height_m: float = 0.03
     supersample: int = 8  # sub-columns per pixel (area averaging across the stripes)

@@ -41,6 +41,7 @@ from capture.config import (
 from capture.device import Batch, DeviceContext, Event
 from capture.output import claim_output
 from capture.recording_start import camera_line, start_recording
+from capture.robot_contract import accepted_model, announcement_change, frame_problem
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from capture.serial_link import SerialLink
 from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
@@ -51,8 +52,9 @@ from capture.tracker import (
     robot_pose,
     save_calibration,
 )
+from capture.wall_controller import WallController as WallController  # re-exported
 from vdc.blueprints import default_blueprint
-from vdc.cli_support import non_negative_float, option, positive_float
+from vdc.cli_support import Settings, non_negative_float, option, positive_float
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles
 from vdc.provenance import machine_info, package_versions
@@ -151,6 +153,16 @@ class ColiasRobotDevice(DeviceContext):
             announced = self.link.handshake(cfg.announce_timeout_s)
             if announced is not None:
                 self._accept(announced)
+            # the first frame must be what was announced (or, unannounced, assumed): a robot
+            # that says 99x72 and sends 80x60 is refused here, before any file, as a wrong
+            # model is; a robot that sends nothing yet is checked frame by frame as it runs
+            first = self.link.first_frame(cfg.announce_timeout_s)
+            problem = None if first is None else self._frame_problem(first)
+            if problem is not None:
+                said = "announced" if self.announced is not None else "assumed (no announcement)"
+                raise UserError(
+                    f"the robot's first frame does not match what was {said}: {problem}"
+                )
         except BaseException:
             self.link.close(stop=True)  # the robot stops too
             if hasattr(self, "cam"):
@@ -168,34 +180,27 @@ class ColiasRobotDevice(DeviceContext):
         self.tracking = True
         self._reported = dict.fromkeys(LINK_COUNTERS, 0)
         self._disconnect_events: list[str] = []
+        self.link_error: str | None = None  # why the run ended early: the robot broke its word
         self._connected = True
+
+    @property
+    def stop_reason(self) -> str | None:
+        """``link error`` once the robot broke what it announced (the capture loop ends the
+        run with it), else None."""
+        return None if self.link_error is None else "link error"
+
+    def _frame_problem(self, pkt: FramePacket) -> str | None:
+        return frame_problem(pkt, self.model_context, self.model_name, self.output_names)
+
+    def _announcement_change(self, a: Announcement) -> str | None:
+        return announcement_change(
+            a, self.announced, self.cfg.model, self.model_name, self.model_context
+        )
 
     def _accept(self, a: Announcement) -> None:
         """Take the robot's word for its model, outputs and camera if it is the model the host
-        was given (same canonical spec, same output names and units in the same order); else
-        ValueError in one line."""
-        want = canonical_name(self.cfg.model)
-        try:
-            got = canonical_name(a.model)
-        except ValueError:
-            got = a.model  # a model this host does not know: it cannot be --model's
-        robot_outputs = [f"{n} [{u}]" for n, u in a.outputs]
-        if got != want:
-            raise UserError(
-                f"the robot runs {a.model} (outputs {', '.join(robot_outputs) or 'none'}), not "
-                f"--model {self.cfg.model}: give --model {a.model}, or load {want} on the robot"
-            )
-        try:
-            host = make_model(want, **a.model_context())
-        except ValueError as exc:
-            raise UserError(f"the robot's announced camera does not fit {want}: {exc}") from None
-        host_outputs = [f"{o.name} [{o.unit}]" for o in host.outputs]
-        if robot_outputs != host_outputs:
-            raise UserError(
-                f"the robot's {a.model} sends {len(robot_outputs)} outputs "
-                f"({', '.join(robot_outputs) or 'none'}) but {want} has {len(host_outputs)} "
-                f"({', '.join(host_outputs)}): the robot's firmware and vdc disagree on the model"
-            )
+        was given (:func:`capture.robot_contract.accepted_model`); else ValueError."""
+        host = accepted_model(a, self.cfg.model)
         self.announced = a
         self.model_context = a.model_context()
         self.model_name = host.name
@@ -239,27 +244,36 @@ class ColiasRobotDevice(DeviceContext):
             return None
         return best
 
+    def _end_on(self, why: str) -> None:
+        """End the run after the frames read so far: a ``link_error`` event says why."""
+        self.link_error = why
+        self._disconnect_events.append(f"{why}; the capture ends here")
+
     def read(self) -> Batch | None:
+        if self.link_error is not None:
+            return None  # the run ended on the robot's fault (logged with the last batch)
         got: list[tuple[FramePacket, int]] = []
         start = time.monotonic()
         for ptype, obj in self.link.packets():
             self._poll_camera()
             if ptype == 0 and obj == "disconnect":
                 self._disconnect_events.append("serial port lost; reconnecting")
-            elif ptype == TYPE_ANNOUNCE and obj != self.announced:
-                # after a reconnection (a power cycle?) the robot says it runs something else
-                a: Announcement = obj  # type: ignore[assignment]
-                self._disconnect_events.append(
-                    f"mid-run the robot announces {a.model} on a {a.width_px}x{a.height_px} "
-                    f"camera at {a.fps:g} Hz; its outputs are still recorded as "
-                    f"{self.model_name}'s"
-                )
-                self.announced = obj  # type: ignore[assignment]
+            elif ptype == TYPE_ANNOUNCE:
+                # after a reconnection (a power cycle?) the robot may say it runs something
+                # else: its frames from here are not the recording's model or camera
+                change = self._announcement_change(obj)  # type: ignore[arg-type]
+                if change is not None:
+                    self._end_on(change)
+                    break
             elif ptype == TYPE_FRAME:
                 pkt: FramePacket = obj  # type: ignore[assignment]
                 if pkt.index <= self.last_index:
                     self.duplicates += 1
                     continue
+                problem = self._frame_problem(pkt)
+                if problem is not None:
+                    self._end_on(f"the robot broke its announcement: {problem}")
+                    break
                 if self.last_index >= 0 and pkt.index > self.last_index + 1:
                     self.lost += pkt.index - self.last_index - 1
                 self.last_index = pkt.index
@@ -267,18 +281,29 @@ class ColiasRobotDevice(DeviceContext):
             if time.monotonic() - start >= self.cfg.batch_s and (got or ptype != TYPE_FRAME):
                 break
         if not got:
+            if self.link_error is not None:
+                return self._empty_batch(self._take_events(max(self.last_index, 0)))
             return None if self.link.ended else self._empty_batch()
         return self._batch(got)
 
-    def _empty_batch(self) -> Batch:
-        """Nothing arrived this time: keep the loop alive (events only)."""
+    def _take_events(self, frame: int) -> list[Event]:
+        """The pending link notes as ``link_error`` events at ``frame`` (then forgotten)."""
+        events = [
+            Event("link_error", frame, math.nan, math.nan, math.nan, text)
+            for text in self._disconnect_events
+        ]
+        self._disconnect_events = []
+        return events
+
+    def _empty_batch(self, events: list[Event] | None = None) -> Batch:
+        """No frame arrived this time: keep the loop alive (and log ``events``, if any)."""
         return Batch(
             np.empty(0, np.int64),
             np.empty(0),
             np.empty((0, 1, 1), np.uint8),
             np.empty((0, 3)),
             np.empty(0),
-            [],
+            events or [],
         )
 
     def _batch(self, got: list[tuple[FramePacket, int]]) -> Batch:
@@ -317,8 +342,9 @@ class ColiasRobotDevice(DeviceContext):
         tf = np.array([self.cfg.wall.tf_at(float(s)) for s in elapsed])
         if self.on_wall_tf is not None:
             self.on_wall_tf(float(tf[-1]))
+        # every frame here has the announced outputs (read() ends the run on one that has not)
         outputs = {
-            name: np.array([p.outputs[i] if i < len(p.outputs) else math.nan for p, _ in got])
+            name: np.array([p.outputs[i] for p, _ in got])
             for i, name in enumerate(self.output_names)
         }
         stats = self.link_stats()
@@ -327,9 +353,8 @@ class ColiasRobotDevice(DeviceContext):
             for k in LINK_COUNTERS[1:]
             if stats[k] > self._reported[k]
         ]
-        for text in self._disconnect_events:
-            events.append(Event("link_error", int(idx[0]), math.nan, math.nan, math.nan, text))
-        self._disconnect_events = []
+        # a fault that ends the run is noted at the last frame kept, a reconnection at the first
+        events += self._take_events(int(idx[-1] if self.link_error else idx[0]))
         if changes:
             events.append(
                 Event(
@@ -374,35 +399,12 @@ class ColiasRobotDevice(DeviceContext):
             self._connected = False
 
 
-class WallController:
-    """Optional LED wall controller on a second serial port; a line protocol (ASCII, \\n):
-    ``TF <hz> PERIOD <m> SCENE <grating|natural>`` whenever the TF in force changes."""
-
-    def __init__(self, port: str, wall: WallConfig) -> None:
-        try:
-            self.ser = serial.Serial(port, 115200, timeout=0.1)
-        except (serial.SerialException, OSError) as exc:
-            raise UserError(
-                f"cannot open the wall controller port {port!r}: "
-                f"{getattr(exc, 'strerror', None) or exc}"
-            ) from None
-        self.wall = wall
-        self.last: float | None = None
-
-    def update(self, tf_hz: float) -> None:
-        if tf_hz != self.last:
-            line = f"TF {tf_hz:.3f} PERIOD {self.wall.drift_period_m:.4f} SCENE {self.wall.scene}\n"
-            self.ser.write(line.encode("ascii"))
-            self.ser.flush()
-            self.last = tf_hz
-
-
 def _warn(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
 @dataclasses.dataclass(frozen=True)
-class RobotSettings:
+class RobotSettings(Settings):
     """``vdc-capture robot`` as a settings object (one field per flag, same names)."""
 
     port: str = option(help="the robot's serial device", required=True)
@@ -453,6 +455,10 @@ class RobotRecordResult(WroteFiles):
 
     record: RecordResult
     link_stats: dict[str, int]
+    # why the run ended early, when the robot broke what it announced (a frame of another
+    # size or output count, another announcement mid-run); the frames before it are kept
+    link_error: str | None = None
+
     calibration_file: Path | None = None
 
     @property
@@ -580,4 +586,5 @@ def record_robot(
         record=RecordResult.of(path, rid, result, None),
         link_stats=device.link_stats(),
         calibration_file=Path(settings.save_calibration) if settings.save_calibration else None,
+        link_error=device.link_error,
     )

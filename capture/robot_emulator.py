@@ -40,7 +40,7 @@ from capture.serial_protocol import (
     encode_frame,
 )
 from capture.sim_robot import SimulatedRobot
-from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
+from vdc.cli_support import Settings, non_negative_float, non_negative_int, option, positive_float
 from vdc.errors import UserError
 
 
@@ -346,7 +346,7 @@ class RobotEmulator:
 
 
 @dataclasses.dataclass(frozen=True)
-class EmulateSettings:
+class EmulateSettings(Settings):
     """``vdc-capture emulate-robot`` as a settings object (one field per flag, same names)."""
 
     link: str = option("/tmp/vdc-robot", "stable path (symlink) to the emulated port")

@@ -32,7 +32,9 @@ from capture.recorder import Recorder, RecordingWriteError
 class CaptureResult:
     frames: int
     events: dict[str, int]  # count per kind
-    stop_reason: str  # "finished", "signal SIGINT" / "signal SIGTERM" or "write error"
+    # "finished", "signal SIGINT" / "signal SIGTERM", "write error" or "link error" (a robot
+    # that broke what it announced)
+    stop_reason: str
     wall_time_s: float
     write_error: str | None = None
 
@@ -80,7 +82,7 @@ class RecordResult:
         when the file could not take more."""
         if self.complete:
             return 0
-        if self.stop_reason == "write error":
+        if self.stop_reason in ("write error", "link error"):
             return 1
         return 130 if "SIGINT" in self.stop_reason else 143
 
@@ -154,6 +156,22 @@ def batch_bytes(batch: Batch) -> int:
     return int(batch.images.nbytes + overhead + 512 * len(batch) + (64 << 10))
 
 
+def _log_events_between_frames(
+    recorder: Recorder, batch: Batch, prev_t_s: float | None
+) -> dict[str, int]:
+    """Events of a batch without frames (e.g. the robot's link failing before its next frame):
+    logged at the frame they name, at the time of the last frame logged (0 before any)."""
+    counts: dict[str, int] = {}
+    for kind in sorted({e.kind for e in batch.events}):
+        evs = [e for e in batch.events if e.kind == kind]
+        frames = np.array([e.frame for e in evs], dtype=np.int64)
+        xy = np.array([[e.x_m, e.y_m] for e in evs])
+        t = np.full(len(evs), 0.0 if prev_t_s is None else prev_t_s)
+        recorder.log_events(kind, frames, t, xy, [e.text for e in evs], None)
+        counts[kind] = len(evs)
+    return counts
+
+
 def log_batch(
     recorder: Recorder,
     model: Model | TrueTimeModel | None,
@@ -164,7 +182,7 @@ def log_batch(
     the robot already ran it on board; returns the number of events logged per kind.
     ``prev_t_s``: the time of the frame before the batch (for the first frame's interval)."""
     if len(batch) == 0:
-        return {}
+        return _log_events_between_frames(recorder, batch, prev_t_s)
     cap = batch.capture_time_ns
 
     def at(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -267,7 +285,9 @@ def run_capture(
                     bar.update(len(batch))
             finally:
                 device.disconnect()
-            reason = stop.reason or "finished"
+            # a device may end the run itself on a fault it logged (the robot's link breaking
+            # its announcement): the run is then not complete
+            reason = stop.reason or getattr(device, "stop_reason", None) or "finished"
     finally:
         bar.close()
         wall = time.perf_counter() - t0

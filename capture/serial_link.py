@@ -21,6 +21,7 @@ from capture.serial_protocol import (
     TYPE_START,
     TYPE_STOP,
     Announcement,
+    FramePacket,
     PacketParser,
     decode_announce,
     decode_frame,
@@ -89,6 +90,21 @@ class SerialLink:
                     self._pending += got[k:]
                     self.no_announce = "it sent frames without announcing"
                     return None
+        return None
+
+    def first_frame(self, timeout_s: float) -> FramePacket | None:
+        """The run's first FRAME, waiting up to ``timeout_s`` for it (None if none comes, or
+        END or another ANNOUNCE comes first); what is read is kept for :meth:`packets`."""
+        for ptype, obj in self._pending:
+            if ptype != TYPE_FRAME:
+                return None
+            return obj  # type: ignore[return-value]
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and self._ser is not None:
+            got = self._decoded(self._ser.read(self._ser.in_waiting or 1))
+            self._pending += got
+            if got:
+                return got[0][1] if got[0][0] == TYPE_FRAME else None  # type: ignore[return-value]
         return None
 
     def open(self) -> None:

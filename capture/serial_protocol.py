@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import binascii
 import dataclasses
+import math
 import struct
 from collections.abc import Iterator
 
@@ -141,6 +142,23 @@ class Announcement:
     height_px: int
     deg_per_px: float  # angular pitch at the image centre
     texture_row: int  # the image row the AVDM counts texture on
+
+    def problem(self) -> str | None:
+        """Why this camera cannot be the robot's (one line), or None when it is sane: a size
+        of 1-255 px a side (a FRAME's u8 fields), a texture row inside the frame, a finite
+        positive rate and angular pitch."""
+        if not (1 <= self.width_px <= 255 and 1 <= self.height_px <= 255):
+            return f"a {self.width_px}x{self.height_px} px camera (a FRAME carries 1-255 px a side)"
+        if not 0 <= self.texture_row < self.height_px:
+            return (
+                f"texture row {self.texture_row}, outside its {self.height_px} px high frame "
+                f"(rows 0-{self.height_px - 1})"
+            )
+        if not (math.isfinite(self.fps) and self.fps > 0):
+            return f"a camera rate of {self.fps!r} Hz (must be finite and positive)"
+        if not (math.isfinite(self.deg_per_px) and self.deg_per_px > 0):
+            return f"{self.deg_per_px!r} deg/px (must be finite and positive)"
+        return None
 
     def model_context(self) -> dict[str, float | int]:
         """The robot's camera as ``vdc.recording.camera_model_context`` gives a camera's:

@@ -34,7 +34,14 @@ from capture.recording_start import model_sections, start_recording
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from capture.sim_robot import SimulatedRobot, load_wall_image, ring_turn_event  # noqa: F401
 from vdc.blueprints import default_blueprint
-from vdc.cli_support import non_negative_float, non_negative_int, option, positive_float
+from vdc.cli_support import (
+    Settings,
+    check_below_nyquist,
+    non_negative_float,
+    non_negative_int,
+    option,
+    positive_float,
+)
 from vdc.errors import UserError
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import model_path
@@ -63,7 +70,7 @@ def recording_properties(
 
 
 @dataclasses.dataclass(frozen=True)
-class SimSettings:
+class SimSettings(Settings):
     """``vdc-capture sim`` as a settings object: one field per flag, same names and defaults.
 
     ``to_config()`` turns it into the full :class:`SimConfig` (where every value is checked);
@@ -123,6 +130,9 @@ class SimSettings:
     noise_sd: float = option(0.0, "camera noise, 8-bit levels", type=non_negative_float)
     overhead: bool = option(False, "also log an overhead camera")
     overhead_fps: float = option(5.0, "overhead camera rate, Hz", type=positive_float)
+
+    def __post_init__(self) -> None:
+        check_below_nyquist(self.tf_hz, "--tf-hz")  # before any run: a faster wall aliases
 
     def to_config(self) -> SimConfig:
         if self.tf_schedule is not None:

@@ -13,7 +13,7 @@ robot camera's (70°/99 px, the resolution the models were designed and calibrat
 Repeated frames (each frame shown twice, pulldown, webcams faster than their sensor) and
 dropped frames (gaps in the timestamps; before the first frame, the gap from the stream's start
 to it) are detected per frame and recorded, and the frames lost after the last one are those the
-container states less those read and dropped (``vdc.sources.end_fields``); the online model
+container states less those read and dropped (``vdc.stream_counts.end_fields``); the online model
 sees only new frames, over true time (avdm.true_time). The device has no pose, arena or walls:
 its batches carry None there and the recording holds none of those entities.
 """
@@ -32,7 +32,7 @@ from avdm.avdm_model import AvdmParams
 from avdm.avdm_multiscale import AvdmMultiScaleParams
 from avdm.calibration_store import FitNote, calibration_for, fit_progress
 from avdm.registry import make_model
-from avdm.true_time import TrueTimeModel, new_frame_rate
+from avdm.true_time import TrueTimeModel
 from capture.device import Batch, DeviceContext, Event
 from capture.output import claim_output
 from capture.recording_start import start_recording
@@ -40,13 +40,14 @@ from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_ou
 from vdc.blueprints import video_blueprint
 from vdc.cli_support import (
     API_ONLY,
+    Settings,
     non_negative_float,
     non_negative_int,
     option,
     positive_float,
 )
 from vdc.errors import UserError
-from vdc.frame_batches import FrameBatcher
+from vdc.frame_batches import FrameBatcher, RateLookahead
 from vdc.parquet_io import WroteFiles
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
@@ -59,7 +60,7 @@ from vdc.sources import (
 
 
 @dataclasses.dataclass(frozen=True)
-class VideoSettings:
+class VideoSettings(Settings):
     """``vdc-capture video``: one field per flag, same names and defaults."""
 
     source: str = option(
@@ -132,7 +133,7 @@ class VideoSource(DeviceContext):
             raise UserError(f"{settings.source!r} states no frame rate: pass --fps")
         self.fps = float(fps)
         self._batches: FrameBatcher | None = None
-        self._peeked: Batch | None = None
+        self._ahead: RateLookahead | None = None
         self._size: tuple[int, int] | None = None
 
     def working_size(self) -> tuple[int, int]:
@@ -161,6 +162,8 @@ class VideoSource(DeviceContext):
             "repeat_tol": settings.repeat_tol,
             "max_repeats": settings.max_repeats,
         }
+        rate = self.model_rate()  # the rate the models run at, and why (RATE_REASONS)
+        video |= {"model_fps": rate.fps, "model_fps_reason": rate.reason}
         camera = {"fps": self.fps, "width_px": w, "height_px": h, "hfov_deg": settings.fov_deg}
         return {"video": {"path": settings.source, **video}, "camera": camera}
 
@@ -202,23 +205,29 @@ class VideoSource(DeviceContext):
     def last_t_s(self) -> float | None:
         return self._batches.last_t_s if self._batches else None
 
-    def peek(self) -> Batch | None:
-        """The first batch, read now and handed out again by the first :meth:`read`: the
-        rate of new frames is known before the model is built (``new_frame_rate``)."""
+    def model_rate(self) -> Any:
+        """The rate the models are built at and why (``avdm.true_time.ModelRate``), decided
+        before the model is built on the stream's repeats: the source is read ahead
+        (``vdc.frame_batches.RateLookahead``, the whole of it where it fits) and its frames
+        handed out again by :meth:`read`. A live camera runs at its own rate."""
         self.connect()
-        if self._peeked is None:
-            self._peeked = self._next()
-        return self._peeked
+        assert self._batches is not None
+        if self._ahead is None:
+            live = self.info["kind"] == "camera"
+            self._ahead = RateLookahead(self._batches, self.settings.max_repeats, live)
+        return self._ahead.rate
+
+    def final_rate(self) -> Any:
+        """:meth:`model_rate` once read: a note where a stream longer than the frames it was
+        decided on breaks its cadence later."""
+        return self._ahead.final_rate() if self._ahead is not None else None
 
     def read(self) -> Batch | None:
-        if self._peeked is not None:
-            batch, self._peeked = self._peeked, None
-            return batch
         return self._next()
 
     def _next(self) -> Batch | None:
         assert self._batches is not None, "connect() first"
-        fb = self._batches.next_batch()
+        fb = (self._ahead or self._batches).next_batch()
         if fb is None:
             return None
         frame, dropped, dt, notes = fb.frame, fb.dropped_before, fb.dt_s, fb.notes
@@ -289,6 +298,11 @@ class VideoRecordResult(WroteFiles):
     # those of them lost after the last frame read (counted in ``dropped``; None: unknown)
     container_frames: int | None = None
     lost_after_last: int | None = None
+    # the rate the models ran at and why (``avdm.true_time.RATE_REASONS``), and the one line
+    # said about it (None: the container's rate, without doubt)
+    model_fps: float | None = None
+    model_fps_reason: str | None = None
+    model_fps_note: str | None = None
 
     @property
     def paths(self) -> list[Path]:  # type: ignore[override]
@@ -343,11 +357,14 @@ def record_video(
     recorder = None
     try:
         h, w = device.working_size()
-        # the models follow the rate of new frames, whatever the container says: a clip whose
-        # every frame is shown twice at 50 Hz is profiled as the 25-Hz original (docs/video.md)
-        first = device.peek()
-        rate = new_frame_rate(device.fps, first.repeat, settings.max_repeats) if first else None
-        model_fps = rate or device.fps
+        # the models follow the rate of new frames where the whole stream's repeats keep a
+        # cadence: a clip whose every frame is shown twice at 50 Hz is profiled as the 25-Hz
+        # original; repeats that come and go with the motion leave the container's rate
+        # (docs/video.md)
+        rate = device.model_rate()
+        model_fps = rate.fps
+        if rate.note and options.log is not None:
+            options.log(f"{settings.source}: {rate.note}")
         # the one context every model of this recording is built with, online and offline
         context = camera_model_context(w, h, model_fps, settings.fov_deg)
         deg_per_px = float(context["deg_per_px"])
@@ -362,7 +379,7 @@ def record_video(
         with fit_progress(steps):
             built = make_model(settings.model, **context)
         cal = calibration_for(model_fps, deg_per_px, params=_calibrated(built))
-        model = TrueTimeModel(built)
+        model = TrueTimeModel(built, cadence=rate.reason == "regular cadence")
         live = options.viewer_url()
         info = device.info
         recorder = start_recording(
@@ -412,6 +429,9 @@ def record_video(
     error = getattr(device.reader, "error", None)
     finished = result.stop_reason == "finished"  # a signal or a full disk is not a cut file
     ends = device.end_fields(finished)
+    final = device.final_rate() or rate
+    if final.note != rate.note and options.log is not None:  # the cadence broke later
+        options.log(f"{settings.source}: {final.note}")
     if error is None and finished:
         # the frames end well before the duration the header states: the file was cut
         error = ends["cut_note"]
@@ -426,4 +446,7 @@ def record_video(
         first_loss=device.reader.first_problem,
         container_frames=ends["container_frames"],
         lost_after_last=ends["lost_after_last"],
+        model_fps=model_fps,
+        model_fps_reason=final.reason,
+        model_fps_note=final.note,
     )

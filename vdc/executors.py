@@ -46,7 +46,7 @@ from typing import Any
 import cv2
 from threadpoolctl import threadpool_limits
 
-from vdc.cli_support import option
+from vdc.cli_support import Settings, option
 from vdc.errors import UserError
 
 EXECUTORS = ("local", "dask")
@@ -85,7 +85,7 @@ def executor_field(name: str) -> Any:
 
 
 @dataclasses.dataclass(frozen=True)
-class ExecutorSettings:
+class ExecutorSettings(Settings):
     """Where tasks run: ``executor`` local|dask, ``jobs`` workers (local pool, or a local Dask
     cluster), ``scheduler`` an existing Dask cluster's address or scheduler file."""
 
@@ -309,6 +309,48 @@ def pool_size(jobs: int, n_tasks: int) -> int:
     return n
 
 
+def end_workers(pool: cf.ProcessPoolExecutor) -> None:
+    """Kill the pool's workers and collect each: then none runs and their files are closed.
+    SIGKILL, as PDEATHSIG sends: a capture's own SIGTERM handler would finish a truncated run
+    and mark it done; killed, it leaves its partial file for a re-run."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for p in procs:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            p.kill()
+    for p in procs:
+        with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+            p.join()
+
+
+@contextlib.contextmanager
+def _workers_end_before_parent(pool: cf.ProcessPoolExecutor) -> Iterator[None]:
+    """While the block runs, SIGTERM first ends and collects the pool's workers, then ends
+    this process by SIGTERM as before: PDEATHSIG alone let a worker on a busy machine hold its
+    partial recording and lock after the parent's exit had been reported."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers belong to the main thread; PDEATHSIG still ends the workers
+        return
+
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous == signal.SIG_IGN:
+        yield  # the caller chose to outlive SIGTERM: so do the workers' tasks
+        return
+
+    def on_term(signum: int, frame: Any) -> None:
+        end_workers(pool)
+        if callable(previous):  # the caller's own handler decides what happens next
+            previous(signum, frame)
+            return
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+
+    signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 # what the fork server imports before it forks the first worker (the modules it lists)
 WARM_PRELOAD = ["vdc.warm"]
 
@@ -361,7 +403,11 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
             ),
         )
         try:
-            yield pool, None
+            with _workers_end_before_parent(pool):
+                yield pool, None
+        except BaseException:
+            end_workers(pool)  # the parent abandons the work (Ctrl-C, an error): so do they
+            raise
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
         return

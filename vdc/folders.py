@@ -102,15 +102,25 @@ def scan_folder(
     return FolderScan(sorted(found, key=str), skipped)
 
 
+def path_list(items: str | os.PathLike | Iterable[str | os.PathLike]) -> list[str]:
+    """The paths a command was given, as a list of ``str``: a single path (a ``str`` or a
+    ``Path``) is a list of one. Without this, a ``str`` given where a list is expected is
+    iterated character by character: ``"/abs/x.rrd"`` becomes ``"/"``, ``"a"``, ... and the
+    first of them walks the whole file system."""
+    if isinstance(items, (str, os.PathLike)):
+        return [os.fspath(items)]
+    return [os.fspath(i) for i in items]
+
+
 def expand_recordings(
-    items: Iterable[str | Path], notice: Callable[[str], None] | None = None
+    items: str | Path | Iterable[str | Path], notice: Callable[[str], None] | None = None
 ) -> list[str]:
     """Recordings and folders → the ``.rrd`` recordings, in order (``batch``, ``tables``): a
     folder gives its recordings and below (:func:`scan_folder`, vdc's ``parts`` folders left
     out), a file is taken as given. What is skipped (vdc's own outputs, unfinished captures,
     dangling links, also a dangling link given by name) ``notice`` hears in one line per
     folder. A missing path, or nothing left to read, raises ValueError."""
-    given = [str(i) for i in items]
+    given = path_list(items)
     found: list[str] = []
     dangling: list[str] = []
     for item in given:

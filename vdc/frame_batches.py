@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from avdm.true_time import repeats_of
+from avdm.true_time import ModelRate, model_rate, repeats_of
 from vdc.errors import UserError
 from vdc.frame_metrics import NativeMeter, decide_ranges, full_range_p910
 from vdc.pipeline import pipelined
@@ -20,7 +20,11 @@ from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
 from vdc.resize import area_resize
 
 # images and camera frames: 8-bit grey, full range
-from vdc.sources import Reader, SourceFrame, end_fields
+from vdc.sources import Reader, SourceFrame
+from vdc.stream_counts import end_fields
+
+# a frame given a neighbour's time leaves its own time slot empty this close (frames)
+DISPLACED_WITHIN = 4
 
 
 @dataclasses.dataclass
@@ -51,11 +55,14 @@ class FrameBatcher:
     for the models (``vdc.resize.area_resize``), measured on their native luma
     (``vdc.frame_metrics.NativeMeter``), with repeats (a native mean |difference| from the
     previous frame of at most ``repeat_tol`` 8-bit levels, at most ``max_repeats`` in a row)
-    and dropped frames (a gap of more than 1.5 nominal intervals at ``fps``; before the first
-    frame, the frames between the stream's start and it). ``vdc-capture video`` and
-    ``vdc-analyse complexity`` both read sources through it, so both see the same frames,
-    times, flags and counts: ``dropped_total`` counts the frames lost before and between the
-    frames read, :meth:`end_fields` those lost after the last one too.
+    and dropped frames (a gap of more than 1.5 nominal intervals at ``fps``, in a stream whose
+    own times keep a constant rate; before the first frame, the frames between the stream's
+    start and it; and those the reader knows it lost that no gap shows: a second frame at
+    one time, or in a variable-rate stream its packets that gave no frame).
+    ``vdc-capture video`` and ``vdc-analyse complexity`` both read sources through it, so
+    both see the same frames, times, flags and counts: ``dropped_total`` counts the frames
+    lost before and between the frames read, :meth:`end_fields` those lost after the last
+    one too.
 
     ``metrics``: the native metrics to compute (default all; the MAFD always, for the
     repeats); ``size`` None: no working raster (``images`` then (N, 0, 0)). ``threads`` > 1:
@@ -112,6 +119,7 @@ class FrameBatcher:
         self._run = 0
         self._prev_t: float | None = None
         self.dropped_total = 0
+        self._pending = self._pending_age = 0  # frames dropped for their time, not yet placed
         self.repeats_total = 0
         self.last_t_s: float | None = None
         self.ended = False
@@ -121,12 +129,13 @@ class FrameBatcher:
         return fr, self.meter.row(fr.native, fr.packet_bytes)
 
     def _resize(self, item: tuple[SourceFrame, np.ndarray]) -> tuple:
-        """(working-raster image or None, t_s, note, native metrics): the large planes let go."""
+        """(working-raster image or None, t_s, note, native metrics, frames lost before it
+        that no gap shows): the large planes let go."""
         fr, row = item
         if self.size is None:
-            return None, fr.t_s, fr.note, row
+            return None, fr.t_s, fr.note, row, fr.lost_before
 
-        return area_resize(fr.luma, self.size), fr.t_s, fr.note, row
+        return area_resize(fr.luma, self.size), fr.t_s, fr.note, row, fr.lost_before
 
     def close(self) -> None:
         """Stop the pipeline's threads (the reader is the caller's to close)."""
@@ -135,9 +144,10 @@ class FrameBatcher:
             close()
 
     def next_batch(self) -> FrameBatch | None:
-        images, times, notes, native = [], [], [], []
-        for small, t, note, row in self._it:
+        images, times, notes, native, known = [], [], [], [], []
+        for small, t, note, row, lost in self._it:
             images.append(small)
+            known.append(lost)
             times.append(t)
             notes.append(note)
             native.append(row)
@@ -161,6 +171,15 @@ class FrameBatcher:
             dropped = np.where(dt * self.fps > 1.5, np.maximum(missing, 1), 0).astype(np.int64)
         if self._prev_t is None:  # the source's first frame: those lost before it
             dropped[0] = self.reader.lost_before_first
+        # what the source itself knows it lost (vdc.sources.SourceFrame.lost_before): in a
+        # variable-rate stream all there is (its gaps say nothing: no assumed rate); else a
+        # frame whose time did not advance, which leaves a gap beside it where it displaced
+        # its neighbour's time (counted once) and none where it was one frame too many
+        lost = np.asarray(known, dtype=np.int64)
+        if self.reader.info.get("variable_rate"):
+            dropped = lost + np.where(np.arange(len(lost)) == 0, dropped, 0)
+        else:
+            dropped = self._reconcile(dropped, lost)
         frame = np.arange(self._index, self._index + len(images), dtype=np.int64)
         self._index += len(images)
         self._prev_t = self.last_t_s = float(t_s[-1])
@@ -171,8 +190,32 @@ class FrameBatcher:
         )
         return FrameBatch(frame, t_s, stacked, metrics, repeat, dropped, dt, notes)
 
+    def _reconcile(self, gaps: np.ndarray, lost: np.ndarray) -> np.ndarray:
+        """(N,) int64 dropped frames of a constant-rate stream from its ``gaps`` (empty time
+        slots before each frame) and the frames the reader dropped because their time did not
+        advance (``lost``, on the frame delivered next). A frame given a neighbour's time
+        leaves its own slot empty within a few frames (the reorder buffer's depth): that gap
+        counts it, once; one that leaves none within :data:`DISPLACED_WITHIN` frames was one
+        frame too many, and is counted where that is known (and at the stream's end)."""
+        out = gaps.copy()
+        for i in range(len(out)):
+            self._pending += int(lost[i])
+            if gaps[i] > 0:
+                self._pending -= min(int(gaps[i]), self._pending)
+            if self._pending:
+                self._pending_age += 1
+                if self._pending_age > DISPLACED_WITHIN:
+                    out[i] += self._pending
+                    self._pending = 0
+            if not self._pending:
+                self._pending_age = 0
+        if self.ended and self._pending and len(out):
+            out[-1] += self._pending
+            self._pending = 0
+        return out
+
     def end_fields(self, ended: bool | None = None) -> dict[str, Any]:
-        """The clip's counts once read (``vdc.sources.end_fields``): ``dropped_frames``
+        """The clip's counts once read (``vdc.stream_counts.end_fields``): ``dropped_frames``
         (before, between and, where the source states its count, after the frames read),
         ``container_frames``, ``lost_after_last``, ``header_duration_s``, ``missing_s`` and
         ``cut_note``. ``ended`` (default: read to the source's end) False: a source read in
@@ -227,3 +270,76 @@ def working_camera(
         raise UserError(f"{source!r} states no frame rate")
     h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
     return (h, w), fps, camera_model_context(w, h, fps, fov_deg)
+
+
+# the working-raster frames held while the models' rate is decided on the stream's evidence:
+# 64 MB is 16 000 frames of the default 85 x 48 raster (9 min at 30 fps); a longer stream is
+# decided on what that holds and only checked after it
+LOOKAHEAD_BYTES = 64 * 2**20
+LOOKAHEAD_FRAMES = 20_000
+
+
+class RateLookahead:
+    """A :class:`FrameBatcher`'s batches, the first of them read ahead and held until the
+    rate the models are built at is decided on the stream's evidence
+    (``avdm.true_time.model_rate``): the whole stream where its working-raster frames fit in
+    ``limit_bytes`` (and ``limit_frames``), else as many as do, with the rest only checking
+    the decision (:meth:`final_rate`). A live camera (``live``) runs at its own rate: its
+    frames are stamped on arrival and nothing is read ahead. ``next_batch`` hands out the held
+    batches, then the rest, as the batcher would; ``progress`` hears of each batch as it is
+    decoded (most of a clip's time is spent there while it is read ahead)."""
+
+    def __init__(
+        self,
+        batcher: FrameBatcher,
+        max_repeats: int,
+        live: bool = False,
+        limit_bytes: int = LOOKAHEAD_BYTES,
+        limit_frames: int = LOOKAHEAD_FRAMES,
+        progress: Callable[[int], Any] | None = None,
+    ) -> None:
+        self.batcher, self.max_repeats, self.progress = batcher, max_repeats, progress
+        self._held: list[FrameBatch] = []
+        self._flags: list[np.ndarray] = []
+        held_bytes = held_frames = 0
+        while not live and held_bytes < limit_bytes and held_frames < limit_frames:
+            fb = batcher.next_batch()
+            if fb is None:
+                break
+            self._held.append(fb)
+            self._flags.append(fb.repeat)
+            if progress is not None:
+                progress(len(fb.frame))
+            held_bytes += fb.images.nbytes + fb.native_metrics.nbytes
+            held_frames += len(fb.frame)
+        # None: the decision saw the whole stream
+        self.decided_on: int | None = None if batcher.ended else held_frames
+        fps = batcher.fps
+        self.rate = (
+            ModelRate(fps, 1.0, "camera frames")
+            if live
+            else model_rate(fps, self.flags(), max_repeats, self.decided_on)
+        )
+
+    def flags(self) -> np.ndarray:
+        """(T,) bool: the repeat flags of the frames read so far."""
+        return np.concatenate(self._flags) if self._flags else np.zeros(0, dtype=bool)
+
+    def next_batch(self) -> FrameBatch | None:
+        if self._held:
+            return self._held.pop(0)
+        fb = self.batcher.next_batch()
+        if fb is not None:
+            self._flags.append(fb.repeat)
+            if self.progress is not None:
+                self.progress(len(fb.frame))
+        return fb
+
+    def final_rate(self) -> Any:
+        """The decision (``avdm.true_time.ModelRate``) once the stream is read: the same rate,
+        with a note where the stream was longer than the frames it was decided on and its
+        cadence breaks after them."""
+        if self.decided_on is None or self.rate.reason == "camera frames":
+            return self.rate
+        later = model_rate(self.batcher.fps, self.flags(), self.max_repeats, self.decided_on)
+        return later if later.fps == self.rate.fps else self.rate

@@ -12,18 +12,18 @@ Each frame a source should hold is measured or counted lost, once: frames lost i
 are gaps in the times (``vdc.frame_batches.FrameBatcher``); those lost before the first frame
 that decodes are the gap from the stream's start time to it (:attr:`Reader.lost_before_first`);
 those lost after the last are the frames the container states it holds less those measured and
-counted (:func:`frames_lost_after`; unknown, None, where the container states no count).
+counted (``vdc.stream_counts``; unknown, None, where the container states no count).
 """
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import heapq
-import math
 import os
 import re
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +32,8 @@ import numpy as np
 
 from vdc.errors import UserError
 from vdc.frame_metrics import luma_plane, stream_format
+from vdc.matroska_index import declared_start_s
+from vdc.stream_counts import frames_missing_in
 
 # images and camera frames: 8-bit grey, full range
 IMAGE_FORMAT = {"bit_depth": 8, "color_range": "full", "color_range_tag": "full", "luma": True}
@@ -51,13 +53,17 @@ class SourceFrame:
     before resizing; ``t_s``: seconds since the first frame; ``note``: what was lost just
     before it, or None; ``native`` (H, W) uint8/uint16: the stream's own luma code values
     (its Y plane, at its bit depth and colour range, unrotated); ``packet_bytes``: the size
-    the source's codec spent on it (None where unknown)."""
+    the source's codec spent on it (None where unknown); ``lost_before``: frames the source
+    itself knows were lost just before it that no gap in the times shows (a second frame at
+    the same time; in a variable-rate stream, whose gaps say nothing, every frame lost: a
+    packet that gave no frame, a frame out of time order)."""
 
     luma: np.ndarray
     t_s: float
     note: str | None
     native: np.ndarray
     packet_bytes: int | None = None
+    lost_before: int = 0
 
 
 class Reader:
@@ -128,6 +134,10 @@ class _PyAvReader(Reader):
         # MP4 edit list's B-frame delay, an MPEG-TS clock); a frame that decodes later than
         # it follows lost frames
         self._start_s = float(start * tb) if start is not None and tb else None
+        if "matroska" in self.container.format.name:  # FFmpeg's is the first frame it read
+            declared = declared_start_s(path)  # the file's own index: damage cannot move it
+            if declared is not None and (self._start_s is None or declared < self._start_s):
+                self._start_s = declared
         self.info = {
             "kind": "file",
             "codec": self.stream.codec_context.name,
@@ -141,7 +151,9 @@ class _PyAvReader(Reader):
             "duration_s": self._header_duration_s(),
             "first_frame_s": 0.0,
         }
+        self.info["variable_rate"] = self._variable_rate(path)
         self.info["container_frames"] = self._container_frames()
+        self._unseen: collections.Counter = collections.Counter()  # pts demuxed, not shown
         self._sizes: dict[int, int] = {}  # packet size by pts: frames leave the decoder reordered
         self._frames = self._decode()
         first = next(self._frames, None)  # a file with no decodable frame fails here
@@ -175,9 +187,32 @@ class _PyAvReader(Reader):
         duration_s = self.info["duration_s"]
         if "matroska" not in self.container.format.name or not (avg and base and duration_s > 0):
             return None
-        if abs(float(avg) / float(base) - 1) > 1e-3:  # a variable rate: no count from it
+        if abs(float(avg) / float(base) - 1) > 1e-3 or self.info["variable_rate"]:
+            # a variable rate: no count from it
             return None
         return round(duration_s * float(base))
+
+    def _variable_rate(self, path: str) -> bool:
+        """Whether the stream's own timestamps (every packet's, demuxed without decoding)
+        keep no constant rate: some interval between consecutive times is not a whole number
+        of the most common one (within 10 %). A constant-rate stream with holes in its times
+        (a capture that lost frames) keeps it; a variable one does not, and its gaps then say
+        nothing about lost frames (its container's rate is an average or a guess)."""
+        import av  # lazy: start-up
+
+        times = []
+        try:
+            with av.open(path) as c:
+                st = c.streams.video[0]
+                times = [p.pts for p in c.demux(st) if p.pts is not None and p.size]
+        except av.FFmpegError:  # damage: the times before it are the evidence
+            pass
+        if len(times) < 4:
+            return False
+        dt = np.diff(np.unique(np.asarray(times, dtype=np.float64)))
+        values, counts = np.unique(dt, return_counts=True)
+        ratio = dt / values[np.argmax(counts)]
+        return bool(np.any((ratio < 0.9) | (np.abs(ratio - np.rint(ratio)) > 0.1)))
 
     def _decoded(self, note: list[str]) -> Iterator[Any]:
         """The decoder's frames in the order it hands them over, packet by packet, so that
@@ -193,6 +228,7 @@ class _PyAvReader(Reader):
                     self.info["container_frames"] -= 1
                 if packet.pts is not None and packet.size:
                     self._sizes[packet.pts] = packet.size
+                    self._unseen[packet.pts] += 1
                 try:
                     decoded = packet.decode()
                 except av.FFmpegError as exc:
@@ -216,7 +252,26 @@ class _PyAvReader(Reader):
         order; a frame that comes after a later one was delivered (or a second frame at the
         same time) is dropped, counted (``late_frames``, a problem) and never delivered, so
         time never runs backwards. What a frame cost shows as a gap in the times (the
-        batcher's dropped frames): each lost frame is counted there, once."""
+        batcher's dropped frames): each lost frame is counted there, once; what no gap shows
+        (a second frame at a time already shown; in a variable-rate stream, every loss) is
+        counted on the next frame delivered (``SourceFrame.lost_before``)."""
+
+        variable = bool(self.info.get("variable_rate"))
+        tb = float(self.stream.time_base or 0)
+        shown: set[int] = set()  # the times delivered (µs): a second frame at one is lost
+        lost = 0  # frames lost since the last frame delivered that no gap shows
+
+        def settle(frame: Any) -> None:  # its packet is accounted for: shown or counted
+            if frame.pts is not None and self._unseen[frame.pts] > 0:
+                self._unseen[frame.pts] -= 1
+
+        def discard(t: float, frame: Any, why: str) -> None:
+            nonlocal lost
+            self.late_frames += 1
+            note.append(self._problem(f"a frame at {t:.3f} s {why}: dropped"))
+            settle(frame)
+            if variable or round(t * 1e6) in shown:  # no gap in the times shows it
+                lost += 1
 
         note: list[str] = []
         held: list[tuple[float, int, Any]] = []  # (time, arrival, frame): a min-heap
@@ -226,12 +281,15 @@ class _PyAvReader(Reader):
         arrival = 0
 
         def deliver(t: float, frame: Any) -> SourceFrame:
-            nonlocal t0
+            nonlocal t0, lost
             if t0 is None:  # the first frame: how far after the stream's start
                 t0 = t
                 if frame.time is not None and self._start_s is not None:
                     self.info["first_frame_s"] = max(0.0, t - self._start_s)
-                    self.lost_before_first = frames_missing_in(self.info["first_frame_s"], fps)
+                    # a variable rate's frames before its first are counted by their
+                    # packets (below), never from an assumed rate
+                    if not variable:
+                        self.lost_before_first = frames_missing_in(self.info["first_frame_s"], fps)
             rot = round(float(getattr(frame, "rotation", 0) or 0))
             self.info["rotation_deg"] = rot
             if "bit_depth" not in self.info:
@@ -241,31 +299,40 @@ class _PyAvReader(Reader):
             if rot % 360:  # the display matrix's counter-clockwise angle
                 luma = np.ascontiguousarray(np.rot90(luma, k=round(rot / 90)))
             size = self._sizes.pop(frame.pts, None) if frame.pts is not None else None
-            return SourceFrame(luma, float(t - t0), "; ".join(note) or None, native, size)
+            settle(frame)
+            if variable and tb:  # packets before it that gave no frame: lost, by its timing
+                gone = [p for p in self._unseen if p * tb < t - 1e-6]
+                lost += sum(self._unseen.pop(p) for p in gone)
+            shown.add(round(t * 1e6))
+            out = SourceFrame(luma, float(t - t0), "; ".join(note) or None, native, size, lost)
+            lost = 0
+            return out
 
         for frame in self._decoded(note):
             t = frame.time
             if t is None:  # no timestamp: the decoder's order is all there is
                 t = (last_t + 1 / fps) if last_t is not None else arrival / fps
             if last_t is not None and t <= last_t:
-                self.late_frames += 1
-                note.append(
-                    self._problem(
-                        f"a frame at {t:.3f} s came after a later one (out of time order): dropped"
-                    )
-                )
+                discard(t, frame, "came after a later one (out of time order)")
                 continue
             heapq.heappush(held, (float(t), arrival, frame))
             arrival += 1
             while len(held) > self.reorder_depth():
                 t_next, _, first = heapq.heappop(held)
+                if last_t is not None and t_next <= last_t:  # a second frame at one time
+                    discard(t_next, first, "repeats the time of the one before")
+                    continue
                 yield deliver(t_next, first)
                 note.clear()
                 last_t = t_next
         while held:  # the end: the frames still held, in order
             t_next, _, first = heapq.heappop(held)
+            if last_t is not None and t_next <= last_t:
+                discard(t_next, first, "repeats the time of the one before")
+                continue
             yield deliver(t_next, first)
             note.clear()
+            last_t = t_next
 
     def frames(self) -> Iterator[SourceFrame]:
         yield self._first
@@ -459,92 +526,6 @@ def display_grey(frame: Any, native: np.ndarray) -> np.ndarray:
     return frame.to_ndarray(format="gray")
 
 
-def frames_missing_in(gap_s: float, fps: float) -> int:
-    """Frames missing in ``gap_s`` seconds between the stream's start and its first frame, by
-    the rule :class:`vdc.frame_batches.FrameBatcher` counts gaps between frames with (a frame
-    is missing where the first comes more than half a frame interval late): 0 for a whole
-    start, round(``gap_s`` × ``fps``) otherwise."""
-    if not (math.isfinite(gap_s) and math.isfinite(fps) and fps > 0) or gap_s * fps <= 0.5:
-        return 0
-    return max(round(gap_s * fps), 1)
-
-
-def frames_lost_after(container_frames: int | None, frames: int, dropped: int) -> int | None:
-    """Frames lost after a source's last frame: the ``container_frames`` it states it holds
-    less the ``frames`` measured and those ``dropped`` before and between them (never
-    negative); None, unknown, where the source states no count. A file cut short loses its
-    frames here: they are dropped frames, and ``missing_s`` (:func:`header_shortfall`) says
-    the same frames in seconds, not a second count."""
-    if container_frames is None:
-        return None
-    return max(0, int(container_frames) - int(frames) - int(dropped))
-
-
-def header_shortfall(
-    header_duration_s: float | None, last_t_s: float | None, fps: float
-) -> float | None:
-    """Seconds of a file its header states but its frames do not reach: the header's
-    duration less the last frame's time since the stream's start (``last_t_s``) and one frame
-    interval (``1 / fps``), 0.0 for a whole file (frames that end within two intervals of the
-    header's duration), None where no header states a duration (image sequences, cameras) or
-    no frame was read."""
-    stated = float(header_duration_s or 0.0)
-    if stated <= 0 or last_t_s is None or not (math.isfinite(fps) and fps > 0):
-        return None
-    if last_t_s + 2.0 / fps >= stated:
-        return 0.0
-    return stated - (last_t_s + 1.0 / fps)
-
-
-def cut_short_note(
-    header_duration_s: float | None,
-    last_t_s: float | None,
-    fps: float,
-    lost_after: int | None = None,
-) -> str | None:
-    """The one line ``vdc-capture video`` and ``vdc-analyse complexity`` say about a file
-    that ends well before the duration its header states (see :func:`header_shortfall`;
-    ``last_t_s`` since the stream's start), else None; with the ``lost_after`` frames
-    (:func:`frames_lost_after`) it says they are counted among the dropped ones."""
-    if not header_shortfall(header_duration_s, last_t_s, fps):
-        return None
-    counted = f"; its {lost_after} frame(s) after it are counted as dropped" if lost_after else ""
-    return (
-        f"the file ends at {last_t_s:.2f} s but its header says {header_duration_s:.2f} s "
-        f"(cut short?){counted}"
-    )
-
-
-def end_fields(
-    info: dict[str, Any],
-    last_t_s: float | None,
-    fps: float,
-    frames: int,
-    dropped: int,
-    ended: bool = True,
-) -> dict[str, Any]:
-    """What a clip's row says about its end (``clips.parquet``), from a source's ``info``
-    (:attr:`Reader.info`, or a video recording's ``video`` property, which keeps the same
-    keys), its last frame's time since its first (``last_t_s``), and the ``frames`` measured
-    and ``dropped`` before and between them: ``dropped_frames`` (with those lost after the
-    last frame), ``container_frames`` (the count the source states, None where it states
-    none), ``lost_after_last`` (None: unknown), ``header_duration_s``, ``missing_s`` (the
-    lost end in seconds, :func:`header_shortfall`) and ``cut_note``. ``ended``: False for a
-    source read only in part (a capture stopped by a signal): nothing is lost after it."""
-    container = info.get("container_frames")
-    after = frames_lost_after(container, frames, dropped) if ended else None
-    header_s = info.get("header_duration_s", info.get("duration_s")) or None
-    end_s = None if last_t_s is None else last_t_s + float(info.get("first_frame_s") or 0.0)
-    return {
-        "dropped_frames": int(dropped) + (after or 0),
-        "container_frames": container,
-        "lost_after_last": after,
-        "header_duration_s": header_s,
-        "missing_s": header_shortfall(header_s, end_s, fps),
-        "cut_note": cut_short_note(header_s, end_s, fps, after) if ended else None,
-    }
-
-
 def source_kind(source: str) -> str:
     """``file`` (an existing file wins, even one named ``2024`` or ``clip 100%.mkv``),
     ``camera`` (an index such as ``0``) or ``images`` (a pattern with ``%``)."""
@@ -568,6 +549,31 @@ def source_name(source: str) -> str:
     else:
         stem = p.stem
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", stem)[:60] or "clip"
+
+
+def unique_source_names(sources: Sequence[str]) -> list[str]:
+    """Each source's name (:func:`source_name`: its file's stem), unique within the
+    run, so that no two sources share a recording id, a part, a figure or an ``.rrd``: where
+    two share one, the parent folder's name is put before it (``day1-take``), then, where
+    they still do (``take.mp4`` and ``take.mkv`` in one folder), the file's suffix after it
+    (``day1-take-mkv``), and last a number."""
+    names = [source_name(s) for s in sources]
+
+    def clashes() -> set[str]:
+        return {n for n in names if names.count(n) > 1}
+
+    for widen in (
+        lambda src, n: f"{source_name(str(Path(src).parent))}-{n}",
+        lambda src, n: f"{n}-{Path(src).suffix.lstrip('.').lower() or 'x'}",
+    ):
+        dup = clashes()
+        names = [widen(src, n) if n in dup else n for src, n in zip(sources, names, strict=True)]
+    seen: dict[str, int] = {}
+    for i, n in enumerate(list(names)):
+        if n in clashes() or n in seen:
+            seen[n] = seen.get(n, 0) + 1
+            names[i] = f"{n}-{seen[n]}"
+    return names
 
 
 def open_reader(source: str, fps: float | None = None) -> Reader:

@@ -47,8 +47,9 @@ from analysis.recordings.recompute import SummarySettings, events_table, primary
 from avdm.calibration_store import cache_dir
 from avdm.registry import make_model
 from vdc.blueprints import default_blueprint, video_blueprint
-from vdc.cli_support import non_negative_int, option
+from vdc.cli_support import Settings, non_negative_int, option
 from vdc.errors import UserError
+from vdc.folders import path_list
 from vdc.recording import (
     APP_ID,
     FRAME_TIMELINE,
@@ -64,7 +65,7 @@ CATALOG_EXTRA = "pip install 'visual-dynamic-complexity[catalog]'"
 
 
 @dataclasses.dataclass(frozen=True)
-class CatalogSettings:
+class CatalogSettings(Settings):
     """``vdc-analyse catalog serve``: the dataset's name and where the server listens."""
 
     dataset: str | None = option(
@@ -309,7 +310,9 @@ def _register(path: Path, rec: Any, cache: Path, say: Callable[[str], None]) -> 
     return CatalogSegment(rid, registered, path, summary)
 
 
-def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = None) -> Found:
+def scan(
+    folders: str | Path | Sequence[str | Path], notice: Callable[[str], None] | None = None
+) -> Found:
     """Find the recordings and the analysis outputs under ``folders`` (see the module). A file
     that cannot be served is left out with a one-line reason, never taking the others down;
     between files of one recording id the complete one is registered, whatever their names."""
@@ -320,6 +323,7 @@ def scan(folders: Sequence[str | Path], notice: Callable[[str], None] | None = N
     layers: dict[str, list[tuple[str, Path]]] = {}
     left: list[tuple[str, str]] = []
     outputs: list[tuple[str, Path]] = []
+    folders = path_list(folders)  # one folder given as a str is a list of one, not of letters
     batch_folders: list[Path] = []
     cache = _cache(Path(folders[0]))
     for folder in map(Path, folders):

@@ -126,6 +126,10 @@ def _require_free_port(host: str, port: int, flag: str) -> None:
     anything is started or announced)."""
 
     with socket.socket() as s:
+        # as the servers' own listeners do: a connection of a server that just ended, left in
+        # TIME_WAIT, does not hold the port (without it a restart at once was refused); a
+        # process listening on it still does
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind((host, port))
         except OSError as exc:

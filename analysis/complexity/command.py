@@ -13,7 +13,7 @@ the
 * ``clips.parquet``: one row per clip: source, codec, resolution, fps, duration, repeated
   and dropped frames (each lost frame once: ``frames + dropped_frames == container_frames``
   where the source states its count; ``lost_after_last`` of them after the last frame,
-  ``missing_s`` those in seconds; ``vdc.sources.end_fields``), and each metric's mean, max
+  ``missing_s`` those in seconds; ``vdc.stream_counts.end_fields``), and each metric's mean, max
   and p95 (P.910 clause 7.8.4 recommends the mean and the max per sequence), and
   ``omega_valid_share``, the share of frames the AVDM's reading is valid on;
 * ``complexity_correlations.parquet``: Spearman ρ of every pair of metrics per clip;
@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -58,9 +59,10 @@ from analysis.recordings.analysis_rrd import OUTPUT_MARKER, write_complexity_rrd
 from analysis.recordings.reader import Recording, RecordingError
 from analysis.recordings.recompute import DistinctRecordings
 from avdm.registry import require_angular_velocity
-from avdm.true_time import repeats_of
+from avdm.true_time import model_rate, repeats_of
 from vdc.cli_support import (
     API_ONLY,
+    Settings,
     non_negative_float,
     non_negative_int,
     option,
@@ -68,7 +70,7 @@ from vdc.cli_support import (
 )
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
-from vdc.folders import scan_folder
+from vdc.folders import path_list, scan_folder
 from vdc.frame_metrics import (
     RANGE_CHOICES,
     RANGE_COLUMNS,
@@ -79,11 +81,11 @@ from vdc.frame_metrics import (
 from vdc.parquet_io import WroteFiles, read_metadata, table_set, write_parquet
 from vdc.recording import FOOTAGE_MODEL, NATIVE_METRICS, camera_model_context, working_size
 from vdc.resize import area_resize
-from vdc.sources import VIDEO_SUFFIXES, source_name
+from vdc.sources import VIDEO_SUFFIXES, unique_source_names
 
 
 @dataclasses.dataclass(frozen=True)
-class ComplexitySettings:
+class ComplexitySettings(Settings):
     """``vdc-analyse complexity``: the AVDM variant, the baselines' few free choices, how
     video sources are read (as ``vdc-capture video`` reads them), and where the sources run."""
 
@@ -224,7 +226,10 @@ def complexity_of_frames(
     out = {name: rows[:, k] for k, name in enumerate(NATIVE_METRICS)}
     if any(m in metrics for m in MODEL_METRICS):
         small = np.stack([area_resize(f, (h, w)) for f in frames])  # as FrameBatcher
-        meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics)
+        rate = model_rate(fps, repeat, settings.max_repeats)  # on all the frames' evidence
+        meter = ComplexityMeter(
+            fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics, rate=rate
+        )
         out |= meter.update(small, t, repeat)
     df = pl.DataFrame({"frame": np.arange(len(frames), dtype=np.int64), "t_s": t, "repeat": repeat})
     df = df.with_columns(*[pl.Series(m, out[m]).fill_nan(None) for m in metrics])
@@ -240,9 +245,8 @@ def expand_sources(
     itself, unfinished captures and dangling links (``vdc.folders.scan_folder``), which
     ``notice`` hears about in one line per folder. A folder without any source, a missing
     file or a pattern that matches nothing raises ValueError."""
-
     sources: list[str] = []
-    for item in map(str, items):
+    for item in path_list(items):
         p = Path(item)
         if p.is_dir():
             scan = scan_folder(p, (*VIDEO_SUFFIXES, ".rrd"), skip_dirs=(PARTS,))
@@ -336,13 +340,10 @@ def plan_sources(
                 "the recording or video it measured"
             )
         sources = [s for s in sources if s not in derived]
-    names = [source_name(s) for s in sources]
-    dup = {n for n in names if names.count(n) > 1}
+    names = unique_source_names(sources)
     distinct = DistinctRecordings()  # two files of one recording would mix their rows
     tasks = []
     for src, name in zip(sources, names, strict=True):
-        if name in dup:
-            name = f"{source_name(str(Path(src).parent))}-{name}"
         digest = hashlib.sha1(repr((_stamp(src), settings.measured())).encode()).hexdigest()
         if src.endswith(".rrd") and opened[src] is not None:
             rid = opened[src].recording_id
@@ -375,7 +376,8 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
             for k in (
                 "source", "kind", "codec", "width_px", "height_px", "fps", "duration_s",
                 "frames", "repeated_frames", "dropped_frames", "container_frames",
-                "lost_after_last", "header_duration_s", "missing_s", "model_fps", *RANGE_COLUMNS,
+                "lost_after_last", "header_duration_s", "missing_s", "model_fps",
+                "model_fps_reason", *RANGE_COLUMNS,
             )
         },
         "raster": table["raster"][0],
@@ -456,9 +458,9 @@ def _run_inline(
 
 
 def complexity(
-    sources: Sequence[str | Path],
+    sources: str | Path | Sequence[str | Path],
     settings: ComplexitySettings = ComplexitySettings(),
-    out: str | Path = "results/complexity",
+    out: str | Path | None = "results/complexity",
     *,
     progress: Callable[[int], None] | None = None,
     clip_progress: Callable[[int], None] | None = None,
@@ -468,8 +470,15 @@ def complexity(
     """``vdc-analyse complexity`` on recordings, video files, image sequences and folders
     (see the module). ``progress`` counts frames (a single source), ``clip_progress`` sources
     as they finish. A bad single source raises ValueError; in a collection, failed sources
-    are listed in ``result.failures`` and ``failures.parquet``."""
+    are listed in ``result.failures`` and ``failures.parquet``. ``out=None`` writes nothing
+    (the work is done in a folder removed before this returns) and returns the tables."""
 
+    if out is None:
+        with tempfile.TemporaryDirectory(prefix="vdc-complexity-") as tmp:
+            res = complexity(sources, settings, tmp, progress=progress,
+                             clip_progress=clip_progress, notice=notice, log=log)  # fmt: skip
+        res.paths = []  # nothing written remains
+        return res
     out = Path(out)
     notes: list[str] = []
 
@@ -528,6 +537,9 @@ def complexity(
         if info.get("cut_note") or info.get("decode_error"):
             why = info.get("cut_note") or f"decoding stopped ({info['decode_error']})"
             say(f"{info['source']}: {why}; its row covers {info['frames']} frames")
+    for info in infos:  # the models' rate, where it is not the container's or is in doubt
+        if info.get("model_fps_note"):
+            say(f"{info['source']}: {info['model_fps_note']}")
     uncounted = [  # files whose end cannot be counted (parts of older runs do not say)
         i["source"]
         for i in infos

@@ -49,14 +49,15 @@ from analysis.batch import PARTS
 from analysis.recordings.loading import load_recording
 from analysis.stats import spearman
 from avdm.registry import make_model
-from avdm.true_time import TrueTimeModel, new_frame_rate, repeat_flags
+from avdm.true_time import ModelRate, TrueTimeModel, model_rate, repeat_flags
 from vdc.errors import UserError
-from vdc.frame_batches import FrameBatcher
+from vdc.frame_batches import FrameBatcher, RateLookahead
 from vdc.frame_metrics import NativeMeter, decide_ranges
 from vdc.parquet_io import write_parquet
 from vdc.pipeline import usable_threads
 from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context, working_size
-from vdc.sources import end_fields, open_reader
+from vdc.sources import open_reader
+from vdc.stream_counts import end_fields
 
 if TYPE_CHECKING:
     from analysis.recordings.loading import LoadedRecording
@@ -142,6 +143,10 @@ class ComplexityMeter:
     these frames (8-bit, full range): sources without native frames. Only the metrics in
     ``metrics`` (default: the settings') are computed; the others are NaN.
 
+    ``rate``: the rate the model is built at and why (``avdm.true_time.model_rate``, decided
+    on the whole stream's repeats by the caller); None: the camera's own rate (``fps``: the
+    arena's and the robot's frames, which no one doubles).
+
     frames (T, H, W) uint8 luma; t_s (T,) seconds; repeat (T,) bool (None: detect them)."""
 
     def __init__(
@@ -152,15 +157,16 @@ class ComplexityMeter:
         context: dict[str, Any] | None = None,
         camera_baselines: bool = False,
         metrics: tuple[str, ...] | None = None,
+        rate: ModelRate | None = None,
     ) -> None:
         self.s = settings
         self.fps = fps
         self.deg_per_px = deg_per_px
         self.metrics = chosen_metrics(settings) if metrics is None else metrics
         self.context = dict(context or {"fps": fps, "deg_per_px": deg_per_px})
-        # built on the first batch, at the rate of its new frames (new_frame_rate)
+        self.rate = rate or ModelRate(float(fps), 1.0, "camera frames")
         self.want_omega = "omega_dps" in self.metrics
-        self.model: TrueTimeModel | None = None
+        self.model: TrueTimeModel | None = None  # built on the first frames, at self.rate
         self.model_fps: float | None = None
         want_flow = "flow_dps" in self.metrics
         self.dis = (
@@ -188,9 +194,10 @@ class ComplexityMeter:
         out = {m: np.full(len(frames), np.nan) for m in MODEL_METRICS}
         if self.want_omega:
             if self.model is None:
-                self.model_fps = new_frame_rate(self.fps, repeat, self.s.max_repeats)
+                self.model_fps = self.rate.fps
                 ctx = self.context | {"fps": self.model_fps}
-                self.model = TrueTimeModel(make_model(self.s.model, **ctx))
+                cadence = self.rate.reason == "regular cadence"
+                self.model = TrueTimeModel(make_model(self.s.model, **ctx), cadence)
             res = self.model.run(frames, t_s, repeat)  # repeats hold the last new frame's
             out["omega_dps"] = res["omega_dps"]
             out["omega_valid"] = res.get("omega_valid", np.full(len(frames), np.nan))
@@ -283,13 +290,20 @@ def measure_recording(
     path = loaded.rec.path
     if not ctx or "width_px" not in cam:
         raise UserError(f"{str(path)!r} does not record its camera (fps, width, FOV)")
-    # the container's rate (the camera's), from which the meter finds the new frames' rate
-    # again: a video capture built its model at that rate (``model_context``), not at this one
+    # the container's rate (the camera's), from which the models' rate is decided again on
+    # the whole recording's repeat flags (a video capture decided it on the same flags)
     fps, deg_per_px = float(cam.get("fps", ctx["fps"])), float(ctx["deg_per_px"])
     native = loaded.native
-    meter = ComplexityMeter(fps, deg_per_px, settings, ctx, camera_baselines=native is None)
     timing = loaded.frames.select("frame", "t_s", "repeat")
     has_timing = timing["repeat"].null_count() < timing.height
+    src = loaded.props.get("video", {})
+    rate = None  # the arena's and the robot's camera frames: their own rate
+    if has_timing and src.get("kind") != "camera":
+        flags = timing["repeat"].fill_null(False).to_numpy()
+        rate = model_rate(fps, flags, settings.max_repeats)
+    meter = ComplexityMeter(
+        fps, deg_per_px, settings, ctx, camera_baselines=native is None, rate=rate
+    )
     rows = []
     for chunk in loaded.rec.iter_frames():
         sel = pl.DataFrame({"frame": chunk.frame.astype(np.int64)}).join(
@@ -305,7 +319,6 @@ def measure_recording(
         if progress is not None:
             progress(len(chunk.frame))
     df = pl.concat(rows)
-    src = loaded.props.get("video", {})
     if native is not None:
         df = df.join(native, on="frame", how="left", maintain_order="left")
         size = (int(src.get("src_height_px", 0)), int(src.get("src_width_px", 0)))
@@ -331,10 +344,20 @@ def measure_recording(
         "frames": table.height,
         "repeated_frames": int(frames["repeat"].fill_null(False).sum()),
         **end_fields(src, last_t, fps, table.height, dropped, complete),
-        "model_fps": meter.model_fps,
+        **rate_fields(meter),
         **recorded_ranges(src if native is not None else None),
     }
     return SourceMeasurement(table, info)
+
+
+def rate_fields(meter: ComplexityMeter | None) -> dict[str, Any]:
+    """A clip's ``model_fps`` (None: no model ran), ``model_fps_reason`` (one of
+    ``avdm.true_time.RATE_REASONS``) and ``model_fps_note`` (what the command says about it,
+    None where the container's rate stands without doubt)."""
+    if meter is None or not meter.want_omega:
+        return {"model_fps": None, "model_fps_reason": None, "model_fps_note": None}
+    r = meter.rate
+    return {"model_fps": r.fps, "model_fps_reason": r.reason, "model_fps_note": r.note}
 
 
 def recorded_ranges(video: dict[str, Any] | None) -> dict[str, str | None]:
@@ -393,10 +416,19 @@ def measure_video(
             # pass for the range decision (vdc.frame_batches)
             reopen=None if info["kind"] == "camera" else lambda: open_reader(source, settings.fps),
         )  # fmt: skip
+        stream: FrameBatcher | RateLookahead = batches
         if ctx is not None:
-            meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics)
+            rate = None
+            if "omega_dps" in metrics:  # the models' rate, on the stream's evidence
+                stream = RateLookahead(
+                    batches, settings.max_repeats, info["kind"] == "camera", progress=progress
+                )
+                rate = stream.rate
+            meter = ComplexityMeter(
+                fps, float(ctx["deg_per_px"]), settings, ctx, metrics=metrics, rate=rate
+            )
         parts = []
-        while (fb := batches.next_batch()) is not None:
+        while (fb := stream.next_batch()) is not None:
             res = meter.update(fb.images, fb.t_s, fb.repeat) if meter is not None else {}
             res = {m: v for m, v in res.items() if m in (*metrics, *flags_of(metrics))}
             values = {n: fb.native_metrics[:, k] for k, n in enumerate(NATIVE_METRICS)}
@@ -406,8 +438,10 @@ def measure_video(
                     {"frame": fb.frame, "t_s": fb.t_s, "repeat": fb.repeat, **res, **values}
                 )
             )
-            if progress is not None:
+            if progress is not None and stream is batches:  # else the lookahead counts
                 progress(len(fb.frame))
+        if isinstance(stream, RateLookahead) and meter is not None:
+            meter.rate = stream.final_rate()  # the same rate; a note where it broke later
         src_size = (int(info["src_height_px"]), int(info["src_width_px"]))
         table = with_p910_corrections(
             _frame_table(parts, "native", src_size, recording_id, metrics),
@@ -423,11 +457,11 @@ def measure_video(
             "duration_s": float(batches.last_t_s or 0.0),
             "frames": table.height,
             "repeated_frames": batches.repeats_total,
-            # each lost frame once (vdc.sources.end_fields): before the first frame, a gap
+            # each lost frame once (vdc.stream_counts.end_fields): before the first frame, a gap
             # in the times (a bad packet's or a late frame's cost) or after the last
             **batches.end_fields(),
             "source_problems": reader.problems,
-            "model_fps": meter.model_fps if meter is not None else None,
+            **rate_fields(meter),
             "bit_depth": info["bit_depth"],
             "color_range_tag": info.get("color_range_tag"),
             **batches.color_ranges(),

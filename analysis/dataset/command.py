@@ -19,14 +19,21 @@ from analysis.dataset.flags import FLAGS, finish, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
 from analysis.dataset.measure import measure_episode
 from analysis.dataset.page import write_page
-from vdc.cli_support import API_ONLY, non_negative_float, non_negative_int, option, positive_float
+from vdc.cli_support import (
+    API_ONLY,
+    Settings,
+    non_negative_float,
+    non_negative_int,
+    option,
+    positive_float,
+)
 from vdc.executors import ExecutorSettings, Feedback, executor_field, run_tasks
 from vdc.parquet_io import WroteFiles, table_set, write_tables
 from vdc.recording import FOOTAGE_MODEL
 
 
 @dataclasses.dataclass(frozen=True)
-class DatasetSettings:
+class DatasetSettings(Settings):
     """``vdc-analyse dataset``: what is measured, the thresholds' one free choice (what a
     repeat is), which flags fail a run, and where the episodes run."""
 

@@ -46,7 +46,6 @@ from analysis.boundary.command import (
     boundaries,
     condition_name,
     condition_statistics,
-    fit_policy,
     published,
     write_arena_outputs,
 )
@@ -58,6 +57,7 @@ from analysis.boundary.fit import (
     tf_to_dps,
     with_fit,
 )
+from analysis.boundary.policy import fit_policy
 from analysis.boundary.scenes import scene_fields
 from analysis.experiments.captures import RunItem, collision_run_item
 from analysis.stats import condition_share_bounds
@@ -569,7 +569,7 @@ def grid_fits_per_scene(
 
 
 def policy_from_campaign(runs: pl.DataFrame, s: BoundarySettings, bins: int = 3) -> Any:
-    """The policy (:func:`analysis.boundary.command.fit_policy`) from an adaptive campaign's
+    """The policy (:func:`analysis.boundary.policy.fit_policy`) from an adaptive campaign's
     runs: each
     scene's TF range cut in ``bins`` equal parts, the runs of a part pooled as one condition
     (``<scene>-tf<LO>-<HI>``); parts where some value has no run are left out (the policy

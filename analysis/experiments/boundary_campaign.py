@@ -22,13 +22,13 @@ from analysis.boundary.command import (
     boundaries,
     condition_complexity,
     condition_statistics,
-    fit_policy,
     published,
     run_row,
     write_arena_outputs,
 )
 from analysis.boundary.fit import grid_fits, with_fit
 from analysis.boundary.footage import footage_boundary
+from analysis.boundary.policy import fit_policy
 from analysis.experiments.adaptive import adaptive_boundary
 from analysis.experiments.captures import (
     RunItem,

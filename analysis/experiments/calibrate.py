@@ -18,7 +18,7 @@ from avdm.base import Params
 from avdm.calibration import CalibrationResult, fit_decoding, valid_periods_px, valid_tfs_hz
 from avdm.calibration_store import CALIBRATION_FILE
 from avdm.registry import canonical_name, make_params
-from vdc.cli_support import option, parse_size, positive_float
+from vdc.cli_support import Settings, option, parse_size, positive_float
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles
 from vdc.provenance import package_versions
@@ -108,7 +108,7 @@ def plot_calibration(result: CalibrationResult, path: Path) -> Path:
 
 
 @dataclasses.dataclass(frozen=True)
-class CalibrateSettings:
+class CalibrateSettings(Settings):
     """``vdc-analyse calibrate``: the geometry to fit (a, b) for and the gratings used."""
 
     fps: float = option(300.0, "frame rate, Hz", type=positive_float)

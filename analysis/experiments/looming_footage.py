@@ -43,7 +43,7 @@ import numpy as np
 import polars as pl
 
 from avdm.looming import render_looming
-from vdc.cli_support import option, positive_float
+from vdc.cli_support import Settings, option, positive_float
 from vdc.executors import QUIET, Feedback
 
 # photographs scikit-image ships in its package (no download): busy and plain, indoor and out
@@ -55,7 +55,7 @@ ENTER_S = (1.5, 3.0)
 
 
 @dataclasses.dataclass(frozen=True)
-class LoomingFootageSettings:
+class LoomingFootageSettings(Settings):
     """``vdc-analyse looming-footage``: how many clips, their raster and the condition ranges."""
 
     clips: int = option(200, "clips to render (clip k is the same whatever the count)")

@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model, make_params, require_angular_velocity
 from avdm.stimuli import WAVEFORMS, grating, omega_true_dps, period_px_from_sf
-from vdc.cli_support import option, parse_size, positive_float
+from vdc.cli_support import Settings, option, parse_size, positive_float
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
@@ -298,7 +298,7 @@ def plot_grid(df: pl.DataFrame, path: Path, title: str) -> Path:
 
 
 @dataclass(frozen=True)
-class SweepSettings:
+class SweepSettings(Settings):
     """``vdc-analyse sweep``: the model, the cells (paper layout unless ``sf_upc`` or
     ``tf_hz`` lists are given: then their full grid) and the stimulus."""
 

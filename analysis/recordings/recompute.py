@@ -36,18 +36,17 @@ from analysis.recordings.loading import (
 )
 from analysis.recordings.reader import RecordingError
 from avdm.base import Model, primary_output_name
-from avdm.registry import canonical_name, make_model, parse_model_spec
+from avdm.registry import canonical_name, check_detector, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
-from vdc.cli_support import API_ONLY, non_negative_int, option, positive_float
-from vdc.parquet_io import WroteFiles, table_set, write_parquet
-from avdm.registry import check_detector
-from vdc.folders import expand_recordings
+from vdc.cli_support import API_ONLY, Settings, non_negative_int, option, positive_float
 from vdc.errors import UserError
+from vdc.folders import expand_recordings, path_list
+from vdc.parquet_io import WroteFiles, table_set, write_parquet
 
 
 @dataclasses.dataclass(frozen=True)
-class SummarySettings:
+class SummarySettings(Settings):
     """How summaries are computed (stored in the Parquet metadata as ``settings``)."""
 
     threshold_dps: float = option(
@@ -137,7 +136,9 @@ def recompute(
     # the capture ran its online model (avdm.true_time)
     timing = loaded.frames.select("frame", "t_s", "repeat").drop_nulls()
     true_time = timing.height > 0
-    runners = [TrueTimeModel(m) for m in models] if true_time else models
+    # a regular cadence's new frames are timed in whole model intervals, as the capture ran
+    cadence = loaded.props.get("video", {}).get("model_fps_reason") == "regular cadence"
+    runners = [TrueTimeModel(m, cadence) for m in models] if true_time else models
     by_frame = timing.sort("frame") if true_time else None
     outs: dict[str, list[dict[str, np.ndarray]]] = {m.name: [] for m in models}
     frames: list[np.ndarray] = []
@@ -409,7 +410,7 @@ def check_models(loaded: LoadedRecording, specs: Sequence[str]) -> None:
 
 
 def build_tables(
-    paths: Sequence[str | Path],
+    paths: str | Path | Sequence[str | Path],
     specs: Sequence[str] | None,
     settings: SummarySettings = SummarySettings(),
     progress: Callable[[int], None] | None = None,
@@ -424,7 +425,7 @@ def build_tables(
     distinct = DistinctRecordings()
     left: list[tuple[str, Exception]] = []  # said once the others are read (or raised)
     checked = False
-    for path in sorted(paths, key=str):
+    for path in sorted(path_list(paths)):  # a single path given as a str: a list of one
         try:
             loaded = load_recording(path, settings)
         except (RecordingError, OSError) as exc:  # one bad file leaves the others be
@@ -522,7 +523,7 @@ class TablesResult(WroteFiles):
 
 
 def tables(
-    recordings: Sequence[str | Path],
+    recordings: str | Path | Sequence[str | Path],
     settings: TablesSettings = TablesSettings(),
     out: str | Path | None = None,
     *,

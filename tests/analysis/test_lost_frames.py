@@ -21,7 +21,7 @@ N, FPS, GOP = 30, 25, 10
 PIXEL_METRICS = "si_p910,mafd"  # no model needed: cheap, and the counts do not depend on it
 
 
-def write_clip(path: Path, n: int = N, first_pts: int = 0) -> Path:
+def write_clip(path: Path, n: int = N, first_pts: int = 0, gop: int = GOP) -> Path:
     """A 1.2-s 160x120 25-fps H.264 clip of a blurred texture panning 2 px per frame, with
     libx264's B-frames and a keyframe every ``GOP`` frames; its frames' pts start at
     ``first_pts`` (in frames: a file cut from a longer one starts late; negative: an MP4 edit
@@ -31,7 +31,7 @@ def write_clip(path: Path, n: int = N, first_pts: int = 0) -> Path:
     with av.open(str(path), "w") as out:
         stream = out.add_stream("libx264", rate=FPS)
         stream.width, stream.height, stream.pix_fmt = 160, 120, "yuv420p"
-        stream.codec_context.gop_size = GOP
+        stream.codec_context.gop_size = gop
         for i in range(n):
             img = np.ascontiguousarray(tex[:, 2 * i : 2 * i + 160])
             frame = av.VideoFrame.from_ndarray(img, format="gray").reformat(format="yuv420p")
@@ -128,11 +128,47 @@ def test_frames_lost_at_the_start_and_at_the_end_are_counted_once(tmp_path, suff
                 reader.close()
         if last_gop:  # the last GOP does not decode: lost after the last frame, in seconds too
             assert info["lost_after_last"] >= N - 2 * GOP
-            # the same frames, as time: the header's end less the last frame's and one interval
-            assert info["missing_s"] == pytest.approx(info["lost_after_last"] / FPS, abs=1e-6)
+            # the same frames, as time: the header's end less the last frame's and one
+            # interval, and the lost start (the first frame's time after the stream's start)
+            lost = info["lost_after_last"] + (GOP if first else 0)
+            assert info["missing_s"] == pytest.approx(lost / FPS, abs=1e-6)
             assert "counted as dropped" in info["cut_note"]
         else:
-            assert info["lost_after_last"] == 0 and info["missing_s"] == 0.0
+            assert info["lost_after_last"] == 0
+            assert info["missing_s"] == pytest.approx(GOP / FPS if first else 0.0, abs=1e-6)
+
+
+def zero_first_cluster(src: Path, dst: Path) -> Path:
+    """A Matroska file with its whole first Cluster (its ID, timestamp and blocks: the first
+    key frame's group) set to zero in the file's bytes: FFmpeg then reads the stream as
+    starting at the second cluster; the file's index (Cues) still names the first."""
+    data = bytearray(src.read_bytes())
+    cluster = b"\x1f\x43\xb6\x75"  # the Cluster element's ID
+    first = data.find(cluster)
+    second = data.find(cluster, first + 1)
+    assert 0 < first < second, "the clip has two clusters"
+    data[first:second] = bytes(second - first)
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+def test_an_mkv_whose_first_cluster_is_unreadable_counts_its_lost_start(tmp_path):
+    """Issue 44: 100 frames whose first 2 s (a key frame every 50 frames: one cluster) are
+    unreadable: 50 frames measured, 50 dropped and 2 s missing, by the complexity and by
+    the capture, not a whole 2-s clip."""
+    from capture.video import VideoSettings, record_video
+
+    clean = write_clip(tmp_path / "clean.mkv", n=100, gop=50)
+    bad = zero_first_cluster(clean, tmp_path / "bad.mkv")
+    with av.open(str(bad)) as c:  # the damage is what the test means: FFmpeg starts at 2 s
+        assert c.start_time == 2_000_000
+    info = measured(bad)
+    assert (info["frames"], info["dropped_frames"], info["container_frames"]) == (50, 50, 100)
+    assert info["header_duration_s"] == pytest.approx(4.0)
+    assert info["missing_s"] == pytest.approx(2.0, abs=1e-6)  # the lost start, in seconds
+    rec = record_video(VideoSettings(source=str(bad), fov_deg=70.0, model="avdm"),
+                       tmp_path / "bad.rrd")  # fmt: skip
+    assert (rec.record.frames, rec.dropped, rec.container_frames) == (50, 50, 100)
 
 
 def test_unreadable_first_and_last_images_are_counted(tmp_path):

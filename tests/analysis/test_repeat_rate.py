@@ -1,11 +1,13 @@
-"""Repeated frames at a higher container rate (issue #31 §3): the models run at the rate of
-new frames, whatever the container says, so a clip whose every frame is shown twice at twice
-the rate (or three times at three times) reads the original's profile, on real fast footage
-through a real codec, by ``vdc.complexity_of_frames`` and by ``vdc-analyse complexity`` on
-the file."""
+"""Repeated frames at a higher container rate (issues #31 §3, #48): the models run at the
+rate of new frames where the whole stream's repeats keep a regular cadence, so a clip whose
+every frame is shown twice at twice the rate (three times at three times, or 2 and 3 times in
+turn: 3:2 pulldown) reads the original's profile, on real fast footage through a real codec,
+by ``vdc.complexity_of_frames`` and by ``vdc-analyse complexity`` on the file, and each
+command says the rate in one line."""
 
 from __future__ import annotations
 
+from fractions import Fraction
 from pathlib import Path
 
 import av
@@ -17,7 +19,7 @@ from skimage import data
 
 from analysis.complexity.command import ComplexitySettings, complexity, complexity_of_frames
 from avdm.stimuli import panned_image
-from avdm.true_time import new_frame_rate
+from avdm.true_time import model_rate, new_frame_rate
 from vdc.frame_metrics import luma_plane
 
 FOV, FPS, N_NEW, WARM = 70.0, 25.0, 36, 8  # 70 deg over 396 px: the robot's 99x72 raster
@@ -25,9 +27,10 @@ OMEGA_DPS = 150.0  # a fast pan: 8.5 px per new frame at the working raster
 
 
 @pytest.fixture(scope="module")
-def clips(tmp_path_factory) -> dict[int, Path]:
+def clips(tmp_path_factory) -> dict[float, Path]:
     """One fast pan across a real photograph at 25 fps, and the same frames each shown 2× at
-    50 fps and 3× at 75 fps, each through H.264 (CRF 18)."""
+    50 fps, 3× at 75 fps and 2× and 3× in turn at 62.5 fps (3:2 pulldown), each through
+    H.264 (CRF 18)."""
     d = tmp_path_factory.mktemp("repeats")
     photo = cv2.cvtColor(data.coffee(), cv2.COLOR_RGB2GRAY).astype(np.float64)
     frames = panned_image(
@@ -35,13 +38,14 @@ def clips(tmp_path_factory) -> dict[int, Path]:
         omega_dps=OMEGA_DPS, n_frames=N_NEW,
     )  # fmt: skip
     paths = {}
-    for k in (1, 2, 3):
-        path = d / f"pan_x{k}.mp4"
+    for k in (1, 2, 2.5, 3):
+        path = d / f"pan_x{k:g}.mp4"
         out = av.open(str(path), "w")
-        st = out.add_stream("libx264", rate=int(FPS * k))
+        st = out.add_stream("libx264", rate=Fraction(FPS) * Fraction(k))
         st.width, st.height, st.pix_fmt = 396, 288, "yuv420p"
         st.options = {"crf": "18", "preset": "veryfast"}
-        for f in np.repeat(frames, k, axis=0):
+        shown = np.resize([2, 3], N_NEW) if k == 2.5 else np.full(N_NEW, k, dtype=int)
+        for f in np.repeat(frames, shown, axis=0):
             for p in st.encode(av.VideoFrame.from_ndarray(f, format="gray")):
                 out.mux(p)
         for p in st.encode():
@@ -60,9 +64,9 @@ def decoded(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return grey, luma
 
 
-def mean_omega(table: pl.DataFrame, k: int) -> float:
+def mean_omega(table: pl.DataFrame, k: float) -> float:
     """The mean AVDM reading after the warm-up (the first WARM new frames)."""
-    return float(table["omega_dps"].to_numpy()[WARM * k :].mean())
+    return float(table["omega_dps"].to_numpy()[int(WARM * k) :].mean())
 
 
 def test_repeated_frames_at_a_higher_rate_read_the_originals_profile(clips, tmp_path) -> None:
@@ -72,6 +76,9 @@ def test_repeated_frames_at_a_higher_rate_read_the_originals_profile(clips, tmp_
         assert len(grey) == N_NEW * k
         table = complexity_of_frames(grey, FPS * k, FOV, native=luma, color_range=None)
         assert int(table["repeat"].sum()) == N_NEW * (k - 1)  # each repeat found, no more
+        rate = model_rate(FPS * k, table["repeat"].to_numpy())
+        assert rate.fps == pytest.approx(FPS)
+        assert (rate.reason == "regular cadence") == (k > 1) and (rate.note is None) == (k == 1)
         readings[k] = mean_omega(table, k)
     # a real pan of 150 deg/s: the original reads fast motion (the multi-scale AVDM's band)
     assert readings[1] > 100.0
@@ -79,6 +86,7 @@ def test_repeated_frames_at_a_higher_rate_read_the_originals_profile(clips, tmp_
     # what is left is the codec coding each clip's frames a little differently
     assert readings[2] == pytest.approx(readings[1], rel=0.05)
     assert readings[3] == pytest.approx(readings[1], rel=0.05)
+    assert readings[2.5] == pytest.approx(readings[1], rel=0.05)
 
     # the file path: vdc-analyse complexity on the 3x clip builds its model at 25 Hz
     res = complexity(
@@ -86,17 +94,28 @@ def test_repeated_frames_at_a_higher_rate_read_the_originals_profile(clips, tmp_
     )
     clip = res.clips.row(0, named=True)
     assert clip["fps"] == pytest.approx(75.0) and clip["model_fps"] == pytest.approx(FPS)
+    assert clip["model_fps_reason"] == "regular cadence"
     assert clip["repeated_frames"] == 2 * N_NEW
+    said = [n for n in res.notices if "fps" in n and "new frames" in n]
+    assert len(said) == 1 and "25 fps" in said[0] and "75" in said[0], res.notices
     assert mean_omega(res.table, 3) == pytest.approx(readings[1], rel=0.05)
 
     # the capture too: vdc-capture video builds its online model at the new frames' rate, and
     # complexity on the recording finds the same rate again from the container's
     from analysis.recordings.reader import Recording
+    from capture.run import CaptureOptions
     from capture.video import VideoSettings, record_video
 
-    rec = record_video(VideoSettings(source=str(clips[3]), fov_deg=FOV), tmp_path / "x3.rrd")
+    logged: list[str] = []
+    rec = record_video(
+        VideoSettings(source=str(clips[3]), fov_deg=FOV), tmp_path / "x3.rrd",
+        CaptureOptions(progress=False, log=logged.append),
+    )  # fmt: skip
+    assert rec.model_fps == pytest.approx(FPS) and rec.model_fps_reason == "regular cadence"
+    assert sum("new frames" in line for line in logged) == 1, logged
     props = Recording(rec.record.path).properties()
     assert props["model_context"]["fps"] == pytest.approx(FPS)
+    assert props["video"]["model_fps_reason"] == "regular cadence"
     assert props["camera"]["fps"] == pytest.approx(3 * FPS)
     from_rec = complexity(
         [rec.record.path], ComplexitySettings(flow_preset="ultrafast"), tmp_path / "r"

@@ -4,7 +4,9 @@ before writing anything, records a silent one as unverified, and records the rob
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import os
 import pty
 import re
@@ -22,15 +24,23 @@ from analysis.recordings.loading import load_recording
 from analysis.recordings.reader import Recording
 from analysis.recordings.recompute import recompute
 from avdm.registry import make_model
-from capture.robot_capture import ColiasRobotDevice, RobotCaptureConfig
+from capture.robot_capture import (
+    ColiasRobotDevice,
+    RobotCaptureConfig,
+    RobotSettings,
+    record_robot,
+)
 from capture.serial_protocol import (
     TYPE_ANNOUNCE,
+    TYPE_END,
     TYPE_PARAMS,
     TYPE_START,
     Announcement,
     PacketParser,
     decode_announce,
+    encode,
     encode_announce,
+    encode_frame,
 )
 from capture.tracker import save_calibration
 from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn
@@ -219,3 +229,165 @@ def test_a_robot_that_says_nothing_is_given_up_on_after_the_timeout(tmp_path: Pa
     finally:
         os.close(master)
         os.close(slave)
+
+
+# -- a robot held to what it announced ------------------------------------------------------
+def scripted_robot(master: int, packets: list[bytes], seen: list[int] | None = None) -> None:
+    """Answer the host's START with ``packets`` (an ANNOUNCE, FRAMEs, ...) and END, as a
+    firmware would; the writes wait while the host has not read enough (a pty holds a few kB)."""
+    parser = PacketParser()
+    deadline = time.monotonic() + 30
+    started = False
+    while time.monotonic() < deadline and not started:
+        try:
+            data = os.read(master, 4096)
+        except BlockingIOError:
+            time.sleep(0.01)
+            continue
+        for ptype, _ in parser.feed(data):
+            if seen is not None:
+                seen.append(ptype)
+            started = started or ptype == TYPE_START
+    blob = b"".join(packets) + encode(TYPE_END)  # the run is over: a host never waits on
+    while blob and time.monotonic() < deadline:
+        try:
+            blob = blob[os.write(master, blob) :]
+        except (BlockingIOError, OSError):
+            time.sleep(0.01)
+
+
+SMALL = Announcement("avdm", AVDM_OUTPUTS, 33.0, 20, 16, 70 / 20, 8)  # a small camera: fast
+
+
+def frames_of(a: Announcement, first: int, n: int, shape=None, outputs=None) -> list[bytes]:
+    """``n`` FRAME packets from index ``first`` on ``a``'s camera (or ``shape`` (H, W)), each
+    with ``a``'s number of outputs (or ``outputs``)."""
+    h, w = shape or (a.height_px, a.width_px)
+    rng = np.random.default_rng(first)
+    values = [0.5] * len(a.outputs) if outputs is None else outputs
+    return [
+        encode_frame(
+            k, round(k * 1e6 / a.fps), values, rng.integers(0, 255, (h, w), np.uint8), (h, w)
+        )
+        for k in range(first, first + n)
+    ]
+
+
+def with_robot(tmp_path: Path, packets: list[bytes], run, **cfg):
+    """``run(config)`` against a scripted robot on a real pty; what ``run`` returns."""
+    master, slave = pty.openpty()
+    os.set_blocking(master, False)
+    robot = threading.Thread(target=scripted_robot, args=(master, packets), daemon=True)
+    robot.start()
+    camera = overhead_frames(tmp_path / "o")
+    config = dict(port=os.ttyname(slave), camera=str(camera), model="avdm", **cfg)
+    try:
+        return run(config, camera)
+    finally:
+        robot.join(timeout=30)
+        os.close(master)
+        os.close(slave)
+
+
+@pytest.mark.parametrize(
+    ("announce", "packets", "needle"),
+    [
+        # announced 99 x 72, sends 80 x 60 (the fault found: recorded as verified at 99 x 72)
+        (
+            Announcement("avdm", AVDM_OUTPUTS, 33.0, 99, 72, 70 / 99, 36),
+            "shape",
+            "frame 0 is 80x60 px, the camera 99x72 px",
+        ),
+        (SMALL, "outputs", f"frame 0 carries 3 outputs, avdm has {len(AVDM_OUTPUTS)}"),
+        (SMALL, "infinite", "frame 0 has infinite omega_dps"),
+        (dataclasses.replace(SMALL, width_px=0), "", "a 0x16 px camera"),
+        (dataclasses.replace(SMALL, texture_row=16), "", "texture row 16, outside its 16 px"),
+        (dataclasses.replace(SMALL, fps=math.inf), "", "a camera rate of inf Hz"),
+        (dataclasses.replace(SMALL, fps=0.0), "", "a camera rate of 0.0 Hz"),
+        (dataclasses.replace(SMALL, deg_per_px=math.nan), "", "nan deg/px"),
+    ],
+)
+def test_a_robot_that_breaks_its_announcement_at_the_start_is_refused(
+    tmp_path: Path, announce: Announcement, packets: str, needle: str
+) -> None:
+    first = {
+        "shape": dict(shape=(60, 80)),
+        "outputs": dict(outputs=[0.5, 0.5, 0.5]),
+        "infinite": dict(outputs=[math.inf] + [0.5] * 6),
+        "": {},
+    }[packets]
+    first = frames_of(announce if packets else SMALL, 0, 3, **first)
+    out = tmp_path / "rec.rrd"
+
+    def run(config, _camera):
+        settings = RobotSettings(port=config["port"], camera=config["camera"],
+                                 calibration=str(_camera.parent / "calibration.json"))  # fmt: skip
+        with pytest.raises(ValueError) as err:
+            record_robot(settings, out, warn=lambda _: None)
+        return str(err.value)
+
+    message = with_robot(tmp_path, [encode_announce(announce), *first], run)
+    assert needle in message and "\n" not in message, message
+    assert not list(tmp_path.glob("*.rrd")) and not list(tmp_path.glob(".*lock"))
+
+
+def test_a_robot_that_announces_the_same_parameters_otherwise_spelt_is_accepted(
+    tmp_path: Path,
+) -> None:
+    a = dataclasses.replace(SMALL, model="avdm:beta=0.25")  # avdm's own beta
+    assert make_model("avdm").params.beta == 0.25  # (what makes the two the same model)
+
+    def run(config, _camera):
+        device = ColiasRobotDevice(RobotCaptureConfig(**config))
+        device.connect()
+        device.disconnect()
+        return device
+
+    device = with_robot(tmp_path, [encode_announce(a), *frames_of(a, 0, 2)], run)
+    assert device.announced == a and device.model_name == "avdm"
+    # another beta is another model, whatever the spelling
+    b = dataclasses.replace(SMALL, model="avdm:beta=0.5")
+    (tmp_path / "b").mkdir()
+    with pytest.raises(ValueError, match=re.escape("the robot runs avdm:beta=0.5")):
+        with_robot(tmp_path / "b", [encode_announce(b)], run)
+
+
+@pytest.mark.parametrize("change", ["frame size", "outputs", "announcement"])
+def test_a_robot_that_changes_mid_run_ends_the_capture_cleanly(tmp_path: Path, change) -> None:
+    other = dataclasses.replace(SMALL, width_px=24, height_px=18, texture_row=9)
+    tail = {
+        "frame size": frames_of(SMALL, 11, 3, shape=(18, 24)),
+        "outputs": frames_of(SMALL, 11, 3, outputs=[0.5] * 3),
+        "announcement": [encode_announce(other), *frames_of(other, 11, 3)],
+    }[change]
+    packets = [encode_announce(SMALL), *frames_of(SMALL, 0, 11), *tail]
+    out = tmp_path / "rec.rrd"
+
+    def run(config, camera):
+        return run_cli(
+            "capture", "robot", "--port", config["port"], "--camera", str(camera),
+            "--camera-fps", "50", "--calibration", str(camera.parent / "calibration.json"),
+            "--model", "avdm", "--out", str(out), "--quiet", timeout=120,
+        )  # fmt: skip
+
+    proc = with_robot(tmp_path, packets, run)
+    assert proc.returncode == 1, proc.stderr
+    # one line says why it ended (beside the usual "recording ... -> ..." line)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "recording robot-" not in ln]
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "error:" in lines[0] and "the 11 frames before it" in lines[0], lines[0]
+    why = {
+        "frame size": "frame 11 is 24x18 px, the camera 20x16 px",
+        "outputs": "frame 11 carries 3 outputs, avdm has 7",
+        "announcement": "mid-run the robot announces avdm on a 24x18 camera",
+    }[change]
+    assert why in lines[0], lines[0]
+    rec = Recording(out)
+    frames = rec.read_frames()
+    assert frames.frame.tolist() == list(range(11))  # every frame before the change, kept
+    assert frames.images.shape == (11, 16, 20)
+    events = rec.events()
+    texts = [t for k, t in zip(events["kind"], events["text"], strict=True) if k == "link_error"]
+    assert len(texts) == 1 and "capture ends here" in texts[0], texts
+    assert rec.properties()["run_end"]["stop_reason"] == "link error"
+    assert not list(tmp_path.glob("*.partial.rrd")) and not list(tmp_path.glob(".*lock"))
