@@ -7,14 +7,14 @@ from __future__ import annotations
 import importlib
 import sys
 
+from vdc.shadow import shadowed  # standard library only: nothing heavy
+
 
 def launch(prog: str, module: str) -> int:
     """Run ``module.main()`` for the console script ``prog``; Ctrl-C at any moment ends in
     one line and exit status 130. A folder named like one of vdc's packages that Python finds
     first (``vdc/`` in the current folder under ``python -m``, or on ``PYTHONPATH``) ends in one
     line naming it and exit status 2."""
-    from vdc.shadow import shadowed
-
     problem = shadowed()
     if problem is not None:
         print(f"{prog}: {problem}", file=sys.stderr)

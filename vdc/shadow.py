@@ -4,8 +4,8 @@
 ``vdc.py``) beside the script is what ``import vdc`` finds; the real package then never runs, and
 the user sees ``AttributeError: module 'vdc' has no attribute 'record_sim'``. A folder without
 ``__init__.py`` is a namespace package: ``__file__`` is None and ``__path__`` points at the
-folder. The other packages (``capture``, ``analysis``) and the console scripts import ``vdc``, so
-they can look at what they got and say where it came from.
+folder. The other packages (``capture``, ``analysis``) and the console scripts can look at what
+``import vdc`` finds and say where it came from.
 
 Plain standard library, no ``vdc`` import: ``capture`` and ``analysis`` load this file by its path
 beside them, which works even when ``import vdc`` finds the wrong thing.
@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
-PACKAGES = ("vdc", "avdm", "capture", "analysis")
+OWN_PACKAGES = ("vdc", "avdm", "capture", "analysis")
 # vdc, avdm, capture and analysis are installed side by side (pyproject's packages.find)
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -47,14 +47,7 @@ def message(name: str, found: str) -> str:
     )
 
 
-def check_imported(name: str) -> None:
-    """Raise ImportError naming the impostor if ``sys.modules[name]`` is not vdc's package."""
-    module = sys.modules.get(name)
-    if module is not None and not is_ours(name, module):
-        raise ImportError(message(name, where(module)), name=name)
-
-
-def shadowed(names: tuple[str, ...] = PACKAGES) -> str | None:
+def shadowed(names: tuple[str, ...] = OWN_PACKAGES) -> str | None:
     """The message for the first of ``names`` that an import would take from elsewhere (whether
     imported already or only found), else None. Imports nothing."""
     for name in names:

@@ -84,7 +84,7 @@ class MeasureSettings(Protocol):
 MODEL_METRICS = ("omega_dps", "flow_dps", "zlib_ratio")
 # a metric's validity flag, a column beside the metrics (not one of them: never averaged,
 # ranked or correlated), present whenever the metric is
-FLAGS = {"omega_dps": "omega_valid"}
+VALIDITY_FLAGS = {"omega_dps": "omega_valid"}
 # in deg/s: a video source needs its camera's field of view for these
 ANGULAR_METRICS = ("omega_dps", "flow_dps")
 METRICS = (
@@ -224,8 +224,8 @@ class ComplexityMeter:
 
 
 def flags_of(metrics: tuple[str, ...]) -> tuple[str, ...]:
-    """The validity flags (:data:`FLAGS`) that come with ``metrics``."""
-    return tuple(FLAGS[m] for m in metrics if m in FLAGS)
+    """The validity flags (:data:`VALIDITY_FLAGS`) that come with ``metrics``."""
+    return tuple(VALIDITY_FLAGS[m] for m in metrics if m in VALIDITY_FLAGS)
 
 
 def fov_free(metrics: tuple[str, ...], width: int | None = None) -> tuple[str, ...]:
@@ -243,7 +243,7 @@ def _frame_table(
     metrics: tuple[str, ...] = METRICS,
 ) -> pl.DataFrame:
     """The per-frame table of one source: recording_id, frame, t_s, repeat, the ``metrics``
-    in :data:`METRICS` order, their :data:`FLAGS` (bool), and the source raster's name and
+    in :data:`METRICS` order, their :data:`VALIDITY_FLAGS` (bool), and the source raster's name and
     size."""
     df = pl.concat(parts, how="diagonal_relaxed")
     flags = flags_of(metrics)
