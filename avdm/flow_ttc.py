@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from avdm.base import Output, Params, check_frames, run_by_steps
+from avdm.errors import ParameterError
 
 FLOW_TTC_OUTPUTS: tuple[Output, ...] = (
     Output("tau_s", "s", "time to contact from the most expanding region (tau_max_s: none)"),
@@ -61,7 +62,7 @@ class FlowTtcParams(Params):
         for name in ("fps", "tau_alert_s", "min_texture", "tau_max_s"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ValueError(f"flow-ttc parameter {name}={v!r}: must be a positive number")
+                raise ParameterError(f"flow-ttc parameter {name}={v!r}: must be a positive number")
         for name, lo, hi in (
             ("n_confirm", 1, 100),
             ("cells", 1, 16),
@@ -71,9 +72,11 @@ class FlowTtcParams(Params):
         ):
             v = getattr(self, name)
             if not (isinstance(v, int) and lo <= v <= hi):
-                raise ValueError(f"flow-ttc parameter {name}={v!r}: must be an integer {lo}-{hi}")
+                raise ParameterError(
+                    f"flow-ttc parameter {name}={v!r}: must be an integer {lo}-{hi}"
+                )
         if self.tau_alert_s >= self.tau_max_s:
-            raise ValueError(
+            raise ParameterError(
                 f"flow-ttc parameter tau_alert_s={self.tau_alert_s!r}: must be below "
                 f"tau_max_s={self.tau_max_s!r}"
             )
@@ -153,18 +156,20 @@ class FlowTtc:
         """Process one frame (H, W), uint8 or float on [0, 1]; ``{output: float}``."""
         arr = np.asarray(frame)
         if arr.ndim != 2:
-            raise ValueError(f"a frame must have shape (H, W), got an array of shape {arr.shape}")
+            raise ParameterError(
+                f"a frame must have shape (H, W), got an array of shape {arr.shape}"
+            )
         arr = check_frames(arr[None], min_h=3, min_w=3)[0]
         is_u8 = arr.dtype == np.uint8
         cur = self._levels(arr)
         p = self.params
         prev = self._prev
         if prev is not None and prev.shape != cur.shape:
-            raise ValueError(
+            raise ParameterError(
                 f"frame shape changed from {prev.shape} to {cur.shape} (HxW); call reset() first"
             )
         if prev is not None and is_u8 != self._is_u8:
-            raise ValueError("frame dtype changed between uint8 and float; call reset() first")
+            raise ParameterError("frame dtype changed between uint8 and float; call reset() first")
         self._prev, self._is_u8 = cur, is_u8
         if prev is None:  # no motion before the first frame
             return {"tau_s": p.tau_max_s, "divergence_hz": 0.0, "alert": 0.0}

@@ -28,6 +28,8 @@ import math
 import cv2
 import numpy as np
 
+from avdm.errors import ParameterError
+
 
 @dataclasses.dataclass(frozen=True)
 class Looming:
@@ -92,7 +94,7 @@ def render_looming(
     frame (it enters it, e.g. from behind a corner). Returns :class:`Looming`."""
     h, w = size
     if h < 4 or w < 4 or n_frames < 1 or not (fps > 0 and rv_s > 0 and 0 < hfov_deg < 180):
-        raise ValueError("render_looming needs a raster of at least 4x4, frames, fps > 0, "
+        raise ParameterError("render_looming needs a raster of at least 4x4, frames, fps > 0, "
                          "rv_s > 0 and 0 < hfov_deg < 180")  # fmt: skip
     f = focal_px(w, hfov_deg)
     deg_per_px = hfov_deg / w  # of the background cylinder

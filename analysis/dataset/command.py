@@ -27,6 +27,7 @@ from vdc.cli_support import (
     option,
     positive_float,
 )
+from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, Feedback, executor_field, run_tasks
 from vdc.parquet_io import WroteFiles, table_set, write_tables
 from vdc.recording import FOOTAGE_MODEL
@@ -78,7 +79,7 @@ class DatasetSettings(Settings):
         parse_metrics(self.metrics)
         unknown = [f for f in self.fail_names() if f not in FLAGS]
         if unknown:
-            raise ValueError(
+            raise UserError(
                 f"--fail-on: unknown flag {unknown[0]!r}; choose from {', '.join(FLAGS)} or all"
             )
         self.episode_list()
@@ -94,7 +95,7 @@ class DatasetSettings(Settings):
         try:
             return [int(e) for e in self.episodes.split(",") if e.strip()]
         except ValueError:
-            raise ValueError(
+            raise UserError(
                 f"--episodes: give comma-separated indices, got {self.episodes!r}"
             ) from None
 

@@ -241,11 +241,11 @@ def read_episode_data(path: str, episode: int) -> EpisodeData:
         want = cols + [c for c in ("observation.state", "action") if c in schema.names]
         table = pq.read_table(path, columns=want, filters=[("episode_index", "=", episode)])
     except FileNotFoundError:
-        raise ValueError(f"{path}: no such file") from None
+        raise UserError(f"{path}: no such file") from None
     except (OSError, pa.ArrowException) as exc:
-        raise ValueError(f"{path}: not a readable Parquet file ({exc})") from None
+        raise UserError(f"{path}: not a readable Parquet file ({exc})") from None
     if table.num_rows == 0:
-        raise ValueError(f"{path}: no rows of episode {episode}")
+        raise UserError(f"{path}: no rows of episode {episode}")
     order = np.argsort(table["frame_index"].to_numpy())
     ts = table["timestamp"].to_numpy().astype(np.float64)[order]
     state = _vectors(table["observation.state"])[order] if "observation.state" in want else None

@@ -16,6 +16,7 @@ import polars as pl
 from analysis.complexity.source_metrics import ComplexityMeter
 from analysis.dataset.layout import EpisodeVideo, read_episode_data
 from analysis.dataset.window import WindowReader
+from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher
 from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
 from vdc.sources import frames_missing_in, open_reader
@@ -210,7 +211,7 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
     finally:
         reader.close()
     if error:
-        raise ValueError(error)
+        raise UserError(error)
     frames = pl.concat(parts)
     st = np.asarray(stats, dtype=np.float64).reshape(-1, 4)
     ch = np.asarray(change, dtype=np.float64).reshape(-1, 2)

@@ -51,6 +51,7 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
+import av
 import cv2
 import numpy as np
 import pyarrow as pa
@@ -188,7 +189,6 @@ class _Encoder:
     def __init__(self, path: Path, codec: str, fps: float, shape: tuple[int, int]) -> None:
         # SVT-AV1 prints its configuration on stderr for every file unless told: errors only
         os.environ.setdefault("SVT_LOG", "1")
-        import av  # lazy: start-up
 
         path.parent.mkdir(parents=True, exist_ok=True)
         self.container = av.open(str(path), "w")
@@ -205,7 +205,6 @@ class _Encoder:
         self.last_pts = -1
 
     def add(self, t_s: float, rgb: np.ndarray) -> None:
-        import av  # lazy: start-up
 
         frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
         pts = max(round(t_s / TIME_BASE), self.last_pts + 1)
@@ -276,9 +275,9 @@ def write_dataset(
     over ``seconds``; the first camera carries the faults, the others see the clean scene
     (their own, shifted a little). Faults name episodes below ``episodes``."""
     if version not in ("v3.0", "v2.1"):
-        raise ValueError(f"version must be v3.0 or v2.1, got {version!r}")
+        raise UserError(f"version must be v3.0 or v2.1, got {version!r}")
     if codec not in CODECS:
-        raise ValueError(f"codec must be one of {', '.join(CODECS)}, got {codec!r}")
+        raise UserError(f"codec must be one of {', '.join(CODECS)}, got {codec!r}")
     root = Path(root)
     (root / "meta").mkdir(parents=True, exist_ok=True)
     scene = _scene(*shape)

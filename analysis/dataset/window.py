@@ -7,6 +7,9 @@ import os
 from collections.abc import Iterator
 from typing import Any
 
+import av
+
+from vdc.errors import UserError
 from vdc.frame_metrics import luma_plane, stream_format
 from vdc.sources import Reader, SourceFrame, display_grey, frames_missing_in
 
@@ -24,18 +27,17 @@ class WindowReader(Reader):
     opened; a file that will not open raises ValueError naming it."""
 
     def __init__(self, path: str, from_s: float, to_s: float | None, fps: float) -> None:
-        import av  # lazy: start-up
 
         self.path, self.from_s, self.to_s, self.fps = path, from_s, to_s, fps
         if not os.path.exists(path):
-            raise ValueError(f"{path}: no such file")
+            raise UserError(f"{path}: no such file")
         try:
             self.container = av.open(path)
         except av.FFmpegError as exc:
-            raise ValueError(f"{path}: not a readable video ({exc})") from None
+            raise UserError(f"{path}: not a readable video ({exc})") from None
         if not self.container.streams.video:
             self.container.close()
-            raise ValueError(f"{path}: no video stream")
+            raise UserError(f"{path}: no video stream")
         self.stream = s = self.container.streams.video[0]
         single = os.environ.get("VDC_WORKER_THREADS") == "1"
         s.thread_type = "NONE" if single else "AUTO"
@@ -48,7 +50,7 @@ class WindowReader(Reader):
         # a window past its file: beyond the container's end by more than a frame interval
         if to_s is not None and end is not None and to_s > end + 1.0 / fps:
             self.container.close()
-            raise ValueError(
+            raise UserError(
                 f"{path}: the episode's window ends at {to_s:.3f} s, past the file's end "
                 f"({end:.3f} s)"
             )
@@ -67,12 +69,11 @@ class WindowReader(Reader):
             self._first = next(self._frames)
         except StopIteration:
             self.container.close()
-            raise ValueError(
+            raise UserError(
                 f"{path}: no frame in the episode's window {from_s:.3f}-{to_s} s"
             ) from None
 
     def _decode(self) -> Iterator[SourceFrame]:
-        import av  # lazy: start-up
 
         s = self.stream
         if self.from_s > 0:  # the key frame at or before the window
