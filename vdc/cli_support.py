@@ -90,6 +90,8 @@ def _conform(value: Any, tp: Any) -> Any:
     if isinstance(tp, type) and issubclass(tp, PurePath):
         return tp(value) if isinstance(value, (str, os.PathLike)) else _NO
     if tp is tuple or origin is tuple:
+        if isinstance(value, str):  # a comma-separated list, as its flag takes it: the class's
+            return value  # own check parses it ("12,30" -> (12.0, 30.0)) and names what is wrong
         return tuple(value) if isinstance(value, (tuple, list)) else _NO
     if isinstance(origin, type):
         return value if isinstance(value, origin) else _NO
