@@ -121,7 +121,7 @@ def read_labels(path: str | Path) -> pl.DataFrame:
             onset = df["hazard_onset_frame"].cast(pl.Float64)
         except pl.exceptions.PolarsError:
             onset = None
-        if onset is None or (onset.drop_nulls() < 0).any() or (onset.drop_nulls() % 1).any():
+        if onset is None or (onset.drop_nulls() < 0).any() or (onset.drop_nulls() % 1 != 0).any():
             raise UserError(
                 f"labels table {str(path)!r}: hazard_onset_frame must be a frame number >= 0 "
                 "or empty"
