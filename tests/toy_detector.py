@@ -22,7 +22,11 @@ class BlindAbove:
     def __init__(
         self,
         blind_above_dps: float = 20.0,
-        dark_share: float = 0.02,
+        # 0.002 of a 160x120 frame is a disc of 3.5 px radius: tests/footage_clips.py's object
+        # (radius 60 px / frames to collision) covers it 17 frames (0.68 s) before impact, inside
+        # the 1 s alert window and earlier than boundary's default --min-ttc-s (0.5 s), so it
+        # sees the object in time (0.02 was 0.2 s before: a miss since too-late alerts count)
+        dark_share: float = 0.002,
         profile_model: str = "avdm-natural",
         **camera: float,
     ) -> None:
