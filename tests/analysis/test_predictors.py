@@ -11,7 +11,7 @@ import polars as pl
 import pytest
 import scipy.stats
 
-from analysis.predictors.report import plot_predictors, predictors_report
+from analysis.predictors.report import STATS, plot_predictors, predictors_report
 from analysis.predictors.statistics import (
     arena_predictors,
     auroc,
@@ -272,7 +272,8 @@ def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
     assert not looming.filter(pl.col("frame") >= 99 - 50)["keep"].any()  # the window is left out
     stats = set(res.predictors["statistic"])
     assert {"clip_auroc", "frame_auroc_pooled", "frame_auroc_within_clip"} <= stats
-    assert "### clip_auroc" in res.markdown
+    # the report names each statistic in words (since 40d33c2), not by its column name
+    assert f"### {STATS['clip_auroc']} (n = " in res.markdown
     # the still clips' paper AVDM is 0, a number: the combined models with it are fitted
     assert "si_p910+ti_p910+avdm" in set(res.predictors["measure"])
 
