@@ -250,7 +250,8 @@ def _problem_of(v: EpisodeVideo, error: str) -> Problem:
     """The problem a failed task names: the file its message starts with (the episode's data
     or its video; the camera said for a video), else the video and the whole message (an
     unexpected error keeps its type)."""
-    msg = error.split(": ", 1)[1] if error.startswith("ValueError: ") else error
+    # the worker says "Type: message"; a UserError is the file's own problem, said as is
+    msg = error.removeprefix("UserError: ")
     if msg.startswith(v.data_path + ": "):
         return Problem(v.data_path, v.episode, msg[len(v.data_path) + 2 :])
     if msg.startswith(v.path + ": "):

@@ -234,7 +234,7 @@ def _vectors(col: pa.ChunkedArray) -> np.ndarray:
 
 def read_episode_data(path: str, episode: int) -> EpisodeData:
     """The rows of ``episode`` in the data file ``path``, in frame order. An unreadable file
-    or one without the episode's rows raises ValueError naming it."""
+    or one without the episode's rows raises UserError naming it."""
     cols = ["timestamp", "frame_index", "episode_index"]
     try:
         schema = pq.read_schema(path)

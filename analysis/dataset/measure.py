@@ -159,7 +159,7 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
     """Measure one camera of one episode at the dataset's ``fps`` (see the module). Returns
     ``row`` (dict: the episode's measures), ``frames`` (polars DataFrame: one row per decoded
     frame) and ``views`` (first, last: float32 grey images for the camera's shift). Unreadable input
-    raises ValueError naming the file."""
+    raises UserError naming the file."""
     data = read_episode_data(video.data_path, video.episode)
     reader = (
         WindowReader(video.path, video.from_s, video.to_s, fps)

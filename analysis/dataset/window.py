@@ -23,8 +23,8 @@ class WindowReader(Reader):
     the end), in order, their ``t_s`` counted from ``from_s`` (not from the first frame, so
     a late first frame shows as drift and lost frames, not hidden). ``times_s`` collects the
     times delivered; ``first_grey``/``last_grey`` keep the first and last display images (the
-    camera's view, for its shift). A window that ends past the file raises ValueError when
-    opened; a file that will not open raises ValueError naming it."""
+    camera's view, for its shift). A window that ends past the file raises UserError when
+    opened; a file that will not open raises UserError naming it."""
 
     def __init__(self, path: str, from_s: float, to_s: float | None, fps: float) -> None:
 

@@ -93,18 +93,23 @@ def test_a_corrupt_recording_fails_its_own_tasks_only(recordings, tmp_path: Path
     assert pl.read_parquet(out / "summary.parquet").height == 2  # the good recording's
 
 
-def _pool_workers(pid: int) -> list[int]:
-    """The children of ``pid`` running a spawned multiprocessing worker."""
+def _children(pid: int) -> list[int]:
     kids = []
     for tid in os.listdir(f"/proc/{pid}/task"):
         with open(f"/proc/{pid}/task/{tid}/children") as f:
             kids += [int(k) for k in f.read().split()]
+    return kids
+
+
+def _pool_workers(pid: int) -> list[int]:
+    """The local pool's workers of process ``pid``: the children of its fork server (the pool
+    forks its workers from a warm ``forkserver``, vdc.executors), not the resource tracker."""
     workers = []
-    for k in kids:
+    for kid in _children(pid):
         try:
-            with open(f"/proc/{k}/cmdline", "rb") as f:
-                if b"spawn_main" in f.read():  # not the resource tracker
-                    workers.append(k)
+            with open(f"/proc/{kid}/cmdline", "rb") as f:
+                if b"forkserver" in f.read():
+                    workers += _children(kid)
         except FileNotFoundError:
             pass
     return workers

@@ -79,7 +79,9 @@ def test_a_rerun_reuses_every_run(grid, tmp_path: Path) -> None:
     # the log says each stage between the plan and the results (a pipe shows no bar)
     stages = [ln.split(":")[0] for ln in lines if ln.startswith("stage ")]
     assert stages == ["stage 1/3", "stage 2/3", "stage 3/3"], lines
-    assert lines[0].startswith("boundary of lgmd-plus-arena") and "12 run(s)" in lines[1]
+    assert (
+        lines[0].startswith("boundary of lgmd-plus-arena") and "12 closed-loop run(s)" in lines[1]
+    )
     assert again.conditions.equals(res.conditions)
 
 

@@ -165,7 +165,7 @@ def test_signal_stops_cleanly_with_a_valid_recording(tmp_path: Path, sig, code) 
         (["--tf-schedule", "3:30m", "--tf-hz", "2"], ["not allowed with"]),
         (["--minutes", "-1"], ["positive number"]),
         (["--minutes", "abc"], ["expected a number"]),
-        (["--tf-hz", "500"], ["wall TF", "100"]),
+        (["--tf-hz", "500"], ["--tf-hz", "Nyquist", "16.5 Hz"]),
         (["--scene", "stars"], ["invalid choice"]),
         (["--model", "nope"], ["unknown model 'nope'"]),
         (["--model", "avdm:beta=x"], ["expected a number"]),
