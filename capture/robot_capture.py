@@ -27,7 +27,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import serial
 
 from avdm.registry import canonical_name, make_model
 from capture.config import (
@@ -43,7 +42,7 @@ from capture.output import claim_output
 from capture.recording_start import camera_line, start_recording
 from capture.robot_contract import accepted_model, announcement_change, frame_problem
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
-from capture.serial_link import SerialLink
+from capture.serial_link import PORT_ERRORS, SerialLink
 from capture.serial_protocol import TYPE_ANNOUNCE, TYPE_FRAME, Announcement, FramePacket
 from capture.tracker import (
     MarkerLayout,
@@ -143,7 +142,7 @@ class ColiasRobotDevice(DeviceContext):
         )
         try:
             self.link.open()
-        except (serial.SerialException, OSError) as exc:
+        except PORT_ERRORS as exc:
             raise UserError(
                 f"cannot open the robot's serial port {cfg.port!r}: "
                 f"{getattr(exc, 'strerror', None) or exc}"

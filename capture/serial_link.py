@@ -28,6 +28,14 @@ from capture.serial_protocol import (
     encode,
 )
 
+try:  # pyserial's POSIX flush() raises termios.error (not an OSError) once the far end is gone
+    from termios import error as _TermiosError
+except ImportError:  # Windows
+    _TermiosError = OSError
+
+# what a vanished port raises, from any of pyserial's calls
+PORT_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError, _TermiosError)
+
 
 class LinkLost(Exception):
     """The port did not come back within the reconnect timeout."""
@@ -127,7 +135,7 @@ class SerialLink:
                 if stop:
                     self._ser.write(encode(TYPE_STOP))
                     self._ser.flush()
-            except (serial.SerialException, OSError):
+            except PORT_ERRORS:
                 pass
             self._ser.close()
             self._ser = None
@@ -143,7 +151,7 @@ class SerialLink:
             try:
                 self.open()
                 return
-            except (serial.SerialException, OSError) as exc:
+            except PORT_ERRORS as exc:
                 last = str(exc)
         raise LinkLost(
             f"the port {self.port} did not come back within {self.reconnect_timeout_s:g} s "
@@ -165,14 +173,19 @@ class SerialLink:
                 # would otherwise lose the bytes it had already gathered
                 waiting = self._ser.in_waiting if self._ser is not None else 0
                 data = self._ser.read(waiting or 1) if self._ser is not None else b""
-            except (serial.SerialException, OSError, TypeError):
+            except (*PORT_ERRORS, TypeError):
                 yield (0, "disconnect")
                 self._reconnect()
                 continue
             if not data:
                 if time.monotonic() - self._last_data > 2.0 and self._ser is not None:
                     # silent for 2 s: a START may have been lost; asking again is harmless
-                    self._send_start()
+                    try:
+                        self._send_start()
+                    except PORT_ERRORS:
+                        yield (0, "disconnect")
+                        self._reconnect()
+                        continue
                     self._last_data = time.monotonic()
                 yield (0, None)
                 continue

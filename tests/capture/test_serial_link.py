@@ -491,3 +491,30 @@ def test_a_host_that_reads_late_still_gets_the_robots_end(tmp_path: Path) -> Non
         robot.join(timeout=60)
     assert TYPE_END in types, "the robot closed its port before the host read its END"
     assert types.count(TYPE_FRAME) == reports[0]["frames"] == 33
+
+
+def test_closing_a_link_whose_far_end_is_gone_raises_nothing() -> None:
+    """pyserial's flush() on POSIX raises termios.error, which is not an OSError, once the pty's
+    far end has closed; stopping the capture then must not end in a traceback (seen in CI)."""
+    import termios
+
+    from capture.serial_link import SerialLink
+
+    master, slave = pty.openpty()
+    try:
+        link = SerialLink(os.ttyname(slave), 115200, 1.0)
+        link.open()
+        os.close(master)
+        master = -1
+        bad_fd = os.open(os.devnull, os.O_RDONLY)
+        os.close(bad_fd)
+        with pytest.raises(termios.error):  # the error itself, from a real tcdrain
+            termios.tcdrain(bad_fd)
+        # the moment in CI: the STOP was written, then tcdrain failed
+        link._ser.flush = lambda: termios.tcdrain(bad_fd)  # type: ignore[union-attr]
+        link.close(stop=True)
+        assert link._ser is None
+    finally:
+        if master >= 0:
+            os.close(master)
+        os.close(slave)
