@@ -85,10 +85,13 @@ def _cases() -> list:
 
 @pytest.fixture(scope="module")
 def clone_root(tmp_path_factory) -> Path:
-    """A clone's root as a user has it after the install: the examples beside them, the
+    """A clone's root as a user has it after the install: the examples and tests beside them, the
     package installed (here: importable from the repo, which the blocks never name)."""
     root = tmp_path_factory.mktemp("clone")
     shutil.copytree(ROOT / "examples", root / "examples")
+    # the guides' write-ups render their collections with the tests' own generator
+    # (`from tests.footage_clips import ...`, run from the clone's root)
+    (root / "tests").symlink_to(ROOT / "tests", target_is_directory=True)
     return root
 
 

@@ -255,6 +255,14 @@ def test_end_to_end_on_a_pty_with_corruption_and_a_disconnect(tmp_path: Path) ->
     gap_starts = int(np.sum(~posed & np.concatenate([[True], posed[:-1]])))
     lost_events = int(np.sum(np.asarray(rec.events()["kind"]) == "tracker_lost"))
     assert lost_events == gap_starts, (lost_events, gap_starts, int(posed.sum()))
+    # the frames table (every table's spine) keeps every recorded frame, posed or not: a
+    # frame the tracker missed has null poses, not a missing row (seen in CI at load 10,
+    # where the first frames met no overhead image and `tables --model` lost them)
+    from analysis.recordings.loading import load_recording
+
+    table = load_recording(out).frames
+    assert table["frame"].to_list() == got
+    assert table["x_m"].is_not_null().to_numpy().tolist() == posed.tolist()
     shown = truth.poses[overhead_frames(cfg, seconds)]  # (K, 3): what the images show
     nearest = np.hypot(*(poses[:, None, :2] - shown[None, :, :2]).transpose(2, 0, 1)).min(axis=1)
     # the tracker reads a rendered pose within 5 mm (tests/capture/test_tracker.py)
