@@ -103,10 +103,10 @@ def test_a_robot_running_another_model_is_refused_before_any_file(tmp_path: Path
     assert json.loads(report.read_text())["model"] == "lgmd-plus"
 
 
-def fake_robot(master: int, announcement: Announcement, seen: list[tuple[int, bytes]]) -> None:
-    """Answer the host's START with ``announcement`` (what a firmware would send)."""
+def await_start(master: int, seen: list[tuple[int, bytes]], deadline: float) -> bool:
+    """Read what the host sends on ``master`` (each packet's type and payload into ``seen``)
+    until its START, as a firmware does; whether it came before ``deadline``."""
     parser = PacketParser()
-    deadline = time.monotonic() + 20
     while time.monotonic() < deadline:
         try:
             data = os.read(master, 4096)
@@ -116,8 +116,14 @@ def fake_robot(master: int, announcement: Announcement, seen: list[tuple[int, by
         for ptype, payload in parser.feed(data):
             seen.append((ptype, payload))
             if ptype == TYPE_START:
-                os.write(master, encode_announce(announcement))
-                return
+                return True
+    return False
+
+
+def fake_robot(master: int, announcement: Announcement, seen: list[tuple[int, bytes]]) -> None:
+    """Answer the host's START with ``announcement`` (what a firmware would send)."""
+    if await_start(master, seen, time.monotonic() + 20):
+        os.write(master, encode_announce(announcement))
 
 
 @pytest.mark.parametrize(
@@ -240,22 +246,11 @@ def test_a_robot_that_says_nothing_is_given_up_on_after_the_timeout(tmp_path: Pa
 
 
 # -- a robot held to what it announced ------------------------------------------------------
-def scripted_robot(master: int, packets: list[bytes], seen: list[int] | None = None) -> None:
+def scripted_robot(master: int, packets: list[bytes]) -> None:
     """Answer the host's START with ``packets`` (an ANNOUNCE, FRAMEs, ...) and END, as a
     firmware would; the writes wait while the host has not read enough (a pty holds a few kB)."""
-    parser = PacketParser()
     deadline = time.monotonic() + 30
-    started = False
-    while time.monotonic() < deadline and not started:
-        try:
-            data = os.read(master, 4096)
-        except BlockingIOError:
-            time.sleep(0.01)
-            continue
-        for ptype, _ in parser.feed(data):
-            if seen is not None:
-                seen.append(ptype)
-            started = started or ptype == TYPE_START
+    await_start(master, [], deadline)
     blob = b"".join(packets) + encode(TYPE_END)  # the run is over: a host never waits on
     while blob and time.monotonic() < deadline:
         try:
