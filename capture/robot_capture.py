@@ -59,7 +59,6 @@ from vdc.blueprints import default_blueprint
 from vdc.cli_support import Settings, non_negative_float, option, positive_float
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles
-from vdc.provenance import machine_info, package_versions
 from vdc.recording import LINK_STATS, camera_model_context
 
 LINK_COUNTERS = (
@@ -544,7 +543,6 @@ def record_robot(
             )
         live = options.viewer_url()
         model = make_model(device.model_name, **context)
-        properties = device.properties()
         recorder = start_recording(
             claim.partial,
             rid,
@@ -560,17 +558,12 @@ def record_robot(
                 if verified
                 else "run on board; UNVERIFIED: the robot did not announce its model"
             ),
-            what=device.description(),
+            device=device,
             analyse=[
                 "vdc-analyse tables REC --out results/tables",
                 "vdc-analyse profile REC --out results/profile",
                 "vdc-analyse complexity REC --out results/complexity",
             ],
-            sections={
-                **properties,
-                "run": {"recording_id": rid, **properties["run"]},
-                "provenance": {**package_versions(), **machine_info()},
-            },
         )
         recorder.log_arena(device.arena, RobotConfig().radius_m)
         if settings.save_calibration:

@@ -39,7 +39,6 @@ from vdc.cli_support import (
     positive_float,
 )
 from vdc.errors import UserError
-from vdc.provenance import machine_info, package_versions
 from vdc.recording import model_path
 
 
@@ -226,13 +225,9 @@ def record_sim(
             run_id,
             blueprint=default_blueprint(main.name, main.outputs, extra),
             live_url=live,
-            sections={
-                **device.properties(),
-                "provenance": {**package_versions(), **machine_info()},
-            },
+            device=device,
             model=model,
             context=ctx,
-            what=device.description(),
             analyse=analyse,
         )
         recorder.log_arena(config.arena, config.robot.radius_m)
