@@ -344,6 +344,20 @@ COMMANDS = {
         "collision_frame and hazard_onset_frame (docs/boundary.md). Clips written are reused.",
         inputs=_inputs("footage/looming", None),
     ),
+    "power-study": Command(
+        "analysis.experiments.power_study:PowerStudySettings",
+        _campaign("analysis.experiments.power_study:power_study", "run"),
+        "re-run the pre-registered plan (docs/power_plan.md) from nothing and write its answer",
+        "The arena boundary campaign of each arena detector over the plan's scenes and drawn "
+        "TFs (with every complexity measure of the profiling runs), the looming collection "
+        "over real photographs and footage mode of each footage detector on it; then "
+        "primary.parquet (the AVDM against P.910 TI per detector, interval and p), "
+        "secondaries.parquet (Holm-corrected), per_scene.png and answer.md. Finished runs, "
+        "clips and footage studies are reused. --quick runs a reduced version in about a "
+        "minute whose verdicts are not findings.",
+        "example:\n  vdc-analyse power-study --out results/power-study --jobs 2",
+        inputs=_inputs("results/power-study", None),
+    ),
     "adaptation": Command(
         "analysis.experiments.adaptation:AdaptationSettings",
         _campaign("analysis.experiments.adaptation:adaptation", "run"),

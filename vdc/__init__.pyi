@@ -17,6 +17,7 @@ from analysis.dataset.command import DatasetSettings as DatasetSettings
 from vdc.executors import ExecutorSettings as ExecutorSettings
 from vdc.executors import Feedback as Feedback
 from avdm.policy import Policy as Policy
+from analysis.experiments.power_study import PowerStudySettings as PowerStudySettings
 from analysis.recordings.segments import ProfileSettings as ProfileSettings
 from analysis.recordings.reader import Recording as Recording
 from analysis.experiments.plan import ReproduceSettings as ReproduceSettings
@@ -43,6 +44,7 @@ from analysis.recordings.loading import load_recording as load_recording
 from avdm.registry import make_model as make_model
 from avdm.registry import make_params as make_params
 from analysis.catalog.server import open_catalog as open_catalog
+from analysis.experiments.power_study import power_study as power_study
 from analysis.experiments.predictor_runs import predictors as predictors
 from analysis.profile import profile as profile
 from capture.robot_capture import record_robot as record_robot
@@ -71,6 +73,7 @@ __all__ = [
     "ExecutorSettings",
     "Feedback",
     "Policy",
+    "PowerStudySettings",
     "ProfileSettings",
     "Recording",
     "ReproduceSettings",
@@ -97,6 +100,7 @@ __all__ = [
     "make_model",
     "make_params",
     "open_catalog",
+    "power_study",
     "predictors",
     "profile",
     "record_robot",

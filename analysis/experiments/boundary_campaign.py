@@ -42,6 +42,7 @@ from analysis.experiments.predictor_runs import (
     arena_predictor_tables,
     cached_measures,
     measures_table,
+    read_cached_measures,
 )
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
@@ -65,13 +66,7 @@ def record_and_measure(
     cache = path.with_suffix(".row.json")
     row = None
     if capture_is_done(path, run_id):
-        if cache.exists():
-            row = json.loads(cache.read_text())
-            # a row measured by an older vdc lacks a measurement: measure again, not record
-            if row.get("recording_id") == run_id and row.get("row_version") == ROW_VERSION:
-                row |= {"reused": True}
-            else:
-                row = None
+        row = cached_row(path, run_id)
     else:
         record_sim(settings, path, REPLACE_OUTPUT)  # a partial file of a killed run is replaced
     if row is None:
@@ -83,6 +78,37 @@ def record_and_measure(
     if kind == "profile" and measure_every > 0:
         row["measures"] = cached_measures(path, measure_every)
     return row | {"key": key}
+
+
+def cached_row(path: Path, run_id: str) -> dict[str, Any] | None:
+    """The measured row kept beside a finished recording (``.row.json``), marked reused, or
+    None when there is none of this run measured by this version of :func:`run_row`."""
+    cache = path.with_suffix(".row.json")
+    if not cache.exists():
+        return None
+    row = json.loads(cache.read_text())
+    # a row measured by an older vdc lacks a measurement: measure again, not record
+    if row.get("recording_id") == run_id and row.get("row_version") == ROW_VERSION:
+        return row | {"reused": True}
+    return None
+
+
+def finished_row(item: RunItem, kind: str, measure_every: int) -> dict[str, Any] | None:
+    """:func:`record_and_measure`'s result for a run that has nothing left to do (recorded,
+    measured, and with ``measure_every`` its measures cached), read here without a task;
+    None when it has."""
+    if not item.path.exists():
+        return None
+    run_id = item.settings.to_config().run_id()
+    row = cached_row(item.path, run_id)
+    if row is None or not capture_is_done(item.path, run_id):
+        return None
+    if kind == "profile" and measure_every > 0:
+        measures = read_cached_measures(item.path, measure_every)
+        if measures is None:
+            return None
+        row["measures"] = measures
+    return row | {"key": item.key}
 
 
 def _record_all(
@@ -99,12 +125,20 @@ def _record_all(
     # a detector that cannot be one: one line before the first run, not one failure per run
     check_detectors(it.settings.to_config() for it in items)
     tasks = []
+    finished: dict[str, dict[str, Any]] = {}
     for it in items:
         it.settings.to_config()  # a bad configuration fails before any process starts
         it.path.parent.mkdir(parents=True, exist_ok=True)
+        # a run with nothing left to do is read here: a re-run of a finished campaign starts
+        # no pool (its workers' start-up was most of such a re-run's time)
+        row = finished_row(it, kind, measure_every)
+        if row is not None:
+            finished[it.key] = row
+            feedback.progress(1)
+            continue
         task = (it.key, it.settings, str(it.path), kind, false_alarm_m, measure_every)
         tasks.append((it.key, task))
-    results = run_tasks_or_raise(
+    results = finished | run_tasks_or_raise(
         record_and_measure,
         tasks,
         executor.executor_settings(),

@@ -172,20 +172,31 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
     return row
 
 
+def read_cached_measures(path: str | Path, every: int = EVERY) -> dict[str, Any] | None:
+    """The cached :func:`measure_run` row of a recording (``"reused": True``), or None when
+    there is none measured from this recording with this version and stride."""
+    path = Path(path)
+    cache = path.with_suffix(".measures.json")
+    if not (cache.exists() and path.exists()):
+        return None
+    st = path.stat()
+    stamp = [st.st_size, st.st_mtime_ns]  # the recording measured (a re-recorded run differs)
+    row = json.loads(cache.read_text())
+    same = row.get("measure_version") == MEASURE_VERSION and row.get("every") == every
+    return row | {"reused": True} if same and row.get("rrd_stamp") == stamp else None
+
+
 def cached_measures(path: str | Path, every: int = EVERY) -> dict[str, Any]:
     """An executor task: :func:`measure_run` of a recording, read from its cache
     (``seedN.measures.json``) when that was measured from this recording with this version and
     stride, else measured and cached."""
     path = Path(path)
     cache = path.with_suffix(".measures.json")
+    row = read_cached_measures(path, every)
+    if row is not None:
+        return row
     st = path.stat()
-    stamp = [st.st_size, st.st_mtime_ns]  # the recording measured (a re-recorded run differs)
-    if cache.exists():
-        row = json.loads(cache.read_text())
-        same = row.get("measure_version") == MEASURE_VERSION and row.get("every") == every
-        if same and row.get("rrd_stamp") == stamp:
-            return row | {"reused": True}
-    row = measure_run(path, every) | {"rrd_stamp": stamp}
+    row = measure_run(path, every) | {"rrd_stamp": [st.st_size, st.st_mtime_ns]}
     tmp = cache.with_suffix(".partial")
     tmp.write_text(json.dumps(row))
     tmp.replace(cache)

@@ -1,0 +1,356 @@
+"""The answer of ``vdc-analyse power-study`` (:mod:`analysis.experiments.power_study`), from
+the tables its studies wrote.
+
+* ``primary.parquet``: per study (source, detector), the primary comparison named in advance
+  (the AVDM against P.910 TI; arena: the difference of their Spearman ρ with the failure rate
+  over conditions; footage: of their clip AUROCs), with its 95 % interval, p, n and verdict,
+  and each measure's own statistic with its interval;
+* ``secondaries.parquet``: every other comparison, Holm-corrected within its study
+  (:mod:`analysis.predictors.statistics`);
+* ``per_scene.parquet`` / ``per_scene.png``: where each measure fails to rank the conditions
+  (arena) or clips (footage, by background photograph). Per scene, over the pairs of units
+  whose failure differs, the **discordant share**: the share the measure orders against the
+  failure (a higher measure, less failure; ties half). 0: it ranks the scene's units
+  perfectly; 0.5: no better than chance; 1: inverted. The column ``across scenes`` takes the
+  pairs whose units lie in different scenes: a measure may rank within scenes and not across
+  them (the interaction the plan expects), or the reverse;
+* ``answer.md``: its first paragraph the result in plain words.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+from matplotlib.figure import Figure
+
+from analysis.predictors.report import label
+from analysis.predictors.statistics import HEADLINE, MEASURES, MIN_CONDITIONS, MIN_FAILURES
+from vdc.parquet_io import write_parquet
+
+QUICK_BANNER = (
+    "**Quick run (`--quick`): its verdicts are not findings.** This is the reduced version of "
+    "the plan (a few conditions, a few clips, seconds-long runs) that checks every step "
+    "works; far below the plan's power, nothing here answers the question. The plan itself "
+    "runs without `--quick` (docs/power_plan.md)."
+)
+ACROSS = "across scenes"
+FAILING = ("miss", "early", "false_alarm")  # a clip's failure modes (boundary footage mode)
+
+
+def discordant_share(x: np.ndarray, fail: np.ndarray, group: np.ndarray | None = None) -> float:
+    """Over the pairs of units whose failure differs (``group`` given: only pairs in different
+    groups), the share the measure ``x`` (N,) orders against the failure ``fail`` (N,) (a
+    higher measure with less failure), ties in ``x`` counting half; NaN without such a pair."""
+    x, fail = np.asarray(x, float), np.asarray(fail, float)
+    ok = np.isfinite(x) & np.isfinite(fail)
+    x, fail = x[ok], fail[ok]
+    dx = np.sign(x[:, None] - x[None, :])
+    df = np.sign(fail[:, None] - fail[None, :])
+    use = np.triu(df != 0, 1)
+    if group is not None:
+        g = np.asarray(group)[ok]
+        use &= g[:, None] != g[None, :]
+    if not use.any():
+        return math.nan
+    d = dx[use] * df[use]
+    return float(((d < 0) + 0.5 * (d == 0)).mean())
+
+
+def arena_units(folder: Path) -> pl.DataFrame:
+    """One row per condition of an arena study: scene, failure (1 − the mean of its seeds'
+    success shares, as the predictors take it) and each measure's mean over its profiling
+    runs."""
+    runs = pl.read_parquet(folder / "boundary_runs.parquet")
+    measures = pl.read_parquet(folder / "predictor_measures.parquet")
+    names = [m for m in MEASURES if m in measures.columns]
+    events = pl.col("avoidances") + pl.col("crashes")
+    fail = (
+        runs.filter(events > 0)
+        .group_by("condition")
+        .agg((1 - (pl.col("avoidances") / events).mean()).alias("failure"))
+    )
+    means = measures.group_by("condition", "scene").agg(pl.col(names).mean())
+    return means.join(fail, on="condition", how="inner").sort("condition")
+
+
+def footage_units(folder: Path, labels: pl.DataFrame) -> pl.DataFrame:
+    """One row per clip of a footage study: its background photograph as the scene, failure
+    (1: the detector got it wrong) and each measure's mean over the scene's frames
+    (``omega_dps`` is avdm-natural there)."""
+    clips = pl.read_parquet(folder / "boundary_clips.parquet").rename({"omega_dps": "avdm_natural"})
+    names = [m for m in MEASURES if m in clips.columns]
+    bg = labels.select("clip", pl.col("background").alias("scene"))
+    return clips.join(bg, on="clip", how="left").select(
+        "clip", "scene", (~pl.col("correct")).cast(pl.Float64).alias("failure"), *names
+    )
+
+
+def per_scene(units: pl.DataFrame) -> pl.DataFrame:
+    """Per measure and scene (and :data:`ACROSS`), the discordant share (see the module) with
+    the units and the pairs it is over."""
+    names = [m for m in MEASURES if m in units.columns]
+    scenes = units["scene"].unique(maintain_order=True).to_list()
+    rows = []
+    for m in names:
+        for sc in [*scenes, ACROSS]:
+            part = units if sc == ACROSS else units.filter(pl.col("scene") == sc)
+            f = part["failure"].to_numpy()
+            group = part["scene"].to_numpy() if sc == ACROSS else None
+            rows.append({
+                "measure": m,
+                "scene": sc,
+                "units": part.height,
+                "failing_units": int((f > 0).sum()),
+                "discordant_share": discordant_share(part[m].to_numpy(), f, group),
+            })  # fmt: skip
+    return pl.DataFrame(rows)
+
+
+def plot_per_scene(tables: dict[str, pl.DataFrame], path: Path, quick: bool) -> Path:
+    """One heat map per study: measures down, scenes across, the discordant share in each cell
+    (green 0: ranks perfectly; yellow 0.5: chance; red 1: inverted; grey: no pair to rank)."""
+    n = max(1, len(tables))
+    fig = Figure(figsize=(6.2 * min(n, 3), 5.2 * math.ceil(n / 3)), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(math.ceil(n / 3), min(n, 3))).ravel()
+    image = None
+    for ax, (title, t) in zip(axes, tables.items(), strict=False):
+        measures = t["measure"].unique(maintain_order=True).to_list()
+        scenes = t["scene"].unique(maintain_order=True).to_list()
+        grid = np.full((len(measures), len(scenes)), np.nan)
+        for r in t.iter_rows(named=True):
+            grid[measures.index(r["measure"]), scenes.index(r["scene"])] = r["discordant_share"]
+        ax.set_facecolor("0.85")
+        image = ax.imshow(grid, cmap="RdYlGn_r", vmin=0, vmax=1, aspect="auto")
+        for (i, j), v in np.ndenumerate(grid):
+            ax.text(j, i, "–" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", size=7)
+        ax.set_xticks(range(len(scenes)), scenes, rotation=40, ha="right", size=8)
+        ax.set_yticks(range(len(measures)), [label(m) for m in measures], size=8)
+        ax.axvline(len(scenes) - 1.5, color="k", lw=1)  # the across-scenes column apart
+        ax.set_title(title, size=10)
+    for ax in axes[len(tables) :]:
+        ax.set_axis_off()
+    if image is not None:
+        bar = fig.colorbar(image, ax=axes.tolist(), shrink=0.6)
+        bar.set_label("discordant share: 0 ranks the scene's units, 0.5 chance, 1 inverted")
+    head = "QUICK RUN (--quick): not findings. " if quick else ""
+    fig.suptitle(
+        f"{head}Where each measure fails to rank the conditions (arena) or clips (footage), "
+        "scene by scene",
+        color="C3" if quick else "k",
+    )
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def _fmt(e: Any, lo: Any, hi: Any, digits: int = 2) -> str:
+    if e is None or (isinstance(e, float) and math.isnan(e)):
+        return "—"
+    if lo is None or hi is None:
+        return f"{e:.{digits}f}"
+    return f"{e:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def _p(v: Any) -> str:
+    return "—" if v is None else f"{v:.2g}" if v >= 0.001 else "< 0.001"
+
+
+def primary_row(study: dict[str, Any], table: pl.DataFrame | None) -> dict[str, Any]:
+    """The primary comparison of one study (``table``: its predictors.parquet; None: it holds
+    no evidence), with the AVDM's and TI's own statistic."""
+    row = {k: study[k] for k in ("source", "detector", "param", "value", "status")}
+    prim = None if table is None else table.filter(pl.col("role") == "primary")
+    if prim is None or prim.height == 0:
+        return row | {"verdict": study["status"] if table is None else "undetermined"}
+    p = prim.row(0, named=True)
+    stat = HEADLINE[study["source"]]
+    own = {r["measure"]: r for r in table.filter(pl.col("statistic") == stat).iter_rows(named=True)}
+    out = row | {"statistic": stat, "n": p["n"], "n_failures": p["n_failures"], "unit": p["unit"]}
+    for name, m in (("avdm", "avdm"), ("ti", "ti_p910")):
+        r = own.get(m, {})
+        out |= {f"{name}_{k}": r.get(k) for k in ("estimate", "ci_low", "ci_high")}
+    return out | {
+        "difference": p["estimate"],
+        "difference_low": p["ci_low"],
+        "difference_high": p["ci_high"],
+        "p_value": p["p_value"],
+        "verdict": p["verdict"],
+    }
+
+
+def in_words(r: dict[str, Any]) -> str:
+    """One study's primary comparison as a clause."""
+    who = f"{r['source']}, {r['detector']} ({r['param']} {r['value']:g})"
+    v = r.get("verdict") or ""
+    if v.startswith("no evidence"):
+        return f"{who}: {v.split(';')[0]}"
+    if r.get("statistic") is None:
+        return f"{who}: undetermined"
+    stat = "ρ with the failure rate" if r["source"] == "arena" else "clip AUROC"
+    est = (
+        f"over {r['n']} {r['unit']}s ({r['n_failures']} failing) the AVDM's {stat} is "
+        f"{_fmt(r['avdm_estimate'], r['avdm_ci_low'], r['avdm_ci_high'])}, TI's "
+        f"{_fmt(r['ti_estimate'], r['ti_ci_low'], r['ti_ci_high'])}; the difference "
+        f"{_fmt(r['difference'], r['difference_low'], r['difference_high'])}, "
+        f"p = {_p(r['p_value'])}"
+    )
+    if v.startswith("too few"):
+        need = MIN_CONDITIONS if r["source"] == "arena" else MIN_FAILURES
+        what = "conditions" if r["source"] == "arena" else "failing clips"
+        return (
+            f"{who}: {est}: no verdict, below the power threshold ({need} {what} needed): "
+            "no difference at this power"
+        )
+    if v in ("better", "worse"):
+        return f"{who}: {est}: the AVDM predicts the failures {v} than TI"
+    return f"{who}: {est}: no difference at this power"
+
+
+def first_paragraph(primary: pl.DataFrame) -> str:
+    """answer.md's first paragraph: the question and each study's answer in plain words."""
+    rows = list(primary.iter_rows(named=True))
+    verdicts = [r.get("verdict") or "" for r in rows]
+    counts = {v: verdicts.count(v) for v in ("better", "worse", "no difference shown")}
+    unjudged = len(rows) - sum(counts.values())
+    parts = []
+    if counts["better"]:
+        parts.append(f"the AVDM predicted the failures better than TI in {counts['better']}")
+    if counts["worse"]:
+        parts.append(f"TI predicted them better than the AVDM in {counts['worse']}")
+    if counts["no difference shown"]:
+        parts.append(f"no difference at this power in {counts['no difference shown']}")
+    if unjudged:
+        parts.append(
+            f"{unjudged} below the power thresholds or without evidence, so no verdict: no "
+            "difference at this power"
+        )
+    gist = "; ".join(parts) + f" (of {len(rows)} studies)"
+    return (
+        "**Does the AVDM predict where collision detectors fail better than P.910 TI?** "
+        f"Across the plan's studies: {gist}. " + "; ".join(in_words(r) for r in rows) + "."
+    )
+
+
+def write_answer(
+    studies: pl.DataFrame, out: Path, *, quick: bool, plan: Any
+) -> tuple[pl.DataFrame, list[Path], str]:
+    """The answer's files into ``out`` from the studies' folders: (primary table, paths,
+    answer.md's text)."""
+    meta = {"quick": quick, "not_findings": quick}
+    labels_csv = out / "footage" / "clips" / "labels.csv"
+    labels = pl.read_csv(labels_csv) if labels_csv.exists() else None
+    prim_rows, secondaries, scene_tables = [], [], {}
+    for st in studies.filter(pl.col("source").is_in(list(HEADLINE))).iter_rows(named=True):
+        if st["detector"] == "looming-footage":
+            continue
+        folder = Path(st["folder"])
+        ran = st["status"] == "ran" and (folder / "predictors.parquet").exists()
+        table = pl.read_parquet(folder / "predictors.parquet") if ran else None
+        prim_rows.append(primary_row(st, table))
+        if table is None:
+            continue
+        secondaries.append(
+            table.filter(pl.col("role") == "secondary").with_columns(
+                pl.lit(st["source"]).alias("source"), pl.lit(st["detector"]).alias("detector")
+            )
+        )
+        units = (
+            arena_units(folder)
+            if st["source"] == "arena"
+            else footage_units(folder, labels if labels is not None else pl.DataFrame())
+        )
+        scene_tables[f"{st['source']}: {st['detector']}"] = per_scene(units).with_columns(
+            pl.lit(st["source"]).alias("source"), pl.lit(st["detector"]).alias("detector")
+        )
+    primary = pl.DataFrame(prim_rows, infer_schema_length=None)
+    sec = pl.concat(secondaries, how="diagonal_relaxed") if secondaries else pl.DataFrame()
+    scenes = pl.concat(list(scene_tables.values())) if scene_tables else pl.DataFrame()
+    paths = [
+        write_parquet(primary, out / "primary.parquet", meta),
+        write_parquet(sec, out / "secondaries.parquet", meta),
+        write_parquet(scenes, out / "per_scene.parquet", meta),
+        plot_per_scene(scene_tables, out / "per_scene.png", quick),
+        write_parquet(studies, out / "studies.parquet", meta),
+    ]
+    text = answer_markdown(primary, sec, studies, quick, plan)
+    md = out / "answer.md"
+    tmp = md.with_suffix(".partial")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(md)
+    return primary, [*paths, md], text
+
+
+def answer_markdown(
+    primary: pl.DataFrame, sec: pl.DataFrame, studies: pl.DataFrame, quick: bool, plan: Any
+) -> str:
+    """answer.md (see the module)."""
+    lines = [QUICK_BANNER + "\n"] if quick else []
+    lines += [first_paragraph(primary) + "\n", "## The primary comparison\n"]
+    lines += [
+        "The AVDM against P.910 TI, named before the runs (docs/power_plan.md): arena, the "
+        "difference of their Spearman ρ with a condition's failure rate (Steiger's test, Zou's "
+        "interval); footage, of their clip AUROCs (DeLong). 95 % intervals; judged at 5 % "
+        f"alone, and only on at least {MIN_CONDITIONS} conditions or {MIN_FAILURES} failing "
+        "clips (the power thresholds).\n",
+        "| source | detector | n | AVDM | TI | AVDM − TI | p | verdict |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in primary.iter_rows(named=True):
+        if r.get("statistic") is None:
+            lines.append(f"| {r['source']} | {r['detector']} | — | — | — | — | — | "
+                         f"{(r.get('verdict') or '')[:120]} |")  # fmt: skip
+            continue
+        lines.append(
+            f"| {r['source']} | {r['detector']} ({r['param']} {r['value']:g}) | {r['n']} "
+            f"({r['n_failures']} failing) | "
+            f"{_fmt(r['avdm_estimate'], r['avdm_ci_low'], r['avdm_ci_high'])} | "
+            f"{_fmt(r['ti_estimate'], r['ti_ci_low'], r['ti_ci_high'])} | "
+            f"{_fmt(r['difference'], r['difference_low'], r['difference_high'], 3)} | "
+            f"{_p(r['p_value'])} | {r['verdict']} |"
+        )
+    lines += ["", "## Secondary comparisons (Holm-corrected within each study)\n"]
+    if sec.height:
+        judged = sec.filter(pl.col("p_holm").is_not_null())
+        kept = judged.filter(pl.col("survives"))
+        lines.append(
+            f"{sec.height} secondary comparisons (`secondaries.parquet`); {judged.height} "
+            f"judged (the rest below the power thresholds), {kept.height} survive Holm's "
+            "correction at 5 %" + (":\n" if kept.height else ".\n")
+        )
+        if kept.height:
+            lines += ["| detector | comparison | measure | AVDM − measure | Holm p |",
+                      "|---|---|---|---|---|"]  # fmt: skip
+            for r in kept.sort("p_holm").iter_rows(named=True):
+                lines.append(
+                    f"| {r['source']}: {r['detector']} | {r['statistic']} | {label(r['measure'])}"
+                    f" | {_fmt(r['estimate'], r['ci_low'], r['ci_high'], 3)} | "
+                    f"{_p(r['p_holm'])} |"
+                )
+            lines.append("")
+    else:
+        lines.append("None: no study held the evidence to compare measures.\n")
+    lines += [
+        "## Where each measure fails to rank the conditions\n",
+        "![per scene: the share of pairs each measure orders against the failure](per_scene.png)\n",
+        "Per scene (arena: wall scene, its conditions the drawn TFs; footage: the background "
+        "photograph, its units the clips), over the pairs of units whose failure differs, the "
+        "share the measure orders against the failure (0: ranks them; 0.5: chance; 1: "
+        "inverted); the last column takes the pairs from different scenes "
+        "(`per_scene.parquet`).\n",
+        "## The studies\n",
+        f"The plan: {plan.conditions()} arena conditions ({len(plan.scenes)} scenes × "
+        f"{plan.tf_draws} TFs from {plan.tf_range} Hz) × {plan.seeds} seed(s) of "
+        f"{plan.minutes:g}-min runs, {plan.arena_runs()} runs with the profiling; "
+        f"{plan.clips} clips of {plan.clip_seconds:g} s.\n",
+        "| source | detector | units | computed by this call | status | folder |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in studies.iter_rows(named=True):
+        lines.append(f"| {r['source']} | {r['detector']} | {r['units']} | {r['recomputed']} | "
+                     f"{r['status'][:100]} | `{Path(r['folder']).name}` |")  # fmt: skip
+    cmd = "vdc-analyse power-study" + (" --quick" if quick else "")
+    lines += ["", f"Re-run (finished runs are reused): `{cmd} --out <this folder>`.\n"]
+    return "\n".join(lines)

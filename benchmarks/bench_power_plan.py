@@ -1,0 +1,131 @@
+"""How long the pre-registered plan (docs/power_plan.md, ``vdc-analyse power-study``) takes:
+an estimate on 2 local cores and on a Dask cluster of N workers, from measured per-unit times.
+
+Run: ``python benchmarks/bench_power_plan.py [--minutes 0.25] [--workers 8,32]``. Measures, in
+this process, after one warm-up run (compile caches, calibrations):
+
+* one closed-loop arena run of each arena detector and one profiling run with every
+  complexity measure of the predictors, each ``--minutes`` long (default: the quick plan's
+  length), recorded and measured as the campaign's task does it
+  (``boundary_campaign.record_and_measure``);
+* one footage clip of the plan's length rendered and encoded; its complexity (the
+  ``complexity`` command on one clip, one worker: its pool start-up included); each footage
+  detector judging it (``clip_task``) and the predictors' pass over it (``clip_frames_task``).
+
+The estimate: each stage of the plan (the arena detectors' campaigns one after the other, the
+shared profiling runs, the clips rendered in one process, then each footage detector's
+complexity, clip and predictor passes) takes ceil(its tasks / workers) × its unit's time, an
+arena run's time scaled from ``--minutes`` to the plan's 3 minutes in proportion (the run's
+start-up included: a slight over-estimate). It is an estimate, not a measurement of the plan:
+it leaves out the statistics and figures at the end (seconds) and assumes the machine gives
+each worker a core. The plain reference, measured in the same run: one arena run (LGMD+)
+recorded alone with ``record_sim``, nothing measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from analysis.boundary.command import BoundarySettings
+from analysis.boundary.footage import clip_task
+from analysis.complexity.command import ComplexitySettings, complexity
+from analysis.experiments.boundary_campaign import grid_items, record_and_measure
+from analysis.experiments.captures import profiling_items
+from analysis.experiments.looming_footage import LoomingFootageSettings, looming_footage
+from analysis.experiments.power_study import FULL
+from analysis.predictors.footage import clip_frames_task
+from analysis.predictors.statistics import MEASURES  # noqa: F401  (imported: warm, as a worker)
+from capture.run import REPLACE_OUTPUT
+from capture.sim import record_sim
+
+
+def timed(fn, *args) -> float:
+    t0 = time.perf_counter()
+    fn(*args)
+    return time.perf_counter() - t0
+
+
+def arena_unit(tmp: Path, detector: str, param: str, value: float, minutes: float) -> float:
+    s = BoundarySettings(detector=detector, param=param, values=(value,), scenes=("natural",),
+                         tf=(1.0,), seeds=1, minutes=minutes)  # fmt: skip
+    it = grid_items(s, tmp / detector)[0]
+    it.path.parent.mkdir(parents=True, exist_ok=True)
+    return timed(record_and_measure, it.key, it.settings, str(it.path), "collision", 0.3)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=0.25, help="measured run length")
+    ap.add_argument("--workers", default="8,32", help="Dask cluster sizes, comma-separated")
+    args = ap.parse_args()
+    plan = FULL
+    scale = plan.minutes / args.minutes
+    with tempfile.TemporaryDirectory() as tmpdir:
+        tmp = Path(tmpdir)
+        warm = BoundarySettings(scenes=("natural",), tf=(1.0,), values=(12.0,), seeds=1,
+                                minutes=0.05)  # fmt: skip
+        one = grid_items(warm, tmp / "warm")[0]
+        record_sim(one.settings, one.path)  # warm-up: compile caches, calibrations
+        ref = BoundarySettings(scenes=("natural",), tf=(1.0,), values=(12.0,), seeds=1,
+                               minutes=args.minutes)  # fmt: skip
+        r = grid_items(ref, tmp / "ref")[0]
+        reference = timed(record_sim, r.settings, r.path, REPLACE_OUTPUT)
+
+        unit = {d: arena_unit(tmp, d, p, v, args.minutes) for d, p, v in plan.arena_detectors}
+        prof = profiling_items(ref, tmp / "prof")[0]
+        prof.path.parent.mkdir(parents=True, exist_ok=True)
+        profile_s = timed(record_and_measure, prof.key, prof.settings, str(prof.path),
+                          "profile", 0.0, 8)  # fmt: skip
+
+        w, h = plan.clip_size
+        cs = LoomingFootageSettings(clips=1, seconds=plan.clip_seconds, width_px=w, height_px=h)
+        render_s = timed(looming_footage, cs, tmp / "clips")
+        clip = str(next((tmp / "clips").glob("clip*.mp4")))
+        cx = ComplexitySettings(fov_deg=cs.hfov_deg, metrics="all", jobs=1)
+        complexity_s = timed(complexity, [clip], cx, tmp / "cx")
+        det_s, frames_s = {}, {}
+        for d, p, v in plan.footage_detectors:
+            spec = f"{d}:{p}={v:g}"
+            det_s[d] = timed(clip_task, clip, spec, None, cs.hfov_deg, plan.alert_window_s, 0.5)
+            frames_s[d] = timed(clip_frames_task, clip, {f"{v:g}": spec}, cs.hfov_deg)
+
+    runs = plan.conditions() * plan.seeds
+    print(f"plan: {plan.conditions()} conditions x {plan.seeds} seeds x "
+          f"{len(plan.arena_detectors)} arena detectors + {runs} profiling runs = "
+          f"{plan.arena_runs()} runs of {plan.minutes:g} min; {plan.clips} clips x "
+          f"{len(plan.footage_detectors)} footage detectors")  # fmt: skip
+    print(f"load average while measuring: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(f"reference: one arena run (lgmd-plus-arena, {args.minutes:g} min) recorded alone: "
+          f"{reference:.1f} s")  # fmt: skip
+    for d, t in unit.items():
+        print(f"  arena run + measurement, {d}: {t:.1f} s ({args.minutes:g} min)")
+    print(f"  profiling run + every measure: {profile_s:.1f} s ({args.minutes:g} min)")
+    print(f"  one clip rendered and encoded: {render_s:.1f} s; its complexity (pool of 1): "
+          f"{complexity_s:.1f} s")  # fmt: skip
+    for d in det_s:
+        print(f"  footage {d}: judged {det_s[d]:.2f} s, predictor pass {frames_s[d]:.2f} s")
+
+    def estimate(workers: int) -> float:
+        def stage(tasks: int, secs: float) -> float:
+            return math.ceil(tasks / workers) * secs
+
+        total = sum(stage(runs, t * scale) for t in unit.values())
+        total += stage(runs, profile_s * scale)
+        total += plan.clips * render_s  # rendered in the command's own process
+        total += stage(plan.clips, complexity_s)  # measured once, shared by the detectors
+        total += sum(stage(plan.clips, det_s[d] + frames_s[d]) for d in det_s)
+        return total
+
+    print("estimate of the full plan (not a measurement; see the docstring):")
+    print(f"  2 local cores: {estimate(2) / 3600:.1f} h")
+    for n in (int(w) for w in args.workers.split(",")):
+        print(f"  Dask cluster of {n} workers: {estimate(n) / 3600:.1f} h")
+
+
+if __name__ == "__main__":
+    main()

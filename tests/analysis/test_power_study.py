@@ -1,0 +1,117 @@
+"""``vdc-analyse power-study --quick``: the pre-registered plan's reduced version end to end on
+a real process pool (arena campaigns, the looming collection, footage studies, the answer), its
+outputs marked as not findings, and a re-run that recomputes nothing; the per-scene measure
+checked against Kendall's tau."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pyarrow.parquet as pq
+import pytest
+import scipy.stats
+
+from analysis.experiments.power_answer import discordant_share
+from analysis.experiments.power_study import FULL, QUICK, PowerStudySettings, power_study
+from tests.figures import assert_figure, recording_figures
+from tests.in_process import run_in_process
+
+ANSWER = ("answer.md", "primary.parquet", "secondaries.parquet", "per_scene.parquet",
+          "per_scene.png", "studies.parquet")  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory) -> tuple[Path, object, list[dict]]:
+    out = tmp_path_factory.mktemp("power-study")
+    # one worker: the suite's two xdist workers already fill the two cores
+    with recording_figures() as figures:
+        return out, power_study(PowerStudySettings(quick=True, jobs=1), out), figures
+
+
+def test_the_quick_plan_writes_the_answer_marked_as_not_findings(quick) -> None:
+    out, res, figures = quick
+    for name in ANSWER:
+        assert (out / name).is_file(), name
+    answer = (out / "answer.md").read_text()
+    first, second = answer.split("\n\n")[:2]
+    assert first.startswith("**Quick run") and "not findings" in first
+    # every study is far below the plan's power: the answer says so in words
+    assert second.startswith("**Does the AVDM predict")
+    assert "no difference at this power" in second
+    assert "QUICK RUN" in res.report()[0]
+    for name in ("primary", "secondaries", "per_scene", "studies"):
+        kv = pq.read_schema(out / f"{name}.parquet").metadata
+        assert json.loads(kv[b"vdc.not_findings"]) is True, name
+    fig = assert_figure(out / "per_scene.png", figures, title="not findings", min_axes=2)
+    assert "QUICK RUN" in fig["suptitle"]
+
+
+def test_each_detector_gets_its_primary_comparison(quick) -> None:
+    out, _, _ = quick
+    primary = pl.read_parquet(out / "primary.parquet")
+    want = [("arena", d) for d, _, _ in QUICK.arena_detectors] + [
+        ("footage", d) for d, _, _ in QUICK.footage_detectors
+    ]
+    assert list(zip(primary["source"], primary["detector"], strict=True)) == want
+    arena = primary.filter(pl.col("source") == "arena")
+    # 3 conditions, below the 24 the power calculation asks for: no verdict, said so
+    assert arena["n"].to_list() == [QUICK.conditions()] * 2
+    assert all(v.startswith("too few conditions") for v in arena["verdict"])
+    assert arena["statistic"].to_list() == ["rho_failure"] * 2
+    # a footage study either judged its clips or says why it could not (no alert at all)
+    for r in primary.filter(pl.col("source") == "footage").iter_rows(named=True):
+        assert r["verdict"].startswith(("too few failures", "no evidence")), r
+    # the secondaries are the studies' own comparisons, never the primary one
+    sec = pl.read_parquet(out / "secondaries.parquet")
+    assert sec.height and set(sec["role"]) == {"secondary"}
+
+
+def test_the_arena_detectors_share_one_set_of_profiling_runs(quick) -> None:
+    out, res, _ = quick
+    profiles = list((out / "arena" / "recordings" / "profile").rglob("*.rrd"))
+    assert len(profiles) == QUICK.conditions() * QUICK.seeds
+    arena = res.studies.filter(pl.col("source") == "arena")
+    # the first detector recorded its runs and the profiling runs, the second only its own
+    assert arena["recomputed"].to_list() == [2 * QUICK.conditions(), QUICK.conditions()]
+    scenes = pl.read_parquet(out / "per_scene.parquet")
+    assert set(scenes["scene"]) >= {*QUICK.scenes, "across scenes"}
+
+
+def test_a_rerun_recomputes_nothing(quick) -> None:
+    out, res, _ = quick
+    assert res.recomputed > 0
+    rrd = sorted(out.rglob("*.rrd"))
+    proc = run_in_process("analysis", "power-study", "--quick", "--out", str(out), "--jobs", "1")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("QUICK RUN: its verdicts are not findings")
+    studies = pl.read_parquet(out / "studies.parquet")
+    assert studies["recomputed"].to_list() == [0] * studies.height
+    assert sorted(out.rglob("*.rrd")) == rrd
+    for d, _, _ in QUICK.arena_detectors:
+        runs = pl.read_parquet(out / "arena" / d / "boundary_runs.parquet")
+        assert runs["reused"].all(), d
+
+
+def test_the_full_plan_is_the_documented_one() -> None:
+    # docs/power_plan.md: 8 scenes x 6 TFs = 48 conditions, 3 seeds of 3 min, 480 clips
+    assert FULL.conditions() == 48 and FULL.seeds == 3 and FULL.minutes == 3.0
+    assert FULL.clips == 480 and len(FULL.footage_detectors) == 3
+    assert FULL.arena_runs() == 48 * 3 * 3  # two detectors and the profiling runs
+
+
+def test_the_discordant_share_is_kendalls_tau_rescaled() -> None:
+    rng = np.random.default_rng(3)
+    x, f = rng.normal(size=12), rng.normal(size=12)
+    tau = scipy.stats.kendalltau(x, f).statistic
+    # without ties every pair is concordant or discordant: share = (1 - tau) / 2 (exact
+    # arithmetic on 66 pairs; 1e-12 is float rounding)
+    assert discordant_share(x, f) == pytest.approx((1 - tau) / 2, abs=1e-12)
+    assert discordant_share(f, f) == 0.0 and discordant_share(-f, f) == 1.0
+    assert discordant_share(np.zeros(4), [0, 1, 0, 1]) == 0.5  # ties count half
+    assert np.isnan(discordant_share([1.0, 2.0], [0.5, 0.5]))  # no pair whose failure differs
+    # across groups only: the within-group pairs (here all concordant) are left out
+    group = np.array([0, 0, 1, 1])
+    assert discordant_share([1, 2, 0, 0.5], [1, 2, 3, 4], group) == 1.0
