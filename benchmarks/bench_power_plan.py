@@ -39,14 +39,17 @@ from analysis.experiments.captures import profiling_items
 from analysis.experiments.looming_footage import LoomingFootageSettings, looming_footage
 from analysis.experiments.power_study import FULL
 from analysis.predictors.footage import clip_frames_task
-from analysis.predictors.statistics import MEASURES  # noqa: F401  (imported: warm, as a worker)
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
 
+CPU: list[float] = []  # each timed call's CPU seconds in this process, in order
+
 
 def timed(fn, *args) -> float:
-    t0 = time.perf_counter()
+    """Wall seconds of ``fn(*args)``; its CPU seconds in this process appended to CPU."""
+    t0, c0 = time.perf_counter(), time.process_time()
     fn(*args)
+    CPU.append(time.process_time() - c0)
     return time.perf_counter() - t0
 
 
@@ -94,37 +97,46 @@ def main() -> None:
             det_s[d] = timed(clip_task, clip, spec, None, cs.hfov_deg, plan.alert_window_s, 0.5)
             frames_s[d] = timed(clip_frames_task, clip, {f"{v:g}": spec}, cs.hfov_deg)
 
+    # wall and CPU seconds of each unit, in the order measured (CPU: this process only; the
+    # complexity command's work is in its pool's worker, so its wall time stands for both)
+    names = ["reference", *unit, "profile", "render", "complexity"]
+    names += [f"{k} {d}" for d in det_s for k in ("judged", "predictors")]
+    walls = [reference, *unit.values(), profile_s, render_s, complexity_s]
+    walls += [x for d in det_s for x in (det_s[d], frames_s[d])]
+    k = names.index("complexity")
+    cpus = [*CPU[:k], complexity_s, *CPU[k + 1 :]]
     runs = plan.conditions() * plan.seeds
     print(f"plan: {plan.conditions()} conditions x {plan.seeds} seeds x "
           f"{len(plan.arena_detectors)} arena detectors + {runs} profiling runs = "
           f"{plan.arena_runs()} runs of {plan.minutes:g} min; {plan.clips} clips x "
           f"{len(plan.footage_detectors)} footage detectors")  # fmt: skip
     print(f"load average while measuring: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    print(f"reference: one arena run (lgmd-plus-arena, {args.minutes:g} min) recorded alone: "
-          f"{reference:.1f} s")  # fmt: skip
-    for d, t in unit.items():
-        print(f"  arena run + measurement, {d}: {t:.1f} s ({args.minutes:g} min)")
-    print(f"  profiling run + every measure: {profile_s:.1f} s ({args.minutes:g} min)")
-    print(f"  one clip rendered and encoded: {render_s:.1f} s; its complexity (pool of 1): "
-          f"{complexity_s:.1f} s")  # fmt: skip
-    for d in det_s:
-        print(f"  footage {d}: judged {det_s[d]:.2f} s, predictor pass {frames_s[d]:.2f} s")
+    print(f"reference: one arena run (lgmd-plus-arena, {args.minutes:g} min) recorded alone "
+          f"with record_sim: {reference:.1f} s ({cpus[0]:.1f} s of CPU)")  # fmt: skip
+    for name, w, c in zip(names[1:], walls[1:], cpus[1:], strict=True):
+        per = f" per {args.minutes:g}-min run" if name in unit or name == "profile" else ""
+        print(f"  {name}: {w:.2f} s ({c:.2f} s of CPU){per}")
 
-    def estimate(workers: int) -> float:
-        def stage(tasks: int, secs: float) -> float:
-            return math.ceil(tasks / workers) * secs
+    def estimate(workers: int, secs: list[float]) -> float:
+        t = dict(zip(names, secs, strict=True))
 
-        total = sum(stage(runs, t * scale) for t in unit.values())
-        total += stage(runs, profile_s * scale)
-        total += plan.clips * render_s  # rendered in the command's own process
-        total += stage(plan.clips, complexity_s)  # measured once, shared by the detectors
-        total += sum(stage(plan.clips, det_s[d] + frames_s[d]) for d in det_s)
+        def stage(tasks: int, unit_s: float) -> float:
+            return math.ceil(tasks / workers) * unit_s
+
+        total = sum(stage(runs, t[d] * scale) for d in unit)
+        total += stage(runs, t["profile"] * scale)
+        total += plan.clips * t["render"]  # rendered in the command's own process
+        total += stage(plan.clips, t["complexity"])  # measured once, shared by the detectors
+        total += sum(stage(plan.clips, t[f"judged {d}"] + t[f"predictors {d}"]) for d in det_s)
         return total
 
-    print("estimate of the full plan (not a measurement; see the docstring):")
-    print(f"  2 local cores: {estimate(2) / 3600:.1f} h")
-    for n in (int(w) for w in args.workers.split(",")):
-        print(f"  Dask cluster of {n} workers: {estimate(n) / 3600:.1f} h")
+    print("estimate of the full plan (not a measurement; see the docstring), from the wall "
+          "times at this load / from the CPU times (cores to itself):")  # fmt: skip
+    sizes = [("2 local cores", 2)] + [
+        (f"Dask cluster of {n} workers", n) for n in (int(w) for w in args.workers.split(","))
+    ]
+    for label, n in sizes:
+        print(f"  {label}: {estimate(n, walls) / 3600:.1f} h / {estimate(n, cpus) / 3600:.1f} h")
 
 
 if __name__ == "__main__":
