@@ -348,14 +348,7 @@ COMMANDS = {
         "analysis.experiments.power_study:PowerStudySettings",
         _campaign("analysis.experiments.power_study:power_study", "run"),
         "re-run the pre-registered plan (docs/power_plan.md) from nothing and write its answer",
-        "The arena boundary campaign of each arena detector over the plan's scenes and drawn "
-        "TFs (with every complexity measure of the profiling runs), the looming collection "
-        "over real photographs and footage mode of each footage detector on it; then "
-        "primary.parquet (the AVDM against P.910 TI per detector, interval and p), "
-        "secondaries.parquet (Holm-corrected), per_scene.png and answer.md. Finished runs, "
-        "clips and footage studies are reused. --quick runs a reduced version in about a "
-        "minute whose verdicts are not findings.",
-        "example:\n  vdc-analyse power-study --out results/power-study --jobs 2",
+        "The plan's studies, resumed, then answer.md; --quick: a minute, not findings.",
         inputs=_inputs("results/power-study", None),
     ),
     "adaptation": Command(
@@ -450,13 +443,8 @@ COMMANDS = {
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser, with the flags of ``command`` generated (see ``vdc.cli_support``)."""
-    return command_line(
-        PROG,
-        "Offline analysis for vdc: recordings to tables and figures, model variants, sweeps "
-        "and calibration.",
-        COMMANDS,
-        command,
-    )
+    about = "Offline analysis for vdc: recordings to tables and figures, model variants, sweeps"
+    return command_line(PROG, about + " and calibration.", COMMANDS, command)
 
 
 def cli_reference() -> str:
@@ -469,8 +457,7 @@ def cli_reference() -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     # a campaign with failed runs keeps the finished ones; a re-run retries the failed
-    stopped = {TasksFailed: ""}
-    return run_command_line(PROG, build_parser(command_of(argv, COMMANDS)), argv, stopped)
+    return run_command_line(PROG, build_parser(command_of(argv, COMMANDS)), argv, {TasksFailed: ""})
 
 
 if __name__ == "__main__":  # pragma: no cover
