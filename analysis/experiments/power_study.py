@@ -43,9 +43,11 @@ from typing import Any
 import polars as pl
 
 from analysis.boundary.command import BoundarySettings
-from analysis.experiments.boundary_campaign import boundary
+from analysis.experiments.boundary_campaign import boundary, finished_row, grid_items
+from analysis.experiments.captures import profiling_items
 from analysis.experiments.looming_footage import LoomingFootageSettings, looming_footage
 from analysis.experiments.power_answer import write_answer
+from analysis.experiments.predictor_runs import EVERY
 from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback
@@ -151,6 +153,28 @@ class PowerStudyResult(WroteFiles):
         return [*head, first.replace("**", ""), f"wrote {self.paths[-1]} and beside it"]
 
 
+def _done(marker: Path, key: dict[str, Any]) -> str | None:
+    """The status a finished step wrote into ``marker`` (``study.json``) when it ran with this
+    ``key`` (what its outcome depends on), else None."""
+    if not marker.exists():
+        return None
+    done = json.loads(marker.read_text())
+    return done["status"] if done.get("key") == json.loads(json.dumps(key)) else None
+
+
+def _mark(marker: Path, key: dict[str, Any], status: str) -> None:
+    marker.parent.mkdir(parents=True, exist_ok=True)
+    tmp = marker.with_suffix(".partial")
+    tmp.write_text(json.dumps({"key": key, "status": status}))
+    tmp.replace(marker)
+
+
+def _outcome_key(settings: Any) -> dict[str, Any]:
+    """A step's settings without where it runs (the executor fields change no outcome)."""
+    executor = {f.name for f in dataclasses.fields(ExecutorSettings)}
+    return {k: v for k, v in dataclasses.asdict(settings).items() if k not in executor}
+
+
 def _slug(spec: str) -> str:
     return spec.replace(".", "-").replace(":", "-")
 
@@ -183,13 +207,28 @@ def arena_study(
         no_fit=True, **_executor(s),
     )  # fmt: skip
     row = _row("arena", detector, param, value, folder, plan.conditions() * plan.seeds)
+    key, marker = _outcome_key(bs), folder / "study.json"
+    status = _done(marker, key)
+    if status is not None and _all_finished(bs, folder):  # its tables are these runs' already
+        feedback.log(f"arena study of {detector}: every run finished and analysed: reused")
+        return row | {"status": status}
     try:
         res = boundary(bs, folder, feedback)
     except UserError as e:  # no evidence: recorded as the study's outcome, the others go on
+        _mark(marker, key, f"no evidence: {e}")
         return row | {"status": f"no evidence: {e}"} | _recounted(folder, start)
+    _mark(marker, key, "ran")
     profiles = pl.read_parquet(folder / "boundary_profiles.parquet")
     fresh = int((~res.runs["reused"]).sum()) + int((~profiles["reused"]).sum())
     return row | {"status": "ran", "recomputed": fresh}
+
+
+def _all_finished(bs: BoundarySettings, folder: Path) -> bool:
+    """Every run of the campaign recorded and measured (read as the campaign reads them)."""
+    rec = folder / "recordings"
+    runs = [(it, "collision", 0) for it in grid_items(bs, rec)]
+    runs += [(it, "profile", EVERY) for it in profiling_items(bs, rec)]
+    return all(finished_row(it, kind, every) is not None for it, kind, every in runs)
 
 
 def _recounted(folder: Path, start: float) -> dict[str, Any]:
@@ -246,17 +285,11 @@ def footage_study(
     )  # fmt: skip
     row = _row("footage", detector, param, value, folder, plan.clips)
     digest = hashlib.sha256(labels.read_bytes()).hexdigest()  # rewritten, unchanged, each run
-    # what the study's outcome depends on (not where it ran: the executor fields)
-    key = {
-        "settings": {k: v for k, v in dataclasses.asdict(bs).items() if k not in _executor(s)},
-        "labels": digest,
-    }
-    marker = folder / "study.json"
-    if marker.exists():
-        done = json.loads(marker.read_text())
-        if done.get("key") == json.loads(json.dumps(key)):
-            feedback.log(f"footage study of {detector}: reused ({done['status'][:60]})")
-            return row | {"status": done["status"]}
+    key, marker = {"settings": _outcome_key(bs), "labels": digest}, folder / "study.json"
+    status = _done(marker, key)
+    if status is not None:
+        feedback.log(f"footage study of {detector}: reused ({status[:60]})")
+        return row | {"status": status}
     for other in (out / "footage").iterdir():  # clips measured by an earlier detector
         _link_parts(other / "complexity" / "parts", folder / "complexity" / "parts")
     try:
@@ -264,10 +297,7 @@ def footage_study(
         status = "ran"
     except UserError as e:
         status = f"no evidence: {e}"
-    folder.mkdir(parents=True, exist_ok=True)
-    tmp = marker.with_suffix(".partial")
-    tmp.write_text(json.dumps({"key": key, "status": status}))
-    tmp.replace(marker)
+    _mark(marker, key, status)
     return row | {"status": status, "recomputed": plan.clips}
 
 
@@ -292,12 +322,18 @@ def power_study(
     clips = LoomingFootageSettings(
         clips=plan.clips, seconds=plan.clip_seconds, width_px=w, height_px=h
     )
-    made = looming_footage(clips, out / "footage" / "clips", feedback)
-    rows.append(
-        _row("footage", "looming-footage", "clips", plan.clips, out / "footage" / "clips",
-             plan.clips) | {"status": "rendered", "recomputed": plan.clips - made.reused}
-    )  # fmt: skip
-    labels = out / "footage" / "clips" / "labels.csv"
+    folder = out / "footage" / "clips"
+    labels = folder / "labels.csv"
+    row = _row("footage", "looming-footage", "clips", plan.clips, folder, plan.clips)
+    # the generator renders every clip again to label it: a finished collection is kept whole
+    key = dataclasses.asdict(clips)
+    if _done(folder / "study.json", key) and labels.exists():
+        feedback.log(f"looming-footage: the {plan.clips} clips in {folder} reused")
+        rows.append(row | {"status": "rendered"})
+    else:
+        made = looming_footage(clips, folder, feedback)
+        _mark(folder / "study.json", key, "rendered")
+        rows.append(row | {"status": "rendered", "recomputed": plan.clips - made.reused})
     for spec in plan.footage_detectors:
         rows.append(footage_study(s, spec, labels, clips.hfov_deg, out, feedback))
     studies = pl.DataFrame(rows)
