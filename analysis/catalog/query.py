@@ -87,6 +87,7 @@ class _Selection:
     view: Any
     props: dict[str, dict[str, dict[str, Any]]]
     variant_names: dict[str, dict[str, str]]
+    url: str  # the server read from
 
 
 def _property_key(entity: str) -> str:
@@ -130,7 +131,31 @@ def _remote_dataset(url: str, settings: CatalogSettings) -> Iterator[tuple[Any, 
             f"the catalog at {url} serves {', '.join(names) or 'no dataset'}: "
             + ("name one with --dataset" if name is None else f"no dataset {name!r}")
         )
-    yield client.get_dataset(name), name
+    with _server_answers(url):
+        ds = client.get_dataset(name)
+    yield ds, name
+
+
+# the wrappers the server's client puts before its reason (DataFusion over an FFI boundary)
+_WRAPPERS = re.compile(r"^((DataFusion|FFI|External) error: )+")
+
+
+@contextlib.contextmanager
+def _server_answers(where: str) -> Iterator[None]:
+    """A catalog server's failure while it answers (killed mid-query; a recording it serves
+    cut, truncated or gone) as one line naming ``where`` and the server's own reason: a
+    :class:`UserError` (exit status 2), never the client's traceback. Ours pass as they are."""
+    try:
+        yield
+    except UserError:
+        raise
+    except Exception as exc:  # the client's errors (RuntimeError, DataFusion's Exception)
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        reason = _WRAPPERS.sub("", first)[:300]
+        raise UserError(
+            f"the catalog at {where} failed mid-query (its server stopped or could not read a "
+            f"recording): {reason}"
+        ) from None
 
 
 @contextlib.contextmanager
@@ -151,7 +176,8 @@ def _select(
         if layers:
             raise UserError("from a catalog URL every layer's variants are read: leave out --layer")
         with _remote_dataset(str(urls[0]), settings) as (ds, _name):
-            seg = pl.from_arrow(ds.segment_table().to_arrow_table())
+            with _server_answers(str(urls[0])):
+                seg = pl.from_arrow(ds.segment_table().to_arrow_table())
             ids = select_segments(_summary_columns(seg), where)
             if not ids:
                 raise UserError(f"no segment matches {where}")
@@ -160,7 +186,7 @@ def _select(
                 rid: {_property_key(k): v for k, v in p.get("model_variants", {}).items()}
                 for rid, p in props.items()
             }
-            yield _Selection(ds.filter_segments(ids), props, names)
+            yield _Selection(ds.filter_segments(ids), props, names, str(urls[0]))
         return
     with open_catalog(sources, settings, notice) as cat:
         ids = select_segments(segment_table(cat), where)
@@ -183,7 +209,7 @@ def _select(
             ["+ /**", *[f"- {e}" for e in hidden]]
         )
         props = {s.recording_id: Recording(s.path).properties() for s in cat.found.segments}
-        yield _Selection(view, props, names)
+        yield _Selection(view, props, names, cat.url)
 
 
 def query(
@@ -204,7 +230,8 @@ def query(
 
     sources = [folders] if isinstance(folders, (str, Path)) else list(folders)
     with _select(sources, where, layers, settings, notice) as sel:
-        raw = pl.from_arrow(sel.view.reader(index=FRAME_TIMELINE).to_arrow_table())
+        with _server_answers(sel.url):
+            raw = pl.from_arrow(sel.view.reader(index=FRAME_TIMELINE).to_arrow_table())
     frames, outputs = [], []
     scalar = [c for c in raw.columns if c.endswith(":Scalars:scalars")]
     raw = raw.select(
