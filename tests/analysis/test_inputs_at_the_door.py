@@ -3,14 +3,17 @@ line naming the input (the arena's simulated camera runs at 33 Hz: TFs stay belo
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from analysis.boundary.command import BoundarySettings
 from capture.config import CameraConfig
 from capture.sim import SimSettings
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error, run_cli, write_video
+from vdc.errors import UserError
 
 NYQUIST_HZ = CameraConfig().fps / 2  # 16.5 Hz: a grating drifting faster aliases
 
@@ -60,3 +63,71 @@ def test_the_command_line_refuses_it_before_any_run(tmp_path: Path) -> None:
     res = run_cli("capture", "sim", "--tf-hz", "20", "--out", str(tmp_path / "s.rrd"), timeout=120)
     assert_one_line_error(res, "--tf-hz reaches 20 Hz")
     assert not list(tmp_path.iterdir())
+
+
+# -- a labelled collection: its frames inside its clips ------------------------------------
+
+CLIP_FRAMES = 30  # the tiny clip's length: frames 0 to 29
+
+
+@pytest.fixture(scope="module")
+def tiny_clip(tmp_path_factory) -> Path:
+    """A real 30-frame H.264 clip (a random texture panning right), 48x64 px at 25 fps."""
+    folder = tmp_path_factory.mktemp("tiny")
+    scene = np.random.default_rng(3).integers(40, 200, size=(48, 124), dtype=np.uint8)
+    pan = np.stack([np.roll(scene, 2 * t, 1)[:, :64] for t in range(CLIP_FRAMES)])
+    return write_video(folder / "tiny.mp4", pan, 25.0)
+
+
+@pytest.mark.parametrize(
+    ("columns", "row", "needle"),
+    [
+        ("collision_frame", "5000", "collision_frame 5000, beyond its 30 frames (0 to 29)"),
+        ("collision_frame", "30", "collision_frame 30, beyond its 30 frames"),  # one past
+        ("collision_frame,hazard_onset_frame", "29,31", "hazard_onset_frame 31, beyond its 30"),
+        ("collision_frame", "-1", "collision_frame must be a frame number >= 0"),
+        ("collision_frame,hazard_onset_frame", "29,-4", "hazard_onset_frame must be"),
+    ],
+)
+def test_a_labelled_frame_outside_its_clip_is_refused(
+    tiny_clip: Path, tmp_path: Path, columns: str, row: str, needle: str
+) -> None:
+    from analysis.boundary.footage import read_labels
+
+    table = tmp_path / "labels.csv"
+    table.write_text(f"clip,label,{columns}\n{tiny_clip},collision,{row}\n")
+    with pytest.raises(UserError) as err:
+        read_labels(table)
+    assert needle in str(err.value) and "\n" not in str(err.value), err.value
+    assert "tiny.mp4" in str(err.value) or "must be" in str(err.value)  # names the clip
+
+
+def test_frames_inside_the_clip_are_taken(tiny_clip: Path, tmp_path: Path) -> None:
+    """The control: the last frame (29) and an onset before it pass, a clip without a
+    collision needs no frame, and the clip's length is the container's."""
+    from analysis.boundary.footage import clip_length, read_labels
+
+    assert clip_length(str(tiny_clip)) == CLIP_FRAMES
+    table = tmp_path / "labels.csv"
+    table.write_text(
+        f"clip,label,collision_frame,hazard_onset_frame\n{tiny_clip},collision,29,10\n"
+        f"{tiny_clip.name},background,,\n"
+    )
+    shutil.copy(tiny_clip, tmp_path / tiny_clip.name)
+    labels = read_labels(table)
+    assert labels["collision_frame"].to_list() == [29, None]
+
+
+def test_boundary_refuses_a_collision_beyond_the_clip_before_any_run(
+    tiny_clip: Path, tmp_path: Path
+) -> None:
+    table = tmp_path / "labels.csv"
+    table.write_text(f"clip,label,collision_frame\n{tiny_clip},collision,5000\n")
+    out = tmp_path / "b"
+    res = run_cli(
+        "analysis", "boundary", "--labels", str(table), "--fov-deg", "60",
+        "--detector", "examples.looming:Looming", "--param", "threshold", "--values", "0.1",
+        "--out", str(out), timeout=300,  # bounds the old behaviour: the whole run
+    )  # fmt: skip
+    assert_one_line_error(res, "collision_frame 5000", "beyond its 30 frames", "tiny.mp4")
+    assert not out.exists()
