@@ -6,13 +6,16 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import av
 import numpy as np
 import pytest
 
 from analysis.boundary.command import BoundarySettings
+from analysis.complexity.command import ComplexitySettings, complexity
 from capture.config import CameraConfig
 from capture.sim import SimSettings
 from tests.helpers import assert_one_line_error, run_cli, write_video
+from tests.in_process import run_in_process
 from vdc.errors import UserError
 
 NYQUIST_HZ = CameraConfig().fps / 2  # 16.5 Hz: a grating drifting faster aliases
@@ -131,3 +134,44 @@ def test_boundary_refuses_a_collision_beyond_the_clip_before_any_run(
     )  # fmt: skip
     assert_one_line_error(res, "collision_frame 5000", "beyond its 30 frames", "tiny.mp4")
     assert not out.exists()
+
+
+# -- a video smaller than the metrics need ----------------------------------------------------
+
+
+def _tiny_video(path: Path, width: int, height: int, n: int = 10) -> Path:
+    """A real FFV1 (lossless) grey video of ``n`` frames of random texture, any size (H.264's
+    4:2:0 needs even sides; FFV1's grey plane takes 1x1)."""
+    rng = np.random.default_rng(width * 100 + height)
+    with av.open(str(path), "w") as out:
+        st = out.add_stream("ffv1", rate=25)
+        st.width, st.height, st.pix_fmt = width, height, "gray"
+        for _ in range(n):
+            img = rng.integers(0, 256, (height, width), dtype=np.uint8)
+            out.mux(st.encode(av.VideoFrame.from_ndarray(img, format="gray")))
+        out.mux(st.encode())
+    return path
+
+
+@pytest.mark.parametrize(("width", "height"), [(1, 1), (2, 2), (64, 2)])
+@pytest.mark.parametrize("command", ["capture video", "analysis complexity"])
+def test_a_video_too_small_for_the_metrics_is_one_line(
+    tmp_path: Path, width: int, height: int, command: str
+) -> None:
+    video = _tiny_video(tmp_path / "tiny.mkv", width, height)
+    module, sub = command.split()
+    out = tmp_path / ("o.rrd" if module == "capture" else "o")
+    res = run_in_process(module, sub, str(video), "--fov-deg", "60", "--out", str(out))
+    assert_one_line_error(res, "tiny.mkv", f"is {width}x{height} px", "at least 3x3 px")
+    assert not out.exists()
+
+
+def test_a_3x3_video_is_measured(tmp_path: Path) -> None:
+    """The control: the smallest size taken is measured (SI's Sobel has one interior pixel;
+    random frames differ, so TI is far from 0)."""
+    video = _tiny_video(tmp_path / "three.mkv", 3, 3)
+    res = complexity(
+        [str(video)], ComplexitySettings(metrics="si_p910,ti_p910", jobs=1), tmp_path / "c"
+    )
+    assert res.table.height == 10 and not res.failures
+    assert res.table["ti_p910"].drop_nans().drop_nulls().min() > 10  # 8-bit levels
