@@ -32,6 +32,7 @@ from tests.helpers import (
 )
 from tests.in_process import run_in_process
 from vdc.errors import UserError
+from vdc.sources import open_reader
 
 NYQUIST_HZ = CameraConfig().fps / 2  # 16.5 Hz: a grating drifting faster aliases
 
@@ -130,6 +131,23 @@ def test_frames_inside_the_clip_are_taken(tiny_clip: Path, tmp_path: Path) -> No
     shutil.copy(tiny_clip, tmp_path / tiny_clip.name)
     labels = read_labels(table)
     assert labels["collision_frame"].to_list() == [29, None]
+
+
+def test_a_clip_whose_container_states_no_length_is_counted(
+    tiny_clip: Path, tmp_path: Path
+) -> None:
+    """MPEG-TS states neither a frame count nor a trustworthy duration: the clip is counted,
+    so a collision past its end is refused there too."""
+    frames = np.stack([f.luma for f in open_reader(str(tiny_clip)).frames()])
+    ts = write_video(tmp_path / "tiny.ts", frames, 25.0, container="mpegts")
+    reader = open_reader(str(ts))
+    assert reader.info["container_frames"] is None  # the case: nothing stated
+    reader.close()
+    assert clip_length(str(ts)) == CLIP_FRAMES
+    table = tmp_path / "labels.csv"
+    table.write_text(f"clip,label,collision_frame\ntiny.ts,collision,{CLIP_FRAMES}\n")
+    with pytest.raises(UserError, match="collision_frame 30, beyond its 30 frames"):
+        read_labels(table)
 
 
 def test_boundary_refuses_a_collision_beyond_the_clip_before_any_run(
