@@ -19,6 +19,7 @@ from vdc.cli_support import (
     run_command_line,
     say,
     settings_from_args,
+    tasks_line,
 )
 from vdc.executors import Feedback, TasksFailed
 
@@ -58,30 +59,21 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _over_recordings(entry: str) -> Callable[[argparse.Namespace], int]:
+def _over_recordings(entry: str, inputs: str = "recordings") -> Callable[[argparse.Namespace], int]:
     """A sub-command that runs ``module:function(recordings, settings, out, progress=,
-    notice=)`` with a progress bar over frames and prints the result's ``report()`` lines."""
+    notice=)`` (``inputs``: the argument that holds the recordings, or the one) with a progress
+    bar over frames and prints the result's ``report()`` lines."""
 
     def run(args: argparse.Namespace) -> int:
         module, name = entry.split(":")
         fn = getattr(importlib.import_module(module), name)
         settings = settings_from_args(load_settings_class(args.settings_target), args)
         with progress_bar(None, name, "frame") as bar:
-            res = fn(args.recordings, settings, args.out, progress=bar.update, notice=_notice)
+            res = fn(getattr(args, inputs), settings, args.out, progress=bar.update, notice=_notice)
         print("\n".join(res.report()))
         return 0
 
     return run
-
-
-def cmd_compare(args: argparse.Namespace) -> int:
-    from analysis.compare import CompareSettings, compare
-
-    s = settings_from_args(CompareSettings, args)
-    with progress_bar(None, "compare", "frame") as bar:
-        res = compare(args.recording, s, args.out, progress=bar.update, notice=_notice)
-    print("\n".join(res.report(args.recording)))
-    return 0
 
 
 def cmd_collision(args: argparse.Namespace) -> int:
@@ -187,10 +179,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     with progress_bar(None, "batch", "task") as bar:
         res = batch(args.recordings, settings, args.out, progress=bar.update, log=say)
     ran = len(res.outcomes) - len([o for o in res.outcomes if o.error])
-    print(
-        f"{res.planned} tasks: {res.skipped} already done, {ran} ran, {len(res.failures)} "
-        f"failed ({res.elapsed_s:.1f} s)"
-    )
+    print(tasks_line(res, "tasks", ran, "ran"))
     if res.tables is not None:
         print(f"summarised into {args.out}/: " + ", ".join(p.name for p in res.paths))
     elif res.failures == [] and settings.shard is not None:
@@ -298,7 +287,7 @@ COMMANDS = {
     ),
     "compare": Command(
         "analysis.compare:CompareSettings",
-        cmd_compare,
+        _over_recordings("analysis.compare:compare", "recording"),
         "run model variants on the same recorded frames and compare them",
         "Recompute every --model variant on the recording's raw frames; write per-variant "
         "statistics and pairwise correlations (Parquet), compare.png, and variants.rrd with "

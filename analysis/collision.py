@@ -26,7 +26,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 from matplotlib.figure import Figure
 
-from analysis.recordings.analysis_rrd import log_arena_outline
+from analysis.recordings.analysis_rrd import log_arena_outline, open_tabbed_rrd, view_3d
 from analysis.recordings.ego_motion import turning_before
 from analysis.recordings.loading import LoadedRecording, Notices, load_recording
 from analysis.recordings.recompute import DistinctRecordings, SummarySettings, events_table
@@ -36,7 +36,6 @@ from vdc.cli_support import Settings, option
 from vdc.errors import UserError
 from vdc.folders import path_list
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
-from vdc.recording import APP_ID
 
 # what the paper reports for its three phases (30 min each) [BRIEF]
 PAPER = {
@@ -286,20 +285,15 @@ def write_collision_rrd(
     tabs = []
     for loaded, row, _ in items:
         base = f"{COLLISION_ROOT}/{safe_key(row['phase'] + '_' + loaded.recording_id[-8:])}"
+        points = f"{row['phase']}: avoidances (blue), crashes (red)"
         tabs.append(
             rrb.Horizontal(
-                rrb.Spatial3DView(
-                    name=f"{row['phase']}: avoidances (blue), crashes (red)",
-                    origin=base,
-                    contents=[f"{base}/avoidances", f"{base}/crashes", f"{base}/arena"],
-                ),
+                view_3d(points, base, "avoidances", "crashes", "arena"),
                 rrb.Spatial2DView(name="trajectory occupancy", origin=f"{base}/occupancy"),
                 name=row["phase"],
             )
         )
-    rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
-    rec.save(str(path), default_blueprint=rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=True))
-    rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec = open_tabbed_rrd(path, recording_id, tabs)
     for loaded, row, ev in items:
         base = f"{COLLISION_ROOT}/{safe_key(row['phase'] + '_' + loaded.recording_id[-8:])}"
         hx, hy = loaded.arena_half_extent()

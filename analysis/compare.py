@@ -173,9 +173,11 @@ class CompareResult(WroteFiles):
     correlations: pl.DataFrame
     paths: list[Path]
     notices: list[str]
+    source: str = ""  # the recording as given (what ``rerun`` opens beside the variants)
 
-    def report(self, source: str) -> list[str]:
-        """What the command line prints: statistics and correlations of the variants."""
+    def report(self, source: str | None = None) -> list[str]:
+        """What the command line prints: statistics and correlations of the variants, and how
+        to view them beside ``source`` (default: the recording compared)."""
         n_frames = self.outputs[next(iter(self.outputs))].height
         files, t = self.files, self.settings.threshold_dps
         lines = [f"{len(self.outputs)} variants on {n_frames} frames -> {files.compare}, "
@@ -191,7 +193,7 @@ class CompareResult(WroteFiles):
             f"spearman {r['spearman']:.3f}"
             for r in self.correlations.iter_rows(named=True)
         ]
-        return [*lines, f"view together: rerun {source} {files.variants}"]
+        return [*lines, f"view together: rerun {source or self.source} {files.variants}"]
 
     def figure(self) -> Figure:
         """Traces over the busiest minute, distributions and correlations (compare.png)."""
@@ -225,7 +227,9 @@ def compare(
     stats = variant_statistics(loaded, outputs, settings)
     corr = pairwise_correlations(outputs, settings.warmup_frames)
     paths: list[Path] = []
-    result = CompareResult(loaded.recording_id, settings, outputs, stats, corr, paths, list(notes))
+    result = CompareResult(
+        loaded.recording_id, settings, outputs, stats, corr, paths, list(notes), str(recording)
+    )
     if out is not None:
         out = Path(out)
         meta = {

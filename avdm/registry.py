@@ -360,7 +360,7 @@ def describe_models() -> str:
 
 def check_detector(
     spec: str, context: Mapping[str, Any], shape: tuple[int, int], *, alert: bool = True
-) -> None:
+) -> Model:
     """The one check of a detector, before any run that takes it: build ``spec`` with the
     camera ``context`` (what ``make_model`` is given), require an ``alert`` output
     (:func:`avdm.base.require_alert`), and step a fresh instance on one mid-grey ``shape``
@@ -368,7 +368,8 @@ def check_detector(
     number or a bool. ValueError in one line naming the detector otherwise (a plug-in that
     fails to build, has no ``step``, returns other keys or a NaN alert, or raises on a
     frame). ``alert=False``: any model (``batch``/``tables --model``), whose step must return
-    each output it declares."""
+    each output it declares. Returns the model built (stepped once: its name, outputs and
+    parameters describe the run; build a fresh one to run it)."""
     model = make_model(spec, **context)
     if alert:
         require_alert(model)
@@ -390,7 +391,7 @@ def check_detector(
             f"{', '.join(lacking)} (it declares {', '.join(names)})"
         )
     if not alert:
-        return
+        return model
     value = out["alert"] if not lacking else None
     finite = isinstance(value, bool | np.bool_) or (
         isinstance(value, int | float | np.integer | np.floating) and np.isfinite(value)
@@ -400,3 +401,4 @@ def check_detector(
             f"detector {model.name!r} returned alert={value!r} on a {h}x{w} frame (HxW): it "
             "must be a finite number (1 = collision ahead, 0 = not) or a bool"
         )
+    return model

@@ -140,7 +140,7 @@ def coverage(repeats: int = 20, spread: float = 0.3, slope: float = 0.5) -> None
     import numpy as np
     import scipy.special
 
-    from analysis.experiments.adaptive import DesignSettings, ProfileMap, design_runs
+    from analysis.experiments.adaptive import DesignSettings, DesignSpace, ProfileMap, design_runs
 
     s = BoundarySettings(design="adaptive")
     profile = ProfileMap({k: (np.array(a), np.array(b)) for k, (a, b) in PROFILE.items()})
@@ -160,7 +160,7 @@ def coverage(repeats: int = 20, spread: float = 0.3, slope: float = 0.5) -> None
             return out
 
         rows, fits = design_runs(
-            [1.0], ["grating", "natural"], profile, s.tf_bounds(), run_batch,
+            DesignSpace([1.0], ["grating", "natural"], profile, s.tf_bounds()), run_batch,
             dataclasses.replace(DesignSettings.of(s), batch=2, seed=r),
         )  # fmt: skip
         f = fits[1.0]

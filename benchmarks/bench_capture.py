@@ -16,8 +16,8 @@ from pathlib import Path
 from avdm.registry import make_model
 from capture.config import SimConfig, WallConfig
 from capture.recorder import Recorder
+from capture.recording_start import model_sections
 from capture.run import batch_bytes, log_batch
-from capture.sim import recording_properties
 from capture.sim_robot import SimulatedRobot
 from vdc.blueprints import default_blueprint
 
@@ -35,12 +35,13 @@ def capture(minutes: float, out: Path, checkpoints_min: tuple[float, ...] = ()) 
     model = make_model(cfg.model, **cfg.camera.model_context())
     t0 = time.perf_counter()
     rec = Recorder(out, cfg.run_id(), blueprint=default_blueprint(model.name, model.outputs))
-    rec.send_properties(recording_properties(cfg, model))
+    dev = SimulatedRobot(cfg)
+    rec.send_properties({**dev.properties(), **model_sections(model, cfg.camera.model_context())})
     rec.log_arena(cfg.arena, cfg.robot.radius_m)
     rss_at: dict[float, float] = {}
     frames = 0
     marks = list(checkpoints_min)
-    with SimulatedRobot(cfg) as dev:
+    with dev:
         while (batch := dev.read()) is not None:
             # what run_capture does per batch: the disk check, the batch, the flush
             rec.reserve(batch_bytes(batch))

@@ -16,6 +16,7 @@ from vdc.cli_support import (
     run_command_line,
     say,
     settings_from_args,
+    tasks_line,
 )
 
 if TYPE_CHECKING:
@@ -152,10 +153,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     with progress_bar(total, "campaign", "run", args.quiet) as bar:
         res = campaign(settings, args.out, Feedback(say, bar.update))
     ran = len(res.outcomes) - len(res.failures)
-    print(
-        f"{res.planned} runs: {res.skipped} already done, {ran} recorded, "
-        f"{len(res.failures)} failed ({res.elapsed_s:.1f} s)"
-    )
+    print(tasks_line(res, "runs", ran, "recorded"))
     if res.paths:
         print(f"runs table: {res.files.runs} ({res.runs.height} rows)")
     for key, error in res.failures:

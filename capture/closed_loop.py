@@ -20,8 +20,10 @@ logged under ``/model/controller/t_ffi``; the spike-rate alert threshold stays f
 
 from __future__ import annotations
 
+import json
 import math
 import sys
+from typing import Any
 
 import numpy as np
 
@@ -182,8 +184,26 @@ class ClosedLoopRobot(SimulatedRobot):
         self._detector_spec = config.collision.detector_spec()
         # built and stepped once on the camera's raster: a bad spec or plug-in fails early
         cam = config.camera
-        check_detector(self._detector_spec, ctx, (cam.height_px, cam.width_px))
+        # (the checked one describes the run; connect() builds a fresh one to run)
+        self.detector = check_detector(self._detector_spec, ctx, (cam.height_px, cam.width_px))
         make_model(config.model, **ctx)
+
+    def properties(self) -> dict[str, dict[str, Any]]:
+        """The simulated run's sections, with the detector's name, outputs and parameters."""
+        d = self.detector
+        return {
+            **super().properties(),
+            "detector": {
+                "name": d.name,
+                "outputs": json.dumps({o.name: o.unit for o in d.outputs}),
+            },
+            "detector_params": d.params.to_dict(),
+        }
+
+    def description(self) -> str:
+        return (
+            f"{super().description()}; closed loop with the collision detector {self.detector.name}"
+        )
 
     def _make_motion(self) -> CollisionMotion:
         return CollisionMotion(self.config, self._motion_rng)

@@ -37,6 +37,10 @@ def _in_range(name: str, v: Any, lo: float, hi: float, unit: str = "") -> None:
     _check(_finite(v) and lo <= v <= hi, name, v, f"must be between {lo:g} and {hi:g}{unit}")
 
 
+def _int_in_range(name: str, v: Any, lo: int, hi: int) -> None:
+    _check(isinstance(v, int) and lo <= v <= hi, name, v, f"must be an integer from {lo} to {hi}")
+
+
 def _plain(v: Any, declared: str, name: str = "") -> Any:
     """A config value as a recording property: tuples as JSON, NaN as its meaning."""
     if isinstance(v, tuple):
@@ -180,27 +184,12 @@ class CameraConfig:
     noise_sd: float = 0.0  # Gaussian sensor noise, 8-bit levels (0 = off)
 
     def __post_init__(self) -> None:
-        _check(
-            isinstance(self.width_px, int) and 8 <= self.width_px <= 2048,
-            "camera width_px",
-            self.width_px,
-            "must be an integer from 8 to 2048",
-        )
-        _check(
-            isinstance(self.height_px, int) and 3 <= self.height_px <= 2048,
-            "camera height_px",
-            self.height_px,
-            "must be an integer from 3 to 2048",
-        )
+        _int_in_range("camera width_px", self.width_px, 8, 2048)
+        _int_in_range("camera height_px", self.height_px, 3, 2048)
         _in_range("camera fps", self.fps, 1.0, 1000.0, " Hz")
         _in_range("hfov_deg", self.hfov_deg, 5.0, 170.0, " deg")
         _in_range("camera height_m", self.height_m, 0.001, 5.0, " m")
-        _check(
-            isinstance(self.supersample, int) and 1 <= self.supersample <= 64,
-            "supersample",
-            self.supersample,
-            "must be an integer from 1 to 64",
-        )
+        _int_in_range("supersample", self.supersample, 1, 64)
         _in_range("noise_sd", self.noise_sd, 0.0, 100.0, " levels")
 
     @property
@@ -291,12 +280,7 @@ class CollisionConfig:
         )
         _in_range("adaptive_gain", self.adaptive_gain, 0.0, 100.0)
         _in_range("adaptive_window_s", self.adaptive_window_s, 0.1, 600.0, " s")
-        _check(
-            isinstance(self.refractory_frames, int) and 0 <= self.refractory_frames <= 1000,
-            "refractory_frames",
-            self.refractory_frames,
-            "must be an integer from 0 to 1000",
-        )
+        _int_in_range("refractory_frames", self.refractory_frames, 0, 1000)
         _in_range("turn_left_probability", self.turn_left_probability, 0.0, 1.0)
         _in_range("crash_margin_m", self.crash_margin_m, 0.0, 0.1, " m")
 

@@ -9,7 +9,7 @@ end; capture code does not care which it has.
 from __future__ import annotations
 
 import dataclasses
-from typing import Protocol, Self
+from typing import Any, Protocol, Self
 
 import numpy as np
 
@@ -71,6 +71,19 @@ class CaptureDevice(Protocol):
     def read(self) -> Batch | None: ...
 
     def disconnect(self) -> None: ...
+
+
+class DescribedDevice(Protocol):
+    """A device that says what it is: what a recording of it shows in the viewer."""
+
+    def properties(self) -> dict[str, dict[str, Any]]:
+        """The recording's property sections that describe the device (``vdc.recording``'s
+        ``PROPERTY_SECTIONS``: ``run``, ``camera``, ``wall``...)."""
+        ...
+
+    def description(self) -> str:
+        """What a recording of it holds, in a sentence (the description's **What**)."""
+        ...
 
 
 class DeviceContext:

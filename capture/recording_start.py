@@ -6,7 +6,8 @@ description document, one order of writing.
 that analysis rebuilds the online model from. :func:`start_recording` opens the
 :class:`~capture.recorder.Recorder`, sends the properties with that description, logs the model's
 output units and a short markdown description of the recording (what was recorded, with which
-model and camera, and how to analyse it) at ``vdc.recording.DESCRIPTION``.
+model and camera, and how to analyse it) at ``vdc.recording.DESCRIPTION``. What was recorded is
+the device's to say (``capture.device.DescribedDevice``: its properties and description).
 """
 
 from __future__ import annotations
@@ -16,7 +17,9 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from capture.device import DescribedDevice
 from capture.recorder import Recorder
+from vdc.provenance import machine_info, package_versions
 
 if TYPE_CHECKING:  # the Rerun SDK loads only when a recording starts
     import rerun.blueprint as rrb
@@ -87,25 +90,32 @@ def start_recording(
     partial: Path,
     recording_id: str,
     *,
+    device: DescribedDevice,
     blueprint: rrb.Blueprint,
     live_url: str | None,
-    sections: Mapping[str, Mapping[str, Any]],
     model: Model,
     context: Mapping[str, float | int],
-    what: str,
     analyse: Sequence[str],
+    sections: Mapping[str, Mapping[str, Any]] | None = None,
     model_fields: Mapping[str, Any] | None = None,
     model_note: str = "",
 ) -> Recorder:
     """Open the recording of a capture at ``partial`` and write what every capture writes
-    first: the properties (``sections`` and the model description of :func:`model_sections`),
-    the model's output units and the description document. Returns the recorder."""
+    first: the properties (the ``device``'s own, with ``sections`` merged in, the recording id
+    in ``run``, the ``provenance`` and the model description of :func:`model_sections`), the
+    model's output units and the description document (what: the device's description).
+    Returns the recorder."""
 
+    props = device.properties()
+    for name, section in (sections or {}).items():
+        props[name] = {**props.get(name, {}), **section}
+    props["run"] = {"recording_id": recording_id, **props.get("run", {})}
+    props["provenance"] = {**package_versions(), **machine_info()}
+    props |= model_sections(model, context, **dict(model_fields or {}))
     recorder = Recorder(partial, recording_id, blueprint=blueprint, live_url=live_url)
-    recorder.send_properties(
-        {**sections, **model_sections(model, context, **dict(model_fields or {}))}
-    )
+    recorder.send_properties(props)
     recorder.log_model_meta(model.name, model.outputs)
+    what = device.description()
     text = description_markdown(recording_id, what, model, context, analyse, model_note)
     recorder.log_description(text)
     return recorder

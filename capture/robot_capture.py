@@ -24,6 +24,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -35,6 +36,7 @@ from capture.config import (
     RobotConfig,
     WallConfig,
     config_section,
+    format_schedule,
     parse_schedule,
 )
 from capture.device import Batch, DeviceContext, Event
@@ -48,6 +50,7 @@ from capture.tracker import (
     MarkerLayout,
     calibrate_homography,
     load_calibration,
+    open_camera,
     robot_pose,
     save_calibration,
 )
@@ -56,7 +59,6 @@ from vdc.blueprints import default_blueprint
 from vdc.cli_support import Settings, non_negative_float, option, positive_float
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles
-from vdc.provenance import machine_info, package_versions
 from vdc.recording import LINK_STATS, camera_model_context
 
 LINK_COUNTERS = (
@@ -81,6 +83,7 @@ class RobotCaptureConfig:
         default_factory=lambda: WallConfig(tf_schedule=((0.0, 48 * 3600.0),))
     )
     model: str = "avdm"  # the on-board model the host asks for (PARAMS) and expects
+    wall_port: str = ""  # the LED wall controller's serial port ("": none), for the record
     # the camera assumed for a robot that does not announce its own (older firmware)
     fps: float = 33.0
     width_px: int = 99
@@ -93,21 +96,6 @@ class RobotCaptureConfig:
     batch_s: float = 0.5
     reconnect_timeout_s: float = 30.0
     layout: MarkerLayout = dataclasses.field(default_factory=MarkerLayout)
-
-
-def open_camera(source: str) -> cv2.VideoCapture:
-    """Open a camera index or a video / image-sequence path; ValueError if it gives no frame."""
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # end of file is normal
-    if source.isdigit():
-        cap = cv2.VideoCapture(int(source))
-    else:
-        is_pattern = "%" in source
-        if not is_pattern and not Path(source).exists():
-            raise UserError(f"overhead camera {source!r}: no such file or camera index")
-        cap = cv2.VideoCapture(source, cv2.CAP_IMAGES if is_pattern else cv2.CAP_ANY)
-    if not cap.isOpened():
-        raise UserError(f"overhead camera {source!r} cannot be opened")
-    return cap
 
 
 class ColiasRobotDevice(DeviceContext):
@@ -128,7 +116,51 @@ class ColiasRobotDevice(DeviceContext):
         self.output_names = [o.name for o in model.outputs]
         self.output_units = [o.unit for o in model.outputs]
         self.announced: Announcement | None = None  # what the robot said it runs
+        self.arena = ArenaConfig()  # the arena the robot runs in (the standard one)
         self.h = None if not config.calibration else load_calibration(Path(config.calibration))
+
+    def properties(self) -> dict[str, dict[str, Any]]:
+        """The recording's ``run`` (less its id), ``wall``, ``arena``, ``camera`` and ``link``
+        property sections: what this robot is. Call it after :meth:`connect`: the camera is the
+        one the robot announced (``announced`` true), else the host's defaults (false)."""
+        cfg, context, announced = self.cfg, self.model_context, self.announced is not None
+        return {
+            "run": {
+                "source": "robot",
+                "port": cfg.port,
+                "baud": cfg.baud,
+                "camera": cfg.camera,
+                "behaviour": "robot",
+            },
+            "wall": {
+                "scene": cfg.wall.scene,
+                "period_m": cfg.wall.period_m,
+                "tf_schedule_text": format_schedule(cfg.wall.tf_schedule),
+            },
+            "arena": config_section(self.arena),
+            "camera": {
+                "fps": float(context["fps"]),
+                "width_px": int(context["width_px"]),
+                "height_px": int(context["height_px"]),
+                "hfov_deg": float(context["deg_per_px"]) * int(context["width_px"]),
+                "announced": announced,
+            },
+            "link": {
+                "protocol": "vdc serial v1 (docs/robot.md)",
+                "stats": ",".join(LINK_COUNTERS),
+                "announce": "received" if announced else "none (older firmware?)",
+            },
+        }
+
+    def description(self) -> str:
+        """What a recording of this robot holds, in a sentence (its ``/description``)."""
+        cfg = self.cfg
+        return (
+            f"a Colias-IV robot on {cfg.port} ({cfg.wall_port or 'no'} wall controller), its "
+            "camera frames and on-board model outputs over the serial link, poses from the "
+            f"overhead camera {cfg.camera}; wall {cfg.wall.scene}, TF schedule "
+            f"{format_schedule(cfg.wall.tf_schedule)}"
+        )
 
     def connect(self) -> None:
         """Open the port (sends PARAMS and START), wait for the robot's ANNOUNCE and check it,
@@ -480,7 +512,6 @@ def record_robot(
     line."""
 
     wall = settings.wall()
-    schedule = wall.tf_schedule
     cfg = RobotCaptureConfig(
         port=settings.port,
         camera=settings.camera,
@@ -489,6 +520,7 @@ def record_robot(
         camera_fps=settings.camera_fps,
         wall=wall,
         model=settings.model,
+        wall_port=settings.wall_port or "",
     )
     wall_ctl = WallController(settings.wall_port, wall) if settings.wall_port else None
     device = ColiasRobotDevice(cfg, on_wall_tf=wall_ctl.update if wall_ctl else None)
@@ -511,7 +543,6 @@ def record_robot(
             )
         live = options.viewer_url()
         model = make_model(device.model_name, **context)
-        arena = ArenaConfig()
         recorder = start_recording(
             claim.partial,
             rid,
@@ -527,48 +558,14 @@ def record_robot(
                 if verified
                 else "run on board; UNVERIFIED: the robot did not announce its model"
             ),
-            what=(
-                f"a Colias-IV robot on {settings.port} ({settings.wall_port or 'no'} wall "
-                f"controller), its camera frames and on-board model outputs over the serial "
-                f"link, poses from the overhead camera {settings.camera}; wall "
-                f"{wall.scene}, TF schedule {','.join(f'{t:g}:{d:g}s' for t, d in schedule)}"
-            ),
+            device=device,
             analyse=[
                 "vdc-analyse tables REC --out results/tables",
                 "vdc-analyse profile REC --out results/profile",
                 "vdc-analyse complexity REC --out results/complexity",
             ],
-            sections={
-                "run": {
-                    "recording_id": rid,
-                    "source": "robot",
-                    "port": settings.port,
-                    "baud": settings.baud,
-                    "camera": settings.camera,
-                    "behaviour": "robot",
-                },
-                "wall": {
-                    "scene": wall.scene,
-                    "period_m": wall.period_m,
-                    "tf_schedule_text": ",".join(f"{t:g}:{d:g}s" for t, d in schedule),
-                },
-                "arena": config_section(arena),
-                "camera": {
-                    "fps": float(context["fps"]),
-                    "width_px": int(context["width_px"]),
-                    "height_px": int(context["height_px"]),
-                    "hfov_deg": float(context["deg_per_px"]) * int(context["width_px"]),
-                    "announced": verified,
-                },
-                "link": {
-                    "protocol": "vdc serial v1 (docs/robot.md)",
-                    "stats": ",".join(LINK_COUNTERS),
-                    "announce": "received" if verified else "none (older firmware?)",
-                },
-                "provenance": {**package_versions(), **machine_info()},
-            },
         )
-        recorder.log_arena(arena, RobotConfig().radius_m)
+        recorder.log_arena(device.arena, RobotConfig().radius_m)
         if settings.save_calibration:
             h = device.calibrate_tracker()
             if h is None:

@@ -337,9 +337,12 @@ class RobotEmulator:
         """END, then the port closes once the host has read it: closing the pty discards what
         the host has not read, and a host that misses END takes the closed port for a cable
         pulled out and waits for the robot to come back (a host that sent STOP reads no more;
-        one that reads nothing for 10 s is gone)."""
+        one that reads nothing for 20 s is gone)."""
         if self._write(encode(TYPE_END)) and not self.stopped:
-            self._drain(timeout_s=120.0, settle_s=0.5, stall_s=10.0)
+            # done when the host answers END with its STOP; an empty queue alone is not
+            # proof (a busy machine may hold END in the pty's flip buffer, uncounted, for a
+            # while), so only a long quiet ends the wait without it
+            self._drain(timeout_s=120.0, settle_s=5.0, stall_s=20.0)
         self.close_port()
         if self.report_path is not None:
             self.report_path.write_text(json.dumps(self.report), encoding="utf-8")

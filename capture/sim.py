@@ -8,15 +8,10 @@ implement: ``connect()``, ``read()`` (the next ``Batch`` of frames, or None at t
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
-from typing import Any
 
-import numpy as np
-
-from avdm.base import Model, Output
+from avdm.base import Output
 from avdm.registry import make_model
-from avdm.version import __version__
 from capture.closed_loop import CONTROLLER, CONTROLLER_OUTPUTS, ClosedLoopRobot
 from capture.config import (
     SCENES,
@@ -27,10 +22,11 @@ from capture.config import (
     RobotConfig,
     SimConfig,
     WallConfig,
+    format_schedule,
     parse_schedule,
 )
 from capture.output import claim_output
-from capture.recording_start import model_sections, start_recording
+from capture.recording_start import start_recording
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from capture.sim_robot import SimulatedRobot, load_wall_image, ring_turn_event  # noqa: F401
 from vdc.blueprints import default_blueprint
@@ -43,30 +39,7 @@ from vdc.cli_support import (
     positive_float,
 )
 from vdc.errors import UserError
-from vdc.provenance import machine_info, package_versions
 from vdc.recording import model_path
-
-
-def recording_properties(
-    config: SimConfig, model: Model, detector: Model | None = None
-) -> dict[str, dict[str, Any]]:
-    """Recording properties of a simulated run: every config value, the model(s) and versions."""
-    sections = config.to_sections()
-    sections["run"].update(
-        recording_id=config.run_id(),
-        source="simulation",
-        vdc_version=__version__,
-        numpy_version=np.__version__,
-    )
-    sections["provenance"] = {**package_versions(), **machine_info()}
-    sections.update(model_sections(model, config.camera.model_context()))
-    if detector is not None:
-        sections["detector"] = {
-            "name": detector.name,
-            "outputs": json.dumps({o.name: o.unit for o in detector.outputs}),
-        }
-        sections["detector_params"] = detector.params.to_dict()
-    return sections
 
 
 @dataclasses.dataclass(frozen=True)
@@ -238,19 +211,12 @@ def record_sim(
                 )
         else:
             main, extra = model, []
-        schedule = config.to_sections()["wall"]["tf_schedule_text"]
-        what = (
-            f"a simulated Colias-IV in the {config.arena.length_m:g} x {config.arena.width_m:g} m "
-            f"arena ({config.behaviour}), {config.wall.scene} walls, TF schedule {schedule}, "
-            f"{config.duration_s / 60:g} min ({config.n_frames} frames), seed {config.seed}"
-        )
         analyse = [
             "vdc-analyse tables REC --out results/tables",
             "vdc-analyse profile REC --out results/profile",
             "vdc-analyse complexity REC --out results/complexity",
         ]
         if detector is not None:
-            what += f"; closed loop with the collision detector {detector.name}"
             analyse.insert(0, "vdc-analyse collision REC --out results/collision")
         else:
             analyse.append(f"vdc-analyse compare REC --model {model.name} --out results/compare")
@@ -259,10 +225,9 @@ def record_sim(
             run_id,
             blueprint=default_blueprint(main.name, main.outputs, extra),
             live_url=live,
-            sections=recording_properties(config, model, detector),
+            device=device,
             model=model,
             context=ctx,
-            what=what,
             analyse=analyse,
         )
         recorder.log_arena(config.arena, config.robot.radius_m)
@@ -280,7 +245,7 @@ def record_sim(
             )
             options.log(
                 f"recording {run_id}: {config.wall.scene} walls, TF schedule "
-                f"{schedule}, {config.duration_s / 60:g} min "
+                f"{format_schedule(config.wall.tf_schedule)}, {config.duration_s / 60:g} min "
                 f"({config.n_frames} frames at {config.camera.fps:g} Hz), {what}"
             )
         result = run_capture(

@@ -5,12 +5,14 @@ loop with a collision detector)."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from avdm.stimuli import clutter_image, resize_image
-from capture.config import SimConfig
+from avdm.version import __version__
+from capture.config import SimConfig, format_schedule
 from capture.device import Batch, DeviceContext, Event
 from capture.render import CameraRenderer, OverheadRenderer
 from capture.robot import RobotMotion, TurnEvent
@@ -62,6 +64,28 @@ class SimulatedRobot(DeviceContext):
                 self._texture = load_wall_image(config.wall.image_path, config.wall.texture_px)
             else:
                 self._texture = clutter_image(config.wall.texture_px, seed=self._texture_seed)
+
+    def properties(self) -> dict[str, dict[str, Any]]:
+        """The recording's property sections of the run: every config value (``run``,
+        ``arena``, ``wall``, ``camera``, ...), the run's id and the versions that made it."""
+        sections = self.config.to_sections()
+        sections["run"].update(
+            recording_id=self.config.run_id(),
+            source="simulation",
+            vdc_version=__version__,
+            numpy_version=np.__version__,
+        )
+        return sections
+
+    def description(self) -> str:
+        """What a recording of this run holds, in a sentence (its ``/description``)."""
+        c = self.config
+        return (
+            f"a simulated Colias-IV in the {c.arena.length_m:g} x {c.arena.width_m:g} m arena "
+            f"({c.behaviour}), {c.wall.scene} walls, TF schedule "
+            f"{format_schedule(c.wall.tf_schedule)}, {c.duration_s / 60:g} min "
+            f"({c.n_frames} frames), seed {c.seed}"
+        )
 
     def connect(self) -> None:
         c = self.config

@@ -1,4 +1,5 @@
-"""The overhead tracker (OpenCV ArUco): arena calibration by homography, robot pose per frame.
+"""The overhead tracker (OpenCV ArUco): its camera, arena calibration by homography, robot pose
+per frame.
 
 Markers (dictionary DICT_4X4_50): ids 0–3 at the arena's corners, outside the walls, centres at
 ``(∓(hx + inset), ∓(hy + inset))`` counter-clockwise from (−x, −y); id 10 on the robot, centred
@@ -139,3 +140,18 @@ def draw_marker(
         / 255.0
     )
     canvas[:] = np.rint(canvas * (1 - mask) + warped * mask).astype(np.uint8)
+
+
+def open_camera(source: str) -> cv2.VideoCapture:
+    """Open a camera index or a video / image-sequence path; ValueError if it gives no frame."""
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # end of file is normal
+    if source.isdigit():
+        cap = cv2.VideoCapture(int(source))
+    else:
+        is_pattern = "%" in source
+        if not is_pattern and not Path(source).exists():
+            raise UserError(f"overhead camera {source!r}: no such file or camera index")
+        cap = cv2.VideoCapture(source, cv2.CAP_IMAGES if is_pattern else cv2.CAP_ANY)
+    if not cap.isOpened():
+        raise UserError(f"overhead camera {source!r} cannot be opened")
+    return cap

@@ -49,14 +49,8 @@ from vdc.cli_support import (
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher, RateLookahead
 from vdc.parquet_io import WroteFiles
-from vdc.provenance import machine_info, package_versions
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
-from vdc.sources import (
-    Reader,
-    open_reader,
-    source_kind,
-    source_name,
-)
+from vdc.sources import Reader, open_reader, source_kind, source_name
 
 
 @dataclasses.dataclass(frozen=True)
@@ -391,15 +385,14 @@ def record_video(
             context=context,
             model_fields={"true_time": True},
             model_note="run on the new frames over true time: repeats are held, not re-counted",
-            what=device.description(),
+            device=device,
             analyse=[
                 "vdc-analyse complexity REC --out results/complexity",
                 "vdc-analyse tables REC --out results/tables",
                 f"vdc-analyse compare REC --model {model.name} --model avdm --out results/compare",
             ],
             sections={
-                "run": {"recording_id": rid, "source": "video", "behaviour": "video"},
-                **device.properties(),
+                "run": {"source": "video", "behaviour": "video"},
                 "calibration": {
                     k: cal[k]
                     for k in (
@@ -413,7 +406,6 @@ def record_video(
                     )
                     if k in cal
                 },
-                "provenance": {**package_versions(), **machine_info()},
             },
         )
         if options.log is not None:

@@ -52,3 +52,34 @@ def _calibration_cache():
     yield Path(_CACHE)
     if "PYTEST_XDIST_WORKER" not in os.environ:  # the controller ends the session's cache
         shutil.rmtree(_CACHE, ignore_errors=True)
+
+
+# The longest test files first (measured on a fresh clone, 2 workers): the workers take whole
+# files in collection order (`--dist loadfile --no-loadscope-reorder`), so starting the long
+# ones first lets the two finish together instead of one waiting on a long file picked last.
+LONGEST_FIRST = (
+    "tests/test_readme_python.py",
+    "tests/test_guide_boundary.py",
+    "tests/test_guide_video.py",
+    "tests/analysis/test_catalog.py",
+    "tests/analysis/test_dask.py",
+    "tests/analysis/test_footage.py",
+    "tests/analysis/test_boundary.py",
+    "tests/capture/test_serial_link.py",
+    "tests/test_faults.py",
+    "tests/capture/test_plugin_everywhere.py",
+    "tests/analysis/test_batch.py",
+    "tests/capture/test_video.py",
+)
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    rank = {path: k for k, path in enumerate(LONGEST_FIRST)}
+    root = Path(__file__).resolve().parent.parent
+
+    def key(item) -> int:
+        path = Path(str(item.fspath)).resolve()
+        rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
+        return rank.get(rel, len(rank))
+
+    items.sort(key=key)  # stable: within a file, and among the rest, the order stays

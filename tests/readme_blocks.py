@@ -17,14 +17,35 @@ installed, not the folder on the path), unless the HTML comments just above its 
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.helpers import ROOT
 
 GUIDES = ("README.md", *sorted(f"docs/{p.name}" for p in (ROOT / "docs").glob("*.md")))
+# Which test file runs which guides' blocks. The suite's workers take whole files
+# (``--dist loadfile``), so the longest guides get a file each and the workers share them
+# out; a block may read what an earlier block of its own guide wrote, never another's.
+_OWN_FILE = {
+    "tests/test_readme_python.py": ("README.md",),
+    "tests/test_guide_boundary.py": ("docs/boundary.md",),
+    "tests/test_guide_video.py": ("docs/video.md",),
+}
+GUIDE_TESTS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    *_OWN_FILE.items(),
+    (
+        "tests/test_guides.py",
+        tuple(g for g in GUIDES if all(g not in own for own in _OWN_FILE.values())),
+    ),
+)
+GUIDE_TESTS_BY_FILE = dict(GUIDE_TESTS)
 _FENCE = re.compile(r"^```(bash|python)\n(.*?)^```$", re.S | re.M)
 _MARK = re.compile(r"<!-- readme-test: ([a-z-]+): (.*?) -->")
 
@@ -87,7 +108,8 @@ def runnable(block: Block) -> tuple[str, list[tuple[str, str]]]:
 def make_input(root: Path, name: str) -> None:
     """An input a block names, made under ``root``: ``clip.mp4`` (a real photograph panned
     5 px per frame, H.264, 2 s), ``footage/`` (two such clips), ``my_scene.png`` (a real
-    photograph), ``clips/labels.csv`` (labelled looming clips, tests/footage_clips.py)."""
+    photograph), ``clips/labels.csv`` (labelled looming clips, tests/footage_clips.py),
+    ``recordings/`` (two short simulated runs, natural and grating walls, seed 1)."""
     from tests.helpers import write_pan
 
     if name == "clip.mp4":
@@ -101,9 +123,81 @@ def make_input(root: Path, name: str) -> None:
         from skimage import data
 
         cv2.imwrite(str(root / name), np.ascontiguousarray(data.coffee()[:, :, ::-1]))
+    elif name == "recordings/":  # two short simulated runs, one over each kind of wall
+        for scene in ("natural", "grating"):
+            cmd = ["vdc-capture", "sim", "--scene", scene, "--tf-hz", "3", "--minutes", "0.05"]
+            subprocess.run([*cmd, "--seed", "1", "--quiet"], cwd=root, env=_env(), check=True)
     elif name == "clips/labels.csv":
         from tests.footage_clips import write_collection
 
         write_collection(root / "clips", (0, 2), (1,))
     else:
         raise AssertionError(f"no maker for the input {name!r}")
+
+
+def guide_cases(test_file: str) -> list:
+    """pytest params ``(block, skipped_line)`` for every block of the guides ``test_file`` (a
+    test module's ``__file__``) runs, per ``GUIDE_TESTS``: the block itself, then one skipped
+    case per line its marks leave out."""
+    files = GUIDE_TESTS_BY_FILE[Path(test_file).resolve().relative_to(ROOT).as_posix()]
+    cases = []
+    for b in (b for b in blocks() if b.file in files):
+        cases.append(pytest.param(b, None, id=b.name))
+        cases += [pytest.param(b, line, id=f"{b.name}:{line[0][:40]}") for line in runnable(b)[1]]
+    return cases
+
+
+def clone_root_fixture():
+    """A module fixture: a clone's root as a user has it after the install."""
+
+    @pytest.fixture(scope="module")
+    def clone_root(tmp_path_factory) -> Path:
+        """The examples and tests beside them, the package installed (here: importable from
+        the repo, which the blocks never name)."""
+        root = tmp_path_factory.mktemp("clone")
+        shutil.copytree(ROOT / "examples", root / "examples")
+        # the guides' write-ups render their collections with the tests' own generator
+        # (`from tests.footage_clips import ...`, run from the clone's root)
+        (root / "tests").symlink_to(ROOT / "tests", target_is_directory=True)
+        return root
+
+    return clone_root
+
+
+def _env() -> dict[str, str]:
+    # the package as installed: the repo on PYTHONPATH stands in for `pip install -e .`
+    # (the clone's own examples/ are the copy in the clone, found from the current folder)
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "MPLBACKEND": "Agg"}
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
+    return env
+
+
+def run_block(block: Block, skipped_line: tuple[str, str] | None, clone_root: Path) -> None:
+    """Run one block as written from ``clone_root`` (or report it skipped, by name and
+    reason); fails on a non-zero exit or a traceback."""
+    if skipped_line is not None:
+        pytest.skip(f"{block.name} `{skipped_line[0]}`: {skipped_line[1]}")
+    if block.mark("skip"):
+        pytest.skip(f"{block.name}: {block.mark('skip')[0]}")
+    if block.mark("covered"):
+        (where,) = block.mark("covered")
+        path, _, name = where.partition("::")
+        assert f"def {name}(" in (ROOT / path).read_text(), where  # the test exists
+        return
+    for spec in block.mark("files"):
+        for name in (n.strip() for n in spec.split(",")):
+            if not (clone_root / name.rstrip("/")).exists():
+                make_input(clone_root, name)
+    text, _ = runnable(block)
+    if block.lang == "bash":
+        cmd = ["bash", "-euo", "pipefail", "-c", text]
+    else:
+        script = clone_root / f"block_{block.file.replace('/', '_')}_{block.line}.py"
+        script.write_text(text)
+        cmd = [sys.executable, script.name]  # a plain script, as a user would save it
+    proc = subprocess.run(cmd, cwd=clone_root, env=_env(), capture_output=True, text=True,
+                          timeout=900)  # fmt: skip
+    assert proc.returncode == 0, (
+        f"{block.name}:\n{text}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    )
+    assert "Traceback" not in proc.stderr, proc.stderr[-3000:]

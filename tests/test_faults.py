@@ -404,43 +404,23 @@ def test_analysis_temporaries_never_outlive_a_full_disk(tmp_path: Path) -> None:
     tmp = tmp_path / "tmp"
     tmp.mkdir()
     env = {**os.environ, "TMPDIR": str(tmp)}
+
+    def tables(limit_bytes: int, *args: str) -> subprocess.CompletedProcess:
+        """``vdc-analyse tables ARGS`` with its temporaries in ``tmp``, files capped."""
+        return subprocess.run(
+            [PY, "-m", "analysis", "tables", *args], cwd=ROOT, env=env, capture_output=True,
+            text=True, timeout=120, preexec_fn=_limit_file_size(limit_bytes),
+        )  # fmt: skip
+
     # the repair copy does not fit under the limit: one line naming the folder, nothing left
-    res = subprocess.run(
-        [PY, "-m", "analysis", "tables", str(cut), "--out", str(tmp_path / "t")],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        preexec_fn=_limit_file_size(200_000),
-    )
+    res = tables(200_000, str(cut), "--out", str(tmp_path / "t"))
     assert_one_line_error(res, str(tmp), "TMPDIR")
     assert not list(tmp.iterdir()) and not (tmp_path / "t").exists()
     # a table set that does not fit leaves the old set whole and no staging folder
     old = tmp_path / "tables"
     assert run_in_process("analysis", "tables", str(src), "--out", str(old)).returncode == 0
     before = {p.name: p.read_bytes() for p in old.iterdir()}
-    res = subprocess.run(
-        [
-            PY,
-            "-m",
-            "analysis",
-            "tables",
-            str(src),
-            "--model",
-            "avdm",
-            "--model",
-            "avdm-on",
-            "--out",
-            str(old),
-        ],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        preexec_fn=_limit_file_size(60_000),
-    )
+    res = tables(60_000, str(src), "--model", "avdm", "--model", "avdm-on", "--out", str(old))
     assert res.returncode != 0 and "Traceback" not in res.stderr, res.stderr
     assert {p.name: p.read_bytes() for p in old.iterdir()} == before
     assert not list(tmp.iterdir())

@@ -70,8 +70,9 @@ def test_the_command_lines_are_generated_not_written() -> None:
     lines = sum(
         len((ROOT / m / "cli.py").read_text().splitlines()) for m in ("capture", "analysis")
     )
-    # 770: the sub-command `dataset` (issue 46) adds its 7-line entry to analysis/cli.py
-    assert lines < 770, f"capture/cli.py + analysis/cli.py: {lines} lines (keep well under 800)"
+    # 750 again (issue 41): `compare` runs through _over_recordings and the task summaries share
+    # vdc.cli_support.tasks_line, which made room for `dataset`'s entry (issue 46)
+    assert lines < 750, f"capture/cli.py + analysis/cli.py: {lines} lines (keep well under 800)"
 
 
 def test_no_module_imports_pyplot_or_changes_the_backend() -> None:

@@ -3,9 +3,7 @@ and Python block of the README and the guides runs as written from a clone's roo
 
 from __future__ import annotations
 
-import os
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -15,7 +13,15 @@ import pytest
 
 from tests.figures import assert_figure, figure_env, saved_figures
 from tests.helpers import ROOT
-from tests.readme_blocks import Block, blocks, make_input, runnable
+from tests.readme_blocks import (
+    GUIDE_TESTS,
+    GUIDES,
+    Block,
+    blocks,
+    clone_root_fixture,
+    guide_cases,
+    run_block,
+)
 
 
 def _python_blocks() -> list[str]:
@@ -70,67 +76,19 @@ def test_the_readme_plugin_is_the_example_the_tests_use() -> None:
     assert block == (ROOT / "examples" / "looming.py").read_text()
 
 
-# -- every block of the README and the guides (tests/readme_blocks.py says how they are run) --
+# -- every block of the README (the guides' blocks: tests/test_guide_*.py, one file per guide
+#    or group of guides, so that the suite's workers share them out; tests/readme_blocks.py)
 
 _BLOCKS = blocks()
+clone_root = clone_root_fixture()
 
 
-def _cases() -> list:
-    cases = []
-    for b in _BLOCKS:
-        cases.append(pytest.param(b, None, id=b.name))
-        cases += [pytest.param(b, line, id=f"{b.name}:{line[0][:40]}") for line in runnable(b)[1]]
-    return cases
-
-
-@pytest.fixture(scope="module")
-def clone_root(tmp_path_factory) -> Path:
-    """A clone's root as a user has it after the install: the examples beside them, the
-    package installed (here: importable from the repo, which the blocks never name)."""
-    root = tmp_path_factory.mktemp("clone")
-    shutil.copytree(ROOT / "examples", root / "examples")
-    return root
-
-
-def _env(root: Path) -> dict[str, str]:
-    # the package as installed: the repo on PYTHONPATH stands in for `pip install -e .`
-    # (the clone's own examples/ are the copy in `root`, found from the current folder)
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "MPLBACKEND": "Agg"}
-    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
-    return env
-
-
-@pytest.mark.parametrize(("block", "skipped_line"), _cases())
+@pytest.mark.parametrize(("block", "skipped_line"), guide_cases(__file__))
 def test_every_block_runs_as_written(block: Block, skipped_line, clone_root: Path) -> None:
-    """Each shell and Python block of README.md and docs/*.md, from a clone's root, in order
-    (a block may read what an earlier one wrote); what cannot run here is reported skipped,
-    by name and reason."""
-    if skipped_line is not None:
-        pytest.skip(f"{block.name} `{skipped_line[0]}`: {skipped_line[1]}")
-    if block.mark("skip"):
-        pytest.skip(f"{block.name}: {block.mark('skip')[0]}")
-    if block.mark("covered"):
-        (where,) = block.mark("covered")
-        path, _, name = where.partition("::")
-        assert f"def {name}(" in (ROOT / path).read_text(), where  # the test exists
-        return
-    for spec in block.mark("files"):
-        for name in (n.strip() for n in spec.split(",")):
-            if not (clone_root / name.rstrip("/")).exists():
-                make_input(clone_root, name)
-    text, _ = runnable(block)
-    if block.lang == "bash":
-        cmd = ["bash", "-euo", "pipefail", "-c", text]
-    else:
-        script = clone_root / f"block_{block.file.replace('/', '_')}_{block.line}.py"
-        script.write_text(text)
-        cmd = [sys.executable, script.name]  # a plain script, as a user would save it
-    proc = subprocess.run(cmd, cwd=clone_root, env=_env(clone_root), capture_output=True,
-                          text=True, timeout=900)  # fmt: skip
-    assert proc.returncode == 0, (
-        f"{block.name}:\n{text}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
-    )
-    assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    """Each shell and Python block of README.md, from a clone's root, in order (a block may
+    read what an earlier one wrote); what cannot run here is reported skipped, by name and
+    reason."""
+    run_block(block, skipped_line, clone_root)
 
 
 def test_every_block_is_found_and_every_mark_is_known() -> None:
@@ -142,3 +100,8 @@ def test_every_block_is_found_and_every_mark_is_known() -> None:
     for b in _BLOCKS:
         for key, _ in b.marks:
             assert key in {"skip", "skip-line", "quick", "covered", "files"}, (b.name, key)
+    # every guide's blocks are run by exactly one test file (none left out by the split)
+    groups = [g for _, g in GUIDE_TESTS]
+    assert sorted(g for group in groups for g in group) == sorted(GUIDES)
+    for path, _ in GUIDE_TESTS:
+        assert "guide_cases(__file__)" in (ROOT / path).read_text(), path

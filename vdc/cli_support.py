@@ -194,6 +194,15 @@ def progress_bar(total: int | None, desc: str, unit: str = "cell", quiet: bool =
     return tqdm(total=total, desc=desc, unit=unit, disable=disable, leave=False, file=sys.stderr)
 
 
+def tasks_line(res: Any, units: str, ran: int, verb: str) -> str:
+    """The line a command that runs tasks ends with (``res``: its ``planned``, ``skipped``,
+    ``failures`` and ``elapsed_s``): ``12 runs: 3 already done, 8 recorded, 1 failed (4.2 s)``."""
+    return (
+        f"{res.planned} {units}: {res.skipped} already done, {ran} {verb}, "
+        f"{len(res.failures)} failed ({res.elapsed_s:.1f} s)"
+    )
+
+
 class CalibrationNotes:
     """Shows the calibration fits a command starts (``avdm.calibration_store.fit_progress``):
     one line when a fit starts (what is fitted, for which camera), a bar on a terminal while

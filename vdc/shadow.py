@@ -7,8 +7,9 @@ the user sees ``AttributeError: module 'vdc' has no attribute 'record_sim'``. A 
 folder. The other packages (``capture``, ``analysis``) and the console scripts can look at what
 ``import vdc`` finds and say where it came from.
 
-Plain standard library, no ``vdc`` import: ``capture`` and ``analysis`` load this file by its path
-beside them, which works even when ``import vdc`` finds the wrong thing.
+Plain standard library, no ``vdc`` import: ``capture`` and ``analysis`` run this file by its path
+beside them (``runpy.run_path``) and call ``refuse_if_shadowed``, which works even when
+``import vdc`` finds the wrong thing.
 """
 
 from __future__ import annotations
@@ -66,3 +67,13 @@ def shadowed(names: tuple[str, ...] = OWN_PACKAGES) -> str | None:
                 found = str(Path(origin).parent)
             return message(name, found)
     return None
+
+
+def refuse_if_shadowed(names: tuple[str, ...] = ("vdc",)) -> None:
+    """Stop at once, naming it, if ``import`` of one of ``names`` would find another folder or
+    file (beside the user's script, say): otherwise the first ``vdc.`` name fails with
+    ``module 'vdc' has no attribute ...``. Raises ImportError with the one-line message."""
+    for name in names:
+        problem = shadowed((name,))
+        if problem is not None:
+            raise ImportError(problem, name=name)

@@ -104,29 +104,38 @@ class Reader:
         pass
 
 
-class _PyAvReader(Reader):
-    def __init__(self, path: str) -> None:
-        import av  # lazy: start-up
+def open_video(path: str) -> tuple[Any, Any]:
+    """The video file ``path`` opened with PyAV: its container (close it) and first video
+    stream, set to decode with FFmpeg's frame threads except in a pool worker (one core each:
+    vdc.executors). A missing, empty or unreadable file, or one with no video stream, raises
+    UserError naming it. A decoded frame's plane views the frame's reference-counted buffer,
+    which FFmpeg's pools hand out again only when no frame references it: a reader of it
+    sets ``planes_persist``."""
+    import av  # lazy: start-up
 
-        p = Path(path)
-        if not p.exists():
-            raise UserError(f"video {path!r}: no such file")
-        if p.stat().st_size == 0:
-            raise UserError(f"video {path!r} is empty")
-        try:
-            self.container = av.open(path)
-        except av.FFmpegError as exc:
-            raise UserError(f"cannot read {path!r} as a video: {_ffmpeg_reason(exc)}") from None
-        if not self.container.streams.video:
-            self.container.close()
-            raise UserError(f"{path!r} holds no video stream")
-        self.stream = self.container.streams.video[0]
-        # a plane views the frame's reference-counted buffer, which FFmpeg's pools hand out
-        # again only when no frame references it
-        self.planes_persist = True
-        # FFmpeg's frame threads, except in a pool worker (one core each: vdc.executors)
-        single = os.environ.get("VDC_WORKER_THREADS") == "1"
-        self.stream.thread_type = "NONE" if single else "AUTO"
+    p = Path(path)
+    if not p.exists():
+        raise UserError(f"video {path!r}: no such file")
+    if p.stat().st_size == 0:
+        raise UserError(f"video {path!r} is empty")
+    try:
+        container = av.open(path)
+    except av.FFmpegError as exc:
+        raise UserError(f"cannot read {path!r} as a video: {_ffmpeg_reason(exc)}") from None
+    if not container.streams.video:
+        container.close()
+        raise UserError(f"{path!r} holds no video stream")
+    stream = container.streams.video[0]
+    single = os.environ.get("VDC_WORKER_THREADS") == "1"
+    stream.thread_type = "NONE" if single else "AUTO"
+    return container, stream
+
+
+class _PyAvReader(Reader):
+    planes_persist = True  # PyAV's planes: see open_video
+
+    def __init__(self, path: str) -> None:
+        self.container, self.stream = open_video(path)
         rate = self.stream.average_rate or self.stream.guessed_rate or self.stream.base_rate
         tb = self.stream.time_base
         start = self.stream.start_time

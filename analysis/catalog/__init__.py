@@ -13,7 +13,7 @@ from vdc.lazy import lazy_face
 
 if TYPE_CHECKING:
     from analysis.catalog.build import CatalogSettings, scan
-    from analysis.catalog.query import query, query_to, segment_table
+    from analysis.catalog.query import query, query_to, segment_table, select_segments
     from analysis.catalog.server import Catalog, dataset_url, open_catalog, serve
 
 # the public face: name -> the module that defines it (loaded on first use)
@@ -27,6 +27,7 @@ _FACE = {
     "query": "analysis.catalog.query",
     "query_to": "analysis.catalog.query",
     "segment_table": "analysis.catalog.query",
+    "select_segments": "analysis.catalog.query",
 }
 __all__ = [
     "Catalog",
@@ -37,6 +38,7 @@ __all__ = [
     "query_to",
     "scan",
     "segment_table",
+    "select_segments",
     "serve",
 ]
 __getattr__, __dir__ = lazy_face(__name__, _FACE)

@@ -11,20 +11,28 @@ import cv2
 import numpy as np
 import polars as pl
 
-# flag -> (column, threshold, unit, meaning); an episode is flagged when |value| >= threshold
+# flag, the column it reads, its threshold, the threshold's unit, what it means: an episode is
+# flagged when |value| >= threshold. One row a flag, read into FLAGS below.
+_FLAG_TABLE = """
+frozen        frozen_longest_s    0.2   s       the image stood still while the state moved
+dropped       dropped             1     frames  frames missing from the video's times
+drift         drift_abs_ms        20.0  ms      the video's clock and the data's disagree
+moved         shift_px            2.0   px      the camera moved against its reference view
+moved_within  shift_within_px     2.0   px      the camera moved during the episode
+lag           lag_abs_ms          50.0  ms      the camera's motion lags the state's
+idle          idle_head_s         0.5   s       nothing moves at the start
+idle_tail     idle_tail_s         0.5   s       nothing moves at the end
+blurred       blurred_share       0.5   share   most frames far less sharp than the camera's
+underexposed  underexposed_share  0.5   share   most frames clipped dark
+overexposed   overexposed_share   0.5   share   most frames clipped bright
+short         frames_missing      1     frames  fewer frames decoded than the episode states
+"""
+# flag -> (column, threshold, unit, meaning)
 FLAGS: dict[str, tuple[str, float, str, str]] = {
-    "frozen": ("frozen_longest_s", 0.2, "s", "the image stood still while the state moved"),
-    "dropped": ("dropped", 1, "frames", "frames missing from the video's times"),
-    "drift": ("drift_abs_ms", 20.0, "ms", "the video's clock and the data's disagree"),
-    "moved": ("shift_px", 2.0, "px", "the camera moved against its reference view"),
-    "moved_within": ("shift_within_px", 2.0, "px", "the camera moved during the episode"),
-    "lag": ("lag_abs_ms", 50.0, "ms", "the camera's motion lags the state's"),
-    "idle": ("idle_head_s", 0.5, "s", "nothing moves at the start"),
-    "idle_tail": ("idle_tail_s", 0.5, "s", "nothing moves at the end"),
-    "blurred": ("blurred_share", 0.5, "share", "most frames far less sharp than the camera's"),
-    "underexposed": ("underexposed_share", 0.5, "share", "most frames clipped dark"),
-    "overexposed": ("overexposed_share", 0.5, "share", "most frames clipped bright"),
-    "short": ("frames_missing", 1, "frames", "fewer frames decoded than the episode states"),
+    name: (column, float(thr) if "." in thr else int(thr), unit, meaning)
+    for name, column, thr, unit, meaning in (
+        row.split(maxsplit=4) for row in _FLAG_TABLE.strip().splitlines()
+    )
 }
 FLOAT_COLUMNS = (
     "from_s", "to_s", "drift_start_ms", "drift_end_ms", "lag_ms", "lag_low_ms", "lag_high_ms",

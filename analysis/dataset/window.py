@@ -3,7 +3,6 @@ with PyAV from the key frame before it, with each frame's true time."""
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from typing import Any
 
@@ -11,7 +10,7 @@ import av
 
 from vdc.errors import UserError
 from vdc.frame_metrics import luma_plane, stream_format
-from vdc.sources import Reader, SourceFrame, display_grey, frames_missing_in
+from vdc.sources import Reader, SourceFrame, display_grey, frames_missing_in, open_video
 
 # a frame belongs to a window when its time is at least from_s - this (s): LeRobot's own
 # tolerance for a frame's timestamp (tolerance_s = 1e-4) is finer than any frame interval
@@ -26,22 +25,13 @@ class WindowReader(Reader):
     camera's view, for its shift). A window that ends past the file raises UserError when
     opened; a file that will not open raises UserError naming it."""
 
+    planes_persist = True  # PyAV's planes: see vdc.sources.open_video
+
     def __init__(self, path: str, from_s: float, to_s: float | None, fps: float) -> None:
 
         self.path, self.from_s, self.to_s, self.fps = path, from_s, to_s, fps
-        if not os.path.exists(path):
-            raise UserError(f"{path}: no such file")
-        try:
-            self.container = av.open(path)
-        except av.FFmpegError as exc:
-            raise UserError(f"{path}: not a readable video ({exc})") from None
-        if not self.container.streams.video:
-            self.container.close()
-            raise UserError(f"{path}: no video stream")
-        self.stream = s = self.container.streams.video[0]
-        single = os.environ.get("VDC_WORKER_THREADS") == "1"
-        s.thread_type = "NONE" if single else "AUTO"
-        self.planes_persist = True
+        self.container, self.stream = open_video(path)
+        s = self.stream
         end = None
         if self.container.duration is not None:
             end = self.container.duration / 1e6

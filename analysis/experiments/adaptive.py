@@ -111,6 +111,23 @@ class ProfileMap:
         return dps_to_tf(dps, *self.points[scene])
 
 
+@dataclasses.dataclass(frozen=True)
+class DesignSpace:
+    """Where an adaptive design (:func:`design_runs`, :func:`design_runs_per_scene`) places
+    runs: the detector parameter's ``values`` (one boundary each), the ``scenes``, their
+    complexity ``profile`` and the wall TF range ``tf_range`` (Hz)."""
+
+    values: Sequence[float]
+    scenes: Sequence[str]
+    profile: ProfileMap
+    tf_range: tuple[float, float]
+
+    @classmethod
+    def of(cls, s: BoundarySettings, profile: ProfileMap) -> DesignSpace:
+        """A boundary campaign's space: its values, scenes and TF range, over ``profile``."""
+        return cls(s.grid_values(), s.scene_list(), profile, s.tf_bounds())
+
+
 def sample_runs(
     fit: CrossingFit,
     rng: np.random.Generator,
@@ -136,11 +153,31 @@ def sample_runs(
     return out
 
 
-def design_runs(
-    values: Sequence[float],
-    scenes: Sequence[str],
+def _place(
+    placed: list[dict[str, Any]],
     profile: ProfileMap,
-    tf_range: tuple[float, float],
+    value: float,
+    scene: str,
+    tf: float,
+    first_seed: int,
+    batch: int,
+) -> None:
+    """Add to the batch ``placed`` a run of ``value`` on ``scene`` at ``tf`` Hz, seeded after
+    ``first_seed`` (the value's next seed before this batch) and the value's runs placed so far
+    in this batch, with its complexity on that scene's profile."""
+    seed = first_seed + sum(p["value"] == value for p in placed)
+    placed.append({"value": value, "scene": scene, "tf_hz": tf, "seed": seed, "batch": batch,
+                   "complexity_dps": float(profile.to_dps(scene, tf))})  # fmt: skip
+
+
+def _settled(fit: CrossingFit, precision_dps: float) -> bool:
+    """Whether a fit needs no more runs: the boundary lies outside the range, or within it
+    to ``precision_dps`` (the 95 % interval's width)."""
+    return fit.state in ("beyond", "below") or (fit.state == "within" and fit.width < precision_dps)
+
+
+def design_runs(
+    space: DesignSpace,
     run_batch: Callable[[list[dict[str, Any]]], list[dict[str, Any]]],
     design: DesignSettings,
     *,
@@ -150,6 +187,7 @@ def design_runs(
     tf_hz, seed, batch, complexity_dps) and returns one row per run with those keys and the
     run's ``avoidances`` and ``crashes``. Returns every row and the last fit per value."""
     target, budget, precision_dps, batch, seed = dataclasses.astuple(design)  # field order
+    values, scenes, profile, tf_range = space.values, space.scenes, space.profile, space.tf_range
     rng = np.random.default_rng(seed)
     lo, hi = tf_range
     domain = (
@@ -174,16 +212,7 @@ def design_runs(
                 size = min(batch, budget - len(rows[v]))
                 where = sample_runs(fits[v], rng, size, scenes, profile, tf_range, used[v])
             for scene, tf in where:
-                placed.append(
-                    {
-                        "value": v,
-                        "scene": scene,
-                        "tf_hz": tf,
-                        "seed": seed + len(rows[v]) + sum(p["value"] == v for p in placed),
-                        "batch": round_no,
-                        "complexity_dps": float(profile.to_dps(scene, tf)),
-                    }
-                )
+                _place(placed, profile, v, scene, tf, seed + len(rows[v]), round_no)
         for r in run_batch(placed):
             rows[r["value"]].append(r)
         still = []
@@ -197,10 +226,7 @@ def design_runs(
                 f"  value {v:g}, batch {round_no}: {len(g)} run(s), boundary {f.boundary:.1f} "
                 f"deg/s, 95 % [{f.low:.1f}, {f.high:.1f}] ({f.state})"
             )
-            settled = f.state in ("beyond", "below") or (
-                f.state == "within" and f.width < precision_dps
-            )
-            if not settled and len(g) < budget:
+            if not _settled(f, precision_dps) and len(g) < budget:
                 still.append(v)
         active = still
         round_no += 1
@@ -282,10 +308,7 @@ def sample_within(
 
 
 def design_runs_per_scene(
-    values: Sequence[float],
-    scenes: Sequence[str],
-    profile: ProfileMap,
-    tf_range: tuple[float, float],
+    space: DesignSpace,
     run_batch: Callable[[list[dict[str, Any]]], list[dict[str, Any]]],
     design: DesignSettings,
     *,
@@ -302,6 +325,7 @@ def design_runs_per_scene(
     share of the budget). ``run_batch`` as :func:`design_runs`'; returns every row and the
     last fit per (value, scene)."""
     target, budget, precision_dps, batch, seed = dataclasses.astuple(design)  # field order
+    values, scenes, profile, tf_range = space.values, space.scenes, space.profile, space.tf_range
     rng = np.random.default_rng(seed)
     lo, hi = tf_range
     per_scene = max(2, budget // len(scenes))
@@ -332,16 +356,7 @@ def design_runs_per_scene(
                 tfs = [round(float(np.clip(profile.to_tf(sc, d), lo, hi)), 2) for d in dps]
             for tf in tfs:
                 n_value = sum(len(rows[(v, s2)]) for s2 in scenes)
-                placed.append(
-                    {
-                        "value": v,
-                        "scene": sc,
-                        "tf_hz": tf,
-                        "seed": seed + n_value + sum(p["value"] == v for p in placed),
-                        "batch": round_no,
-                        "complexity_dps": float(profile.to_dps(sc, tf)),
-                    }
-                )
+                _place(placed, profile, v, sc, tf, seed + n_value, round_no)
         for r in run_batch(placed):
             rows[(r["value"], r["scene"])].append(r)
         still = []
@@ -358,10 +373,7 @@ def design_runs_per_scene(
                     else ""
                 )
             )
-            settled = f.state in ("beyond", "below") or (
-                f.state == "within" and f.width < precision_dps
-            )
-            if not settled and len(g) < cap(key[0]):
+            if not _settled(f, precision_dps) and len(g) < cap(key[0]):
                 still.append(key)
         for key in active:
             if key not in still:  # settled or spent: its unspent runs go to its value's others
@@ -424,41 +436,41 @@ def adaptive_boundary(
     if s.per_scene:
         return _per_scene_outputs(s, out, pmap, profiles, run_batch, feedback)
     rows, fits = design_runs(
-        values,
-        scenes,
-        pmap,
-        s.tf_bounds(),
-        run_batch,
-        DesignSettings.of(s),
-        log=feedback.log,
+        DesignSpace.of(s, pmap), run_batch, DesignSettings.of(s), log=feedback.log
     )
     runs = pl.DataFrame(rows).drop("value").sort(s.param, "batch", "seed")
-    complexity = runs.select(
-        "condition",
-        "complexity_dps",
-        pl.col("complexity_dps").alias("complexity_low"),
-        pl.col("complexity_dps").alias("complexity_high"),
-    ).unique("condition", maintain_order=True)
-    conditions = condition_statistics(
-        runs.drop("complexity_dps"), complexity, ["condition", s.param]
-    )
+    conditions = campaign_conditions(runs, s.param)
     first = scenes[0]
     fitted = pl.DataFrame(
         [{s.param: v} | fit_columns(f, lambda d: pmap.to_tf(first, d)) for v, f in fits.items()]
     )
     bounds = with_fit(boundaries(conditions, s.param, s.target), fitted, s.param, "adaptive")
-    policy = None
-    if not s.no_fit:
-        policy = policy_from_campaign(runs, s)
+    return _outputs(s, out, "adaptive design", runs, conditions, bounds, profiles, fits)
+
+
+def _outputs(
+    s: BoundarySettings,
+    out: Path,
+    design: str,
+    runs: pl.DataFrame,
+    conditions: pl.DataFrame,
+    bounds: pl.DataFrame,
+    profiles: pl.DataFrame,
+    fits: dict[Any, CrossingFit],
+) -> BoundaryResult:
+    """An adaptive ``design``'s files (those of the grid) and result, with its policy."""
+    policy = None if s.no_fit else policy_from_campaign(runs, s)
+    tables = {"runs": runs, "conditions": conditions, "bounds": bounds, "profiles": profiles}
     with table_set(out) as stage:
         paths, md = write_arena_outputs(
-            stage, s,
-            {"runs": runs, "conditions": conditions, "bounds": bounds, "profiles": profiles},
+            stage,
+            s,
+            tables,
             policy,
-            f"{s.detector}: adaptive design, {runs.height} runs",
+            f"{s.detector}: {design}, {runs.height} runs",
             "complexity: AVDM straight-driving response, profile interpolated (deg/s)",
             fits,
-        )  # fmt: skip
+        )
         return published(stage, out, BoundaryResult(runs, conditions, bounds, policy, paths, md))
 
 
@@ -473,36 +485,18 @@ def _per_scene_outputs(
     """``--per-scene``: the loop (:func:`design_runs_per_scene`) and the files, with one row of
     ``boundary.parquet`` per (value, scene) (a ``scene`` column; the TF columns through that
     scene's profile; the bracket from that scene's runs)."""
-    scenes, values = s.scene_list(), s.grid_values()
     rows, fits = design_runs_per_scene(
-        values,
-        scenes,
-        pmap,
-        s.tf_bounds(),
-        run_batch,
-        DesignSettings.of(s),
-        log=feedback.log,
+        DesignSpace.of(s, pmap), run_batch, DesignSettings.of(s), log=feedback.log
     )
     runs = pl.DataFrame(rows).drop("value").sort(s.param, "batch", "seed")
     conditions = campaign_conditions(runs, s.param)
     bounds = per_scene_bounds(conditions, fits, s.param, s.target, pmap.to_tf)
-    policy = None if s.no_fit else policy_from_campaign(runs, s)
-    with table_set(out) as stage:
-        paths, md = write_arena_outputs(
-            stage, s,
-            {"runs": runs, "conditions": conditions, "bounds": bounds, "profiles": profiles},
-            policy,
-            f"{s.detector}: adaptive design per scene, {runs.height} runs",
-            "complexity: AVDM straight-driving response, profile interpolated (deg/s)",
-            fits,
-        )  # fmt: skip
-        return published(stage, out, BoundaryResult(runs, conditions, bounds, policy, paths, md))
+    return _outputs(s, out, "adaptive design per scene", runs, conditions, bounds, profiles, fits)
 
 
 def campaign_conditions(runs: pl.DataFrame, by: str) -> pl.DataFrame:
     """Per-condition statistics (:func:`analysis.boundary.command.condition_statistics`) of an
-    adaptive
-    campaign's runs, each condition at its own interpolated complexity."""
+    adaptive campaign's runs, each condition at its own interpolated complexity."""
     complexity = runs.select(
         "condition",
         "complexity_dps",

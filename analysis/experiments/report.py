@@ -6,7 +6,9 @@ from __future__ import annotations
 import base64
 import html
 import math
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import polars as pl
 
@@ -25,6 +27,21 @@ def _cell(r: dict, digits: int = 4) -> str:
     )
 
 
+def _header(*names: str) -> list[str]:
+    """A markdown table's heading and rule."""
+    return ["| " + " | ".join(names) + " |", "|---" * len(names) + "|"]
+
+
+def _grid(
+    rows: pl.DataFrame, by: str, across: str, columns: list[str]
+) -> Iterator[tuple[Any, pl.DataFrame, str]]:
+    """Per group of ``rows`` by ``by``: its value, the group, and its cells, one per value of
+    ``across`` in ``columns`` (mean [95 % interval], "-" where the group has none)."""
+    for (key,), g in rows.group_by(by, maintain_order=True):
+        at = {r[across]: r for r in g.iter_rows(named=True)}
+        yield key, g, " | ".join(_cell(at[c]) if c in at else "-" for c in columns)
+
+
 def fig6_table_markdown(table: pl.DataFrame) -> str:
     """The Fig. 6 readings across seeds, rendered from claims.parquet's rows (``table``): the
     grating's rows decided or supported by a trend across wall TFs, one line per reading,
@@ -35,13 +52,8 @@ def fig6_table_markdown(table: pl.DataFrame) -> str:
     if rows.height == 0:
         return "(no grating readings)"
     tfs = rows["condition"].unique(maintain_order=True).to_list()
-    lines = [
-        "| reading | " + " | ".join(tfs) + " | trend test |",
-        "|---" * (len(tfs) + 2) + "|",
-    ]
-    for (name,), g in rows.group_by("quantity", maintain_order=True):
-        by_tf = {r["condition"]: r for r in g.iter_rows(named=True)}
-        cells = " | ".join(_cell(by_tf[tf]) if tf in by_tf else "-" for tf in tfs)
+    lines = _header("reading", *tfs, "trend test")
+    for name, g, cells in _grid(rows, "quantity", "condition", tfs):
         first = g.row(0, named=True)
         method = first["test"].split(": ", 1)[-1]
         lines.append(f"| {name} | {cells} | p = {_number(first['p_value'], 3)} ({method}) |")
@@ -58,13 +70,8 @@ def phases_markdown(table: pl.DataFrame) -> str:
     if rows.height == 0:
         return "(no collision phases)"
     names = [q for q in PHASE_STATISTICS if q in set(rows["quantity"])]
-    lines = [
-        "| phase | seeds | " + " | ".join(names) + " | paper: avoidances | paper: success |",
-        "|---" * (len(names) + 4) + "|",
-    ]
-    for (phase,), g in rows.group_by("condition", maintain_order=True):
-        by_q = {r["quantity"]: r for r in g.iter_rows(named=True)}
-        cells = " | ".join(_cell(by_q[q]) if q in by_q else "-" for q in names)
+    lines = _header("phase", "seeds", *names, "paper: avoidances", "paper: success")
+    for phase, g, cells in _grid(rows, "condition", "quantity", names):
         paper = PAPER.get(phase, {})
         lines.append(
             f"| {phase} | {g['n_seeds'].max()} | {cells} | "

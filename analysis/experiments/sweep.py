@@ -193,30 +193,23 @@ def plot_paper(df: pl.DataFrame, path: Path, config: SweepConfig, title: str) ->
     axes = fig.subplots(2, 3)
     w = config.size[1]
     rho = {(r["along"], r["fixed_value"]): r["rho"] for r in monotonicity(df).iter_rows(named=True)}
-    for ax, sf in zip(axes[0], PAPER_SF_UPC, strict=True):
-        g = df.filter(pl.col("sf_upc") == sf).sort("tf_hz")
-        _panel(ax, g["tf_hz"], g, "TF (Hz)")
-        _valid_band(
-            ax,
-            g["tf_hz"].min(),
-            g["tf_hz"].max() * 1.1,
-            config.fps / 4,
-            "TF > fps/4 (near aliasing)",
-        )
-        ax.set_title(
-            f"SF = {sf:g} upc (period {w / sf:g} px)   ρ = {rho.get(('tf', sf), np.nan):+.2f}"
-        )
-    for ax, tf in zip(axes[1], PAPER_TF_HZ, strict=True):
-        g = df.filter(pl.col("tf_hz") == tf).sort("sf_upc")
-        _panel(ax, g["sf_upc"], g, "SF (units per circle)")
-        _valid_band(
-            ax,
-            g["sf_upc"].min(),
-            g["sf_upc"].max() * 1.1,
-            w / 4,
-            "period < 4 px (spatial aliasing)",
-        )
-        ax.set_title(f"TF = {tf:g} Hz   ρ = {rho.get(('sf', tf), np.nan):+.2f}")
+    # the top row per SF across TF, the bottom per TF across SF: (fixed values, their column,
+    # the x column and label, where aliasing starts on x, its label, the panel's title)
+    rows = (
+        (PAPER_SF_UPC, "sf_upc", "tf_hz", "TF (Hz)", config.fps / 4, "TF > fps/4 (near aliasing)",
+         lambda sf: f"SF = {sf:g} upc (period {w / sf:g} px)"),
+        (PAPER_TF_HZ, "tf_hz", "sf_upc", "SF (units per circle)", w / 4,
+         "period < 4 px (spatial aliasing)", lambda tf: f"TF = {tf:g} Hz"),
+    )  # fmt: skip
+    for row_axes, (fixed, fixed_col, x_col, x_label, bad_from, band, named) in zip(
+        axes, rows, strict=True
+    ):
+        for ax, value in zip(row_axes, fixed, strict=True):
+            g = df.filter(pl.col(fixed_col) == value).sort(x_col)
+            _panel(ax, g[x_col], g, x_label)
+            _valid_band(ax, g[x_col].min(), g[x_col].max() * 1.1, bad_from, band)
+            along = x_col.split("_")[0]  # as monotonicity names it
+            ax.set_title(f"{named(value)}   ρ = {rho.get((along, value), np.nan):+.2f}")
     for ax in axes.flat:
         ax.legend(fontsize=7, loc="best")
     fig.suptitle(title)

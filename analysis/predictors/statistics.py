@@ -34,7 +34,7 @@ primary (:data:`PRIMARY`); the rest are Holm-corrected; none is judged on fewer 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -549,19 +549,13 @@ def _auroc_rows(names: list[str], X: np.ndarray, pos: np.ndarray, value: float, 
         rows.append(_row(name, value, stat, a, lo, hi, int(ok.sum()), unit, fewer))
     if stat not in ("clip_auroc", "frame_auroc_pooled"):
         return rows
-    for ref in AVDMS:
-        if ref not in names:
-            continue
-        i = names.index(ref)
-        for j, name in enumerate(names):
-            if j == i or (name in AVDMS and j < i):
-                continue
-            ok = np.isfinite(X[:, i]) & np.isfinite(X[:, j])
-            d, lo, hi, p = auroc_difference(X[:, i], X[:, j], pos, cluster)
-            fewer = int(min(pos[ok].sum(), (~pos[ok]).sum()))
-            st = f"paired_{stat}_vs_{ref}"
-            rows.append(_row(name, value, st, d, lo, hi, int(ok.sum()), unit, fewer, p,
-                             _role(ref, name, st)))  # fmt: skip
+    for ref, i, j, name in _avdm_pairs(names):
+        ok = np.isfinite(X[:, i]) & np.isfinite(X[:, j])
+        d, lo, hi, p = auroc_difference(X[:, i], X[:, j], pos, cluster)
+        fewer = int(min(pos[ok].sum(), (~pos[ok]).sum()))
+        st = f"paired_{stat}_vs_{ref}"
+        rows.append(_row(name, value, st, d, lo, hi, int(ok.sum()), unit, fewer, p,
+                         _role(ref, name, st)))  # fmt: skip
     return rows
 
 
@@ -586,15 +580,21 @@ def _within_clip_rows(names: list[str], fx: np.ndarray, pos: np.ndarray, clip: n
         lo, hi = newcombe_interval(e.mean, e.n, e.n)
         lo, hi = min(e.low, float(lo)), max(e.high, float(hi))
         rows.append(_row(name, value, stat, e.mean, lo, hi, e.n, "clip", e.n))
+    for ref, i, j, name in _avdm_pairs(names):
+        d = per_clip[:, i] - per_clip[:, j]
+        st = f"paired_{stat}_vs_{ref}"
+        n = int(np.isfinite(d).sum())
+        rows.append(_t_row(name, value, st, d, "clip", n, _role(ref, name, st)))
+    return rows
+
+
+def _avdm_pairs(names: list[str]) -> Iterator[tuple[str, int, int, str]]:
+    """(ref, i, j, name): each AVDM among ``names`` (at ``i``) against every other measure
+    (``name`` at ``j``), each pair of AVDMs once."""
     for ref in AVDMS:
         if ref not in names:
             continue
         i = names.index(ref)
         for j, name in enumerate(names):
-            if j == i or (name in AVDMS and j < i):
-                continue
-            d = per_clip[:, i] - per_clip[:, j]
-            st = f"paired_{stat}_vs_{ref}"
-            n = int(np.isfinite(d).sum())
-            rows.append(_t_row(name, value, st, d, "clip", n, _role(ref, name, st)))
-    return rows
+            if j != i and not (name in AVDMS and j < i):
+                yield ref, i, j, name

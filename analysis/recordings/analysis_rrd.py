@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 import numpy as np
@@ -23,24 +24,19 @@ import polars as pl
 import rerun as rr
 import rerun.blueprint as rrb
 
+from analysis.complexity.source_metrics import metrics_present, normalised
 from analysis.recordings.segments import ProfileSegment, ProfileSettings, heat_map, histogram_over
 from avdm.base import primary_output_name
 from vdc.recording import (
     APP_ID,
     CAMERA,
+    COMPLEXITY_ROOT,
     FRAME_TIMELINE,
     MODEL_ROOT,
     TIME_TIMELINE,
     entity_name,
     variant_path,
 )
-import rerun as rr
-from vdc.recording import APP_ID
-from vdc.recording import COMPLEXITY_ROOT
-from vdc.recording import FRAME_TIMELINE
-from vdc.recording import TIME_TIMELINE
-from analysis.complexity.source_metrics import normalised
-from analysis.complexity.source_metrics import metrics_present
 
 PROFILE_ROOT = "/profile"
 TIME_SCALE_M = 1.0  # the profile's time axis spans this height in the 3D view
@@ -57,6 +53,20 @@ def _colours(values: np.ndarray, vmax: float, cmap: str = "viridis") -> np.ndarr
     return (matplotlib.colormaps[cmap](norm)[:, :3] * 255).astype(np.uint8)
 
 
+def view_3d(name: str, base: str, *children: str) -> rrb.Spatial3DView:
+    """A 3D view named ``name`` of the entities ``children`` under ``base``."""
+    return rrb.Spatial3DView(name=name, origin=base, contents=[f"{base}/{c}" for c in children])
+
+
+def open_tabbed_rrd(path: Path, recording_id: str, tabs: list[Any]) -> rr.RecordingStream:
+    """An analysis recording of ``recording_id`` written to ``path``, z up, whose blueprint
+    shows ``tabs`` (blueprint containers, one a tab). Flush and disconnect it when done."""
+    rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
+    rec.save(str(path), default_blueprint=rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=True))
+    rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    return rec
+
+
 def write_profile_rrd(
     segs: Sequence[ProfileSegment], s: ProfileSettings, path: Path, recording_id: str
 ) -> Path:
@@ -66,11 +76,7 @@ def write_profile_rrd(
         base = f"{PROFILE_ROOT}/{seg.key}"
         tabs.append(
             rrb.Horizontal(
-                rrb.Spatial3DView(
-                    name=f"{seg.key}: x, y against time (up)",
-                    origin=base,
-                    contents=[f"{base}/circles", f"{base}/arena"],
-                ),
+                view_3d(f"{seg.key}: x, y against time (up)", base, "circles", "arena"),
                 rrb.Vertical(
                     rrb.BarChartView(
                         name=f"responses > {s.threshold_dps:g}", origin=f"{base}/histogram"
@@ -81,10 +87,7 @@ def write_profile_rrd(
                 name=seg.label[:60],
             )
         )
-    blueprint = rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=True)
-    rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
-    rec.save(str(path), default_blueprint=blueprint)
-    rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec = open_tabbed_rrd(path, recording_id, tabs)
     for seg in segs:
         base = f"{PROFILE_ROOT}/{seg.key}"
         span = float(seg.t_s.max() - seg.t_s.min()) if len(seg.t_s) else 1.0
@@ -196,7 +199,6 @@ OUTPUT_MARKER = "vdc_output"  # the property that marks a recording vdc derived 
 def write_complexity_rrd(df: pl.DataFrame, recording_id: str, path: Path) -> Path:
     """The normalised metrics under ``/complexity/<metric>`` with the source's recording id,
     on its ``frame`` and ``time`` timelines (so it merges with the source in the viewer)."""
-
 
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id)

@@ -193,6 +193,15 @@ def from_signals(
                 "heading_rad": pose[:, 2],
             }
         )
+        if _has_frame_index(sig):
+            # a real robot's overhead tracker can miss frames (its first ones, on a busy
+            # host): those frames still have images and outputs, and keep their rows, posed
+            # with nulls; the poses alone would silently drop them from every table
+            fi, ti = _frame_index(sig, path)
+            every = pl.concat(
+                [pl.DataFrame({"frame": fi, "t_s": ti}), frames.select("frame", "t_s")]
+            ).unique("frame", keep="first", maintain_order=True)
+            frames = every.join(frames.drop("t_s"), on="frame", how="left").sort("frame")
     else:
         f, t = _frame_index(sig, path)
         nan = np.full(len(f), np.nan)
@@ -290,6 +299,10 @@ def signals_table(
     for p in parts:
         table = table.join(p.drop("t_s"), on="frame", how="left")
     return table
+
+
+def _has_frame_index(sig: dict) -> bool:
+    return FRAME_TIMING in sig or any(e.startswith(MODEL_ROOT + "/") for e in sig)
 
 
 def _frame_index(sig: dict, path: str | Path) -> tuple[np.ndarray, np.ndarray]:

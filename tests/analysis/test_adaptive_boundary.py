@@ -16,6 +16,7 @@ from analysis.boundary.fit import describe_fit, dps_to_tf, fit_columns, fit_cros
 from analysis.experiments.adaptation import AdaptationSettings
 from analysis.experiments.adaptive import (
     DesignSettings,
+    DesignSpace,
     ProfileMap,
     design_runs,
     in_fitted_range,
@@ -102,7 +103,8 @@ def test_the_adaptive_loop_places_runs_near_the_boundary_and_stops_at_the_precis
         return out
 
     design = DesignSettings(target=TARGET, budget=30, precision_dps=4.0, batch=2, seed=1)
-    rows, fits = design_runs([1.0], ["grating", "natural"], profile, (0.0, 3.0), run_batch, design)
+    space = DesignSpace([1.0], ["grating", "natural"], profile, (0.0, 3.0))
+    rows, fits = design_runs(space, run_batch, design)
     fit = fits[1.0]
     assert fit.state == "within" and fit.width < 4.0 and len(rows) < 30  # stopped early
     assert fit.low <= 15.0 <= fit.high

@@ -16,6 +16,7 @@ import scipy.special
 from analysis.boundary.command import BoundarySettings
 from analysis.experiments.adaptive import (
     DesignSettings,
+    DesignSpace,
     ProfileMap,
     adaptive_boundary,
     design_runs_per_scene,
@@ -55,7 +56,7 @@ def test_each_scene_gets_its_own_runs_and_interval_around_its_own_crossing() -> 
     rng = np.random.default_rng(5)
     profile = ProfileMap({k: (np.array(a), np.array(b)) for k, (a, b) in PROFILE.items()})
     rows, fits = design_runs_per_scene(
-        [45.0], ["grating", "natural"], profile, (0.0, 3.0),
+        DesignSpace([45.0], ["grating", "natural"], profile, (0.0, 3.0)),
         lambda placed: simulated(rng, placed, dip=True),
         DesignSettings(target=TARGET, budget=16, precision_dps=0.5, batch=2, seed=1),  # 0.5: many
     )  # fmt: skip
@@ -91,7 +92,7 @@ def test_a_scene_failing_from_its_least_complex_point_is_below_and_stops() -> No
         return [p | (natural if p["scene"] == "natural" else grating) for p in placed]
 
     rows, fits = design_runs_per_scene(
-        [12.0], ["grating", "natural"], profile, (0.0, 3.0), natural_blind,
+        DesignSpace([12.0], ["grating", "natural"], profile, (0.0, 3.0)), natural_blind,
         DesignSettings(target=TARGET, budget=8, precision_dps=2.0, batch=2, seed=1),
     )  # fmt: skip
     assert fits[(12.0, "natural")].state == "below"

@@ -15,17 +15,9 @@ import numpy as np
 import pytest
 
 from tests.analysis.test_lost_frames import measured, zero_packets
+from tests.analysis.test_lost_frames import quiet_ffmpeg as quiet_ffmpeg  # autouse here too
 
 N, FPS = 60, 25
-
-
-@pytest.fixture(autouse=True)
-def quiet_ffmpeg():
-    """The damage makes FFmpeg log; vdc counts it."""
-    level = av.logging.get_level()
-    av.logging.set_level(av.logging.PANIC)
-    yield
-    av.logging.set_level(level)
 
 
 def texture(n: int) -> np.ndarray:

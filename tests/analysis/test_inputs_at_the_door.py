@@ -66,17 +66,9 @@ def test_tfs_below_nyquist_are_taken() -> None:  # the control: the bound is not
 
 def test_the_command_line_refuses_it_before_any_run(tmp_path: Path) -> None:
     out = tmp_path / "b"
-    res = run_cli(
-        "analysis",
-        "boundary",
-        "--design",
-        "adaptive",
-        "--tf-range",
-        "0:40",
-        "--out",
-        str(out),
-        timeout=120,  # bounds the old behaviour: a whole campaign through aliased TFs
-    )
+    # the timeout bounds the old behaviour: a whole campaign through aliased TFs
+    args = ["boundary", "--design", "adaptive", "--tf-range", "0:40", "--out", str(out)]
+    res = run_cli("analysis", *args, timeout=120)
     assert_one_line_error(res, "--tf-range 0:40", "Nyquist")
     assert not out.exists()
     res = run_cli("capture", "sim", "--tf-hz", "20", "--out", str(tmp_path / "s.rrd"), timeout=120)

@@ -259,3 +259,29 @@ def test_every_model_a_collision_run_logged_is_in_model_outputs(tmp_path: Path) 
     np.testing.assert_array_equal(lgmd.sort("frame")["alert"].to_numpy(), logged["alert"])
     meta = read_metadata(tmp_path / "t" / "model_outputs.parquet")
     assert "lgmd-plus-arena" in next(iter(meta["params"].values()))
+
+
+def test_frames_the_tracker_missed_keep_their_rows() -> None:
+    """A real robot's overhead tracker may miss frames (its first ones on a busy host): the
+    frames table, which every table joins on, keeps them with null poses. Built from poses
+    alone it dropped them, and `tables --model` lost their recomputed outputs (CI, load 10)."""
+    import numpy as np
+
+    from analysis.recordings.loading import from_signals
+    from vdc.recording import POSE, model_path
+
+    frame = np.arange(10)
+    t_s = frame / 33.0
+    posed = np.array([2, 3, 5, 6, 7, 8, 9])  # frames 0, 1 and 4 met no overhead image
+    pose = np.column_stack([posed * 0.01, np.zeros(len(posed)), np.zeros(len(posed))])
+    sig = {
+        POSE: (posed, t_s[posed], pose),
+        model_path("avdm", "omega_dps"): (frame, t_s, np.ones((10, 1))),
+    }
+    props = {"model": {"name": "avdm"}, "arena": {"length_m": 1.0, "width_m": 1.0}}
+    frames, logged, _ = from_signals(sig, props, "rid")
+    assert frames["frame"].to_list() == list(range(10))
+    assert frames["t_s"].to_list() == t_s.tolist()
+    assert frames["x_m"].is_null().to_list() == [k not in posed for k in range(10)]
+    assert frames.filter(pl.col("frame") == 5)["x_m"].item() == 0.05
+    assert logged["avdm"].height == 10

@@ -112,22 +112,9 @@ def test_adaptive_mode_lets_t_ffi_follow_the_avdm_mean() -> None:
 def test_collision_recording_has_events_detector_and_controller(tmp_path: Path) -> None:
     out = tmp_path / "col.rrd"
     proc = run_in_process(
-        "capture",
-        "sim",
-        "--behaviour",
-        "collision",
-        "--model",
-        "lgmd-plus-arena",
-        "--tf-hz",
-        "3",
-        "--minutes",
-        "0.5",
-        "--seed",
-        "2",
-        "--out",
-        str(out),
-        "--quiet",
-    )
+        "capture", "sim", "--behaviour", "collision", "--model", "lgmd-plus-arena",
+        "--tf-hz", "3", "--minutes", "0.5", "--seed", "2", "--out", str(out), "--quiet",
+    )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     rec = Recording(out)
     props = rec.properties()

@@ -14,8 +14,11 @@ from analysis.recordings.loading import load_recording
 from analysis.recordings.reader import Recording, RecordingError
 from analysis.recordings.recompute import build_tables
 from avdm.stimuli import grating
+from capture.closed_loop import ClosedLoopRobot
 from capture.config import CameraConfig
 from capture.recorder import Recorder
+from capture.sim import SimSettings, record_sim
+from capture.sim_robot import SimulatedRobot
 from capture.video import VideoSettings, record_video
 from tests.helpers import assert_one_line_error, make_sim_recording, write_video
 from tests.in_process import run_in_process
@@ -55,6 +58,37 @@ def test_a_simulated_run_describes_its_model_and_itself(tmp_path: Path) -> None:
     for needle in ("simulated Colias-IV", "`avdm:beta=0.5`", "`omega_dps` [deg/s]",
                    "99 x 72 px at 33 Hz", "texture row 36", "vdc-analyse tables REC"):  # fmt: skip
         assert needle in text, needle
+
+
+@pytest.mark.parametrize("behaviour", ["profile", "collision"])
+def test_the_simulated_device_describes_itself_in_its_recording(
+    tmp_path: Path, behaviour: str
+) -> None:
+    """What the user sees in the viewer: the simulated device's properties and description,
+    from the settings it was given (1.2 s at 33 Hz: 40 frames)."""
+    settings = SimSettings(minutes=0.02, tf_hz=3.0, seed=7, behaviour=behaviour)
+    device = (ClosedLoopRobot if behaviour == "collision" else SimulatedRobot)(settings.to_config())
+    out = tmp_path / "sim.rrd"
+    record_sim(settings, out)
+    rec = Recording(out)
+    props = rec.properties()
+    # every section and value, as stored (None and "" are left out, lists and NaNs encoded)
+    for name, section in device.properties().items():
+        stored = {k: v for k, v in section.items() if v not in (None, "")}
+        assert set(props[name]) == set(stored), name
+        plain = {k: v for k, v in stored.items() if isinstance(v, str | int | float) and v == v}
+        assert {k: props[name][k] for k in plain} == plain, name
+    assert props["run"]["recording_id"] == rec.recording_id and props["run"]["seed"] == 7
+    assert props["run"]["source"] == "simulation" and props["wall"]["tf_schedule_text"] == "3:1.2s"
+    assert len(rec.read_frames().frame) == 40
+    text = rec.description() or ""
+    what = (f"a simulated Colias-IV in the 1.4 x 0.8 m arena ({behaviour}), grating walls, TF "
+            "schedule 3:1.2s, 0.02 min (40 frames), seed 7")  # fmt: skip
+    if behaviour == "collision":
+        detector = settings.to_config().collision.detector_spec()
+        what += f"; closed loop with the collision detector {detector}"
+        assert props["detector"]["name"] == detector
+    assert f"**What**: {what}\n" in text, text
 
 
 def test_a_video_recording_describes_its_model_and_itself(tmp_path: Path) -> None:

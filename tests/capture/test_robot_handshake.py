@@ -103,10 +103,10 @@ def test_a_robot_running_another_model_is_refused_before_any_file(tmp_path: Path
     assert json.loads(report.read_text())["model"] == "lgmd-plus"
 
 
-def fake_robot(master: int, announcement: Announcement, seen: list[tuple[int, bytes]]) -> None:
-    """Answer the host's START with ``announcement`` (what a firmware would send)."""
+def await_start(master: int, seen: list[tuple[int, bytes]], deadline: float) -> bool:
+    """Read what the host sends on ``master`` (each packet's type and payload into ``seen``)
+    until its START, as a firmware does; whether it came before ``deadline``."""
     parser = PacketParser()
-    deadline = time.monotonic() + 20
     while time.monotonic() < deadline:
         try:
             data = os.read(master, 4096)
@@ -116,8 +116,14 @@ def fake_robot(master: int, announcement: Announcement, seen: list[tuple[int, by
         for ptype, payload in parser.feed(data):
             seen.append((ptype, payload))
             if ptype == TYPE_START:
-                os.write(master, encode_announce(announcement))
-                return
+                return True
+    return False
+
+
+def fake_robot(master: int, announcement: Announcement, seen: list[tuple[int, bytes]]) -> None:
+    """Answer the host's START with ``announcement`` (what a firmware would send)."""
+    if await_start(master, seen, time.monotonic() + 20):
+        os.write(master, encode_announce(announcement))
 
 
 @pytest.mark.parametrize(
@@ -219,12 +225,20 @@ def test_a_robot_that_says_nothing_is_given_up_on_after_the_timeout(tmp_path: Pa
         port=os.ttyname(slave),
         camera=str(overhead_frames(tmp_path / "o")),
         announce_timeout_s=0.3,
+        wall_port="/dev/ttyWALL",
     )
     device = ColiasRobotDevice(cfg)
     try:
         device.connect()  # nobody answers: no refusal, no announcement
         assert device.announced is None and "no answer within 0.3 s" in device.link.no_announce
         assert device.model_context["width_px"] == 99  # the host's defaults, marked as such
+        # and so it describes itself: the defaults, not announced; the wall controller named
+        props = device.properties()
+        assert props["camera"] == {"fps": 33.0, "width_px": 99, "height_px": 72,
+                                   "hfov_deg": pytest.approx(70.0, rel=1e-12),  # 70/99 * 99
+                                   "announced": False}  # fmt: skip
+        assert props["link"]["announce"] == "none (older firmware?)"
+        assert "(/dev/ttyWALL wall controller)" in device.description()
         device.disconnect()
     finally:
         os.close(master)
@@ -232,22 +246,11 @@ def test_a_robot_that_says_nothing_is_given_up_on_after_the_timeout(tmp_path: Pa
 
 
 # -- a robot held to what it announced ------------------------------------------------------
-def scripted_robot(master: int, packets: list[bytes], seen: list[int] | None = None) -> None:
+def scripted_robot(master: int, packets: list[bytes]) -> None:
     """Answer the host's START with ``packets`` (an ANNOUNCE, FRAMEs, ...) and END, as a
     firmware would; the writes wait while the host has not read enough (a pty holds a few kB)."""
-    parser = PacketParser()
     deadline = time.monotonic() + 30
-    started = False
-    while time.monotonic() < deadline and not started:
-        try:
-            data = os.read(master, 4096)
-        except BlockingIOError:
-            time.sleep(0.01)
-            continue
-        for ptype, _ in parser.feed(data):
-            if seen is not None:
-                seen.append(ptype)
-            started = started or ptype == TYPE_START
+    await_start(master, [], deadline)
     blob = b"".join(packets) + encode(TYPE_END)  # the run is over: a host never waits on
     while blob and time.monotonic() < deadline:
         try:
@@ -391,3 +394,31 @@ def test_a_robot_that_changes_mid_run_ends_the_capture_cleanly(tmp_path: Path, c
     assert len(texts) == 1 and "capture ends here" in texts[0], texts
     assert rec.properties()["run_end"]["stop_reason"] == "link error"
     assert not list(tmp_path.glob("*.partial.rrd")) and not list(tmp_path.glob(".*lock"))
+
+
+def test_the_robot_describes_itself_in_its_recording(tmp_path: Path) -> None:
+    """What the user sees in the viewer: the device's properties and description, from the
+    settings it was given and the camera the robot announced."""
+    out = tmp_path / "rec.rrd"
+
+    def run(config, camera):
+        settings = RobotSettings(port=config["port"], camera=config["camera"], tf_hz=2.0,
+                                 calibration=str(camera.parent / "calibration.json"))  # fmt: skip
+        record_robot(settings, out, warn=lambda _: None)
+        return config["port"], config["camera"]
+
+    port, camera = with_robot(tmp_path, [encode_announce(SMALL), *frames_of(SMALL, 0, 5)], run)
+    rec = Recording(out)
+    props = rec.properties()
+    assert props["run"] == {"recording_id": rec.recording_id, "source": "robot", "port": port,
+                            "baud": 3_000_000, "camera": camera, "behaviour": "robot"}  # fmt: skip
+    assert props["camera"] == {"fps": 33.0, "width_px": 20, "height_px": 16,
+                               "hfov_deg": pytest.approx(70.0, rel=1e-12),  # 70/20 * 20
+                               "announced": True}  # fmt: skip
+    # the schedule: 2 Hz until the settings' 48 h, in the form the schedule flag takes
+    assert props["wall"] == {"scene": "grating", "period_m": 0.1, "tf_schedule_text": "2:172800s"}
+    assert props["link"]["announce"] == "received" and props["arena"]["length_m"] > 0
+    text = rec.description() or ""
+    for needle in (f"a Colias-IV robot on {port} (no wall controller)",
+                   f"overhead camera {camera}; wall grating, TF schedule 2:172800s"):  # fmt: skip
+        assert needle in text, text
