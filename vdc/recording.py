@@ -27,6 +27,17 @@ import os
 import re
 from pathlib import Path
 
+# Rerun's own log lines that vdc replaces with one line of its own, one setting for every
+# process (set before the SDK starts its logger, at import; a RUST_LOG the user set wins, and a
+# process that sets it passes it to the processes it starts): a viewer that went away or a file
+# it could not write (the recorder says so once) and a catalog server that failed under a
+# query (analysis.catalog.query says so, naming the URL).
+RERUN_LOG = "warn," + ",".join(
+    f"{target}=off"
+    for target in ("re_sdk::recording_stream", "re_grpc_client", "re_redap_client", "re_datafusion")
+)
+
+
 APP_ID = "vdc"
 FRAME_TIMELINE = "frame"
 TIME_TIMELINE = "time"

@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from vdc.errors import UserError
-from vdc.frame_metrics import MIN_SIDE_PX, luma_plane, stream_format
+from vdc.frame_metrics import luma_plane, require_frame_size, stream_format
 from vdc.matroska_index import declared_start_s
 from vdc.stream_counts import frames_missing_in
 
@@ -587,8 +587,8 @@ def unique_source_names(sources: Sequence[str]) -> list[str]:
 
 def open_reader(source: str, fps: float | None = None) -> Reader:
     """The reader of ``source``: a video file, an image-sequence pattern (needs ``fps``) or a
-    camera index. A missing, empty or unreadable source, or one whose frames are smaller than
-    the metrics need (``MIN_SIDE_PX``), raises UserError in one line naming it."""
+    camera index. A missing, empty or unreadable source, or one with frames too small for the
+    metrics (``require_frame_size``), raises UserError in one line naming it."""
     kind = source_kind(source)
     if kind == "file":
         reader: Reader = _PyAvReader(source)
@@ -596,11 +596,5 @@ def open_reader(source: str, fps: float | None = None) -> Reader:
         reader = _CameraReader(source, fps)
     else:
         reader = _ImageSequenceReader(source, fps)
-    h, w = reader.info["src_height_px"], reader.info["src_width_px"]
-    if min(h, w) < MIN_SIDE_PX:  # said before any frame is measured, naming the source
-        reader.close()
-        raise UserError(
-            f"{source!r} is {w}x{h} px (WxH): its frames must be at least {MIN_SIDE_PX}x"
-            f"{MIN_SIDE_PX} px (the SI/TI metrics' 3x3 Sobel filter needs an interior pixel)"
-        )
+    require_frame_size(reader, source)  # before any frame is measured, naming the source
     return reader

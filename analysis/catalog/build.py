@@ -39,10 +39,12 @@ from typing import Any
 import numpy as np
 import polars as pl
 
+from vdc.recording import RERUN_LOG
+
 # a server that dies or cannot read a recording mid-query is said in one line (query.py); the
 # client's own log lines about it would come first. Set before the SDK starts its logger
 # (at import); a RUST_LOG the user set wins.
-os.environ.setdefault("RUST_LOG", "warn,re_redap_client=off,re_datafusion=off")
+os.environ.setdefault("RUST_LOG", RERUN_LOG)
 import rerun as rr
 
 from analysis.recordings.analysis_rrd import write_variants_rrd
