@@ -111,7 +111,10 @@ def footage_predictor_tables(
         paper_means[row["clip"]] = float(mean) if mean is not None else math.nan
         for v in values:
             alert = np.asarray(res[f"{v:g}"], float)
-            positive, keep = frame_classes(table["frame"].to_numpy(), alert, cf, wf, WARMUP_FRAMES)
+            positive, keep = frame_classes(
+                table["frame"].to_numpy(), alert, cf, wf, WARMUP_FRAMES,
+                hazard_onset_frame=row.get("hazard_onset_frame"),
+            )  # fmt: skip
             frames.append(
                 table.with_columns(
                     pl.lit(row["clip"]).alias("clip"),

@@ -482,10 +482,13 @@ def frame_classes(
     collision_frame: int | None,
     window_frames: int,
     warmup_frames: int = 0,
+    hazard_onset_frame: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per frame: (positive, keep). Positive: the detector alerts with no collision in the
-    window; negative: it stays quiet; frames inside the window and after the collision are not
-    kept (the object, not the scene, drives the detector there), nor the first
+    window; negative: it stays quiet; frames from the hazard's onset on (the first frame the
+    object is drawn, where the labels give it: a near miss's too), inside the window and after
+    the collision are not kept (the object, not the scene, drives the detector there), nor the
+    first
     ``warmup_frames`` (the measures' and the detector's start-up: the AVDM rises from 0 over
     its first frames while a detector that needs a run of frames cannot alert yet, so a busy
     clip's only quiet frames would be those, and every AVDM would "predict" them exactly)."""
@@ -493,6 +496,8 @@ def frame_classes(
     keep = frames >= warmup_frames
     if collision_frame is not None:
         keep &= frames < collision_frame - window_frames
+    if hazard_onset_frame is not None:
+        keep &= frames < hazard_onset_frame
     return (np.asarray(alert) > 0) & keep, keep
 
 
