@@ -15,7 +15,7 @@
 | ``/link/stats``             | Scalars (hardware runs)           | serial link counts             |
 | ``/description`` (static)   | TextDocument (markdown)           | what, model, camera, analyse   |
 | ``/dataset/<cam>/video``    | VideoStream (AV1, H.264, HEVC)    | a dataset episode's packets    |
-| ``/dataset/<cam>/measures/<m>`` | Scalars                       | ``vdc-analyse dataset``'s measures |
+| ``/dataset/<cam>/measures/*``| Scalars                          | its per-frame measures         |
 
 Timelines: ``frame`` (camera frame index) and ``time`` (duration since the run started);
 hardware runs add ``capture_time``. Recording properties are sections of flat key-value pairs

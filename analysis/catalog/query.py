@@ -196,9 +196,9 @@ def query(
 ) -> dict[str, pl.DataFrame]:
     """The ``frames`` and ``model_outputs`` tables (and, over dataset episodes, ``measures``:
     one row per camera and frame, a column per measure) of the segments whose summary
-    properties match ``where``, read in one ``reader()`` call over the catalog, with the variants of the
-    given ``layers`` (default: all) as models of their own: the tables ``tables`` writes for
-    the same recordings (and ``batch`` for the variants).
+    properties match ``where``, read in one ``reader()`` call over the catalog, with the
+    variants of the given ``layers`` (default: all) as models of their own: the tables
+    ``tables`` writes for the same recordings (and ``batch`` for the variants).
 
     ``folders`` are folders of recordings (a catalog is started for the query and stopped
     after it), or one catalog URL, ``"rerun+http://HOST:PORT"``: a catalog already serving
@@ -233,15 +233,15 @@ def query(
                     pl.lit(rid).alias("recording_id"), pl.lit(name).alias("model")
                 ).select("recording_id", "model", pl.all().exclude("recording_id", "model"))
             )
+    # a dataset episode has no model of its own (its measures are a table of their own)
+    no_outputs = {"recording_id": pl.String, "model": pl.String, "frame": pl.Int64}
     tables = {
         "frames": pl.concat(frames).select(FRAMES_COLUMNS).sort("recording_id", "frame"),
-        # a dataset episode has no model of its own (its measures are the next table)
         "model_outputs": pl.concat(outputs, how="diagonal_relaxed").sort(
             "recording_id", "model", "frame"
         )
         if outputs
-        else pl.DataFrame(schema={"recording_id": pl.String, "model": pl.String,
-                                  "frame": pl.Int64, "t_s": pl.Float64}),  # fmt: skip
+        else pl.DataFrame(schema=no_outputs | {"t_s": pl.Float64}),
     }
     if measures:
         tables["measures"] = pl.concat(measures, how="diagonal_relaxed").sort(
@@ -272,7 +272,8 @@ def query_to(
     notice: Callable[[str], None] | None = None,
 ) -> list[tuple[Path, pl.DataFrame]]:
     """``vdc-analyse catalog query``: :func:`query` written to ``out`` as ``frames.parquet``,
-    ``model_outputs.parquet`` (and ``measures.parquet`` over dataset episodes; published whole), with the selection in their metadata."""
+    ``model_outputs.parquet`` (and ``measures.parquet`` over dataset episodes; published
+    whole), with the selection in their metadata."""
 
     res = query(folders, settings.where_dict(), settings.layers or None, settings, notice)
     meta = {"folders": [str(f) for f in folders], "where": settings.where_dict()}

@@ -19,7 +19,7 @@ from analysis.dataset.episode_rrd import RECORDINGS, write_episode
 from analysis.dataset.flags import FLAGS, finish, first_flags, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
 from analysis.dataset.page import write_page
-from analysis.dataset.resume import clear_partials, measured
+from analysis.dataset.resume import clear_partials, measured, read_result, result_path
 from vdc.cli_support import (
     API_ONLY,
     Settings,
@@ -172,9 +172,7 @@ def dataset(
     return _run(Path(path), settings or DatasetSettings(), Path(out), feedback or Feedback())
 
 
-def _task(
-    video: EpisodeVideo, settings: DatasetSettings, fps: float, out: Path
-) -> dict[str, Any]:
+def _task(video: EpisodeVideo, settings: DatasetSettings, fps: float, out: Path) -> dict[str, Any]:
     return measured(video, settings, fps, out)
 
 
@@ -205,9 +203,16 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
     )
     out.mkdir(parents=True, exist_ok=True)  # each episode's result is kept there as it ends
     clear_partials(out)
-    tasks = [(f"{v.episode}:{v.camera}", (v, settings, ds.fps, out)) for v in videos]
     by_key = {f"{v.episode}:{v.camera}": v for v in videos}
     results: dict[str, dict[str, Any]] = {}
+    # what an earlier (killed) run measured is read back here, without a worker
+    for key, v in by_key.items():
+        kept = read_result(result_path(out, v, settings, ds.fps))
+        if kept is not None:
+            results[key] = kept
+    if results:
+        feedback.log(f"{len(results)} camera stream(s) read back from an earlier run's results")
+    tasks = [(k, (v, settings, ds.fps, out)) for k, v in by_key.items() if k not in results]
 
     def done(outcome: Any) -> None:
         feedback.progress(1)
@@ -219,8 +224,9 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             problems.append(problem)
             feedback.log(f"error: {problem.line()}")
 
-    run_tasks(_task, tasks, settings.executor_settings(), done,
-              feedback.log, shared_paths=(root,))  # fmt: skip
+    if tasks:
+        run_tasks(_task, tasks, settings.executor_settings(), done,
+                  feedback.log, shared_paths=(root,))  # fmt: skip
     rows = [results[k]["row"] for k in sorted(results, key=_order)]
     frames = [
         results[k]["frames"].with_columns(
@@ -259,8 +265,6 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             if fail & set(filter(None, r["flags"].split(","))):
                 failed.append(int(r["episode_index"]))
     reused = sum(bool(r.get("reused")) for r in results.values())
-    if reused:
-        feedback.log(f"{reused} camera stream(s) read back from an earlier run's results")
     return DatasetResult(
         paths, eps, [p.line() for p in problems], sorted(set(failed)), notes, reused
     )

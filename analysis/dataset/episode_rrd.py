@@ -208,9 +208,9 @@ def write_episode(
             flag, cam, f = flagged
             fr = frames[cam]
             t_f = float(fr["t_s"][min(f, len(fr) - 1)])
-            rec.send_columns(event_path("dataset_flag"), indexes=_index(np.array([f]), np.array([t_f])),
-                             columns=rr.TextLog.columns(text=[f"{flag} ({cam})"],
-                                                        level=["WARN"]))  # fmt: skip
+            at = _index(np.array([f]), np.array([t_f]))
+            text = rr.TextLog.columns(text=[f"{flag} ({cam})"], level=["WARN"])
+            rec.send_columns(event_path("dataset_flag"), indexes=at, columns=text)
         rec.log(DESCRIPTION, rr.TextDocument(_description(rid, root, episode, rows, flagged,
                                                           notes), media_type="text/markdown"),
                 static=True)  # fmt: skip

@@ -24,7 +24,7 @@ RESULTS = "episode_results"  # the folder of ``out`` holding the measured episod
 # bumped when a measure's computation changes: results of an older version are measured again
 RESULT_VERSION = 1
 # settings that decide where or what is reported, never what is measured
-_NOT_MEASURED = {"fail_on", "episodes", "page", "executor", "jobs", "scheduler"}
+_NOT_MEASURED = {"fail_on", "episodes", "page", "recordings", "executor", "jobs", "scheduler"}
 
 
 def _stat(path: str) -> list[int] | None:
@@ -55,14 +55,9 @@ def measured(video: EpisodeVideo, settings: Any, fps: float, out: Path) -> dict[
     ``out/episode_results/`` when a run measured it from the same input with the same settings,
     else measured and kept there. The result's ``reused`` says which."""
     path = result_path(out, video, settings, fps)
-    if path.exists():
-        try:
-            # our own file, written whole by this function (never a user's): pickle keeps the
-            # polars table and the float32 views exactly
-            with path.open("rb") as f:
-                return pickle.load(f) | {"reused": True}
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ValueError):
-            path.unlink(missing_ok=True)  # unreadable (a disk fault): measured again
+    kept = read_result(path)
+    if kept is not None:
+        return kept
     result = measure_episode(video, settings, fps)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f"{path.name}.partial-{os.getpid()}")
@@ -70,6 +65,21 @@ def measured(video: EpisodeVideo, settings: Any, fps: float, out: Path) -> dict[
         pickle.dump(result, f, protocol=pickle.HIGHEST_PROTOCOL)
     tmp.replace(path)
     return result | {"reused": False}
+
+
+def read_result(path: Path) -> dict[str, Any] | None:
+    """The result kept at ``path`` (``reused`` set), or None where there is none or it cannot
+    be read (then removed, to be measured again)."""
+    if not path.exists():
+        return None
+    try:
+        # our own file, written whole by :func:`measured` (never a user's): pickle keeps the
+        # polars table and the float32 views exactly
+        with path.open("rb") as f:
+            return pickle.load(f) | {"reused": True}
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ValueError):
+        path.unlink(missing_ok=True)  # unreadable (a disk fault): measured again
+        return None
 
 
 def clear_partials(out: Path) -> None:
