@@ -15,7 +15,7 @@ from analysis.complexity.source_metrics import (
     MODEL_METRICS,
     parse_metrics,
 )
-from analysis.dataset.episode_rrd import RECORDINGS, write_episode
+from analysis.dataset.episode_rrd import EPISODE_RECORDINGS, write_episode
 from analysis.dataset.flags import FLAGS, finish, first_flags, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
 from analysis.dataset.page import write_page
@@ -150,7 +150,11 @@ class DatasetResult(WroteFiles):
                 lines.append(f"  ... and {flagged.height - 10} more (dataset.html)")
         if self.failed:
             lines.append(f"--fail-on: episode(s) {', '.join(map(str, self.failed))} flagged")
-        lines.append("wrote " + ", ".join(str(p) for p in self.paths))
+        rrds = [p for p in self.paths if p.suffix == ".rrd"]
+        tables = [str(p) for p in self.paths if p.suffix != ".rrd"]
+        if rrds:  # one folder of recordings, not a name per episode
+            tables.append(f"{rrds[0].parent}/ ({len(rrds)} episode recording(s))")
+        lines.append("wrote " + ", ".join(tables))
         return lines
 
     @property
@@ -279,7 +283,7 @@ def _recordings(
     order = {c: i for i, c in enumerate(ds.cameras)}
     paths = []
     episodes = sorted(eps["episode_index"].unique().to_list())
-    feedback.log(f"writing {len(episodes)} episode recording(s) into {RECORDINGS}/")
+    feedback.log(f"writing {len(episodes)} episode recording(s) into {EPISODE_RECORDINGS}/")
     for e in episodes:
         rows = sorted(eps.filter(pl.col("episode_index") == e).iter_rows(named=True),
                       key=lambda r: order.get(r["camera"], len(order)))  # fmt: skip
@@ -292,7 +296,7 @@ def _recordings(
         if worst is not None:
             flag, frame = flagged[(e, worst["camera"])]
             first = (flag, worst["camera"], frame)
-        path = stage / RECORDINGS / f"episode_{e:06d}.rrd"
+        path = stage / EPISODE_RECORDINGS / f"episode_{e:06d}.rrd"
         paths.append(write_episode(path, ds.root, ds.version, e, rows, per_cam, first))
     return paths
 

@@ -34,6 +34,7 @@ import numpy as np
 import polars as pl
 import rerun as rr
 
+from analysis.dataset.window import EDGE_S
 from vdc.blueprints import dataset_blueprint
 from vdc.recording import (
     APP_ID,
@@ -54,8 +55,7 @@ _CODECS = {
     "libdav1d": (rr.components.VideoCodec.AV1, None),
     "libaom-av1": (rr.components.VideoCodec.AV1, None),
 }
-RECORDINGS = "recordings"  # the folder of ``out`` holding the episodes' recordings
-EDGE_S = 1e-4  # as analysis.dataset.window: a frame at from_s - EDGE_S is in the window
+EPISODE_RECORDINGS = "recordings"  # the folder of ``out`` holding the episodes' recordings
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,7 +70,7 @@ class VideoSamples:
     codec: Any
 
 
-def recording_id(root: Path, episode: int) -> str:
+def episode_recording_id(root: Path, episode: int) -> str:
     """The episode's recording id (the catalog's segment id): the dataset folder's name and
     the episode, e.g. ``pick_place-episode_000003``."""
     return f"{re.sub(r'[^A-Za-z0-9_.-]', '_', root.resolve().name)}-episode_{episode:06d}"
@@ -152,7 +152,7 @@ def write_episode(
     whole). ``rows``: the episode's rows of the episodes table, one per camera (the first is
     the recording's main camera); ``frames``: each camera's per-frame table (sorted by frame);
     ``flagged``: (flag, camera, frame) that the blueprint opens at, or None."""
-    rid = recording_id(root, episode)
+    rid = episode_recording_id(root, episode)
     cameras = [r["camera"] for r in rows]
     measures = measure_columns(next(iter(frames.values())))
     bp = dataset_blueprint(cameras, flagged[1:] if flagged else None)

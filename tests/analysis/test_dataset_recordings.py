@@ -21,7 +21,7 @@ import pytest
 from polars.testing import assert_frame_equal
 
 from analysis.dataset import DatasetSettings, dataset
-from analysis.dataset.episode_rrd import recording_id
+from analysis.dataset.episode_rrd import episode_recording_id
 from analysis.dataset.flags import first_flags
 from analysis.dataset.resume import RESULTS
 from analysis.dataset.synthetic import Faults, write_dataset
@@ -69,7 +69,7 @@ def test_each_episode_is_a_recording_with_its_video_referenced(profiled) -> None
     for e, path in enumerate(rrds):
         row = eps.filter(pl.col("episode_index") == e).row(0, named=True)
         rec = Recording(path)
-        assert rec.recording_id == recording_id(root, e)
+        assert rec.recording_id == episode_recording_id(root, e)
         mine = _samples(path, dataset_video_path(CAM), "frame")
         window = {f: s for f, s in mine.items() if f >= 0}
         assert sorted(window) == list(range(row["frames_decoded"]))
@@ -132,18 +132,18 @@ def test_catalog_query_reads_the_episodes(profiled) -> None:
     frames = pl.read_parquet(out / "frames.parquet")
     res = query(out)
     ids = sorted(res["frames"]["recording_id"].unique().to_list())
-    assert ids == [recording_id(root, e) for e in range(3)]
+    assert ids == [episode_recording_id(root, e) for e in range(3)]
     for e in range(3):
         fr = frames.filter(pl.col("episode_index") == e).sort("frame")
-        got = res["frames"].filter(pl.col("recording_id") == recording_id(root, e))
+        got = res["frames"].filter(pl.col("recording_id") == episode_recording_id(root, e))
         assert got["frame"].to_list() == fr["frame"].to_list()
         assert got["repeat"].to_list() == fr["repeat"].to_list()
-        m = res["measures"].filter(pl.col("recording_id") == recording_id(root, e))
+        m = res["measures"].filter(pl.col("recording_id") == episode_recording_id(root, e))
         assert m["camera"].unique().to_list() == [CAM]
         assert np.array_equal(m["mafd"].to_numpy(), fr["mafd"].to_numpy(), equal_nan=True)
     flagged = query(out, where={"flags": "frozen"})
     assert flagged["frames"]["recording_id"].unique().to_list() == [
-        recording_id(root, FROZEN_EPISODE)
+        episode_recording_id(root, FROZEN_EPISODE)
     ]
 
 
