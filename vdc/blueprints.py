@@ -151,7 +151,8 @@ def dataset_blueprint(
     cameras: Sequence[str], flagged: tuple[str, int] | None = None
 ) -> rrb.Blueprint:
     """A dataset episode (``vdc-analyse dataset``): each camera's video beside its measures
-    (complexity, change, exposure, frame timing), the episode's flags and its description.
+    (motion, change, spatial detail, sharpness, timing; one scale a pane), the episode's
+    flags and its description.
     ``flagged``: (camera, frame) the time panel opens at: a selection of half a second either
     side of that frame, played in a loop (a blueprint cannot place a paused cursor; a loop
     over the selection brings it there)."""
@@ -198,8 +199,10 @@ def dataset_blueprint(
 FLAG_CONTEXT_FRAMES = 15
 # the measure panes of a dataset episode: (title, per-frame columns of frames.parquet)
 DATASET_PANES = (
-    ("complexity", ("si_p910", "ti_p910", "mafd", "omega_dps", "flow_dps")),
+    ("motion: TI, mean frame difference (levels), deg/s", ("ti_p910", "mafd", "omega_dps",
+                                                           "flow_dps")),
     ("change from the frame before (grey levels)", ("change_max", "change2_max")),
+    ("spatial information and mean grey (levels)", ("si_p910", "mean_grey")),
     ("sharpness (Laplacian variance)", ("sharpness",)),
-    ("exposure and timing", ("mean_grey", "repeat", "dropped_before", "frozen", "still")),
-)
+    ("timing and stillness (0/1, frames)", ("repeat", "dropped_before", "frozen", "still")),
+)  # fmt: skip
