@@ -27,6 +27,7 @@ from analysis.dataset.resume import RESULTS
 from analysis.dataset.synthetic import Faults, write_dataset
 from analysis.recordings.reader import Recording
 from tests.helpers import ROOT
+from vdc.blueprints import FLAG_CONTEXT_FRAMES
 from vdc.recording import dataset_measure_path, dataset_video_path, event_path
 
 CAM = "observation.images.front"
@@ -95,7 +96,7 @@ def test_each_episode_is_a_recording_with_its_video_referenced(profiled) -> None
         assert sum(map(len, mine.values())) <= path.stat().st_size
 
 
-def test_the_measures_are_on_the_episode_timeline(profiled) -> None:
+def test_the_measures_are_on_the_episode_timeline_and_it_opens_at_its_flag(profiled) -> None:
     out, res = profiled["out"], profiled["res"]
     frames = pl.read_parquet(out / "frames.parquet")
     for e in range(3):
@@ -123,6 +124,29 @@ def test_the_measures_are_on_the_episode_timeline(profiled) -> None:
     assert events and events[event_path("dataset_flag")].column("frame").to_pylist() == [frame]
     clean = Recording(out / "recordings" / "episode_000000.rrd").properties()["episode"]
     assert clean["flag_count"] == 0 and clean["flagged_frame"] == -1
+    # its blueprint (stored in the file beside the recording) loops over the flagged frame
+    panel = _time_panel(path)
+    assert panel["TimePanelBlueprint:timeline"] == ["frame"]
+    sel = panel["TimePanelBlueprint:time_selection"][0]
+    assert sel["min"] < frame < sel["max"]
+    assert (sel["min"], sel["max"]) == (
+        max(0, frame - FLAG_CONTEXT_FRAMES),
+        frame + FLAG_CONTEXT_FRAMES,
+    )
+    assert "TimePanelBlueprint:time_selection" not in _time_panel(
+        out / "recordings" / "episode_000000.rrd"
+    )
+
+
+def _time_panel(path: Path) -> dict:
+    """The time panel's fields in the blueprint an ``.rrd`` carries."""
+    import rerun as rr
+
+    reader = rr.chunk.RrdReader(str(path))
+    fields: dict = {}
+    for ch in reader.stream(store=reader.blueprints()[0]).filter(content="/time_panel"):
+        fields |= {k: v for k, v in ch.to_record_batch().to_pylist()[0].items() if ":" in k}
+    return fields
 
 
 def test_catalog_query_reads_the_episodes(profiled) -> None:
