@@ -19,7 +19,13 @@ from analysis.dataset.episode_rrd import EPISODE_RECORDINGS, write_episode
 from analysis.dataset.flags import FLAGS, finish, first_flags, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
 from analysis.dataset.page import write_page
-from analysis.dataset.resume import clear_partials, measured, read_result, result_path
+from analysis.dataset.resume import (
+    clear_partials,
+    drop_stale,
+    measured,
+    read_result,
+    result_path,
+)
 from vdc.cli_support import (
     API_ONLY,
     Settings,
@@ -205,6 +211,8 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         f"{root}: LeRobot {ds.version}, {len(set(v.episode for v in videos))} episode(s), "
         f"{len(ds.cameras)} camera(s), {ds.fps:g} fps"
     )
+    if out.exists() and not out.is_dir():  # as vdc.parquet_io.table_set says it
+        raise UserError(f"--out {str(out)!r} is a file, not a folder; give a folder")
     out.mkdir(parents=True, exist_ok=True)  # each episode's result is kept there as it ends
     clear_partials(out)
     by_key = {f"{v.episode}:{v.camera}": v for v in videos}
@@ -230,7 +238,8 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
 
     if tasks:
         run_tasks(_task, tasks, settings.executor_settings(), done,
-                  feedback.log, shared_paths=(root,))  # fmt: skip
+                  feedback.log, shared_paths=(root, out))  # fmt: skip
+    drop_stale(out, [result_path(out, v, settings, ds.fps) for v in videos])
     rows = [results[k]["row"] for k in sorted(results, key=_order)]
     frames = [
         results[k]["frames"].with_columns(

@@ -3,7 +3,7 @@ measured, is kept in ``out/episode_results/`` (written to ``<name>.partial-<pid>
 when whole, so a killed run leaves whole results or none), keyed by what it was measured from
 (the settings that change a measure, the episode's window and the stats of its video and data
 files). A run that finds its key's result reads it back instead of decoding the episode again;
-a changed setting or file is measured afresh."""
+a changed setting or file is measured afresh, and its older result removed."""
 
 from __future__ import annotations
 
@@ -88,3 +88,15 @@ def clear_partials(out: Path) -> None:
         pid = p.name.rsplit("-", 1)[-1]
         if pid.isdigit() and not pid_alive(int(pid)):
             p.unlink(missing_ok=True)
+
+
+def drop_stale(out: Path, current: list[Path]) -> None:
+    """Results of the episodes and cameras of ``current`` measured with other settings or from
+    files since changed: removed, so the folder keeps one result per camera of an episode
+    (the others', e.g. episodes left out with ``--episodes``, stay)."""
+    keep = set(current)
+    for path in current:
+        stem = path.name.rsplit(".", 2)[0]  # episode_NNNNNN.<camera>
+        for old in path.parent.glob(f"{stem}.*.pkl"):
+            if old not in keep and old.name.rsplit(".", 2)[0] == stem:
+                old.unlink(missing_ok=True)

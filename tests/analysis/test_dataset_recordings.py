@@ -208,3 +208,6 @@ def test_a_killed_run_resumes_without_measuring_finished_episodes(tmp_path: Path
     again = dataset(root, DatasetSettings(jobs=1, page=False, recordings=False, episodes="0",
                                           repeat_tol=0.25), out)  # fmt: skip
     assert again.reused == 0 and again.episodes.height == 1
+    # one result per episode kept: episode 0's older one removed, the others' left as they were
+    assert len(list(results.glob("episode_000000.*.pkl"))) == 1
+    assert len(list(results.glob("*.pkl"))) == 6
