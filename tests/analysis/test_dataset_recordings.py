@@ -96,6 +96,32 @@ def test_each_episode_is_a_recording_with_its_video_referenced(profiled) -> None
         assert sum(map(len, mine.values())) <= path.stat().st_size
 
 
+def test_h264_episodes_of_two_cameras_are_self_contained_streams(tmp_path: Path) -> None:
+    """v2.1, H.264 (MP4's length-prefixed samples rewritten to Annex B), two cameras: each
+    camera's samples decode on their own, with no container's extradata, into exactly the
+    frames the file gives, pixel for pixel."""
+    root = tmp_path / "v21"
+    wrist = "observation.images.wrist"
+    write_dataset(root, episodes=2, version="v2.1", codec="libx264", seconds=(1.0, 1.0),
+                  faults=Faults(), cameras=(CAM, wrist))  # fmt: skip
+    res = dataset(root, DatasetSettings(jobs=1, page=False), tmp_path / "out")
+    for e in range(2):
+        path = tmp_path / "out" / "recordings" / f"episode_{e:06d}.rrd"
+        assert Recording(path).properties()["episode"]["cameras"] == f"{CAM},{wrist}"
+        for cam in (CAM, wrist):
+            row = res.episodes.filter((pl.col("episode_index") == e) & (pl.col("camera") == cam))
+            samples = _samples(path, dataset_video_path(cam), "frame")
+            assert sorted(samples) == list(range(row["frames_decoded"][0]))  # no lead-in
+            dec = av.CodecContext.create("h264", "r")  # no extradata: Annex B carries it
+            got = [f for _, s in sorted(samples.items()) for f in dec.decode(av.Packet(s))]
+            got += dec.decode(None)
+            with av.open(row["video_path"][0]) as c:
+                want = list(c.decode(video=0))
+            assert len(got) == len(want) == row["frames_decoded"][0]
+            for a, b in zip(got, want, strict=True):
+                assert np.array_equal(a.to_ndarray(format="gray"), b.to_ndarray(format="gray"))
+
+
 def test_the_measures_are_on_the_episode_timeline_and_it_opens_at_its_flag(profiled) -> None:
     out, res = profiled["out"], profiled["res"]
     frames = pl.read_parquet(out / "frames.parquet")
