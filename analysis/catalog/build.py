@@ -185,7 +185,9 @@ def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
     out: dict[str, Any] = {
         "source": run.get("source") or ("video" if video else "unknown"),
         "behaviour": run.get("behaviour"),
-        "scene": wall.get("scene") or ("video" if video else None),
+        # a dataset episode is no scene of vdc's (its episode section says what it is)
+        "scene": wall.get("scene")
+        or ("video" if video and run.get("source") != "dataset" else None),
         "tf_schedule": wall.get("tf_schedule_text"),
         "seed": run.get("seed"),
         "model": loaded.online_model,
