@@ -21,6 +21,7 @@ from analysis.recordings.reader import Recording
 from vdc.errors import UserError
 from vdc.parquet_io import table_set, write_parquet
 from vdc.recording import (
+    DATASET_ROOT,
     FRAME_TIMELINE,
     MODEL_VARIANTS_ROOT,
 )
@@ -219,10 +220,11 @@ def query(
     settings: CatalogSettings = CatalogSettings(),
     notice: Callable[[str], None] | None = None,
 ) -> dict[str, pl.DataFrame]:
-    """The ``frames`` and ``model_outputs`` tables of the segments whose summary properties
-    match ``where``, read in one ``reader()`` call over the catalog, with the variants of the
-    given ``layers`` (default: all) as models of their own: the tables ``tables`` writes for
-    the same recordings (and ``batch`` for the variants).
+    """The ``frames`` and ``model_outputs`` tables (and, over dataset episodes, ``measures``:
+    one row per camera and frame, a column per measure) of the segments whose summary
+    properties match ``where``, read in one ``reader()`` call over the catalog, with the
+    variants of the given ``layers`` (default: all) as models of their own: the tables
+    ``tables`` writes for the same recordings (and ``batch`` for the variants).
 
     ``folders`` are folders of recordings (a catalog is started for the query and stopped
     after it), or one catalog URL, ``"rerun+http://HOST:PORT"``: a catalog already serving
@@ -232,7 +234,7 @@ def query(
     with _select(sources, where, layers, settings, notice) as sel:
         with _server_answers(sel.url):
             raw = pl.from_arrow(sel.view.reader(index=FRAME_TIMELINE).to_arrow_table())
-    frames, outputs = [], []
+    frames, outputs, measures = [], [], []
     scalar = [c for c in raw.columns if c.endswith(":Scalars:scalars")]
     raw = raw.select(
         "rerun_segment_id", FRAME_TIMELINE, *(["time"] if "time" in raw.columns else []), *scalar
@@ -251,18 +253,43 @@ def query(
             # bit): the logged ones stay
             if df is not None and name not in models:
                 models[name] = df
+        measures += _measures_of(sig, rid)
         for name, df in models.items():
             outputs.append(
                 df.with_columns(
                     pl.lit(rid).alias("recording_id"), pl.lit(name).alias("model")
                 ).select("recording_id", "model", pl.all().exclude("recording_id", "model"))
             )
-    return {
+    # a dataset episode has no model of its own (its measures are a table of their own)
+    no_outputs = {"recording_id": pl.String, "model": pl.String, "frame": pl.Int64}
+    tables = {
         "frames": pl.concat(frames).select(FRAMES_COLUMNS).sort("recording_id", "frame"),
         "model_outputs": pl.concat(outputs, how="diagonal_relaxed").sort(
             "recording_id", "model", "frame"
-        ),
+        )
+        if outputs
+        else pl.DataFrame(schema=no_outputs | {"t_s": pl.Float64}),
     }
+    if measures:
+        tables["measures"] = pl.concat(measures, how="diagonal_relaxed").sort(
+            "recording_id", "camera", "frame"
+        )
+    return tables
+
+
+def _measures_of(
+    sig: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], rid: str
+) -> list[pl.DataFrame]:
+    """A dataset episode's measures (``vdc-analyse dataset``: ``/dataset/<camera>/measures/*``),
+    one table per camera: recording_id, camera, frame, t_s, a column per measure."""
+    out = []
+    cams = {e.split("/")[2] for e in sig if e.startswith(DATASET_ROOT + "/") and "/measures/" in e}
+    for cam in sorted(cams):
+        df = signals_table(sig, f"{DATASET_ROOT}/{cam}/measures/")
+        if df is not None:
+            out.append(df.select(pl.lit(rid).alias("recording_id"), pl.lit(cam).alias("camera"),
+                                 pl.all()))  # fmt: skip
+    return out
 
 
 def query_to(
@@ -271,8 +298,9 @@ def query_to(
     out: str | Path,
     notice: Callable[[str], None] | None = None,
 ) -> list[tuple[Path, pl.DataFrame]]:
-    """``vdc-analyse catalog query``: :func:`query` written to ``out`` as ``frames.parquet``
-    and ``model_outputs.parquet`` (published whole), with the selection in their metadata."""
+    """``vdc-analyse catalog query``: :func:`query` written to ``out`` as ``frames.parquet``,
+    ``model_outputs.parquet`` (and ``measures.parquet`` over dataset episodes; published
+    whole), with the selection in their metadata."""
 
     res = query(folders, settings.where_dict(), settings.layers or None, settings, notice)
     meta = {"folders": [str(f) for f in folders], "where": settings.where_dict()}
