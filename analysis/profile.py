@@ -26,6 +26,7 @@ from analysis.recordings.segments import (
     ProfileSettings,
     heat_map,
     histogram_over,
+    over_share_by_recording,
     segment_summary,
     segments_from_tables,
 )
@@ -249,13 +250,31 @@ def plot_overview(segs: Sequence[ProfileSegment], s: ProfileSettings, path: Path
         else f"{_condition(g)}\n{g.model}"
         for g in segs
     ]
-    fracs = [100 * float((g.response > s.threshold_dps).mean()) for g in segs]
-    ax_b.bar(range(len(segs)), fracs, color="C1")
+    # a pooled condition's bar is the mean of its recordings' shares, with a 95 % t-interval
+    # over those recordings (the seeds, the independent units); frames within one run are
+    # not independent, so a single recording's bar has no interval and says n = 1
+    est = [over_share_by_recording(g, s.threshold_dps) for g in segs]
+    x = np.arange(len(segs))
+    ax_b.bar(x, [100 * e.mean for e in est], color="C1")
+    ok = np.array([math.isfinite(e.low) for e in est], bool)
+    if ok.any():
+        mid = np.array([100 * e.mean for e in est])[ok]
+        lo = np.array([100 * e.low for e in est])[ok]
+        hi = np.array([100 * e.high for e in est])[ok]
+        ax_b.errorbar(x[ok], mid, yerr=[mid - lo, hi - mid], fmt="none", ecolor="k", capsize=3)
+    for k, e in enumerate(est):  # n above the interval (or the bar), clear of both
+        top = 100 * (e.high if math.isfinite(e.high) else e.mean)
+        ax_b.annotate(f"n = {e.n}", (k, top), xytext=(0, 3), textcoords="offset points",
+                      ha="center", va="bottom", fontsize=7)  # fmt: skip
     ax_b.set_xticks(range(len(segs)), labels, fontsize=7)
     unit = units_label(segs)
     over = f"% of frames with response > {s.threshold_dps:g}"
     ax_b.set_ylabel(f"{over} {unit}" if ":" not in unit else f"{over}\n({unit})")
-    ax_b.set_title(f"'AVDM > {s.threshold_dps:g}' per segment")
+    ax_b.set_title(
+        f"'AVDM > {s.threshold_dps:g}' per segment: mean over n recordings, "
+        "95 % t-interval over recordings (n ≥ 2)",
+        fontsize=9,
+    )
     ax_b.grid(axis="y", alpha=0.3)
     series = [(label.replace("\n", " "), g.response) for label, g in zip(labels, segs, strict=True)]
     response_densities(

@@ -25,6 +25,12 @@ from avdm.errors import ParameterError
 PRIMARY_OUTPUT = "omega_dps"
 
 
+# The columns every per-frame table of model outputs carries beside the outputs themselves
+# (``tables``' model_outputs.parquet, ``batch``, ``compare``, ``catalog query``): a model output
+# of one of these names would overwrite the frame numbers or times, so none may have one.
+FRAME_TABLE_COLUMNS = ("recording_id", "model", "frame", "t_s")
+
+
 def primary_output_name(names: Sequence[str]) -> str:
     """The one rule for a model's primary output, given its output names in order."""
     names = list(names)

@@ -21,6 +21,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from threadpoolctl import threadpool_limits
+
 from avdm.avdm_model import AvdmParams
 from avdm.calibration import (
     CLUTTER_SEEDS,
@@ -121,9 +123,9 @@ def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dic
 #
 # Policy: a camera's frame rate and angular resolution are used as given, never snapped to a
 # "nominal" neighbour: 29.97 Hz (30000/1001) and 30 Hz get fits of their own (their decoding
-# constants differ by ~0.25 %). An avdm-natural fit takes about a minute and a half of a core
-# (docs/video.md); callers show its progress through fit_progress. The fit uses the default AVDM
-# on 72-px-high frames 99 px wide (the robot camera's raster, which the valid band of periods
+# constants differ by ~0.25 %). An avdm-natural fit takes about 8 s of a core (docs/video.md);
+# callers show its progress through fit_progress. The fit uses the default AVDM on 72-px-high
+# frames 99 px wide (the robot camera's raster, which the valid band of periods
 # was designed for): the decoding constants depend on frame rate and degrees per pixel, not on
 # the frame's size. The key holds everything that changes the fit, so a stale entry is never
 # used: fps and deg/px (to 1e-9), the raster, the grating contrasts and the vdc version.
@@ -236,10 +238,14 @@ def calibration_for(
             if progress is not None:
                 progress()
 
-    if multiscale:
-        fit = fit_multiscale(params, size=size, progress=step)
-    else:
-        fit = fit_decoding(params, size=size, contrasts=CAL_CONTRASTS, progress=step)
+    # one BLAS thread: the pans' matrix products are small (~64 x 231 x 307), and OpenBLAS's
+    # default threads spin while they wait; an avdm-natural fit at 25 Hz, 85 px took 68 s of
+    # CPU with them and 6.7 s with one, the same constants (a sum's order only)
+    with threadpool_limits(limits=1, user_api="blas"):
+        if multiscale:
+            fit = fit_multiscale(params, size=size, progress=step)
+        else:
+            fit = fit_decoding(params, size=size, contrasts=CAL_CONTRASTS, progress=step)
     entry = {"key": key, **key, **fit.to_dict()}
     written = write_cached(path, entry)
     if report is not None:

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from avdm.base import Output, check_frames, run_by_steps
+from avdm.base import FRAME_TABLE_COLUMNS, Output, check_frames, run_by_steps
 from avdm.errors import ParameterError
 
 ENTRY_POINT_GROUP = "vdc.models"
@@ -208,6 +208,13 @@ def _outputs(raw: Any, ref: str) -> tuple[Output, ...]:
                 raise ParameterError(f"model plug-in {ref!r}: output {o!r} is not (name, unit)")
     if not items:
         raise ParameterError(f"model plug-in {ref!r}: its model declares no outputs")
+    taken = [o.name for o in items if o.name in FRAME_TABLE_COLUMNS]
+    if taken:
+        raise ParameterError(
+            f"model plug-in {ref!r}: its output {taken[0]!r} has the name of vdc's own column "
+            f"{taken[0]!r} of the per-frame tables ({', '.join(FRAME_TABLE_COLUMNS)} are "
+            "taken): rename the output"
+        )
     return tuple(items)
 
 

@@ -116,6 +116,12 @@ def main() -> None:
             pace = dec_s / wall
             print(f"dataset, {what}, 2 workers: {wall:6.2f} s  {video_s / wall:6.1f}x real "
                   f"time per camera ({cpu:.1f} CPU s; {pace:.2f} of decoding's pace)")  # fmt: skip
+        # the episodes' recordings reference the video (its packets), never decoded frames
+        rec_b = sum(p.stat().st_size for p in (Path(tmp) / "out" / "recordings").glob("*.rrd"))
+        vid_b = sum(p.stat().st_size for p in (root / "videos").rglob("*.mp4"))
+        print(f"episode recordings: {rec_b / 1e6:.1f} MB for {vid_b / 1e6:.1f} MB of video "
+              f"({rec_b / vid_b:.2f}x; the decoded RGB frames: {frames * 480 * 640 * 3 / 1e6:.0f} "
+              "MB)")  # fmt: skip
         g_s, found = graders(root)
         print(f"graders' approach (metadata + first frames): {g_s:.3f} s")
         # what each approach finds on the test dataset (96x128, one fault per episode)

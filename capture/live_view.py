@@ -17,9 +17,11 @@ from collections.abc import Callable
 from typing import Any
 from urllib.parse import urlsplit
 
+from vdc.recording import RERUN_LOG
+
 # the SDK's own log lines for a viewer that went away would repeat every batch: see
 # capture/recorder.py, which sets the same before the SDK starts its logger
-os.environ.setdefault("RUST_LOG", "warn,re_sdk::recording_stream=off,re_grpc_client=off")
+os.environ.setdefault("RUST_LOG", RERUN_LOG)
 import rerun as rr
 import rerun.blueprint as rrb
 

@@ -17,10 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from vdc.recording import RERUN_LOG
+
 # The SDK's own log lines for a viewer that went away or a file it could not write would repeat
 # every batch; the recorder watches both sinks itself and says so in one line. Set before the
 # SDK starts its logger; a RUST_LOG the user set wins.
-os.environ.setdefault("RUST_LOG", "warn,re_sdk::recording_stream=off,re_grpc_client=off")
+os.environ.setdefault("RUST_LOG", RERUN_LOG)
 import rerun as rr
 import rerun.blueprint as rrb
 

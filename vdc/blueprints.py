@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import rerun as rr
 import rerun.blueprint as rrb
 
 from avdm.base import Output, primary_output_name
@@ -13,6 +14,7 @@ from vdc.recording import (
     ARENA,
     CAMERA,
     COMPLEXITY_ROOT,
+    DATASET_ROOT,
     DESCRIPTION,
     EVENTS,
     FRAME_TIMELINE,
@@ -26,6 +28,8 @@ from vdc.recording import (
     ROBOT_HEADING,
     TIME_TIMELINE,
     WALL_TF,
+    dataset_measure_path,
+    dataset_video_path,
     entity_name,
     model_path,
 )
@@ -141,3 +145,64 @@ def video_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Blueprint
         rrb.TimePanel(timeline=TIME_TIMELINE),
         collapse_panels=False,
     )
+
+
+def dataset_blueprint(
+    cameras: Sequence[str], flagged: tuple[str, int] | None = None
+) -> rrb.Blueprint:
+    """A dataset episode (``vdc-analyse dataset``): each camera's video beside its measures
+    (motion, change, spatial detail, sharpness, timing; one scale a pane), the episode's
+    flags and its description.
+    ``flagged``: (camera, frame) the time panel opens at: a selection of half a second either
+    side of that frame, played in a loop (a blueprint cannot place a paused cursor; a loop
+    over the selection brings it there)."""
+    videos = [rrb.Spatial2DView(name=cam, origin=dataset_video_path(cam)) for cam in cameras]
+    main = cameras[0]
+    measures = [
+        rrb.TimeSeriesView(
+            name=f"{title} ({main})",
+            origin=f"{DATASET_ROOT}/{entity_name(main)}/measures",
+            contents=[dataset_measure_path(main, m) for m in names],
+        )
+        for title, names in DATASET_PANES
+    ]
+    panel: dict = {"timeline": FRAME_TIMELINE}
+    if flagged is not None:
+        _cam, frame = flagged
+        panel |= {
+            "play_state": "playing",
+            "loop_mode": "selection",
+            "time_selection": rr.encodings.AbsoluteTimeRange(
+                min=max(0, frame - FLAG_CONTEXT_FRAMES), max=frame + FLAG_CONTEXT_FRAMES
+            ),
+        }
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                *videos,
+                rrb.Tabs(
+                    rrb.TextLogView(name="flags", origin=EVENTS),
+                    rrb.TextDocumentView(name="about this episode", origin=DESCRIPTION),
+                ),
+                row_shares=[*([2] * len(videos)), 1],
+            ),
+            rrb.Vertical(*measures),
+            column_shares=[1, 1.3],
+        ),
+        rrb.TimePanel(**panel),
+        collapse_panels=False,
+    )
+
+
+# frames either side of a flagged frame in the loop a flagged episode opens with (half a second
+# at LeRobot's usual 30 fps: long enough to see a freeze or a jump, short enough to stay on it)
+FLAG_CONTEXT_FRAMES = 15
+# the measure panes of a dataset episode: (title, per-frame columns of frames.parquet)
+DATASET_PANES = (
+    ("motion: TI, mean frame difference (levels), deg/s", ("ti_p910", "mafd", "omega_dps",
+                                                           "flow_dps")),
+    ("change from the frame before (grey levels)", ("change_max", "change2_max")),
+    ("spatial information and mean grey (levels)", ("si_p910", "mean_grey")),
+    ("sharpness (Laplacian variance)", ("sharpness",)),
+    ("timing and stillness (0/1, frames)", ("repeat", "dropped_before", "frozen", "still")),
+)  # fmt: skip

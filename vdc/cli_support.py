@@ -414,6 +414,10 @@ def add_settings_flags(parser: argparse.ArgumentParser, cls: type) -> None:
         if f.default is False:
             where.add_argument(*names, dest=f.name, action="store_true", help=kw["help"])
             continue
+        if f.default is True:  # on unless told: --page / --no-page
+            where.add_argument(*names, dest=f.name, action=argparse.BooleanOptionalAction,
+                               default=None, help=kw["help"])  # fmt: skip
+            continue
         if str(f.type).startswith("tuple[str"):
             kw["action"] = "append"  # repeatable: --model A --model B
         else:

@@ -40,6 +40,24 @@ import numpy as np
 from vdc.errors import UserError
 from vdc.recording import NATIVE_METRICS
 
+# the smallest frame side the native metrics take: SI's 3x3 Sobel filter (P.910) needs an
+# interior pixel, which a frame of 2 px or less on a side does not have
+MIN_SIDE_PX = 3
+
+
+def require_frame_size(reader: Any, source: str) -> None:
+    """UserError, in one line naming ``source`` and the size needed, when the frames of
+    ``reader`` (a ``vdc.sources.Reader``: its ``info`` sizes) are smaller than the native
+    metrics take; the reader is closed first."""
+    h, w = reader.info["src_height_px"], reader.info["src_width_px"]
+    if min(h, w) < MIN_SIDE_PX:
+        reader.close()
+        raise UserError(
+            f"{source!r} is {w}x{h} px (WxH): its frames must be at least {MIN_SIDE_PX}x"
+            f"{MIN_SIDE_PX} px (the SI/TI metrics' 3x3 Sobel filter needs an interior pixel)"
+        )
+
+
 RANGES = ("limited", "full")
 RANGE_CHOICES = ("auto", *RANGES)  # --color-range
 # how a variant's range was decided: the stream's tag, detected from the luma (P.910 in an
@@ -369,7 +387,7 @@ class NativeMeter:
 
     def update(self, y: np.ndarray, packet_bytes: int | None = None) -> dict[str, float]:
         want = np.uint8 if self.bit_depth == 8 else np.uint16
-        if y.ndim != 2 or y.dtype != want or min(y.shape) < 3:
+        if y.ndim != 2 or y.dtype != want or min(y.shape) < MIN_SIDE_PX:
             raise UserError(f"expected ({self.bit_depth}-bit) luma (H, W) {want.__name__}")
         prev = self._prev
         if prev is not None and prev.shape != y.shape:

@@ -14,6 +14,8 @@
 | ``/overhead/image``         | Image                             | optional overhead frames       |
 | ``/link/stats``             | Scalars (hardware runs)           | serial link counts             |
 | ``/description`` (static)   | TextDocument (markdown)           | what, model, camera, analyse   |
+| ``/dataset/<cam>/video``    | VideoStream (AV1, H.264, HEVC)    | a dataset episode's packets    |
+| ``/dataset/<cam>/measures/*``| Scalars                          | its per-frame measures         |
 
 Timelines: ``frame`` (camera frame index) and ``time`` (duration since the run started);
 hardware runs add ``capture_time``. Recording properties are sections of flat key-value pairs
@@ -26,6 +28,17 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
+
+# Rerun's own log lines that vdc replaces with one line of its own, one setting for every
+# process (set before the SDK starts its logger, at import; a RUST_LOG the user set wins, and a
+# process that sets it passes it to the processes it starts): a viewer that went away or a file
+# it could not write (the recorder says so once) and a catalog server that failed under a
+# query (analysis.catalog.query says so, naming the URL).
+RERUN_LOG = "warn," + ",".join(
+    f"{target}=off"
+    for target in ("re_sdk::recording_stream", "re_grpc_client", "re_redap_client", "re_datafusion")
+)
+
 
 APP_ID = "vdc"
 FRAME_TIMELINE = "frame"
@@ -78,6 +91,7 @@ EVENT_KINDS = (
     "tracker_lost",
     "dropped_frames",
     "decode_error",
+    "dataset_flag",
 )
 
 # Recording property sections (rr.send_property): each a flat dict of scalars and strings.
@@ -104,6 +118,8 @@ PROPERTY_SECTIONS = {
     "model_context": "what every model of this recording is built with: fps, deg_per_px, "
     "texture_row (capture, recomputation and complexity read this one section)",
     "run_end": "written last: frames, stop_reason, complete",
+    "episode": "a dataset episode (vdc-analyse dataset): episode_index, cameras, flags, "
+    "flag_count, flagged_frame",
 }
 
 
@@ -118,6 +134,19 @@ def model_path(model_name: str, output: str) -> str:
 
 def variant_path(model_name: str, output: str) -> str:
     return f"{MODEL_VARIANTS_ROOT}/{entity_name(model_name)}/{output}"
+
+
+# a robot-learning dataset's episode (``vdc-analyse dataset``): per camera (its feature key,
+# e.g. ``observation.images.front``), the video's packets and the per-frame measures
+DATASET_ROOT = "/dataset"
+
+
+def dataset_video_path(camera: str) -> str:
+    return f"{DATASET_ROOT}/{entity_name(camera)}/video"
+
+
+def dataset_measure_path(camera: str, measure: str) -> str:
+    return f"{DATASET_ROOT}/{entity_name(camera)}/measures/{measure}"
 
 
 def event_path(kind: str) -> str:

@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from vdc.errors import UserError
-from vdc.frame_metrics import luma_plane, stream_format
+from vdc.frame_metrics import luma_plane, require_frame_size, stream_format
 from vdc.matroska_index import declared_start_s
 from vdc.stream_counts import frames_missing_in
 
@@ -587,10 +587,14 @@ def unique_source_names(sources: Sequence[str]) -> list[str]:
 
 def open_reader(source: str, fps: float | None = None) -> Reader:
     """The reader of ``source``: a video file, an image-sequence pattern (needs ``fps``) or a
-    camera index. A missing, empty or unreadable source raises ValueError."""
+    camera index. A missing, empty or unreadable source, or one with frames too small for the
+    metrics (``require_frame_size``), raises UserError in one line naming it."""
     kind = source_kind(source)
     if kind == "file":
-        return _PyAvReader(source)
-    if kind == "camera":
-        return _CameraReader(source, fps)
-    return _ImageSequenceReader(source, fps)
+        reader: Reader = _PyAvReader(source)
+    elif kind == "camera":
+        reader = _CameraReader(source, fps)
+    else:
+        reader = _ImageSequenceReader(source, fps)
+    require_frame_size(reader, source)  # before any frame is measured, naming the source
+    return reader

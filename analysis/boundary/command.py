@@ -71,6 +71,37 @@ ROW_VERSION = 2  # what run_row measures; a cached row of another version is mea
 WARMUP_FRAMES = 60  # the AVDM's and the running means' start-up, left out of every mean
 
 
+def _with_intervals(*names: str) -> set[str]:
+    return {f"{n}{end}" for n in names for end in ("", "_low", "_high")}
+
+
+# vdc's own columns in the tables a boundary campaign writes (boundary*.parquet, the predictor
+# tables; footage mode's clips, arena mode's runs and profiles): the parameter swept by --param
+# is a column beside them, so none may share its name (a detector parameter named ``frame`` or
+# ``value`` collided with one). tests/analysis/test_inputs_at_the_door.py and test_boundary.py
+# check that the tables written hold no column outside this set.
+OWN_COLUMNS = frozenset(
+    {"frame", "t_s", "recording_id", "model", "source", "key", "row_version", "reused", "value"}
+    | {"condition", "scene", "tf_hz", "seed", "seeds", "batch", "phase", "detector", "design"}
+    | {"target", "where", "bracket_dps", "boundary_low_dps", "boundary_high_dps", "fit_state"}
+    | {"fit_runs", "fit_dispersion", "profile_dps", "wall_tf_hz", "adaptive", "minutes"}
+    | {"avoidances", "crashes", "false_alarms", "dtc_mean_m", "turning_share", "straight_dps"}
+    | {"avoidances_while_turning", "online_dps", "online_median_dps", "success_rate"}
+    | {"clip", "clips", "label", "collision_frame", "hazard_onset_frame", "collision", "fps"}
+    | {"frames", "alert_nan_frames", "first_alert_frame", "hit", "false_alarm", "failure"}
+    | {"complexity_frames", "startup_frames_left_out", "alert", "positive", "keep", "avdm"}
+    | {"avdm_natural", "measure_version", "every", "sampled_frames", "profiler", "rrd_stamp"}
+    | {"measure", "statistic", "estimate", "ci_low", "ci_high", "n", "n_failures", "unit"}
+    | {"p_value", "p_holm", "role", "survives", "verdict", "omega_dps", "omega_valid"}
+    | {"si_p910", "ti_p910", "si_legacy", "ti_legacy", "mafd", "flow_dps", "edge_density"}
+    | {"zlib_ratio", "jpeg_bpp", "codec_bpp"}
+    | _with_intervals("boundary_dps", "boundary_tf", "success", "complexity", "hit_rate")
+    | _with_intervals("avoidances_per_30min", "crashes_per_30min", "false_alarms_per_30min")
+    | _with_intervals("dtc_median_m", "false_alarm_rate", "correct", "ttc_first_alert_s")
+    | {"boundary_tf_hz", "complexity_dps"}
+)
+
+
 def _items(given: Any) -> list[str]:
     """A flag's list: a tuple of items, a comma-separated string, or both."""
     parts = [given] if isinstance(given, str | int | float) else list(given)
@@ -197,6 +228,12 @@ class BoundarySettings(ExecutorSettings):
         super().__post_init__()
 
         parse_model_spec(self.detector)  # a bad detector or plug-in fails before anything runs
+        if self.param in OWN_COLUMNS:
+            raise UserError(
+                f"--param {self.param}: vdc's tables have a column {self.param!r} of their own, "
+                "beside which the swept parameter is written; sweep a parameter of another "
+                "name (rename it in the plug-in)"
+            )
         if not 0 < self.target < 1:
             raise UserError(f"--target must be between 0 and 1, got {self.target}")
         if self.seeds < 1:

@@ -78,8 +78,9 @@ COMPLEXITY = "omega_dps"  # the clips' complexity: the AVDM's mean response (deg
 def read_labels(path: str | Path) -> pl.DataFrame:
     """The labels table with ``clip`` resolved against its folder (``source`` column).
 
-    ValueError, in one line, for a table that cannot be read, missing columns, a bad collision
-    frame, or clips that are not there."""
+    UserError, in one line, for a table that cannot be read, missing columns, a bad collision
+    or onset frame (negative, fractional, or beyond its clip's frames), or clips that are not
+    there."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"labels table {str(path)!r} not found")
@@ -140,7 +141,46 @@ def read_labels(path: str | Path) -> pl.DataFrame:
             f"labels table {str(path)!r} names clips that are not there: "
             f"{', '.join(unknown[:3])}{more} (clips are relative to the table's folder)"
         )
-    return df.with_columns(pl.Series("source", sources))
+    df = df.with_columns(pl.Series("source", sources))
+    _check_frames_inside_clips(df, path)
+    return df
+
+
+def clip_length(source: str) -> int | None:
+    """The frames a clip holds: as its source states them (``vdc.sources``: a container's
+    count, or its duration at a constant rate; an image sequence's numbers), else counted by
+    reading it (an MPEG-TS states neither). None where it cannot be opened: its run says why."""
+    try:
+        reader = open_reader(source)
+    except UserError:
+        return None
+    try:
+        n = reader.info.get("container_frames")
+        if n is None:
+            n = reader.lost_before_first + sum(1 + f.lost_before for f in reader.frames())
+        return int(n)
+    finally:
+        reader.close()
+
+
+def _check_frames_inside_clips(labels: pl.DataFrame, path: Path) -> None:
+    """UserError, in one line, for a ``collision_frame`` or ``hazard_onset_frame`` at or past
+    its clip's last frame: a collision no frame shows would turn a hit into a false alarm (an
+    alert long before it) with no note, and a scene that never ends."""
+    cols = [c for c in ("collision_frame", "hazard_onset_frame") if c in labels.columns]
+    for row in labels.iter_rows(named=True):
+        given = {c: row[c] for c in cols if row[c] is not None}
+        if not given:
+            continue
+        n = clip_length(row["source"])
+        if n is None:
+            continue
+        for col, frame in given.items():
+            if frame >= n:
+                raise UserError(
+                    f"labels table {str(path)!r}: clip {row['clip']!r} has {col} {frame}, "
+                    f"beyond its {n} frames (0 to {n - 1})"
+                )
 
 
 def clip_camera(

@@ -38,6 +38,13 @@ from typing import Any
 
 import numpy as np
 import polars as pl
+
+from vdc.recording import RERUN_LOG
+
+# a server that dies or cannot read a recording mid-query is said in one line (query.py); the
+# client's own log lines about it would come first. Set before the SDK starts its logger
+# (at import); a RUST_LOG the user set wins.
+os.environ.setdefault("RUST_LOG", RERUN_LOG)
 import rerun as rr
 
 from analysis.recordings.analysis_rrd import write_variants_rrd
@@ -46,7 +53,7 @@ from analysis.recordings.reader import Recording, RecordingError, complete_prefi
 from analysis.recordings.recompute import SummarySettings, events_table, primary_output
 from avdm.calibration_store import cache_dir
 from avdm.registry import make_model
-from vdc.blueprints import default_blueprint, video_blueprint
+from vdc.blueprints import dataset_blueprint, default_blueprint, video_blueprint
 from vdc.cli_support import Settings, non_negative_int, option
 from vdc.errors import UserError
 from vdc.folders import path_list
@@ -185,7 +192,9 @@ def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
     out: dict[str, Any] = {
         "source": run.get("source") or ("video" if video else "unknown"),
         "behaviour": run.get("behaviour"),
-        "scene": wall.get("scene") or ("video" if video else None),
+        # a dataset episode is no scene of vdc's (its episode section says what it is)
+        "scene": wall.get("scene")
+        or ("video" if video and run.get("source") != "dataset" else None),
         "tf_schedule": wall.get("tf_schedule_text"),
         "seed": run.get("seed"),
         "model": loaded.online_model,
@@ -201,6 +210,10 @@ def headline(path: Path, repaired: bool = False) -> dict[str, Any]:
         "complete": bool(end.get("complete", False)),
         "repaired": repaired or loaded.rec.notice is not None,
     }
+    episode = props.get("episode", {})  # a dataset episode (vdc-analyse dataset)
+    for key in ("episode_index", "flags", "flag_count"):
+        if key in episode:
+            out[key] = episode[key]
     online = loaded.online_model
     if online and online in loaded.logged:
         df = loaded.logged[online]
@@ -441,6 +454,12 @@ def _blueprint_file(found: Found) -> Path:
     video recordings, the arena's otherwise), as an ``.rbl`` in the cache."""
 
     first = found.segments[0]
+    if first.summary.get("source") == "dataset":  # episodes: their own cameras' layout
+        cams = str(Recording(first.path).properties().get("episode", {}).get("cameras", ""))
+        path = _cache(first.source.parent) / "dataset.rbl"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        dataset_blueprint([c for c in cams.split(",") if c] or ["camera"]).save(APP_ID, str(path))
+        return path
     model = make_model(first.summary.get("model") or "avdm")
     video = first.summary.get("source") == "video"
     bp = (video_blueprint if video else default_blueprint)(model.name, model.outputs)

@@ -21,6 +21,7 @@ from analysis.recordings.reader import Recording
 from vdc.errors import UserError
 from vdc.parquet_io import table_set, write_parquet
 from vdc.recording import (
+    DATASET_ROOT,
     FRAME_TIMELINE,
     MODEL_VARIANTS_ROOT,
 )
@@ -87,6 +88,7 @@ class _Selection:
     view: Any
     props: dict[str, dict[str, dict[str, Any]]]
     variant_names: dict[str, dict[str, str]]
+    url: str  # the server read from
 
 
 def _property_key(entity: str) -> str:
@@ -130,7 +132,31 @@ def _remote_dataset(url: str, settings: CatalogSettings) -> Iterator[tuple[Any, 
             f"the catalog at {url} serves {', '.join(names) or 'no dataset'}: "
             + ("name one with --dataset" if name is None else f"no dataset {name!r}")
         )
-    yield client.get_dataset(name), name
+    with _server_answers(url):
+        ds = client.get_dataset(name)
+    yield ds, name
+
+
+# the wrappers the server's client puts before its reason (DataFusion over an FFI boundary)
+_WRAPPERS = re.compile(r"^((DataFusion|FFI|External) error: )+")
+
+
+@contextlib.contextmanager
+def _server_answers(where: str) -> Iterator[None]:
+    """A catalog server's failure while it answers (killed mid-query; a recording it serves
+    cut, truncated or gone) as one line naming ``where`` and the server's own reason: a
+    :class:`UserError` (exit status 2), never the client's traceback. Ours pass as they are."""
+    try:
+        yield
+    except UserError:
+        raise
+    except Exception as exc:  # the client's errors (RuntimeError, DataFusion's Exception)
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        reason = _WRAPPERS.sub("", first)[:300]
+        raise UserError(
+            f"the catalog at {where} failed mid-query (its server stopped or could not read a "
+            f"recording): {reason}"
+        ) from None
 
 
 @contextlib.contextmanager
@@ -151,7 +177,8 @@ def _select(
         if layers:
             raise UserError("from a catalog URL every layer's variants are read: leave out --layer")
         with _remote_dataset(str(urls[0]), settings) as (ds, _name):
-            seg = pl.from_arrow(ds.segment_table().to_arrow_table())
+            with _server_answers(str(urls[0])):
+                seg = pl.from_arrow(ds.segment_table().to_arrow_table())
             ids = select_segments(_summary_columns(seg), where)
             if not ids:
                 raise UserError(f"no segment matches {where}")
@@ -160,7 +187,7 @@ def _select(
                 rid: {_property_key(k): v for k, v in p.get("model_variants", {}).items()}
                 for rid, p in props.items()
             }
-            yield _Selection(ds.filter_segments(ids), props, names)
+            yield _Selection(ds.filter_segments(ids), props, names, str(urls[0]))
         return
     with open_catalog(sources, settings, notice) as cat:
         ids = select_segments(segment_table(cat), where)
@@ -183,7 +210,7 @@ def _select(
             ["+ /**", *[f"- {e}" for e in hidden]]
         )
         props = {s.recording_id: Recording(s.path).properties() for s in cat.found.segments}
-        yield _Selection(view, props, names)
+        yield _Selection(view, props, names, cat.url)
 
 
 def query(
@@ -193,10 +220,11 @@ def query(
     settings: CatalogSettings = CatalogSettings(),
     notice: Callable[[str], None] | None = None,
 ) -> dict[str, pl.DataFrame]:
-    """The ``frames`` and ``model_outputs`` tables of the segments whose summary properties
-    match ``where``, read in one ``reader()`` call over the catalog, with the variants of the
-    given ``layers`` (default: all) as models of their own: the tables ``tables`` writes for
-    the same recordings (and ``batch`` for the variants).
+    """The ``frames`` and ``model_outputs`` tables (and, over dataset episodes, ``measures``:
+    one row per camera and frame, a column per measure) of the segments whose summary
+    properties match ``where``, read in one ``reader()`` call over the catalog, with the
+    variants of the given ``layers`` (default: all) as models of their own: the tables
+    ``tables`` writes for the same recordings (and ``batch`` for the variants).
 
     ``folders`` are folders of recordings (a catalog is started for the query and stopped
     after it), or one catalog URL, ``"rerun+http://HOST:PORT"``: a catalog already serving
@@ -204,8 +232,9 @@ def query(
 
     sources = [folders] if isinstance(folders, (str, Path)) else list(folders)
     with _select(sources, where, layers, settings, notice) as sel:
-        raw = pl.from_arrow(sel.view.reader(index=FRAME_TIMELINE).to_arrow_table())
-    frames, outputs = [], []
+        with _server_answers(sel.url):
+            raw = pl.from_arrow(sel.view.reader(index=FRAME_TIMELINE).to_arrow_table())
+    frames, outputs, measures = [], [], []
     scalar = [c for c in raw.columns if c.endswith(":Scalars:scalars")]
     raw = raw.select(
         "rerun_segment_id", FRAME_TIMELINE, *(["time"] if "time" in raw.columns else []), *scalar
@@ -224,18 +253,43 @@ def query(
             # bit): the logged ones stay
             if df is not None and name not in models:
                 models[name] = df
+        measures += _measures_of(sig, rid)
         for name, df in models.items():
             outputs.append(
                 df.with_columns(
                     pl.lit(rid).alias("recording_id"), pl.lit(name).alias("model")
                 ).select("recording_id", "model", pl.all().exclude("recording_id", "model"))
             )
-    return {
+    # a dataset episode has no model of its own (its measures are a table of their own)
+    no_outputs = {"recording_id": pl.String, "model": pl.String, "frame": pl.Int64}
+    tables = {
         "frames": pl.concat(frames).select(FRAMES_COLUMNS).sort("recording_id", "frame"),
         "model_outputs": pl.concat(outputs, how="diagonal_relaxed").sort(
             "recording_id", "model", "frame"
-        ),
+        )
+        if outputs
+        else pl.DataFrame(schema=no_outputs | {"t_s": pl.Float64}),
     }
+    if measures:
+        tables["measures"] = pl.concat(measures, how="diagonal_relaxed").sort(
+            "recording_id", "camera", "frame"
+        )
+    return tables
+
+
+def _measures_of(
+    sig: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], rid: str
+) -> list[pl.DataFrame]:
+    """A dataset episode's measures (``vdc-analyse dataset``: ``/dataset/<camera>/measures/*``),
+    one table per camera: recording_id, camera, frame, t_s, a column per measure."""
+    out = []
+    cams = {e.split("/")[2] for e in sig if e.startswith(DATASET_ROOT + "/") and "/measures/" in e}
+    for cam in sorted(cams):
+        df = signals_table(sig, f"{DATASET_ROOT}/{cam}/measures/")
+        if df is not None:
+            out.append(df.select(pl.lit(rid).alias("recording_id"), pl.lit(cam).alias("camera"),
+                                 pl.all()))  # fmt: skip
+    return out
 
 
 def query_to(
@@ -244,8 +298,9 @@ def query_to(
     out: str | Path,
     notice: Callable[[str], None] | None = None,
 ) -> list[tuple[Path, pl.DataFrame]]:
-    """``vdc-analyse catalog query``: :func:`query` written to ``out`` as ``frames.parquet``
-    and ``model_outputs.parquet`` (published whole), with the selection in their metadata."""
+    """``vdc-analyse catalog query``: :func:`query` written to ``out`` as ``frames.parquet``,
+    ``model_outputs.parquet`` (and ``measures.parquet`` over dataset episodes; published
+    whole), with the selection in their metadata."""
 
     res = query(folders, settings.where_dict(), settings.layers or None, settings, notice)
     meta = {"folders": [str(f) for f in folders], "where": settings.where_dict()}

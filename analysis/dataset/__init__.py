@@ -10,13 +10,16 @@ episode. The dataset is read, never imported: pyarrow and PyAV, no torch, no ler
 
 Writes into ``out``: ``episodes.parquet`` (one row per episode × camera), ``frames.parquet``
 (one row per decoded frame), ``problems.parquet`` (what could not be read: file, episode,
-message) and ``dataset.html`` (the episodes worst first). An unreadable episode is a problem
-line, and the others are still profiled; the tables are published whole
-(``vdc.parquet_io.table_set``).
+message), ``dataset.html`` (the episodes worst first) and ``recordings/episode_NNNNNN.rrd``
+(each episode as a vdc recording: its video referenced, its measures, a segment of the
+catalog). An unreadable episode is a problem line, and the others are still profiled; the
+tables are published whole (``vdc.parquet_io.table_set``). Each camera of each episode is kept
+as it is measured (``episode_results/``), so a killed run resumes where it stopped.
 
 Modules: ``command`` (settings, the command, its result) → ``layout`` (the dataset's files) →
-``window`` (an episode's frames) → ``measure`` (one camera of one episode) → ``flags`` (what the
-whole dataset decides) → ``page`` (dataset.html); ``synthetic`` (test datasets with faults).
+``resume`` (results kept per episode) → ``window`` (an episode's frames) → ``measure`` (one
+camera of one episode) → ``flags`` (what the whole dataset decides) → ``page`` (dataset.html),
+``episode_rrd`` (the recordings); ``synthetic`` (test datasets with faults).
 """
 
 from __future__ import annotations

@@ -15,10 +15,17 @@ from analysis.complexity.source_metrics import (
     MODEL_METRICS,
     parse_metrics,
 )
-from analysis.dataset.flags import FLAGS, finish, severity
+from analysis.dataset.episode_rrd import EPISODE_RECORDINGS, write_episode
+from analysis.dataset.flags import FLAGS, finish, first_flags, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
-from analysis.dataset.measure import measure_episode
 from analysis.dataset.page import write_page
+from analysis.dataset.resume import (
+    clear_partials,
+    drop_stale,
+    measured,
+    read_result,
+    result_path,
+)
 from vdc.cli_support import (
     API_ONLY,
     Settings,
@@ -71,6 +78,11 @@ class DatasetSettings(Settings):
     )
     episodes: str | None = option(None, "only these episodes: comma-separated indices")
     page: bool = option(True, "write dataset.html (the episodes worst first, with thumbnails)")
+    recordings: bool = option(
+        True,
+        "write each episode as a Rerun recording, recordings/episode_NNNNNN.rrd (its video "
+        "referenced, not decoded; the measures; a blueprint at its flagged frame)",
+    )
     executor: str = executor_field("executor")
     jobs: int = executor_field("jobs")
     scheduler: str | None = executor_field("scheduler")
@@ -116,14 +128,17 @@ class DatasetSettings(Settings):
 @dataclasses.dataclass(frozen=True)
 class DatasetResult(WroteFiles):
     """What ``dataset`` wrote (``paths``: episodes.parquet, frames.parquet, problems.parquet,
-    dataset.html), the episodes table (polars; worst first), the problems as lines, the
-    episodes flagged by ``fail_on`` and the notes (e.g. no field of view)."""
+    dataset.html, then the episodes' recordings), the episodes table (polars; worst first),
+    the problems as lines, the episodes flagged by ``fail_on``, the notes (e.g. no field of
+    view) and ``reused``: the camera streams read back from an earlier run's results instead
+    of measured (``analysis.dataset.resume``)."""
 
     paths: list[Path]
     episodes: Any
     problems: list[str]
     failed: list[int]
     notes: list[str]
+    reused: int = 0
 
     def report(self) -> list[str]:
         """Lines for people: what was profiled, what was flagged, what was written."""
@@ -141,7 +156,11 @@ class DatasetResult(WroteFiles):
                 lines.append(f"  ... and {flagged.height - 10} more (dataset.html)")
         if self.failed:
             lines.append(f"--fail-on: episode(s) {', '.join(map(str, self.failed))} flagged")
-        lines.append("wrote " + ", ".join(str(p) for p in self.paths))
+        rrds = [p for p in self.paths if p.suffix == ".rrd"]
+        tables = [str(p) for p in self.paths if p.suffix != ".rrd"]
+        if rrds:  # one folder of recordings, not a name per episode
+            tables.append(f"{rrds[0].parent}/ ({len(rrds)} episode recording(s))")
+        lines.append("wrote " + ", ".join(tables))
         return lines
 
     @property
@@ -163,8 +182,8 @@ def dataset(
     return _run(Path(path), settings or DatasetSettings(), Path(out), feedback or Feedback())
 
 
-def _task(video: EpisodeVideo, settings: DatasetSettings, fps: float) -> dict[str, Any]:
-    return measure_episode(video, settings, fps)
+def _task(video: EpisodeVideo, settings: DatasetSettings, fps: float, out: Path) -> dict[str, Any]:
+    return measured(video, settings, fps, out)
 
 
 def no_fov_note(settings: DatasetSettings) -> str | None:
@@ -192,9 +211,20 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         f"{root}: LeRobot {ds.version}, {len(set(v.episode for v in videos))} episode(s), "
         f"{len(ds.cameras)} camera(s), {ds.fps:g} fps"
     )
-    tasks = [(f"{v.episode}:{v.camera}", (v, settings, ds.fps)) for v in videos]
+    if out.exists() and not out.is_dir():  # as vdc.parquet_io.table_set says it
+        raise UserError(f"--out {str(out)!r} is a file, not a folder; give a folder")
+    out.mkdir(parents=True, exist_ok=True)  # each episode's result is kept there as it ends
+    clear_partials(out)
     by_key = {f"{v.episode}:{v.camera}": v for v in videos}
     results: dict[str, dict[str, Any]] = {}
+    # what an earlier (killed) run measured is read back here, without a worker
+    for key, v in by_key.items():
+        kept = read_result(result_path(out, v, settings, ds.fps))
+        if kept is not None:
+            results[key] = kept
+    if results:
+        feedback.log(f"{len(results)} camera stream(s) read back from an earlier run's results")
+    tasks = [(k, (v, settings, ds.fps, out)) for k, v in by_key.items() if k not in results]
 
     def done(outcome: Any) -> None:
         feedback.progress(1)
@@ -206,8 +236,10 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             problems.append(problem)
             feedback.log(f"error: {problem.line()}")
 
-    run_tasks(_task, tasks, settings.executor_settings(), done,
-              feedback.log, shared_paths=(root,))  # fmt: skip
+    if tasks:
+        run_tasks(_task, tasks, settings.executor_settings(), done,
+                  feedback.log, shared_paths=(root, out))  # fmt: skip
+    drop_stale(out, [result_path(out, v, settings, ds.fps) for v in videos])
     rows = [results[k]["row"] for k in sorted(results, key=_order)]
     frames = [
         results[k]["frames"].with_columns(
@@ -236,14 +268,46 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         paths = write_tables(stage, tables, meta)
         if settings.page and eps is not None:
             paths.append(write_page(stage / "dataset.html", ds, eps, frame_table, problems))
-    paths = [out / p.name for p in paths]
+        if settings.recordings and eps is not None:
+            paths += _recordings(stage, ds, eps, frame_table, feedback)
+    paths = [out / p.relative_to(stage) for p in paths]
     fail = set(settings.fail_names())
     failed = []
     if eps is not None and fail:
         for r in eps.iter_rows(named=True):
             if fail & set(filter(None, r["flags"].split(","))):
                 failed.append(int(r["episode_index"]))
-    return DatasetResult(paths, eps, [p.line() for p in problems], sorted(set(failed)), notes)
+    reused = sum(bool(r.get("reused")) for r in results.values())
+    return DatasetResult(
+        paths, eps, [p.line() for p in problems], sorted(set(failed)), notes, reused
+    )
+
+
+def _recordings(
+    stage: Path, ds: Any, eps: pl.DataFrame, frames: pl.DataFrame, feedback: Feedback
+) -> list[Path]:
+    """Each episode's recording under ``stage/recordings`` (``analysis.dataset.episode_rrd``),
+    its cameras in the dataset's order; opened at its worst camera's first flag."""
+    flagged = first_flags(eps, frames)
+    order = {c: i for i, c in enumerate(ds.cameras)}
+    paths = []
+    episodes = sorted(eps["episode_index"].unique().to_list())
+    feedback.log(f"writing {len(episodes)} episode recording(s) into {EPISODE_RECORDINGS}/")
+    for e in episodes:
+        rows = sorted(eps.filter(pl.col("episode_index") == e).iter_rows(named=True),
+                      key=lambda r: order.get(r["camera"], len(order)))  # fmt: skip
+        fr = frames.filter(pl.col("episode_index") == e)
+        per_cam = {r["camera"]: fr.filter(pl.col("camera") == r["camera"]).sort("frame")
+                   for r in rows}  # fmt: skip
+        worst = next((r for r in eps.iter_rows(named=True)
+                      if r["episode_index"] == e and r["flag_count"] > 0), None)  # fmt: skip
+        first = None
+        if worst is not None:
+            flag, frame = flagged[(e, worst["camera"])]
+            first = (flag, worst["camera"], frame)
+        path = stage / EPISODE_RECORDINGS / f"episode_{e:06d}.rrd"
+        paths.append(write_episode(path, ds.root, ds.version, e, rows, per_cam, first))
+    return paths
 
 
 def _problem_of(v: EpisodeVideo, error: str) -> Problem:

@@ -22,7 +22,7 @@ from analysis.boundary.command import WARMUP_FRAMES, number_list, with_override
 from analysis.complexity.command import ComplexitySettings
 from analysis.complexity.source_metrics import METRICS
 from analysis.predictors.report import write_predictors
-from analysis.predictors.statistics import MEASURES, footage_predictors, frame_classes
+from analysis.predictors.statistics import MEASURES, footage_predictors
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel
 from vdc.executors import run_tasks_or_raise
@@ -58,6 +58,30 @@ def clip_frames_task(source: str, specs: dict[str, str], fov_deg: float) -> dict
     finally:
         reader.close()
     return out | {"fps": fps}
+
+
+def frame_classes(
+    frames: np.ndarray,
+    alert: np.ndarray,
+    collision_frame: int | None,
+    window_frames: int,
+    warmup_frames: int = 0,
+    hazard_onset_frame: int | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame: (positive, keep). Positive: the detector alerts with no collision in the
+    window; negative: it stays quiet; frames from the hazard's onset on (the first frame the
+    object is drawn, where the labels give it: a near miss's too), inside the window and after
+    the collision are not kept (the object, not the scene, drives the detector there), nor the
+    first ``warmup_frames`` (the measures' and the detector's start-up: the AVDM rises from 0 over
+    its first frames while a detector that needs a run of frames cannot alert yet, so a busy
+    clip's only quiet frames would be those, and every AVDM would "predict" them exactly)."""
+    frames = np.asarray(frames)
+    keep = frames >= warmup_frames
+    if collision_frame is not None:
+        keep &= frames < collision_frame - window_frames
+    if hazard_onset_frame is not None:
+        keep &= frames < hazard_onset_frame
+    return (np.asarray(alert) > 0) & keep, keep
 
 
 def scene_end(row: dict[str, Any], fps: float, window_s: float) -> int | None:
@@ -111,7 +135,10 @@ def footage_predictor_tables(
         paper_means[row["clip"]] = float(mean) if mean is not None else math.nan
         for v in values:
             alert = np.asarray(res[f"{v:g}"], float)
-            positive, keep = frame_classes(table["frame"].to_numpy(), alert, cf, wf, WARMUP_FRAMES)
+            positive, keep = frame_classes(
+                table["frame"].to_numpy(), alert, cf, wf, WARMUP_FRAMES,
+                hazard_onset_frame=row.get("hazard_onset_frame"),
+            )  # fmt: skip
             frames.append(
                 table.with_columns(
                     pl.lit(row["clip"]).alias("clip"),

@@ -22,7 +22,7 @@ Footage (units: clips):
   score the failure modes apart (:data:`FAILURE_MODES`);
 * ``frame_auroc_pooled`` (frames clustered by clip) and ``frame_auroc_within_clip`` (the mean
   of the clips' own): frames where the detector alerts with no collision near against quiet
-  frames (:func:`frame_classes`).
+  frames (:func:`analysis.predictors.footage.frame_classes`).
 
 Both modes: ``paired_<statistic>_vs_<avdm>`` (the AVDM's statistic minus the measure's, same
 units), and ``cv_logloss`` / ``cv_logloss_gain_vs_si_p910+ti_p910`` (a ridge-logistic model of
@@ -474,26 +474,6 @@ def _table(rows: list[dict[str, Any]], mode: str) -> pl.DataFrame:
 
 
 # --- footage ----------------------------------------------------------------------------------
-
-
-def frame_classes(
-    frames: np.ndarray,
-    alert: np.ndarray,
-    collision_frame: int | None,
-    window_frames: int,
-    warmup_frames: int = 0,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per frame: (positive, keep). Positive: the detector alerts with no collision in the
-    window; negative: it stays quiet; frames inside the window and after the collision are not
-    kept (the object, not the scene, drives the detector there), nor the first
-    ``warmup_frames`` (the measures' and the detector's start-up: the AVDM rises from 0 over
-    its first frames while a detector that needs a run of frames cannot alert yet, so a busy
-    clip's only quiet frames would be those, and every AVDM would "predict" them exactly)."""
-    frames = np.asarray(frames)
-    keep = frames >= warmup_frames
-    if collision_frame is not None:
-        keep &= frames < collision_frame - window_frames
-    return (np.asarray(alert) > 0) & keep, keep
 
 
 def footage_predictors(

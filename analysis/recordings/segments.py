@@ -14,6 +14,7 @@ import numpy as np
 import polars as pl
 
 from analysis.recordings.recompute import SummarySettings, TablesSettings, summary_statistics
+from analysis.stats import Estimate, mean_ci
 from vdc.cli_support import API_ONLY, option
 from vdc.errors import UserError
 
@@ -59,6 +60,15 @@ class ProfileSegment:
     response: np.ndarray  # (N,) the primary output, deg/s for the AVDM
     output: str
     half_extent: tuple[float, float]
+    # (N,) which of ``recording_ids`` each frame came from (the units a pooled condition's
+    # intervals resample: its seeds); None = every frame from the one recording
+    recording_index: np.ndarray | None = None
+
+    def per_recording(self, values: np.ndarray) -> list[np.ndarray]:
+        """``values`` (N,) split by recording, in ``recording_ids`` order."""
+        if self.recording_index is None:
+            return [values]
+        return [values[self.recording_index == k] for k in range(len(self.recording_ids))]
 
 
 def safe_key(text: str) -> str:
@@ -125,6 +135,7 @@ def segments_from_tables(
                 response=g[out].to_numpy().astype(float),
                 output=out,
                 half_extent=half_extents[rec_ids[0]],
+                recording_index=np.searchsorted(np.asarray(rec_ids), g["recording_id"].to_numpy()),
             )
         )
     return segs
@@ -156,6 +167,7 @@ def segment_summary(seg: ProfileSegment, s: ProfileSettings, t: SummarySettings)
     stats = summary_statistics(
         seg.response, seg.gap_m, dataclasses.replace(t, threshold_dps=s.threshold_dps)
     )
+    share = over_share_by_recording(seg, s.threshold_dps)
     return {
         "segment": seg.key,
         "model": seg.model,
@@ -167,4 +179,17 @@ def segment_summary(seg: ProfileSegment, s: ProfileSettings, t: SummarySettings)
         "n_frames": len(seg.response),
         "threshold_dps": s.threshold_dps,
         **stats,
+        # the share over the threshold as an estimate over recordings (seeds): their mean and
+        # a 95 % t-interval over them (NaN with one recording: frames are not independent)
+        "frac_over_threshold_by_recording": share.mean,
+        "frac_over_threshold_ci_low": share.low,
+        "frac_over_threshold_ci_high": share.high,
     }
+
+
+def over_share_by_recording(seg: ProfileSegment, threshold_dps: float) -> Estimate:
+    """The share of frames over ``threshold_dps``: the mean over the segment's recordings of
+    each one's share, with a 95 % t-interval over recordings (``n`` = recordings; no interval
+    below 2, as a run's frames are not independent samples)."""
+    shares = [float((r > threshold_dps).mean()) for r in seg.per_recording(seg.response) if len(r)]
+    return mean_ci(shares, bounds=(0.0, 1.0))

@@ -11,7 +11,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.boundary.command import BoundarySettings, find_boundary
+from analysis.boundary.command import OWN_COLUMNS, BoundarySettings, find_boundary
 from analysis.experiments.adaptation import AdaptationSettings, adaptation
 from analysis.experiments.boundary_campaign import boundary
 from analysis.recordings.reader import Recording
@@ -33,6 +33,18 @@ def grid(tmp_path_factory) -> tuple[Path, object, list[dict]]:
     out = tmp_path_factory.mktemp("boundary")
     with recording_figures() as figures:
         return out, boundary(GRID, out), figures
+
+
+def test_the_arena_tables_hold_no_column_outside_the_reserved_set(grid) -> None:
+    """What the --param check keeps free (OWN_COLUMNS) is every column arena mode writes
+    beside the swept parameter: a parameter of any other name cannot collide (footage mode's
+    tables: test_inputs_at_the_door.py)."""
+    _, res, _ = grid
+    written = [p for p in res.paths if p.suffix == ".parquet"]
+    assert any(p.name == "boundary_runs.parquet" for p in written)
+    for path in written:
+        extra = set(pl.read_parquet_schema(path)) - OWN_COLUMNS - {GRID.param}
+        assert not extra, (path.name, extra)
 
 
 def test_the_grid_profiles_each_condition_and_measures_each_run(grid) -> None:

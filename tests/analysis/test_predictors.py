@@ -300,7 +300,7 @@ def test_frame_classes_leave_out_the_start_up_and_the_window() -> None:
     """A busy clip alerts from its third frame on: its only quiet frames are the start-up,
     where the AVDM is still rising from 0; with the start-up left out, no quiet frame is left
     to make a within-clip AUROC of 1 from that artefact."""
-    from analysis.predictors.statistics import frame_classes
+    from analysis.predictors.footage import frame_classes
 
     frames = np.arange(100)
     alert = (frames >= 2).astype(float)
@@ -311,6 +311,12 @@ def test_frame_classes_leave_out_the_start_up_and_the_window() -> None:
     assert np.flatnonzero(keep).tolist() == list(range(60, 74))
     positive, keep = frame_classes(frames, alert, 99, 25)  # no start-up given: as before
     assert keep[:74].all() and not keep[74:].any() and not positive[:2].any()
+    # the object is drawn from frame 50 on, well before the window: the scene ends there
+    positive, keep = frame_classes(frames, alert, 99, 25, hazard_onset_frame=50)
+    assert np.flatnonzero(keep).tolist() == list(range(50))
+    # a near miss (no collision) drawn from frame 40: its frames from then on are not scene
+    positive, keep = frame_classes(frames, alert, None, 25, hazard_onset_frame=40)
+    assert np.flatnonzero(keep).tolist() == list(range(40))
 
 
 def test_failure_modes_with_opposite_signs_are_scored_apart() -> None:

@@ -80,6 +80,23 @@ def test_profile_pools_recordings_by_condition(recordings, tmp_path: Path) -> No
     row = summary.row(0, named=True)
     assert row["recordings"] == 2 and row["wall_tf_hz"] == 3.0
     assert row["n_frames"] == 2 * (792 - 20)
+    # the pooled share as an estimate over the recordings (seeds), from each run's own tables
+    shares = []
+    for k, rec in enumerate(tf3):
+        t = run_in_process("analysis", "tables", rec, "--out", str(tmp_path / f"t{k}"))
+        assert t.returncode == 0, t.stderr
+        out_k = pl.read_parquet(tmp_path / f"t{k}" / "model_outputs.parquet")
+        frames_k = pl.read_parquet(tmp_path / f"t{k}" / "frames.parquet").select("frame")
+        # the frames the frames table has (as the profile joins), after the warm-up
+        omega = out_k.join(frames_k, on="frame").filter(pl.col("frame") >= 20)["omega_dps"]
+        shares.append(float((omega.to_numpy() > row["threshold_dps"]).mean()))
+    mean = float(np.mean(shares))
+    half = 12.706204736174698 * float(np.std(shares, ddof=1)) / np.sqrt(2)  # t(0.975, 1 df)
+    # the same float64 arithmetic on the same frames; 1e-9 allows only the order of a sum
+    assert row["frac_over_threshold_by_recording"] == pytest.approx(mean, abs=1e-9)
+    assert row["frac_over_threshold_ci_low"] == pytest.approx(max(0.0, mean - half), abs=1e-9)
+    assert row["frac_over_threshold_ci_high"] == pytest.approx(min(1.0, mean + half), abs=1e-9)
+    assert shares[0] != shares[1]  # two seeds differ: the interval has a width to check
 
 
 def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -> None:

@@ -1,0 +1,102 @@
+"""Per-episode resumability of ``vdc-analyse dataset``: each camera of each episode, once
+measured, is kept in ``out/episode_results/`` (written to ``<name>.partial-<pid>`` and renamed
+when whole, so a killed run leaves whole results or none), keyed by what it was measured from
+(the settings that change a measure, the episode's window and the stats of its video and data
+files). A run that finds its key's result reads it back instead of decoding the episode again;
+a changed setting or file is measured afresh, and its older result removed."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import pickle
+import re
+from pathlib import Path
+from typing import Any
+
+from analysis.dataset.layout import EpisodeVideo
+from analysis.dataset.measure import measure_episode
+from vdc.recording import pid_alive
+
+RESULTS = "episode_results"  # the folder of ``out`` holding the measured episodes
+# bumped when a measure's computation changes: results of an older version are measured again
+RESULT_VERSION = 1
+# settings that decide where or what is reported, never what is measured
+_NOT_MEASURED = {"fail_on", "episodes", "page", "recordings", "executor", "jobs", "scheduler"}
+
+
+def _stat(path: str) -> list[int] | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return [st.st_size, st.st_mtime_ns]
+
+
+def result_path(out: Path, video: EpisodeVideo, settings: Any, fps: float) -> Path:
+    """Where ``video``'s result is kept under ``out``: its episode and camera, and a hash of
+    what it is measured from."""
+    measured = {k: v for k, v in dataclasses.asdict(settings).items() if k not in _NOT_MEASURED}
+    data_stat = _stat(video.data_path)
+    video_stat = _stat(video.path) if video.kind == "video" else None
+    key = json.dumps(
+        [RESULT_VERSION, measured, dataclasses.asdict(video), fps, data_stat, video_stat],
+        sort_keys=True, default=str,
+    )  # fmt: skip
+    digest = hashlib.sha1(key.encode()).hexdigest()[:16]
+    cam = re.sub(r"[^A-Za-z0-9_.-]", "_", video.camera)
+    return out / RESULTS / f"episode_{video.episode:06d}.{cam}.{digest}.pkl"
+
+
+def measured(video: EpisodeVideo, settings: Any, fps: float, out: Path) -> dict[str, Any]:
+    """An executor task: :func:`measure_episode`'s result for ``video``, read back from
+    ``out/episode_results/`` when a run measured it from the same input with the same settings,
+    else measured and kept there. The result's ``reused`` says which."""
+    path = result_path(out, video, settings, fps)
+    kept = read_result(path)
+    if kept is not None:
+        return kept
+    result = measure_episode(video, settings, fps)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f"{path.name}.partial-{os.getpid()}")
+    with tmp.open("wb") as f:
+        pickle.dump(result, f, protocol=pickle.HIGHEST_PROTOCOL)
+    tmp.replace(path)
+    return result | {"reused": False}
+
+
+def read_result(path: Path) -> dict[str, Any] | None:
+    """The result kept at ``path`` (``reused`` set), or None where there is none or it cannot
+    be read (then removed, to be measured again)."""
+    if not path.exists():
+        return None
+    try:
+        # our own file, written whole by :func:`measured` (never a user's): pickle keeps the
+        # polars table and the float32 views exactly
+        with path.open("rb") as f:
+            return pickle.load(f) | {"reused": True}
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ValueError):
+        path.unlink(missing_ok=True)  # unreadable (a disk fault): measured again
+        return None
+
+
+def clear_partials(out: Path) -> None:
+    """Results a killed run left half-written (``*.partial-<pid>``, the pid gone): removed."""
+    for p in (out / RESULTS).glob("*.partial-*"):
+        pid = p.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and not pid_alive(int(pid)):
+            p.unlink(missing_ok=True)
+
+
+def drop_stale(out: Path, current: list[Path]) -> None:
+    """Results of the episodes and cameras of ``current`` measured with other settings or from
+    files since changed: removed, so the folder keeps one result per camera of an episode
+    (the others', e.g. episodes left out with ``--episodes``, stay)."""
+    keep = set(current)
+    for path in current:
+        stem = path.name.rsplit(".", 2)[0]  # episode_NNNNNN.<camera>
+        for old in path.parent.glob(f"{stem}.*.pkl"):
+            if old not in keep and old.name.rsplit(".", 2)[0] == stem:
+                old.unlink(missing_ok=True)
