@@ -18,14 +18,16 @@ One command runs exactly the plan (:data:`FULL`) and writes its answer:
    conditions, scene by scene) and ``answer.md``.
 
 Resumable: the arena's runs are reused by the campaign itself (a finished recording of the same
-configuration, and its measurements, are kept beside it); the clips by ``looming-footage``; a
-footage study that finished (``study.json`` beside its tables, naming its settings and the
-labels it read) is not run again. A study that holds no evidence (no avoidance or crash in
+configuration, and its measurements, are kept beside it, and read without starting a worker);
+the clips by ``looming-footage``. A step that finished writes ``study.json`` beside its outputs,
+naming what it ran with (settings without the executor; a footage study also the labels'
+SHA-256): a re-run keeps such a step whole (an arena study only while every run of it is still
+there), so a finished plan re-runs in seconds and computes nothing. A study that holds no evidence (no avoidance or crash in
 the arena, a detector that never alerts on the clips) is recorded as such, with the reason,
 and the others go on.
 
 ``--quick`` runs :data:`QUICK`: three scenes of one TF, one seed of 15-s runs, four 4-s clips.
-It exercises every step in about a minute; its outputs say at the top, in words, that its
+It exercises every step in about a minute of CPU; its outputs say at the top, in words, that its
 verdicts are not findings.
 """
 
