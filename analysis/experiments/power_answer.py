@@ -27,6 +27,7 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
+from analysis.boundary.command import WARMUP_FRAMES
 from analysis.predictors.report import label
 from analysis.predictors.statistics import HEADLINE, MEASURES, MIN_CONDITIONS, MIN_FAILURES
 from vdc.parquet_io import write_parquet
@@ -82,11 +83,33 @@ def footage_units(folder: Path, labels: pl.DataFrame) -> pl.DataFrame:
     (1: the detector got it wrong) and each measure's mean over the scene's frames
     (``omega_dps`` is avdm-natural there)."""
     clips = pl.read_parquet(folder / "boundary_clips.parquet").rename({"omega_dps": "avdm_natural"})
+    bg = labels.select("clip", pl.col("background").alias("scene"), "hazard_onset_frame")
+    clips = clips.join(bg, on="clip", how="left").join(
+        paper_avdm(folder, bg), on="clip", how="left"
+    )
     names = [m for m in MEASURES if m in clips.columns]
-    bg = labels.select("clip", pl.col("background").alias("scene"))
-    return clips.join(bg, on="clip", how="left").select(
+    return clips.select(
         "clip", "scene", (~pl.col("correct")).cast(pl.Float64).alias("failure"), *names
     )
+
+
+def paper_avdm(folder: Path, onsets: pl.DataFrame) -> pl.DataFrame:
+    """Per clip, the paper's AVDM (``avdm``) as the footage predictors take it: its mean over
+    the frames before the hazard's onset (all of them where the object never comes into view),
+    the model's start-up left out where frames after it remain."""
+    frames = (
+        pl.read_parquet(folder / "predictor_frames.parquet")
+        .select("clip", "frame", "avdm")
+        .unique(["clip", "frame"])
+        .join(onsets.select("clip", "hazard_onset_frame"), on="clip", how="left")
+        .filter(
+            pl.col("hazard_onset_frame").is_null()
+            | (pl.col("frame") < pl.col("hazard_onset_frame"))
+        )
+    )
+    after = (pl.col("frame") >= WARMUP_FRAMES).any().over("clip")
+    kept = frames.filter(~after | (pl.col("frame") >= WARMUP_FRAMES))
+    return kept.group_by("clip").agg(pl.col("avdm").fill_nan(None).mean())
 
 
 def per_scene(units: pl.DataFrame) -> pl.DataFrame:

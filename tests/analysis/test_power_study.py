@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 import scipy.stats
 
-from analysis.experiments.power_answer import discordant_share
+from analysis.experiments.power_answer import discordant_share, footage_units
 from analysis.experiments.power_study import FULL, QUICK, PowerStudySettings, power_study
 from tests.figures import assert_figure, recording_figures
 from tests.in_process import run_in_process
@@ -94,6 +94,22 @@ def test_a_rerun_recomputes_nothing(quick) -> None:
     # every study said it was reused, and the answer is the same
     assert proc.stderr.count("reused") >= studies.height, proc.stderr
     assert pl.read_parquet(out / "primary.parquet").equals(primary)
+
+
+def test_the_per_scene_measure_agrees_with_the_predictors_auroc(quick) -> None:
+    out, _, _ = quick
+    primary = pl.read_parquet(out / "primary.parquet")
+    labels = pl.read_csv(out / "footage" / "clips" / "labels.csv")
+    ran = primary.filter((pl.col("source") == "footage") & pl.col("avdm_estimate").is_not_null())
+    assert ran.height
+    for r in ran.iter_rows(named=True):
+        units = footage_units(out / "footage" / r["detector"].replace(".", "-").replace(":", "-"),
+                              labels)  # fmt: skip
+        # over failing/passing pairs, AUROC = 1 - the discordant share (ties half in both);
+        # the clips' AVDM is recomputed here from the frames the predictors kept
+        for m, col in (("avdm", "avdm_estimate"), ("ti_p910", "ti_estimate")):
+            share = discordant_share(units[m].to_numpy(), units["failure"].to_numpy())
+            assert 1 - share == pytest.approx(r[col], abs=1e-9), (r["detector"], m)
 
 
 def test_the_full_plan_is_the_documented_one() -> None:
