@@ -22,9 +22,9 @@ configuration, and its measurements, are kept beside it, and read without starti
 the clips by ``looming-footage``. A step that finished writes ``study.json`` beside its outputs,
 naming what it ran with (settings without the executor; a footage study also the labels'
 SHA-256): a re-run keeps such a step whole (an arena study only while every run of it is still
-there), so a finished plan re-runs in seconds and computes nothing. A study that holds no evidence (no avoidance or crash in
-the arena, a detector that never alerts on the clips) is recorded as such, with the reason,
-and the others go on.
+there), so a finished plan re-runs in seconds and computes nothing. A study that holds no
+evidence (no avoidance or crash in the arena, a detector that never alerts on the clips) is
+recorded as such, with the reason, and the others go on.
 
 ``--quick`` runs :data:`QUICK`: three scenes of one TF, one seed of 15-s runs, four 4-s clips.
 It exercises every step in about a minute of CPU; its outputs say at the top, in words, that its
