@@ -147,6 +147,18 @@ def guide_cases(test_file: str) -> list:
     return cases
 
 
+def guide_tests(test_file: str) -> tuple:
+    """``(clone_root, test_every_block_runs_as_written)`` for a test module (its ``__file__``)
+    that runs the blocks of its guides (``GUIDE_TESTS``), each from a clone's root, in order:
+    a block may read what an earlier one of the same guide wrote."""
+
+    @pytest.mark.parametrize(("block", "skipped_line"), guide_cases(test_file))
+    def test_every_block_runs_as_written(block: Block, skipped_line, clone_root: Path) -> None:
+        run_block(block, skipped_line, clone_root)
+
+    return clone_root_fixture(), test_every_block_runs_as_written
+
+
 def clone_root_fixture():
     """A module fixture: a clone's root as a user has it after the install."""
 
