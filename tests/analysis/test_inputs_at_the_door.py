@@ -145,16 +145,25 @@ def test_a_clip_whose_container_states_no_length_is_counted(
 def test_boundary_refuses_a_collision_beyond_the_clip_before_any_run(
     tiny_clip: Path, tmp_path: Path
 ) -> None:
-    table = tmp_path / "labels.csv"
-    table.write_text(f"clip,label,collision_frame\n{tiny_clip},collision,5000\n")
-    out = tmp_path / "b"
-    res = run_cli(
-        "analysis", "boundary", "--labels", str(table), "--fov-deg", "60",
-        "--detector", "examples.looming:Looming", "--param", "threshold", "--values", "0.1",
-        "--out", str(out), timeout=300,  # bounds the old behaviour: the whole run
+    res, out = footage_boundary(
+        run_cli, tiny_clip, tmp_path, 5000, "examples.looming:Looming", "threshold", "0.1",
+        timeout=300,  # bounds the old behaviour: the whole run
     )  # fmt: skip
     assert_one_line_error(res, "collision_frame 5000", "beyond its 30 frames", "tiny.mp4")
     assert not out.exists()
+
+
+def footage_boundary(run, clip: Path, tmp_path: Path, collision_frame: int, detector: str,
+                     param: str, values: str, **kw):  # fmt: skip
+    """``vdc-analyse boundary`` in footage mode on one labelled clip: (result, out folder)."""
+    table = tmp_path / "labels.csv"
+    table.write_text(f"clip,label,collision_frame\n{clip},collision,{collision_frame}\n")
+    out = tmp_path / "b"
+    res = run(
+        "analysis", "boundary", "--labels", str(table), "--fov-deg", "60", "--detector",
+        detector, "--param", param, "--values", values, "--out", str(out), **kw,
+    )  # fmt: skip
+    return res, out
 
 
 # -- a video smaller than the metrics need ----------------------------------------------------
@@ -253,14 +262,9 @@ def test_boundary_refuses_a_parameter_named_frame_before_any_run(
 ) -> None:
     """The fault: a detector parameter ``frame`` swept in footage mode crashed at the end with
     polars' DuplicateError. Now one line, before any clip runs."""
-    table = tmp_path / "labels.csv"
-    table.write_text(f"clip,label,collision_frame\n{tiny_clip},collision,29\n")
-    out = tmp_path / "b"
-    res = run_in_process(
-        "analysis", "boundary", "--labels", str(table), "--fov-deg", "60",
-        "--detector", "door_plugins:Dark", "--param", "frame", "--values", "0.3,0.6",
-        "--out", str(out),
-    )  # fmt: skip
+    res, out = footage_boundary(
+        run_in_process, tiny_clip, tmp_path, 29, "door_plugins:Dark", "frame", "0.3,0.6"
+    )
     assert_one_line_error(res, "--param frame", "column 'frame'", "rename it")
     assert not out.exists()
 
