@@ -255,15 +255,14 @@ def plot_overview(segs: Sequence[ProfileSegment], s: ProfileSettings, path: Path
     # not independent, so a single recording's bar has no interval and says n = 1
     est = [over_share_by_recording(g, s.threshold_dps) for g in segs]
     x = np.arange(len(segs))
-    ax_b.bar(x, [100 * e.mean for e in est], color="C1")
-    ok = np.array([math.isfinite(e.low) for e in est], bool)
+    mid, lo, hi = (np.array([100 * getattr(e, f) for e in est]) for f in ("mean", "low", "high"))
+    ax_b.bar(x, mid, color="C1")
+    ok = np.isfinite(lo)
     if ok.any():
-        mid = np.array([100 * e.mean for e in est])[ok]
-        lo = np.array([100 * e.low for e in est])[ok]
-        hi = np.array([100 * e.high for e in est])[ok]
-        ax_b.errorbar(x[ok], mid, yerr=[mid - lo, hi - mid], fmt="none", ecolor="k", capsize=3)
-    for k, e in enumerate(est):  # n above the interval (or the bar), clear of both
-        top = 100 * (e.high if math.isfinite(e.high) else e.mean)
+        yerr = [mid[ok] - lo[ok], hi[ok] - mid[ok]]
+        ax_b.errorbar(x[ok], mid[ok], yerr=yerr, fmt="none", ecolor="k", capsize=3)
+    for k, (e, top) in enumerate(zip(est, np.where(ok, hi, mid), strict=True)):
+        # n above the interval (or the bar), clear of both
         ax_b.annotate(f"n = {e.n}", (k, top), xytext=(0, 3), textcoords="offset points",
                       ha="center", va="bottom", fontsize=7)  # fmt: skip
     ax_b.set_xticks(range(len(segs)), labels, fontsize=7)
