@@ -143,14 +143,19 @@ def fit_crossing(
     floors = FLOORS[FLOORS < target - 0.05]
     floor_of = np.repeat(floors, SLOPES.size)  # (S,) every (floor, steepness) pair
     slope_of = np.tile(SLOPES, floors.size)
+    # The likelihood depends on a run only through its complexity: runs at one complexity
+    # (the seeds of a condition) pool their counts, so the (N_T, slopes, X) arrays below span
+    # the distinct complexities X, not the runs R (a grid's seeds: R / X times less work)
+    ux, at = np.unique(u, return_inverse=True)
+    kx, fx = np.bincount(at, k, ux.size), np.bincount(at, n - k, ux.size)
     ll = np.empty((N_T, slope_of.size))
-    for j0 in range(0, slope_of.size, SLOPES.size):  # one floor at a time: (N_T, slopes, R)
+    for j0 in range(0, slope_of.size, SLOPES.size):  # one floor at a time: (N_T, slopes, X)
         g = floor_of[j0]
-        e = _eta(target, g, SLOPES[None, :, None], u[None, None, :], tu[:, None, None])
+        e = _eta(target, g, SLOPES[None, :, None], ux[None, None, :], tu[:, None, None])
         log_e = scipy.special.log_expit(e)
         log_q = math.log1p(-g) + log_e - e  # log(1 - g) + log expit(-e)
         log_p = log_e if g == 0 else np.logaddexp(math.log(g), math.log1p(-g) + log_e)
-        ll[:, j0 : j0 + SLOPES.size] = log_p @ k + log_q @ (n - k)
+        ll[:, j0 : j0 + SLOPES.size] = log_p @ kx + log_q @ fx
     best = np.unravel_index(np.argmax(ll), ll.shape)
     p_best = _curve(target, floor_of[best[1]], slope_of[best[1]], u, tu[best[0]])
     p_best = np.clip(p_best, 0.01, 0.99)  # a step's 1 - 1e-9 would make one crash a 'misfit'
