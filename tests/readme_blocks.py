@@ -11,6 +11,11 @@ installed, not the folder on the path), unless the HTML comments just above its 
 * ``quick: OLD => NEW``: ``OLD`` replaced by ``NEW`` before it runs (short runs; the guides
   say which durations are quick).
 * ``covered: TEST``: run by that test, which checks what it prints and writes.
+* ``same: TEXT => GUIDE``: the lines containing ``TEXT`` are, once both blocks' ``quick``
+  substitutions are made, the very command a block of ``GUIDE`` runs (the same words, spaces
+  and comments aside); they are left out here, and each one's case checks that ``GUIDE`` runs
+  it (not skipped, covered or left out there). The same command twice in one suite asserts
+  nothing new (exit 0, no traceback) and costs its whole run again.
 * ``files: NAME, ...``: inputs the block's text names, made first (see ``make_input``).
 """
 
@@ -90,19 +95,46 @@ def runnable(block: Block) -> tuple[str, list[tuple[str, str]]]:
         assert old in text, f"{block.name}: quick {old!r} is not in the block"
         text = text.replace(old, new)
     skips = [tuple(s.split(" => ", 1)) for s in block.mark("skip-line")]
+    skips += [(t, f"{SAME}{g}") for t, _, g in (s.partition(" => ") for s in block.mark("same"))]
     if block.lang != "bash" or not skips:
         return text, []
-    commands = re.split(r"(?<!\\)\n", text)
     kept, skipped = [], []
-    for cmd in commands:
+    for cmd in commands(text):
         reason = next((r for t, r in skips if t in cmd), None)
         if reason is None:
             kept.append(cmd)
         else:
             skipped.append((cmd.split("#")[0].strip(), reason))
     for t, _ in skips:
-        assert any(t in c for c, _ in skipped), f"{block.name}: skip-line {t!r} matches nothing"
+        assert any(t in c for c, _ in skipped), f"{block.name}: {t!r} matches no line"
     return "\n".join(kept), skipped
+
+
+SAME = "run by "  # the reason of a line a ``same`` mark leaves out, before the guide's name
+
+
+def commands(text: str) -> list[str]:
+    """A shell block's commands, one per item (a line continued with ``\\`` is one)."""
+    return re.split(r"(?<!\\)\n", text)
+
+
+def command_words(cmd: str) -> str:
+    """A command as its words: continuations joined, the comment and extra spaces dropped."""
+    return " ".join(cmd.replace("\\\n", " ").split("#")[0].split())
+
+
+def assert_run_elsewhere(block: Block, cmd: str, guide: str) -> None:
+    """``cmd`` (a line ``block``'s ``same`` mark leaves out) is run as is by a block of
+    ``guide``: one that runs (no ``skip``, no ``covered``) and keeps that line."""
+    want = command_words(cmd)
+    for other in blocks():
+        if other.file != guide or other.lang != "bash" or other.name == block.name:
+            continue
+        if other.mark("skip") or other.mark("covered"):
+            continue
+        if want in {command_words(c) for c in commands(runnable(other)[0])}:
+            return
+    raise AssertionError(f"{block.name}: `{want}` is run by no block of {guide}")
 
 
 def make_input(root: Path, name: str) -> None:
@@ -187,6 +219,9 @@ def _env() -> dict[str, str]:
 def run_block(block: Block, skipped_line: tuple[str, str] | None, clone_root: Path) -> None:
     """Run one block as written from ``clone_root`` (or report it skipped, by name and
     reason); fails on a non-zero exit or a traceback."""
+    if skipped_line is not None and skipped_line[1].startswith(SAME):
+        assert_run_elsewhere(block, skipped_line[0], skipped_line[1].removeprefix(SAME))
+        return  # run there, as it is written here
     if skipped_line is not None:
         pytest.skip(f"{block.name} `{skipped_line[0]}`: {skipped_line[1]}")
     if block.mark("skip"):

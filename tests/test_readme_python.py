@@ -99,7 +99,7 @@ def test_every_block_is_found_and_every_mark_is_known() -> None:
     assert sum(b.lang == "python" for b in _BLOCKS) >= 7
     for b in _BLOCKS:
         for key, _ in b.marks:
-            assert key in {"skip", "skip-line", "quick", "covered", "files"}, (b.name, key)
+            assert key in {"skip", "skip-line", "quick", "covered", "same", "files"}, (b.name, key)
     # every guide's blocks are run by exactly one test file (none left out by the split)
     groups = [g for _, g in GUIDE_TESTS]
     assert sorted(g for group in groups for g in group) == sorted(GUIDES)
