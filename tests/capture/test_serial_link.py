@@ -127,6 +127,15 @@ def render_overhead(folder: Path, seconds: float, fps: float = 10.0, seed: int =
     return cfg
 
 
+@pytest.fixture(scope="module")
+def overhead_20s(tmp_path_factory) -> Path:
+    """The overhead frames of the emulator's 20-s run (seed 0), rendered once for the tests
+    that only read them (7 s of a core each time)."""
+    folder = tmp_path_factory.mktemp("overhead") / "overhead"
+    render_overhead(folder, 20.0)
+    return folder
+
+
 def images_in(path: Path) -> int:
     """Frames with an image in a recording still being written (0 while it cannot be read)."""
     try:
@@ -310,11 +319,12 @@ def test_the_tracker_joined_to_frames_flags_the_turns_the_simulator_made() -> No
     assert (tracked[valid] == expected[valid]).mean() > 0.9
 
 
-def test_decimated_images_and_sigkill_leave_a_readable_recording(tmp_path: Path) -> None:
-    render_overhead(tmp_path / "overhead", 20.0)
+def test_decimated_images_and_sigkill_leave_a_readable_recording(
+    tmp_path: Path, overhead_20s: Path
+) -> None:
     link, report_path, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
     emu = start_emulator(link, report_path, "--minutes", "0.33", "--decimation", "3")
-    cap = start_robot_capture(link, tmp_path / "overhead", out, 200_000)
+    cap = start_robot_capture(link, overhead_20s, out, 200_000)
     # kill it mid-run, once its partial file holds more than 10 frames' images
     assert wait_until(lambda: images_in(partial_path(out)) > 10, 60, poll_s=0.2)
     cap.send_signal(signal.SIGKILL)
@@ -402,11 +412,10 @@ def test_schedule_file_and_saved_calibration(tmp_path: Path) -> None:
     assert tracker_load(tmp_path / "cal.json").shape == (3, 3)
 
 
-def test_sigint_stops_robot_capture_cleanly(tmp_path: Path) -> None:
-    render_overhead(tmp_path / "overhead", 20.0)
+def test_sigint_stops_robot_capture_cleanly(tmp_path: Path, overhead_20s: Path) -> None:
     link, report_path, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
     emu = start_emulator(link, report_path, "--minutes", "0.33")
-    cap = start_robot_capture(link, tmp_path / "overhead", out, 300_000)
+    cap = start_robot_capture(link, overhead_20s, out, 300_000)
     cap.send_signal(signal.SIGINT)
     _, stderr = cap.communicate(timeout=30)
     emu.wait(timeout=30)  # the host's STOP ends the emulator's run
