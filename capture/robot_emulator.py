@@ -278,7 +278,9 @@ class RobotEmulator:
                     if not np.isnan(disconnect_at) and f >= disconnect_at * sim.camera.fps:
                         disconnect_at = float("nan")
                         self._disconnect(batch, outputs, i)
-                    if self.stopped or TYPE_STOP in self._read_host():
+                    if not self.stopped and TYPE_STOP in self._read_host():
+                        self.stopped = True  # a host that sent STOP reads no more: no drain
+                    if self.stopped:
                         self._finish()
                         return self.report
                     self.report["frames"] += 1
