@@ -278,9 +278,7 @@ class RobotEmulator:
                     if not np.isnan(disconnect_at) and f >= disconnect_at * sim.camera.fps:
                         disconnect_at = float("nan")
                         self._disconnect(batch, outputs, i)
-                    if not self.stopped and TYPE_STOP in self._read_host():
-                        self.stopped = True  # a host that sent STOP reads no more: no drain
-                    if self.stopped:
+                    if self.stopped or TYPE_STOP in self._read_host():
                         self._finish()
                         return self.report
                     self.report["frames"] += 1
