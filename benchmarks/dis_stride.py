@@ -16,7 +16,7 @@ import numpy as np
 import polars as pl
 
 from analysis.boundary.command import WARMUP_FRAMES
-from analysis.complexity.source_metrics import DIS_PRESETS
+from analysis.complexity.meter import DIS_PRESETS
 from analysis.recordings.loading import load_recording
 from capture.run import REPLACE_OUTPUT
 from capture.sim import SimSettings, record_sim
