@@ -47,9 +47,11 @@ import pyarrow.parquet as pq
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from analysis.dataset import DatasetSettings, dataset  # noqa: E402
+# only the dataset's layout at the top: a pool worker imports its pool's main script again
+# (multiprocessing prepares each worker so), and the command's own module (its page, Rerun,
+# the statistics) cost each worker about 0.7 s of CPU that ``vdc-analyse dataset`` (whose
+# main script imports vdc.launch alone) and a script that does ``import vdc`` do not pay
 from analysis.dataset.layout import open_dataset  # noqa: E402
-from analysis.dataset.synthetic import STANDARD_FAULTS, Faults, write_dataset  # noqa: E402
 from analysis.dataset.window import EDGE_S  # noqa: E402
 
 
@@ -115,6 +117,8 @@ def profile(
     root: Path, out: Path, fov: float | None, episodes: str | None = None
 ) -> tuple[float, float, object]:
     """(wall s, CPU s, result) of ``dataset`` on ``root`` into a fresh ``out``."""
+    from analysis.dataset import DatasetSettings, dataset  # lazy: see the imports above
+
     shutil.rmtree(out, ignore_errors=True)  # no result kept from an earlier run is reused
     c0, t0 = cpu_s(), time.perf_counter()
     res = dataset(root, DatasetSettings(fov_deg=fov, jobs=2, episodes=episodes), out)
@@ -122,6 +126,8 @@ def profile(
 
 
 def main() -> None:
+    from analysis.dataset.synthetic import STANDARD_FAULTS, Faults, write_dataset  # lazy: above
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=8)
     ap.add_argument("--seconds", type=float, default=10.0)
