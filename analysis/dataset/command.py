@@ -194,12 +194,13 @@ def _recordings(
     paths = []
     episodes = sorted(eps["episode_index"].unique().to_list())
     feedback.log(f"writing {len(episodes)} episode recording(s) into {EPISODE_RECORDINGS}/")
+    # the frames split once by episode and camera: a filter per episode reads the whole
+    # table each time (a dataset's hundreds of episodes: quadratic)
+    parts = frames.partition_by("episode_index", "camera", as_dict=True)
     for e in episodes:
         rows = sorted(eps.filter(pl.col("episode_index") == e).iter_rows(named=True),
                       key=lambda r: order.get(r["camera"], len(order)))  # fmt: skip
-        fr = frames.filter(pl.col("episode_index") == e)
-        per_cam = {r["camera"]: fr.filter(pl.col("camera") == r["camera"]).sort("frame")
-                   for r in rows}  # fmt: skip
+        per_cam = {r["camera"]: parts[(e, r["camera"])].sort("frame") for r in rows}
         worst = next((r for r in eps.iter_rows(named=True)
                       if r["episode_index"] == e and r["flag_count"] > 0), None)  # fmt: skip
         first = None
