@@ -103,3 +103,53 @@ def test_without_a_shadow_the_console_script_runs(tmp_path: Path) -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert "usage: vdc-analyse" in proc.stdout
+
+
+def test_an_editable_install_beats_an_empty_vdc_folder_beside_the_script(tmp_path: Path) -> None:
+    """The README's install (``pip install -e .``) for real, into a new virtual environment, of
+    a copy of this project: an empty ``vdc/`` folder (a namespace package, say a folder of
+    results) beside a plain script loses to the installed package, so ``vdc.record_sim`` is
+    found. (A ``vdc/`` folder *with* ``__init__.py`` is a package Python must prefer before any
+    vdc code runs; ``capture``, ``analysis`` and the console scripts name it, above.)"""
+    # nothing of this checkout's path: pip would take its egg-info for vdc already installed
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    copy = tmp_path / "project"
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(copy)], check=True, timeout=120)
+    # the working tree's pyproject, which the clone of the last commit may not have yet
+    (copy / "pyproject.toml").write_text((ROOT / "pyproject.toml").read_text())
+    # the editable wheel pip would build (PEP 660), by the build system the test extras bring,
+    # so nothing is downloaded; installed without dependencies: `import vdc` loads none of them
+    build = "import setuptools.build_meta as b, sys; print(b.build_editable(sys.argv[1]))"
+    wheel = subprocess.run(
+        [sys.executable, "-c", build, str(tmp_path / "dist")], cwd=copy, check=True,
+        capture_output=True, text=True, timeout=300,
+    ).stdout.split()[-1]  # fmt: skip
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    subprocess.run(
+        [venv / "bin" / "pip", "install", "-q", "--no-deps", tmp_path / "dist" / wheel],
+        check=True, capture_output=True, timeout=300, env=env,
+    )  # fmt: skip
+    # the dependencies: this environment's, after the project on the new one's path
+    purelib = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
+    ours, theirs = (
+        subprocess.run([py, "-c", purelib], capture_output=True, text=True).stdout.strip()
+        for py in (sys.executable, venv / "bin" / "python")
+    )
+    (Path(theirs) / "zz_dependencies.pth").write_text(ours + "\n")
+    assert list(Path(theirs).glob("__editable__.visual_dynamic_complexity-*.pth"))  # installed
+    user = tmp_path / "user"
+    (user / "vdc").mkdir(parents=True)
+    (user / "script.py").write_text(
+        "import vdc\nprint(vdc.__file__)\nprint(vdc.record_sim)\n"
+        "import capture\nprint(capture.__file__)\n"
+    )
+    proc = subprocess.run(
+        [venv / "bin" / "python", "script.py"], cwd=user, capture_output=True, text=True,
+        env=env, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    file, record_sim, capture_file = proc.stdout.splitlines()
+    assert Path(file) == copy / "vdc" / "__init__.py"
+    assert "record_sim" in record_sim
+    assert Path(capture_file) == copy / "capture" / "__init__.py"

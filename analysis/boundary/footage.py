@@ -7,18 +7,20 @@ The labels table (CSV or Parquet) has one row per clip:
 * ``collision_frame``: the source frame (0-based) at which the object reaches the camera, or
   empty when nothing collides;
 * ``hazard_onset_frame`` (optional): the frame at which the hazard enters the scene; the
-  clip's complexity is measured on the frames before it.
+  clip's complexity is measured on the frames before it, and an alert before it is early.
 
 Each clip is read as ``vdc-capture video`` reads it (the working raster, its true frame rate)
 and the detector runs on it; the clip's complexity is measured as ``vdc-analyse complexity``
 measures it (the AVDM and the baselines). Per clip:
 
-* a collision clip is a **hit** when the detector's first alert comes at most
-  ``alert_window_s`` and at least ``min_ttc_s`` before the collision frame; an earlier first
-  alert is an **early alert** (a false alarm: it would have turned away from nothing), none,
-  or one later than ``min_ttc_s`` before the collision (too late to turn), a **miss**;
-  ``failure`` names which (scored apart by the predictors: their signs oppose);
-* a clip without a collision is a false alarm when the detector alerts at all;
+* a collision clip is a **hit** when the detector's first alert comes at least ``min_ttc_s``
+  before the collision frame and not before the hazard's onset (without an onset: at most
+  ``alert_window_s`` before the collision); an earlier first alert is an **early alert** (a
+  false alarm: it would have turned away from nothing), none, or one later than ``min_ttc_s``
+  before the collision (too late to turn), a **miss**; ``failure`` names which (scored apart
+  by the predictors: their signs oppose);
+* a clip without a collision is a false alarm when the detector alerts at all (an early alert
+  when it alerts before the onset the labels give);
 * **success** = the share of collision clips that are hits (as in the arena, where success is
   avoidances among avoidances and crashes); a clip is **correct** when it is a hit, or has no
   alert where nothing collides;
@@ -229,15 +231,21 @@ def judge_clip(
     collision_frame: int | None,
     window_s: float,
     min_ttc_s: float = 0.0,
+    hazard_onset_frame: int | None = None,
 ) -> dict[str, Any]:
     """Hit, miss or false alarm of one clip (see the module). A NaN alert counts as no
     alert, and its frames are counted (``alert_nan_frames``): :func:`nan_alert_note`.
 
     ``failure`` scores the ways to be wrong apart (issue 42; their signs oppose on real
     footage): ``miss`` (no alert, or a first alert less than ``min_ttc_s`` before the
-    collision: too late to turn away), ``early`` (a first alert more than ``window_s``
-    before it), ``false_alarm`` (an alert on a clip without collision); ``hit`` and ``quiet``
-    (no alert, nothing collides) are right."""
+    collision: too late to turn away), ``early`` (the scene alone set it off), ``false_alarm``
+    (an alert on a clip without collision); ``hit`` and ``quiet`` (no alert, nothing collides)
+    are right. Where the labels give the ``hazard_onset_frame`` (the first frame the object is
+    in view), "early" is an alert before it, on any clip, and a collision clip's first alert
+    from the onset on is a hit with ``min_ttc_s`` to spare however long before contact: the
+    object's own entry, not a fixed window, divides the scene from the hazard (an object that
+    enters 3 s before contact may be seen 3 s before). Without it, "early" is a first alert
+    more than ``window_s`` before the collision."""
     flags, undefined = alert_frames(alert)
     on = np.flatnonzero(flags)
     first = int(frames[on[0]]) if on.size else None
@@ -248,19 +256,28 @@ def judge_clip(
         "false_alarm": False,
         "ttc_first_alert_s": math.nan,
     }
+    early = first is not None and (
+        first < hazard_onset_frame
+        if hazard_onset_frame is not None
+        else collision_frame is not None
+        and first <= collision_frame
+        and (collision_frame - first) / fps > window_s + 1e-9
+    )
     if collision_frame is None:
         row["false_alarm"] = first is not None
     elif first is not None and first <= collision_frame:
         row["ttc_first_alert_s"] = (collision_frame - first) / fps
-        if row["ttc_first_alert_s"] > window_s + 1e-9:
+        if early:
             row["false_alarm"] = True
         elif row["ttc_first_alert_s"] >= min_ttc_s - 1e-9:  # 1e-9: frame / fps rounding
             row["hit"] = True
     row["correct"] = row["hit"] or (collision_frame is None and not row["false_alarm"])
-    if collision_frame is None:
+    if early:
+        row["failure"] = "early"
+    elif collision_frame is None:
         row["failure"] = "false_alarm" if row["false_alarm"] else "quiet"
     else:
-        row["failure"] = "hit" if row["hit"] else "early" if row["false_alarm"] else "miss"
+        row["failure"] = "hit" if row["hit"] else "miss"
     return row
 
 
@@ -286,13 +303,14 @@ def clip_task(
     fov_deg: float,
     window_s: float,
     min_ttc_s: float = 0.0,
+    hazard_onset_frame: int | None = None,
 ) -> dict[str, Any]:
     """An executor task: one clip judged (its complexity is measured separately, once)."""
     frames, alert, fps = detector_alerts(source, spec, fov_deg)
     return {
         "fps": fps,
         "frames": len(frames),
-        **judge_clip(frames, alert, fps, collision_frame, window_s, min_ttc_s),
+        **judge_clip(frames, alert, fps, collision_frame, window_s, min_ttc_s, hazard_onset_frame),
     }
 
 
@@ -412,6 +430,7 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
                 s.fov_deg,
                 s.alert_window_s,
                 s.min_ttc_s,
+                row.get("hazard_onset_frame"),
             ),
         )
         for v, spec in specs.items()

@@ -388,3 +388,29 @@ if __name__ == "__main__":  # python -m analysis.dataset.synthetic OUT [v3.0|v2.
                           codec=args[2] if len(args) > 2 else "libsvtav1")  # fmt: skip
     print(f"wrote {len(truth['lengths'])} episodes ({truth['version']}, {truth['codec']}) "
           f"to {args[0]}")  # fmt: skip
+
+
+def lag_signals(
+    rng: np.random.Generator, fps: float, seconds: float, lag_s: float, noise: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """A robot arm's speed and its camera's motion, the camera ``lag_s`` late: the known truth
+    the lag's interval is checked against (``benchmarks/bench_lag_interval.py``). Strokes of
+    0.5-1.5 s (``sin²`` bumps of random height, random pauses) on a 1 kHz clock, sampled at
+    ``fps`` from a random phase; the camera's motion is the same speed ``lag_s`` later, plus
+    Gaussian noise and a frame-to-frame alternation (a key frame every 2 frames), each
+    ``noise`` × the peak speed. Returns (state speed, camera motion), each (N,) float64."""
+    clock = np.arange(0.0, seconds + 1.0, 1e-3)
+    speed = np.zeros_like(clock)
+    start = 0.0
+    while start < seconds + 1.0:
+        length = rng.uniform(0.5, 1.5)
+        on = (clock >= start) & (clock < start + length)
+        speed[on] += rng.uniform(0.3, 1.0) * np.sin(np.pi * (clock[on] - start) / length) ** 2
+        start += length + rng.uniform(0.0, 0.5)
+    t = np.arange(0.0, seconds, 1.0 / fps) + rng.uniform(0.0, 1.0 / fps)
+    peak = speed.max()
+    camera = np.interp(t - lag_s, clock, speed)
+    camera += rng.normal(0.0, noise * peak, len(t)) + 0.5 * noise * peak * np.resize(
+        [1, -1], len(t)
+    )
+    return np.interp(t, clock, speed), camera

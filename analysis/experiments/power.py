@@ -27,6 +27,8 @@ import math
 import numpy as np
 from scipy.stats import norm
 
+from analysis.boundary.footage import judge_clip
+
 SPEARMAN_Z_VARIANCE = 1.06  # Fieller, Hartley & Pearson 1957: var(z of Spearman) ≈ 1.06/(n-3)
 
 
@@ -113,6 +115,10 @@ def clips_for_auroc_difference(
 
 MIN_TTC_S = 0.5  # an alert later than this before contact is a miss: no time left to turn
 OUTCOMES = ("hit", "miss", "early alert", "false alarm", "correct rejection")
+# footage mode's ``failure`` column, as the plan names each outcome
+OUTCOME_OF_FAILURE = dict(
+    zip(("hit", "miss", "early", "false_alarm", "quiet"), OUTCOMES, strict=True)
+)
 
 
 def footage_outcome(
@@ -130,12 +136,11 @@ def footage_outcome(
       ``min_ttc_s`` before contact, else (late, or none) a **miss**;
     * near miss (no collision frame): any alert from the onset on is a **false alarm**, none a
       **correct rejection**.
-    """
-    on = np.flatnonzero(np.asarray(alert, dtype=np.float64) > 0)
+
+    The rules are footage mode's (``analysis.boundary.footage.judge_clip``, with the onset),
+    so the plan's pilot and the boundary runs the study makes judge a clip alike."""
     onset = hazard_onset_frame if hazard_onset_frame is not None else len(alert)
-    if on.size and on[0] < onset:
-        return "early alert"
-    if collision_frame is None:
-        return "false alarm" if on.size else "correct rejection"
-    last_in_time = collision_frame - math.ceil(min_ttc_s * fps - 1e-9)
-    return "hit" if on.size and on[0] <= last_in_time else "miss"
+    frames = np.arange(len(alert))
+    # the window is not used where the onset is given
+    row = judge_clip(frames, alert, fps, collision_frame, math.inf, min_ttc_s, onset)
+    return OUTCOME_OF_FAILURE[row["failure"]]

@@ -106,7 +106,9 @@ MIN_FAILURES = 46
 # paper's hypothesis); a measure that goes the other way scores below 0.5.
 FAILURE_MODES = {
     "miss": ("clip_auroc_miss", ("hit",)),  # collision clips: missed (or too late) vs hit
-    "early": ("clip_auroc_early", ("hit", "miss")),  # collision clips: alerted too early
+    # alerted before the object was in view (the labels' onset; without one, earlier than the
+    # window before a collision: judge_clip) against the collision clips that were not
+    "early": ("clip_auroc_early", ("hit", "miss")),
     "false_alarm": ("clip_auroc_false_alarm", ("quiet",)),  # no collision: alerted vs quiet
 }
 

@@ -74,7 +74,9 @@ def test_lag_idle_and_camera_shift_are_measured(profiled) -> None:
     lag = rows[4]
     assert lag["lag_ms"] == pytest.approx(FAULTS.lag_ms[4], abs=30)
     assert lag["lag_low_ms"] <= lag["lag_ms"] <= lag["lag_high_ms"]
-    assert lag["lag_low_ms"] > 0  # its interval excludes no lag
+    # its interval holds the truth; it need not exclude 0: one out-and-back stroke in 3-4 s
+    # is little evidence (tests/analysis/test_lag_interval.py checks how often it covers)
+    assert lag["lag_low_ms"] <= FAULTS.lag_ms[4] <= lag["lag_high_ms"]
     for e in (0, 8, 9):  # clean episodes: within 2/3 of the 50 ms threshold
         assert rows[e]["lag_ms"] is not None and abs(rows[e]["lag_ms"]) < 35
     # idle head: nothing moves for s seconds; the first motion is seen within 3 frames

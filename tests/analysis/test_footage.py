@@ -166,3 +166,31 @@ def test_failures_are_scored_apart(first_alert, collision, failure) -> None:
     assert row["failure"] == failure
     assert row["hit"] == (failure == "hit")
     assert row["correct"] == (failure in ("hit", "quiet"))
+
+
+@pytest.mark.parametrize(
+    ("first_alert", "collision", "failure"),
+    [
+        (20, 100, "hit"),  # 3.2 s before contact but after the object entered: seen in time
+        (9, 100, "early"),  # before the object was in view: the scene set it off
+        (90, 100, "miss"),  # 0.4 s before contact: too late, onset or not
+        (None, 100, "miss"),
+        (9, None, "early"),  # a near miss: an alert before its object enters
+        (40, None, "false_alarm"),  # after it entered
+        (None, None, "quiet"),
+    ],
+)
+def test_with_the_hazards_onset_early_means_before_it(first_alert, collision, failure) -> None:
+    """Where the labels give the onset (frame 10 here), the object's own entry divides the
+    scene from the hazard, not the fixed alert window (2 s): an object in view 3.6 s before
+    contact and seen at once is a hit (issue 45: the plan's rule, footage mode's too)."""
+    from analysis.boundary.footage import judge_clip
+
+    frames = np.arange(120)
+    alert = np.zeros(120)
+    if first_alert is not None:
+        alert[first_alert:] = 1.0
+    row = judge_clip(frames, alert, 25.0, collision, 2.0, 0.5, hazard_onset_frame=10)
+    assert row["failure"] == failure
+    assert row["hit"] == (failure == "hit")
+    assert row["false_alarm"] == (failure in ("early", "false_alarm"))

@@ -139,3 +139,30 @@ def test_the_rate_of_new_frames() -> None:
     still = np.tile([False, True, True, True], 32)
     assert new_frame_rate(30.0, still, max_repeats=3) == 30.0
     assert new_frame_rate(120.0, still, max_repeats=4) == 30.0  # allowed longer runs: 4x
+
+
+def test_doubt_leaves_the_containers_rate_with_one_note() -> None:
+    """A cadence over part of the stream only, too few new frames, or a cadence that breaks
+    after the frames it was decided on: the container's rate (or the decision) stands, and the
+    note says why, so no reading changes silently."""
+    # doubled for 300 frames (a slow-motion segment spliced into a normal clip), then 50
+    # frames all new: 150 of 199 gaps keep the cadence, the last quarter almost none
+    part = np.concatenate([np.tile([False, True], 150), np.zeros(50, bool)])
+    rate = model_rate(50.0, part)
+    assert (rate.fps, rate.reason) == (50.0, "ambiguous cadence")
+    assert "ambiguous" in rate.note and "50 fps" in rate.note
+    # eight doubled frames: too few new frames to tell a cadence from chance
+    short = np.tile([False, True], 8)
+    rate = model_rate(50.0, short)
+    assert (rate.fps, rate.reason) == (50.0, "too few frames to judge")
+    assert "too few" in rate.note
+    # no repeats at all: nothing to say
+    assert model_rate(50.0, np.zeros(300, bool)).note is None
+    # decided on the first 200 frames of a doubled stream whose cadence stops after them:
+    # the decision stands (the models are built) and the note says the cadence broke
+    broke = np.concatenate([np.tile([False, True], 100), np.zeros(200, bool)])
+    rate = model_rate(50.0, broke, decided_on=200)
+    assert (rate.fps, rate.reason) == (25.0, "regular cadence")
+    assert "breaks after them" in rate.note
+    # the same stream judged whole: half its gaps keep the cadence, so the container's rate
+    assert model_rate(50.0, broke).fps == 50.0

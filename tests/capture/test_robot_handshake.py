@@ -131,6 +131,9 @@ def fake_robot(master: int, announcement: Announcement, seen: list[tuple[int, by
     [
         (AVDM_OUTPUTS[:-1], f"sends {len(AVDM_OUTPUTS) - 1} outputs"),
         ((*AVDM_OUTPUTS[:-1], ("speed", "1")), "speed [1]"),
+        # an output named like one of vdc's per-frame columns: never a model's (a plug-in with
+        # one is refused at the door, avdm/plugins.py), so never what the host builds either
+        ((*AVDM_OUTPUTS[:-1], ("t_s", "s")), "t_s [s]"),
         (AVDM_OUTPUTS, None),  # the control: the model's own outputs are accepted
     ],
 )
