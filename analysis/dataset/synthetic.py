@@ -21,8 +21,9 @@ Layouts (LeRobot's ``codebase_version``):
   ``data/chunk-000/episode_{e:06d}.parquet`` and ``videos/chunk-000/{key}/episode_{e:06d}.mp4``
   (one video per episode, its time from 0).
 
-Codecs: ``libsvtav1`` (LeRobot's default: a key frame every 2 frames, CRF 30) and ``libx264``
-(the same GOP, no B-frames), yuv420p.
+Codecs: ``libsvtav1`` (LeRobot's default: a key frame every 2 frames, CRF 30), ``libx264``
+(the same GOP, no B-frames) and ``libx264-bframes`` (two B-frames, a key frame every 12),
+yuv420p.
 
 Faults (:class:`Faults`), each on the first camera of one episode and measured against the
 data's own timeline (``timestamp = frame_index / fps``):
