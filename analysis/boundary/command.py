@@ -223,11 +223,18 @@ class BoundarySettings(ExecutorSettings):
         "do not judge every complexity measure by how it predicts the failures "
         "(predictors.parquet; arena: needs --complexity profile)",
     )
+    measure_every: int = option(
+        8,
+        "arena predictors: SI/TI, MAFD, DIS flow and zlib measured on every Nth frame pair of "
+        "a profiling run (1: every pair; the error of each N: docs/boundary.md)",
+    )
 
     def __post_init__(self) -> None:
         super().__post_init__()
 
         parse_model_spec(self.detector)  # a bad detector or plug-in fails before anything runs
+        if self.measure_every < 1:
+            raise UserError(f"--measure-every must be 1 or more, not {self.measure_every}")
         if self.param in OWN_COLUMNS:
             raise UserError(
                 f"--param {self.param}: vdc's tables have a column {self.param!r} of their own, "

@@ -38,7 +38,6 @@ from analysis.experiments.captures import (
     profiling_items,
 )
 from analysis.experiments.predictor_runs import (
-    EVERY,
     arena_predictor_tables,
     cached_measures,
     measures_table,
@@ -277,7 +276,7 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
             "condition, driving straight)"
         )
         # every complexity measure of a profiling run, by the worker that just recorded it
-        every = 0 if s.no_predictors else EVERY
+        every = 0 if s.no_predictors else s.measure_every
         profiles, measures = run_profiles(prof, s, feedback, every)
         complexity = condition_complexity(profiles, "profile_dps")
     else:

@@ -52,7 +52,11 @@ from vdc.parquet_io import table_set
 from vdc.recording import NATIVE_METRICS
 
 MEASURE_VERSION = 2  # 1 lost codec_bpp (NaN)
-EVERY = 8  # the SI/TI family, flow and zlib on every 8th frame pair (their cost; see module)
+# the SI/TI family, flow and zlib on every 8th frame pair (their cost; see module): the default
+# of boundary's --measure-every, named once there
+EVERY: int = next(
+    f.default for f in dataclasses.fields(BoundarySettings) if f.name == "measure_every"
+)
 CODEC_CRF = 23
 
 
@@ -260,7 +264,7 @@ def predictors_for_folder(
             f"{len(missing)} profiling run(s) are missing (e.g. {missing[0]}): the predictors "
             "need the grid's profiling runs (--complexity profile)"
         )
-    measures = arena_measures(items, s, log or (lambda _m: None))
+    measures = arena_measures(items, s, log or (lambda _m: None), s.measure_every)
     md_path = folder / "boundary.md"
     md = md_path.read_text(encoding="utf-8") if md_path.exists() else ""
     cut = md.find("## Which measure predicts")

@@ -208,16 +208,21 @@ def test_the_arena_grid_gains_its_predictors_from_cached_measures(tmp_path) -> N
     """A tiny grid (3 drifts, one value, 2 seeds of 0.3 min) end to end: every measure of every
     profiling run, cached beside it, and the table recomputed from the cache alone; measured
     in the grid's own pool (by the worker that recorded the run), the same bytes as measured
-    afterwards."""
+    afterwards. On every 4th frame pair (--measure-every 4), which the recomputation keeps."""
     import vdc
 
     s = vdc.BoundarySettings(tf="0,1,3", scenes="grating", values="30", seeds=2, minutes=0.3,
-                             jobs=2, no_fit=True)  # fmt: skip
+                             jobs=2, no_fit=True, measure_every=4)  # fmt: skip
     with recording_figures() as saved:
         res = vdc.boundary(s, tmp_path)
     pred = pl.read_parquet(tmp_path / "predictors.parquet")
     measures = pl.read_parquet(tmp_path / "predictor_measures.parquet")
     assert measures.height == 3 * 2  # one row per profiling run
+    assert (measures["every"] == 4).all()
+    # a quarter of the straight frames after the warm-up, give or take a frame per straight
+    # stretch (turns break them)
+    share = measures["sampled_frames"] / measures["frames"]
+    assert ((share > 0.2) & (share < 0.3)).all(), share.to_list()
     from analysis.predictors.statistics import MEASURES
 
     for m in MEASURES:  # every measure measured, on the camera's raster
