@@ -404,7 +404,7 @@ COMMANDS = {
         ),
     ),
     "dataset": Command(
-        "analysis.dataset.command:DatasetSettings",
+        "analysis.dataset.settings:DatasetSettings",
         _campaign("analysis.dataset.command:dataset", "camera", "recording"),
         "profile a LeRobot dataset episode by episode, its camera faults flagged",
         "Each camera of each episode of a LeRobot dataset (v3.0, v2.1); see docs/dataset.md.",

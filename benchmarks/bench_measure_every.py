@@ -28,7 +28,7 @@ import polars as pl
 from scipy.stats import spearmanr
 
 from analysis.boundary.command import WARMUP_FRAMES
-from analysis.complexity.source_metrics import DIS_PRESETS
+from analysis.complexity.meter import DIS_PRESETS
 from analysis.recordings.loading import load_recording
 from vdc.frame_metrics import NativeMeter
 from vdc.recording import NATIVE_METRICS
@@ -95,7 +95,7 @@ def main() -> None:
         print(f"\r{k}/{len(paths)} runs measured", end="", flush=True)
     print()
     df = pl.DataFrame(rows)
-    by = df.group_by("condition").mean()
+    by = df.drop("run").group_by("condition").mean()
     pair_ms = df["cpu_per_pair_s"].mean() * 1e3
     print(f"{len(df)} runs of {by.height} conditions, {df['pairs'].median():.0f} straight pairs "
           f"a run (median); every pair costs {pair_ms:.2f} ms of CPU")  # fmt: skip

@@ -297,7 +297,7 @@ def main() -> None:
     ap.add_argument("--table-sizes", default="480p,720p,1080p,4K")
     ap.add_argument("--table-lengths", default="10,60,600", help="clip lengths (s)")
     args = ap.parse_args()
-    from analysis.complexity.source_metrics import DEFAULT_METRICS
+    from analysis.complexity.meter import DEFAULT_METRICS
 
     assert DEFAULT == ",".join(DEFAULT_METRICS), "bench_video: DEFAULT is not DEFAULT_METRICS"
     cv2.setNumThreads(1)

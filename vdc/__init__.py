@@ -59,7 +59,7 @@ _API = {
     "complexity": "analysis.complexity.command",
     "complexity_of_frames": "analysis.complexity.command",
     # a robot-learning dataset (LeRobot), episode by episode
-    "DatasetSettings": "analysis.dataset.command",
+    "DatasetSettings": "analysis.dataset.settings",
     "dataset": "analysis.dataset.command",
     # many recordings as one dataset, and inline viewing (extras: catalog, notebook)
     "CatalogSettings": "analysis.catalog.build",

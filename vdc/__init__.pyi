@@ -13,7 +13,7 @@ from analysis.collision import CollisionSettings as CollisionSettings
 from analysis.experiments.collision_study import CollisionStudySettings as CollisionStudySettings
 from analysis.compare import CompareSettings as CompareSettings
 from analysis.complexity.command import ComplexitySettings as ComplexitySettings
-from analysis.dataset.command import DatasetSettings as DatasetSettings
+from analysis.dataset.settings import DatasetSettings as DatasetSettings
 from vdc.executors import ExecutorSettings as ExecutorSettings
 from vdc.executors import Feedback as Feedback
 from avdm.policy import Policy as Policy

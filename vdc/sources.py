@@ -107,10 +107,10 @@ class Reader:
 def open_video(path: str) -> tuple[Any, Any]:
     """The video file ``path`` opened with PyAV: its container (close it) and first video
     stream, set to decode with FFmpeg's frame threads except in a pool worker (one core each:
-    vdc.executors). A missing, empty or unreadable file, or one with no video stream, raises
-    UserError naming it. A decoded frame's plane views the frame's reference-counted buffer,
-    which FFmpeg's pools hand out again only when no frame references it: a reader of it
-    sets ``planes_persist``."""
+    vdc.executors; one thread set, as libdav1d, the AV1 decoder, ignores the thread type). A
+    missing, empty or unreadable file, or one with no video stream, raises UserError naming
+    it. A decoded frame's plane views the frame's reference-counted buffer, which FFmpeg's
+    pools hand out again only when no frame references it: a reader sets ``planes_persist``."""
     import av  # lazy: start-up
 
     p = Path(path)
@@ -127,7 +127,7 @@ def open_video(path: str) -> tuple[Any, Any]:
         raise UserError(f"{path!r} holds no video stream")
     stream = container.streams.video[0]
     single = os.environ.get("VDC_WORKER_THREADS") == "1"
-    stream.thread_type = "NONE" if single else "AUTO"
+    stream.thread_type, stream.codec_context.thread_count = ("NONE", 1) if single else ("AUTO", 0)
     return container, stream
 
 

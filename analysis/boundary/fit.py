@@ -323,9 +323,20 @@ def fit_columns(fit: CrossingFit, to_tf: Any = None) -> dict[str, Any]:
         "boundary_dps_high": fit.high,
     }
     names = ("boundary_tf_hz", "boundary_tf_low", "boundary_tf_high")
-    for name, v in zip(names, (fit.boundary, fit.low, fit.high), strict=True):
-        row[name] = float(to_tf(v)) if to_tf is not None and not math.isnan(v) else math.nan
-    return row | {"fit_runs": fit.runs, "fit_dispersion": fit.dispersion}
+    tf = [float(to_tf(v)) if to_tf is not None and not math.isnan(v) else math.nan
+          for v in (fit.boundary, fit.low, fit.high)]  # fmt: skip
+    # a wall TF is a drift speed, never below 0 Hz: the profile's line extrapolated past its
+    # lowest TF gave "wall TF < -0.05 Hz". An interval wholly below 0 Hz lies below the
+    # scene's complexity at rest: no TF of this scene is the boundary (NaN, not a number that
+    # cannot be run); otherwise the ends stop at 0
+    if tf[2] < 0:
+        tf = [math.nan] * 3
+    tf = [max(v, 0.0) if not math.isnan(v) else v for v in tf]
+    return (
+        row
+        | dict(zip(names, tf, strict=True))
+        | {"fit_runs": fit.runs, "fit_dispersion": fit.dispersion}
+    )
 
 
 def describe_fit(row: dict[str, Any]) -> str:

@@ -62,7 +62,7 @@ from analysis.boundary.fit import (
 from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.complexity.command import ComplexitySettings, complexity
-from analysis.complexity.source_metrics import METRICS
+from analysis.complexity.meter import METRICS
 from analysis.predictors.footage import footage_predictor_tables, scene_end
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert

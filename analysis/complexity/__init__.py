@@ -19,7 +19,7 @@ if TYPE_CHECKING:
         complexity,
         complexity_of_frames,
     )
-    from analysis.complexity.source_metrics import MeasureSettings
+    from analysis.complexity.meter import MeasureSettings
 
 # the public face: name -> the module that defines it (loaded on first use)
 _FACE = {
@@ -27,7 +27,7 @@ _FACE = {
     "ComplexityResult": "analysis.complexity.command",
     "complexity": "analysis.complexity.command",
     "complexity_of_frames": "analysis.complexity.command",
-    "MeasureSettings": "analysis.complexity.source_metrics",
+    "MeasureSettings": "analysis.complexity.meter",
 }
 __all__ = [
     "ComplexityResult",

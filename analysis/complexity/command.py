@@ -38,7 +38,7 @@ import polars as pl
 
 from analysis.batch import PARTS, parse_shard, readable_part
 from analysis.complexity import figures
-from analysis.complexity.source_metrics import (
+from analysis.complexity.meter import (
     ANGULAR_METRICS,
     DEFAULT_METRICS,
     DIS_PRESETS,
@@ -46,12 +46,14 @@ from analysis.complexity.source_metrics import (
     MODEL_METRICS,
     RASTERS,
     ComplexityMeter,
-    complexity_task,
     flags_of,
     fov_free,
+    parse_metrics,
+)
+from analysis.complexity.source_metrics import (
+    complexity_task,
     measured_settings,
     metrics_present,
-    parse_metrics,
     part_path,
     rank_correlations,
 )

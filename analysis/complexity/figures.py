@@ -14,7 +14,8 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.complexity.source_metrics import METRICS, metrics_present, normalised
+from analysis.complexity.meter import METRICS
+from analysis.complexity.source_metrics import metrics_present, normalised
 from analysis.profile import correlation_panel, save_figure
 
 _LABELS = {

@@ -29,11 +29,12 @@ from typing import TYPE_CHECKING
 from vdc.lazy import lazy_face
 
 if TYPE_CHECKING:
-    from analysis.dataset.command import DatasetResult, DatasetSettings, dataset
+    from analysis.dataset.command import DatasetResult, dataset
+    from analysis.dataset.settings import DatasetSettings
 
 # the public face: name -> the module that defines it (loaded on first use)
 _FACE = {
-    "DatasetSettings": "analysis.dataset.command",
+    "DatasetSettings": "analysis.dataset.settings",
     "DatasetResult": "analysis.dataset.command",
     "dataset": "analysis.dataset.command",
 }

@@ -1,4 +1,4 @@
-"""The command ``vdc-analyse dataset``: its settings, the function and its result (the
+"""The command ``vdc-analyse dataset``: the function and its result (its settings: ``settings``; the
 package's face, ``analysis.dataset``, names them)."""
 
 from __future__ import annotations
@@ -9,14 +9,12 @@ from typing import Any
 
 import polars as pl
 
-from analysis.complexity.source_metrics import (
+from analysis.complexity.meter import (
     ANGULAR_METRICS,
-    DEFAULT_METRICS,
-    MODEL_METRICS,
     parse_metrics,
 )
 from analysis.dataset.episode_rrd import EPISODE_RECORDINGS, write_episode
-from analysis.dataset.flags import FLAGS, finish, first_flags, severity
+from analysis.dataset.flags import finish, first_flags, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
 from analysis.dataset.page import write_page
 from analysis.dataset.resume import (
@@ -26,103 +24,10 @@ from analysis.dataset.resume import (
     read_result,
     result_path,
 )
-from vdc.cli_support import (
-    API_ONLY,
-    Settings,
-    non_negative_float,
-    non_negative_int,
-    option,
-    positive_float,
-)
+from analysis.dataset.settings import DatasetSettings
 from vdc.errors import UserError
-from vdc.executors import ExecutorSettings, Feedback, executor_field, run_tasks
+from vdc.executors import Feedback, run_tasks
 from vdc.parquet_io import WroteFiles, table_set, write_tables
-from vdc.recording import FOOTAGE_MODEL
-
-
-@dataclasses.dataclass(frozen=True)
-class DatasetSettings(Settings):
-    """``vdc-analyse dataset``: what is measured, the thresholds' one free choice (what a
-    repeat is), which flags fail a run, and where the episodes run."""
-
-    metrics: str = option(
-        # unless told: ``vdc-analyse complexity``'s default set (the angular ones need --fov-deg)
-        ",".join(DEFAULT_METRICS),
-        "the complexity metrics per frame: comma-separated names as vdc-analyse complexity's "
-        "--metrics (omega_dps and flow_dps need --fov-deg)",
-    )
-    fov_deg: float | None = option(
-        None,
-        "the cameras' horizontal field of view, degrees: the AVDM's angular speed (omega_dps) "
-        "and the shifts in degrees; without it they are left out, with one note",
-        type=positive_float,
-    )
-    model: str = option(
-        FOOTAGE_MODEL, "the AVDM variant for omega_dps (default: {default}, as complexity)"
-    )
-    flow_preset: str = option("medium", "DIS optic-flow preset (flow_dps)")
-    width: int | None = option(None, "working width of the AVDM, px (default: from the fov)")
-    jpeg_quality: int = dataclasses.field(default=75, metadata=API_ONLY)
-    repeat_tol: float = option(
-        0.5,
-        "a frame whose mean |difference| from the previous one is at most this (8-bit levels) "
-        "shows nothing new (a repeat, a frozen or an idle frame)",
-        type=non_negative_float,
-    )
-    max_repeats: int = option(3, "at most this many repeats in a row", type=non_negative_int)
-    fail_on: str = option(
-        "",
-        "FLAG,...: exit 1 when an episode has one of these flags (all: any flag); the flags: "
-        "frozen, dropped, drift, moved, moved_within, lag, idle, idle_tail, blurred, "
-        "underexposed, overexposed, short",
-    )
-    episodes: str | None = option(None, "only these episodes: comma-separated indices")
-    page: bool = option(True, "write dataset.html (the episodes worst first, with thumbnails)")
-    recordings: bool = option(
-        True,
-        "write each episode as a Rerun recording, recordings/episode_NNNNNN.rrd (its video "
-        "referenced, not decoded; the measures; a blueprint at its flagged frame)",
-    )
-    executor: str = executor_field("executor")
-    jobs: int = executor_field("jobs")
-    scheduler: str | None = executor_field("scheduler")
-
-    def __post_init__(self) -> None:
-        parse_metrics(self.metrics)
-        unknown = [f for f in self.fail_names() if f not in FLAGS]
-        if unknown:
-            raise UserError(
-                f"--fail-on: unknown flag {unknown[0]!r}; choose from {', '.join(FLAGS)} or all"
-            )
-        self.episode_list()
-        self.executor_settings()
-
-    def fail_names(self) -> list[str]:
-        names = [n.strip() for n in self.fail_on.split(",") if n.strip()]
-        return list(FLAGS) if names == ["all"] else names
-
-    def episode_list(self) -> list[int] | None:
-        if self.episodes is None:
-            return None
-        try:
-            return [int(e) for e in self.episodes.split(",") if e.strip()]
-        except ValueError:
-            raise UserError(
-                f"--episodes: give comma-separated indices, got {self.episodes!r}"
-            ) from None
-
-    def executor_settings(self) -> ExecutorSettings:
-        return ExecutorSettings(self.executor, self.jobs, self.scheduler)
-
-    def native_metrics(self) -> tuple[str, ...]:
-        """The metrics computed on the native frames (the MAFD always: repeats need it)."""
-        return (*(m for m in parse_metrics(self.metrics) if m not in MODEL_METRICS), "mafd")
-
-    def model_metrics(self) -> tuple[str, ...]:
-        """The metrics computed on the AVDM's raster: only with a field of view."""
-        if self.fov_deg is None:
-            return ()
-        return tuple(m for m in parse_metrics(self.metrics) if m in MODEL_METRICS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -182,10 +87,6 @@ def dataset(
     return _run(Path(path), settings or DatasetSettings(), Path(out), feedback or Feedback())
 
 
-def _task(video: EpisodeVideo, settings: DatasetSettings, fps: float, out: Path) -> dict[str, Any]:
-    return measured(video, settings, fps, out)
-
-
 def no_fov_note(settings: DatasetSettings) -> str | None:
     """One note where the angular measures are left out for want of a field of view."""
     left = [m for m in parse_metrics(settings.metrics) if m in ANGULAR_METRICS]
@@ -236,8 +137,8 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             problems.append(problem)
             feedback.log(f"error: {problem.line()}")
 
-    if tasks:
-        run_tasks(_task, tasks, settings.executor_settings(), done,
+    if tasks:  # the task lives in resume: a worker imports the measuring, not this command
+        run_tasks(measured, tasks, settings.executor_settings(), done,
                   feedback.log, shared_paths=(root, out))  # fmt: skip
     drop_stale(out, [result_path(out, v, settings, ds.fps) for v in videos])
     rows = [results[k]["row"] for k in sorted(results, key=_order)]
@@ -293,12 +194,13 @@ def _recordings(
     paths = []
     episodes = sorted(eps["episode_index"].unique().to_list())
     feedback.log(f"writing {len(episodes)} episode recording(s) into {EPISODE_RECORDINGS}/")
+    # the frames split once by episode and camera: a filter per episode reads the whole
+    # table each time (a dataset's hundreds of episodes: quadratic)
+    parts = frames.partition_by("episode_index", "camera", as_dict=True)
     for e in episodes:
         rows = sorted(eps.filter(pl.col("episode_index") == e).iter_rows(named=True),
                       key=lambda r: order.get(r["camera"], len(order)))  # fmt: skip
-        fr = frames.filter(pl.col("episode_index") == e)
-        per_cam = {r["camera"]: fr.filter(pl.col("camera") == r["camera"]).sort("frame")
-                   for r in rows}  # fmt: skip
+        per_cam = {r["camera"]: parts[(e, r["camera"])].sort("frame") for r in rows}
         worst = next((r for r in eps.iter_rows(named=True)
                       if r["episode_index"] == e and r["flag_count"] > 0), None)  # fmt: skip
         first = None

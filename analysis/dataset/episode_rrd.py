@@ -8,9 +8,11 @@ flags as events, and a blueprint that opens it at its flagged frame.
   file is cut at its presentation times; the packets from the key frame before it, which the
   window's first frames need to decode, sit before frame 0 (negative frames and times). A
   recording is thus about the size of its share of the video, never of decoded frames. A
-  stream with B-frames (presentation order unlike decoding order) cannot be a ``VideoStream``:
-  it is left out with a note in the recording's description. PNG image features are left out
-  the same way (a frame sequence is not a video).
+  stream with B-frames (presentation order unlike decoding order) cannot be a ``VideoStream``
+  (a sample has one time, its presentation's): its window's whole groups of pictures are
+  copied, still undecoded, into an MP4 of their own, logged as ``rr.AssetVideo`` with a
+  ``rr.VideoFrameReference`` per frame. PNG image features are left out with a note in the
+  recording's description (a frame sequence is not a video).
 * **Measures.** Every numeric column of the per-frame table under
   ``/dataset/<camera>/measures/<column>`` (booleans as 0/1) on ``frame`` (the camera's decoded
   frame index, as in ``frames.parquet``) and ``time`` (s from the episode's start). The first
@@ -23,6 +25,7 @@ flags as events, and a blueprint that opens it at its flagged frame.
 from __future__ import annotations
 
 import dataclasses
+import io
 import os
 import re
 from collections.abc import Sequence
@@ -99,7 +102,7 @@ def video_samples(path: str, from_s: float, to_s: float | None) -> VideoSamples:
             if to_s is not None and t >= to_s - EDGE_S:
                 break
             if t <= last:
-                raise ValueError("the stream has B-frames (a VideoStream cannot carry them)")
+                raise ReorderedFrames("the stream has B-frames (a VideoStream cannot carry them)")
             last = t
             out = bsf.filter(packet) if bsf is not None else [packet]
             for p in out:
@@ -110,6 +113,44 @@ def video_samples(path: str, from_s: float, to_s: float | None) -> VideoSamples:
     t_arr, key = np.asarray(times, dtype=np.float64), np.asarray(keys, dtype=bool)
     first_key = int(np.argmax(key)) if key.any() else 0
     return VideoSamples(samples[first_key:], t_arr[first_key:], key[first_key:], codec)
+
+
+class ReorderedFrames(ValueError):
+    """A stream with B-frames: its decoding order is not its presentation order."""
+
+
+def window_asset(
+    path: str, from_s: float, to_s: float | None, t_frames: np.ndarray
+) -> tuple[bytes, np.ndarray]:
+    """The window of ``path`` as an MP4 of its own, its packets copied undecoded from the key
+    frame at or before ``from_s`` to the first key frame at or after ``to_s`` (whole groups of
+    pictures: a B-frame needs the frames after it), and the timestamp (ns, as Rerun reads the
+    MP4: ``AssetVideo.read_frame_timestamps_nanos``) of each frame at ``t_frames`` (N,) s from
+    the window's start, int64. ValueError where the two readings disagree."""
+    buf = io.BytesIO()
+    pts: list[int] = []
+    with av.open(path) as src:
+        stream = src.streams.video[0]
+        tb = float(stream.time_base)
+        if from_s > 0:
+            src.seek(int(from_s / tb), stream=stream, backward=True)
+        with av.open(buf, "w", format="mp4") as out:
+            copy = out.add_stream_from_template(stream)
+            for packet in src.demux(stream):
+                if packet.pts is None or not packet.size or not (pts or packet.is_keyframe):
+                    continue
+                if packet.is_keyframe and to_s is not None and packet.pts * tb >= to_s - EDGE_S:
+                    break
+                pts.append(packet.pts)
+                packet.stream = copy
+                out.mux(packet)
+    data = buf.getvalue()
+    ns = rr.AssetVideo(contents=data, media_type="video/mp4").read_frame_timestamps_nanos()
+    shown = np.sort(np.asarray(pts, dtype=np.int64)) * tb - from_s  # presentation order
+    if len(ns) != len(shown):
+        raise ValueError(f"the window's MP4 holds {len(ns)} frames for {len(shown)} packets")
+    k = np.clip(np.searchsorted(shown, np.asarray(t_frames) - EDGE_S), 0, len(ns) - 1)
+    return data, np.asarray(ns, dtype=np.int64)[k]
 
 
 def _frames_of(t_video: np.ndarray, t_frames: np.ndarray) -> np.ndarray:
@@ -181,15 +222,9 @@ def write_episode(
             cam, fr = r["camera"], frames[r["camera"]]
             frame, t = fr["frame"].to_numpy(), fr["t_s"].to_numpy()
             try:
-                v = video_samples(r["video_path"], r["from_s"], r["to_s"])
+                _log_video(rec, dataset_video_path(cam), r, frame, t)
             except (ValueError, av.FFmpegError, OSError) as exc:
                 notes.append(f"{cam}: video not referenced: {exc}")
-            else:
-                vpath = dataset_video_path(cam)
-                rec.log(vpath, rr.VideoStream(codec=v.codec), static=True)
-                rec.send_columns(vpath, indexes=_index(_frames_of(v.t_s, t), v.t_s),
-                                 columns=rr.VideoStream.columns(sample=v.samples,
-                                                                is_keyframe=v.key))  # fmt: skip
             for m in measures:
                 if m not in fr.columns:
                     continue
@@ -220,6 +255,22 @@ def write_episode(
     finally:
         tmp.unlink(missing_ok=True)
     return path
+
+
+def _log_video(rec: Any, vpath: str, r: dict, frame: np.ndarray, t: np.ndarray) -> None:
+    """One camera's video of the episode (``r``: its row) at ``vpath``: its packets as a
+    ``VideoStream``, or with B-frames its window's MP4 and a frame reference per frame."""
+    try:
+        v = video_samples(r["video_path"], r["from_s"], r["to_s"])
+    except ReorderedFrames:
+        data, ns = window_asset(r["video_path"], r["from_s"], r["to_s"], t)
+        rec.log(vpath, rr.AssetVideo(contents=data, media_type="video/mp4"), static=True)
+        rec.send_columns(vpath, indexes=_index(frame, t),
+                         columns=rr.VideoFrameReference.columns_nanos(ns))  # fmt: skip
+        return
+    rec.log(vpath, rr.VideoStream(codec=v.codec), static=True)
+    columns = rr.VideoStream.columns(sample=v.samples, is_keyframe=v.key)
+    rec.send_columns(vpath, indexes=_index(_frames_of(v.t_s, t), v.t_s), columns=columns)
 
 
 def _description(rid, root, episode, rows, flagged, notes) -> str:

@@ -21,8 +21,9 @@ Layouts (LeRobot's ``codebase_version``):
   ``data/chunk-000/episode_{e:06d}.parquet`` and ``videos/chunk-000/{key}/episode_{e:06d}.mp4``
   (one video per episode, its time from 0).
 
-Codecs: ``libsvtav1`` (LeRobot's default: a key frame every 2 frames, CRF 30) and ``libx264``
-(the same GOP, no B-frames), yuv420p.
+Codecs: ``libsvtav1`` (LeRobot's default: a key frame every 2 frames, CRF 30), ``libx264``
+(the same GOP, no B-frames) and ``libx264-bframes`` (two B-frames, a key frame every 12),
+yuv420p.
 
 Faults (:class:`Faults`), each on the first camera of one episode and measured against the
 data's own timeline (``timestamp = frame_index / fps``):
@@ -59,7 +60,9 @@ import pyarrow.parquet as pq
 
 from vdc.errors import UserError
 
-CODECS = {"libsvtav1": "av1", "libx264": "h264"}
+# (libx264-bframes: H.264 with two B-frames between references and a key frame every 12, a
+# stream whose decoding order is not its presentation order)
+CODECS = {"libsvtav1": "av1", "libx264": "h264", "libx264-bframes": "h264"}
 STATE_DIM = 6
 MARGIN_PX = 24  # the canvas around the view that a bumped camera can move into
 TIME_BASE = Fraction(1, 90000)  # the video stream's clock: fine enough for any drift or lag
@@ -195,9 +198,11 @@ class _Encoder:
         opts = {"g": "2", "crf": "30"}
         if codec == "libx264":
             opts |= {"bf": "0", "preset": "veryfast"}
+        elif codec == "libx264-bframes":
+            opts |= {"bf": "2", "g": "12", "preset": "veryfast"}
         else:
             opts |= {"preset": "12"}  # libsvtav1's fastest: the tests' CPU
-        s = self.container.add_stream(codec, rate=round(fps), options=opts)
+        s = self.container.add_stream(codec.removesuffix("-bframes"), rate=round(fps), options=opts)
         s.width, s.height, s.pix_fmt = shape[1], shape[0], "yuv420p"
         s.codec_context.time_base = TIME_BASE
         s.time_base = TIME_BASE

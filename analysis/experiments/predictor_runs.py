@@ -38,7 +38,7 @@ import numpy as np
 import polars as pl
 
 from analysis.boundary.command import WARMUP_FRAMES, BoundarySettings
-from analysis.complexity.source_metrics import DIS_PRESETS
+from analysis.complexity.meter import DIS_PRESETS
 from analysis.experiments.captures import profiling_items
 from analysis.predictors.report import PredictorResult, settings_meta, write_predictors
 from analysis.predictors.statistics import MEASURES, arena_predictors

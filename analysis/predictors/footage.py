@@ -20,7 +20,7 @@ import polars as pl
 
 from analysis.boundary.command import WARMUP_FRAMES, number_list, with_override
 from analysis.complexity.command import ComplexitySettings
-from analysis.complexity.source_metrics import METRICS
+from analysis.complexity.meter import METRICS
 from analysis.predictors.report import write_predictors
 from analysis.predictors.statistics import MEASURES, footage_predictors
 from avdm.registry import make_model

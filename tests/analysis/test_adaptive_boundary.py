@@ -4,6 +4,7 @@ of known boundary, and a tiny real adaptive campaign through the command line.""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -86,6 +87,28 @@ def test_the_profile_maps_wall_tf_to_deg_s_and_back() -> None:
     assert dps_to_tf(21.5, tf, dps) == pytest.approx(2.25)
     assert dps_to_tf(tf_to_dps(3.5, tf, dps), tf, dps) == pytest.approx(3.5)  # extrapolated
     assert dps_to_tf(math.inf, tf, dps) == math.inf
+
+
+def test_a_boundary_below_the_scene_at_rest_gives_no_wall_tf() -> None:
+    """The profile's line extrapolated below its lowest TF reads negative TFs, which no wall
+    runs at: an interval wholly below the scene's complexity at 0 Hz has no TF (it read
+    "wall TF < -0.05 Hz" in a real campaign), and one reaching below it stops at 0 Hz."""
+    tf, dps = [0.0, 1.5, 3.0], [6.0, 15.0, 28.0]
+
+    def to_tf(d: float) -> float:
+        return float(dps_to_tf(d, tf, dps))
+
+    x = np.repeat([8.0, 12.0, 20.0], 5)
+    fit = fit_crossing(x, np.full(x.size, 12), np.full(x.size, 40), 0.9, (8.0, 20.0))
+    # a boundary below the scene at rest (6 deg/s at 0 Hz): its whole interval under 6
+    below = dataclasses.replace(fit, state="below", boundary=math.nan, low=-math.inf, high=5.0)
+    row = fit_columns(below, to_tf)
+    tf_columns = ("boundary_tf_hz", "boundary_tf_low", "boundary_tf_high")
+    assert all(math.isnan(row[c]) for c in tf_columns), row
+    assert "Hz" not in describe_fit(row)
+    low_end = dataclasses.replace(fit, boundary=7.0, low=-math.inf, high=10.0)
+    row = fit_columns(low_end, to_tf)
+    assert row["boundary_tf_low"] == 0.0 and 0 < row["boundary_tf_hz"] < row["boundary_tf_high"]
 
 
 def test_the_adaptive_loop_places_runs_near_the_boundary_and_stops_at_the_precision() -> None:

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from analysis.complexity.command import ComplexitySettings
-from analysis.complexity.source_metrics import METRICS, measure_video, parse_metrics
+from analysis.complexity.meter import METRICS, parse_metrics
+from analysis.complexity.source_metrics import measure_video
 from tests.analysis.test_native_metrics import FOV
 from tests.helpers import write_pan
 from vdc.pipeline import pipelined
@@ -75,7 +76,7 @@ def test_the_cheaper_area_resize_is_opencvs_within_a_level(clip) -> None:
     on the two rasters agree to 0.5 % per frame (measured: 0.02 % and 0.04 % at most)."""
     import cv2
 
-    from analysis.complexity.source_metrics import ComplexityMeter
+    from analysis.complexity.meter import ComplexityMeter
     from vdc.recording import camera_model_context, working_size
     from vdc.resize import area_resize
     from vdc.sources import open_reader

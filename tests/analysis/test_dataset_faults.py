@@ -4,11 +4,16 @@ each flag finds its fault within a stated tolerance, and no clean episode is fla
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 
 from analysis.dataset import DatasetSettings, dataset
 from analysis.dataset.flags import FLAGS
+from analysis.dataset.measure import frame_stats, grey_stats, local_change
 from analysis.dataset.synthetic import STANDARD_FAULTS, write_dataset
+from analysis.dataset.window import WindowReader
 
 FPS = 30.0
 FAULTS = STANDARD_FAULTS
@@ -109,3 +114,46 @@ def test_fail_on_names_the_flagged_episodes_and_the_tables_are_written(profiled)
     # worst first, each flagged episode with its strip of thumbnails
     assert page.count("<h3>episode") == len(EXPECTED)
     assert set(FLAGS) >= {f for fl in EXPECTED.values() for f in fl}
+
+
+def _opencv(grey, prev, prev2) -> tuple:
+    return (*frame_stats(grey), local_change(grey, prev), local_change(grey, prev2))
+
+
+def _same(a: tuple, b: tuple) -> bool:
+    return all(x == y or (math.isnan(x) and math.isnan(y)) for x, y in zip(a, b, strict=True))
+
+
+def test_the_one_pass_statistics_are_opencvs_bit_for_bit(profiled) -> None:
+    """The blur, exposure and change statistics from one compiled pass (``grey_stats``) are
+    OpenCV's own values, exactly: on every decoded frame of the AV1 episodes, and on frames
+    built to hit the edge cases (odd sizes, the reflected borders, block means of exactly half
+    a level, which INTER_AREA rounds half to even)."""
+    _, res, _ = profiled
+    checked = 0
+    for r in res.episodes.iter_rows(named=True):
+        reader = WindowReader(r["video_path"], r["from_s"], r["to_s"], FPS)
+        last = [None, None]
+        for fr in reader.frames():
+            got = grey_stats(fr.luma, *last)
+            assert _same(got, _opencv(fr.luma, *last)), (r["episode_index"], checked)
+            last = [fr.luma, last[0]]
+            checked += 1
+        reader.close()
+    assert checked == res.episodes["frames_decoded"].sum()
+    rng = np.random.default_rng(0)
+    for shape in ((16, 16), (17, 33), (31, 47), (8, 40)):
+        g = rng.integers(0, 256, shape, dtype=np.uint8)
+        p = rng.integers(0, 256, shape, dtype=np.uint8)
+        assert _same(grey_stats(g, p, None), _opencv(g, p, None))
+        assert _same(grey_stats(g, None, None), _opencv(g, None, None))
+    flat = np.zeros((32, 32), np.uint8)
+    for changed in (128, 384, 640, 129):  # 0.5, 1.5, 2.5 levels: to 0, 2, 2; then just over
+        block = np.full(256, changed // 256, np.uint8)  # a 16-px block: its Σ|difference|
+        block[: changed % 256] += 1
+        p = flat.copy()
+        p[:16, :16] = block.reshape(16, 16)
+        assert int(p.sum()) == changed
+        got = grey_stats(flat, p, flat)
+        assert _same(got, _opencv(flat, p, flat))
+        assert got[4] == {128: 0.0, 384: 2.0, 640: 2.0, 129: 1.0}[changed]

@@ -8,13 +8,17 @@ from __future__ import annotations
 import json
 import shutil
 
+import av
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 from analysis.dataset import DatasetSettings, dataset
 from analysis.dataset.synthetic import Faults, write_dataset
+from analysis.dataset.window import WindowReader
 from tests.helpers import assert_one_line_error
 from tests.in_process import run_in_process
+from vdc.frame_batches import FrameBatcher
 
 FRONT, WRIST = "observation.images.front", "observation.images.wrist"
 FAULTS = Faults(frozen={1: (12, 10)}, dropped={2: (30, 4)})
@@ -108,3 +112,45 @@ def test_missing_corrupt_and_cut_videos_and_a_corrupt_parquet(made) -> None:
     # the others are profiled: episode 1's wrist camera, 2's front, 3's wrist
     assert done == {(1, WRIST), (2, FRONT), (3, WRIST)}
     assert pq.read_table(res.files.problems).num_rows == 4
+
+
+def test_an_untagged_window_reopened_gives_the_values_of_both_ranges_at_once(tmp_path) -> None:
+    """An H.264 window whose colour range is not tagged and whose luma leaves the limited
+    range only in its second batch: measured with a reader that can reopen the window (the
+    frames before are read again in full range) it gives the same SI/TI, bit for bit, as the
+    meter that keeps a full-range alternative on every frame, including the corrections of
+    the earlier batch."""
+    path = tmp_path / "untagged.mp4"
+    rng = np.random.default_rng(0)
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("libx264", rate=30, options={"bf": "0", "g": "2"})
+        s.width, s.height, s.pix_fmt = 64, 64, "yuv420p"
+        for i in range(200):
+            y = rng.integers(60, 180, (64, 64), dtype=np.uint8)
+            if i >= 165:  # white: past the limited range's 235, in the window's second batch
+                y[20:40, 20:40] = 255
+            frame = av.VideoFrame.from_ndarray(np.dstack([y, y, y]), format="rgb24")
+            for p in s.encode(frame):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+
+    def window() -> WindowReader:
+        return WindowReader(str(path), 1.0, 6.5, 30.0)  # frames 30..194
+
+    def measured(reopen) -> tuple[np.ndarray, np.ndarray, bool]:
+        reader = window()
+        assert reader.info.get("color_range_tag") is None  # untagged: the range is detected
+        b = FrameBatcher(reader, None, 30.0, metrics=("si_p910", "ti_p910"), reopen=reopen)
+        rows = []
+        while (batch := b.next_batch()) is not None:
+            rows.append(batch.native_metrics)
+        late, left = b.p910_late_corrections(), b.meter.left_limited_at
+        reader.close()
+        return np.concatenate(rows), late, left
+
+    got, got_late, left = measured(window)
+    want, want_late, _ = measured(None)
+    assert left >= 128  # the luma left the limited range in the second batch
+    assert np.array_equal(got, want, equal_nan=True)
+    assert np.array_equal(got_late, want_late, equal_nan=True) and len(got_late) == left

@@ -8,6 +8,7 @@ again and ends with the tables of a run never interrupted."""
 
 from __future__ import annotations
 
+import io
 import os
 import signal
 import subprocess
@@ -18,6 +19,7 @@ import av
 import numpy as np
 import polars as pl
 import pytest
+import rerun as rr
 from polars.testing import assert_frame_equal
 
 from analysis.dataset import DatasetSettings, dataset
@@ -120,6 +122,51 @@ def test_h264_episodes_of_two_cameras_are_self_contained_streams(tmp_path: Path)
             assert len(got) == len(want) == row["frames_decoded"][0]
             for a, b in zip(got, want, strict=True):
                 assert np.array_equal(a.to_ndarray(format="gray"), b.to_ndarray(format="gray"))
+
+
+def _asset(path: Path, entity: str) -> tuple[bytes, dict[int, int]]:
+    """An AssetVideo's MP4 and its frame references (frame index -> timestamp, ns)."""
+    blob, refs = b"", {}
+    for ent, rb in Recording(path)._batches("/**"):
+        if ent != entity:
+            continue
+        if "AssetVideo:blob" in rb.schema.names:
+            blob = bytes(rb.column("AssetVideo:blob").to_pylist()[0][0])
+        if "VideoFrameReference:timestamp" in rb.schema.names:
+            ts = rb.column("VideoFrameReference:timestamp").to_pylist()
+            frame = rb.column("frame").to_pylist()
+            refs |= {int(i): int(t[0]) for i, t in zip(frame, ts, strict=True)}
+    return blob, refs
+
+
+def test_b_frame_episodes_reference_their_window_as_an_mp4(tmp_path: Path) -> None:
+    """H.264 with B-frames in a shared v3.0 file (decoding order unlike presentation order: no
+    VideoStream): each episode's recording holds its window's packets as an MP4 of its own,
+    undecoded and smaller than the file, and each decoded frame's reference shows that very
+    frame, pixel for pixel as decoded from the dataset's file."""
+    root = tmp_path / "bf"
+    write_dataset(root, episodes=3, version="v3.0", codec="libx264-bframes",
+                  seconds=(1.0, 1.4), faults=Faults())  # fmt: skip
+    res = dataset(root, DatasetSettings(jobs=1, page=False), tmp_path / "out")
+    video = root / "videos" / CAM / "chunk-000" / "file-000.mp4"
+    with av.open(str(video)) as c:  # the truth: the file decoded, by presentation time
+        pts = [p.pts for p in c.demux(video=0) if p.pts is not None]
+    with av.open(str(video)) as c:
+        truth = {round(f.time * 1000): f.to_ndarray(format="gray") for f in c.decode(video=0)}
+    assert pts != sorted(pts)  # the file's packets are out of presentation order: B-frames
+    for r in res.episodes.iter_rows(named=True):
+        path = tmp_path / "out" / "recordings" / f"episode_{r['episode_index']:06d}.rrd"
+        blob, refs = _asset(path, dataset_video_path(CAM))
+        assert 0 < len(blob) < video.stat().st_size
+        assert sorted(refs) == list(range(r["frames_decoded"]))
+        shown = rr.AssetVideo(contents=blob, media_type="video/mp4").read_frame_timestamps_nanos()
+        with av.open(io.BytesIO(blob)) as c:  # the MP4's frames, in presentation order
+            frames = sorted(c.decode(video=0), key=lambda f: f.pts)
+        assert len(frames) == len(shown)
+        at = {int(t): f.to_ndarray(format="gray") for t, f in zip(shown, frames, strict=True)}
+        for i, t_ns in refs.items():
+            want = truth[round((r["from_s"] + i / 30.0) * 1000)]
+            assert np.array_equal(at[t_ns], want), (r["episode_index"], i)
 
 
 def test_the_measures_are_on_the_episode_timeline_and_it_opens_at_its_flag(profiled) -> None:

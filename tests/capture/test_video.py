@@ -13,7 +13,7 @@ import polars as pl
 import pytest
 
 from analysis.complexity.command import ComplexitySettings, complexity, complexity_of_frames
-from analysis.complexity.source_metrics import METRICS
+from analysis.complexity.meter import METRICS
 from analysis.recordings.reader import Recording
 from analysis.recordings.recompute import TablesSettings, tables
 from avdm import make_model
