@@ -213,10 +213,14 @@ class Recorder:
             )
         text_names: set[str] = set()
         for name, values in sections.items():
+            # None and "" are left out, always: the SDK drops an empty string only until the
+            # process has sent that field name with text, so the same run's properties
+            # differed with what was recorded before it in the process (a natural scene's
+            # image_path, then a grating's "")
             clean = {
                 k: (str(v) if k in text_names and not isinstance(v, str) else v)
                 for k, v in values.items()
-                if v is not None
+                if v is not None and not (isinstance(v, str) and v == "")
             }
             text_names |= {k for k, v in clean.items() if isinstance(v, str)}
             self.rec.send_property(name, rr.AnyValues(**clean))

@@ -141,3 +141,17 @@ def test_analysis_names_what_an_old_or_foreign_recording_lacks(tmp_path: Path) -
         build_tables([path], ["avdm"])
     tables, _ = build_tables([path], None)
     assert tables["frames"]["wall_gap_m"].to_list() == [0.5] * 30  # 1.0 m wide: 0.5 m to a wall
+
+
+def test_an_empty_property_is_left_out_whatever_was_recorded_before(tmp_path: Path) -> None:
+    """The same run's properties, whatever this process recorded before: Rerun keeps an empty
+    string once the process has sent that field name with text (a natural scene's
+    image_path), and drops it before, so a grating's wall section held image_path "" only
+    after a natural scene (a suite-order failure of the test above)."""
+    wall = {"scene": "grating", "image_path": ""}
+    first = foreign_recording(tmp_path / "first.rrd", {"wall": wall})
+    natural = foreign_recording(tmp_path / "natural.rrd", {"wall": wall | {"image_path": "a.png"}})
+    after = foreign_recording(tmp_path / "after.rrd", {"wall": wall})
+    assert Recording(natural).properties()["wall"]["image_path"] == "a.png"
+    for path in (first, after):
+        assert Recording(path).properties()["wall"] == {"scene": "grating"}, path.name
