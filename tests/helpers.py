@@ -22,9 +22,18 @@ ROOT = Path(__file__).resolve().parents[1]
 _BACKGROUND: list[subprocess.Popen] = []
 
 
+def _sigint_as_a_terminal_gives_it() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def spawn(cmd: Sequence[str], **kwargs) -> subprocess.Popen:
     """Start a background process for a test, in its own process group so that it and any
-    children it starts can be ended together by :func:`end_background_processes`."""
+    children it starts can be ended together by :func:`end_background_processes`. SIGINT
+    starts at its default, as from a terminal: a child inherits an ignored SIGINT, and Python
+    then installs no KeyboardInterrupt for it, so Ctrl-C while the command loaded was ignored
+    whenever something earlier in the test's process had set SIGINT aside (a suite-order
+    failure: exit 0 after a full run)."""
+    kwargs.setdefault("preexec_fn", _sigint_as_a_terminal_gives_it)
     proc = subprocess.Popen(list(cmd), process_group=0, **kwargs)
     _BACKGROUND.append(proc)
     return proc

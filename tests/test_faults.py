@@ -550,6 +550,23 @@ def test_ctrl_c_while_the_command_loads_is_one_line(tmp_path: Path) -> None:
     assert_clean(tmp_path)
 
 
+def test_a_spawned_command_gets_sigint_at_its_default_whatever_the_test_ignores() -> None:
+    """The harness, not vdc: a child inherits an ignored SIGINT and Python then installs no
+    KeyboardInterrupt, so the test above once saw Ctrl-C ignored while the command loaded
+    (exit 0 after a full run) because something earlier in its process had set SIGINT aside.
+    ``spawn`` starts every command with SIGINT as a terminal gives it."""
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        probe = (
+            "import signal; print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)"
+        )
+        proc = spawn([PY, "-c", probe], stdout=subprocess.PIPE, text=True)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert out.strip() == "True"
+
+
 def test_a_recording_shorter_than_the_warm_up_is_one_line(tmp_path: Path) -> None:
     short = tmp_path / "short.rrd"
     assert sim(short, minutes=0.01).wait(timeout=120) == 0  # 20 frames
