@@ -54,9 +54,7 @@ from vdc.recording import NATIVE_METRICS
 MEASURE_VERSION = 2  # 1 lost codec_bpp (NaN)
 # the SI/TI family, flow and zlib on every 8th frame pair (their cost; see module): the default
 # of boundary's --measure-every, named once there
-EVERY: int = next(
-    f.default for f in dataclasses.fields(BoundarySettings) if f.name == "measure_every"
-)
+EVERY: int = BoundarySettings.measure_every
 CODEC_CRF = 23
 
 
