@@ -9,7 +9,7 @@ packets, and reopens the port after it disappears. The robot's end, emulated, is
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 
 import serial
 
@@ -66,8 +66,11 @@ class SerialLink:
     def _decoded(self, data: bytes) -> list[tuple[int, object]]:
         """(type, FramePacket | Announcement | None) of the whole packets in ``data``; a FRAME
         or ANNOUNCE whose payload does not match its header is counted as bad_length."""
+        return self._decoded_packets(self.parser.feed(data))
+
+    def _decoded_packets(self, packets: Iterable[tuple[int, bytes]]) -> list[tuple[int, object]]:
         out: list[tuple[int, object]] = []
-        for ptype, payload in self.parser.feed(data):
+        for ptype, payload in packets:
             try:
                 if ptype == TYPE_FRAME:
                     out.append((ptype, decode_frame(payload)))
@@ -178,7 +181,16 @@ class SerialLink:
                 self._reconnect()
                 continue
             if not data:
-                if time.monotonic() - self._last_data > 2.0 and self._ser is not None:
+                quiet_s = time.monotonic() - self._last_data
+                if quiet_s > 0.3 and self.parser.buf:
+                    # nothing more is coming for now: free any packet a damaged length holds
+                    salvaged = self._decoded_packets(self.parser.salvage())
+                    for ptype, obj in salvaged:
+                        if ptype == TYPE_END:
+                            self.ended = True
+                            return
+                        yield (ptype, obj)
+                if quiet_s > 2.0 and self._ser is not None:
                     # silent for 2 s: a START may have been lost; asking again is harmless
                     try:
                         self._send_start()

@@ -284,3 +284,38 @@ class PacketParser:
             del self.buf[:end]
             self.stats.packets += 1
             yield body[2], body[3:]
+
+    def _complete_packet_at(self, k: int) -> bool:
+        """A whole packet with a good CRC starts at ``buf[k]``."""
+        if len(self.buf) < k + 5:
+            return False
+        (length,) = struct.unpack_from("<H", self.buf, k + 2)
+        lo, hi = LENGTH_RANGE.get(self.buf[k + 4], (1, 0))
+        end = k + 4 + length + 2
+        if not lo <= length <= hi or len(self.buf) < end:
+            return False
+        body = bytes(self.buf[k + 2 : k + 4 + length])
+        (crc,) = struct.unpack_from("<H", self.buf, k + 4 + length)
+        return crc == crc16(body) and body[2] in KNOWN_TYPES
+
+    def salvage(self) -> list[tuple[int, bytes]]:
+        """Packets stuck behind a damaged header, for a line that has gone quiet.
+
+        A corrupted length that is still in range makes :meth:`feed` wait for bytes that are
+        really the packets after it; mid-stream they come and the CRC check frees them, but at
+        the end of a run nothing more comes, and the robot's END would wait for ever. So when
+        the line is quiet and a whole, CRC-valid packet lies inside the span the first header
+        claims, that header is taken as damaged (counted in ``bad_length``) and parsing
+        resumes one byte after its sync word. A packet that is only incomplete (the rest still
+        on its way) holds no whole packet after its header, and is kept."""
+        out: list[tuple[int, bytes]] = []
+        while len(self.buf) >= 5:
+            k = self.buf.find(SYNC, 1)
+            while k >= 0 and not self._complete_packet_at(k):
+                k = self.buf.find(SYNC, k + 1)
+            if k < 0:
+                break
+            self.stats.bad_length += 1
+            del self.buf[:1]
+            out += self.feed(b"")
+        return out

@@ -26,6 +26,7 @@ from capture.config import SimConfig, WallConfig
 from capture.render import OverheadRenderer
 from capture.robot_capture import WallController
 from capture.serial_protocol import (
+    TYPE_END,
     TYPE_FRAME,
     PacketParser,
     crc16,
@@ -502,4 +503,57 @@ def test_closing_a_link_whose_far_end_is_gone_raises_nothing() -> None:
     finally:
         if master >= 0:
             os.close(master)
+        os.close(slave)
+
+
+def _stream_with_a_damaged_length_before_end() -> tuple[bytes, int]:
+    """Two frames, a third whose length field was hit by noise (still in range, so the parser
+    waits for bytes that are really END), then END: the tail of a run a robot ends."""
+    good = [encode_frame(i, i * 30_000, [float(i)], None, (2, 2)) for i in range(2)]
+    hit = bytearray(encode_frame(2, 60_000, [2.0], None, (2, 2)))
+    hit[3] ^= 0x04  # length + 1024: in FRAME's range, far past the end of the stream
+    return b"".join(good) + bytes(hit) + encode(TYPE_END), 2
+
+
+def test_a_damaged_length_cannot_hold_back_the_robots_end() -> None:
+    stream, n_good = _stream_with_a_damaged_length_before_end()
+    parser = PacketParser()
+    got = list(parser.feed(stream))
+    assert [t for t, _ in got] == [TYPE_FRAME] * n_good  # END waits behind the false length
+    freed = parser.salvage()
+    assert [t for t, _ in freed] == [TYPE_END]
+    assert parser.stats.bad_length == 1 and not parser.buf
+    # a packet that is merely incomplete (the rest on its way) is kept, not thrown away
+    whole = encode_frame(3, 90_000, [3.0], np.zeros((2, 2), np.uint8), (2, 2))
+    parser = PacketParser()
+    assert not list(parser.feed(whole[:-3])) and parser.salvage() == []
+    assert [decode_frame(p).index for _, p in parser.feed(whole[-3:])] == [3]
+    assert parser.stats.bad_length == 0
+
+
+def test_the_host_reads_a_robots_end_behind_a_damaged_length_on_a_pty() -> None:
+    """The end-to-end pty test's rare 'did not come back within 30 s': noise in the last
+    frame's length kept END in the host's buffer until the robot closed its port. On a real
+    pseudo-terminal the host now ends its run with the robot's END and every intact frame."""
+    import tty
+
+    from capture.serial_link import SerialLink
+
+    stream, n_good = _stream_with_a_damaged_length_before_end()
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    try:
+        link = SerialLink(os.ttyname(slave), reconnect_timeout_s=1.0)
+        link.open()
+        os.write(master, stream)  # and the robot says nothing more, its port left open
+        frames, deadline = [], time.monotonic() + 60  # a loaded machine may deliver late
+        for ptype, obj in link.packets():
+            if ptype == TYPE_FRAME:
+                frames.append(obj.index)
+            assert time.monotonic() < deadline, "the host never read END"
+        assert link.ended and frames == list(range(n_good))
+        assert link.parser.stats.bad_length == 1
+        link.close()
+    finally:
+        os.close(master)
         os.close(slave)
