@@ -316,11 +316,15 @@ def fit_columns(fit: CrossingFit, to_tf: Any = None) -> dict[str, Any]:
     with ``boundary_dps_low``/``_high`` (±inf where unbounded), the same in wall TF
     (``boundary_tf_hz``, ``boundary_tf_low``, ``boundary_tf_high``; NaN without a profile
     map ``to_tf``: deg/s → Hz), ``fit_runs`` and ``fit_dispersion``."""
+    # a speed is never negative: the logistic extrapolated below the least complex point
+    # gave "< -0.3 deg/s" on footage whose simplest clips already fail; such an end is 0
+    # (an unbounded low end stays -inf: "at or below the least complex point")
+    speeds = [v if not math.isfinite(v) else max(v, 0.0) for v in (fit.boundary, fit.low, fit.high)]
     row = {
         "fit_state": fit.state,
-        "boundary_dps": fit.boundary,
-        "boundary_dps_low": fit.low,
-        "boundary_dps_high": fit.high,
+        "boundary_dps": speeds[0],
+        "boundary_dps_low": speeds[1],
+        "boundary_dps_high": speeds[2],
     }
     names = ("boundary_tf_hz", "boundary_tf_low", "boundary_tf_high")
     tf = [float(to_tf(v)) if to_tf is not None and not math.isnan(v) else math.nan
@@ -367,6 +371,8 @@ def _span(low: Any, high: Any, unit: str, digits: int) -> str:
     if _finite(low) and low < 0 and unit != "Hz":  # a speed (deg/s) is not negative
         low = 0.0
     lo_ok, hi_ok = _finite(low), _finite(high)
+    if hi_ok and high <= 0 and not lo_ok and unit != "Hz":
+        return f"fails even at 0 {unit}"
     if lo_ok and hi_ok:
         return f"{low:.{digits}f}, {high:.{digits}f} {unit}"
     if lo_ok:

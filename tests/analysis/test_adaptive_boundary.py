@@ -106,6 +106,12 @@ def test_a_boundary_below_the_scene_at_rest_gives_no_wall_tf() -> None:
     tf_columns = ("boundary_tf_hz", "boundary_tf_low", "boundary_tf_high")
     assert all(math.isnan(row[c]) for c in tf_columns), row
     assert "Hz" not in describe_fit(row)
+    # nor is a speed negative: a crossing extrapolated below 0 deg/s (footage whose simplest
+    # clips already fail read "< -0.3 deg/s") fails even at 0
+    at_rest = dataclasses.replace(fit, state="below", boundary=math.nan, low=-math.inf, high=-0.3)
+    row = fit_columns(at_rest)
+    assert row["boundary_dps_high"] == 0.0 and "-" not in describe_fit(row)
+    assert describe_fit(row).endswith("(95 %: fails even at 0 deg/s)")
     low_end = dataclasses.replace(fit, boundary=7.0, low=-math.inf, high=10.0)
     row = fit_columns(low_end, to_tf)
     assert row["boundary_tf_low"] == 0.0 and 0 < row["boundary_tf_hz"] < row["boundary_tf_high"]
