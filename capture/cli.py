@@ -70,7 +70,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_emulate_robot(args: argparse.Namespace) -> int:
-    from capture.robot_emulator import EmulateSettings, emulate_robot
+    from capture.robot_emulator import EmulateSettings, emulate_robot, report_line
 
     link = args.link
 
@@ -80,13 +80,7 @@ def cmd_emulate_robot(args: argparse.Namespace) -> int:
             flush=True,
         )
 
-    report = emulate_robot(settings_from_args(EmulateSettings, args), announce)
-    print(
-        f"sent {len(report['intact'])} intact and {len(report['corrupted'])} corrupted "
-        f"frames; dropped {len(report['dropped'])}; {len(report['lost_in_disconnect'])} "
-        f"lost in {report['disconnects']} disconnect(s)"
-        + (f"; the port closed once {report['end']}" if report.get("end") else "")
-    )
+    print(report_line(emulate_robot(settings_from_args(EmulateSettings, args), announce)))
     return 0
 
 

@@ -398,6 +398,16 @@ class EmulateSettings(Settings):
     report: str | None = option(None, "write what was injected to this JSON file")
 
 
+def report_line(report: dict) -> str:
+    """The emulator's run in one line: what it sent, lost, and how its port closed."""
+    return (
+        f"sent {len(report['intact'])} intact and {len(report['corrupted'])} corrupted "
+        f"frames; dropped {len(report['dropped'])}; {len(report['lost_in_disconnect'])} "
+        f"lost in {report['disconnects']} disconnect(s)"
+        + (f"; the port closed once {report['end']}" if report.get("end") else "")
+    )
+
+
 def emulate_robot(settings: EmulateSettings, announce: Callable[[str], None] | None = None) -> dict:
     """Run a simulated Colias-IV on a pseudo-terminal behind ``settings.link`` until its run
     ends; ``announce`` gets the pty's name once it exists. Returns what was injected (frames
