@@ -20,7 +20,7 @@ import argparse
 import numpy as np
 from scipy.stats import binomtest
 
-from analysis.predictors.statistics import loco_interval, loco_predictions, loco_threshold
+from analysis.predictors.held_out import loco_interval, loco_predictions, loco_threshold
 from analysis.predictors.synthetic import conditions, loco_truth
 
 ALPHA_LOGIT = -1.0  # about a third of the conditions fail at beta = 0

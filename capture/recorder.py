@@ -223,7 +223,9 @@ class Recorder:
                 if v is not None and not (isinstance(v, str) and v == "")
             }
             text_names |= {k for k, v in clean.items() if isinstance(v, str)}
-            self.rec.send_property(name, rr.AnyValues(**clean))
+            if clean:  # an empty section (a plug-in without parameters) is no property: the
+                # SDK warns "No valid component batches" and drops it anyway
+                self.rec.send_property(name, rr.AnyValues(**clean))
 
     def log_description(self, markdown: str) -> None:
         """The recording's description (what, model, camera, how to analyse), static, as a

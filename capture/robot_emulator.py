@@ -180,15 +180,19 @@ class RobotEmulator:
                     progress_at = now
                 last_pending = pending
                 if stall_s is not None and now - progress_at >= stall_s:
+                    self.drain_end = f"the host read nothing for {stall_s:g} s"
                     return False
             elif empty_since is None:
                 empty_since = now
             elif now - empty_since >= settle_s:
+                self.drain_end = f"read: nothing pending for {settle_s:g} s"
                 return True
             if stall_s is not None and TYPE_STOP in self._read_host():
                 self.stopped = True
+                self.drain_end = "the host sent STOP"
                 return False
             time.sleep(0.005)
+        self.drain_end = f"gave up after {timeout_s:g} s"
         return False
 
     def _read_host(self) -> list[int]:
@@ -244,6 +248,7 @@ class RobotEmulator:
         self._parser = PacketParser()
         self.asked = ""
         self.stopped = False  # the host sent STOP
+        self.drain_end = ""  # how the last wait for the host to read ended
         # warm up (compile) a model now, so that the one the host asks for is built, and
         # announced, soon after its START, as a firmware would
         make_model(self.emu.fixed_model or "avdm", **sim.camera.model_context())
@@ -343,6 +348,7 @@ class RobotEmulator:
             # proof (a busy machine may hold END in the pty's flip buffer, uncounted, for a
             # while), so only a long quiet ends the wait without it
             self._drain(timeout_s=120.0, settle_s=5.0, stall_s=20.0)
+            self.report["end"] = self.drain_end
         self.close_port()
         if self.report_path is not None:
             self.report_path.write_text(json.dumps(self.report), encoding="utf-8")

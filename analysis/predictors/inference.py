@@ -33,6 +33,7 @@ import scipy.stats
 from analysis.stats import CONFIDENCE
 
 Z = float(scipy.stats.norm.ppf(0.5 + CONFIDENCE / 2))  # 1.96
+BOOTSTRAP = 1000  # resamples for every bootstrap interval of the predictors
 EXACT_UP_TO = 8  # 8! = 40,320 permutations: exact; beyond, Monte Carlo
 PERMUTATIONS = 20_000  # Monte Carlo permutations: p's own standard error <= 0.0035
 RHO_CAP = 0.999  # |rho| = 1 has an infinite Fisher z: capped (an interval end near +-1)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.predictors.statistics import fit_thresholds
+from analysis.predictors.held_out import fit_thresholds
 
 
 def conditions(

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.stats import binomtest
 
-from analysis.predictors.statistics import loco_bootstrap, loco_interval, loco_threshold
+from analysis.predictors.held_out import loco_bootstrap, loco_interval, loco_threshold
 from analysis.predictors.synthetic import conditions, loco_truth
 
 

@@ -11,13 +11,13 @@ import polars as pl
 import pytest
 import scipy.stats
 
+from analysis.predictors.held_out import loco_threshold
 from analysis.predictors.report import STATS, plot_predictors, predictors_report
 from analysis.predictors.statistics import (
     arena_predictors,
     auroc,
     finite_spearman,
     footage_predictors,
-    loco_threshold,
 )
 from tests.figures import assert_figure, recording_figures
 

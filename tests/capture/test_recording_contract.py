@@ -155,3 +155,16 @@ def test_an_empty_property_is_left_out_whatever_was_recorded_before(tmp_path: Pa
     assert Recording(natural).properties()["wall"]["image_path"] == "a.png"
     for path in (first, after):
         assert Recording(path).properties()["wall"] == {"scene": "grating"}, path.name
+
+
+def test_a_section_without_values_is_no_property_and_no_warning(tmp_path: Path) -> None:
+    """A plug-in without parameters has an empty model_params: sent as it was, the SDK warned
+    "AnyValues: No valid component batches" on every robot capture and dropped it."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        path = foreign_recording(tmp_path / "r.rrd", {"model_params": {}, "wall": {"scene": "x"}})
+    assert not [w for w in caught if "component batches" in str(w.message)], caught
+    props = Recording(path).properties()
+    assert "model_params" not in props and props["wall"] == {"scene": "x"}
