@@ -85,6 +85,7 @@ def cmd_emulate_robot(args: argparse.Namespace) -> int:
         f"sent {len(report['intact'])} intact and {len(report['corrupted'])} corrupted "
         f"frames; dropped {len(report['dropped'])}; {len(report['lost_in_disconnect'])} "
         f"lost in {report['disconnects']} disconnect(s)"
+        + (f"; the port closed once {report['end']}" if report.get("end") else "")
     )
     return 0
 

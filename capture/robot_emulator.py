@@ -283,7 +283,9 @@ class RobotEmulator:
                     if not np.isnan(disconnect_at) and f >= disconnect_at * sim.camera.fps:
                         disconnect_at = float("nan")
                         self._disconnect(batch, outputs, i)
-                    if self.stopped or TYPE_STOP in self._read_host():
+                    if not self.stopped and TYPE_STOP in self._read_host():
+                        self.stopped = True  # END goes out, but no wait for a host that left
+                    if self.stopped:
                         self._finish()
                         return self.report
                     self.report["frames"] += 1
@@ -341,13 +343,15 @@ class RobotEmulator:
     def _finish(self) -> None:
         """END, then the port closes once the host has read it: closing the pty discards what
         the host has not read, and a host that misses END takes the closed port for a cable
-        pulled out and waits for the robot to come back (a host that sent STOP reads no more;
-        one that reads nothing for 20 s is gone)."""
+        pulled out and waits for the robot to come back. Done when the host answers END with
+        its STOP (vdc's host always does); without it, after 30 s with nothing left unread (a
+        host that does not answer), 60 s in which the host read nothing (it is gone), or 5
+        minutes in all."""
         if self._write(encode(TYPE_END)) and not self.stopped:
-            # done when the host answers END with its STOP; an empty queue alone is not
-            # proof (a busy machine may hold END in the pty's flip buffer, uncounted, for a
-            # while), so only a long quiet ends the wait without it
-            self._drain(timeout_s=120.0, settle_s=5.0, stall_s=20.0)
+            # an empty queue alone is not proof that END was read: bytes still in the pty's
+            # flip buffer are not counted yet, and a loaded machine may keep them there; 5 s
+            # of quiet once closed the port under a host that then waited 30 s for it (CI)
+            self._drain(timeout_s=300.0, settle_s=30.0, stall_s=60.0)
             self.report["end"] = self.drain_end
         self.close_port()
         if self.report_path is not None:

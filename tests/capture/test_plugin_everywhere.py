@@ -126,7 +126,8 @@ def test_online_on_the_robot_over_its_serial_link(tmp_path: Path) -> None:
                    str(tmp_path / "overhead" / "%05d.png"), "--model", LOOMING, "--out",
                    str(out), "--quiet", timeout=120)  # fmt: skip
     emu.wait(timeout=60)
-    assert proc.returncode == 0, proc.stderr
+    robot_said = emu.stdout.read() + emu.stderr.read()
+    assert proc.returncode == 0, proc.stderr + "\nemulator: " + robot_said
     again = tmp_path / "again"
     assert run_cli("analysis.cli", "tables", str(out), "--out", str(tmp_path / "t")).returncode == 0
     proc = run_cli("analysis.cli", "tables", str(out), "--model", LOOMING, "--out", str(again))

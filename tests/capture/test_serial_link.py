@@ -324,7 +324,9 @@ def test_decimated_images_and_sigkill_leave_a_readable_recording(
     tmp_path: Path, overhead_20s: Path
 ) -> None:
     link, report_path, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
-    emu = start_emulator(link, report_path, "--minutes", "0.33", "--decimation", "3")
+    # a run far longer than the test: the kill must land mid-run however late a loaded
+    # machine lets the test see the partial file grow (a 20-s run once ended first)
+    emu = start_emulator(link, report_path, "--minutes", "10", "--decimation", "3")
     cap = start_robot_capture(link, overhead_20s, out, 200_000)
     # kill it mid-run, once its partial file holds more than 10 frames' images
     assert wait_until(lambda: images_in(partial_path(out)) > 10, 60, poll_s=0.2)
@@ -415,7 +417,7 @@ def test_schedule_file_and_saved_calibration(tmp_path: Path) -> None:
 
 def test_sigint_stops_robot_capture_cleanly(tmp_path: Path, overhead_20s: Path) -> None:
     link, report_path, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
-    emu = start_emulator(link, report_path, "--minutes", "0.33")
+    emu = start_emulator(link, report_path, "--minutes", "10")  # ends with the host's STOP
     cap = start_robot_capture(link, overhead_20s, out, 300_000)
     cap.send_signal(signal.SIGINT)
     _, stderr = cap.communicate(timeout=30)
@@ -437,7 +439,7 @@ def test_a_host_that_reads_late_still_gets_the_robots_end(tmp_path: Path) -> Non
     import serial
 
     from capture.robot_emulator import EmulateSettings, emulate_robot
-    from capture.serial_protocol import TYPE_END, TYPE_START
+    from capture.serial_protocol import TYPE_END, TYPE_START, TYPE_STOP
 
     link = tmp_path / "robot"
     settings = EmulateSettings(
@@ -472,6 +474,9 @@ def test_a_host_that_reads_late_still_gets_the_robots_end(tmp_path: Path) -> Non
             if not data and not robot.is_alive():
                 break  # the robot is gone and nothing more is waiting
             types += [t for t, _ in parser.feed(data)]
+        if TYPE_END in types:
+            host.write(encode(TYPE_STOP))  # as vdc's host answers END: the robot may close
+            host.flush()
         host.close()
     finally:
         robot.join(timeout=60)
