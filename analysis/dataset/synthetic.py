@@ -48,6 +48,9 @@ import json
 import math
 import os
 import sys
+import threading
+import time
+from collections.abc import Sequence
 from fractions import Fraction
 from pathlib import Path
 from typing import Any
@@ -65,6 +68,7 @@ from vdc.errors import UserError
 CODECS = {"libsvtav1": "av1", "libx264": "h264", "libx264-bframes": "h264"}
 STATE_DIM = 6
 MARGIN_PX = 24  # the canvas around the view that a bumped camera can move into
+STALL_S = 60.0  # an encoder with no frame done for this long is taken as deadlocked
 TIME_BASE = Fraction(1, 90000)  # the video stream's clock: fine enough for any drift or lag
 
 
@@ -224,6 +228,65 @@ class _Encoder:
         self.container.close()
 
 
+def encode_file(
+    path: Path,
+    codec: str,
+    fps: float,
+    shape: tuple[int, int],
+    frames: Sequence[tuple[float, np.ndarray]],
+    stall_s: float = STALL_S,
+) -> None:
+    """Encode ``frames`` ((t_s, (H, W, 3) uint8 RGB) pairs) into the MP4 at ``path``.
+
+    SVT-AV1 (the library in PyAV's wheels) can deadlock inside ``svt_av1_enc_send_picture``:
+    every thread waits and no CPU is used, for ever (seen once in the suite, in this function;
+    a known SVT-AV1 fault). The file is therefore encoded in a thread watched for progress; one
+    that finishes no frame for ``stall_s`` is abandoned (PyAV releases the GIL while it
+    encodes) and the file is encoded again into a fresh file that then takes the name, so
+    the abandoned writer can never touch it. Three stalls in a row end in UserError."""
+    for attempt in range(3):
+        fresh = path.with_name(f".{path.stem}.attempt{attempt}{path.suffix}")
+        last_progress = [time.monotonic()]
+        failed: list[BaseException] = []
+        done = threading.Event()
+
+        def work(
+            out: Path = fresh,
+            progress: list[float] = last_progress,
+            errors: list[BaseException] = failed,
+            finished: threading.Event = done,
+        ) -> None:
+            try:
+                enc = _Encoder(out, codec, fps, shape)
+                for t, img in frames:
+                    enc.add(t, img)
+                    progress[0] = time.monotonic()
+                enc.close()
+            except BaseException as exc:  # handed to the waiting thread
+                errors.append(exc)
+            finally:
+                finished.set()
+
+        threading.Thread(target=work, daemon=True, name=f"encode {path.name}").start()
+        while not done.wait(0.5):
+            if time.monotonic() - last_progress[0] > stall_s:
+                break
+        if done.is_set():
+            if failed:
+                fresh.unlink(missing_ok=True)
+                raise failed[0]
+            fresh.replace(path)
+            return
+        print(
+            f"warning: the {codec} encoder made no progress for {stall_s:g} s on {path.name} "
+            "(an SVT-AV1 deadlock); encoding it again",
+            file=sys.stderr,
+        )
+    raise UserError(
+        f"the {codec} encoder deadlocked three times on {path}; write it with libx264 instead"
+    )
+
+
 def _features(cameras: tuple[str, ...], shape: tuple[int, int], codec: str, fps: float) -> dict:
     video_info = {
         "video.height": shape[0], "video.width": shape[1], "video.codec": CODECS[codec],
@@ -329,15 +392,14 @@ def _write_v3(root, info, lengths, states, per_cam, codec, fps, shape) -> None:
     pq.write_table(pa.concat_tables(data), root / "data" / "chunk-000" / "file-000.parquet")
     windows: dict[str, list[tuple[float, float]]] = {}
     for cam, eps in per_cam.items():
-        enc = _Encoder(root / "videos" / cam / "chunk-000" / "file-000.mp4", codec, fps, shape)
-        t0, win = 0.0, []
+        t0, win, timed = 0.0, [], []
         for frames in eps:
-            for t, img in frames:
-                enc.add(t0 + t, img)
+            timed += [(t0 + t, img) for t, img in frames]
             end = t0 + frames[-1][0] + 1 / fps  # the window ends one interval after its last
             win.append((t0, end))
             t0 = end
-        enc.close()
+        path = root / "videos" / cam / "chunk-000" / "file-000.mp4"
+        encode_file(path, codec, fps, shape, timed)
         windows[cam] = win
     cols: dict[str, list] = {
         "episode_index": list(range(len(lengths))),
@@ -379,10 +441,7 @@ def _write_v21(root, info, lengths, states, per_cam, codec, fps, shape) -> None:
     for cam, eps in per_cam.items():
         for e, frames in enumerate(eps):
             path = root / "videos" / "chunk-000" / cam / f"episode_{e:06d}.mp4"
-            enc = _Encoder(path, codec, fps, shape)
-            for t, img in frames:
-                enc.add(t, img)
-            enc.close()
+            encode_file(path, codec, fps, shape, frames)
 
 
 if __name__ == "__main__":  # python -m analysis.dataset.synthetic OUT [v3.0|v2.1] [codec]

@@ -154,3 +154,39 @@ def test_an_untagged_window_reopened_gives_the_values_of_both_ranges_at_once(tmp
     assert left >= 128  # the luma left the limited range in the second batch
     assert np.array_equal(got, want, equal_nan=True)
     assert np.array_equal(got_late, want_late, equal_nan=True) and len(got_late) == left
+
+
+def test_a_deadlocked_encoder_is_abandoned_and_the_file_encoded_again(
+    tmp_path, monkeypatch, capsys
+):
+    """SVT-AV1 once deadlocked in the suite (every thread waiting, no CPU, for ever) while the
+    test dataset was written. The encoder's first attempt is made to hang here: the file is
+    encoded again and holds every frame; three hangs end in one clear error."""
+    import threading
+
+    from analysis.dataset import synthetic
+    from vdc.errors import UserError
+
+    real_add, hangs, release = synthetic._Encoder.add, [1], threading.Event()
+
+    def add(self, t_s, rgb):
+        if hangs[0] > 0 and str(self.container.name).endswith("attempt0.mp4"):
+            release.wait()  # blocks as the deadlocked encoder did
+        real_add(self, t_s, rgb)
+
+    monkeypatch.setattr(synthetic._Encoder, "add", add)
+    frames = [(k / 30, np.full((48, 64, 3), 8 * k, np.uint8)) for k in range(12)]
+    path = tmp_path / "v.mp4"
+    try:
+        synthetic.encode_file(path, "libx264", 30.0, (48, 64), frames, stall_s=1.0)
+        assert "no progress for 1 s on v.mp4" in capsys.readouterr().err
+        with av.open(str(path)) as c:
+            assert sum(1 for _ in c.decode(video=0)) == len(frames)
+        hangs[0] = 3
+        monkeypatch.setattr(synthetic._Encoder, "add", lambda self, t, rgb: release.wait())
+        with pytest.raises(UserError, match="deadlocked three times"):
+            synthetic.encode_file(
+                tmp_path / "w.mp4", "libx264", 30.0, (48, 64), frames, stall_s=0.5
+            )
+    finally:
+        release.set()  # the abandoned threads finish and close their files
