@@ -287,7 +287,9 @@ def encode_file(
     )
 
 
-def _features(cameras: tuple[str, ...], shape: tuple[int, int], codec: str, fps: float) -> dict:
+def _features(
+    cameras: tuple[str, ...], shape: tuple[int, int], codec: str, fps: float, images: tuple = ()
+) -> dict:
     video_info = {
         "video.height": shape[0], "video.width": shape[1], "video.codec": CODECS[codec],
         "video.pix_fmt": "yuv420p", "video.is_depth_map": False, "video.fps": fps,
@@ -295,8 +297,9 @@ def _features(cameras: tuple[str, ...], shape: tuple[int, int], codec: str, fps:
     }  # fmt: skip
     names = [f"joint_{j}" for j in range(STATE_DIM)]
     feats: dict[str, Any] = {
-        cam: {"dtype": "video", "shape": [shape[0], shape[1], 3],
-              "names": ["height", "width", "channels"], "info": video_info}
+        cam: {"dtype": "image" if cam in images else "video", "shape": [shape[0], shape[1], 3],
+              "names": ["height", "width", "channels"]}
+        | ({} if cam in images else {"info": video_info})
         for cam in cameras
     }  # fmt: skip
     feats |= {
@@ -337,11 +340,14 @@ def write_dataset(
     faults: Faults = STANDARD_FAULTS,
     cameras: tuple[str, ...] = ("observation.images.front",),
     seed: int = 0,
+    image_cameras: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """Write a LeRobot dataset at ``root`` (see the module) and return its truth: ``lengths``
     (frames per episode), ``faults``, ``fps``, ``cameras``. Episode lengths are spread evenly
     over ``seconds``; the first camera carries the faults, the others see the clean scene
-    (their own, shifted a little). Faults name episodes below ``episodes``."""
+    (their own, shifted a little). Faults name episodes below ``episodes``. The cameras in
+    ``image_cameras`` are stored as LeRobot image features instead of video: one PNG per frame,
+    ``images/{key}/episode-{e:06d}/frame-{i:06d}.png``."""
     if version not in ("v3.0", "v2.1"):
         raise UserError(f"version must be v3.0 or v2.1, got {version!r}")
     if codec not in CODECS:
@@ -365,14 +371,23 @@ def write_dataset(
         "codebase_version": version, "robot_type": "synthetic_arm",
         "total_episodes": episodes, "total_frames": int(sum(lengths)), "total_tasks": 1,
         "chunks_size": 1000, "fps": fps, "splits": {"train": f"0:{episodes}"},
-        "features": _features(cameras, shape, codec, fps),
+        "features": _features(cameras, shape, codec, fps, image_cameras),
     }  # fmt: skip
+    for cam in image_cameras:
+        if cam not in per_cam:
+            raise UserError(f"image camera {cam!r} is not one of the cameras {cameras}")
+        for e, frames in enumerate(per_cam.pop(cam)):
+            folder = root / "images" / cam / f"episode-{e:06d}"
+            folder.mkdir(parents=True, exist_ok=True)
+            for i, (_, rgb) in enumerate(frames):  # a PNG carries no time: frame i is row i
+                cv2.imwrite(str(folder / f"frame-{i:06d}.png"), rgb[..., ::-1])
     if version == "v3.0":
         _write_v3(root, info, lengths, states, per_cam, codec, fps, shape)
     else:
         _write_v21(root, info, lengths, states, per_cam, codec, fps, shape)
     return {"lengths": lengths, "faults": faults, "fps": fps, "cameras": cameras,
-            "version": version, "codec": codec, "shape": shape}  # fmt: skip
+            "version": version, "codec": codec, "shape": shape,
+            "image_cameras": image_cameras}  # fmt: skip
 
 
 def _write_v3(root, info, lengths, states, per_cam, codec, fps, shape) -> None:

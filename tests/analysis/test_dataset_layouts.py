@@ -190,3 +190,28 @@ def test_a_deadlocked_encoder_is_abandoned_and_the_file_encoded_again(
             )
     finally:
         release.set()  # the abandoned threads finish and close their files
+
+
+@pytest.mark.parametrize("version", ["v3.0", "v2.1"])
+def test_image_features_stored_as_png_frames_are_measured(tmp_path, version: str) -> None:
+    """LeRobot's image features (one PNG per frame, images/{key}/episode-*/frame-*.png, no
+    video) are read as image sequences at the dataset's fps: every frame of every episode
+    measured, and a frozen run in the PNGs flagged as in a video."""
+    root = tmp_path / "png"
+    truth = write_dataset(root, episodes=3, version=version, codec="libx264", seconds=(2.0, 2.2),
+                          faults=Faults(frozen={1: (12, 10)}), cameras=(FRONT, WRIST),
+                          image_cameras=(FRONT,))  # fmt: skip
+    info = json.loads((root / "meta" / "info.json").read_text())
+    assert info["features"][FRONT]["dtype"] == "image" and not (root / "videos" / FRONT).exists()
+    assert (
+        len(list((root / "images" / FRONT / "episode-000001").glob("frame-*.png")))
+        == (truth["lengths"][1])
+    )
+    res = _run(root, tmp_path / "out")
+    assert res.problems == [] and res.exit_status == 0
+    rows = {(r["episode_index"], r["camera"]): r for r in res.episodes.iter_rows(named=True)}
+    assert len(rows) == 6  # 3 episodes x 2 cameras, the PNG one among them
+    for e, n in enumerate(truth["lengths"]):
+        assert rows[(e, FRONT)]["frames_decoded"] == n  # every PNG, once
+    flagged = {k: r["flags"] for k, r in rows.items() if r["flags"]}
+    assert flagged == {(1, FRONT): "frozen"}
