@@ -28,8 +28,10 @@ import polars as pl
 from matplotlib.figure import Figure
 
 from analysis.boundary.command import WARMUP_FRAMES
+from analysis.predictors.inference import holm
 from analysis.predictors.report import label
 from analysis.predictors.statistics import HEADLINE, MEASURES, MIN_CONDITIONS, MIN_FAILURES
+from analysis.stats import ALPHA
 from vdc.parquet_io import write_parquet
 
 QUICK_BANNER = (
@@ -232,6 +234,23 @@ def in_words(r: dict[str, Any]) -> str:
     return f"{who}: {est}: no difference at this power"
 
 
+JUDGED = ("better", "worse", "no difference shown")  # the verdicts a judged study gets
+
+
+def with_holm_across(primary: pl.DataFrame) -> pl.DataFrame:
+    """``p_holm_across``: each judged study's primary p, Holm-adjusted over the judged studies
+    (the plan judges each alone at 5 %; this says which verdicts survive all of them at once).
+    Null where a study was not judged."""
+    if "p_value" not in primary.columns:
+        return primary.with_columns(pl.lit(None, pl.Float64).alias("p_holm_across"))
+    judged = primary["verdict"].is_in(list(JUDGED)).to_numpy()
+    p = np.where(judged, primary["p_value"].cast(pl.Float64).fill_null(np.nan).to_numpy(), np.nan)
+    adj = holm(p)
+    return primary.with_columns(
+        pl.Series("p_holm_across", [None if np.isnan(v) else float(v) for v in adj], pl.Float64)
+    )
+
+
 def first_paragraph(primary: pl.DataFrame) -> str:
     """answer.md's first paragraph: the question and each study's answer in plain words."""
     rows = list(primary.iter_rows(named=True))
@@ -251,9 +270,20 @@ def first_paragraph(primary: pl.DataFrame) -> str:
             "difference at this power"
         )
     gist = "; ".join(parts) + f" (of {len(rows)} studies)"
+    across = ""
+    decided = [r for r in rows if r.get("verdict") in ("better", "worse")]
+    if decided and len(rows) > 1:
+        kept = [r for r in decided if (r.get("p_holm_across") or 1.0) < ALPHA]
+        n_judged = sum(1 for r in rows if r.get("verdict") in JUDGED)
+        names = ", ".join(f"{r['source']} {r['detector']}" for r in kept) or "none"
+        across = (
+            f" Each study is judged alone, as the plan fixed; with Holm's correction over the "
+            f"{n_judged} judged studies, {len(kept)} of the {len(decided)} verdicts "
+            f"{'stands' if len(kept) == 1 else 'stand'} ({names})."
+        )
     return (
         "**Does the AVDM predict where collision detectors fail better than P.910 TI?** "
-        f"Across the plan's studies: {gist}. " + "; ".join(in_words(r) for r in rows) + "."
+        f"Across the plan's studies: {gist}.{across} " + "; ".join(in_words(r) for r in rows) + "."
     )
 
 
@@ -288,7 +318,7 @@ def write_answer(
         scene_tables[f"{st['source']}: {st['detector']}"] = per_scene(units).with_columns(
             pl.lit(st["source"]).alias("source"), pl.lit(st["detector"]).alias("detector")
         )
-    primary = pl.DataFrame(prim_rows, infer_schema_length=None)
+    primary = with_holm_across(pl.DataFrame(prim_rows, infer_schema_length=None))
     sec = pl.concat(secondaries, how="diagonal_relaxed") if secondaries else pl.DataFrame()
     scenes = pl.concat(list(scene_tables.values())) if scene_tables else pl.DataFrame()
     paths = [
@@ -318,21 +348,23 @@ def answer_markdown(
         "interval); footage, of their clip AUROCs (DeLong). 95 % intervals; judged at 5 % "
         f"alone, and only on at least {MIN_CONDITIONS} conditions or {MIN_FAILURES} failing "
         "clips (the power thresholds).\n",
-        "| source | detector | n | AVDM | TI | AVDM − TI | p | verdict |",
-        "|---|---|---|---|---|---|---|---|",
+        "| source | detector | n | AVDM | TI | AVDM − TI | p | Holm p over the studies | verdict |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in primary.iter_rows(named=True):
         if r.get("statistic") is None:
-            lines.append(f"| {r['source']} | {r['detector']} | — | — | — | — | — | "
+            lines.append(f"| {r['source']} | {r['detector']} | — | — | — | — | — | — | "
                          f"{(r.get('verdict') or '')[:120]} |")  # fmt: skip
             continue
+        across = r.get("p_holm_across")
         lines.append(
             f"| {r['source']} | {r['detector']} ({r['param']} {r['value']:g}) | {r['n']} "
             f"({r['n_failures']} failing) | "
             f"{_fmt(r['avdm_estimate'], r['avdm_ci_low'], r['avdm_ci_high'])} | "
             f"{_fmt(r['ti_estimate'], r['ti_ci_low'], r['ti_ci_high'])} | "
             f"{_fmt(r['difference'], r['difference_low'], r['difference_high'], 3)} | "
-            f"{_p(r['p_value'])} | {r['verdict']} |"
+            f"{_p(r['p_value'])} | {_p(across) if across is not None else '—'} | "
+            f"{r['verdict']} |"
         )
     lines += ["", "## Secondary comparisons (Holm-corrected within each study)\n"]
     if sec.height:

@@ -132,3 +132,33 @@ def test_the_discordant_share_is_kendalls_tau_rescaled() -> None:
     # across groups only: the within-group pairs (here all concordant) are left out
     group = np.array([0, 0, 1, 1])
     assert discordant_share([1, 2, 0, 0.5], [1, 2, 3, 4], group) == 1.0
+
+
+def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
+    """The plan judges each study's primary comparison alone at 5 %; the answer also says which
+    verdicts survive Holm over the judged studies (the plan's own run: 4 verdicts, 1 stands)."""
+    from analysis.experiments.power_answer import first_paragraph, with_holm_across
+
+    base = {"param": "v", "value": 1.0, "statistic": "s", "n": 48, "n_failures": 20,
+            "unit": "condition", "status": "ran", "avdm_estimate": 0.1, "avdm_ci_low": 0.0,
+            "avdm_ci_high": 0.2, "ti_estimate": 0.2, "ti_ci_low": 0.1, "ti_ci_high": 0.3,
+            "difference": -0.1, "difference_low": -0.2, "difference_high": 0.0}  # fmt: skip
+    studies = [
+        ("arena", "lgmd-plus-arena", 0.0014, "worse"),
+        ("arena", "flow-ttc", 0.019, "better"),
+        ("footage", "lgmd-plus", 0.25, "no difference shown"),
+        ("footage", "looming", 0.048, "worse"),
+        ("footage", "flow-ttc", 0.013, "worse"),
+        ("footage", "unjudged", 0.001, "too few failures to judge (9; 46 needed)"),
+    ]
+    primary = with_holm_across(pl.DataFrame([
+        base | {"source": s, "detector": d, "p_value": p, "verdict": v} for s, d, p, v in studies
+    ]))  # fmt: skip
+    # Holm over the five judged: 0.0014 x 5, then 0.013 x 4 = 0.052 stops it; the unjudged none
+    expected = [0.007, 0.057, 0.25, 0.096, 0.052, None]
+    got = primary["p_holm_across"].to_list()
+    assert got[-1] is None
+    assert np.allclose(got[:-1], expected[:-1], atol=1e-12)  # exact products, one rounding
+    text = first_paragraph(primary)
+    assert "with Holm's correction over the 5 judged studies, 1 of the 4 verdicts stands" in text
+    assert "(arena lgmd-plus-arena)" in text
