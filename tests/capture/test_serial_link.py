@@ -406,7 +406,7 @@ def test_schedule_file_and_saved_calibration(tmp_path: Path) -> None:
     emu = start_emulator(link, report_path, "--minutes", str(4 / 60))
     proc = capture_robot(
         link, tmp_path / "overhead" / "%05d.png", out, "--tf-schedule", str(schedule),
-        "--save-calibration", str(tmp_path / "cal.json"), "--quiet", timeout=60,
+        "--save-calibration", str(tmp_path / "cal.json"), "--quiet", timeout=300,
     )  # fmt: skip
     emu.wait(timeout=30)
     assert proc.returncode == 0, proc.stderr
