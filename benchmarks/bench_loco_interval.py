@@ -20,20 +20,10 @@ import argparse
 import numpy as np
 from scipy.stats import binomtest
 
-from analysis.predictors.held_out import loco_interval, loco_predictions, loco_threshold
+from analysis.predictors.held_out import loco_interval, loco_threshold, posterior_interval
 from analysis.predictors.synthetic import conditions, loco_truth
 
 ALPHA_LOGIT = -1.0  # about a third of the conditions fail at beta = 0
-
-
-def beta_posterior_interval(x: np.ndarray, fails: np.ndarray, rng: np.random.Generator):
-    """The plain reference: sensitivity and specificity of the held-out predictions as
-    independent Beta(k + 1/2, n - k + 1/2) posteriors; their mean's central 95 %."""
-    pred = loco_predictions(x[None], fails[None])[0]
-    tp, fn = int((pred & fails).sum()), int((~pred & fails).sum())
-    tn, fp = int((~pred & ~fails).sum()), int((pred & ~fails).sum())
-    draws = (rng.beta(tp + 0.5, fn + 0.5, 4000) + rng.beta(tn + 0.5, fp + 0.5, 4000)) / 2
-    return np.quantile(draws, [0.025, 0.975])
 
 
 def main() -> None:
@@ -57,7 +47,7 @@ def main() -> None:
                 assert np.isfinite(loco_threshold(x, fails))
                 for name, (lo, hi) in (
                     ("vdc", loco_interval(x, fails, rng, args.boot)),
-                    ("beta", beta_posterior_interval(x, fails, rng)),
+                    ("beta", posterior_interval(x, fails, rng)),
                 ):
                     hits[name] += lo <= truth <= hi
                     width[name].append(hi - lo)

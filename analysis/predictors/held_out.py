@@ -74,11 +74,16 @@ def fit_thresholds(x: np.ndarray, fails: np.ndarray) -> np.ndarray:
     cands = np.concatenate([xs[:, :1] - 1.0, (xs[:, 1:] + xs[:, :-1]) / 2, xs[:, -1:] + 1.0], 1)
     ba = _balanced(x[:, None, :] > cands[:, :, None], fails[:, None, :])  # (B, C)
     ba = np.where(np.isfinite(ba), ba, -1.0)
-    # equal balanced accuracies reached by different sums differ in their last bit: a tie
+    return cands[np.arange(len(x)), _middle_of_best(ba)]
+
+
+def _middle_of_best(ba: np.ndarray) -> np.ndarray:
+    """Per row of ``ba`` (B, C), the column in the middle of those tied for the best; equal
+    balanced accuracies reached by different sums differ in their last bit, so a tie is
+    within 1e-12. (B,) int."""
     tie = ba >= ba.max(1, keepdims=True) - 1e-12
     k = tie.sum(1) // 2
-    pick = np.argmax(np.cumsum(tie, 1) > k[:, None], axis=1)
-    return cands[np.arange(len(x)), pick]
+    return np.argmax(np.cumsum(tie, 1) > k[:, None], axis=1)
 
 
 def loco_bootstrap(
@@ -121,9 +126,7 @@ def loco_bootstrap(
         # a threshold fails the units above it: tied values fall on one side together
         ba = np.take_along_axis(ba, np.searchsorted(x, t, side="right"), 1)
         ba = np.where(canonical & np.isfinite(ba), ba, -1.0)
-        tie = ba >= ba.max(1, keepdims=True) - 1e-12
-        k = tie.sum(1) // 2
-        cut = np.argmax(np.cumsum(tie, 1) > k[:, None], axis=1)
+        cut = _middle_of_best(ba)
         p = x[i] > t[rows, cut]
         pred[:, i] = np.where(np_ == 0, True, np.where(nf == 0, False, p))
     wf, wp = w_all * fails, w_all * ~fails
@@ -148,9 +151,18 @@ def loco_interval(
     if len(boot) < n_boot // 2:
         return math.nan, math.nan
     lo, hi = np.quantile(boot, [ALPHA / 2, 1 - ALPHA / 2])
+    post_lo, post_hi = posterior_interval(x, fails, rng)
+    return float(min(lo, post_lo)), float(max(hi, post_hi))
+
+
+def posterior_interval(
+    x: np.ndarray, fails: np.ndarray, rng: np.random.Generator
+) -> tuple[float, float]:
+    """The held-out predictions' sensitivity and specificity as independent Beta(k + 1/2,
+    n - k + 1/2) posteriors; their mean's central 95 % (4000 draws). x (N,) finite, fails (N,)."""
     pred = loco_predictions(x[None], fails[None])[0]
     tp, fn = int((pred & fails).sum()), int((~pred & fails).sum())
     tn, fp = int((~pred & ~fails).sum()), int((pred & ~fails).sum())
     post = (rng.beta(tp + 0.5, fn + 0.5, 4000) + rng.beta(tn + 0.5, fp + 0.5, 4000)) / 2
-    post_lo, post_hi = np.quantile(post, [ALPHA / 2, 1 - ALPHA / 2])
-    return float(min(lo, post_lo)), float(max(hi, post_hi))
+    lo, hi = np.quantile(post, [ALPHA / 2, 1 - ALPHA / 2])
+    return float(lo), float(hi)
