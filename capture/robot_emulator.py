@@ -348,9 +348,10 @@ class RobotEmulator:
         host that does not answer), 60 s in which the host read nothing (it is gone), or 5
         minutes in all."""
         if self._write(encode(TYPE_END)) and not self.stopped:
-            # an empty queue alone is not proof that END was read: bytes still in the pty's
-            # flip buffer are not counted yet, and a loaded machine may keep them there; 5 s
-            # of quiet once closed the port under a host that then waited 30 s for it (CI)
+            # an empty queue alone is not proof that END was handled: a host reads ahead of
+            # what it has processed, and bytes still in the pty's flip buffer are not
+            # counted yet; the host's STOP is the proof (CI's two closes under a waiting host
+            # were the host's own fault: it dropped packets read together, END among them)
             self._drain(timeout_s=300.0, settle_s=30.0, stall_s=60.0)
             self.report["end"] = self.drain_end
         self.close_port()

@@ -9,6 +9,7 @@ packets, and reopens the port after it disappears. The robot's end, emulated, is
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Iterable, Iterator
 
 import serial
@@ -59,7 +60,9 @@ class SerialLink:
         self.ended = False
         self._ser: serial.Serial | None = None
         self._last_data = time.monotonic()
-        self._pending: list[tuple[int, object]] = []  # read during the handshake
+        # read but not yet yielded (during the handshake, or behind a packet a caller took)
+        self._pending: deque[tuple[int, object]] = deque()
+        self._lost = False  # the port vanished; reopen it before reading on
         self.announcements: list[Announcement] = []  # every ANNOUNCE, in order
         self.no_announce = ""  # why the handshake got no ANNOUNCE
 
@@ -163,47 +166,51 @@ class SerialLink:
 
     def packets(self) -> Iterator[tuple[int, object]]:
         """(type, FramePacket or Announcement) as they arrive; ends when the robot sends END.
-        Yields (0, None) about every 50 ms while the line is quiet, so callers can stop."""
-        while self._pending and not self.ended:
-            ptype, obj = self._pending.pop(0)
-            if ptype == TYPE_END:
-                self.ended = True
-                return
-            yield (ptype, obj)
+        Yields (0, None) about every 50 ms while the line is quiet, so callers can stop, and
+        (0, "disconnect") when the port is lost (it is reopened before the next packet).
+
+        A caller may stop iterating at any packet and call again: whatever was read but not
+        yet yielded waits in the link, not in the generator. (It once lived in the generator,
+        and a capture that ended its batch on the first of several packets read together
+        dropped the rest, the robot's END among them: the host then waited for a robot that
+        had finished.)"""
         while not self.ended:
+            if self._lost:
+                self._lost = False
+                self._reconnect()
+            if self._pending:
+                ptype, obj = self._pending.popleft()
+                if ptype == TYPE_END:
+                    self.ended = True
+                    return
+                yield (ptype, obj)
+                continue
             try:
                 # read only what is waiting: a read that spans the moment the port vanishes
                 # would otherwise lose the bytes it had already gathered
                 waiting = self._ser.in_waiting if self._ser is not None else 0
                 data = self._ser.read(waiting or 1) if self._ser is not None else b""
             except (*PORT_ERRORS, TypeError):
+                self._lost = True
                 yield (0, "disconnect")
-                self._reconnect()
                 continue
             if not data:
                 quiet_s = time.monotonic() - self._last_data
                 if quiet_s > 0.3 and self.parser.buf:
                     # nothing more is coming for now: free any packet a damaged length holds
-                    salvaged = self._decoded_packets(self.parser.salvage())
-                    for ptype, obj in salvaged:
-                        if ptype == TYPE_END:
-                            self.ended = True
-                            return
-                        yield (ptype, obj)
+                    self._pending += self._decoded_packets(self.parser.salvage())
+                    if self._pending:
+                        continue
                 if quiet_s > 2.0 and self._ser is not None:
                     # silent for 2 s: a START may have been lost; asking again is harmless
                     try:
                         self._send_start()
                     except PORT_ERRORS:
+                        self._lost = True
                         yield (0, "disconnect")
-                        self._reconnect()
                         continue
                     self._last_data = time.monotonic()
                 yield (0, None)
                 continue
             self._last_data = time.monotonic()
-            for ptype, obj in self._decoded(data):
-                if ptype == TYPE_END:
-                    self.ended = True
-                    return
-                yield (ptype, obj)
+            self._pending += self._decoded(data)

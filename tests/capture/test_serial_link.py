@@ -562,3 +562,34 @@ def test_the_host_reads_a_robots_end_behind_a_damaged_length_on_a_pty() -> None:
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_packets_read_together_survive_a_caller_that_stops_after_each() -> None:
+    """CI's 'did not come back within 30 s' after a clean run: a loaded host read the last
+    frames and END in one chunk, its capture ended the batch on the first of them, and the
+    rest went with the abandoned generator. On a real pty, a caller that takes one packet per
+    call to ``packets()`` (as a capture's batch does when time is up) gets every frame and END."""
+    import tty
+
+    from capture.serial_link import SerialLink
+
+    n = 5
+    stream = b"".join(encode_frame(i, i * 30_000, [float(i)], None, (2, 2)) for i in range(n))
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    try:
+        link = SerialLink(os.ttyname(slave), reconnect_timeout_s=1.0)
+        link.open()
+        os.write(master, stream + encode(TYPE_END))  # one write: read in one chunk
+        frames, deadline = [], time.monotonic() + 60  # a loaded machine may deliver late
+        while not link.ended:
+            for ptype, obj in link.packets():
+                if ptype == TYPE_FRAME:
+                    frames.append(obj.index)
+                    break  # the batch is full: the caller stops here
+                assert time.monotonic() < deadline, f"the host never read END (frames {frames})"
+        assert frames == list(range(n))
+        link.close()
+    finally:
+        os.close(master)
+        os.close(slave)
