@@ -60,14 +60,13 @@ for _var in BLAS_THREAD_ENV:
 import av  # noqa: E402, F401  - after the thread limits above
 import cv2  # noqa: E402
 import matplotlib  # noqa: E402
-import matplotlib.figure  # noqa: E402
-import matplotlib.pyplot  # noqa: E402, F401
+import matplotlib.figure  # noqa: E402, F401  - not pyplot: vdc never imports it (test_layout)
 import numba  # noqa: E402, F401
 import numpy as np  # noqa: E402
 
 # The campaigns' task modules import these at the top (the boundary fit, the predictors,
 # the figures); a worker forked without them paid 1.1 s of its 1.9 s start-up importing
-# them, once per worker and per pool (a campaign opens a pool per stage). Neither starts a
+# them, once per worker and per pool (a campaign opens a pool per stage). None starts a
 # thread at import (checked by tests/test_executors_pool.py).
 import scipy.optimize  # noqa: E402
 import scipy.stats  # noqa: E402, F401
