@@ -176,8 +176,8 @@ class SerialLink:
         had finished.)"""
         while not self.ended:
             if self._lost:
+                self._reconnect()  # LinkLost leaves it lost: a later call tries again
                 self._lost = False
-                self._reconnect()
             if self._pending:
                 ptype, obj = self._pending.popleft()
                 if ptype == TYPE_END:
