@@ -20,7 +20,7 @@ import compileall
 import pytest
 from hypothesis import settings
 
-from tests.helpers import end_background_processes
+from tests.helpers import ROOT, end_background_processes
 
 # Property tests assert behaviour, never wall-clock time: a first example that compiles a
 # kernel or fits a calibration on a loaded CI machine is not a failure (no deadline)
@@ -46,9 +46,8 @@ def _end_background_processes():
 # process compiled the same sources again: 0.3-0.5 s of CPU each. The controller compiles
 # them once, as pip does for an installed package; the workers and their commands only load.
 if "PYTEST_XDIST_WORKER" not in os.environ:
-    _root = Path(__file__).resolve().parent.parent
     for _pkg in ("analysis", "avdm", "capture", "vdc"):
-        compileall.compile_dir(_root / _pkg, quiet=1)
+        compileall.compile_dir(ROOT / _pkg, quiet=1)
 
 
 # Fitted calibrations are cached per user; the tests use a cache of their own (inherited by
@@ -88,11 +87,10 @@ LONGEST_FIRST = (
 
 def pytest_collection_modifyitems(config, items) -> None:
     rank = {path: k for k, path in enumerate(LONGEST_FIRST)}
-    root = Path(__file__).resolve().parent.parent
 
     def key(item) -> int:
         path = Path(str(item.fspath)).resolve()
-        rel = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
+        rel = path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else str(path)
         return rank.get(rel, len(rank))
 
     items.sort(key=key)  # stable: within a file, and among the rest, the order stays
