@@ -21,7 +21,7 @@ from vdc.cli_support import (
     settings_from_args,
     tasks_line,
 )
-from vdc.executors import Feedback, TasksFailed
+from vdc.executors import Feedback, TasksFailed, one_pool
 
 PROG = "vdc-analyse"
 
@@ -456,8 +456,12 @@ def cli_reference() -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    # a campaign with failed runs keeps the finished ones; a re-run retries the failed
-    return run_command_line(PROG, build_parser(command_of(argv, COMMANDS)), argv, {TasksFailed: ""})
+    # a campaign with failed runs keeps the finished ones; a re-run retries the failed;
+    # its stages share one pool of workers (their start-up paid once)
+    with one_pool():
+        return run_command_line(
+            PROG, build_parser(command_of(argv, COMMANDS)), argv, {TasksFailed: ""}
+        )
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -156,3 +156,87 @@ if __name__ == "__main__":
     proc = _run(tmp_path, script)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip() == "None 'set later'"
+
+
+def test_a_commands_stages_share_one_pool_and_a_broken_one_is_replaced(tmp_path) -> None:
+    """Inside ``one_pool`` a stage's workers serve the next stage (their imports paid once);
+    a worker that dies breaks that pool, its task is retried on a fresh one, and the stage
+    after it still runs; outside, every call has its own workers; a changed environment
+    gets workers that have it. Each stage's two tasks wait for each other, so both workers
+    of the pool take one (which worker takes a task is otherwise up to the machine)."""
+    script = """
+import json, os, time
+from pathlib import Path
+from vdc.executors import ExecutorSettings, one_pool, run_tasks
+
+def meet(folder):
+    os.makedirs(folder, exist_ok=True)
+    Path(folder, str(os.getpid())).touch()
+    deadline = time.monotonic() + 120
+    while len(os.listdir(folder)) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return {"pid": os.getpid(), "probe": os.getenv("VDC_PACE_PROBE")}
+
+def die_once(folder):
+    if not os.path.exists("died"):
+        open("died", "w").close()
+        os._exit(1)
+    return meet(folder)
+
+def stage(fn, name):
+    out = run_tasks(fn, [(str(k), (name,)) for k in range(2)], ExecutorSettings("local", 2))
+    assert not [o.error for o in out if o.error], out
+    return sorted({o.result["pid"] for o in out}), sorted({o.result["probe"] for o in out})
+
+if __name__ == "__main__":
+    got = {}
+    with one_pool():
+        got["first"] = stage(meet, "first")[0]
+        got["second"] = stage(meet, "second")[0]
+        got["broken"] = stage(die_once, "broken")[0]
+        got["after"] = stage(meet, "after")[0]
+        os.environ["VDC_PACE_PROBE"] = "set later"
+        got["env"] = stage(meet, "env")
+    got["outside"] = [stage(meet, "outside1")[0], stage(meet, "outside2")[0]]
+    print(json.dumps(got))
+"""
+    proc = _run(tmp_path, script)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert len(got["first"]) == 2 and got["second"] == got["first"]  # the same two workers
+    assert not set(got["broken"]) & set(got["first"])  # a pool a worker died in is not kept
+    # the fresh pool is kept in turn (its retry may have used one of its two workers)
+    assert len(got["after"]) == 2 and set(got["broken"]) <= set(got["after"])
+    env_pids, probes = got["env"]
+    assert probes == ["set later"] and not set(env_pids) & set(got["after"])
+    a, b = got["outside"]
+    assert len(a) == 2 and not set(a) & set(b)
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs two cores to narrow to one")
+@pytest.mark.parametrize("executor", ["local", pytest.param("dask", marks=pytest.mark.dask)])
+def test_workers_run_on_the_cores_of_the_call_not_of_the_fork_server(tmp_path, executor) -> None:
+    """The fork server starts with the first pool and keeps that process's cores: a caller
+    that widens them since (a benchmark on 1 then 2 cores, ``taskset``) still gets workers
+    on all of them (measured: two workers on the old single core ran no faster than one)."""
+    script = """
+import json, os, sys
+from vdc.executors import ExecutorSettings, run_tasks
+
+def cores(_k):
+    return sorted(os.sched_getaffinity(0))
+
+if __name__ == "__main__":
+    every = set(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, {min(every)})
+    narrow = run_tasks(cores, [("a", (0,))], ExecutorSettings(sys.argv[1], 1))
+    os.sched_setaffinity(0, every)
+    wide = run_tasks(cores, [("a", (0,)), ("b", (1,))], ExecutorSettings(sys.argv[1], 2))
+    print(json.dumps({"every": sorted(every), "narrow": [o.result for o in narrow],
+                      "wide": [o.result for o in wide]}))
+"""
+    proc = _run(tmp_path, script, executor)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert got["narrow"] == [[got["every"][0]]]
+    assert got["wide"] == [got["every"], got["every"]]

@@ -1,12 +1,11 @@
 """Where tasks run: one ``concurrent.futures`` loop, several backends.
 
-* ``local`` (default): a process pool over the usable cores. Its workers are forked from a
-  fork server that has already imported what every worker needs and loaded the Numba kernels
-  (``vdc.warm``), so a second worker duplicates no start-up; the server imports nothing that
-  starts threads (polars', Rerun's), which each worker imports itself. Where there is no fork
-  server (Windows), workers start fresh (``spawn``). If a worker dies the stdlib pool breaks
-  and every pending task fails with it; :func:`run_tasks` then starts a new pool once for the
-  tasks that had not finished (finished ones wrote their results already).
+* ``local`` (default): a process pool over the usable cores, its workers forked warm from
+  a fork server (:mod:`vdc.pool_workers`: how they start and end). If a worker dies the
+  stdlib pool breaks and every pending task fails with it; :func:`run_tasks` then starts a
+  new pool once for the tasks that had not finished (finished ones wrote their results
+  already). Inside :func:`one_pool` (every ``vdc-analyse`` command, the campaigns' library
+  calls) the stages share one pool, so the workers' start-up is paid once.
 * ``dask``: an existing cluster (``scheduler`` = ``tcp://host:port``, ``tls://...`` or a
   scheduler file) or, without one, a local cluster on 127.0.0.1 (dashboard on 127.0.0.1 too);
   ``client.get_executor`` gives real ``concurrent.futures`` futures. Needs the optional extra
@@ -28,26 +27,25 @@ from __future__ import annotations
 import ast
 import concurrent.futures as cf
 import contextlib
-import ctypes
 import dataclasses
-import multiprocessing
 import os
-import select
-import signal
 import sys
 import threading
-import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
-from multiprocessing import forkserver
 from pathlib import Path
 from typing import Any
 
-import cv2
-from threadpoolctl import threadpool_limits
-
 from vdc.cli_support import Settings, option
 from vdc.errors import UserError
+from vdc.pool_workers import (
+    _die_with_parent,
+    _worker_parent,
+    _workers_end_before_parent,
+    end_workers,
+    one_thread_per_worker,
+    pool_context,
+)
 
 EXECUTORS = ("local", "dask")
 
@@ -188,115 +186,29 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
             dashboard_address="127.0.0.1:0",
         )
     client = Client(cluster)
-    _one_thread_on_dask(client, WorkerPlugin)
+    cpus = frozenset(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    _one_thread_on_dask(client, WorkerPlugin, cpus)
     return client, cluster
 
 
-def _one_thread_on_dask(client: Any, plugin_base: type) -> None:
+def _one_thread_on_dask(client: Any, plugin_base: type, cpus: frozenset[int] | None = None) -> None:
     """One OpenCV and one BLAS thread in every worker of the cluster, now and after a restart
     (a worker plugin: Dask's nanny sets the BLAS variables before a worker starts, but not
-    OpenCV's threads, nor the BLAS of a cluster started without a nanny)."""
+    OpenCV's threads, nor the BLAS of a cluster started without a nanny). ``cpus``: the
+    cores of vdc's own local cluster (its workers fork from the fork server, which kept the
+    cores of when it started; see :func:`_die_with_parent`)."""
 
     # distributed.WorkerPlugin; a local class, pickled by value (cloudpickle)
     class OneThreadPerWorker(plugin_base):
         name = "vdc-one-thread-per-worker"
 
         def setup(self, worker: Any) -> None:
+            if cpus is not None:
+                with contextlib.suppress(OSError):
+                    os.sched_setaffinity(0, cpus)
             one_thread_per_worker(1)
 
     client.register_plugin(OneThreadPerWorker())
-
-
-def _die_with_parent(
-    parent_pid: int,
-    threads: int = 1,
-    pool_pid: int | None = None,
-    environ: dict[str, str] | None = None,
-) -> None:
-    """Pool worker start-up: end this worker when the pool's process ends, by any signal,
-    SIGKILL included, and undo the signal handling it may have inherited. ``environ``: the
-    pool's process's environment when it started the pool (a worker forked from the fork
-    server would otherwise have the server's, from when the server started; what a library
-    read when the server imported it stays as it was).
-
-    ``parent_pid`` is this worker's parent: the pool's process (``spawn``) or the fork server
-    (``pool_pid`` is then the pool's process). The fork server does not end before its
-    workers (they hold its liveness pipe), so a worker watches the pool's process itself.
-
-    * Linux: the kernel sends SIGKILL when the parent dies (``PR_SET_PDEATHSIG``); the parent
-      may already be gone by then, so that is checked once after asking;
-    * a daemon thread waits for the pool's process to end (a pidfd, Linux 5.3+: no polling),
-      or checks every half second whether it still runs (elsewhere, or with ``spawn``:
-      whether the worker has been handed to another parent);
-    * SIGTERM is the default again (a capture's handler, or an ignored SIGTERM, must not keep
-      a worker alive), and SIGINT is ignored: Ctrl-C reaches the whole process group, and the
-      parent decides what ends (it shuts the pool down)."""
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if environ is not None and environ != os.environ:
-        os.environ.clear()
-        os.environ.update(environ)
-    if sys.platform.startswith("linux"):
-        try:
-            pr_set_pdeathsig = 1
-            ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
-        except (OSError, AttributeError):  # another libc: the watch thread still works
-            pass
-    if os.getppid() != parent_pid:
-        os._exit(1)
-    pidfd = None
-    if pool_pid is not None:
-        try:
-            pidfd = os.pidfd_open(pool_pid)
-        except (AttributeError, OSError):  # not Linux 5.3+; or already gone: the loop sees it
-            pidfd = None
-
-    def alive() -> bool:
-        if os.getppid() != parent_pid:
-            return False
-        if pool_pid is None:
-            return True
-        try:
-            os.kill(pool_pid, 0)
-        except ProcessLookupError:
-            return False
-        except PermissionError:  # pragma: no cover - another user's process: ours ended
-            return False
-        return True
-
-    def watch() -> None:
-        if pidfd is not None:
-            select.select([pidfd], [], [])  # readable once the process has ended
-            os._exit(1)
-        while alive():
-            time.sleep(0.5)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="vdc-parent-watch", daemon=True).start()
-    one_thread_per_worker(threads)
-
-
-# set in pool workers: a worker is one core's worth of work (the pool has one per core), so its
-# libraries must not start threads of their own on the other cores (OpenCV, FFmpeg's decoder)
-SINGLE_THREAD_ENV = "VDC_WORKER_THREADS"
-
-
-def one_thread_per_worker(threads: int = 1) -> None:
-    """Keep this process to one thread of computation: the pool has a worker per core, and
-    OpenCV's, FFmpeg's and the BLAS library's own threads would otherwise compete for the same
-    cores (measured: 8 clips on 2 workers ran only 1.19x faster than on one worker that used
-    both cores; a calibration fit took 11.3 s of CPU with OpenBLAS's default threads on a busy
-    machine, 0.6 s with one). ``threads`` > 1: the cores the pool leaves this worker (fewer
-    workers than cores), which vdc's own pipelines may use (``vdc.pipeline.usable_threads``).
-
-    The BLAS limit is set at run time (threadpoolctl), so it holds whenever NumPy was loaded:
-    in the fork server before (``vdc.warm`` sets the environment first), or in a worker that
-    imported it with the script it re-ran; it also holds for a BLAS loaded later."""
-    os.environ[SINGLE_THREAD_ENV] = str(max(1, threads))
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[var] = "1"  # for what loads later, and the worker's own child processes
-    cv2.setNumThreads(1)
-    threadpool_limits(1)  # BLAS and OpenMP runtimes already loaded
 
 
 def pool_size(jobs: int, n_tasks: int) -> int:
@@ -309,115 +221,124 @@ def pool_size(jobs: int, n_tasks: int) -> int:
     return n
 
 
-def end_workers(pool: cf.ProcessPoolExecutor) -> None:
-    """Kill the pool's workers and collect each: then none runs and their files are closed.
-    SIGKILL, as PDEATHSIG sends: a capture's own SIGTERM handler would finish a truncated run
-    and mark it done; killed, it leaves its partial file for a re-run."""
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    for p in procs:
-        with contextlib.suppress(OSError, ValueError, AttributeError):
-            p.kill()
-    for p in procs:
-        with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
-            p.join()
+class _KeptExecutor:
+    """The executor a command's stages share (:func:`one_pool`): its key (what it was started
+    with), the executor, the Dask client or None, and how to close it."""
+
+    def __init__(self) -> None:
+        self.key: Any = None
+        self.executor: Any = None
+        self.client: Any = None
+        self.close: Callable[[], None] | None = None
+
+    def take(self, key: Any) -> tuple[Any, Any] | None:
+        """The kept executor if it was started with ``key``; else None, the other closed."""
+        if self.executor is not None and self.key == key:
+            return self.executor, self.client
+        self.drop()
+        return None
+
+    def keep(self, key: Any, executor: Any, client: Any, close: Callable[[], None]) -> None:
+        self.key, self.executor, self.client, self.close = key, executor, client, close
+
+    def drop(self) -> None:
+        close, self.close, self.executor, self.client, self.key = self.close, None, None, None, None
+        if close is not None:
+            close()
+
+
+# set by one_pool() in the main thread: the stages of one command share their workers
+_kept: _KeptExecutor | None = None
 
 
 @contextlib.contextmanager
-def _workers_end_before_parent(pool: cf.ProcessPoolExecutor) -> Iterator[None]:
-    """While the block runs, SIGTERM first ends and collects the pool's workers, then ends
-    this process by SIGTERM as before: PDEATHSIG alone let a worker on a busy machine hold its
-    partial recording and lock after the parent's exit had been reported."""
-    if threading.current_thread() is not threading.main_thread():
-        yield  # signal handlers belong to the main thread; PDEATHSIG still ends the workers
+def one_pool() -> Iterator[None]:
+    """Within the block, the workers of one stage serve the next: :func:`run_tasks` keeps its
+    local pool (or local Dask cluster) open and the next call with the same settings and as
+    many workers reuses it, so a worker imports vdc's modules, polars and Rerun and loads
+    the kernels once per command, not once per stage (a campaign runs several stages, an
+    adaptive design several rounds). Closed when the block ends, however it ends. Nested
+    blocks share the outer one's; other threads keep one pool per call."""
+    global _kept
+    if _kept is not None or threading.current_thread() is not threading.main_thread():
+        yield
         return
-
-    previous = signal.getsignal(signal.SIGTERM)
-    if previous == signal.SIG_IGN:
-        yield  # the caller chose to outlive SIGTERM: so do the workers' tasks
-        return
-
-    def on_term(signum: int, frame: Any) -> None:
-        end_workers(pool)
-        if callable(previous):  # the caller's own handler decides what happens next
-            previous(signum, frame)
-            return
-        signal.signal(signum, signal.SIG_DFL)
-        os.kill(os.getpid(), signum)
-
-    signal.signal(signal.SIGTERM, on_term)
+    _kept = kept = _KeptExecutor()
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        _kept = None
+        kept.drop()
 
 
-# what the fork server imports before it forks the first worker (the modules it lists)
-WARM_PRELOAD = ["vdc.warm"]
-
-
-def pool_context() -> multiprocessing.context.BaseContext:
-    """The local pool's start method: a warm ``forkserver`` (``vdc.warm`` preloaded, started
-    now so that it warms while the caller plans), or ``spawn`` where there is none.
-
-    The fork server is one per process (the standard library's): vdc sets its preload list
-    only if it is not running yet. Started by someone else without ``vdc.warm``, its workers
-    start cold but still right (each imports what it needs)."""
-    if "forkserver" not in multiprocessing.get_all_start_methods():
-        return multiprocessing.get_context("spawn")
-    ctx = multiprocessing.get_context("forkserver")
-    server = forkserver._forkserver  # the stdlib's one server: is it running yet?
-    if getattr(server, "_forkserver_pid", None) is None:
-        # not the default "__main__": the server must not run the caller's script
-        ctx.set_forkserver_preload(WARM_PRELOAD)
-    forkserver.ensure_running()
-    return ctx
-
-
-def _worker_parent(ctx: multiprocessing.context.BaseContext) -> int:
-    """The process a new worker's parent is: the fork server (which ends when this process
-    does, however it ends: its pipe from this process closes), or this process."""
-    if ctx.get_start_method() == "forkserver":
-        pid = getattr(forkserver._forkserver, "_forkserver_pid", None)
-        if pid is not None:
-            return pid
-    return os.getpid()
+def _shut(pool: cf.ProcessPoolExecutor) -> None:
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 @contextlib.contextmanager
 def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf.Executor, Any]]:
-    """The executor (and the Dask client, or None) for ``n_tasks`` tasks; closed on exit.
+    """The executor (and the Dask client, or None) for ``n_tasks`` tasks; closed on exit,
+    or kept for the next stage inside :func:`one_pool`.
 
     Local pool workers end with the process that started them, however it ends."""
+    kept = _kept if threading.current_thread() is threading.main_thread() else None
     if settings.executor == "local":
         ctx = pool_context()
         workers = pool_size(settings.jobs, n_tasks)
-        pool = cf.ProcessPoolExecutor(
-            workers,
-            mp_context=ctx,
-            initializer=_die_with_parent,
-            initargs=(
-                _worker_parent(ctx),
-                max(1, usable_cpus() // workers),
-                os.getpid(),
-                dict(os.environ),
-            ),
+        initargs = (
+            _worker_parent(ctx),
+            max(1, usable_cpus() // workers),
+            os.getpid(),
+            dict(os.environ),
+            frozenset(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
         )
+        key = ("local", workers, initargs)
+        reused = kept.take(key) if kept is not None else None
+        pool = reused[0] if reused is not None else None
+        if pool is None:
+            pool = cf.ProcessPoolExecutor(
+                workers, mp_context=ctx, initializer=_die_with_parent, initargs=initargs
+            )
+        ok = False
         try:
             with _workers_end_before_parent(pool):
                 yield pool, None
+            ok = True
         except BaseException:
             end_workers(pool)  # the parent abandons the work (Ctrl-C, an error): so do they
             raise
         finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+            # a pool whose worker died is broken for good: never kept
+            if ok and kept is not None and not getattr(pool, "_broken", False):
+                kept.keep(key, pool, None, lambda p=pool: _shut(p))
+            else:
+                if kept is not None and kept.executor is pool:
+                    kept.key = kept.executor = kept.close = None
+                _shut(pool)
+        return
+    n_workers = max(1, min(settings.jobs, n_tasks))
+    key = ("dask", settings.executor_settings(), n_workers)
+    reused = kept.take(key) if kept is not None else None
+    if reused is not None:
+        client = reused[1]
+        yield client.get_executor(pure=False), client
         return
     client, cluster = _dask_client(settings, n_tasks)
-    try:
-        yield client.get_executor(pure=False), client
-    finally:
+
+    def close() -> None:
         client.close()
         if cluster is not None:
             cluster.close()
+
+    ok = False
+    try:
+        yield client.get_executor(pure=False), client
+        ok = True
+    finally:
+        if ok and kept is not None:
+            kept.keep(key, client.get_executor(pure=False), client, close)
+        else:
+            close()
 
 
 @dataclasses.dataclass

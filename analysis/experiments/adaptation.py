@@ -52,7 +52,7 @@ from capture.config import CollisionConfig, parse_schedule
 from capture.sim import SimSettings
 from vdc.cli_support import non_negative_int, option, positive_float
 from vdc.errors import UserError
-from vdc.executors import QUIET, ExecutorSettings, Feedback
+from vdc.executors import QUIET, ExecutorSettings, Feedback, one_pool
 from vdc.parquet_io import WroteFiles, table_set, write_tables
 
 CONTROLLERS = ("fixed", "hand", "adaptive", "policy")
@@ -219,6 +219,7 @@ class AdaptationResult(WroteFiles):
         return [self.markdown, f"verdict: {self.verdict}", f"wrote {wrote}"]
 
 
+@one_pool()  # its stages share one pool of workers
 def adaptation(
     s: AdaptationSettings, out: str | Path, feedback: Feedback = QUIET
 ) -> AdaptationResult:

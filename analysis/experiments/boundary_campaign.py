@@ -46,7 +46,7 @@ from analysis.experiments.predictor_runs import (
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
 from vdc.errors import UserError
-from vdc.executors import QUIET, ExecutorSettings, Feedback, run_tasks_or_raise
+from vdc.executors import QUIET, ExecutorSettings, Feedback, one_pool, run_tasks_or_raise
 from vdc.parquet_io import table_set
 
 
@@ -221,6 +221,7 @@ def require_evidence(
             )
 
 
+@one_pool()  # its stages share one pool of workers
 def boundary(
     settings: BoundarySettings, out: str | Path, feedback: Feedback = QUIET
 ) -> BoundaryResult:

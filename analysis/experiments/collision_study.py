@@ -27,7 +27,7 @@ from avdm.registry import add_overrides, parse_model_spec
 from capture.sim import SimSettings
 from vdc.cli_support import non_negative_int, option, positive_float
 from vdc.errors import UserError
-from vdc.executors import ExecutorSettings
+from vdc.executors import ExecutorSettings, one_pool
 from vdc.parquet_io import WroteFiles
 
 SEEDS_HELP = (  # --seeds of the campaigns (collision-study, reproduce)
@@ -141,6 +141,7 @@ class CollisionStudyResult(WroteFiles):
     paths: list[Path]
 
 
+@one_pool()  # its stages share one pool of workers
 def collision_study(
     settings: CollisionStudySettings,
     out: str | Path,

@@ -52,7 +52,7 @@ from analysis.experiments.power_answer import write_answer
 from analysis.experiments.predictor_runs import EVERY
 from vdc.cli_support import option
 from vdc.errors import UserError
-from vdc.executors import QUIET, ExecutorSettings, Feedback
+from vdc.executors import QUIET, ExecutorSettings, Feedback, one_pool
 from vdc.parquet_io import WroteFiles
 
 
@@ -303,6 +303,7 @@ def footage_study(
     return row | {"status": status, "recomputed": plan.clips}
 
 
+@one_pool()  # its stages share one pool of workers
 def power_study(
     settings: PowerStudySettings, out: str | Path, feedback: Feedback = QUIET
 ) -> PowerStudyResult:

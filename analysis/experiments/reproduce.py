@@ -53,6 +53,7 @@ from analysis.recordings.reader import Recording
 from analysis.recordings.recompute import SummarySettings, build_tables, summary_rows
 from analysis.recordings.segments import ProfileSettings, segment_summary, segments_from_tables
 from capture.sim import SimSettings
+from vdc.executors import one_pool
 from vdc.parquet_io import WroteFiles, write_parquet
 
 
@@ -99,6 +100,7 @@ class ReproduceResult(WroteFiles):
         return claims_frame(self.claims)
 
 
+@one_pool()  # its stages share one pool of workers
 def reproduce(
     plan: ReproduceSettings = ReproduceSettings(),
     out: str | Path = "results/reproduce",
