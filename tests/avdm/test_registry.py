@@ -98,12 +98,13 @@ def test_any_lgmd_variant_accepts_valid_overrides(name: str, fps: float, n_ts: i
     _overrides_hold(name, {"fps": fps, "n_ts": n_ts})
 
 
-# a parse round trip: 30 drawn examples cover every variant several times (the default 100
-# builds avdm-natural's calibration-bound params 100 times, 15 s of the suite)
+# a parse round trip: 30 drawn examples cover every variant several times; the decoding's
+# gain and exponent are given, so no example fits a calibration for its new dynamics (each
+# fit took 0.2-0.8 s: 11 s of the suite's CPU; the fit is tested in test_calibration*.py)
 @settings(max_examples=30)
 @given(st.sampled_from(AVDM_VARIANTS), st.floats(0.0, 1.0), st.integers(1, 50))
 def test_any_variant_accepts_valid_overrides(name: str, beta: float, tw: int) -> None:
-    _overrides_hold(name, {"beta": beta, "tw": tw})
+    _overrides_hold(name, {"beta": beta, "tw": tw, "a": 11.0, "b": 1.0})
 
 
 def test_released_units_variant_decodes_as_the_released_code_on_a_grating() -> None:
