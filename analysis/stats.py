@@ -9,7 +9,6 @@ from collections.abc import Sequence
 
 import numpy as np
 import polars as pl
-import scipy.stats
 
 
 def spearman(x: np.ndarray, y: np.ndarray) -> float:
@@ -55,6 +54,8 @@ def mean_ci(
     """Mean and t-interval of the finite ``values`` (one per seed), the interval clipped to
     the quantity's possible range ``bounds`` (a share cannot leave [0, 1]: with few seeds the
     t-interval of a share near 0 or 1 reaches past it)."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     v = np.asarray(values, dtype=np.float64)
     v = v[np.isfinite(v)]
     n = len(v)
@@ -77,6 +78,8 @@ def share_ci(
     wider of their t-interval (spread between seeds) and the exact Clopper–Pearson interval
     of the pooled counts (counting noise within runs). Seeds that all score 100 % on a few
     events would otherwise give a zero-width interval."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     k = np.asarray(successes, dtype=np.int64)
     n = np.asarray(trials, dtype=np.int64)
     keep = n > 0
@@ -103,6 +106,8 @@ def condition_share_bounds(
     spread cannot be seen, the exact interval of its counts divided by the fit's dispersion
     ``phi`` (its effective number of trials). One run's exact bound alone made a seed that
     differed by chance "clearly fail"."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
     ok = n_a > 0
     xs, lows, highs = [], [], []
@@ -146,6 +151,8 @@ def rising_trend(table: np.ndarray) -> Trend:
     (the walls only drift), so seeds are blocks: Page's L test (exact for small tables) for
     k ≥ 3 conditions, the sign test of the paired differences for k = 2. Rows with a NaN are
     dropped."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     t = np.asarray(table, dtype=np.float64)
     t = t[np.isfinite(t).all(axis=1)]
     n, k = t.shape

@@ -106,6 +106,26 @@ def test_import_vdc_is_fast_and_its_api_resolves() -> None:
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
+def test_scipy_stats_loads_only_where_a_statistic_is_computed() -> None:
+    """scipy.stats costs 0.6 s of every process that imports it; the commands import it in
+    the functions that compute a statistic. The modules of the measuring commands do not
+    load it, and the quantiles written out to avoid it are scipy's own, bit for bit."""
+    code = (
+        "import sys, importlib; "
+        "[importlib.import_module(m) for m in ('analysis.cli', 'analysis.complexity.command', "
+        "'analysis.dataset.command', 'analysis.experiments.boundary_campaign', 'capture.cli', "
+        "'analysis.predictors.inference', 'analysis.boundary.fit')]; "
+        "assert 'scipy.stats' not in sys.modules, 'scipy.stats loaded at import'; "
+        "import scipy.stats; from analysis.boundary import fit; "
+        "from analysis.predictors import inference; from analysis.stats import CONFIDENCE; "
+        "assert fit.DEVIANCE_1 == float(scipy.stats.chi2.ppf(0.95, 1)); "
+        "assert fit.DEVIANCE_2 == float(scipy.stats.chi2.ppf(0.95, 2)); "
+        "assert inference.Z == float(scipy.stats.norm.ppf(0.5 + CONFIDENCE / 2))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
 # What may import what (the architecture page, docs/architecture.md, "Layers"): vdc is the base,
 # the models need only it, capture adds devices and the recorder, analysis reads recordings, and
 # only analysis.experiments (which record runs) and the command line that runs them may use

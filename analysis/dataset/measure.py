@@ -13,7 +13,6 @@ import cv2
 import numba
 import numpy as np
 import polars as pl
-import scipy.stats
 
 from analysis.complexity.meter import ComplexityMeter
 from analysis.dataset.layout import EpisodeVideo, read_episode_data
@@ -256,6 +255,8 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> dict:
     (±:data:`LAG_SEARCH_S`). Both (N,) float64, per frame interval; NaN where a signal is
     unknown (a frozen or lost frame), left out of every sum. ``lag_note`` says why there is no
     value."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     none = {"lag_ms": None, "lag_low_ms": None, "lag_high_ms": None, "lag_r": None}
     if len(speed_state) < LAG_MIN_S * fps:
         return none | {"lag_note": f"not measurable: shorter than {LAG_MIN_S:g} s"}

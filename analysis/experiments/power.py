@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import norm
 
 from analysis.boundary.footage import judge_clip
 
@@ -43,6 +42,8 @@ def conditions_for_correlation_difference(
 ) -> int:
     """Independent conditions needed to tell correlation ``rho1`` from ``rho2`` (both with the
     same outcome, the two measures correlated ``rho12``), two-sided ``alpha``, ``power``."""
+    from scipy.stats import norm  # lazy: 0.6 s of every command's start-up
+
     for name, v in (("rho1", rho1), ("rho2", rho2), ("rho12", rho12)):
         if not -1 < v < 1:
             raise ValueError(f"{name} must be between -1 and 1, got {v}")
@@ -71,6 +72,8 @@ def auroc_difference_power(
 ) -> float:
     """Power of the paired two-sided test of ``auc1`` against ``auc2`` on ``clips`` clips of
     which ``failure_share`` fail, the two AUROC estimates correlated ``r``."""
+    from scipy.stats import norm  # lazy: 0.6 s of every command's start-up
+
     n1 = max(1, round(clips * failure_share))
     n0 = max(1, clips - n1)
     v1, v2 = auroc_variance(auc1, n1, n0), auroc_variance(auc2, n1, n0)

@@ -28,11 +28,10 @@ import itertools
 import math
 
 import numpy as np
-import scipy.stats
 
-from analysis.stats import CONFIDENCE
-
-Z = float(scipy.stats.norm.ppf(0.5 + CONFIDENCE / 2))  # 1.96
+# scipy.stats.norm.ppf(0.5 + analysis.stats.CONFIDENCE / 2) (a test holds it to it, bit for
+# bit): written out so that importing the predictors does not import scipy.stats
+Z = 1.959963984540054
 BOOTSTRAP = 1000  # resamples for every bootstrap interval of the predictors
 EXACT_UP_TO = 8  # 8! = 40,320 permutations: exact; beyond, Monte Carlo
 PERMUTATIONS = 20_000  # Monte Carlo permutations: p's own standard error <= 0.0035
@@ -81,6 +80,8 @@ def placements(x: np.ndarray, positive: np.ndarray) -> tuple[np.ndarray, np.ndar
     """DeLong's placement values of each column of x (N, M) (finite): per positive, the share
     of negatives it outscores (ties half), (N₁, M); per negative, the share of positives that
     outscore it, (N₀, M). Their means are the AUROC."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     positive = np.asarray(positive, bool)
     n1, n0 = int(positive.sum()), int((~positive).sum())
     r_all = scipy.stats.rankdata(x, axis=0)
@@ -160,6 +161,8 @@ def auroc_difference(
     """AUROC of x1 minus that of x2 on the same units (rows where both are finite), with its
     95 % interval and two-sided p from the (clustered) DeLong covariance. (estimate, low,
     high, p); a zero variance with a zero difference gives p = 1."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     x = np.column_stack([x1, x2]).astype(float)
     ok = np.isfinite(x).all(1)
     pos = np.asarray(positive, bool)[ok]
@@ -219,6 +222,8 @@ def permutation_p(
     """Spearman ρ of x and y (N,) (finite pairs) and its one-sided permutation p (a higher x
     goes with a higher y): the share of orderings of y over the units with a ρ at least the
     observed (the observed ordering counted): exact up to :data:`EXACT_UP_TO` units."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     x, y = np.asarray(x, float), np.asarray(y, float)
     ok = np.isfinite(x) & np.isfinite(y)
     rx, ry = scipy.stats.rankdata(x[ok]), scipy.stats.rankdata(y[ok])
@@ -250,6 +255,8 @@ def rho_difference(
     conditions: (r1 − r2, low, high, two-sided p). The interval is Zou's from each ρ's own
     interval; p is Steiger's Z on Fisher's z (the correlation between the two estimates from
     r12, the two measures' own ρ, Bonett–Wright's variance factor)."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     vals = (r1, r2, r12, *ci1, *ci2)
     if n < 4 or not all(math.isfinite(v) for v in vals):
         return r1 - r2, math.nan, math.nan, math.nan

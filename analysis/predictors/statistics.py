@@ -40,7 +40,6 @@ from typing import Any
 import numpy as np
 import polars as pl
 import scipy.special
-import scipy.stats
 
 from analysis.predictors.held_out import loco_interval, loco_threshold
 from analysis.predictors.inference import (
@@ -128,6 +127,8 @@ def auroc(score: np.ndarray, positive: np.ndarray) -> float:
 
 def auroc_columns(scores: np.ndarray, positive: np.ndarray) -> np.ndarray:
     """:func:`auroc` of every column of ``scores`` (N, M) (finite values) at once: (M,)."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     positive = np.asarray(positive, bool)
     n1 = int(positive.sum())
     n0 = len(positive) - n1
@@ -159,6 +160,8 @@ def finite_spearman(x: np.ndarray, y: np.ndarray) -> float:
 def spearman_rows(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Spearman ρ of each row pair of x, y (B, N) (finite): (B,); NaN where a row is constant
     or N < 3."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     if x.shape[1] < 3:
         return np.full(len(x), math.nan)
     rx = scipy.stats.rankdata(x, axis=1)
@@ -233,6 +236,8 @@ def _role(ref: str, measure: str, statistic: str) -> str:
 def _t_row(measure: str, value: float, statistic: str, d: np.ndarray, unit: str,
            n_failures: int | None, role: str = "secondary") -> dict[str, Any]:  # fmt: skip
     """A mean of per-unit differences ``d`` with its t-interval and two-sided paired-t p."""
+    import scipy.stats  # lazy: 0.6 s of every command's start-up
+
     d = np.asarray(d, float)
     d = d[np.isfinite(d)]
     n = len(d)
