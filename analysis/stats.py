@@ -3,12 +3,24 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 from collections.abc import Sequence
+from types import ModuleType
 
 import numpy as np
 import polars as pl
+
+
+@functools.cache
+def scipy_stats() -> ModuleType:
+    """``scipy.stats``, imported on first use. It costs 0.6 s of CPU to import, which every
+    command paid at start-up, most of them (the measuring ones) without computing a statistic:
+    5 % of the test suite's CPU."""
+    import scipy.stats  # lazy: start-up
+
+    return scipy.stats
 
 
 def spearman(x: np.ndarray, y: np.ndarray) -> float:
@@ -54,7 +66,6 @@ def mean_ci(
     """Mean and t-interval of the finite ``values`` (one per seed), the interval clipped to
     the quantity's possible range ``bounds`` (a share cannot leave [0, 1]: with few seeds the
     t-interval of a share near 0 or 1 reaches past it)."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     v = np.asarray(values, dtype=np.float64)
     v = v[np.isfinite(v)]
@@ -64,7 +75,7 @@ def mean_ci(
     mean = float(v.mean())
     if n < 2:
         return Estimate(mean, math.nan, math.nan, n)
-    half = float(scipy.stats.t.ppf(0.5 + confidence / 2, n - 1) * v.std(ddof=1) / math.sqrt(n))
+    half = float(scipy_stats().t.ppf(0.5 + confidence / 2, n - 1) * v.std(ddof=1) / math.sqrt(n))
     lo, hi = bounds
     return Estimate(mean, max(lo, mean - half), min(hi, mean + half), n)
 
@@ -78,7 +89,6 @@ def share_ci(
     wider of their t-interval (spread between seeds) and the exact Clopper–Pearson interval
     of the pooled counts (counting noise within runs). Seeds that all score 100 % on a few
     events would otherwise give a zero-width interval."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     k = np.asarray(successes, dtype=np.int64)
     n = np.asarray(trials, dtype=np.int64)
@@ -87,8 +97,10 @@ def share_ci(
     if len(n) == 0:
         return Estimate(math.nan, math.nan, math.nan, 0)
     between = mean_ci(k / n, confidence, (0.0, 1.0))
-    pooled = scipy.stats.binomtest(int(k.sum()), int(n.sum())).proportion_ci(
-        confidence, method="exact"
+    pooled = (
+        scipy_stats()
+        .binomtest(int(k.sum()), int(n.sum()))
+        .proportion_ci(confidence, method="exact")
     )
     if not math.isfinite(between.low):
         return Estimate(between.mean, pooled.low, pooled.high, between.n)
@@ -106,7 +118,6 @@ def condition_share_bounds(
     spread cannot be seen, the exact interval of its counts divided by the fit's dispersion
     ``phi`` (its effective number of trials). One run's exact bound alone made a seed that
     differed by chance "clearly fail"."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     x_a, k_a, n_a = (np.asarray(v, float) for v in (x, k, n))
     ok = n_a > 0
@@ -118,8 +129,8 @@ def condition_share_bounds(
             lo, hi = e.low, e.high
         else:
             kk, nn = k_a[sel][0] / phi, n_a[sel][0] / phi
-            lo = 0.0 if kk <= 0 else float(scipy.stats.beta.ppf(0.025, kk, nn - kk + 1))
-            hi = 1.0 if kk >= nn else float(scipy.stats.beta.ppf(0.975, kk + 1, nn - kk))
+            lo = 0.0 if kk <= 0 else float(scipy_stats().beta.ppf(0.025, kk, nn - kk + 1))
+            hi = 1.0 if kk >= nn else float(scipy_stats().beta.ppf(0.975, kk + 1, nn - kk))
         xs.append(c)
         lows.append(lo)
         highs.append(hi)
@@ -151,7 +162,6 @@ def rising_trend(table: np.ndarray) -> Trend:
     (the walls only drift), so seeds are blocks: Page's L test (exact for small tables) for
     k ≥ 3 conditions, the sign test of the paired differences for k = 2. Rows with a NaN are
     dropped."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     t = np.asarray(table, dtype=np.float64)
     t = t[np.isfinite(t).all(axis=1)]
@@ -163,11 +173,11 @@ def rising_trend(table: np.ndarray) -> Trend:
         d = d[d != 0]
         if len(d) == 0:
             return Trend(1.0, "sign test", n, 0.5**n)
-        res = scipy.stats.binomtest(int((d > 0).sum()), len(d), 0.5, alternative="greater")
+        res = scipy_stats().binomtest(int((d > 0).sum()), len(d), 0.5, alternative="greater")
         return Trend(float(res.pvalue), "sign test", n, 0.5**n)
     if n < 2:
         return Trend(math.nan, "Page's L test needs 2 seeds", n, 1.0)
-    res = scipy.stats.page_trend_test(t)
+    res = scipy_stats().page_trend_test(t)
     return Trend(float(res.pvalue), "Page's L test", n, float(math.factorial(k)) ** -n)
 
 

@@ -2,8 +2,9 @@
 grid is run twice from scratch in this one process, on the same machine state, once with
 ``--no-predictors`` (the grid's own time) and once with them (every measure of every profiling
 run, taken by the worker that recorded it, then the statistics); the difference as a share of
-the grid's own time (target: at most 15 % on the default grid, issue 47; 20 % was issue 32's). With ``--rounds N`` the two arms alternate (A B,
-B A, ...) so a change of the machine's load falls on both; the medians are compared.
+the grid's own time (target: at most 15 % on the default grid, issue 47; issue 32 asked 20 %).
+With ``--rounds N`` the two arms alternate (A B, B A, ...) so a change of the machine's load
+falls on both; the medians are compared.
 
     python benchmarks/bench_predictors.py                  # the small grid (~3 min on 2 cores)
     python benchmarks/bench_predictors.py --rounds 2       # interleaved: A B B A

@@ -59,6 +59,8 @@ import numpy as np
 import polars as pl
 import scipy.special
 
+from analysis.stats import scipy_stats
+
 N_T = 401  # boundary candidates over the widened range
 SLOPES = np.concatenate([[0.0], np.geomspace(0.05, 500.0, 60)])  # log-odds per span
 FLOORS = np.array([0.0, 0.15, 0.3, 0.45, 0.6, 0.75])  # the success complexity cannot lower
@@ -162,10 +164,8 @@ def fit_crossing(
     p_best = np.clip(p_best, 0.01, 0.99)  # a step's 1 - 1e-9 would make one crash a 'misfit'
     phi, df = dispersion(k, n, p_best, cond)
     if df > 0:  # phi is estimated: the F quantiles in place of chi2's (quasi-likelihood)
-        from scipy.stats import f as f_dist  # lazy: 0.6 s of every command's start-up
-
-        cut_1 = float(f_dist.ppf(0.95, 1, df))
-        cut_2 = 2.0 * float(f_dist.ppf(0.95, 2, df))
+        cut_1 = float(scipy_stats().f.ppf(0.95, 1, df))
+        cut_2 = 2.0 * float(scipy_stats().f.ppf(0.95, 2, df))
     else:
         cut_1, cut_2 = DEVIANCE_1, DEVIANCE_2
     top = _refined_max(ll, floors.size)  # (N_T,) the profile over a continuous steepness

@@ -17,6 +17,7 @@ import polars as pl
 from analysis.complexity.meter import ComplexityMeter
 from analysis.dataset.layout import EpisodeVideo, read_episode_data
 from analysis.dataset.window import WindowReader
+from analysis.stats import scipy_stats
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher
 from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
@@ -255,7 +256,6 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> dict:
     (±:data:`LAG_SEARCH_S`). Both (N,) float64, per frame interval; NaN where a signal is
     unknown (a frozen or lost frame), left out of every sum. ``lag_note`` says why there is no
     value."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     none = {"lag_ms": None, "lag_low_ms": None, "lag_high_ms": None, "lag_r": None}
     if len(speed_state) < LAG_MIN_S * fps:
@@ -271,7 +271,7 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> dict:
     edges = np.linspace(0, m, blocks + 1).round().astype(int)
     left_out = np.array([peak(np.r_[0 : edges[g], edges[g + 1] : m])[0] for g in range(blocks)])
     se = math.sqrt((blocks - 1) / blocks * ((left_out - left_out.mean()) ** 2).sum())
-    half = float(scipy.stats.t.ppf(0.975, blocks - 1)) * se
+    half = float(scipy_stats().t.ppf(0.975, blocks - 1)) * se
     reach = LAG_SEARCH_S * 1000  # no delay beyond the search can be read: the interval ends there
     return {"lag_ms": lag, "lag_low_ms": max(lag - half, -reach),
             "lag_high_ms": min(lag + half, reach), "lag_r": r, "lag_note": None}  # fmt: skip

@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from analysis.boundary.footage import judge_clip
+from analysis.stats import scipy_stats
 
 SPEARMAN_Z_VARIANCE = 1.06  # Fieller, Hartley & Pearson 1957: var(z of Spearman) ≈ 1.06/(n-3)
 
@@ -42,7 +43,6 @@ def conditions_for_correlation_difference(
 ) -> int:
     """Independent conditions needed to tell correlation ``rho1`` from ``rho2`` (both with the
     same outcome, the two measures correlated ``rho12``), two-sided ``alpha``, ``power``."""
-    from scipy.stats import norm  # lazy: 0.6 s of every command's start-up
 
     for name, v in (("rho1", rho1), ("rho2", rho2), ("rho12", rho12)):
         if not -1 < v < 1:
@@ -53,7 +53,7 @@ def conditions_for_correlation_difference(
     f = min(1.0, (1 - rho12) / (2 * (1 - r2bar)))
     h = (1 - f * r2bar) / (1 - r2bar)
     dz = math.atanh(rho1) - math.atanh(rho2)
-    k = (norm.ppf(1 - alpha / 2) + norm.ppf(power)) ** 2
+    k = (scipy_stats().norm.ppf(1 - alpha / 2) + scipy_stats().norm.ppf(power)) ** 2
     scale = SPEARMAN_Z_VARIANCE if spearman else 1.0
     return math.ceil(3 + scale * k * 2 * (1 - rho12) * h / dz**2)
 
@@ -72,15 +72,14 @@ def auroc_difference_power(
 ) -> float:
     """Power of the paired two-sided test of ``auc1`` against ``auc2`` on ``clips`` clips of
     which ``failure_share`` fail, the two AUROC estimates correlated ``r``."""
-    from scipy.stats import norm  # lazy: 0.6 s of every command's start-up
 
     n1 = max(1, round(clips * failure_share))
     n0 = max(1, clips - n1)
     v1, v2 = auroc_variance(auc1, n1, n0), auroc_variance(auc2, n1, n0)
     sd = math.sqrt(max(v1 + v2 - 2 * r * math.sqrt(v1 * v2), 1e-300))
     z = abs(auc1 - auc2) / sd
-    crit = norm.ppf(1 - alpha / 2)
-    return float(norm.cdf(z - crit) + norm.cdf(-z - crit))
+    crit = scipy_stats().norm.ppf(1 - alpha / 2)
+    return float(scipy_stats().norm.cdf(z - crit) + scipy_stats().norm.cdf(-z - crit))
 
 
 def clips_for_auroc_difference(

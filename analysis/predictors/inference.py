@@ -29,6 +29,8 @@ import math
 
 import numpy as np
 
+from analysis.stats import scipy_stats
+
 # scipy.stats.norm.ppf(0.5 + analysis.stats.CONFIDENCE / 2) (a test holds it to it, bit for
 # bit): written out so that importing the predictors does not import scipy.stats
 Z = 1.959963984540054
@@ -80,13 +82,12 @@ def placements(x: np.ndarray, positive: np.ndarray) -> tuple[np.ndarray, np.ndar
     """DeLong's placement values of each column of x (N, M) (finite): per positive, the share
     of negatives it outscores (ties half), (N₁, M); per negative, the share of positives that
     outscore it, (N₀, M). Their means are the AUROC."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     positive = np.asarray(positive, bool)
     n1, n0 = int(positive.sum()), int((~positive).sum())
-    r_all = scipy.stats.rankdata(x, axis=0)
-    r_pos = scipy.stats.rankdata(x[positive], axis=0)
-    r_neg = scipy.stats.rankdata(x[~positive], axis=0)
+    r_all = scipy_stats().rankdata(x, axis=0)
+    r_pos = scipy_stats().rankdata(x[positive], axis=0)
+    r_neg = scipy_stats().rankdata(x[~positive], axis=0)
     v10 = (r_all[positive] - r_pos) / n0
     v01 = 1.0 - (r_all[~positive] - r_neg) / n1
     return v10, v01
@@ -161,7 +162,6 @@ def auroc_difference(
     """AUROC of x1 minus that of x2 on the same units (rows where both are finite), with its
     95 % interval and two-sided p from the (clustered) DeLong covariance. (estimate, low,
     high, p); a zero variance with a zero difference gives p = 1."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     x = np.column_stack([x1, x2]).astype(float)
     ok = np.isfinite(x).all(1)
@@ -177,7 +177,7 @@ def auroc_difference(
     se = math.sqrt(max(var, 0.0))
     if se == 0:
         return d, d, d, 1.0 if d == 0 else 0.0
-    p = float(2 * scipy.stats.norm.sf(abs(d) / se))
+    p = float(2 * scipy_stats().norm.sf(abs(d) / se))
     return d, d - Z * se, d + Z * se, p
 
 
@@ -222,11 +222,10 @@ def permutation_p(
     """Spearman ρ of x and y (N,) (finite pairs) and its one-sided permutation p (a higher x
     goes with a higher y): the share of orderings of y over the units with a ρ at least the
     observed (the observed ordering counted): exact up to :data:`EXACT_UP_TO` units."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     x, y = np.asarray(x, float), np.asarray(y, float)
     ok = np.isfinite(x) & np.isfinite(y)
-    rx, ry = scipy.stats.rankdata(x[ok]), scipy.stats.rankdata(y[ok])
+    rx, ry = scipy_stats().rankdata(x[ok]), scipy_stats().rankdata(y[ok])
     n = len(rx)
     rx, ry = rx - rx.mean(), ry - ry.mean()
     den = math.sqrt((rx**2).sum() * (ry**2).sum())
@@ -255,7 +254,6 @@ def rho_difference(
     conditions: (r1 − r2, low, high, two-sided p). The interval is Zou's from each ρ's own
     interval; p is Steiger's Z on Fisher's z (the correlation between the two estimates from
     r12, the two measures' own ρ, Bonett–Wright's variance factor)."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     vals = (r1, r2, r12, *ci1, *ci2)
     if n < 4 or not all(math.isfinite(v) for v in vals):
@@ -264,7 +262,7 @@ def rho_difference(
     s = (r12 * (1 - 2 * rbar2) - 0.5 * rbar2 * (1 - 2 * rbar2 - r12**2)) / (1 - rbar2) ** 2
     var = 2 * (1 - s) * (1 + rbar2 / 2) / (n - 3)
     zdiff = float(_z(r1) - _z(r2))
-    p = float(2 * scipy.stats.norm.sf(abs(zdiff) / math.sqrt(var))) if var > 0 else 1.0
+    p = float(2 * scipy_stats().norm.sf(abs(zdiff) / math.sqrt(var))) if var > 0 else 1.0
     c = ((r12 - r1 * r2 / 2) * (1 - r1**2 - r2**2 - r12**2) + r12**3) / max(
         (1 - r1**2) * (1 - r2**2), 1e-12
     )

@@ -53,7 +53,7 @@ from analysis.predictors.inference import (
     rho_difference,
     rho_interval,
 )
-from analysis.stats import ALPHA, mean_ci
+from analysis.stats import ALPHA, mean_ci, scipy_stats
 
 RIDGE = 0.1  # the combined logistic's L2 penalty on standardised coefficients (few units)
 # every measure, its column in the measures tables, in the order the reports list them
@@ -127,14 +127,13 @@ def auroc(score: np.ndarray, positive: np.ndarray) -> float:
 
 def auroc_columns(scores: np.ndarray, positive: np.ndarray) -> np.ndarray:
     """:func:`auroc` of every column of ``scores`` (N, M) (finite values) at once: (M,)."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     positive = np.asarray(positive, bool)
     n1 = int(positive.sum())
     n0 = len(positive) - n1
     if n1 == 0 or n0 == 0 or scores.shape[1] == 0:
         return np.full(scores.shape[1], math.nan)
-    ranks = scipy.stats.rankdata(scores, axis=0)
+    ranks = scipy_stats().rankdata(scores, axis=0)
     return (ranks[positive].sum(0) - n1 * (n1 + 1) / 2) / (n1 * n0)
 
 
@@ -160,12 +159,11 @@ def finite_spearman(x: np.ndarray, y: np.ndarray) -> float:
 def spearman_rows(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Spearman ρ of each row pair of x, y (B, N) (finite): (B,); NaN where a row is constant
     or N < 3."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     if x.shape[1] < 3:
         return np.full(len(x), math.nan)
-    rx = scipy.stats.rankdata(x, axis=1)
-    ry = scipy.stats.rankdata(y, axis=1)
+    rx = scipy_stats().rankdata(x, axis=1)
+    ry = scipy_stats().rankdata(y, axis=1)
     rx -= rx.mean(1, keepdims=True)
     ry -= ry.mean(1, keepdims=True)
     den = np.sqrt((rx**2).sum(1) * (ry**2).sum(1))
@@ -236,7 +234,6 @@ def _role(ref: str, measure: str, statistic: str) -> str:
 def _t_row(measure: str, value: float, statistic: str, d: np.ndarray, unit: str,
            n_failures: int | None, role: str = "secondary") -> dict[str, Any]:  # fmt: skip
     """A mean of per-unit differences ``d`` with its t-interval and two-sided paired-t p."""
-    import scipy.stats  # lazy: 0.6 s of every command's start-up
 
     d = np.asarray(d, float)
     d = d[np.isfinite(d)]
@@ -247,7 +244,7 @@ def _t_row(measure: str, value: float, statistic: str, d: np.ndarray, unit: str,
     est = mean_ci(d)
     sd = d.std(ddof=1)
     p = (
-        float(2 * scipy.stats.t.sf(abs(d.mean()) / (sd / math.sqrt(n)), n - 1))
+        float(2 * scipy_stats().t.sf(abs(d.mean()) / (sd / math.sqrt(n)), n - 1))
         if sd > 0
         else (1.0 if d.mean() == 0 else 0.0)
     )
