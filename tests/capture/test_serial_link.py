@@ -436,6 +436,8 @@ def test_a_host_that_reads_late_still_gets_the_robots_end(tmp_path: Path) -> Non
     cable pulled out and waits for the robot to come back (the flaky 'did not come back within
     30 s' of a loaded machine). Here the host does not read until the robot has sent its whole
     run (1 s of frames, without images, fits in the pty's buffers)."""
+    import termios
+
     import serial
 
     from capture.robot_emulator import EmulateSettings, emulate_robot
@@ -475,8 +477,14 @@ def test_a_host_that_reads_late_still_gets_the_robots_end(tmp_path: Path) -> Non
                 break  # the robot is gone and nothing more is waiting
             types += [t for t, _ in parser.feed(data)]
         if TYPE_END in types:
-            host.write(encode(TYPE_STOP))  # as vdc's host answers END: the robot may close
-            host.flush()
+            # as vdc's host answers END. The robot may close its port as soon as STOP arrives,
+            # before this side's drain returns: the drain then fails (termios.error, EIO, seen
+            # under load), which is the run's normal end, not a fault of the test's subject
+            try:
+                host.write(encode(TYPE_STOP))
+                host.flush()
+            except (serial.SerialException, OSError, termios.error):
+                pass
         host.close()
     finally:
         robot.join(timeout=60)
