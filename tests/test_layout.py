@@ -106,6 +106,28 @@ def test_import_vdc_is_fast_and_its_api_resolves() -> None:
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
+def test_no_file_holds_a_merge_conflict_marker() -> None:
+    """A merge resolved by hand once left both sides of a conflict in docs/architecture.md for
+    several rounds; a line that starts a conflict block is never meant to be committed."""
+    bad = []
+    for p in ROOT.rglob("*"):
+        rel = p.relative_to(ROOT)
+        if not p.is_file() or rel.parts[0] in (".git", ".venv", "build", "results", "data"):
+            continue
+        if p.suffix not in (".py", ".md", ".toml", ".txt", ".cfg", ".yml", ".yaml", ".sh", ""):
+            continue
+        try:
+            text = p.read_text()
+        except (UnicodeDecodeError, OSError):
+            continue
+        bad += [
+            f"{rel}:{i}"
+            for i, line in enumerate(text.splitlines(), 1)
+            if line.startswith(("<<<<<<< ", ">>>>>>> ")) or line == "======="
+        ]
+    assert not bad, bad
+
+
 def test_scipy_stats_loads_only_where_a_statistic_is_computed() -> None:
     """scipy.stats costs 0.6 s of every process that imports it; the commands import it in
     the functions that compute a statistic. The modules of the measuring commands do not
