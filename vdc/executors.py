@@ -42,6 +42,7 @@ from vdc.pool_workers import (
     _die_with_parent,
     _worker_parent,
     _workers_end_before_parent,
+    caller_cores,
     end_workers,
     one_thread_per_worker,
     pool_context,
@@ -186,8 +187,7 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
             dashboard_address="127.0.0.1:0",
         )
     client = Client(cluster)
-    cpus = frozenset(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
-    _one_thread_on_dask(client, WorkerPlugin, cpus)
+    _one_thread_on_dask(client, WorkerPlugin, caller_cores())
     return client, cluster
 
 
@@ -241,8 +241,13 @@ class _KeptExecutor:
     def keep(self, key: Any, executor: Any, client: Any, close: Callable[[], None]) -> None:
         self.key, self.executor, self.client, self.close = key, executor, client, close
 
+    def forget(self) -> None:
+        """Hold nothing, closing nothing (the caller closes what was kept)."""
+        self.key, self.executor, self.client, self.close = None, None, None, None
+
     def drop(self) -> None:
-        close, self.close, self.executor, self.client, self.key = self.close, None, None, None, None
+        close = self.close
+        self.forget()
         if close is not None:
             close()
 
@@ -290,7 +295,7 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
             max(1, usable_cpus() // workers),
             os.getpid(),
             dict(os.environ),
-            frozenset(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
+            caller_cores(),
         )
         key = ("local", workers, initargs)
         reused = kept.take(key) if kept is not None else None
@@ -313,7 +318,7 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
                 kept.keep(key, pool, None, lambda p=pool: _shut(p))
             else:
                 if kept is not None and kept.executor is pool:
-                    kept.key = kept.executor = kept.close = None
+                    kept.forget()  # closed here, not by the keeper
                 _shut(pool)
         return
     n_workers = max(1, min(settings.jobs, n_tasks))

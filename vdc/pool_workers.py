@@ -202,3 +202,9 @@ def _worker_parent(ctx: multiprocessing.context.BaseContext) -> int:
         if pid is not None:
             return pid
     return os.getpid()
+
+
+def caller_cores() -> frozenset[int] | None:
+    """The cores this process may use now (None where the platform cannot say): what a new
+    worker takes as its own (:func:`_die_with_parent`)."""
+    return frozenset(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
