@@ -306,14 +306,21 @@ def panned_image(
             "use a wider field of view in the image or a taller image"
         )
     r0 = (src_h - win_h) // 2
-    spectrum = np.fft.rfft(img[r0 : r0 + win_h], axis=1)
-    k = np.fft.rfftfreq(src_w) * src_w
     rows, cols = _area_matrix(win_h, h), _area_matrix(win_w, w).T
+    spectrum = np.fft.rfft(img[r0 : r0 + win_h], axis=1)
+    # The sensor's rows average the window's rows, and the pan shifts along the rows: the two
+    # commute, so a camera with fewer rows than its window averages them once, on the
+    # spectrum, and each frame's inverse transform has h rows, not win_h (a calibration's
+    # clutter pans: 1.7x faster for a 99x72 camera, the same frames)
+    fewer = h < win_h
+    if fewer:
+        spectrum = rows @ spectrum
+    k = np.fft.rfftfreq(src_w) * src_w
     out = np.empty((n, h, w), dtype=np.dtype(dtype))
     for i in range(n):
         shift = direction * omega_dps * i / fps / src_dpp  # source px the view has turned
         moved = np.fft.irfft(spectrum * np.exp(2j * np.pi * k * shift / src_w), n=src_w, axis=1)
-        view = rows @ moved[:, :win_w] @ cols
+        view = moved[:, :win_w] @ cols if fewer else rows @ moved[:, :win_w] @ cols
         if np.dtype(dtype) == np.uint8:
             out[i] = np.clip(np.rint(view), 0, 255).astype(np.uint8)
         else:

@@ -35,13 +35,21 @@ PACKAGES = (
 
 def package_versions() -> dict[str, str]:
     """``{"python": "3.11.7", "numpy": "2.4.6", ...}``; ``"not installed"`` where absent."""
+    return dict(_package_versions())
+
+
+@functools.cache
+def _package_versions() -> tuple[tuple[str, str], ...]:
+    # once per process: each lookup scans every folder of sys.path for the distribution's
+    # metadata (about 10 ms apiece), and every Parquet file and recording asks; the packages
+    # a running process has imported do not change under it
     out = {"python": platform.python_version()}
     for name in PACKAGES:
         try:
             out[name] = metadata.version(DISTRIBUTION if name == "vdc" else name)
         except metadata.PackageNotFoundError:
             out[name] = "not installed"
-    return out
+    return tuple(out.items())
 
 
 def _cpu_model() -> str:
