@@ -64,13 +64,9 @@ import matplotlib.figure  # noqa: E402, F401  - not pyplot: vdc never imports it
 import numba  # noqa: E402, F401
 import numpy as np  # noqa: E402
 
-# The campaigns' task modules import these at the top (the boundary fit, the predictors,
-# the figures); a worker forked without them paid 1.1 s of its 1.9 s start-up importing
-# them, once per worker and per pool (a campaign opens a pool per stage). None starts a
-# thread at import (checked by tests/test_executors_pool.py).
-import scipy.optimize  # noqa: E402
-import scipy.stats  # noqa: E402, F401
-
+# Not scipy: the boundary fit and the statistics load scipy.stats and scipy.special where
+# they compute (analysis.stats), so most workers never need them, and preloading them cost
+# every fork server 1.1 s of CPU (one per command that opens a pool).
 import vdc.frame_metrics  # noqa: E402
 import vdc.recording  # noqa: E402
 import vdc.resize  # noqa: E402

@@ -57,9 +57,8 @@ from typing import Any
 
 import numpy as np
 import polars as pl
-import scipy.special
 
-from analysis.stats import scipy_stats
+from analysis.stats import scipy_special, scipy_stats
 
 N_T = 401  # boundary candidates over the widened range
 SLOPES = np.concatenate([[0.0], np.geomspace(0.05, 500.0, 60)])  # log-odds per span
@@ -155,7 +154,7 @@ def fit_crossing(
     for j0 in range(0, slope_of.size, SLOPES.size):  # one floor at a time: (N_T, slopes, X)
         g = floor_of[j0]
         e = _eta(target, g, SLOPES[None, :, None], ux[None, None, :], tu[:, None, None])
-        log_e = scipy.special.log_expit(e)
+        log_e = scipy_special().log_expit(e)
         log_q = math.log1p(-g) + log_e - e  # log(1 - g) + log expit(-e)
         log_p = log_e if g == 0 else np.logaddexp(math.log(g), math.log1p(-g) + log_e)
         ll[:, j0 : j0 + SLOPES.size] = log_p @ kx + log_q @ fx
@@ -258,12 +257,12 @@ def _crossings(t: np.ndarray, profile: np.ndarray, cut: float) -> tuple[float, f
 
 def _eta(target: float, floor: Any, slope: Any, u: Any, t: Any) -> Any:
     """The logistic part's log-odds: it makes floor + (1 - floor) expit(eta) = target at t."""
-    return scipy.special.logit((target - floor) / (1 - floor)) - slope * (u - t)
+    return scipy_special().logit((target - floor) / (1 - floor)) - slope * (u - t)
 
 
 def _curve(target: float, floor: Any, slope: Any, u: Any, t: Any) -> Any:
     """Success at ``u`` (the complexity in spans from the domain's start) of one curve."""
-    return floor + (1 - floor) * scipy.special.expit(_eta(target, floor, slope, u, t))
+    return floor + (1 - floor) * scipy_special().expit(_eta(target, floor, slope, u, t))
 
 
 # --- units: wall TF <-> profile ------------------------------------------------------------

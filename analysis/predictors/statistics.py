@@ -39,7 +39,6 @@ from typing import Any
 
 import numpy as np
 import polars as pl
-import scipy.special
 
 from analysis.predictors.held_out import loco_interval, loco_threshold
 from analysis.predictors.inference import (
@@ -53,7 +52,7 @@ from analysis.predictors.inference import (
     rho_difference,
     rho_interval,
 )
-from analysis.stats import ALPHA, mean_ci, scipy_stats
+from analysis.stats import ALPHA, mean_ci, scipy_special, scipy_stats
 
 RIDGE = 0.1  # the combined logistic's L2 penalty on standardised coefficients (few units)
 # every measure, its column in the measures tables, in the order the reports list them
@@ -179,7 +178,7 @@ def fit_logistic(X: np.ndarray, y: np.ndarray, ridge: float = RIDGE) -> np.ndarr
     pen = np.full(A.shape[1], ridge)
     pen[0] = 0.0
     for _ in range(50):
-        p = scipy.special.expit(A @ beta)
+        p = scipy_special().expit(A @ beta)
         grad = A.T @ (p - y) + pen * beta
         hess = (A * (p * (1 - p))[:, None]).T @ A + np.diag(pen) + 1e-9 * np.eye(len(beta))
         step = np.linalg.solve(hess, grad)
@@ -199,7 +198,7 @@ def cv_logistic_losses(X: np.ndarray, y: np.ndarray, ridge: float = RIDGE) -> np
         mu, sd = X[rest].mean(0), X[rest].std(0)
         sd = np.where(sd > 0, sd, 1.0)
         beta = fit_logistic((X[rest] - mu) / sd, y[rest], ridge)
-        p = scipy.special.expit(beta[0] + ((X[i] - mu) / sd) @ beta[1:])
+        p = scipy_special().expit(beta[0] + ((X[i] - mu) / sd) @ beta[1:])
         p = float(np.clip(p, 1e-6, 1 - 1e-6))
         losses[i] = -(y[i] * math.log(p) + (1 - y[i]) * math.log(1 - p))
     return losses
