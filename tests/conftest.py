@@ -66,6 +66,16 @@ def _calibration_cache():
         shutil.rmtree(_CACHE, ignore_errors=True)
 
 
+# Two workers per core for `-n auto` (`--maxprocesses 4` caps it). On a busy machine the
+# suite's share of the cores is its share of the runnable processes, and a test often has one
+# or none (it waits on the command, pool or server it started). Measured on 2 cores, fresh
+# clone, 27 Nov 2026: with eight CPU-bound processes beside it (load 12-16), 4 workers passed
+# in 29 min 42 s where 2 had taken 46 min 20 s (load 10-12); quiet, 4 workers 597 s (the
+# cores saturated, 1,187 CPU-s) against 594 s for 2 (before scipy left the start-up).
+def pytest_xdist_auto_num_workers(config) -> int:
+    return 2 * len(os.sched_getaffinity(0))
+
+
 # The longest test files first (measured on a fresh clone, 2 workers): the workers take whole
 # files in collection order (`--dist loadfile --no-loadscope-reorder`), so starting the long
 # ones first lets the two finish together instead of one waiting on a long file picked last.
