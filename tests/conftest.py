@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
@@ -59,37 +57,6 @@ if "PYTEST_XDIST_WORKER" not in os.environ:
 _CACHE = os.environ.get("VDC_TEST_SESSION_CACHE") or tempfile.mkdtemp(prefix="vdc-test-cache-")
 os.environ["VDC_TEST_SESSION_CACHE"] = _CACHE
 os.environ["VDC_CACHE_DIR"] = _CACHE
-
-
-# Numba's kernels are cached beside the sources, and a fresh clone has none: every worker and
-# every command they start compiled the same kernels until one had written them (measured on
-# a fresh clone, 4 workers: 1,322 CPU-s against 1,187 with the kernels cached). The controller
-# compiles them once first, in four processes that run what the tests run most: a grating
-# and a natural-wall run with the AVDM, a collision run with LGMD+, and the video meters
-# (vdc.warm). A failure here only leaves the compiling to the tests.
-def _compile_kernels() -> None:
-    sim = [sys.executable, "-m", "capture", "sim", "--minutes", "0.02", "--quiet", "--out"]
-    with tempfile.TemporaryDirectory(prefix="vdc-kernels-") as tmp:
-        runs = [
-            [*sim, f"{tmp}/g.rrd", "--scene", "grating"],
-            [*sim, f"{tmp}/n.rrd", "--scene", "natural"],
-            [*sim, f"{tmp}/c.rrd", "--behaviour", "collision", "--model", "lgmd-plus-arena"],
-            [sys.executable, "-c", "import vdc.warm"],
-        ]
-        procs = [
-            subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            for cmd in runs
-        ]
-        for proc in procs:
-            try:
-                proc.wait(timeout=600)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-
-
-if "PYTEST_XDIST_WORKER" not in os.environ:
-    _compile_kernels()
 
 
 @pytest.fixture(scope="session", autouse=True)
