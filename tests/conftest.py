@@ -70,8 +70,9 @@ def _calibration_cache():
 # suite's share of the cores is its share of the runnable processes, and a test often has one
 # or none (it waits on the command, pool or server it started). Measured on 2 cores, fresh
 # clone, 27 Nov 2026: with eight CPU-bound processes beside it (load 12-16), 4 workers passed
-# in 29 min 42 s where 2 had taken 46 min 20 s (load 10-12); quiet, 4 workers 597 s (the
-# cores saturated, 1,187 CPU-s) against 594 s for 2 (before scipy left the start-up).
+# in 29 min 42 s where 2 had taken 46 min 20 s (load 10-12). Quiet, with Numba's kernels
+# already cached: 4 workers 597 s (the cores saturated, 1,187 CPU-s), 2 workers 594 s (before
+# scipy left the start-up); from a fresh clone, 4 workers 665 s (1,322 CPU-s).
 def pytest_xdist_auto_num_workers(config) -> int:
     return 2 * len(os.sched_getaffinity(0))
 
