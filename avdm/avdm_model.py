@@ -46,11 +46,11 @@ import dataclasses
 import math
 from typing import ClassVar
 
-import numba
 import numpy as np
 
 from avdm.base import FrameStream, Output, Params
 from avdm.errors import ParameterError
+from avdm.jit import kernel
 
 CHANNELS = ("on", "off", "on_off_mean")
 POOLINGS = ("active_mean", "all_mean")
@@ -147,7 +147,7 @@ _CHANNEL_CODE = {"on": 0, "off": 1, "on_off_mean": 2}
 _FASTMATH = {"reassoc", "contract", "nsz"}
 
 
-@numba.njit(cache=True, fastmath=_FASTMATH, nogil=True)
+@kernel(fastmath=_FASTMATH, nogil=True)
 def _avdm_kernel(frames, cfg, icfg, hist, qhist, valid, rbuf, nbuf, held, counter, out):
     """Advance the AVDM state over ``frames`` (T, H, W) and write outputs into ``out`` (T, 6).
 

@@ -58,11 +58,11 @@ import dataclasses
 import math
 from typing import ClassVar
 
-import numba
 import numpy as np
 
 from avdm.base import FrameStream, Output, Params
 from avdm.errors import ParameterError
+from avdm.jit import kernel
 
 MULTISCALE_OUTPUTS: tuple[Output, ...] = (
     Output("omega_dps", "deg/s", "decoded angular velocity ω̂ (finest trusted scale)"),
@@ -160,7 +160,7 @@ _FASTMATH = {"reassoc", "contract", "nsz"}
 VALID_SHIFT = 1.0
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _reflect(i, n):
     # BORDER_REFLECT_101 (OpenCV's default): ... 2 1 | 0 1 2 ... n-1 | n-2 ...
     if n == 1:
@@ -173,7 +173,7 @@ def _reflect(i, n):
     return i
 
 
-@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH)
+@kernel(nogil=True, fastmath=_FASTMATH)
 def _binomial(src, sh, sw, dst, dh, dw, hole, dec, tmp):
     """5-tap binomial (1 4 6 4 1)/16 low-pass with ``hole`` spacing, then keep every 2nd sample
     if ``dec``; src (sh·sw) → dst (dh·dw), both flat; tmp holds sh·dw."""
@@ -228,7 +228,7 @@ def _binomial(src, sh, sw, dst, dh, dw, hole, dec, tmp):
             d_row[j] = c6 * b0[j] + c4 * (bm1[j] + bp1[j]) + c1 * (bm2[j] + bp2[j])
 
 
-@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH)
+@kernel(nogil=True, fastmath=_FASTMATH)
 def _multiscale_kernel(frames, cfg, geo, lev, prev, qon, qoff, tmp, rbuf, sbuf, counter, out):
     """Advance the model over ``frames`` (T, H, W); write (T, 6) outputs.
 

@@ -70,12 +70,12 @@ import dataclasses
 import math
 from typing import ClassVar
 
-import numba
 import numpy as np
 
 from avdm.avdm_multiscale import _reflect
 from avdm.base import FrameStream, Output, Params
 from avdm.errors import ParameterError
+from avdm.jit import kernel
 
 HRC_OUTPUTS: tuple[Output, ...] = (
     Output("omega_dps", "deg/s", "speed read from |R̄| on the calibrated rising branch"),
@@ -165,7 +165,7 @@ def response_curve(v_dps: np.ndarray, r_peak: float, v_peak_dps: float, knee: fl
     return r_peak * (2.0 * xk / (1.0 + xk * xk)) ** (1.0 / knee)
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _box_mean(src, dst, radius):
     """Mean over the (2r+1)² neighbourhood of each element of ``src`` (ny, nx), reflecting at
     the edges (BORDER_REFLECT_101); into ``dst``."""
@@ -181,7 +181,7 @@ def _box_mean(src, dst, radius):
             dst[i, j] = acc * norm
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _hrc_kernel(frames, cfg, icfg, rows, cols, wts, tmp, lum, sur, con, var, nrm, dly, prv,
                 rbuf, cbuf, counter, out):  # fmt: skip
     """Advance the HRC over ``frames`` (T, H, W); write (T, 6) outputs.

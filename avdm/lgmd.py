@@ -11,11 +11,11 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
-import numba
 import numpy as np
 
 from avdm.base import Output, check_frames
 from avdm.errors import ParameterError
+from avdm.jit import kernel
 from avdm.lgmd_params import (
     LGMD_OUTPUT_NAMES,
     LGMD_OUTPUTS,
@@ -30,7 +30,7 @@ from avdm.lgmd_reference import GAUSS_CENTRE, GAUSS_CORNER, GAUSS_EDGE
 _N_OUT = len(LGMD_OUTPUTS)
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _replicate_edges(a):
     """Fill the 1-px frame of a padded (H+2, W+2) buffer with its nearest interior values."""
     hp, wp = a.shape
@@ -42,7 +42,7 @@ def _replicate_edges(a):
         a[hp - 1, x] = a[hp - 2, x]
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _levels(frames, i, y, x, is_u8):
     if is_u8:
         return np.float64(frames[i, y, x])
@@ -50,7 +50,7 @@ def _levels(frames, i, y, x, is_u8):
     return np.float64(np.rint(v))
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _lgmd_plus_kernel(frames, is_u8, cfg, wloc, lum_prev, bufs, g_prev, scal, spikes_ring, out):
     """Advance LGMD+ over frames (T, H, W).
 
@@ -171,7 +171,7 @@ def _lgmd_plus_kernel(frames, is_u8, cfg, wloc, lum_prev, bufs, g_prev, scal, sp
         off_prev[:, :] = off_now
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _lgmd_colias_kernel(frames, is_u8, cfg, lum_prev, bufs, scal, spikes_ring, out):
     """Advance the Colias firmware port over frames (T, H, W).
 

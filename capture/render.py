@@ -17,9 +17,9 @@ from __future__ import annotations
 import math
 
 import cv2
-import numba
 import numpy as np
 
+from avdm.jit import kernel
 from capture.config import ArenaConfig, CameraConfig, WallConfig
 from capture.tracker import CORNER_IDS, ROBOT_ID, MarkerLayout, draw_marker
 from vdc.arena_geometry import ray_to_wall
@@ -30,7 +30,7 @@ TEXTURE_SUBROWS = 2
 FLOOR_SUBROWS = 4
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _floor_value(x, y, dx, dy, rho, hx, hy, ring_lo, ring_hi, floor_level, ring_level):
     px = x + rho * dx
     py = y + rho * dy
@@ -38,12 +38,12 @@ def _floor_value(x, y, dx, dy, rho, hx, hy, ring_lo, ring_hi, floor_level, ring_
     return ring_level if ring_lo <= g <= ring_hi else floor_level
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _overlap(a0, a1, b0, b1):
     return max(0.0, min(a1, b1) - max(a0, b0))
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def _centre_ray(j, w, f, hd, x, y, hx, hy, cam_h):
     """Column ``j``'s centre ray: its direction (dx, dy), its length in the image plane per
     unit depth (px) and the image row where the wall meets the floor along it (px below the
@@ -58,7 +58,7 @@ def _centre_ray(j, w, f, hd, x, y, hx, hy, cam_h):
     return dxc, dyc, lc, cam_h * lc / dc
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _column_floor(x, y, dxc, dyc, lc, vb_c, r0, geom, cam_h):
     """Mean floor intensity over FLOOR_SUBROWS samples of pixel row [r0, r0+1] (centre ray)."""
     hx, hy = geom[0], geom[1]
@@ -70,7 +70,7 @@ def _column_floor(x, y, dxc, dyc, lc, vb_c, r0, geom, cam_h):
     return acc / FLOOR_SUBROWS
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def render_grating_frames(poses, offsets, geom, cam, grating, out):
     """Render frames of a grating wall.
 
@@ -136,7 +136,7 @@ def render_grating_frames(poses, offsets, geom, cam, grating, out):
                 out[n, i, j] = np.uint8(min(max(val, 0.0), 1.0) * 255.0 + 0.5)
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def render_texture_frames(poses, offsets, geom, cam, texture, perimeter, out):
     """Render frames of a wall showing ``texture`` (Ht, Wt) f32 intensities on [0, 1], the
     panorama spanning the whole perimeter, drifted by ``offsets`` (m) along s."""

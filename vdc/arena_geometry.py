@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from avdm.jit import kernel
 
 _BIG = 1e30  # "never": a ray parallel to a pair of walls
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@kernel(nogil=True, inline="always")
 def ray_to_wall(
     x: float, y: float, dx: float, dy: float, hx: float, hy: float
 ) -> tuple[float, float]:
@@ -37,7 +38,7 @@ def distance_ahead(x: float, y: float, heading_rad: float, hx: float, hy: float)
     return ray_to_wall(x, y, math.cos(heading_rad), math.sin(heading_rad), hx, hy)[0]
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _distances(x, y, heading, hx, hy, out):  # pragma: no cover - compiled
     for i in range(x.shape[0]):
         if math.isnan(x[i]) or math.isnan(y[i]) or math.isnan(heading[i]):

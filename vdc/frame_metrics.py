@@ -34,9 +34,9 @@ from collections.abc import Iterable
 from typing import Any
 
 import cv2
-import numba
 import numpy as np
 
+from avdm.jit import kernel
 from vdc.errors import UserError
 from vdc.recording import NATIVE_METRICS
 
@@ -157,13 +157,13 @@ def legacy_lut(bit_depth: int, color_range: str) -> np.ndarray:
     return full.astype(np.float64)
 
 
-@numba.njit(cache=True, fastmath=True, nogil=True)
+@kernel(fastmath=True, nogil=True)
 def _map_row(codes, lut, out):  # pragma: no cover - compiled
     for j in range(codes.shape[0]):
         out[j] = lut[codes[j]]
 
 
-@numba.njit(cache=True, fastmath=True, nogil=True)
+@kernel(fastmath=True, nogil=True)
 def _sobel_row(r0, r1, r2, w, sums):  # pragma: no cover - compiled
     """Add the interior Sobel magnitudes of the middle row (its first ``w`` columns) to
     sums[0] (Σm) and sums[1] (Σm²)."""
@@ -179,7 +179,7 @@ def _sobel_row(r0, r1, r2, w, sums):  # pragma: no cover - compiled
     sums[1] += ss
 
 
-@numba.njit(cache=True, fastmath=True, nogil=True, error_model="numpy")
+@kernel(fastmath=True, nogil=True, error_model="numpy")
 def _diff_row(a, prev_codes, lut, w, sums):  # pragma: no cover - compiled
     """Add Σd and Σd² of d = a − lut[prev_codes] over the first ``w`` columns to sums[0],
     sums[1]: the previous row looked up here instead of into a buffer first (one pass over
@@ -194,7 +194,7 @@ def _diff_row(a, prev_codes, lut, w, sums):  # pragma: no cover - compiled
     sums[1] += ss
 
 
-@numba.njit(cache=True, fastmath=True, nogil=True)
+@kernel(fastmath=True, nogil=True)
 def _abs_diff_row(a, b):  # pragma: no cover - compiled
     s = 0
     for j in range(a.shape[0]):
@@ -203,7 +203,7 @@ def _abs_diff_row(a, b):  # pragma: no cover - compiled
     return s
 
 
-@numba.njit(cache=True, fastmath=True, nogil=True, error_model="numpy")
+@kernel(fastmath=True, nogil=True, error_model="numpy")
 def _range_row(a, lo_hi):  # pragma: no cover - compiled
     """Lower lo_hi[0] to the row's smallest code and raise lo_hi[1] to its largest. The row's
     extremes are taken in its own type (min/max without a branch: a vectorised loop; widening
@@ -218,7 +218,7 @@ def _range_row(a, lo_hi):  # pragma: no cover - compiled
     lo_hi[1] = max(lo_hi[1], np.int64(hi))
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _aligned_rows(n, w):  # pragma: no cover - compiled
     """(n, ≥w) float64 rows that each start on a 64-byte boundary. The sums below are
     vectorised, and how a vectorised loop groups its additions can depend on where its
@@ -230,7 +230,7 @@ def _aligned_rows(n, w):  # pragma: no cover - compiled
     return buf[off : off + n * wp].reshape((n, wp))  # C-contiguous: columns w.. are spare
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def frame_sums(y, prev, lut_a, lut_b, have_prev):  # pragma: no cover - compiled
     """One pass over luma ``y`` (H, W) uint8/uint16 and the previous frame ``prev``:
     (10,) float64 = Σm, Σm² of the interior Sobel magnitude and Σd, Σd² of the frame
@@ -239,7 +239,7 @@ def frame_sums(y, prev, lut_a, lut_b, have_prev):  # pragma: no cover - compiled
     return chosen_sums(y, prev, lut_a, lut_b, have_prev, True, True)[:10]
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def chosen_sums(
     y, prev, lut_a, lut_b, have_prev, want_a, want_b, want_range=False
 ):  # pragma: no cover

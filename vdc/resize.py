@@ -16,8 +16,9 @@ from __future__ import annotations
 import functools
 
 import cv2
-import numba
 import numpy as np
+
+from avdm.jit import kernel
 
 
 @functools.lru_cache(maxsize=16)
@@ -39,7 +40,7 @@ def area_weights(n_in: int, n_out: int) -> tuple[np.ndarray, np.ndarray]:
     return first, weights
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _area(src, fy, wy, fx, wx, out):  # pragma: no cover - compiled
     h, w = src.shape
     oh, ow = out.shape

@@ -10,7 +10,6 @@ import math
 from typing import Any
 
 import cv2
-import numba
 import numpy as np
 import polars as pl
 
@@ -18,6 +17,7 @@ from analysis.complexity.meter import ComplexityMeter
 from analysis.dataset.layout import EpisodeVideo, read_episode_data
 from analysis.dataset.window import WindowReader
 from analysis.stats import scipy_stats
+from avdm.jit import kernel
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher
 from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
@@ -99,14 +99,14 @@ def _hist_stats(hist: np.ndarray) -> tuple[float, float, float]:
     return mean, float(hist[: DARK + 1].sum()), float(hist[BRIGHT:].sum())
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _add_abs_diff(r, p, col):  # pragma: no cover - compiled
     """col += |r - p| over one row (int32: a block row's column sum is at most 16 × 255)."""
     for j in range(col.shape[0]):
         col[j] += abs(np.int32(r[j]) - np.int32(p[j]))
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _largest_block(col, block, bw):  # pragma: no cover - compiled
     """The largest Σ over ``bw`` blocks of ``block`` columns of ``col``, which is then zeroed."""
     m = np.int64(-1)
@@ -119,7 +119,7 @@ def _largest_block(col, block, bw):  # pragma: no cover - compiled
     return m
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _lap_row(ru, r, rd, w):  # pragma: no cover - compiled
     """Σ and Σ² of one row's 3×3 Laplacian (interior columns; int32 terms: |lap| <= 2040)."""
     s = np.int64(0)
@@ -132,7 +132,7 @@ def _lap_row(ru, r, rd, w):  # pragma: no cover - compiled
     return s, sq
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(nogil=True)
 def _grey_sums(g, p1, p2, have1, have2, block):  # pragma: no cover - compiled
     """One pass over ``g`` (H, W) uint8: Σ and Σ² of its 3×3
     Laplacian (OpenCV's ksize=3 kernel [[2,0,2],[0,-8,0],[2,0,2]], borders reflected about

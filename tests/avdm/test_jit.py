@@ -1,0 +1,156 @@
+"""avdm.jit: processes that need the same uncached kernel at once compile it once."""
+
+from __future__ import annotations
+
+import ast
+import fcntl
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.test_layout import PACKAGES, module_sources
+
+ROOT = Path(__file__).resolve().parents[2]
+
+KERNELS = textwrap.dedent(
+    """
+    import json
+    import sys
+
+    import numpy as np
+
+    from avdm.jit import kernel
+
+
+    @kernel(nogil=True)
+    def double(x):
+        return 2.0 * x
+
+
+    @kernel(nogil=True)
+    def total(a):
+        s = 0.0
+        for v in a:
+            s += double(v)
+        return s
+
+
+    if __name__ == "__main__":
+        assert total(np.arange(4.0)) == 12.0
+        stats = {name: f.stats for name, f in (("total", total), ("double", double))}
+        print(json.dumps({
+            name: {"hits": sum(s.cache_hits.values()), "misses": sum(s.cache_misses.values())}
+            for name, s in stats.items()
+        }))
+    """
+)
+
+
+def _waiters(inode: int) -> int:
+    """Processes blocked on a flock of this inode, from the kernel's own table."""
+    with open("/proc/locks") as f:
+        return sum(1 for line in f if "->" in line and line.split()[6].endswith(f":{inode}"))
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/locks"), reason="needs Linux's /proc/locks")
+def test_two_processes_needing_an_uncached_kernel_compile_it_once(tmp_path: Path) -> None:
+    (tmp_path / "kernels.py").write_text(KERNELS)
+    env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{ROOT}"}
+    env.pop("NUMBA_CACHE_DIR", None)  # Numba's cache beside kernels.py, empty: a cold start
+    # the lock file the first compile takes (total's: the caller's, taken before its callee's)
+    probe = (
+        "import kernels; from avdm.jit import _lock_path; print(_lock_path(kernels.total))"
+    )
+    lock = subprocess.run(
+        [sys.executable, "-c", probe], env=env, cwd=tmp_path, capture_output=True, text=True
+    )
+    assert lock.returncode == 0, lock.stderr
+    lock_path = Path(lock.stdout.strip())
+    assert lock_path.parent.parent == tmp_path  # beside the source, in its __pycache__
+    lock_path.parent.mkdir(exist_ok=True)
+    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+    procs = []
+    try:
+        # the test holds the kernel's lock, so both processes reach it before either compiles:
+        # without the lock both would compile, whatever the machine's load
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        cmd = [sys.executable, str(tmp_path / "kernels.py")]
+        for _ in range(2):
+            procs.append(
+                subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, text=True)
+            )
+        inode = os.fstat(fd).st_ino
+        deadline = time.monotonic() + 300  # imports on a loaded machine; a hang fails here
+        while _waiters(inode) < 2:
+            assert all(p.poll() is None for p in procs), "a process ended without waiting"
+            assert time.monotonic() < deadline, "the processes never waited for the lock"
+            time.sleep(0.05)
+    finally:
+        os.close(fd)  # releases the lock
+        outs = [p.communicate(timeout=300)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0]
+    stats = [json.loads(out) for out in outs]
+    # one process compiled both kernels; the other loaded the caller, whose cached machine code
+    # holds its callee's, so it never needed the callee at all
+    assert sorted(s["total"]["misses"] for s in stats) == [0, 1], stats
+    assert sorted(s["total"]["hits"] for s in stats) == [0, 1], stats
+    assert sorted(s["double"]["misses"] for s in stats) == [0, 1], stats
+
+
+def test_a_held_lock_is_released_when_its_holder_is_killed(tmp_path: Path) -> None:
+    """A compile killed halfway leaves nobody waiting: flock ends with its process."""
+    (tmp_path / "kernels.py").write_text(KERNELS)
+    env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{ROOT}"}
+    env.pop("NUMBA_CACHE_DIR", None)
+    hold = (
+        "import fcntl, os, sys, kernels; from avdm.jit import _lock_path\n"
+        "p = _lock_path(kernels.total); os.makedirs(os.path.dirname(p), exist_ok=True)\n"
+        "fd = os.open(p, os.O_RDWR | os.O_CREAT); fcntl.flock(fd, fcntl.LOCK_EX)\n"
+        "print(p, flush=True); sys.stdin.read()\n"
+    )
+    holder = subprocess.Popen(
+        [sys.executable, "-c", hold],
+        env=env,
+        cwd=tmp_path,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None
+        assert Path(holder.stdout.readline().strip()).exists()
+    finally:
+        holder.kill()
+        holder.wait()
+    run = subprocess.run(
+        [sys.executable, str(tmp_path / "kernels.py")],
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout)["total"]["misses"] == 1
+
+
+def test_every_kernel_in_the_packages_compiles_under_the_lock() -> None:
+    """No plain ``numba.njit``/``numba.jit`` in the packages: each kernel is ``avdm.jit.kernel``."""
+    plain = []
+    for name, source in module_sources().items():
+        if name == "avdm.jit" or name.split(".")[0] not in PACKAGES:
+            continue
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, ast.Attribute) and node.attr in ("njit", "jit"):
+                if isinstance(node.value, ast.Name) and node.value.id == "numba":
+                    plain.append(f"{name}:{node.lineno}")
+            if isinstance(node, ast.ImportFrom) and node.module == "numba":
+                if any(a.name in ("njit", "jit") for a in node.names):
+                    plain.append(f"{name}:{node.lineno}")
+    assert plain == []
