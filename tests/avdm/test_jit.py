@@ -64,9 +64,7 @@ def test_two_processes_needing_an_uncached_kernel_compile_it_once(tmp_path: Path
     env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{ROOT}"}
     env.pop("NUMBA_CACHE_DIR", None)  # Numba's cache beside kernels.py, empty: a cold start
     # the lock file the first compile takes (total's: the caller's, taken before its callee's)
-    probe = (
-        "import kernels; from avdm.jit import _lock_path; print(_lock_path(kernels.total))"
-    )
+    probe = "import kernels; from avdm.jit import _lock_path; print(_lock_path(kernels.total))"
     lock = subprocess.run(
         [sys.executable, "-c", probe], env=env, cwd=tmp_path, capture_output=True, text=True
     )
