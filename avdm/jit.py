@@ -19,8 +19,8 @@ same process holds the file lock it needs.
 
 The lock is advisory (``flock``) and the kernel releases it when the process ends however it
 ends: a killed compiler leaves nobody waiting. Where the lock cannot be had (no ``fcntl``, a
-read-only cache folder, a Numba whose cache is laid out otherwise), the kernel compiles as
-plain Numba would.
+read-only cache folder, a filesystem without locks, a Numba whose cache is laid out
+otherwise), the kernel compiles as plain Numba would.
 """
 
 from __future__ import annotations
@@ -68,7 +68,10 @@ def _locked_compile(dispatcher: Any) -> Callable[[Any], Any]:
             except OSError:  # a read-only cache folder: compile unlocked
                 return compile_unlocked(sig)
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX)
+                except OSError:  # a filesystem without locks (ENOLCK): compile unlocked
+                    return compile_unlocked(sig)
                 _HELD.add(path)
                 try:
                     return compile_unlocked(sig)
