@@ -3,7 +3,8 @@
 ``calibrations.json`` is produced by ``vdc-analyse calibrate ... --update-defaults`` and holds
 one entry per camera geometry (frame rate, degrees per pixel) with the fit quality and the grid
 it used. A camera without a shipped entry is fitted on first use and the fit is cached in the
-user's cache folder (the one file outside the package that ``avdm`` reads or writes).
+user's cache folder (the one file outside the package that ``avdm`` reads or writes, with its
+lock file: processes that need the same fit at once wait for the one fitting it).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from avdm.calibration import (
     valid_periods_px,
     valid_tfs_hz,
 )
+from avdm.file_lock import exclusive
 from avdm.version import __version__
 
 CALIBRATION_FILE = "calibrations.json"
@@ -219,6 +221,26 @@ def calibration_for(
     cached = read_cached(path, key)
     if cached is not None:
         return {**cached, "source": "cache", "cache_file": str(path)}
+    with contextlib.suppress(OSError):  # an unwritable cache folder: fitted unlocked
+        path.parent.mkdir(parents=True, exist_ok=True)
+    # processes that need the same new calibration at once (a pool's workers on clips of one
+    # camera) fit it once: the others wait here, then read what it cached
+    with exclusive(path.with_name(path.name + ".lock")):
+        cached = read_cached(path, key)
+        if cached is not None:
+            return {**cached, "source": "cache", "cache_file": str(path)}
+        return _fit_and_cache(params, key, path, fps, deg_per_px, multiscale, progress)
+
+
+def _fit_and_cache(
+    params: Any,
+    key: dict[str, Any],
+    path: Path,
+    fps: float,
+    deg_per_px: float,
+    multiscale: bool,
+    progress: Callable[[], None] | None,
+) -> dict[str, Any]:
     report = _REPORT.get()
     if multiscale:
         size = (params.height_px, params.width_px)  # its scales depend on the raster

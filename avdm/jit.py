@@ -17,15 +17,13 @@ Numba's own compiler lock is taken first: its threads compile one at a time anyw
 thread holding a kernel's file lock never waits for that lock while another thread of the
 same process holds the file lock it needs.
 
-The lock is advisory (``flock``) and the kernel releases it when the process ends however it
-ends: a killed compiler leaves nobody waiting. Where the lock cannot be had (no ``fcntl``, a
-read-only cache folder, a filesystem without locks, a Numba whose cache is laid out
-otherwise), the kernel compiles as plain Numba would.
+The lock is :func:`avdm.file_lock.exclusive`: the kernel drops it when its holder ends however
+it ends, and where no lock can be had (or Numba's cache is laid out otherwise) the kernel
+compiles as plain Numba would.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from typing import Any
 
@@ -33,15 +31,7 @@ import numba
 from numba.core import sigutils
 from numba.core.compiler_lock import global_compiler_lock
 
-try:
-    import fcntl
-except ImportError:  # not POSIX: every process compiles for itself, as plain Numba does
-    fcntl = None  # type: ignore[assignment]
-
-# lock files this process holds now: a kernel's compile may come back to the same kernel
-# (another signature while typing a caller), and a second flock on a new descriptor of the
-# same file would wait for the first forever
-_HELD: set[str] = set()
+from avdm.file_lock import exclusive
 
 
 def _lock_path(dispatcher: Any) -> str | None:
@@ -57,28 +47,11 @@ def _locked_compile(dispatcher: Any) -> Callable[[Any], Any]:
 
     def compile(sig: Any) -> Any:
         args, _ = sigutils.normalize_signature(sig)
-        if tuple(args) in dispatcher.overloads:  # compiled or loaded already: no lock
-            return compile_unlocked(sig)
         path = _lock_path(dispatcher)
-        if fcntl is None or path is None or path in _HELD:
+        if tuple(args) in dispatcher.overloads or path is None:  # loaded already, or no cache
             return compile_unlocked(sig)
-        with global_compiler_lock:
-            try:
-                fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-            except OSError:  # a read-only cache folder: compile unlocked
-                return compile_unlocked(sig)
-            try:
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX)
-                except OSError:  # a filesystem without locks (ENOLCK): compile unlocked
-                    return compile_unlocked(sig)
-                _HELD.add(path)
-                try:
-                    return compile_unlocked(sig)
-                finally:
-                    _HELD.discard(path)
-            finally:
-                os.close(fd)  # releases the lock
+        with global_compiler_lock, exclusive(path):
+            return compile_unlocked(sig)  # loads what a process we waited for wrote
 
     return compile
 

@@ -292,3 +292,37 @@ def module_on_path(folder: Path, module: str, source: str) -> Iterator[Path]:
     sys.path.insert(0, str(folder))
     yield folder
     sys.path.remove(str(folder))
+
+
+def flock_waiters(path: Path) -> int:
+    """Processes blocked on a ``flock`` of ``path``, from the kernel's lock table (Linux)."""
+    inode = os.stat(path).st_ino
+    with open("/proc/locks") as f:
+        return sum(1 for line in f if "->" in line and line.split()[6].endswith(f":{inode}"))
+
+
+def run_behind_a_held_lock(
+    lock_path: Path, cmds: Sequence[Sequence[str]], **popen: object
+) -> list[tuple[int, str]]:
+    """Start ``cmds`` while the test holds ``lock_path`` (a ``flock``), wait until every one
+    of them waits for it (the kernel's lock table, not a time), release it, and return each
+    one's exit status and standard output. Whatever the machine's load, all of them reach
+    the lock before any gets it."""
+    import fcntl
+
+    lock_path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+    procs: list[subprocess.Popen] = []
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        for cmd in cmds:
+            procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, **popen))
+        deadline = time.monotonic() + 300  # imports on a loaded machine; a hang fails here
+        while flock_waiters(lock_path) < len(cmds):
+            assert all(p.poll() is None for p in procs), "a process ended without waiting"
+            assert time.monotonic() < deadline, "the processes never waited for the lock"
+            time.sleep(0.05)
+    finally:
+        os.close(fd)  # releases the lock
+        outs = [p.communicate(timeout=300)[0] for p in procs]
+    return [(p.returncode, out) for p, out in zip(procs, outs, strict=True)]

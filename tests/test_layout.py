@@ -176,9 +176,9 @@ ALLOWED = {
 }
 # avdm is pure computation: none of these, and no file reading or writing outside the modules
 # the page names as the exception (a policy's CSV table, the decoding-constants cache and the
-# kernels' compile locks beside Numba's cache)
+# lock files that let one process fill a cache while the others wait)
 AVDM_FORBIDDEN_IMPORTS = ("rerun", "argparse", "serial", "pyarrow")
-AVDM_FILE_IO_ALLOWED = {"avdm.policy", "avdm.calibration_store", "avdm.jit"}
+AVDM_FILE_IO_ALLOWED = {"avdm.policy", "avdm.calibration_store", "avdm.file_lock"}
 _FILE_IO_CALLS = {"open", "read_text", "write_text", "read_bytes", "write_bytes", "mkdir"}
 _FILE_IO_CALLS |= {"unlink", "load", "save", "loadtxt", "savetxt", "read_csv", "write_csv"}
 # An import inside a function needs a stated reason: a comment ``# lazy: REASON`` on its line,

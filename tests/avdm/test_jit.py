@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import ast
-import fcntl
 import json
 import os
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import pytest
 
+from tests.helpers import run_behind_a_held_lock
 from tests.test_layout import PACKAGES, module_sources
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -52,12 +51,6 @@ KERNELS = textwrap.dedent(
 )
 
 
-def _waiters(inode: int) -> int:
-    """Processes blocked on a flock of this inode, from the kernel's own table."""
-    with open("/proc/locks") as f:
-        return sum(1 for line in f if "->" in line and line.split()[6].endswith(f":{inode}"))
-
-
 @pytest.mark.skipif(not os.path.exists("/proc/locks"), reason="needs Linux's /proc/locks")
 def test_two_processes_needing_an_uncached_kernel_compile_it_once(tmp_path: Path) -> None:
     (tmp_path / "kernels.py").write_text(KERNELS)
@@ -71,29 +64,12 @@ def test_two_processes_needing_an_uncached_kernel_compile_it_once(tmp_path: Path
     assert lock.returncode == 0, lock.stderr
     lock_path = Path(lock.stdout.strip())
     assert lock_path.parent.parent == tmp_path  # beside the source, in its __pycache__
-    lock_path.parent.mkdir(exist_ok=True)
-    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
-    procs = []
-    try:
-        # the test holds the kernel's lock, so both processes reach it before either compiles:
-        # without the lock both would compile, whatever the machine's load
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        cmd = [sys.executable, str(tmp_path / "kernels.py")]
-        for _ in range(2):
-            procs.append(
-                subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, text=True)
-            )
-        inode = os.fstat(fd).st_ino
-        deadline = time.monotonic() + 300  # imports on a loaded machine; a hang fails here
-        while _waiters(inode) < 2:
-            assert all(p.poll() is None for p in procs), "a process ended without waiting"
-            assert time.monotonic() < deadline, "the processes never waited for the lock"
-            time.sleep(0.05)
-    finally:
-        os.close(fd)  # releases the lock
-        outs = [p.communicate(timeout=300)[0] for p in procs]
-    assert [p.returncode for p in procs] == [0, 0]
-    stats = [json.loads(out) for out in outs]
+    # the test holds the kernel's lock, so both processes reach it before either compiles:
+    # without the lock both would compile, whatever the machine's load
+    cmd = [sys.executable, str(tmp_path / "kernels.py")]
+    runs = run_behind_a_held_lock(lock_path, [cmd, cmd], env=env, cwd=tmp_path)
+    assert [code for code, _ in runs] == [0, 0]
+    stats = [json.loads(out) for _, out in runs]
     # one process compiled both kernels; the other loaded the caller, whose cached machine code
     # holds its callee's, so it never needed the callee at all
     assert sorted(s["total"]["misses"] for s in stats) == [0, 1], stats
