@@ -66,15 +66,14 @@ def _calibration_cache():
         shutil.rmtree(_CACHE, ignore_errors=True)
 
 
-# Two workers per core for `-n auto` (`--maxprocesses 4` caps it). On a busy machine the
+# Three workers per core for `-n auto` (`--maxprocesses 6` caps it). On a busy machine the
 # suite's share of the cores is its share of the runnable processes, and a test often has one
 # or none (it waits on the command, pool or server it started). Measured on 2 cores, fresh
-# clone, 27 Nov 2026: with eight CPU-bound processes beside it (load 12-16), 4 workers passed
-# in 29 min 42 s where 2 had taken 46 min 20 s (load 10-12). Quiet, with Numba's kernels
-# already cached: 4 workers 597 s (the cores saturated, 1,187 CPU-s), 2 workers 594 s (before
-# scipy left the start-up); from a fresh clone, 4 workers 665 s (1,322 CPU-s).
+# clone, 27 Nov 2026, with eight CPU-bound processes beside it (load 12-16): 2 workers took
+# 46 min 20 s, 4 workers 29 min 42 s and 31 min 52 s (two passes). Quiet: 4 workers 665 s
+# from a fresh clone (1,322 CPU-s; 597 s with Numba's kernels cached), 2 workers 594 s.
 def pytest_xdist_auto_num_workers(config) -> int:
-    return 2 * len(os.sched_getaffinity(0))
+    return 3 * len(os.sched_getaffinity(0))
 
 
 # The longest test files first (measured on a fresh clone, 2 workers): the workers take whole
