@@ -7,12 +7,37 @@
 * ``avdm.registry``: named variants and ``name:key=value`` overrides (``make_model``);
 * ``avdm.stimuli``: drifting gratings, natural scenes and a camera panning across a photograph;
 * ``avdm.calibration``: least-squares fit of the decoding constants (a, b).
+
+The names below load on first use (PEP 562): importing one module of the package, such as
+``avdm.jit`` (which every Numba kernel in vdc needs), no longer loads the registry and with it
+polars. A pool's fork server imports the kernels, and a library that starts threads at import,
+as polars does, must not be loaded there (``vdc/warm.py``).
 """
 
-from avdm.avdm_model import AVDM_OUTPUTS, Avdm, AvdmParams
-from avdm.base import Model, Output, Params
-from avdm.registry import canonical_name, make_model, make_params, parse_model_spec
-from avdm.version import __version__
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # what the names are, for type checkers and IDEs
+    from avdm.avdm_model import AVDM_OUTPUTS, Avdm, AvdmParams
+    from avdm.base import Model, Output, Params
+    from avdm.registry import canonical_name, make_model, make_params, parse_model_spec
+    from avdm.version import __version__
+
+_API = {
+    "AVDM_OUTPUTS": "avdm.avdm_model",
+    "Avdm": "avdm.avdm_model",
+    "AvdmParams": "avdm.avdm_model",
+    "Model": "avdm.base",
+    "Output": "avdm.base",
+    "Params": "avdm.base",
+    "__version__": "avdm.version",
+    "canonical_name": "avdm.registry",
+    "make_model": "avdm.registry",
+    "make_params": "avdm.registry",
+    "parse_model_spec": "avdm.registry",
+}
 
 __all__ = [
     "AVDM_OUTPUTS",
@@ -27,3 +52,16 @@ __all__ = [
     "make_params",
     "parse_model_spec",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    module = _API.get(name)
+    if module is None:
+        raise AttributeError(f"module 'avdm' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # once loaded, a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_API})

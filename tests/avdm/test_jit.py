@@ -128,3 +128,30 @@ def test_every_kernel_in_the_packages_compiles_under_the_lock() -> None:
                 if any(a.name in ("njit", "jit") for a in node.names):
                     plain.append(f"{name}:{node.lineno}")
     assert plain == []
+
+
+def test_the_kernels_load_without_the_registry_polars_or_a_thread() -> None:
+    """A pool's fork server imports the kernels (vdc.warm): ``avdm/__init__`` loads its names
+    lazily, so ``avdm.jit`` brings neither the registry nor polars, whose threads a fork
+    would not copy."""
+    code = (
+        "import sys, avdm.avdm_model, vdc.frame_metrics\n"
+        "from vdc.warm import threads_now\n"
+        "print(sorted(m for m in ('avdm.registry', 'polars') if m in sys.modules), threads_now())"
+    )
+    env = {**os.environ, **{v: "1" for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}}
+    proc = subprocess.run(
+        [sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["[]", "1"]
+
+
+def test_the_package_face_names_what_it_loads() -> None:
+    import avdm
+
+    assert avdm.__all__ == sorted(avdm._API)
+    for name in avdm.__all__:
+        assert getattr(avdm, name) is not None
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        avdm.nope  # noqa: B018
