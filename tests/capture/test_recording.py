@@ -253,7 +253,7 @@ def test_connect_tees_to_a_live_viewer_while_writing_the_file(tmp_path: Path) ->
             except OSError:
                 return receiver.poll() is not None  # it ended: stop waiting, the assert says
 
-        assert wait_until(listening, 30) and receiver.poll() is None, "the receiver never listened"
+        assert wait_until(listening, 120) and receiver.poll() is None, "the receiver never listened"
         out = tmp_path / "teed.rrd"
         proc = run_cli(
             "capture",
