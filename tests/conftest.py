@@ -69,9 +69,11 @@ def _calibration_cache():
 # Three workers per core for `-n auto` (`--maxprocesses 6` caps it). On a busy machine the
 # suite's share of the cores is its share of the runnable processes, and a test often has one
 # or none (it waits on the command, pool or server it started). Measured on 2 cores, fresh
-# clone, 27 Nov 2026, with eight CPU-bound processes beside it (load 12-16): 2 workers took
-# 46 min 20 s, 4 workers 29 min 42 s and 31 min 52 s (two passes). Quiet: 4 workers 665 s
-# from a fresh clone (1,322 CPU-s; 597 s with Numba's kernels cached), 2 workers 594 s.
+# clone, 27 Nov 2026, with eight CPU-bound processes beside it (load 12-19): 2 workers took
+# 46 min 20 s, 4 workers 29 min 42 s and 31 min 52 s (two passes), 6 workers (and Numba's
+# kernels compiled once, avdm.jit) 29 min 56 s and 29 min 35 s. Quiet: 4 workers 665 s from a
+# fresh clone (1,322 CPU-s), 6 workers with the kernel lock 586 s (1,167 CPU-s). The two
+# changes were measured together: the gain under load is within the passes' spread.
 def pytest_xdist_auto_num_workers(config) -> int:
     return 3 * len(os.sched_getaffinity(0))
 
