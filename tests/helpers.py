@@ -317,21 +317,20 @@ def run_behind_a_held_lock(
     of them waits for it (the kernel's lock table, not a time), release it, and return each
     one's exit status and standard output. Whatever the machine's load, all of them reach
     the lock before any gets it."""
-    import fcntl
+    from avdm.file_lock import exclusive
 
     lock_path.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
     procs: list[subprocess.Popen] = []
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        for cmd in cmds:
-            procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, **popen))
-        deadline = time.monotonic() + 300  # imports on a loaded machine; a hang fails here
-        while flock_waiters(lock_path) < len(cmds):
-            assert all(p.poll() is None for p in procs), "a process ended without waiting"
-            assert time.monotonic() < deadline, "the processes never waited for the lock"
-            time.sleep(0.05)
-    finally:
-        os.close(fd)  # releases the lock
+        with exclusive(lock_path) as locked:
+            assert locked, f"the test could not lock {lock_path}"
+            for cmd in cmds:
+                procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, **popen))
+            deadline = time.monotonic() + 300  # imports on a loaded machine; a hang fails here
+            while flock_waiters(lock_path) < len(cmds):
+                assert all(p.poll() is None for p in procs), "a process ended without waiting"
+                assert time.monotonic() < deadline, "the processes never waited for the lock"
+                time.sleep(0.05)
+    finally:  # the lock is released: collect them, whether or not they waited
         outs = [p.communicate(timeout=300)[0] for p in procs]
     return [(p.returncode, out) for p, out in zip(procs, outs, strict=True)]

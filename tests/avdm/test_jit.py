@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import run_behind_a_held_lock
+from tests.helpers import flock_waiters, run_behind_a_held_lock, wait_until
 from tests.test_layout import PACKAGES, module_sources
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -78,40 +78,35 @@ def test_two_processes_needing_an_uncached_kernel_compile_it_once(tmp_path: Path
 
 
 def test_a_held_lock_is_released_when_its_holder_is_killed(tmp_path: Path) -> None:
-    """A compile killed halfway leaves nobody waiting: flock ends with its process."""
+    """A compile killed halfway leaves nobody waiting: a process blocked on the kernel's lock
+    goes on, and compiles it, when the holder is killed (flock ends with its process)."""
     (tmp_path / "kernels.py").write_text(KERNELS)
     env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{ROOT}"}
     env.pop("NUMBA_CACHE_DIR", None)
     hold = (
-        "import fcntl, os, sys, kernels; from avdm.jit import _lock_path\n"
+        "import os, sys, kernels; from avdm.file_lock import exclusive\n"
+        "from avdm.jit import _lock_path\n"
         "p = _lock_path(kernels.total); os.makedirs(os.path.dirname(p), exist_ok=True)\n"
-        "fd = os.open(p, os.O_RDWR | os.O_CREAT); fcntl.flock(fd, fcntl.LOCK_EX)\n"
-        "print(p, flush=True); sys.stdin.read()\n"
+        "with exclusive(p) as locked:\n"
+        "    print(p if locked else '', flush=True); sys.stdin.read()\n"
     )
-    holder = subprocess.Popen(
-        [sys.executable, "-c", hold],
-        env=env,
-        cwd=tmp_path,
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    popen = {"env": env, "cwd": tmp_path, "stdout": subprocess.PIPE, "text": True}
+    holder = subprocess.Popen([sys.executable, "-c", hold], stdin=subprocess.PIPE, **popen)
+    run = None
     try:
         assert holder.stdout is not None
-        assert Path(holder.stdout.readline().strip()).exists()
+        lock_path = Path(holder.stdout.readline().strip())
+        assert lock_path.is_file(), "the holder could not lock"
+        run = subprocess.Popen([sys.executable, str(tmp_path / "kernels.py")], **popen)
+        # the event, not a time: the kernel's lock table shows the run blocked on the lock
+        assert wait_until(lambda: flock_waiters(lock_path) == 1 or run.poll() is not None, 300)
+        assert run.poll() is None, "the run did not wait for the held lock"
     finally:
         holder.kill()
         holder.wait()
-    run = subprocess.run(
-        [sys.executable, str(tmp_path / "kernels.py")],
-        env=env,
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert run.returncode == 0, run.stderr
-    assert json.loads(run.stdout)["total"]["misses"] == 1
+        out = run.communicate(timeout=300)[0] if run is not None else ""
+    assert run.returncode == 0
+    assert json.loads(out)["total"]["misses"] == 1  # it compiled the kernel itself
 
 
 def test_every_kernel_in_the_packages_compiles_under_the_lock() -> None:
