@@ -109,7 +109,8 @@ def pytest_collection_modifyitems(config, items) -> None:
 
 
 # `VDC_TEST_CPU_LOG=FILE pytest` appends one line per test: its CPU seconds (the worker's own
-# and its finished child processes', setup to teardown), its wall seconds and its id. The suite
+# and its finished child processes', setup to teardown), its wall seconds, when it ended (Unix
+# time), the xdist worker and the test's id. The suite
 # is CPU-bound on a 2-core machine, so this, not `--durations`, says where its time goes.
 _CPU_LOG = os.environ.get("VDC_TEST_CPU_LOG")
 
@@ -132,4 +133,5 @@ def pytest_runtest_protocol(item, nextitem):
     yield
     cpu, wall = _cpu_s() - cpu0, time.monotonic() - wall0
     with open(_CPU_LOG, "a") as log:  # one short line per write: appends do not interleave
-        log.write(f"{cpu:.2f}\t{wall:.2f}\t{item.nodeid}\n")
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "-")
+        log.write(f"{cpu:.2f}\t{wall:.2f}\t{time.time():.1f}\t{worker}\t{item.nodeid}\n")
