@@ -29,10 +29,9 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import polars as pl
 
 from avdm.base import Output, run_by_steps
 from avdm.errors import ParameterError
@@ -40,6 +39,13 @@ from avdm.errors import ParameterError
 COMPLEXITY_COLUMN = "complexity_dps"
 STATISTICS = ("median", "mean")
 HEADER = "vdc policy"
+
+if TYPE_CHECKING:
+    import polars as pl
+
+# polars is imported where a policy's table is read or written, not here: the model registry
+# imports this module, so every capture did, and polars costs a process about 0.3 s of CPU at
+# import and starts its thread pool, for a table a capture without a policy never touches.
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +79,8 @@ class Policy:
 
     def table(self) -> pl.DataFrame:
         """The rows as written: complexity, the parameter, then the evidence columns."""
+        import polars as pl  # lazy: start-up (a capture imports this module: see above)
+
         df = pl.DataFrame(
             {COMPLEXITY_COLUMN: list(self.complexity_dps), self.param: list(self.values)}
         )
@@ -97,6 +105,8 @@ class Policy:
 
 def load_policy(path: str | Path) -> Policy:
     """Read a policy file; ValueError in one line naming the file and what is wrong."""
+    import polars as pl  # lazy: start-up (a capture imports this module: see above)
+
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")

@@ -9,9 +9,8 @@ import os
 import shutil
 from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
@@ -19,6 +18,9 @@ from vdc.errors import UserError
 from vdc.folders import write_outputs
 from vdc.provenance import machine_info, package_versions
 from vdc.recording import pid_alive
+
+if TYPE_CHECKING:  # polars only in the annotations: a capture imports this module for
+    import polars as pl  # WroteFiles and must not pay polars' import or start its threads
 
 
 def write_parquet(df: pl.DataFrame, path: Path, meta: dict[str, Any]) -> Path:

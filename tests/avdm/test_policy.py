@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +12,7 @@ import pytest
 from avdm import make_model
 from avdm.policy import Policy, load_policy
 from avdm.stimuli import grating
+from tests.helpers import ROOT
 
 CAMERA = {"fps": 33.0, "deg_per_px": 70 / 99, "width_px": 99, "height_px": 72}
 
@@ -79,3 +82,20 @@ def test_a_parameter_that_cannot_change_while_running_is_refused(tmp_path: Path)
     Policy("w_base", (0.0,), (0.3,)).save(tmp_path / "p.csv")
     with pytest.raises(ValueError, match="cannot change while it runs"):
         make_model(f"lgmd-plus-arena:policy={tmp_path / 'p.csv'}", **CAMERA)
+
+
+def test_a_capture_loads_polars_only_to_read_a_policy(tmp_path: Path) -> None:
+    """Every capture imports the policy module (through the registry) and vdc.parquet_io (its
+    result type); polars (0.3 s of CPU and a thread pool at import) loads only when a table is
+    written or read."""
+    path = tmp_path / "policy.csv"
+    code = (
+        "import sys, avdm.registry, avdm.policy, capture.cli, capture.sim, capture.robot_capture, "
+        "capture.video\n"
+        "avdm.registry.make_params('avdm')\n"
+        "print('polars' in sys.modules)\n"
+        f"avdm.policy.Policy('t_ffi', (10.0, 30.0), (12.0, 36.0)).save({str(path)!r})\n"
+        f"print('polars' in sys.modules, avdm.policy.load_policy({str(path)!r}).value(20.0))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert proc.stdout.split() == ["False", "True", "24.0"], proc.stderr
