@@ -71,9 +71,11 @@ def _calibration_cache():
 # or none (it waits on the command, pool or server it started). Measured on 2 cores, fresh
 # clone, 27 Nov 2026, with eight CPU-bound processes beside it (load 12-19): 2 workers took
 # 46 min 20 s, 4 workers 29 min 42 s and 31 min 52 s (two passes), 6 workers (and Numba's
-# kernels compiled once, avdm.jit) 29 min 56 s and 29 min 35 s. Quiet: 4 workers 665 s from a
-# fresh clone (1,322 CPU-s), 6 workers with the kernel lock 586 s (1,167 CPU-s). The two
-# changes were measured together: the gain under load is within the passes' spread.
+# kernels compiled once, avdm.jit) 29 min 56 s and 29 min 35 s, then (a capture without polars)
+# 29 min 18 s and 26 min 11 s. Quiet: 4 workers 665 s from a fresh clone (1,322 CPU-s), 6
+# workers with the kernel lock 586 s (1,167 CPU-s). The two changes were measured together:
+# the gain under load is within the passes' spread. Under load the six workers end within two
+# minutes of each other (VDC_TEST_CPU_LOG, below): the suite is bound by its CPU, not a tail.
 def pytest_xdist_auto_num_workers(config) -> int:
     return 3 * len(os.sched_getaffinity(0))
 
