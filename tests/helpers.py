@@ -171,12 +171,13 @@ def assert_file_grows(
     if file_size(path) >= min_bytes:
         return
     ended = proc.poll() is not None
-    why = f"ended with status {proc.returncode}" if ended else "still runs"
-    err = proc.stderr.read() if ended and proc.stderr else ""
-    raise AssertionError(
-        f"{path} holds {file_size(path)} bytes, not {min_bytes}, and stopped growing for "
-        f"{stall_s:g} s; the process {why}: {err}"
+    why = (
+        f"the process ended with status {proc.returncode}"
+        if ended
+        else f"it has not grown for {stall_s:g} s and the process still runs"
     )
+    err = proc.stderr.read() if ended and proc.stderr else ""
+    raise AssertionError(f"{path} holds {file_size(path)} bytes, not {min_bytes}: {why}: {err}")
 
 
 def kill_a_worker_mid_batch(
