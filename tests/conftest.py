@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import resource
 import shutil
 import tempfile
+import time
 from pathlib import Path
 
 # One OpenBLAS thread per process, set before NumPy loads here, in the xdist workers (which
@@ -112,14 +114,12 @@ def pytest_collection_modifyitems(config, items) -> None:
 
 # `VDC_TEST_CPU_LOG=FILE pytest` appends one line per test: its CPU seconds (the worker's own
 # and its finished child processes', setup to teardown), its wall seconds, when it ended (Unix
-# time), the xdist worker and the test's id. The suite
-# is CPU-bound on a 2-core machine, so this, not `--durations`, says where its time goes.
+# time), the xdist worker and the test's id. The suite is CPU-bound on a 2-core machine, so
+# this, not `--durations`, says where its time goes.
 _CPU_LOG = os.environ.get("VDC_TEST_CPU_LOG")
 
 
 def _cpu_s() -> float:
-    import resource
-
     both = (resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN))
     return sum(u.ru_utime + u.ru_stime for u in both)
 
@@ -129,8 +129,6 @@ def pytest_runtest_protocol(item, nextitem):
     if not _CPU_LOG:
         yield
         return
-    import time
-
     cpu0, wall0 = _cpu_s(), time.monotonic()
     yield
     cpu, wall = _cpu_s() - cpu0, time.monotonic() - wall0
