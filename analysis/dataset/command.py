@@ -4,6 +4,7 @@ package's face, ``analysis.dataset``, names them)."""
 from __future__ import annotations
 
 import dataclasses
+import errno
 from pathlib import Path
 from typing import Any
 
@@ -18,9 +19,11 @@ from analysis.dataset.flags import finish, first_flags, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
 from analysis.dataset.page import write_page
 from analysis.dataset.resume import (
+    OutputError,
     clear_partials,
     drop_stale,
     measured,
+    output_error,
     read_result,
     result_path,
 )
@@ -44,6 +47,7 @@ class DatasetResult(WroteFiles):
     failed: list[int]
     notes: list[str]
     reused: int = 0
+    dataset_problems: list[str] = dataclasses.field(default_factory=list)
 
     def report(self) -> list[str]:
         """Lines for people: what was profiled, what was flagged, what was written."""
@@ -61,6 +65,10 @@ class DatasetResult(WroteFiles):
                 lines.append(f"  ... and {flagged.height - 10} more (dataset.html)")
         if self.failed:
             lines.append(f"--fail-on: episode(s) {', '.join(map(str, self.failed))} flagged")
+        # the dataset's own problems (its metadata disagreeing): they bear on every episode
+        lines += [f"dataset problem: {p}" for p in self.dataset_problems]
+        if self.problems:
+            lines.append(f"{len(self.problems)} problem(s): exit 2 (problems.parquet)")
         rrds = [p for p in self.paths if p.suffix == ".rrd"]
         tables = [str(p) for p in self.paths if p.suffix != ".rrd"]
         if rrds:  # one folder of recordings, not a name per episode
@@ -104,13 +112,21 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
     for p in problems:  # each unreadable file said as it is met: one line, file and episode
         feedback.log(f"error: {p.line()}")
     wanted = settings.episode_list()
+    if wanted is not None:  # a gate that checks nothing must not pass
+        absent = [e for e in wanted if e not in set(ds.listed)]
+        if absent or not wanted:
+            listed = f"{ds.listed[0]}-{ds.listed[-1]}" if ds.listed else "none"
+            raise UserError(
+                f"--episodes: {', '.join(map(str, absent)) or 'none given'}: not an episode of "
+                f"{root} (its episodes: {len(ds.listed)}, indices {listed})"
+            )
     videos = [v for v in ds.videos if wanted is None or v.episode in wanted]
     notes = [n for n in [no_fov_note(settings)] if n]
     for n in notes:
         feedback.log(n)
     feedback.log(
         f"{root}: LeRobot {ds.version}, {len(set(v.episode for v in videos))} episode(s), "
-        f"{len(ds.cameras)} camera(s), {ds.fps:g} fps"
+        f"{len(ds.cameras)} camera(s), {_rates_said(ds)}"
     )
     if out.exists() and not out.is_dir():  # as vdc.parquet_io.table_set says it
         raise UserError(f"--out {str(out)!r} is a file, not a folder; give a folder")
@@ -120,18 +136,22 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
     results: dict[str, dict[str, Any]] = {}
     # what an earlier (killed) run measured is read back here, without a worker
     for key, v in by_key.items():
-        kept = read_result(result_path(out, v, settings, ds.fps))
+        kept = read_result(result_path(out, v, settings, ds.rate(v.camera)))
         if kept is not None:
             results[key] = kept
     if results:
         feedback.log(f"{len(results)} camera stream(s) read back from an earlier run's results")
-    tasks = [(k, (v, settings, ds.fps, out)) for k, v in by_key.items() if k not in results]
+    tasks = [
+        (k, (v, settings, ds.rate(v.camera), out)) for k, v in by_key.items() if k not in results
+    ]
 
     def done(outcome: Any) -> None:
         feedback.progress(1)
         if outcome.error is None:
             results[outcome.key] = outcome.result
             return
+        if outcome.error.startswith(f"{OutputError.__name__}: "):  # the run's, not the video's
+            raise UserError(outcome.error.split(": ", 1)[1])
         problem = _problem_of(by_key[outcome.key], outcome.error)
         if problem not in problems:  # a data file's problem: once, not once per camera
             problems.append(problem)
@@ -140,7 +160,14 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
     if tasks:  # the task lives in resume: a worker imports the measuring, not this command
         run_tasks(measured, tasks, settings.executor_settings(), done,
                   feedback.log, shared_paths=(root, out))  # fmt: skip
-    drop_stale(out, [result_path(out, v, settings, ds.fps) for v in videos])
+    drop_stale(out, [result_path(out, v, settings, ds.rate(v.camera)) for v in videos])
+    for k in sorted(results, key=_order):  # what the measuring found wrong with the data
+        v = by_key[k]
+        for msg in results[k].get("problems", ()):
+            problem = Problem(v.data_path, v.episode, msg)
+            if problem not in problems:  # the data's: once, not once per camera
+                problems.append(problem)
+                feedback.log(f"error: {problem.line()}")
     rows = [results[k]["row"] for k in sorted(results, key=_order)]
     frames = [
         results[k]["frames"].with_columns(
@@ -163,14 +190,19 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         eps, frame_table = finish(rows, pl.concat(frames, how="diagonal_relaxed"), views,
                                   widths, settings.fov_deg)  # fmt: skip
         eps = severity(eps)
-    with table_set(out) as stage:
-        tables = {"episodes": eps, "frames": frame_table if rows else None,
-                  "problems": problem_table}  # fmt: skip
-        paths = write_tables(stage, tables, meta)
-        if settings.page and eps is not None:
-            paths.append(write_page(stage / "dataset.html", ds, eps, frame_table, problems))
-        if settings.recordings and eps is not None:
-            paths += _recordings(stage, ds, eps, frame_table, feedback)
+    try:
+        with table_set(out) as stage:
+            tables = {"episodes": eps, "frames": frame_table if rows else None,
+                      "problems": problem_table}  # fmt: skip
+            paths = write_tables(stage, tables, meta)
+            if settings.page and eps is not None:
+                paths.append(write_page(stage / "dataset.html", ds, eps, frame_table, problems))
+            if settings.recordings and eps is not None:
+                paths += _recordings(stage, ds, eps, frame_table, feedback)
+    except OSError as exc:  # the output's fault (a full disk): the run's error
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            raise
+        raise UserError(output_error(out, exc)) from None
     paths = [out / p.relative_to(stage) for p in paths]
     fail = set(settings.fail_names())
     failed = []
@@ -180,8 +212,15 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
                 failed.append(int(r["episode_index"]))
     reused = sum(bool(r.get("reused")) for r in results.values())
     return DatasetResult(
-        paths, eps, [p.line() for p in problems], sorted(set(failed)), notes, reused
-    )
+        paths, eps, [p.line() for p in problems], sorted(set(failed)), notes, reused,
+        [p.line() for p in problems if p.episode is None],
+    )  # fmt: skip
+
+
+def _rates_said(ds: Any) -> str:
+    """The rate(s) the cameras are measured at, said once where they are the same."""
+    rates = sorted({ds.rate(c) for c in ds.cameras})
+    return ", ".join(f"{r:.4g}" for r in rates) + " fps"
 
 
 def _recordings(

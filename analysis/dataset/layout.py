@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -62,8 +63,10 @@ class EpisodeVideo:
 
 @dataclasses.dataclass
 class Dataset:
-    """A dataset's layout: ``root``, ``info`` (meta/info.json), ``version``, ``fps``,
-    ``cameras`` (video and image features), the episodes' camera videos and the problems met."""
+    """A dataset's layout: ``root``, ``info`` (meta/info.json), ``version``, ``fps`` (as
+    info.json states it), ``cameras`` (video and image features), the episodes' camera videos,
+    the problems met, ``listed`` (every episode index the index lists, readable or not) and
+    ``rates``: each camera's rate (frames/s) as the evidence agrees (:func:`agreed_rate`)."""
 
     root: Path
     info: dict[str, Any]
@@ -72,10 +75,16 @@ class Dataset:
     cameras: list[str]
     videos: list[EpisodeVideo]
     problems: list[Problem]
+    listed: list[int] = dataclasses.field(default_factory=list)
+    rates: dict[str, float] = dataclasses.field(default_factory=dict)
 
     @property
     def episodes(self) -> list[int]:
         return sorted({v.episode for v in self.videos})
+
+    def rate(self, camera: str) -> float:
+        """The rate ``camera`` is measured at (frames/s)."""
+        return self.rates.get(camera, self.fps)
 
 
 def read_info(root: Path) -> dict[str, Any]:
@@ -95,13 +104,57 @@ def read_info(root: Path) -> dict[str, Any]:
         raise UserError(
             f"{path}: codebase_version {version!r} is not one vdc reads ({', '.join(VERSIONS)})"
         )
-    if not isinstance(info.get("fps"), (int, float)) or info["fps"] <= 0:
-        raise UserError(f"{path}: no positive fps")
+    fps = info.get("fps")
+    # a bool is an int to Python, and JSON's NaN and Infinity parse as floats: none is a rate
+    if (
+        not isinstance(fps, (int, float)) or isinstance(fps, bool)
+        or not math.isfinite(fps) or fps <= 0
+    ):  # fmt: skip
+        raise UserError(
+            f"{path}: fps {json.dumps(fps)} is not a rate (a positive, finite number of frames "
+            "per second)"
+        )
+    feats = info.get("features", {})
+    if not isinstance(feats, dict):
+        raise UserError(
+            f"{path}: features is a {type(feats).__name__}, not an object of features by name"
+        )
+    size = info.get("chunks_size", CHUNKS_SIZE)
+    if size is not None and (not isinstance(size, int) or isinstance(size, bool) or size <= 0):
+        raise UserError(f"{path}: chunks_size {json.dumps(size)} is not a positive integer")
+    for field, keys in _TEMPLATE_KEYS[version == "v3.0"].items():
+        _check_template(path, field, info.get(field), keys)
     return info
 
 
+# the fields each path template of info.json may name (v3.0, v2.x)
+_TEMPLATE_KEYS = {
+    True: {"data_path": ("chunk_index", "file_index"),
+           "video_path": ("video_key", "chunk_index", "file_index")},
+    False: {"data_path": ("episode_chunk", "episode_index"),
+            "video_path": ("episode_chunk", "video_key", "episode_index")},
+}  # fmt: skip
+
+
+def _check_template(path: Path, field: str, tpl: Any, keys: tuple[str, ...]) -> None:
+    """``info[field]`` (None: the default) formats with ``keys``, else UserError naming it."""
+    if tpl is None:
+        return
+    if not isinstance(tpl, str):
+        raise UserError(f"{path}: {field} is a {type(tpl).__name__}, not a path template")
+    try:
+        tpl.format(**{k: 0 for k in keys})
+    except KeyError as exc:
+        raise UserError(
+            f"{path}: {field} {tpl!r} names {{{exc.args[0]}}}, which vdc cannot fill (it "
+            f"knows {', '.join(keys)})"
+        ) from None
+    except (IndexError, ValueError) as exc:
+        raise UserError(f"{path}: {field} {tpl!r} is not a path template ({exc})") from None
+
+
 def _cameras(info: dict[str, Any]) -> list[str]:
-    feats = info.get("features") or {}
+    feats = info.get("features") or {}  # an object: read_info checked it
     return [
         k for k, v in feats.items() if isinstance(v, dict) and v.get("dtype") in ("video", "image")
     ]
@@ -118,66 +171,115 @@ def _read_table(path: Path, problems: list[Problem], episode: int | None = None)
 
 def open_dataset(root: str | Path) -> Dataset:
     """The layout of the dataset at ``root`` (see the module). Raises UserError where the
-    dataset itself is unreadable (no meta/info.json, an unknown version, no episode index)."""
+    dataset itself is unreadable (no meta/info.json, an unknown version, no episode index,
+    a malformed field of info.json); an unreadable or inconsistent episode is a Problem."""
     root = Path(root)
     info = read_info(root)
     version = info["codebase_version"]
     cams = _cameras(info)
     problems: list[Problem] = []
-    videos = (
+    listing = (
         _v3_videos(root, info, cams, problems)
         if version == "v3.0"
         else _v2_videos(root, info, cams, problems)
     )
+    videos, listed = _no_duplicates(listing, problems)
     if not videos and not problems:
         raise UserError(f"{root}: the dataset lists no episodes with a camera")
-    return Dataset(root, info, version, float(info["fps"]), cams, videos, problems)
+    if not listed and problems:  # not one episode could be listed: nothing to profile
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise UserError(f"{problems[0].line()}{more}: no episode can be read")
+    ds = Dataset(root, info, version, float(info["fps"]), cams, videos, problems, listed)
+    ds.rates = _rates(ds)
+    return ds
 
 
 def _image_pattern(root: Path, cam: str, e: int) -> str:
     return str(root / "images" / cam / f"episode-{e:06d}" / "frame-%06d.png")
 
 
+def _count(v: Any) -> int | None:
+    """``v`` as a count (an integer, or a float with an integral value; not a bool), or None."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return None
+    if isinstance(v, float) and not (math.isfinite(v) and v.is_integer()):
+        return None
+    return int(v)
+
+
+def _window(r: dict, cam: str) -> tuple[float, float] | str:
+    """A v3.0 row's window of ``cam`` (from_s, to_s), or why it is not one."""
+    keys = [f"videos/{cam}/from_timestamp", f"videos/{cam}/to_timestamp"]
+    ends = []
+    for k in keys:
+        v = r.get(k)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            return f"{k} {v!r} is not a time"
+        ends.append(float(v))
+    if ends[0] < 0:
+        return f"{keys[0]} {ends[0]:g} s is before the file's start"
+    if ends[1] <= ends[0]:
+        return f"the window {keys[0]} {ends[0]:g} s .. {keys[1]} {ends[1]:g} s runs backwards"
+    return ends[0], ends[1]
+
+
+# (episode, its index file, where in it, [its camera videos] or why they cannot be listed)
+_Listing = tuple[int, str, str, "list[EpisodeVideo] | str"]
+
+
 def _v3_videos(root: Path, info: dict, cams: list[str], problems: list[Problem]) -> list:
     files = sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))
     if not files:
         raise UserError(f"{root / 'meta' / 'episodes'}: no episode index (chunk-*/file-*.parquet)")
-    data_tpl = info.get("data_path", "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet")
-    video_tpl = info.get(
-        "video_path", "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+    data_tpl = info.get("data_path") or (
+        "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+    )
+    video_tpl = info.get("video_path") or (
+        "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
     )
     feats = info.get("features", {})
-    out: list[EpisodeVideo] = []
+    out: list[_Listing] = []
     for f in files:
         table = _read_table(f, problems)
         if table is None:
             continue
-        rows = table.to_pylist()
-        for r in rows:
-            e = int(r["episode_index"])
-            try:
-                data = root / data_tpl.format(
-                    chunk_index=r["data/chunk_index"], file_index=r["data/file_index"]
-                )
-            except KeyError as exc:
-                problems.append(Problem(str(f), e, f"no column data/{exc.args[0]}"))
+        if "episode_index" not in table.column_names:  # no row can be named: the file's
+            problems.append(Problem(str(f), None, "no column episode_index"))
+            continue
+        for k, r in enumerate(table.to_pylist()):
+            e = _count(r.get("episode_index"))
+            where = f"row {k}"
+            if e is None or e < 0:
+                problems.append(Problem(
+                    str(f), None, f"row {k}: episode_index {r.get('episode_index')!r} is not "
+                    "an episode index"))  # fmt: skip
                 continue
+            n = _count(r.get("length"))
+            if n is None or n < 0:
+                out.append((e, str(f), where, f"length {r.get('length')!r} is not a frame count"))
+                continue
+            chunk, file = _count(r.get("data/chunk_index")), _count(r.get("data/file_index"))
+            if chunk is None or file is None:
+                bad = "data/chunk_index" if chunk is None else "data/file_index"
+                out.append((e, str(f), where, f"{bad} {r.get(bad)!r} is not an index"))
+                continue
+            data = root / data_tpl.format(chunk_index=chunk, file_index=file)
+            videos: list[EpisodeVideo] | str = []
             for cam in cams:
                 if feats[cam].get("dtype") == "image":
-                    out.append(EpisodeVideo(e, cam, _image_pattern(root, cam, e), 0.0, None,
-                                            int(r["length"]), str(data), "images"))  # fmt: skip
+                    videos.append(EpisodeVideo(e, cam, _image_pattern(root, cam, e), 0.0, None,
+                                               n, str(data), "images"))  # fmt: skip
                     continue
-                ends = ("chunk_index", "file_index", "from_timestamp", "to_timestamp")
-                keys = [f"videos/{cam}/{k}" for k in ends]
-                missing = [k for k in keys if r.get(k) is None]
-                if missing:
-                    problems.append(Problem(str(f), e, f"no {missing[0]}"))
+                idx = [_count(r.get(f"videos/{cam}/{k}")) for k in ("chunk_index", "file_index")]
+                window = _window(r, cam)
+                if None in idx or isinstance(window, str):
+                    bad = "chunk_index" if idx[0] is None else "file_index"
+                    why = window if isinstance(window, str) else f"no videos/{cam}/{bad}"
+                    problems.append(Problem(str(f), e, f"{cam}: {why}"))
                     continue
-                path = root / video_tpl.format(
-                    video_key=cam, chunk_index=r[keys[0]], file_index=r[keys[1]]
-                )
-                out.append(EpisodeVideo(e, cam, str(path), float(r[keys[2]]), float(r[keys[3]]),
-                                        int(r["length"]), str(data)))  # fmt: skip
+                path = root / video_tpl.format(video_key=cam, chunk_index=idx[0], file_index=idx[1])
+                videos.append(EpisodeVideo(e, cam, str(path), *window, n, str(data)))
+            out.append((e, str(f), where, videos))
     return out
 
 
@@ -186,32 +288,180 @@ def _v2_videos(root: Path, info: dict, cams: list[str], problems: list[Problem])
     if not path.is_file():
         raise UserError(f"{path}: no such file (the episode index of a v2 dataset)")
     size = int(info.get("chunks_size") or CHUNKS_SIZE)
-    data_tpl = info.get(
-        "data_path", "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet"
+    data_tpl = info.get("data_path") or (
+        "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet"
     )
-    video_tpl = info.get(
-        "video_path", "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_index:06d}.mp4"
+    video_tpl = info.get("video_path") or (
+        "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_index:06d}.mp4"
     )
-    out: list[EpisodeVideo] = []
-    for k, line in enumerate(path.read_text().splitlines()):
-        if not line.strip():
+    try:
+        lines = path.read_bytes().splitlines()
+    except OSError as exc:
+        raise UserError(f"{path}: not readable ({exc.strerror})") from None
+    out: list[_Listing] = []
+    for k, raw in enumerate(lines):
+        if not raw.strip():
             continue
         try:
-            r = json.loads(line)
-            e, n = int(r["episode_index"]), int(r["length"])
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError):
-            problems.append(Problem(str(path), None, f"line {k + 1} is not an episode record"))
+            r = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            problems.append(Problem(str(path), None, f"line {k + 1} is not a JSON record"))
+            continue
+        e = _count(r.get("episode_index")) if isinstance(r, dict) else None
+        if e is None or e < 0:
+            got = r.get("episode_index") if isinstance(r, dict) else r
+            problems.append(Problem(str(path), None, f"line {k + 1}: episode_index {got!r} is "
+                                    "not an episode index"))  # fmt: skip
+            continue
+        n = _count(r.get("length"))
+        if n is None or n < 0:
+            out.append((e, str(path), f"line {k + 1}",
+                        f"length {r.get('length')!r} is not a frame count"))  # fmt: skip
             continue
         data = root / data_tpl.format(episode_chunk=e // size, episode_index=e)
+        videos = []
         for cam in cams:
             if info["features"][cam].get("dtype") == "image":
-                out.append(EpisodeVideo(e, cam, _image_pattern(root, cam, e), 0.0, None, n,
-                                        str(data), "images"))  # fmt: skip
+                videos.append(EpisodeVideo(e, cam, _image_pattern(root, cam, e), 0.0, None, n,
+                                           str(data), "images"))  # fmt: skip
                 continue
             video = root / video_tpl.format(episode_chunk=e // size, video_key=cam,
                                             episode_index=e)  # fmt: skip
-            out.append(EpisodeVideo(e, cam, str(video), 0.0, None, n, str(data)))
+            videos.append(EpisodeVideo(e, cam, str(video), 0.0, None, n, str(data)))
+        out.append((e, str(path), f"line {k + 1}", videos))
     return out
+
+
+def _no_duplicates(
+    listing: list[_Listing], problems: list[Problem]
+) -> tuple[list[EpisodeVideo], list[int]]:
+    """(the videos of each episode listed once, every episode index listed). An episode listed
+    more than once is a problem naming where: measured once when its listings agree, else not
+    at all (which of them is the episode's is not known); a listing that is itself a problem
+    (its message) is said here, once per episode."""
+    by_episode: dict[int, list[tuple[str, str, Any]]] = {}
+    for e, file, where, got in listing:
+        by_episode.setdefault(e, []).append((file, where, got))
+    videos: list[EpisodeVideo] = []
+    for e in sorted(by_episode):
+        entries = by_episode[e]
+        for file, where, got in entries:
+            if isinstance(got, str):
+                problems.append(Problem(file, e, f"{where}: {got}"))
+        if len(entries) > 1:
+            files = {f for f, _, _ in entries}
+            wheres = ", ".join(w if len(files) == 1 else f"{Path(f).name} {w}"
+                               for f, w, _ in entries)  # fmt: skip
+            same = all(got == entries[0][2] for _, _, got in entries)
+            problems.append(Problem(entries[0][0], e, f"listed {len(entries)} times ({wheres}): "
+                + ("the same each time, measured once" if same
+                   else "the listings differ, so the episode is not measured")))  # fmt: skip
+            if not same:
+                continue
+        if isinstance(entries[0][2], list):
+            videos.extend(entries[0][2])
+    return videos, sorted(by_episode)
+
+
+# two rates agree within this share of the larger: NTSC's 30000/1001 against 30 is 0.1 %, a
+# median frame interval on a 90 kHz clock or from float32 timestamps is exact to 0.01 %, and
+# a stated rate off by a factor (15 or 60 for 30) is 50 % or more; past 2 % the stated rate
+# would miscount a frame every 50
+RATE_TOL = 0.02
+RATE_SAMPLE = 600  # frame intervals enough for a rate's median (the first ones of a file)
+
+
+def _median_rate(intervals: np.ndarray) -> float | None:
+    """1 / the median of the positive, finite ``intervals`` (s), or None without any."""
+    ok = intervals[np.isfinite(intervals) & (intervals > 0)]
+    return float(1.0 / np.median(ok)) if len(ok) else None
+
+
+def stream_rate(path: str) -> float | None:
+    """The video's own rate (frames/s): 1 / the median interval between its first frames'
+    presentation times (packets demuxed, none decoded), or None where it cannot be read."""
+    import av  # lazy: a worker that never probes a rate does not need it here
+
+    try:
+        with av.open(path) as c:
+            s = c.streams.video[0]
+            pts = []
+            for packet in c.demux(s):
+                if packet.pts is not None:
+                    pts.append(packet.pts)
+                if len(pts) > RATE_SAMPLE:
+                    break
+    except (OSError, av.FFmpegError, IndexError):
+        return None  # the episode's own problem, said when it is measured
+    times = np.sort(np.asarray(pts, np.float64)) * float(s.time_base or 0)
+    return _median_rate(np.diff(times))
+
+
+def data_rate(paths: list[str]) -> float | None:
+    """The data's rate (frames/s): 1 / the median interval between consecutive timestamps of
+    an episode (in frame order), over the first of ``paths`` that can be read."""
+    for path in paths:
+        try:
+            t = pq.read_table(path, columns=["episode_index", "frame_index", "timestamp"])
+        except (OSError, pa.ArrowException):
+            continue  # the episode's own problem, said when it is measured
+        e = t["episode_index"].to_numpy().astype(np.int64)
+        f = t["frame_index"].to_numpy().astype(np.int64)
+        ts = t["timestamp"].to_numpy().astype(np.float64)
+        order = np.lexsort((f, e))
+        e, ts = e[order], ts[order]
+        same = e[1:] == e[:-1]
+        rate = _median_rate(np.diff(ts)[same])
+        if rate is not None:
+            return rate
+    return None
+
+
+def agreed_rate(evidence: list[tuple[str, float | None]]) -> tuple[float, bool]:
+    """(the rate to measure at, whether all the evidence agrees) from ``evidence``: (what
+    says it, its rate or None), the stated rate first, then the measured ones. The rate is
+    the one that agrees with the most others (within :data:`RATE_TOL`): the stated one where
+    it is among them, else the first measured one that is; where none agree, the first
+    measured (what the frames' own times say)."""
+    known = [(name, r) for name, r in evidence if r is not None]
+
+    def agree(a: float, b: float) -> bool:
+        return abs(a - b) <= RATE_TOL * max(a, b)
+
+    votes = [sum(agree(r, q) for _, q in known) for _, r in known]
+    if all(v == len(known) for v in votes):
+        return known[0][1], True
+    best = max(votes)
+    if best == 1 and len(known) > 1:  # nothing agrees: the measured evidence, not the claim
+        return known[1][1], False
+    return next(r for (_, r), v in zip(known, votes, strict=True) if v == best), False
+
+
+def _rates(ds: Dataset) -> dict[str, float]:
+    """Each camera's rate from info.json's fps, its video's own rate (its first episode's
+    file) and the data's timestamps (:func:`agreed_rate`); where they disagree, a problem of
+    the dataset naming each and the rate measured at."""
+    info_path = str(ds.root / "meta" / "info.json")
+    data = data_rate(list(dict.fromkeys(v.data_path for v in ds.videos))[:3])
+    rates = {}
+    for cam in ds.cameras:
+        first = next((v for v in ds.videos if v.camera == cam), None)
+        if first is None:
+            continue
+        stream = stream_rate(first.path) if first.kind == "video" else None
+        evidence = [
+            (f"info.json's fps {ds.fps:g}", ds.fps),
+            (f"the video's frames {stream:.4g} fps (their median interval in "
+             f"{Path(first.path).name})" if stream else "", stream),
+            (f"the data's timestamp {data:.4g} fps (its median interval in "
+             f"{Path(first.data_path).name})" if data else "", data),
+        ]  # fmt: skip
+        rates[cam], agreed = agreed_rate(evidence)
+        if not agreed:
+            said = "; ".join(name for name, r in evidence if r is not None)
+            why = f"{cam}: the rates disagree: {said}: measured at {rates[cam]:.4g} fps"
+            ds.problems.append(Problem(info_path, None, why))
+    return rates
 
 
 @dataclasses.dataclass(frozen=True)

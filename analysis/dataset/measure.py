@@ -351,17 +351,51 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
         pl.Series("underexposed", st[:, 2] >= CLIPPED_SHARE),
         pl.Series("overexposed", st[:, 3] >= CLIPPED_SHARE),
     )  # fmt: skip
-    row, extra = episode_measures(video, data, frames, fps, batcher)
+    problems: list[str] = []
+    row, extra = episode_measures(video, data, frames, fps, batcher, problems)
     frames = frames.with_columns(*extra)
-    return {"row": row, "frames": frames, "views": first_last}
+    return {"row": row, "frames": frames, "views": first_last, "problems": problems}
 
 
-def episode_measures(video, data, frames: pl.DataFrame, fps: float, batcher) -> tuple:
-    """(the episode's row, the per-frame columns ``still`` and ``state_moving``)."""
+def clock_rows(ts: np.ndarray) -> int:
+    """How many of the data's first rows keep a clock: the rows before the first timestamp
+    that is not finite or not later than the one before it."""
+    bad = ~np.isfinite(ts)
+    bad[1:] |= ~(np.diff(ts) > 0)  # (a NaN's difference is not > 0 either)
+    return int(np.argmax(bad)) if bad.any() else len(ts)
+
+
+def _clock_problem(ts: np.ndarray, k: int) -> str:
+    """What breaks the data's clock at row ``k`` (:func:`clock_rows`)."""
+    if not np.isfinite(ts[k]):
+        what = f"timestamp {ts[k]} at row {k} is not a time"
+    else:
+        what = f"timestamp goes backwards at row {k} ({ts[k - 1]:.4f} s, then {ts[k]:.4f} s)"
+    kept = f"the first {ts[k - 1] - ts[0]:.3f} s" if k > 1 else "nothing"
+    return (
+        f"{what}: the measures on the data's clock (lag, frozen, idle, drift at the end) use "
+        f"{kept} before it"
+    )
+
+
+def episode_measures(
+    video, data, frames: pl.DataFrame, fps: float, batcher, problems: list[str]
+) -> tuple:
+    """(the episode's row, the per-frame columns ``still`` and ``state_moving``); what is
+    wrong with the episode's data is added to ``problems`` (a timestamp that is not a time or
+    goes backwards: the data's clock is then used up to it, :func:`clock_rows`)."""
     t_v = frames["t_s"].to_numpy()
     mafd = frames["mafd"].to_numpy()
     ts = data.timestamp
     pose = data.state if data.state is not None else data.action
+    k = clock_rows(ts)
+    clock_cut = k < len(ts)
+    if clock_cut:
+        problems.append(_clock_problem(ts, k))
+        if k < 2:
+            raise UserError(f"{video.data_path}: episode {video.episode}: {problems[-1]}")
+        ts = ts[:k]
+        pose = pose[:k] if pose is not None else None
     if pose is not None and len(pose) > 1:
         speed = np.concatenate(([0.0], np.linalg.norm(np.diff(pose, axis=0), axis=1)))
     else:
@@ -370,7 +404,9 @@ def episode_measures(video, data, frames: pl.DataFrame, fps: float, batcher) -> 
     moving_data = speed > STATE_MOVING_SHARE * peak if peak > 0 else np.zeros(len(ts), bool)
     # each frame at its own time on the data's clock: the state moved in the interval before
     idx = np.clip(np.searchsorted(ts, t_v - 0.5 / fps), 0, len(ts) - 1)
-    state_moving = moving_data[idx]
+    # frames past the data's clock (cut where it broke) have no state to be judged against
+    on_clock = t_v <= ts[-1] + 1 / fps if clock_cut else np.ones(len(t_v), bool)
+    state_moving = moving_data[idx] & on_clock
     # still: unchanged since the frame before and the one before that (within STILL_LEVELS):
     # an encoder that skips every other frame's small changes (AV1 on a blurred view) shows
     # no change for one interval, never for two while the scene moves
@@ -379,6 +415,7 @@ def episode_measures(video, data, frames: pl.DataFrame, fps: float, batcher) -> 
     c2 = np.nan_to_num(frames["change2_max"].to_numpy(), nan=0.0) <= STILL_LEVELS
     still = c1 & c2
     fast = speed[idx] >= FROZEN_STATE_SHARE * peak if peak > 0 else np.zeros(len(t_v), bool)
+    fast &= on_clock
     frozen_frame = still & fast
     # a run's first repeated frame passes only the one-interval test: counted back in
     frozen = [(s - 1, n + 1) if s > 0 and c1[s - 1] else (s, n) for s, n in _runs(frozen_frame)]
@@ -397,21 +434,25 @@ def episode_measures(video, data, frames: pl.DataFrame, fps: float, batcher) -> 
     # the lag on the data's clock once the drift between the clocks is taken out (a linear
     # map making the first and last frames agree with the data's): a clock running fast is
     # the drift's to report, a constant delay the lag's
-    t_c = t_v
-    if len(t_v) > 1 and len(ts) > 1 and t_v[-1] > t_v[0]:
+    # (a clock cut short has no last timestamp to map: the clocks are then taken to agree)
+    t_c = t_v + (ts[0] - t_v[0]) if len(t_v) else t_v
+    if not clock_cut and len(t_v) > 1 and len(ts) > 1 and t_v[-1] > t_v[0]:
         t_c = ts[0] + (t_v - t_v[0]) * (ts[-1] - ts[0]) / (t_v[-1] - t_v[0])
     motion = np.interp(ts, t_c[1:], rate[1:]) if len(t_v) > 1 else np.zeros(len(ts))
     lag = lag_of(speed[1:], motion[1:], fps)
     if pose is None:
         lag |= {"lag_note": "not measurable: the dataset has no state or action"}
+    elif clock_cut and lag["lag_note"]:
+        lag["lag_note"] += f" (on the {ts[-1] - ts[0]:.2f} s before the data's clock breaks)"
     tail_gap = (video.to_s - video.from_s) - t_v[-1] - 1 / fps if video.to_s is not None else 0
     dropped = batcher.dropped_total + frames_missing_in(max(tail_gap, 0.0), fps)
     row = {
         "episode_index": video.episode, "camera": video.camera, "video_path": video.path,
         "from_s": video.from_s, "to_s": video.to_s, "frames_decoded": len(t_v),
-        "length": video.length, "data_timestamps": len(ts),
+        "length": video.length, "data_timestamps": len(data.timestamp),
         "drift_start_ms": (t_v[0] - ts[0]) * 1000 if len(ts) else None,
-        "drift_end_ms": (t_v[-1] - ts[-1]) * 1000 if len(ts) else None,
+        "drift_end_ms": (t_v[-1] - ts[-1]) * 1000 if len(ts) and not clock_cut else None,
+        "fps": float(fps),
         "dropped": int(dropped), "repeated": int(batcher.repeats_total),
         "idle_head_s": float(min(head_img, head_state)),
         "idle_tail_s": float(min(tail_img, tail_state)),

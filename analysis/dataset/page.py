@@ -23,7 +23,7 @@ STRIP_HALF = 4  # frames either side of the flagged one
 THUMB_WIDTH = 128  # px
 
 EPISODE_COLUMNS = (
-    "episode_index", "camera", "flags", "frames_decoded", "length", "dropped",
+    "episode_index", "camera", "flags", "frames_decoded", "length", "fps", "dropped",
     "drift_start_ms", "drift_end_ms", "frozen_longest_s", "idle_head_s", "idle_tail_s",
     "lag_ms", "lag_low_ms", "lag_high_ms", "shift_px", "shift_within_px", "blurred_share",
     "underexposed_share", "overexposed_share", "ti_p910_mean", "omega_dps_mean",
@@ -51,9 +51,9 @@ def thumbnails(ds: Dataset, episode: int, camera: str, frame: int) -> np.ndarray
         return None
     try:
         reader = (
-            WindowReader(video.path, video.from_s, video.to_s, ds.fps)
+            WindowReader(video.path, video.from_s, video.to_s, ds.rate(camera))
             if video.kind == "video"
-            else open_reader(video.path, ds.fps)
+            else open_reader(video.path, ds.rate(camera))
         )
     except ValueError:
         return None
@@ -151,14 +151,16 @@ def write_page(
         for n, (c, t, u, m) in FLAGS.items()
     )
     bad = "".join(f"<li>{html.escape(p.line())}</li>" for p in problems)
+    rates = ", ".join(f"{r:.4g}" for r in sorted({ds.rate(c) for c in ds.cameras}))
     n_flag = eps.filter(pl.col("flag_count") > 0).height
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>vdc dataset</title>
 <style>body{{font-family:sans-serif}} table{{border-collapse:collapse;font-size:12px}}
 td,th{{border:1px solid #ccc;padding:2px 5px}} tr.flag{{background:#fbe3e0}}</style></head><body>
 <h1>{html.escape(str(ds.root))}</h1>
 <p>LeRobot {html.escape(ds.version)}, {len(ds.episodes)} episode(s), {len(ds.cameras)} camera(s),
-{ds.fps:g} fps: {n_flag} episode × camera flagged, {len(problems)} unreadable.</p>
-{f"<h2>Unreadable</h2><ul>{bad}</ul>" if bad else ""}
+measured at {rates} fps (info.json states {ds.fps:g}): {n_flag} episode × camera flagged,
+{len(problems)} problem(s).</p>
+{f"<h2>Problems (unreadable or inconsistent)</h2><ul>{bad}</ul>" if bad else ""}
 <h2>Episodes, worst first</h2><table><tr>{head}</tr>{body}</table>
 <h2>Across the dataset</h2><img src="data:image/png;base64,{figure}" style="max-width:100%">
 <h2>Flagged episodes</h2>{"".join(strips) or "<p>none</p>"}

@@ -8,6 +8,7 @@ a changed setting or file is measured afresh, and its older result removed."""
 from __future__ import annotations
 
 import dataclasses
+import errno
 import hashlib
 import json
 import os
@@ -18,11 +19,12 @@ from typing import Any
 
 from analysis.dataset.layout import EpisodeVideo
 from analysis.dataset.measure import measure_episode
+from vdc.errors import UserError
 from vdc.recording import pid_alive
 
 RESULTS = "episode_results"  # the folder of ``out`` holding the measured episodes
 # bumped when a measure's computation changes: results of an older version are measured again
-RESULT_VERSION = 1
+RESULT_VERSION = 2  # 2: the rate measured at (fps) and the data's problems kept
 # settings that decide where or what is reported, never what is measured
 _NOT_MEASURED = {"fail_on", "episodes", "page", "recordings", "executor", "jobs", "scheduler"}
 
@@ -59,12 +61,28 @@ def measured(video: EpisodeVideo, settings: Any, fps: float, out: Path) -> dict[
     if kept is not None:
         return kept
     result = measure_episode(video, settings, fps)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f"{path.name}.partial-{os.getpid()}")
-    with tmp.open("wb") as f:
-        pickle.dump(result, f, protocol=pickle.HIGHEST_PROTOCOL)
-    tmp.replace(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tmp.open("wb") as f:
+            pickle.dump(result, f, protocol=pickle.HIGHEST_PROTOCOL)
+        tmp.replace(path)
+    except OSError as exc:  # the output's fault (a full disk), not the episode's
+        tmp.unlink(missing_ok=True)
+        raise OutputError(output_error(path.parent, exc)) from None
     return result | {"reused": False}
+
+
+class OutputError(UserError):
+    """The run's output cannot be written (a full disk, no permission): the run's error,
+    never an episode's (``analysis.dataset.command`` stops the run on it)."""
+
+
+def output_error(where: Path, exc: OSError) -> str:
+    """One line: ``where`` could not be written, and why (a full disk said as such)."""
+    full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
+    why = "the disk is full" if full else "it cannot be written"
+    return f"{where}: {why} ({exc.strerror or exc}); the episodes measured before are kept"
 
 
 def read_result(path: Path) -> dict[str, Any] | None:
