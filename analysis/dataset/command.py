@@ -19,9 +19,11 @@ from analysis.dataset.flags import finish, first_flags, severity
 from analysis.dataset.layout import EpisodeVideo, Problem, open_dataset
 from analysis.dataset.page import write_page
 from analysis.dataset.resume import (
+    DISK_FULL,
     OutputError,
     clear_partials,
     drop_stale,
+    errno_of,
     measured,
     output_error,
     read_result,
@@ -200,7 +202,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             if settings.recordings and eps is not None:
                 paths += _recordings(stage, ds, eps, frame_table, feedback)
     except OSError as exc:  # the output's fault (a full disk): the run's error
-        if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+        if errno_of(exc) not in (*DISK_FULL, errno.EFBIG):
             raise
         raise UserError(output_error(out, exc)) from None
     paths = [out / p.relative_to(stage) for p in paths]

@@ -243,8 +243,9 @@ def _v3_videos(root: Path, info: dict, cams: list[str], problems: list[Problem])
         table = _read_table(f, problems)
         if table is None:
             continue
-        if "episode_index" not in table.column_names:  # no row can be named: the file's
-            problems.append(Problem(str(f), None, "no column episode_index"))
+        missing = [c for c in ("episode_index", "length") if c not in table.column_names]
+        if missing:  # no row can be read: the file's problem, not each episode's
+            problems.append(Problem(str(f), None, f"no column {missing[0]}"))
             continue
         for k, r in enumerate(table.to_pylist()):
             e = _count(r.get("episode_index"))
@@ -372,9 +373,11 @@ RATE_SAMPLE = 600  # frame intervals enough for a rate's median (the first ones 
 
 
 def _median_rate(intervals: np.ndarray) -> float | None:
-    """1 / the median of the positive, finite ``intervals`` (s), or None without any."""
+    """1 / the median of the positive, finite ``intervals`` (s), or None without any;
+    rounded to a thousandth (a 90 kHz clock resolves a 30-fps interval to 0.01 fps, float32
+    timestamps to about 0.001: finer digits are the clock's rounding, not the rate)."""
     ok = intervals[np.isfinite(intervals) & (intervals > 0)]
-    return float(1.0 / np.median(ok)) if len(ok) else None
+    return round(float(1.0 / np.median(ok)), 3) if len(ok) else None
 
 
 def stream_rate(path: str) -> float | None:

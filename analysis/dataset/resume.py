@@ -78,9 +78,21 @@ class OutputError(UserError):
     never an episode's (``analysis.dataset.command`` stops the run on it)."""
 
 
+# what a full disk or a quota raises, as errno
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+def errno_of(exc: OSError) -> int | None:
+    """``exc``'s errno; Arrow's own OSErrors carry it only in their message ("[errno 28]")."""
+    if exc.errno is not None:
+        return exc.errno
+    found = re.search(r"\[errno (\d+)\]", str(exc))
+    return int(found.group(1)) if found else None
+
+
 def output_error(where: Path, exc: OSError) -> str:
     """One line: ``where`` could not be written, and why (a full disk said as such)."""
-    full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
+    full = errno_of(exc) in DISK_FULL
     why = "the disk is full" if full else "it cannot be written"
     return f"{where}: {why} ({exc.strerror or exc}); the episodes measured before are kept"
 
