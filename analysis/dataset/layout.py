@@ -22,6 +22,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+import av
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -383,8 +384,6 @@ def _median_rate(intervals: np.ndarray) -> float | None:
 def stream_rate(path: str) -> float | None:
     """The video's own rate (frames/s): 1 / the median interval between its first frames'
     presentation times (packets demuxed, none decoded), or None where it cannot be read."""
-    import av  # lazy: a worker that never probes a rate does not need it here
-
     try:
         with av.open(path) as c:
             s = c.streams.video[0]
