@@ -9,11 +9,12 @@ state. Each measure that crosses its threshold (``analysis.dataset.flags.FLAGS``
 episode. The dataset is read, never imported: pyarrow and PyAV, no torch, no lerobot.
 
 Writes into ``out``: ``episodes.parquet`` (one row per episode × camera), ``frames.parquet``
-(one row per decoded frame), ``problems.parquet`` (what could not be read: file, episode,
-message), ``dataset.html`` (the episodes worst first) and ``recordings/episode_NNNNNN.rrd``
-(each episode as a vdc recording: its video referenced, its measures, a segment of the
-catalog). An unreadable episode is a problem line, and the others are still profiled; the
-tables are published whole (``vdc.parquet_io.table_set``). Each camera of each episode is kept
+(one row per decoded frame), ``problems.parquet`` (what could not be read, or contradicts the
+rest of the dataset: file, episode, message), ``dataset.html`` (the episodes worst first)
+and ``recordings/episode_NNNNNN.rrd`` (each episode as a vdc recording: its video
+referenced, its measures, a segment of the catalog). An unreadable episode is a problem
+line, and the others are still profiled; the tables are published whole
+(``vdc.parquet_io.table_set``). Each camera of each episode is kept
 as it is measured (``episode_results/``), so a killed run resumes where it stopped.
 
 Modules: ``command`` (settings, the command, its result) → ``layout`` (the dataset's files) →

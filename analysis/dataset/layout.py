@@ -11,7 +11,11 @@ and the frame data, with pyarrow (``v3.0`` and ``v2.1``).
 
 Image features stored as PNG frames (``images/{key}/episode-{e:06d}/frame-{i:06d}.png``) are
 read as image sequences. What cannot be read is a :class:`Problem` naming the file and the
-episode; the other episodes are still listed.
+episode; the other episodes are still listed. The metadata is a claim: a field of info.json
+that cannot be used raises UserError naming it; an episode listed twice, or whose length or
+window is not one, is a problem; and info.json's ``fps`` is held against each camera's own
+frame times and the data's timestamps (:func:`agreed_rate`), a disagreement being a problem
+of the dataset.
 """
 
 from __future__ import annotations
@@ -266,7 +270,7 @@ def _v3_videos(root: Path, info: dict, cams: list[str], problems: list[Problem])
                 out.append((e, str(f), where, f"{bad} {r.get(bad)!r} is not an index"))
                 continue
             data = root / data_tpl.format(chunk_index=chunk, file_index=file)
-            videos: list[EpisodeVideo] | str = []
+            videos: list[EpisodeVideo] = []
             for cam in cams:
                 if feats[cam].get("dtype") == "image":
                     videos.append(EpisodeVideo(e, cam, _image_pattern(root, cam, e), 0.0, None,

@@ -434,9 +434,10 @@ def episode_measures(
     # the lag on the data's clock once the drift between the clocks is taken out (a linear
     # map making the first and last frames agree with the data's): a clock running fast is
     # the drift's to report, a constant delay the lag's
-    # (a clock cut short has no last timestamp to map: the clocks are then taken to agree)
-    t_c = t_v + (ts[0] - t_v[0]) if len(t_v) else t_v
-    if not clock_cut and len(t_v) > 1 and len(ts) > 1 and t_v[-1] > t_v[0]:
+    t_c = t_v
+    if clock_cut and len(t_v):  # no last timestamp to map: the first frames agree, the rates
+        t_c = t_v + (ts[0] - t_v[0])  # taken as equal
+    elif len(t_v) > 1 and len(ts) > 1 and t_v[-1] > t_v[0]:
         t_c = ts[0] + (t_v - t_v[0]) * (ts[-1] - ts[0]) / (t_v[-1] - t_v[0])
     motion = np.interp(ts, t_c[1:], rate[1:]) if len(t_v) > 1 else np.zeros(len(ts))
     lag = lag_of(speed[1:], motion[1:], fps)
