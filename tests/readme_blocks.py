@@ -45,6 +45,7 @@ _OWN_FILE = {
     "tests/test_readme_python.py": ("README.md",),
     "tests/test_guide_boundary.py": ("docs/guides/boundary.md", "docs/findings/predictors.md"),
     "tests/test_guide_video.py": ("docs/guides/video.md",),
+    "tests/test_guide_commands.py": ("docs/guides/commands.md",),
 }
 GUIDE_TESTS: tuple[tuple[str, tuple[str, ...]], ...] = (
     *_OWN_FILE.items(),
