@@ -341,13 +341,13 @@ COMMANDS = {
         "render a labelled collection of looming clips over real photographs",
         "Render --clips H.264 clips of an object approaching over scikit-image's photographs "
         "(camera yaw, contrast, light, noise; collisions and near misses) and labels.csv with "
-        "collision_frame and hazard_onset_frame (docs/boundary.md). Clips written are reused.",
+        "collision_frame, hazard_onset_frame (docs/guides/boundary.md). Clips written are reused.",
         inputs=_inputs("footage/looming", None),
     ),
     "power-study": Command(
         "analysis.experiments.power_study:PowerStudySettings",
         _campaign("analysis.experiments.power_study:power_study", "run"),
-        "re-run the pre-registered plan (docs/power_plan.md) from nothing and write its answer",
+        "re-run the pre-registered plan (docs/findings/power_plan.md) anew and write its answer",
         "The plan's studies, resumed, then answer.md; --quick: a minute, not findings.",
         inputs=_inputs("results/power-study", None),
     ),
@@ -407,7 +407,7 @@ COMMANDS = {
         "analysis.dataset.settings:DatasetSettings",
         _campaign("analysis.dataset.command:dataset", "camera", "recording"),
         "profile a LeRobot dataset episode by episode, its camera faults flagged",
-        "Each camera of each episode of a LeRobot dataset (v3.0, v2.1); see docs/dataset.md.",
+        "Each camera of each episode of a LeRobot dataset (v3.0, v2.1): docs/guides/dataset.md.",
         inputs=_inputs("results/dataset", "a LeRobot dataset folder", one=True),
     ),
     "catalog": Command(

@@ -28,7 +28,7 @@ exceeds 1 px per frame.
 Intensity scale: every threshold is defined on intensities in [0, 1]. ``uint8`` frames are
 divided by 255; float frames are taken as already on [0, 1].
 
-Choices where the sources are silent or would break the paper's sweep (documented in README):
+Choices where the sources are silent or would break the paper's sweep (docs/method/models.md):
 
 * ``theta_e = 1e-6`` rather than the released code's 0.001. At 300 Hz a 1 Hz grating changes a
   pixel by at most ~1 % of full scale per frame, so products of one-frame changes are ~1e-4 and a
@@ -58,7 +58,7 @@ POOLINGS = ("active_mean", "all_mean")
 MIN_CONTRAST = 1e-6
 # The valid regime of the one-frame decoding (sin(π·TF/fps) ≈ π·TF/fps within ~10 %): an
 # estimated TF up to fps/4 (the calibration's band) and motion up to 1 px per frame, beyond
-# which natural texture decorrelates between neighbouring detectors (README, video section).
+# which natural texture decorrelates between neighbouring detectors (docs/guides/video.md).
 VALID_TF_FRACTION = 0.25
 VALID_PX_PER_FRAME = 1.0
 

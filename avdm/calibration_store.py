@@ -125,7 +125,8 @@ def lookup_calibration(fps: float, deg_per_px: float, params: Any = None) -> dic
 #
 # Policy: a camera's frame rate and angular resolution are used as given, never snapped to a
 # "nominal" neighbour: 29.97 Hz (30000/1001) and 30 Hz get fits of their own (their decoding
-# constants differ by ~0.25 %). An avdm-natural fit takes about 8 s of a core (docs/video.md);
+# constants differ by ~0.25 %). An avdm-natural fit takes about 8 s of a core
+# (docs/guides/video.md);
 # callers show its progress through fit_progress. The fit uses the default AVDM on 72-px-high
 # frames 99 px wide (the robot camera's raster, which the valid band of periods
 # was designed for): the decoding constants depend on frame rate and degrees per pixel, not on

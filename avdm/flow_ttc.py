@@ -1,6 +1,6 @@
 """An optic-flow time-to-contact detector: collision warning from the expansion of the flow field.
 
-Unlike LGMD+ (and the README's looming example) it is not built on frame differences. Each
+Unlike LGMD+ (and examples/looming.py) it is not built on frame differences. Each
 frame, dense optic flow from the previous frame is measured (OpenCV's Farnebäck polynomial-
 expansion flow). The field is cut into ``cells`` x ``cells`` regions; in each, an affine flow
 ``u = a0 + a1 x + a2 y, v = b0 + b1 x + b2 y`` is fitted by least squares, weighted by the

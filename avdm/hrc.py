@@ -53,7 +53,7 @@ knee; nearer the peak the inversion's slope diverges) and whose change C̄ stays
 ``change_max``, the clutter's C̄ at v_peak (past the peak). A picture with more fine structure
 than 1/f clutter changes faster at the same speed, so the flag can also drop below v_peak.
 Measured (``benchmarks/bench_avdm_truth.py --quick``: 3 photographs, 1–300 deg/s both ways,
-25/30 fps, two pitches; docs/video.md): v_peak 23–27 deg/s; every frame of 1–20 deg/s
+25/30 fps, two pitches; docs/guides/video.md): v_peak 23–27 deg/s; every frame of 1–20 deg/s
 flagged valid, 11 % at 40 deg/s, none at 80–300; the valid cells read 0.53–0.87× the truth
 (10–90 %; the photographs have less fine structure than the clutter); past the peak 0.23× at
 40 deg/s, ≤ 0.03× from 80 deg/s. Valid range: 1–20 deg/s at 25–30 fps, reading 10–50 % low.

@@ -52,11 +52,12 @@ if TYPE_CHECKING:
 class Policy:
     """A parameter as a piecewise-linear function of the online complexity."""
 
-    param: str
+    param: str  # the model's parameter it sets (e.g. t_ffi)
     complexity_dps: tuple[float, ...]  # increasing
-    values: tuple[float, ...]
-    window_s: float = 60.0
-    profile_model: str = "avdm"
+    values: tuple[float, ...]  # the parameter at each complexity, interpolated between them
+    window_s: float = 60.0  # the running window over the profile model's output, s
+    profile_model: str = "avdm"  # the model whose omega_dps is the online complexity
+    # the conditions table the policy was fitted from (boundary's), if any
     evidence: pl.DataFrame | None = dataclasses.field(default=None, compare=False)
     statistic: str = "median"  # of the profile model's omega_dps over the window
 

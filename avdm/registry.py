@@ -354,7 +354,8 @@ def describe_models() -> str:
     """One line per registered variant and installed plug-in, for ``--help`` texts."""
     lines = [f"  {n:<20} {v.description}" for n, v in sorted(VARIANTS.items())]
     lines += [f"  {n:<20} plug-in {ref}" for n, ref in sorted(entry_point_models().items())]
-    lines.append(f"  {'module:factory':<20} a model of your own (docs/models.md#your-own-model)")
+    own = "a model of your own (docs/method/models.md#your-own-model)"
+    lines.append(f"  {'module:factory':<20} {own}")
     return "\n".join(lines)
 
 

@@ -137,7 +137,7 @@ def model_rate(
 
     A clip whose every frame is shown k times at k times the rate (k = 2, 3, ...; 2.5 for 3:2
     pulldown) brings a new frame every k container frames, in a regular cadence from start to
-    end: its models run at fps / k and so see what they see on the original (docs/video.md).
+    end: its models run at fps / k and so see what they see on the original (docs/guides/video.md).
     The gaps between new frames must keep that cadence (:data:`CADENCE_SHARE` of them over
     the stream and :data:`QUARTER_SHARE` in each quarter): repeats that come and go with the
     motion (a slow or stopping scene through a lossy codec, whose encoder had nothing to code)

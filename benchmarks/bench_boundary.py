@@ -12,7 +12,7 @@ times the number of runs divided by the workers: the ideal the campaign is held 
 ``--coverage`` checks the adaptive design's 95 % interval (issue #34) on simulated detectors of
 known boundary: a detector whose success is a known function of the wall TF it is given
 (logit success = logit 0.9 - slope x (complexity - truth), complexity the profile of
-``docs/boundary.md``'s grid, a random effect between runs of sd 0.3 on the logit, 20-80
+``docs/guides/boundary.md``'s grid, a random effect between runs of sd 0.3 on the logit, 20-80
 approaches per run), run through the design's own loop (``design_runs``: the placement, the
 fits, the stopping) with the default budget and precision, 20 repeats with different seeds and
 true boundaries; it prints how many intervals cover the truth (target: >= 18).
@@ -131,7 +131,7 @@ def scaling(args: argparse.Namespace) -> None:
             )
 
 
-# the default grid's measured profile (docs/boundary.md): wall TF (Hz) -> deg/s per scene
+# the default grid's measured profile (docs/findings/boundary.md): wall TF (Hz) -> deg/s per scene
 PROFILE = {"grating": ([0.0, 1.0, 3.0], [6.7, 12.0, 28.5]),
            "natural": ([0.0, 1.0, 3.0], [10.9, 13.0, 18.5])}  # fmt: skip
 

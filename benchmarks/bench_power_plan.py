@@ -1,4 +1,5 @@
-"""How long the pre-registered plan (docs/power_plan.md, ``vdc-analyse power-study``) takes:
+"""How long the pre-registered plan (docs/findings/power_plan.md, ``vdc-analyse power-study``)
+takes:
 an estimate on 2 local cores and on a Dask cluster of N workers, from measured per-unit times.
 
 Run: ``python benchmarks/bench_power_plan.py [--minutes 0.25] [--workers 8,32]``. Measures, in

@@ -292,7 +292,7 @@ def main() -> None:
     ap.add_argument("--sititools-frames", type=int, default=50)
     ap.add_argument("--long", action="store_true", help="also the 10-min 1080p memory check")
     ap.add_argument(
-        "--table", action="store_true", help="instead: the throughput table (docs/video.md)"
+        "--table", action="store_true", help="instead: the throughput table (docs/guides/video.md)"
     )
     ap.add_argument("--table-sizes", default="480p,720p,1080p,4K")
     ap.add_argument("--table-lengths", default="10,60,600", help="clip lengths (s)")

@@ -203,7 +203,7 @@ COMMANDS = {
         "a simulated Colias-IV on a pseudo-terminal, speaking the serial protocol",
         "Open a pseudo-terminal behind --link, print it, wait for the host's START and stream "
         "frames and on-board AVDM outputs from the simulator with the protocol of "
-        "docs/robot.md; fault injection for testing the link.",
+        "docs/guides/robot.md; fault injection for testing the link.",
     ),
     "robot": Command(
         "capture.robot_capture:RobotSettings",

@@ -81,7 +81,8 @@ def description_markdown(
         "",
         *[f"    {cmd}" for cmd in analyse],
         "",
-        "The recording's properties hold every setting; `docs/analysis.md` explains the tables.",
+        "The recording's properties hold every setting; `docs/guides/analysis.md` explains the "
+        "tables.",
     ]
     return "\n".join(lines) + "\n"
 

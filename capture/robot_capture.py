@@ -146,7 +146,7 @@ class ColiasRobotDevice(DeviceContext):
                 "announced": announced,
             },
             "link": {
-                "protocol": "vdc serial v1 (docs/robot.md)",
+                "protocol": "vdc serial v1 (docs/guides/robot.md)",
                 "stats": ",".join(LINK_COUNTERS),
                 "announce": "received" if announced else "none (older firmware?)",
             },

@@ -354,7 +354,7 @@ def record_video(
         # the models follow the rate of new frames where the whole stream's repeats keep a
         # cadence: a clip whose every frame is shown twice at 50 Hz is profiled as the 25-Hz
         # original; repeats that come and go with the motion leave the container's rate
-        # (docs/video.md)
+        # (docs/guides/video.md)
         rate = device.model_rate()
         model_fps = rate.fps
         if rate.note and options.log is not None:

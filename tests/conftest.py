@@ -86,6 +86,7 @@ def pytest_xdist_auto_num_workers(config) -> int:
 # files in collection order (`--dist loadfile --no-loadscope-reorder`), so starting the long
 # ones first lets the two finish together instead of one waiting on a long file picked last.
 LONGEST_FIRST = (
+    "tests/test_guide_commands.py",  # the command tour that was the README's (4 min loaded)
     "tests/test_readme_python.py",
     "tests/test_guide_boundary.py",
     "tests/test_guide_video.py",

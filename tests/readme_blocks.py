@@ -34,14 +34,18 @@ import pytest
 
 from tests.helpers import ROOT
 
-GUIDES = ("README.md", *sorted(f"docs/{p.name}" for p in (ROOT / "docs").glob("*.md")))
+GUIDES = (
+    "README.md",
+    *sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "docs").rglob("*.md")),
+)
 # Which test file runs which guides' blocks. The suite's workers take whole files
 # (``--dist loadfile``), so the longest guides get a file each and the workers share them
 # out; a block may read what an earlier block of its own guide wrote, never another's.
 _OWN_FILE = {
     "tests/test_readme_python.py": ("README.md",),
-    "tests/test_guide_boundary.py": ("docs/boundary.md",),
-    "tests/test_guide_video.py": ("docs/video.md",),
+    "tests/test_guide_boundary.py": ("docs/guides/boundary.md", "docs/findings/predictors.md"),
+    "tests/test_guide_video.py": ("docs/guides/video.md",),
+    "tests/test_guide_commands.py": ("docs/guides/commands.md",),
 }
 GUIDE_TESTS: tuple[tuple[str, tuple[str, ...]], ...] = (
     *_OWN_FILE.items(),
@@ -72,7 +76,8 @@ class Block:
 
 
 def blocks() -> list[Block]:
-    """Every ``bash`` and ``python`` block of the README and of docs/*.md, in order."""
+    """Every ``bash`` and ``python`` block of the README and of docs/ (its sub-folders too:
+    guides/, method/, findings/), in order."""
     found = []
     for file in GUIDES:
         text = (ROOT / file).read_text()

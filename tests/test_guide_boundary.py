@@ -1,4 +1,5 @@
-"""Every shell and Python block of docs/boundary.md runs as written (tests/readme_blocks.py)."""
+"""Every shell and Python block of docs/guides/boundary.md and docs/findings/predictors.md runs as
+written (tests/readme_blocks.py)."""
 
 from tests.readme_blocks import guide_tests
 

@@ -1,4 +1,4 @@
-"""Every shell and Python block of docs/video.md runs as written (tests/readme_blocks.py)."""
+"""Every shell and Python block of docs/guides/video.md runs as written (tests/readme_blocks.py)."""
 
 from tests.readme_blocks import guide_tests
 

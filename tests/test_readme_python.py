@@ -1,5 +1,6 @@
-"""The README's "In Python" examples run exactly as written (in a fresh folder), and every shell
-and Python block of the README and the guides runs as written from a clone's root."""
+"""The Python guide's examples (docs/guides/python.md) and the plug-in of
+docs/guides/your_detector.md run exactly as written (in a fresh folder), and every shell and
+Python block of the README runs as written from a clone's root."""
 
 from __future__ import annotations
 
@@ -25,8 +26,8 @@ from tests.readme_blocks import (
 
 
 def _python_blocks() -> list[str]:
-    readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("## In Python") : readme.index("## Units and conventions")]
+    guide = (ROOT / "docs" / "guides" / "python.md").read_text()
+    section = guide[guide.index("## The notebook API") : guide.index("## Units and conventions")]
     return re.findall(r"```python\n(.*?)```", section, re.S)
 
 
@@ -70,9 +71,8 @@ def test_the_model_example_runs() -> None:
 
 
 def test_the_readme_plugin_is_the_example_the_tests_use() -> None:
-    readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("## Your own detector") : readme.index("## Guides")]
-    (block,) = re.findall(r"```python\n(.*?)```", section, re.S)
+    guide = (ROOT / "docs" / "guides" / "your_detector.md").read_text()
+    (block,) = re.findall(r"```python\n(.*?)```", guide, re.S)
     assert block == (ROOT / "examples" / "looming.py").read_text()
 
 
@@ -95,7 +95,14 @@ def test_every_block_is_found_and_every_mark_is_known() -> None:
     """The extraction sees the blocks (a changed fence would silently test nothing), and a
     misspelt mark fails instead of being ignored."""
     names = {b.name.split(":")[0] for b in _BLOCKS}
-    assert {"README.md", "docs/boundary.md", "docs/video.md", "docs/catalog.md"} <= names
+    assert {
+        "README.md",
+        "docs/guides/boundary.md",
+        "docs/guides/video.md",
+        "docs/guides/catalog.md",
+        "docs/guides/python.md",
+        "docs/findings/predictors.md",
+    } <= names
     assert sum(b.lang == "python" for b in _BLOCKS) >= 7
     for b in _BLOCKS:
         for key, _ in b.marks:

@@ -84,7 +84,7 @@ _API = {
     "AdaptationSettings": "analysis.experiments.adaptation",
     "adaptation": "analysis.experiments.adaptation",
     "predictors": "analysis.experiments.predictor_runs",
-    # the pre-registered plan (docs/power_plan.md), run from nothing, and its answer
+    # the pre-registered plan (docs/findings/power_plan.md), run from nothing, and its answer
     "PowerStudySettings": "analysis.experiments.power_study",
     "power_study": "analysis.experiments.power_study",
     "Policy": "avdm.policy",

@@ -152,7 +152,8 @@ class BoundarySettings(ExecutorSettings):
     )
     tf: tuple[float, ...] = option((0.0, 1.0, 3.0), "arena: wall TFs, Hz, comma-separated")
     scenes: tuple[str, ...] = option(
-        ("grating", "natural"), "arena: wall scenes, comma-separated (docs/boundary.md#scenes)"
+        ("grating", "natural"),
+        "arena: wall scenes, comma-separated (docs/guides/boundary.md#scenes)",
     )
     tf_draws: int = option(
         0,
@@ -226,7 +227,7 @@ class BoundarySettings(ExecutorSettings):
     measure_every: int = option(
         8,
         "arena predictors: SI/TI, MAFD, DIS flow and zlib measured on every Nth frame pair of "
-        "a profiling run (1: every pair; the error of each N: docs/boundary.md)",
+        "a profiling run (1: every pair; the error of each N: docs/method/boundary.md)",
     )
 
     def __post_init__(self) -> None:

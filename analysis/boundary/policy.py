@@ -33,7 +33,8 @@ def fit_policy(
 
     (A first design took, per condition, the value with the fewest mean avoidances among those
     whose mean success kept the target, against the running mean: noisy choices on a measure
-    that the robot's turning, which the choice itself changes, dominated; see docs/boundary.md.)
+    that the robot's turning, which the choice itself changes, dominated; see
+    docs/findings/boundary.md.)
     """
     stats = _value_statistics(runs, param)
     keeps = stats.filter(pl.col("success_low") >= target)

@@ -95,7 +95,7 @@ class ComplexitySettings(Settings):
         ",".join(DEFAULT_METRICS),
         "the metrics to compute: comma-separated column names ("
         + ", ".join(METRICS)
-        + ") or all; the default set is chosen for need and speed (docs/video.md)",
+        + ") or all; the default set is chosen for need and speed (docs/guides/video.md)",
     )
     model: str = option(
         FOOTAGE_MODEL,
@@ -106,7 +106,7 @@ class ComplexitySettings(Settings):
         "medium", "DIS optic-flow preset", choices=tuple(DIS_PRESETS)
     )
     jpeg_quality: int = option(75, "JPEG quality, 1-100")
-    zlib_level: int = dataclasses.field(default=6, metadata=API_ONLY)
+    zlib_level: int = dataclasses.field(default=6, metadata=API_ONLY)  # zlib_ratio's level, 0-9
     fov_deg: float | None = option(
         None,
         "video sources: the camera's horizontal field of view, degrees (needed for the AVDM "

@@ -58,7 +58,7 @@ METRICS = (
     "jpeg_bpp",
     "codec_bpp",
 )
-# what ``--metrics`` gives unless told (docs/video.md says why): the AVDM and the flow (the
+# what ``--metrics`` gives unless told (docs/guides/video.md says why): the AVDM and the flow (the
 # motion it reads, and the independent check of it), P.910 SI/TI (the standard), the MAFD (free:
 # repeats are judged on it) and the codec's own bits (free: the packet sizes). Left out: the
 # legacy SI/TI (superseded in 2022; a second pass), edge density (Canny) and JPEG (a second

@@ -16,7 +16,7 @@ Columns (one per metric, its unit or variant in the name):
     patterns (gratings, walls) is unconstrained (the aperture problem);
   * ``zlib_ratio``: zlib-compressed / raw size of the luma plane (level 6; higher = more
     complex). Not native: zlib costs 190 ms per 1080p frame at level 6 (26 ms at level 1),
-    several frame intervals (docs/analysis.md);
+    several frame intervals (docs/guides/analysis.md);
 
 * on the **source raster** (``vdc.frame_metrics``: a video's native luma at its bit depth
   and colour range; for the arena and the robot, which have no native frames, the camera's

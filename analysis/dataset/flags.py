@@ -1,6 +1,6 @@
 """What the whole dataset decides about each episode: blur against the camera's own
 sharpness, the camera's shift against its reference view, and the flags with their
-thresholds (docs/dataset.md says why each is where it is)."""
+thresholds (docs/guides/dataset.md says why each is where it is)."""
 
 from __future__ import annotations
 

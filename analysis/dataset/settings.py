@@ -44,7 +44,7 @@ class DatasetSettings(Settings):
     )
     flow_preset: str = option("medium", "DIS optic-flow preset (flow_dps)")
     width: int | None = option(None, "working width of the AVDM, px (default: from the fov)")
-    jpeg_quality: int = dataclasses.field(default=75, metadata=API_ONLY)
+    jpeg_quality: int = dataclasses.field(default=75, metadata=API_ONLY)  # jpeg_bpp's, 1-100
     repeat_tol: float = option(
         0.5,
         "a frame whose mean |difference| from the previous one is at most this (8-bit levels) "

@@ -1,6 +1,6 @@
 """Small LeRobot datasets written in the exact on-disk layout, with faults injected at known
 places: the truth the dataset command is tested against, and the worked example of
-docs/dataset.md (``python -m analysis.dataset.synthetic OUT``).
+docs/guides/dataset.md (``python -m analysis.dataset.synthetic OUT``).
 
 The scene is a real photograph (scikit-image's ``astronaut``) seen by a fixed third-person
 camera, with an object (scikit-image's ``coffee``: a white cup on a dark table) that the robot

@@ -384,7 +384,7 @@ def collision_claims(summary: pl.DataFrame) -> list[Claim]:
                 "233 with the adjusted threshold",
                 f"{per_phase}. Works (TF 0 success > 90 %): {works}; breaks down (TF 3 < 90 %): "
                 f"{breaks}; recovers (adjusted > 90 %): {recovers}. Our breakdown is blindness "
-                "(crashes) rather than extra avoidances; see docs/analysis.md.",
+                "(crashes) rather than extra avoidances; see docs/guides/analysis.md.",
                 combine([works, breaks, recovers]),
                 math.nan,
                 n,

@@ -17,7 +17,7 @@ seeded generator, so clip ``k`` is the same clip whatever ``--clips`` is:
   uniform on ``[0, noise_max]`` grey levels.
 
 The object reaches the camera's plane at the clip's last frame. ``labels.csv`` (the labelled-
-footage format of ``vdc-analyse boundary --labels``, docs/boundary.md) has per clip:
+footage format of ``vdc-analyse boundary --labels``, docs/guides/boundary.md) has per clip:
 
 * ``clip``, ``label`` (``collision`` or ``near-miss``), ``collision_frame`` (the last frame
   for a collision, empty for a near miss);

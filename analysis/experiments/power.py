@@ -1,4 +1,4 @@
-"""How many arena conditions and footage clips the plan needs (docs/power_plan.md).
+"""How many arena conditions and footage clips the plan needs (docs/findings/power_plan.md).
 
 Two comparisons, each of the AVDM against P.910 TI on the same units:
 
@@ -113,7 +113,7 @@ def clips_for_auroc_difference(
     return clips, max(1, round(clips * failure_share))
 
 
-# --- what counts as a failure (docs/power_plan.md) ------------------------------------------
+# --- what counts as a failure (docs/findings/power_plan.md) -------------------------------
 
 MIN_TTC_S = 0.5  # an alert later than this before contact is a miss: no time left to turn
 OUTCOMES = ("hit", "miss", "early alert", "false alarm", "correct rejection")

@@ -38,7 +38,7 @@ QUICK_BANNER = (
     "**Quick run (`--quick`): its verdicts are not findings.** This is the reduced version of "
     "the plan (a few conditions, a few clips, seconds-long runs) that checks every step "
     "works; far below the plan's power, nothing here answers the question. The plan itself "
-    "runs without `--quick` (docs/power_plan.md)."
+    "runs without `--quick` (docs/findings/power_plan.md)."
 )
 ACROSS = "across scenes"
 FAILING = ("miss", "early", "false_alarm")  # a clip's failure modes (boundary footage mode)
@@ -343,7 +343,8 @@ def answer_markdown(
     lines = [QUICK_BANNER + "\n"] if quick else []
     lines += [first_paragraph(primary) + "\n", "## The primary comparison\n"]
     lines += [
-        "The AVDM against P.910 TI, named before the runs (docs/power_plan.md): arena, the "
+        "The AVDM against P.910 TI, named before the runs (docs/findings/power_plan.md): arena, "
+        "the "
         "difference of their Spearman ρ with a condition's failure rate (Steiger's test, Zou's "
         "interval); footage, of their clip AUROCs (DeLong). 95 % intervals; judged at 5 % "
         f"alone, and only on at least {MIN_CONDITIONS} conditions or {MIN_FAILURES} failing "

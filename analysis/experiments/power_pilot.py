@@ -1,5 +1,5 @@
 """The plan's footage pilot: how often each detector fails on a small looming collection, so
-that the plan's parameter values put 30-50 % of clips in failure (docs/power_plan.md).
+that the plan's parameter values put 30-50 % of clips in failure (docs/findings/power_plan.md).
 
 Each detector runs on every clip as ``vdc-analyse boundary --labels`` runs it (the working
 raster at the robot camera's pitch, the clip's true frame rate); each clip is scored by

@@ -1,4 +1,5 @@
-"""``vdc-analyse power-study``: the pre-registered plan of docs/power_plan.md, run from nothing.
+"""``vdc-analyse power-study``: the pre-registered plan of docs/findings/power_plan.md, run from
+nothing.
 
 One command runs exactly the plan (:data:`FULL`) and writes its answer:
 
@@ -58,7 +59,7 @@ from vdc.parquet_io import WroteFiles
 
 @dataclasses.dataclass(frozen=True)
 class StudyPlan:
-    """One version of the plan (docs/power_plan.md): the arena grid, the footage collection
+    """One version of the plan (docs/findings/power_plan.md): the arena grid, the footage collection
     and each detector at its planned value (detector spec, parameter, value)."""
 
     scenes: tuple[str, ...]
@@ -71,7 +72,7 @@ class StudyPlan:
     clip_seconds: float
     clip_size: tuple[int, int]  # (width, height) px of the rendered clips
     footage_detectors: tuple[tuple[str, str, float], ...]
-    min_ttc_s: float = 0.5  # a later first alert is a miss (docs/power_plan.md)
+    min_ttc_s: float = 0.5  # a later first alert is a miss (docs/findings/power_plan.md)
     # an alert earlier than this before contact is early: the object enters 1.5-3 s before
     # contact (analysis.experiments.looming_footage.ENTER_S), so one earlier than 3 s comes
     # before any hazard is in view
@@ -120,7 +121,8 @@ QUICK = dataclasses.replace(
 
 @dataclasses.dataclass(frozen=True)
 class PowerStudySettings(ExecutorSettings):
-    """``vdc-analyse power-study``: the plan of docs/power_plan.md, or its quick version."""
+    """``vdc-analyse power-study``: the plan of docs/findings/power_plan.md, or its quick
+    version."""
 
     quick: bool = option(
         False,

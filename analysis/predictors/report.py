@@ -173,7 +173,7 @@ def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
         "(`predictors.parquet`: each row names its unit and its n). The one comparison named "
         "in advance is the paper's AVDM against P.910 TI; every other is Holm-corrected. No "
         f"comparison is judged on fewer than {MIN_CONDITIONS} conditions or {MIN_FAILURES} "
-        "failing clips (80 % power for the effects in question; docs/boundary.md).\n",
+        "failing clips (80 % power for the effects in question; docs/method/boundary.md).\n",
     ]
     values = table["value"].unique(maintain_order=True).to_list()
     for stat in STATS:

@@ -93,7 +93,7 @@ HEADLINE = {  # the statistic each mode ranks measures by
 # than P.910 TI? Judged at 5 % alone; every other comparison is Holm-corrected.
 PRIMARY = ("avdm", "ti_p910")
 # Below these no comparison gets a verdict ("too few ... to judge"): the units that give 80 %
-# power at two-sided 5 % for the effects the question is about (docs/boundary.md, "How many
+# power at two-sided 5 % for the effects the question is about (docs/method/boundary.md, "How many
 # conditions and clips"). Arena: two dependent Spearman rho of 0.71 and 0.31 (the default
 # grid's TI and AVDM) whose measures correlate 0.7 need 24 conditions (Steiger's test; 47 at
 # 0.3). Footage: an AUROC difference of 0.10 between measures correlated 0.6 needs 46 failing

@@ -27,7 +27,7 @@ from tests.in_process import run_in_process
 from vdc.executors import QUIET
 
 TARGET = 0.9
-# the default grid's measured profile (docs/boundary.md): wall TF (Hz) -> deg/s per scene
+# the default grid's measured profile (docs/findings/boundary.md): wall TF (Hz) -> deg/s per scene
 PROFILE = {"grating": ([0.0, 1.0, 3.0], [6.7, 12.0, 28.5]),
            "natural": ([0.0, 1.0, 3.0], [10.9, 13.0, 18.5])}  # fmt: skip
 TRUTH_DPS = {"grating": 10.0, "natural": 16.0}  # each scene its own crossing

@@ -99,7 +99,7 @@ def test_a_rerun_reuses_every_run(grid, tmp_path: Path) -> None:
 
 def test_the_policy_is_tested_on_held_out_conditions_running_online(grid) -> None:
     """The policy fitted on TF 0 and 3 keeps the target on TF 2 and on a 0 -> 3 Hz schedule,
-    as docs/boundary.md states for its held-out conditions (there 5 seeds of 10 min; here
+    as docs/findings/boundary.md states for its held-out conditions (there 5 seeds of 10 min; here
     2 seeds of 1 min), and where the released threshold is blinded (TF 2) it is better."""
     out, _, _ = grid
     s = AdaptationSettings(

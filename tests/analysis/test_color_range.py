@@ -200,7 +200,7 @@ def test_a_range_the_user_gives_wins_for_both_variants(clips) -> None:
 
 
 def test_the_decision_rules() -> None:
-    """The table of docs/video.md, case by case."""
+    """The table of docs/guides/video.md, case by case."""
     assert decide_ranges("limited", "auto", True)["color_range_p910"] == "limited"  # tag wins
     assert decide_ranges(None, "auto", None)["color_range_p910"] is None  # not seen yet
     assert decide_ranges(None, "full", False)["color_range_legacy"] == "full"

@@ -203,7 +203,7 @@ def _tls_files(folder: Path) -> dict[str, Path]:
 
 
 def test_a_tls_cluster_takes_dasks_own_configuration(recordings, tmp_path: Path) -> None:
-    """The TLS recipe of docs/clusters.md: vdc passes no security object, so Dask's
+    """The TLS recipe of docs/guides/clusters.md: vdc passes no security object, so Dask's
     configuration (here its environment variables) gives the client its certificate; without
     it, one line."""
     from distributed.security import Security

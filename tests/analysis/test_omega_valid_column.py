@@ -1,5 +1,5 @@
 """The per-frame complexity table carries ``omega_valid`` beside ``omega_dps`` (issue 43, item 5;
-docs/video.md describes it): False where the AVDM variant's own regime does not hold."""
+docs/guides/video.md describes it): False where the AVDM variant's own regime does not hold."""
 
 from __future__ import annotations
 

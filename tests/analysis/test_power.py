@@ -26,7 +26,7 @@ def meng_z(r1: np.ndarray, r2: np.ndarray, r12: np.ndarray, n: int) -> np.ndarra
 
 
 def test_the_reference_sizes_for_two_dependent_correlations() -> None:
-    """Separating rho 0.71 from 0.31 (the README's pair) needs about 24-47 conditions as the
+    """Separating rho 0.71 from 0.31 (the method's pair) needs about 24-47 conditions as the
     two measures correlate 0.7-0.3 (Steiger 1980's test; the issue's figures)."""
     assert conditions_for_correlation_difference(0.71, 0.31, 0.7) == pytest.approx(24, abs=1)
     assert conditions_for_correlation_difference(0.71, 0.31, 0.3) == pytest.approx(47, abs=1)

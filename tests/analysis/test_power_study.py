@@ -113,7 +113,7 @@ def test_the_per_scene_measure_agrees_with_the_predictors_auroc(quick) -> None:
 
 
 def test_the_full_plan_is_the_documented_one() -> None:
-    # docs/power_plan.md: 8 scenes x 6 TFs = 48 conditions, 3 seeds of 3 min, 480 clips
+    # docs/findings/power_plan.md: 8 scenes x 6 TFs = 48 conditions, 3 seeds of 3 min, 480 clips
     assert FULL.conditions() == 48 and FULL.seeds == 3 and FULL.minutes == 3.0
     assert FULL.clips == 480 and len(FULL.footage_detectors) == 3
     assert FULL.arena_runs() == 48 * 3 * 3  # two detectors and the profiling runs

@@ -258,7 +258,7 @@ def test_the_arena_grid_gains_its_predictors_from_cached_measures(tmp_path) -> N
 
 
 def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
-    """The README's OpenCV looming detector on rendered clips: the per-frame table and the
+    """The guides' OpenCV looming detector on rendered clips: the per-frame table and the
     clip and frame statistics for every measure."""
     import vdc
     from tests.footage_clips import write_collection

@@ -89,7 +89,7 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
     assert "numba_target_cpu" in html and "capture 1" in md
     assert claims.height == 9 and set(claims["verdict"]) <= {"holds", "partly", "does not hold"}
     # the deterministic steps (the SF-TF sweep, the open-loop approach) hold whatever the
-    # seeds: docs/reproduce.md's table says "holds" for both
+    # seeds: docs/guides/reproduce.md's table says "holds" for both
     assert claims["verdict"][:2].to_list() == ["holds", "holds"], claims["claim"][:2]
     assert (claims["seeds"] == [1, 1] + [2] * 7).all()
     # the numbers behind the seed-based claims, as numbers a notebook can plot and test

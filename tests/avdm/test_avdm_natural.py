@@ -52,8 +52,9 @@ def test_fast_kernel_matches_the_plain_reference(size) -> None:
         np.testing.assert_allclose(fast[key], ref[key], rtol=1e-4, atol=1e-9, err_msg=key)
 
 
-# the band docs/video.md gives for avdm-natural: 80 % of the protocol's cell readings lie within
-# 0.79-1.12x the truth (up to 80 deg/s; the two cells here read 0.86-0.92x, 300 deg/s included)
+# the band docs/guides/video.md gives for avdm-natural: 80 % of the protocol's cell readings lie
+# within 0.79-1.12x the truth (up to 80 deg/s; the two cells here read 0.86-0.92x, 300 deg/s
+# included)
 NATURAL_BAND = (0.79, 1.12)
 
 
@@ -61,7 +62,7 @@ NATURAL_BAND = (0.79, 1.12)
     ("image", "speed", "fps"), [("astronaut", 80.0, 30.0), ("gravel", 300.0, 25.0)]
 )
 def test_avdm_natural_reads_true_speed_in_both_directions(image, speed, fps) -> None:
-    """Held to the bounds docs/video.md states for single cells of avdm-natural (its "Tests
+    """Held to the bounds docs/guides/video.md states for single cells of avdm-natural (its "Tests
     hold" paragraph): each direction's reading inside the 0.79-1.12x band, and the two
     directions within 10 % of each other, through H.264 at the robot camera's pitch. The
     per-speed median error (<= 10 %) is over 64 cells a speed: the benchmark's, not this
@@ -77,7 +78,7 @@ def test_avdm_natural_reads_true_speed_in_both_directions(image, speed, fps) -> 
 
 
 def test_faithful_avdm_holds_in_its_stated_range_and_fails_beyond_it() -> None:
-    """docs/video.md states the faithful avdm's behaviour on natural footage at 25-30 fps: at
+    """docs/guides/video.md states the faithful avdm's behaviour on natural footage at 25-30 fps: at
     10 deg/s on the robot raster (0.47 px/frame) 80 % of cell readings lie within 0.25-2x the
     truth; beyond about 1 px per frame the reading falls relative to the truth (median over
     the protocol's cells 0.40x at 40 deg/s, 0.13x at 160 deg/s) although the speed rises: the

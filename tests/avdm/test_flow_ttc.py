@@ -73,7 +73,7 @@ def test_the_detector_alerts_ahead_of_a_looming_object_and_not_on_rotation(
 
 
 def test_a_frame_difference_detector_is_fooled_by_rotation_where_flow_is_not() -> None:
-    """The point of a third detector: the README's looming example (frame differences) alerts
+    """The point of a third detector: the guides' looming example (frame differences) alerts
     on a yawing camera with nothing approaching; the flow detector does not."""
     from examples.looming import Looming
 

@@ -2,7 +2,7 @@
 ``vdc-capture video``, as the detector that steers the robot in the closed loop, and
 recomputed from the frames by ``tables``, ``compare`` and ``batch`` (on a process pool whose
 workers import it), all from the command line as a user runs them, in the folder that holds
-the plug-in (here: the README's OpenCV example, ``examples/looming.py``)."""
+the plug-in (here: the guides' OpenCV example, ``examples/looming.py``)."""
 
 from __future__ import annotations
 
@@ -150,7 +150,7 @@ def _console(script: str, *args: str) -> list[str]:
 
 
 def test_a_plain_folder_of_plugins_works_from_the_current_folder(tmp_path: Path) -> None:
-    """The README's ``--model examples.looming:Looming`` as a user types it in a clone: the
+    """The guides' ``--model examples.looming:Looming`` as a user types it in a clone: the
     package installed, the current folder *not* on the path, the plug-in a module in a plain
     folder (no ``__init__.py``). Here a copy of ``examples/`` under a name found nowhere on
     ``PYTHONPATH``, so only the current-folder lookup can find it: online in ``vdc-capture
