@@ -25,6 +25,8 @@ from pathlib import Path
 from vdc.errors import UserError
 
 OUTPUTS_MANIFEST = ".vdc-outputs.json"
+# a writer's staging folder inside --out (vdc.parquet_io.table_set): vdc's files, not sources
+STAGING_PREFIX = ".vdc-staging-"
 PARTIAL = ".partial.rrd"
 
 
@@ -75,8 +77,9 @@ def scan_folder(
     """The files under ``folder`` (recursively, symbolic links to files followed) whose
     suffix is one of ``suffixes`` (lower case, with the dot), sorted; entries in folders
     named in ``skip_dirs`` (below ``folder``) are left out silently (vdc's own working
-    folders, e.g. ``parts``). Skipped and counted: dangling links, files a vdc manifest names
-    (:func:`read_outputs`), and unfinished captures."""
+    folders, e.g. ``parts``), as are table sets being published or left by a killed writer
+    (:data:`STAGING_PREFIX`). Skipped and counted: dangling links, files a vdc manifest
+    names (:func:`read_outputs`), and unfinished captures."""
     root = Path(folder)
     wanted = tuple(s.lower() for s in suffixes)
     skip = set(skip_dirs)
@@ -84,7 +87,9 @@ def scan_folder(
     skipped: dict[str, int] = {}
     for dirpath, dirnames, filenames in os.walk(root):
         here = Path(dirpath)
-        dirnames[:] = sorted(d for d in dirnames if d not in skip)
+        dirnames[:] = sorted(
+            d for d in dirnames if d not in skip and not d.startswith(STAGING_PREFIX)
+        )
         outputs = read_outputs(here)
         for name in sorted(filenames):  # a dangling link is listed with the files
             path = here / name

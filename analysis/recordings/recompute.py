@@ -483,7 +483,7 @@ def publish_tables(
     tables: dict[str, pl.DataFrame], out_dir: Path, meta: dict[str, Any]
 ) -> list[Path]:
     """Write each table to ``out_dir/<name>.parquet`` with ``meta`` in its metadata, as one set
-    (``vdc.parquet_io.table_set``): a reader never sees new tables beside old ones."""
+    (``vdc.parquet_io.table_set``): a crash never leaves new tables beside old ones."""
     with table_set(out_dir) as stage:
         for name, df in tables.items():
             write_parquet(df, stage / f"{name}.parquet", meta)
