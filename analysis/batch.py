@@ -47,8 +47,8 @@ from avdm.registry import canonical_name, parse_model_spec
 from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
-from vdc.folders import expand_recordings
-from vdc.parquet_io import WroteFiles, read_metadata, write_parquet
+from vdc.folders import expand_recordings, remove_output
+from vdc.parquet_io import WroteFiles, read_metadata, table_set, write_parquet
 
 PARTS = "parts"
 
@@ -262,14 +262,15 @@ def batch(
     tables, paths = None, []
     if shard is None and any((out / PARTS).glob("recording_id=*/model=*/summary.parquet")):
         tables, paths = summarise_batch(out)
-    if failures:
-        write_parquet(
-            pl.DataFrame(failures, schema=["task", "error"], orient="row"),
-            out / "failures.parquet",
-            {},
-        )
-    elif (out / "failures.parquet").exists():
-        (out / "failures.parquet").unlink()
+    if failures:  # published like every set: in the manifest, never over a user's file
+        with table_set(out) as stage:
+            write_parquet(
+                pl.DataFrame(failures, schema=["task", "error"], orient="row"),
+                stage / "failures.parquet",
+                {},
+            )
+    else:
+        remove_output(out, "failures.parquet")  # only vdc's own, from an earlier run
     return BatchResult(
         len(tasks), skipped, outcomes, failures, tables, paths, time.perf_counter() - t0
     )

@@ -50,6 +50,17 @@ def write_outputs(stage: Path, previous: Path | None = None) -> None:
     (Path(stage) / OUTPUTS_MANIFEST).write_text(text + "\n", encoding="utf-8")
 
 
+def remove_output(folder: Path, name: str) -> bool:
+    """Delete ``folder/name`` only if vdc's manifest says vdc wrote it (an earlier run's file
+    that this run has nothing to replace with); True if it was removed. A user's file of the
+    same name is never touched."""
+    path = Path(folder) / name
+    if name not in read_outputs(Path(folder)) or not path.is_file():
+        return False
+    path.unlink(missing_ok=True)
+    return True
+
+
 @dataclasses.dataclass
 class FolderScan:
     """A folder's sources (sorted paths) and the entries skipped, counted by reason."""

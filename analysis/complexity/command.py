@@ -72,7 +72,7 @@ from vdc.cli_support import (
 )
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
-from vdc.folders import path_list, scan_folder
+from vdc.folders import path_list, remove_output, scan_folder
 from vdc.frame_metrics import (
     RANGE_CHOICES,
     RANGE_COLUMNS,
@@ -587,8 +587,8 @@ def complexity(
                 c = corr.filter(pl.col("recording_id") == rid)
                 paths.append(figures.plot_complexity(p, c, stage / f"complexity_{rid}.png"))
                 paths.append(write_complexity_rrd(p, rid, stage / f"complexity_{rid}.rrd"))
-    if not failures and (out / "failures.parquet").exists():
-        (out / "failures.parquet").unlink()  # an earlier run's failures are measured now
+    if not failures:  # an earlier run's failures are measured now (only vdc's own file)
+        remove_output(out, "failures.parquet")
     paths = [out / p.name for p in paths]
     return ComplexityResult(
         table, clips, corr, failures, paths, notes, len(mine), len(mine) - len(todo)

@@ -231,3 +231,16 @@ def test_a_folder_scan_skips_a_staging_folder(tmp_path: Path) -> None:
     stale.mkdir()
     (stale / "complexity_clip.rrd").write_bytes(rec.read_bytes())
     assert expand_recordings(tmp_path) == [str(rec)]
+
+
+def test_a_batch_without_failures_keeps_a_users_failures_file(tmp_path: Path) -> None:
+    """``batch`` deleted ``out/failures.parquet`` whoever wrote it when a run had no failure:
+    now only vdc's own (named in the manifest) is removed."""
+    rec = make_sim_recording(tmp_path / "run.rrd")
+    res = tmp_path / "res"
+    res.mkdir()
+    (res / "failures.parquet").write_text("the user's own list\n")
+    proc = run_in_process("analysis", "batch", str(rec), "--model", "avdm", "--out", str(res),
+                          "--jobs", "1")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert (res / "failures.parquet").read_text() == "the user's own list\n"
