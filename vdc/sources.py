@@ -165,7 +165,11 @@ class _PyAvReader(Reader):
         self._unseen: collections.Counter = collections.Counter()  # pts demuxed, not shown
         self._sizes: dict[int, int] = {}  # packet size by pts: frames leave the decoder reordered
         self._frames = self._decode()
-        first = next(self._frames, None)  # a file with no decodable frame fails here
+        try:
+            first = next(self._frames, None)  # a file with no decodable frame fails here
+        except UserError as exc:  # a pixel format vdc does not read (stream_format)
+            self.container.close()
+            raise UserError(f"{path!r}: {exc}") from None
         if first is None:
             self.container.close()
             why = f": {self.error}" if self.error else ""
@@ -452,6 +456,8 @@ class _ImageSequenceReader(Reader):
             raise UserError(f"image sequence {pattern!r}: no image in it can be read")
         self.problems, self.first_problem = 0, None  # counted again when the frames are read
         h, w = first.shape
+        # a 16-bit image (PNG, TIFF) is measured at its 16 bits, full range (never as bytes)
+        self.depth_dtype = first.dtype
         self.info = {
             "kind": "images",
             "codec": "image files",
@@ -464,6 +470,7 @@ class _ImageSequenceReader(Reader):
             "container_frames": self.last_index - self.first_index + 1,
             "first_frame_s": 0.0,
             **IMAGE_FORMAT,
+            "bit_depth": 8 * first.dtype.itemsize,
         }
         self.size = (h, w)
 
@@ -476,10 +483,8 @@ class _ImageSequenceReader(Reader):
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if img is None or img.ndim not in (2, 3):
             return None
-        if img.dtype != np.uint8:  # 16-bit PNG/TIFF: the top 8 bits
-            img = (img >> 8).astype(np.uint8) if img.dtype == np.uint16 else None
-            if img is None:
-                return None
+        if img.dtype not in (np.uint8, np.uint16):  # 8- or 16-bit images only
+            return None
         if img.ndim == 3 and img.shape[2] == 4:
             img = img[:, :, :3]
         return _luma(img)
@@ -492,10 +497,12 @@ class _ImageSequenceReader(Reader):
             path = self.paths.get(k)
             why = (
                 None
-                if img is not None and img.shape == self.size
+                if img is not None and img.shape == self.size and img.dtype == self.depth_dtype
                 else "missing"
                 if path is None
                 else "of another size"
+                if img is not None and img.shape != self.size
+                else "of another bit depth"
                 if img is not None
                 else "unreadable or cut short"
             )
@@ -509,8 +516,15 @@ class _ImageSequenceReader(Reader):
                 self.info["first_frame_s"] = self.lost_before_first / self.fps
             assert img is not None and path is not None
             size = path.stat().st_size  # the image file: its codec's bits
-            yield SourceFrame(img, (k - k0) / self.fps, "; ".join(note) or None, img, size)
+            grey = img if img.dtype == np.uint8 else grey_8bit(img)
+            yield SourceFrame(grey, (k - k0) / self.fps, "; ".join(note) or None, img, size)
             note = []
+
+
+def grey_8bit(grey16: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 of a full-range 16-bit grey image, each value scaled by 255/65535 and
+    rounded: the models' 8-bit intensity scale (not the low byte, nor a floor)."""
+    return ((grey16.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
 
 
 def _ffmpeg_reason(exc: Exception) -> str:
