@@ -191,19 +191,23 @@ class _PyAvReader(Reader):
         """The frames the container states the stream holds: its count (MP4, MOV, AVI: the
         sample table; less the packets an edit list discards, counted while demuxing), else
         its header's duration times a constant rate (Matroska and WebM state a duration, not
-        a count: constant when FFmpeg's average rate equals the stream's base rate), else
-        None: unknown (MPEG-TS and raw streams state neither, whose duration FFmpeg can only
-        estimate; a variable rate)."""
+        a count: constant when FFmpeg's average rate equals the stream's base rate; or the
+        frames a whole demux of it found, where they are more: times that go backwards), else
+        None: unknown (a variable rate; MPEG-TS and raw streams, which state neither and
+        whose duration FFmpeg can only estimate)."""
         if self.stream.frames:
             return int(self.stream.frames)
         avg, base = self.stream.average_rate, self.stream.base_rate
         duration_s = self.info["duration_s"]
         if "matroska" not in self.container.format.name or not (avg and base and duration_s > 0):
             return None
+        # the frames in the file where it was demuxed whole: more than its duration holds
+        # where its timestamps go backwards (its duration is its latest time, not its length)
+        packets = self._packets_demuxed or 0
         if abs(float(avg) / float(base) - 1) > 1e-3 or self.info["variable_rate"]:
-            # a variable rate: no count from it
+            # a variable rate: no count from it (its packets are no count of a file cut short)
             return None
-        return round(duration_s * float(base))
+        return max(round(duration_s * float(base)), packets)
 
     def _variable_rate(self, path: str) -> bool:
         """Whether the stream's own timestamps (every packet's, demuxed without decoding)
@@ -214,10 +218,12 @@ class _PyAvReader(Reader):
         import av  # lazy: start-up
 
         times = []
+        self._packets_demuxed: int | None = None  # a whole demux's frames (None: it failed)
         try:
             with av.open(path) as c:
                 st = c.streams.video[0]
                 times = [p.pts for p in c.demux(st) if p.pts is not None and p.size]
+            self._packets_demuxed = len(times)
         except av.FFmpegError:  # damage: the times before it are the evidence
             pass
         if len(times) < 4:
@@ -272,6 +278,9 @@ class _PyAvReader(Reader):
         variable = bool(self.info.get("variable_rate"))
         tb = float(self.stream.time_base or 0)
         shown: set[int] = set()  # the times delivered (µs): a second frame at one is lost
+        # packets counted lost by their timing (a variable rate, below) whose frames the decoder
+        # may still hand over, late: each is counted once, there
+        counted: collections.Counter = collections.Counter()
         lost = 0  # frames lost since the last frame delivered that no gap shows
 
         def settle(frame: Any) -> None:  # its packet is accounted for: shown or counted
@@ -282,6 +291,11 @@ class _PyAvReader(Reader):
             nonlocal lost
             self.late_frames += 1
             note.append(self._problem(f"a frame at {t:.3f} s {why}: dropped"))
+            if frame.pts is not None and counted[frame.pts] > 0:
+                # its packet was already counted lost, while the frame was still inside the
+                # decoder (below): it is the same frame, not a second loss
+                counted[frame.pts] -= 1
+                return
             settle(frame)
             if variable or round(t * 1e6) in shown:  # no gap in the times shows it
                 lost += 1
@@ -315,7 +329,10 @@ class _PyAvReader(Reader):
             settle(frame)
             if variable and tb:  # packets before it that gave no frame: lost, by its timing
                 gone = [p for p in self._unseen if p * tb < t - 1e-6]
-                lost += sum(self._unseen.pop(p) for p in gone)
+                for p in gone:
+                    k = self._unseen.pop(p)
+                    counted[p] += k
+                    lost += k
             shown.add(round(t * 1e6))
             out = SourceFrame(luma, float(t - t0), "; ".join(note) or None, native, size, lost)
             lost = 0
