@@ -164,6 +164,14 @@ def legacy_lut(bit_depth: int, color_range: str) -> np.ndarray:
     return full.astype(np.float64)
 
 
+def _every_code(lut: np.ndarray) -> np.ndarray:
+    """A lookup table over 2^B codes extended to every code its frames' type holds (2^16
+    for a deep stream), the top code's value repeated: a damaged 10-bit frame with a code
+    past 1023 reads the top value, never memory past the table (the kernels do not check)."""
+    size = 256 if len(lut) <= 256 else 65536
+    return np.concatenate((lut, np.full(size - len(lut), lut[-1])))
+
+
 @kernel(fastmath=True, nogil=True)
 def _map_row(codes, lut, out):  # pragma: no cover - compiled
     for j in range(codes.shape[0]):
@@ -344,9 +352,9 @@ class NativeMeter:
         self._detect = self.p910_range == "detect"
         # the P.910 range in use: while detecting, limited until the luma leaves it
         self.p910_now = "limited" if self._detect else (self.p910_range or self.color_range)
-        self._p910 = p910_lut(self.bit_depth, self.p910_now)
-        self._p910_full = p910_lut(self.bit_depth, "full") if self._detect else None
-        self._legacy = legacy_lut(self.bit_depth, self.color_range)
+        self._p910 = _every_code(p910_lut(self.bit_depth, self.p910_now))
+        self._p910_full = _every_code(p910_lut(self.bit_depth, "full")) if self._detect else None
+        self._legacy = _every_code(legacy_lut(self.bit_depth, self.color_range))
         unknown = set(self.metrics) - set(NATIVE_METRICS)
         if unknown:
             raise UserError(f"not native metrics: {', '.join(sorted(unknown))}")
