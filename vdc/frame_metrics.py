@@ -7,14 +7,17 @@
   Sobel magnitude over the interior (H−2)×(W−2), TI that of the frame difference;
 * ``si_legacy`` / ``ti_legacy``: the definition before 2022 on code values, as FFmpeg's
   ``siti`` filter computes it (limited range stretched to full with FFmpeg's integer
-  arithmetic; 10-bit values kept on their 10-bit scale, as the filter does);
+  arithmetic; 10-bit values kept on their 10-bit scale, as the filter does, and deeper
+  ones, which the filter does not take, on theirs likewise);
 * ``mafd``: mean absolute difference from the previous frame, in 8-bit levels;
 * ``edge_density``: share of Canny edge pixels (thresholds 100/200 on 8-bit luma);
 * ``jpeg_bpp``: bits per pixel of the frame as a JPEG at quality 75 (OpenCV);
 * ``codec_bpp``: bits per pixel the source's own codec spent on the frame (its packet), where
   the source has packets.
 
-Temporal metrics are null on a source's first frame. Each SI/TI variant reads the colour
+A stream is read at its own bit depth (8 to 16: a 16-bit stream's code values, never its bytes;
+P.910's ranges scale with the depth as siti-tools scales them for 10 and 12 bits). Temporal
+metrics are null on a source's first frame. Each SI/TI variant reads the colour
 range as its reference tool does (:func:`decide_ranges`): a range the stream tags (or a
 ``yuvj`` format) is used by both; where the stream leaves it unspecified, the legacy variant
 takes limited (FFmpeg's ``siti``), and the P.910 variant takes full if any frame's luma
@@ -30,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Iterable
 from typing import Any
 
@@ -58,6 +62,9 @@ def require_frame_size(reader: Any, source: str) -> None:
         )
 
 
+# the luma depths read (vdc.frame_metrics.stream_format): siti-tools takes 8, 10 and 12; the
+# P.910 ranges scale the same way to the others (limited 16..235 x 2^(B-8), full 0..2^B-1)
+BIT_DEPTHS = tuple(range(8, 17))
 RANGES = ("limited", "full")
 RANGE_CHOICES = ("auto", *RANGES)  # --color-range
 # how a variant's range was decided: the stream's tag, detected from the luma (P.910 in an
@@ -155,6 +162,14 @@ def legacy_lut(bit_depth: int, color_range: str) -> np.ndarray:
     top = (2**bit_depth - 1) if bit_depth > 8 else 255
     full = (top * np.clip(codes - 16 * scale, 0, 219 * scale)) // (219 * scale)
     return full.astype(np.float64)
+
+
+def _every_code(lut: np.ndarray) -> np.ndarray:
+    """A lookup table over 2^B codes extended to every code its frames' type holds (2^16
+    for a deep stream), the top code's value repeated: a damaged 10-bit frame with a code
+    past 1023 reads the top value, never memory past the table (the kernels do not check)."""
+    size = 256 if len(lut) <= 256 else 65536
+    return np.concatenate((lut, np.full(size - len(lut), lut[-1])))
 
 
 @kernel(fastmath=True, nogil=True)
@@ -300,15 +315,16 @@ def _std(s: float, ss: float, n: float) -> float:
 class NativeMeter:
     """Streams native luma frames through :data:`NATIVE_METRICS`.
 
-    ``bit_depth`` 8 (uint8 frames) or 10/12 (uint16); ``color_range`` ``limited`` or
-    ``full``: the legacy variant's (and the P.910 variant's unless ``p910_range`` says
-    otherwise); ``p910_range`` ``limited``, ``full``, None (= ``color_range``) or ``detect``
-    (an untagged stream with ``--color-range auto``: limited until a frame's luma leaves the
-    limited range, full from that frame on, as siti-tools accepts it; :meth:`p910_corrections`
-    then gives the earlier frames' values in full range). While detecting, each frame's
-    full-range values are computed beside (a second SI/TI pass) unless ``full_alternative``
-    is False: then a caller that can read the source again gives them once a frame leaves
-    the limited range (:meth:`set_full_alternative`; ``vdc.frame_batches.FrameBatcher`` does
+    ``bit_depth`` 8 (uint8 frames) or 9 to 16 (uint16: the code values at that depth);
+    ``color_range`` ``limited`` or ``full``: the legacy variant's (and the P.910 variant's
+    unless ``p910_range`` says otherwise); ``p910_range`` ``limited``, ``full``, None
+    (= ``color_range``) or ``detect`` (an untagged stream with ``--color-range auto``:
+    limited until a frame's luma leaves the limited range, full from that frame on, as
+    siti-tools accepts it; :meth:`p910_corrections` then gives the earlier frames' values in
+    full range). While detecting, each frame's full-range values are computed beside (a
+    second SI/TI pass) unless ``full_alternative`` is False: then a caller that can read the
+    source again gives them once a frame leaves the limited range
+    (:meth:`set_full_alternative`; ``vdc.frame_batches.FrameBatcher`` does
     for files). ``update(y, packet_bytes)`` takes
     one frame (H, W) and the size of its packet in the source (None: no ``codec_bpp``) and
     returns its metrics (temporal ones NaN on the first frame). Only the names in ``metrics``
@@ -327,8 +343,8 @@ class NativeMeter:
     copy_previous: bool = True
 
     def __post_init__(self) -> None:
-        if self.bit_depth not in (8, 10, 12):
-            raise UserError(f"bit depth must be 8, 10 or 12, got {self.bit_depth}")
+        if self.bit_depth not in BIT_DEPTHS:
+            raise UserError(f"bit depth must be 8 to 16, got {self.bit_depth}")
         if self.color_range not in RANGES:
             raise UserError(f"colour range must be limited or full, got {self.color_range!r}")
         if self.p910_range not in (None, "detect", *RANGES):
@@ -336,9 +352,9 @@ class NativeMeter:
         self._detect = self.p910_range == "detect"
         # the P.910 range in use: while detecting, limited until the luma leaves it
         self.p910_now = "limited" if self._detect else (self.p910_range or self.color_range)
-        self._p910 = p910_lut(self.bit_depth, self.p910_now)
-        self._p910_full = p910_lut(self.bit_depth, "full") if self._detect else None
-        self._legacy = legacy_lut(self.bit_depth, self.color_range)
+        self._p910 = _every_code(p910_lut(self.bit_depth, self.p910_now))
+        self._p910_full = _every_code(p910_lut(self.bit_depth, "full")) if self._detect else None
+        self._legacy = _every_code(legacy_lut(self.bit_depth, self.color_range))
         unknown = set(self.metrics) - set(NATIVE_METRICS)
         if unknown:
             raise UserError(f"not native metrics: {', '.join(sorted(unknown))}")
@@ -441,22 +457,43 @@ class NativeMeter:
         return out
 
 
+# the luma of these formats is one plane of 2-byte samples holding the code value in its low
+# bits (planar YUV and grey, 9 to 16 bits, little- or big-endian): read at the stream's depth.
+# Other deep formats (semi-planar p010/nv20, packed y210/xv30, deep RGB) keep their luma in
+# a layout or colour space vdc does not read directly, and are refused rather than misread
+_DEEP_PLANE = re.compile(r"^(?:yuva?j?\d{3}p|gray)(9|10|12|14|16)(le|be)$")
+# 8-bit formats whose first plane is the luma, one byte per sample
+_BYTE_PLANE = ("yuv", "gray", "nv12", "nv21", "nv16", "nv24", "nv42")
+
+
 def stream_format(frame: Any) -> dict[str, Any]:
     """Bit depth and colour range a decoded PyAV video frame declares, and whether its luma
     can be read directly (a YUV or grey format).
 
+    ``bit_depth``: the luma's own (8 to 16; a deep stream is never read as bytes);
     ``color_range_tag``: the range the frame tags (``full`` also for an untagged ``yuvj``
-    format, as FFmpeg reads it), None where unspecified; ``color_range``: the range FFmpeg's
-    ``siti`` reads (an unspecified one is limited, the MPEG default)."""
+    format, as FFmpeg reads it, and for RGB, whose grey is full range), None where
+    unspecified; ``color_range``: the range FFmpeg's ``siti`` reads (an unspecified one is
+    limited, the MPEG default); ``luma``: False where the grey is converted from colour
+    (8-bit RGB and packed formats, through FFmpeg's own conversion, at 8 bits). A deep format
+    whose luma is not a plane of its own (p010, y210, 10-bit RGB, ...) raises UserError
+    naming it."""
     name = frame.format.name
-    depth = 10 if "10" in name else 12 if "12" in name else 8
+    depth = max(c.bits for c in frame.format.components if not c.is_alpha)
+    deep = _DEEP_PLANE.match(name)
+    if depth > 8 and not deep:
+        raise UserError(
+            f"pixel format {name} ({depth}-bit): vdc reads deep video as planar YUV or grey "
+            "(yuv420p10le, gray16le, ...); convert it first, e.g. ffmpeg -i IN -pix_fmt "
+            "yuv444p16le OUT.mkv"
+        )
+    planar = bool(deep) or (depth == 8 and name.startswith(_BYTE_PLANE))
     code = int(getattr(frame, "color_range", 0) or 0)  # AVColorRange: 1 MPEG, 2 JPEG
     tag = "full" if code == 2 else "limited" if code == 1 else None
-    if tag is None and name.startswith("yuvj"):
+    if tag is None and (name.startswith("yuvj") or not planar):
         tag = "full"
-    planar = name.startswith(("yuv", "gray", "nv12", "nv21"))
     return {
-        "bit_depth": depth,
+        "bit_depth": int(deep.group(1)) if deep else 8,
         "color_range": tag or "limited",
         "color_range_tag": tag,
         "luma": planar,
@@ -464,13 +501,20 @@ def stream_format(frame: Any) -> dict[str, Any]:
 
 
 def luma_plane(frame: Any, bit_depth: int) -> np.ndarray:
-    """The Y plane of a decoded PyAV frame as (H, W) uint8/uint16, honouring the line size
-    (no copy for 8 bits)."""
+    """The Y plane of a decoded PyAV frame as (H, W) uint8/uint16 code values at
+    ``bit_depth`` (:func:`stream_format`), honouring the line size (no copy for 8 bits, nor
+    for a little-endian deep plane on a little-endian machine); the grey of a format with no
+    Y plane (RGB, packed YUV; 8-bit) as FFmpeg converts it."""
+    name = frame.format.name
+    if bit_depth == 8 and not name.startswith(_BYTE_PLANE):
+        return frame.to_ndarray(format="gray")
     plane = frame.planes[0]
-    dtype = np.uint8 if bit_depth == 8 else np.dtype("<u2")
-    per_line = plane.line_size // np.dtype(dtype).itemsize
-    rows = np.frombuffer(plane, dtype).reshape(-1, per_line)
-    return rows[: frame.height, : frame.width]
+    dtype = (
+        np.dtype(np.uint8) if bit_depth == 8 else np.dtype(">u2" if name.endswith("be") else "<u2")
+    )
+    per_line = plane.line_size // dtype.itemsize
+    rows = np.frombuffer(plane, dtype).reshape(-1, per_line)[: frame.height, : frame.width]
+    return rows if dtype.isnative else rows.astype(np.uint16)
 
 
 def full_range_p910(natives: Iterable[np.ndarray], bit_depth: int, frames: int) -> np.ndarray:

@@ -165,7 +165,11 @@ class _PyAvReader(Reader):
         self._unseen: collections.Counter = collections.Counter()  # pts demuxed, not shown
         self._sizes: dict[int, int] = {}  # packet size by pts: frames leave the decoder reordered
         self._frames = self._decode()
-        first = next(self._frames, None)  # a file with no decodable frame fails here
+        try:
+            first = next(self._frames, None)  # a file with no decodable frame fails here
+        except UserError as exc:  # a pixel format vdc does not read (stream_format)
+            self.container.close()
+            raise UserError(f"{path!r}: {exc}") from None
         if first is None:
             self.container.close()
             why = f": {self.error}" if self.error else ""
@@ -187,19 +191,23 @@ class _PyAvReader(Reader):
         """The frames the container states the stream holds: its count (MP4, MOV, AVI: the
         sample table; less the packets an edit list discards, counted while demuxing), else
         its header's duration times a constant rate (Matroska and WebM state a duration, not
-        a count: constant when FFmpeg's average rate equals the stream's base rate), else
-        None: unknown (MPEG-TS and raw streams state neither, whose duration FFmpeg can only
-        estimate; a variable rate)."""
+        a count: constant when FFmpeg's average rate equals the stream's base rate; or the
+        frames a whole demux of it found, where they are more: times that go backwards), else
+        None: unknown (a variable rate; MPEG-TS and raw streams, which state neither and
+        whose duration FFmpeg can only estimate)."""
         if self.stream.frames:
             return int(self.stream.frames)
         avg, base = self.stream.average_rate, self.stream.base_rate
         duration_s = self.info["duration_s"]
         if "matroska" not in self.container.format.name or not (avg and base and duration_s > 0):
             return None
+        # the frames in the file where it was demuxed whole: more than its duration holds
+        # where its timestamps go backwards (its duration is its latest time, not its length)
+        packets = self._packets_demuxed or 0
         if abs(float(avg) / float(base) - 1) > 1e-3 or self.info["variable_rate"]:
-            # a variable rate: no count from it
+            # a variable rate: no count from it (its packets are no count of a file cut short)
             return None
-        return round(duration_s * float(base))
+        return max(round(duration_s * float(base)), packets)
 
     def _variable_rate(self, path: str) -> bool:
         """Whether the stream's own timestamps (every packet's, demuxed without decoding)
@@ -210,10 +218,12 @@ class _PyAvReader(Reader):
         import av  # lazy: start-up
 
         times = []
+        self._packets_demuxed: int | None = None  # a whole demux's frames (None: it failed)
         try:
             with av.open(path) as c:
                 st = c.streams.video[0]
                 times = [p.pts for p in c.demux(st) if p.pts is not None and p.size]
+            self._packets_demuxed = len(times)
         except av.FFmpegError:  # damage: the times before it are the evidence
             pass
         if len(times) < 4:
@@ -268,6 +278,9 @@ class _PyAvReader(Reader):
         variable = bool(self.info.get("variable_rate"))
         tb = float(self.stream.time_base or 0)
         shown: set[int] = set()  # the times delivered (µs): a second frame at one is lost
+        # packets counted lost by their timing (a variable rate, below) whose frames the decoder
+        # may still hand over, late: each is counted once, there
+        counted: collections.Counter = collections.Counter()
         lost = 0  # frames lost since the last frame delivered that no gap shows
 
         def settle(frame: Any) -> None:  # its packet is accounted for: shown or counted
@@ -278,6 +291,11 @@ class _PyAvReader(Reader):
             nonlocal lost
             self.late_frames += 1
             note.append(self._problem(f"a frame at {t:.3f} s {why}: dropped"))
+            if frame.pts is not None and counted[frame.pts] > 0:
+                # its packet was already counted lost, while the frame was still inside the
+                # decoder (below): it is the same frame, not a second loss
+                counted[frame.pts] -= 1
+                return
             settle(frame)
             if variable or round(t * 1e6) in shown:  # no gap in the times shows it
                 lost += 1
@@ -311,7 +329,10 @@ class _PyAvReader(Reader):
             settle(frame)
             if variable and tb:  # packets before it that gave no frame: lost, by its timing
                 gone = [p for p in self._unseen if p * tb < t - 1e-6]
-                lost += sum(self._unseen.pop(p) for p in gone)
+                for p in gone:
+                    k = self._unseen.pop(p)
+                    counted[p] += k
+                    lost += k
             shown.add(round(t * 1e6))
             out = SourceFrame(luma, float(t - t0), "; ".join(note) or None, native, size, lost)
             lost = 0
@@ -452,6 +473,8 @@ class _ImageSequenceReader(Reader):
             raise UserError(f"image sequence {pattern!r}: no image in it can be read")
         self.problems, self.first_problem = 0, None  # counted again when the frames are read
         h, w = first.shape
+        # a 16-bit image (PNG, TIFF) is measured at its 16 bits, full range (never as bytes)
+        self.depth_dtype = first.dtype
         self.info = {
             "kind": "images",
             "codec": "image files",
@@ -464,6 +487,7 @@ class _ImageSequenceReader(Reader):
             "container_frames": self.last_index - self.first_index + 1,
             "first_frame_s": 0.0,
             **IMAGE_FORMAT,
+            "bit_depth": 8 * first.dtype.itemsize,
         }
         self.size = (h, w)
 
@@ -476,10 +500,8 @@ class _ImageSequenceReader(Reader):
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if img is None or img.ndim not in (2, 3):
             return None
-        if img.dtype != np.uint8:  # 16-bit PNG/TIFF: the top 8 bits
-            img = (img >> 8).astype(np.uint8) if img.dtype == np.uint16 else None
-            if img is None:
-                return None
+        if img.dtype not in (np.uint8, np.uint16):  # 8- or 16-bit images only
+            return None
         if img.ndim == 3 and img.shape[2] == 4:
             img = img[:, :, :3]
         return _luma(img)
@@ -492,10 +514,12 @@ class _ImageSequenceReader(Reader):
             path = self.paths.get(k)
             why = (
                 None
-                if img is not None and img.shape == self.size
+                if img is not None and img.shape == self.size and img.dtype == self.depth_dtype
                 else "missing"
                 if path is None
                 else "of another size"
+                if img is not None and img.shape != self.size
+                else "of another bit depth"
                 if img is not None
                 else "unreadable or cut short"
             )
@@ -509,8 +533,15 @@ class _ImageSequenceReader(Reader):
                 self.info["first_frame_s"] = self.lost_before_first / self.fps
             assert img is not None and path is not None
             size = path.stat().st_size  # the image file: its codec's bits
-            yield SourceFrame(img, (k - k0) / self.fps, "; ".join(note) or None, img, size)
+            grey = img if img.dtype == np.uint8 else grey_8bit(img)
+            yield SourceFrame(grey, (k - k0) / self.fps, "; ".join(note) or None, img, size)
             note = []
+
+
+def grey_8bit(grey16: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 of a full-range 16-bit grey image, each value scaled by 255/65535 and
+    rounded: the models' 8-bit intensity scale (not the low byte, nor a floor)."""
+    return ((grey16.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
 
 
 def _ffmpeg_reason(exc: Exception) -> str:

@@ -102,34 +102,13 @@ def read_labels(path: str | Path) -> pl.DataFrame:
         )
     if df.height == 0:
         raise UserError(f"labels table {str(path)!r} lists no clips")
-    try:
-        frames = df["collision_frame"].cast(pl.Float64)
-    except pl.exceptions.PolarsError:
-        raise UserError(
-            f"labels table {str(path)!r}: collision_frame must be a frame number or empty"
-        ) from None
-    bad = frames.drop_nulls().filter((frames.drop_nulls() < 0) | (frames.drop_nulls() % 1 != 0))
-    if bad.len():
-        raise UserError(
-            f"labels table {str(path)!r}: collision_frame must be a frame number >= 0 or "
-            f"empty, got {bad[0]:g}"
-        )
     df = df.with_columns(
         pl.col("clip").cast(pl.Utf8),
         pl.col("label").cast(pl.Utf8),
-        frames.cast(pl.Int64).alias("collision_frame"),
+        _frame_numbers(df, "collision_frame", path),
     )
     if "hazard_onset_frame" in df.columns:  # optional: where the hazard enters the scene
-        try:
-            onset = df["hazard_onset_frame"].cast(pl.Float64)
-        except pl.exceptions.PolarsError:
-            onset = None
-        if onset is None or (onset.drop_nulls() < 0).any() or (onset.drop_nulls() % 1 != 0).any():
-            raise UserError(
-                f"labels table {str(path)!r}: hazard_onset_frame must be a frame number >= 0 "
-                "or empty"
-            )
-        df = df.with_columns(onset.cast(pl.Int64).alias("hazard_onset_frame"))
+        df = df.with_columns(_frame_numbers(df, "hazard_onset_frame", path))
     if df["clip"].n_unique() != df.height:
         dup = df.filter(pl.col("clip").is_duplicated())["clip"][0]
         raise UserError(f"labels table {str(path)!r} lists clip {dup!r} twice")
@@ -146,6 +125,32 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     df = df.with_columns(pl.Series("source", sources))
     _check_frames_inside_clips(df, path)
     return df
+
+
+# the largest frame number a labels table may give: every integer up to it is exact as a
+# float64 (CSV cells are read as numbers), and no clip comes near it
+MAX_FRAME_NUMBER = 2**53
+
+
+def _frame_numbers(df: pl.DataFrame, col: str, path: Path) -> pl.Series:
+    """Column ``col`` of a labels table as Int64 frame numbers (null: empty). UserError, in one
+    line naming the table, the row (1-based, after the header) and the field, for a value that
+    is not a whole number from 0 to :data:`MAX_FRAME_NUMBER` (text, a fraction, negative, or
+    a number of 23 digits, which no integer column holds)."""
+    try:
+        values = df[col].cast(pl.Float64)
+    except pl.exceptions.PolarsError:
+        values = df[col].cast(pl.Utf8).cast(pl.Float64, strict=False)
+    given = df[col].cast(pl.Utf8, strict=False)
+    for i, (v, text) in enumerate(zip(values, given, strict=True)):
+        if text is None or text.strip() == "":
+            continue
+        if v is None or not (math.isfinite(v) and v % 1 == 0 and 0 <= v <= MAX_FRAME_NUMBER):
+            raise UserError(
+                f"labels table {str(path)!r}, row {i + 1}: {col} must be a frame number >= 0 "
+                f"or empty, got {text.strip()!r}"
+            )
+    return values.cast(pl.Int64).alias(col)
 
 
 def clip_length(source: str) -> int | None:
@@ -170,7 +175,7 @@ def _check_frames_inside_clips(labels: pl.DataFrame, path: Path) -> None:
     its clip's last frame: a collision no frame shows would turn a hit into a false alarm (an
     alert long before it) with no note, and a scene that never ends."""
     cols = [c for c in ("collision_frame", "hazard_onset_frame") if c in labels.columns]
-    for row in labels.iter_rows(named=True):
+    for i, row in enumerate(labels.iter_rows(named=True)):
         given = {c: row[c] for c in cols if row[c] is not None}
         if not given:
             continue
@@ -180,8 +185,8 @@ def _check_frames_inside_clips(labels: pl.DataFrame, path: Path) -> None:
         for col, frame in given.items():
             if frame >= n:
                 raise UserError(
-                    f"labels table {str(path)!r}: clip {row['clip']!r} has {col} {frame}, "
-                    f"beyond its {n} frames (0 to {n - 1})"
+                    f"labels table {str(path)!r}, row {i + 1}: clip {row['clip']!r} has "
+                    f"{col} {frame}, beyond its {n} frames (0 to {n - 1})"
                 )
 
 

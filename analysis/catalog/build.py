@@ -27,6 +27,7 @@ Nothing persists in the server: the folders are the truth, and a restart registe
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import hashlib
 import os
@@ -54,7 +55,7 @@ from analysis.recordings.recompute import SummarySettings, events_table, primary
 from avdm.calibration_store import cache_dir
 from avdm.registry import make_model
 from vdc.blueprints import dataset_blueprint, default_blueprint, video_blueprint
-from vdc.cli_support import Settings, non_negative_int, option
+from vdc.cli_support import Settings, option
 from vdc.errors import UserError
 from vdc.folders import path_list
 from vdc.recording import (
@@ -69,6 +70,20 @@ from vdc.recording import (
 BASE, SUMMARY_LAYER, SUMMARY = "base", "summary", "Summary"
 LOOPBACK = "127.0.0.1"
 CATALOG_EXTRA = "pip install 'visual-dynamic-complexity[catalog]'"
+MAX_PORT = 65535  # a TCP port is 16 bits; 0 asks the system for a free one
+
+
+def port_number(text: str) -> int:
+    """argparse type: a TCP port, 1 to 65535, or 0 (a free one)."""
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if not 0 <= v <= MAX_PORT:
+        raise argparse.ArgumentTypeError(
+            f"expected a port from 1 to {MAX_PORT} (0: a free one), got {text!r}"
+        )
+    return v
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,9 +100,9 @@ class CatalogSettings(Settings):
         "the address the server and the web viewer listen on (default: {default}, this "
         "machine only)",
     )
-    port: int = option(0, "the catalog server's port (0: a free one)", type=non_negative_int)
+    port: int = option(0, "the catalog server's port (0: a free one)", type=port_number)
     web: bool = option(False, "also serve the web viewer, on the same host")
-    web_port: int = option(0, "the web viewer's port (0: a free one)", type=non_negative_int)
+    web_port: int = option(0, "the web viewer's port (0: a free one)", type=port_number)
     where: tuple[str, ...] = option(
         (), "query: only segments whose summary property KEY equals VALUE (repeatable)",
         metavar="KEY=VALUE",
@@ -96,6 +111,15 @@ class CatalogSettings(Settings):
         (), "query: the layers whose variants to include (repeatable; default: all)",
         flag="--layer", metavar="LAYER",
     )  # fmt: skip
+
+    def __post_init__(self) -> None:
+        for name in ("port", "web_port"):
+            value = getattr(self, name)
+            if not 0 <= value <= MAX_PORT:
+                raise UserError(
+                    f"CatalogSettings.{name}: a port is 1 to {MAX_PORT} (0: a free one), "
+                    f"got {value}"
+                )
 
     def where_dict(self) -> dict[str, str]:
         """``--where`` as ``{key: value}``; a malformed item raises UserError."""
@@ -372,6 +396,11 @@ def scan(
                 outputs.append((f"compare-{path.parent.name}", path))
             elif path.name.startswith("complexity_"):
                 outputs.append((f"complexity-{path.parent.name}", path))
+            else:  # never left out silently: a run cut before it described itself, most often
+                why = "holds no description of its run (no 'run' properties)"
+                if rec.notice is not None:
+                    why += " (it has no footer: the capture was cut short)"
+                left.append((str(path), why))
         if (folder / "parts").is_dir():
             batch_folders.append(folder)
         batch_folders += [

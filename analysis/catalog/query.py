@@ -89,6 +89,9 @@ class _Selection:
     props: dict[str, dict[str, dict[str, Any]]]
     variant_names: dict[str, dict[str, str]]
     url: str  # the server read from
+    # the files found but not served, with the reason: [(file, one-line reason)]; none known
+    # for a catalog read by its URL (its server chose what it serves)
+    left_out: list[tuple[str, str]] = dataclasses.field(default_factory=list)
 
 
 def _property_key(entity: str) -> str:
@@ -210,7 +213,7 @@ def _select(
             ["+ /**", *[f"- {e}" for e in hidden]]
         )
         props = {s.recording_id: Recording(s.path).properties() for s in cat.found.segments}
-        yield _Selection(view, props, names, cat.url)
+        yield _Selection(view, props, names, cat.url, list(cat.found.unregistered))
 
 
 def query(
@@ -224,7 +227,10 @@ def query(
     one row per camera and frame, a column per measure) of the segments whose summary
     properties match ``where``, read in one ``reader()`` call over the catalog, with the
     variants of the given ``layers`` (default: all) as models of their own: the tables
-    ``tables`` writes for the same recordings (and ``batch`` for the variants).
+    ``tables`` writes for the same recordings (and ``batch`` for the variants); and
+    ``left_out``: each file found in the folders but not served (``source``, ``reason``: a
+    recording cut short, another application's, the same recording twice, ...), also said
+    through ``notice``.
 
     ``folders`` are folders of recordings (a catalog is started for the query and stopped
     after it), or one catalog URL, ``"rerun+http://HOST:PORT"``: a catalog already serving
@@ -274,6 +280,9 @@ def query(
         tables["measures"] = pl.concat(measures, how="diagonal_relaxed").sort(
             "recording_id", "camera", "frame"
         )
+    tables["left_out"] = pl.DataFrame(
+        sel.left_out, schema={"source": pl.String, "reason": pl.String}, orient="row"
+    )
     return tables
 
 

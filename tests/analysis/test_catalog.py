@@ -4,6 +4,7 @@ files refused in one line, and a server that ends with its signal."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -23,9 +24,12 @@ from analysis.catalog.query import query, segment_table
 from analysis.catalog.server import open_catalog
 from analysis.compare import CompareSettings, compare
 from analysis.complexity.command import ComplexitySettings, complexity
+from analysis.recordings.reader import Recording, RecordingError
 from analysis.recordings.recompute import TablesSettings, tables
 from tests.browser import CHROMIUM
 from tests.helpers import assert_one_line_error, make_sim_recording, run_cli, spawn
+from tests.in_process import run_in_process
+from vdc.errors import UserError
 
 
 @pytest.fixture(scope="module")
@@ -231,6 +235,17 @@ def test_bad_catalog_input_is_one_line(tmp_path: Path) -> None:
     assert_one_line_error(proc, "no vdc recording found")
 
 
+@pytest.mark.parametrize("flag, value", [("--port", "99999"), ("--web-port", "70000")])
+def test_a_port_outside_the_tcp_range_is_refused_at_the_door(tmp_path, flag, value) -> None:
+    """A port past 65535 reached the socket's bind() as a traceback; now the parser and the
+    Python settings refuse it in one line."""
+    proc = run_in_process("analysis", "catalog", "serve", str(tmp_path), "--web", flag, value)
+    assert_one_line_error(proc, flag, value, "65535")
+    field = flag.removeprefix("--").replace("-", "_")
+    with pytest.raises(UserError, match=f"CatalogSettings.{field}: a port is 1 to 65535"):
+        CatalogSettings(**{field: int(value)})
+
+
 def test_a_where_that_names_no_property_is_one_line(campaign, tmp_path: Path) -> None:
     proc = run_cli(
         "analysis", "catalog", "query", str(campaign["root"]), "--where", "colour=blue",
@@ -282,6 +297,39 @@ def test_a_cut_copy_never_sinks_the_intact_recording(intact_and_cut, cut_name, t
         "outputs (it has no footer: the capture was cut short)"
     )
     assert "no vdc recording found" in lines[1]
+
+
+def test_a_query_names_each_recording_it_left_out_and_why(intact_and_cut, tmp_path) -> None:
+    """A recording cut after its first properties but before it described its run (no
+    ``run`` properties) was left out of a query without a word; now its result and its
+    output name it."""
+    run, _ = intact_and_cut
+    folder = tmp_path / "runs"
+    folder.mkdir()
+    (folder / "run.rrd").write_bytes(run.read_bytes())
+    other = make_sim_recording(tmp_path / "other.rrd", tf_hz=3.0, seed=5).read_bytes()
+    early = folder / "early.rrd"
+    for percent in range(5, 60, 2):  # the first cut that holds properties, but no run yet
+        early.write_bytes(other[: len(other) * percent // 100])
+        with contextlib.suppress(RecordingError):
+            props = Recording(early).properties()
+            if props and "run" not in props:
+                break
+    else:
+        pytest.fail("no cut of the recording holds properties without its run")
+    notes: list[str] = []
+    q = query([folder], notice=notes.append)
+    why = "holds no description of its run (no 'run' properties) (it has no footer: the "
+    why += "capture was cut short)"
+    assert q["left_out"].rows() == [(str(early), why)]
+    assert notes == [f"not registered: {early}: {why}"]
+    assert q["frames"]["recording_id"].n_unique() == 1  # the intact one, served
+    out = tmp_path / "q"
+    proc = run_cli("analysis", "catalog", "query", str(folder), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert f"not registered: {early}: {why}" in proc.stderr
+    assert pl.read_parquet(out / "left_out.parquet").rows() == [(str(early), why)]
+    assert "left_out" in proc.stdout
 
 
 def test_query_says_it_repaired_a_recording_without_footer(campaign) -> None:

@@ -98,6 +98,10 @@ def tiny_clip(tmp_path_factory) -> Path:
         ("collision_frame,hazard_onset_frame", "29,31", "hazard_onset_frame 31, beyond its 30"),
         ("collision_frame", "-1", "collision_frame must be a frame number >= 0"),
         ("collision_frame,hazard_onset_frame", "29,-4", "hazard_onset_frame must be"),
+        # no integer column holds 23 digits: it was a traceback from the cast to Int64
+        ("collision_frame", "12345678901234567890123", "row 1: collision_frame must be a frame"),
+        ("collision_frame,hazard_onset_frame", "29,1e30", "row 1: hazard_onset_frame must be"),
+        ("collision_frame", "2.5", "row 1: collision_frame must be a frame number >= 0"),
     ],
 )
 def test_a_labelled_frame_outside_its_clip_is_refused(
@@ -153,7 +157,18 @@ def test_boundary_refuses_a_collision_beyond_the_clip_before_any_run(
     assert not out.exists()
 
 
-def footage_boundary(run, clip: Path, tmp_path: Path, collision_frame: int, detector: str,
+def test_boundary_refuses_a_frame_number_no_integer_holds_in_one_line(
+    tiny_clip: Path, tmp_path: Path
+) -> None:
+    res, out = footage_boundary(
+        run_in_process, tiny_clip, tmp_path, "12345678901234567890123",
+        "examples.looming:Looming", "threshold", "0.1",
+    )  # fmt: skip
+    assert_one_line_error(res, "labels.csv", "row 1", "collision_frame", "12345678901234567890123")
+    assert not out.exists()
+
+
+def footage_boundary(run, clip: Path, tmp_path: Path, collision_frame: int | str, detector: str,
                      param: str, values: str, **kw):  # fmt: skip
     """``vdc-analyse boundary`` in footage mode on one labelled clip: (result, out folder)."""
     table = tmp_path / "labels.csv"
