@@ -50,7 +50,8 @@ from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher, RateLookahead
 from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
-from vdc.sources import Reader, open_reader, source_kind, source_name
+from vdc.source_names import source_kind, source_name
+from vdc.sources import Reader, open_reader
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,7 +100,7 @@ class VideoSettings(Settings):
 
     @property
     def kind(self) -> str:
-        """``file``, ``camera`` or ``images`` (``vdc.sources.source_kind``)."""
+        """``file``, ``camera`` or ``images`` (``vdc.source_names.source_kind``)."""
         return source_kind(self.source)
 
     def working_size(self, src_h: int, src_w: int) -> tuple[int, int]:
@@ -306,7 +307,7 @@ class VideoRecordResult(WroteFiles):
 
 def recording_id(settings: VideoSettings, out: str | Path | None = None) -> str:
     """``video-<name>-<8 hex>``: the name is ``out``'s file name when given, else the source's
-    (``vdc.sources.source_name``); the hex covers the source (path, size, modification time)
+    (``vdc.source_names.source_name``); the hex covers the source (path, size, modification time)
     and every setting, so a changed file or setting never reuses an old id."""
     src = settings.source
     p = Path(src)

@@ -23,7 +23,7 @@ import heapq
 import os
 import re
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +33,7 @@ import numpy as np
 from vdc.errors import UserError
 from vdc.frame_metrics import luma_plane, require_frame_size, stream_format
 from vdc.matroska_index import declared_start_s
+from vdc.source_names import source_kind
 from vdc.stream_counts import frames_missing_in
 
 # images and camera frames: 8-bit grey, full range
@@ -564,56 +565,6 @@ def display_grey(frame: Any, native: np.ndarray) -> np.ndarray:
     if name in _PLANAR_8BIT and int(getattr(frame, "color_range", 0) or 0) != 2:
         return cv2.LUT(np.ascontiguousarray(native), _LIMITED_TO_FULL)
     return frame.to_ndarray(format="gray")
-
-
-def source_kind(source: str) -> str:
-    """``file`` (an existing file wins, even one named ``2024`` or ``clip 100%.mkv``),
-    ``camera`` (an index such as ``0``) or ``images`` (a pattern with ``%``)."""
-    if Path(source).is_file():
-        return "file"
-    if source.isdigit():
-        return "camera"
-    return "images" if "%" in source else "file"
-
-
-def source_name(source: str) -> str:
-    """A readable name for a source: its file's stem, a camera's ``camera<N>``, or for an
-    image sequence its folder and the prefix before the number (``take1/img_%05d.png`` →
-    ``take1-img``); only letters, digits and ``._-``."""
-    p = Path(source)
-    if source_kind(source) == "camera":
-        stem = f"camera{source}"
-    elif "%" in p.name and not p.is_file():
-        prefix = re.sub(r"[-_.]+$", "", p.name.split("%")[0])
-        stem = "-".join(x for x in (p.parent.name, prefix) if x) or "images"
-    else:
-        stem = p.stem
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", stem)[:60] or "clip"
-
-
-def unique_source_names(sources: Sequence[str]) -> list[str]:
-    """Each source's name (:func:`source_name`: its file's stem), unique within the
-    run, so that no two sources share a recording id, a part, a figure or an ``.rrd``: where
-    two share one, the parent folder's name is put before it (``day1-take``), then, where
-    they still do (``take.mp4`` and ``take.mkv`` in one folder), the file's suffix after it
-    (``day1-take-mkv``), and last a number."""
-    names = [source_name(s) for s in sources]
-
-    def clashes() -> set[str]:
-        return {n for n in names if names.count(n) > 1}
-
-    for widen in (
-        lambda src, n: f"{source_name(str(Path(src).parent))}-{n}",
-        lambda src, n: f"{n}-{Path(src).suffix.lstrip('.').lower() or 'x'}",
-    ):
-        dup = clashes()
-        names = [widen(src, n) if n in dup else n for src, n in zip(sources, names, strict=True)]
-    seen: dict[str, int] = {}
-    for i, n in enumerate(list(names)):
-        if n in clashes() or n in seen:
-            seen[n] = seen.get(n, 0) + 1
-            names[i] = f"{n}-{seen[n]}"
-    return names
 
 
 def open_reader(source: str, fps: float | None = None) -> Reader:

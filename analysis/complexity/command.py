@@ -83,7 +83,8 @@ from vdc.frame_metrics import (
 from vdc.parquet_io import WroteFiles, read_metadata, table_set, write_parquet
 from vdc.recording import FOOTAGE_MODEL, NATIVE_METRICS, camera_model_context, working_size
 from vdc.resize import area_resize
-from vdc.sources import VIDEO_SUFFIXES, unique_source_names
+from vdc.source_names import unique_source_names
+from vdc.sources import VIDEO_SUFFIXES
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,7 +20,8 @@ from analysis.complexity.command import ComplexitySettings, complexity
 from tests.helpers import assert_one_line_error, ffmpeg_siti, write_pan
 from tests.in_process import run_in_process
 from vdc.frame_metrics import NativeMeter, luma_plane, stream_format
-from vdc.sources import display_grey, open_reader, source_name
+from vdc.source_names import source_name
+from vdc.sources import display_grey, open_reader
 
 FOV = 70.0
 
