@@ -18,7 +18,6 @@ writes identical rows. Frames are streamed chunk by chunk through all requested 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -39,10 +38,11 @@ from avdm.base import Model, primary_output_name
 from avdm.registry import canonical_name, check_detector, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
-from vdc.cli_support import API_ONLY, Settings, non_negative_int, option, positive_float
+from vdc.cli_support import API_ONLY, Settings, option
 from vdc.errors import UserError
 from vdc.folders import expand_recordings, path_list
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
+from vdc.settings import AT_LEAST_0, POSITIVE, RANGE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,28 +53,30 @@ class SummarySettings(Settings):
         100.0,
         "response threshold, deg/s (default: {default}, the paper's)",
         "--threshold",
-        type=positive_float,
+        range=POSITIVE,
     )
     near_wall_m: float = option(  # PROPOSED: the paper does not define "near the wall"
-        0.15, "'near the wall' = robot centre within this of a wall, m", type=positive_float
+        0.15, "'near the wall' = robot centre within this of a wall, m", range=POSITIVE
     )
     centre_m: float = option(
-        0.25, "'centre' = farther than this from every wall, m", type=positive_float
+        0.25, "'centre' = farther than this from every wall, m", range=POSITIVE
     )
     # the models' first 2·Tw frames are left out of statistics
-    warmup_frames: int = dataclasses.field(default=20, metadata=API_ONLY)
+    warmup_frames: int = dataclasses.field(
+        default=20, metadata={**API_ONLY, RANGE: AT_LEAST_0}
+    )
     # the robot's own turns (analysis/recordings/ego_motion.py): flagged in the frames table, and left
     # out of the summaries with exclude_turns
     turn_threshold_dps: float = option(
         TURN_THRESHOLD_DPS,
         "the robot turns when its own yaw rate exceeds this, deg/s",
-        type=positive_float,
+        range=POSITIVE,
     )
     turn_hold_frames: int = option(
         TURN_HOLD_FRAMES,
         "frames after a turn still counted as turning: the AVDM remembers a turn for its "
         "10-frame window",
-        type=non_negative_int,
+        range=AT_LEAST_0,
     )
     exclude_turns: bool = option(
         False,
@@ -82,15 +84,6 @@ class SummarySettings(Settings):
         "within --turn-hold-frames), so its own rotation is not counted as the scene's "
         "complexity",
     )
-
-    def __post_init__(self) -> None:
-        for name in ("threshold_dps", "near_wall_m", "centre_m", "turn_threshold_dps"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise UserError(f"{name}={v!r} must be a number >= 0")
-        for name in ("warmup_frames", "turn_hold_frames"):
-            if getattr(self, name) < 0:
-                raise UserError(f"{name}={getattr(self, name)} must be >= 0")
 
     @property
     def motion(self) -> str:
