@@ -35,7 +35,13 @@ def _recording_options(args: argparse.Namespace) -> CaptureOptions:
 
 
 def _report_write_error(rec: RecordResult) -> None:
-    """One line when the file could not take more: what, where, and what it keeps."""
+    """One line when the file could not take more, or the model plug-in raised: what, where,
+    and what it keeps."""
+    if rec.plugin_error:
+        say(
+            f"{PROG}: error: {rec.plugin_error}; stopped: {rec.path} is a readable recording "
+            f"of the {rec.frames} frames read, the model's outputs up to the batch before it"
+        )
     if rec.write_error:
         say(
             f"{PROG}: error: {rec.write_error}; stopped at once: {rec.path} is a readable "
@@ -111,7 +117,7 @@ def cmd_video(args: argparse.Namespace) -> int:
     res = record_video(s, args.out, _recording_options(args))
     rec = res.record
     _report_write_error(rec)
-    if rec.write_error:
+    if rec.write_error or rec.plugin_error:
         return rec.exit_status
     if res.lost:
         say(

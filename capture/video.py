@@ -414,6 +414,8 @@ def record_video(
         result = run_capture(device, model, recorder, total_frames=total, progress=options.progress)
     finally:
         finish_output(claim, recorder)
+    if result.plugin_error is not None:  # the one line names the clip too
+        result.plugin_error.on(settings.source)
     error = getattr(device.reader, "error", None)
     finished = result.stop_reason == "finished"  # a signal or a full disk is not a cut file
     ends = device.end_fields(finished)

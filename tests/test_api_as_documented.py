@@ -89,3 +89,28 @@ def test_every_commands_settings_class_checks_its_types() -> None:
                 continue
             module, cls = cmd.settings.split(":")
             assert issubclass(getattr(importlib.import_module(module), cls), Settings), name
+
+
+def test_dataset_with_out_none_writes_nothing_and_returns_the_tables(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The README: ``out=None`` writes nothing, for every command function (dataset was a
+    TypeError from ``Path(None)``)."""
+    from analysis.dataset.synthetic import write_dataset
+
+    root = tmp_path / "ds"
+    write_dataset(root, episodes=2, codec="libx264", seconds=(1.0, 1.0), shape=(48, 64))
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    before = _files(root)
+    settings = vdc.DatasetSettings(jobs=1, recordings=False, page=False)
+    res = vdc.dataset(root, settings, out=None)
+    assert res.paths == [] and not list(work.iterdir())  # not even results/dataset
+    assert _files(root) == before
+    assert res.episodes.height == 2 and set(res.episodes["episode_index"]) == {0, 1}
+
+
+def test_complexity_of_nothing_says_so_in_one_line() -> None:
+    with pytest.raises(vdc.errors.UserError, match="no sources"):
+        vdc.complexity([], out=None)  # was an IndexError

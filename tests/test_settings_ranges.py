@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import math
 import typing
 from collections.abc import Iterator
@@ -51,7 +52,7 @@ def _outside(rng: Range, integer: bool) -> list[float]:
         bad.append(rng.lo if rng.lo_open else rng.lo - step)
     if rng.hi is not None:
         bad.append(rng.hi if rng.hi_open else rng.hi + step)
-    return [int(b) if integer and math.isfinite(b) else b for b in bad]
+    return [int(b) if integer and math.isfinite(b) else float(b) for b in bad]
 
 
 def _inside(rng: Range, integer: bool) -> float:
@@ -82,7 +83,7 @@ CASES = [
     pytest.param(cls, f, id=f"{cls.__name__}.{f.name}")
     for cls in _settings_classes()
     for f in dataclasses.fields(cls)
-    if f.name in cls.__dict__.get("__annotations__", {}) and field_range(f) is not None
+    if f.name in inspect.get_annotations(cls) and field_range(f) is not None
 ]
 
 
@@ -117,7 +118,7 @@ def test_a_value_outside_the_declared_range_is_refused_when_built_and_by_its_fla
         with pytest.raises(SettingsRangeError) as err:
             cls(**{**base, field.name: value})
         message = str(err.value)
-        assert f"{cls.__name__}.{field.name}" in message and rng.describe() in message, message
+        assert f"{cls.__name__}.{field.name}" in message and rng.wanted(integer) in message, message
         assert "\n" not in message
         flag = field.metadata.get("flag")
         if flag is not None and not flag.positional:  # the command line: the same range

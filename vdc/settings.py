@@ -65,6 +65,11 @@ class Range:
         kind = "an integer" if integer else "a number"
         if self.lo is None and self.hi is None:
             return "an integer" if integer else "a finite number"
+        if self.lo == 0 and self.hi is None:
+            if self.lo_open:
+                return f"a positive {kind.split()[-1]}"
+            if integer:
+                return "a non-negative integer"
         return f"{kind} {self.describe()}"
 
 

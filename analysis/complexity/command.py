@@ -242,8 +242,10 @@ def expand_sources(
     a folder gives the recordings and videos in it and below, sorted, less what vdc wrote
     itself, unfinished captures and dangling links (``vdc.folders.scan_folder``), which
     ``notice`` hears about in one line per folder. A folder without any source, a missing
-    file or a pattern that matches nothing raises ValueError."""
+    file or a pattern that matches nothing raises ValueError, as does an empty list."""
     sources: list[str] = []
+    if not path_list(items):
+        raise UserError("complexity was given no sources: name a recording, video or folder")
     for item in path_list(items):
         p = Path(item)
         if p.is_dir():

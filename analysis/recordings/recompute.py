@@ -35,11 +35,13 @@ from analysis.recordings.loading import (
 )
 from analysis.recordings.reader import RecordingError
 from avdm.base import Model, primary_output_name
+from avdm.errors import PluginError
 from avdm.registry import canonical_name, check_detector, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
 from vdc.cli_support import API_ONLY, Settings, option
 from vdc.errors import UserError
+from vdc.executors import TasksFailed
 from vdc.folders import expand_recordings, path_list
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
 from vdc.settings import AT_LEAST_0, POSITIVE, RANGE
@@ -62,9 +64,7 @@ class SummarySettings(Settings):
         0.25, "'centre' = farther than this from every wall, m", range=POSITIVE
     )
     # the models' first 2·Tw frames are left out of statistics
-    warmup_frames: int = dataclasses.field(
-        default=20, metadata={**API_ONLY, RANGE: AT_LEAST_0}
-    )
+    warmup_frames: int = dataclasses.field(default=20, metadata={**API_ONLY, RANGE: AT_LEAST_0})
     # the robot's own turns (analysis/recordings/ego_motion.py): flagged in the frames table, and left
     # out of the summaries with exclude_turns
     turn_threshold_dps: float = option(
@@ -144,10 +144,13 @@ def recompute(
             t_c = sel["t_s"].to_numpy()
             rep = sel["repeat"].fill_null(False).to_numpy()
         for m in runners:
-            if isinstance(m, TrueTimeModel):
-                outs[m.name].append(m.run(chunk.images, t_c, rep))
-            else:
-                outs[m.name].append(m.run(chunk.images))
+            try:
+                if isinstance(m, TrueTimeModel):
+                    outs[m.name].append(m.run(chunk.images, t_c, rep))
+                else:
+                    outs[m.name].append(m.run(chunk.images))
+            except PluginError as exc:  # the user's model: the line names the frame
+                raise exc.at(chunk.frame).on(str(loaded.rec.path)) from None
         if progress is not None:
             progress(len(chunk.frame))
     frame = np.concatenate(frames)
@@ -408,10 +411,13 @@ def build_tables(
     settings: SummarySettings = SummarySettings(),
     progress: Callable[[int], None] | None = None,
     notices: Callable[[str], None] | None = None,
+    plugin_failures: list[PluginError] | None = None,
 ) -> tuple[dict[str, pl.DataFrame], dict[str, Any]]:
     """All four tables for ``paths``; ``specs`` None = the online model's logged outputs.
 
-    Returns the tables and the metadata to store with them."""
+    Returns the tables and the metadata to store with them. A model plug-in that raises on a
+    recording raises, or, given a ``plugin_failures`` list, goes into it and leaves that
+    recording out (the others are tabulated)."""
     frames, outputs, events, summary = [], [], [], []
     params: dict[str, dict[str, dict[str, Any]]] = {}
     arenas: dict[str, tuple[float, float]] = {}
@@ -426,12 +432,21 @@ def build_tables(
             continue
         distinct.add(loaded.recording_id, path)
         if specs and not checked:  # each model stepped once on this raster before any run
-            check_models(loaded, specs)
+            try:
+                check_models(loaded, specs)
+            except PluginError as exc:
+                raise exc.on(str(path)) from None
             checked = True
         if loaded.rec.notice and notices is not None:
             notices(loaded.rec.notice)
         if specs:
-            outs = recompute(loaded, specs, progress)
+            try:
+                outs = recompute(loaded, specs, progress)
+            except PluginError as exc:
+                if plugin_failures is None:
+                    raise
+                plugin_failures.append(exc)
+                continue
             params[loaded.recording_id] = model_params(loaded, specs)
         else:
             if not loaded.logged:
@@ -449,6 +464,8 @@ def build_tables(
         events.append(events_table(loaded))
         summary.append(summary_table(loaded, mo, settings))
     if not frames:  # nothing to tabulate: the first file's own reason
+        if plugin_failures:
+            raise plugin_failures[0]
         raise left[0][1] if left else RecordingError("no recordings given")
     for path, exc in left:
         if notices is not None:
@@ -531,6 +548,14 @@ def tables(
 
     notes = Notices(notice)
     recordings = expand_recordings(recordings, notes)
-    built, meta = build_tables(recordings, settings.models or None, settings, progress, notes)
+    failed: list[PluginError] = []
+    built, meta = build_tables(
+        recordings, settings.models or None, settings, progress, notes, failed
+    )
     paths = publish_tables(built, Path(out), meta) if out is not None else []
+    if failed:  # the others' tables are kept (written when out is given); the run failed
+        more = f" (and {len(failed) - 1} more recording(s))" if len(failed) > 1 else ""
+        kept = f"; the tables of the other {len(meta['recordings'])} recording(s) were "
+        kept += f"written to {out}" if out is not None else "built"
+        raise TasksFailed(f"{failed[0]}{more}{kept}")
     return TablesResult(built, meta, paths, list(notes))

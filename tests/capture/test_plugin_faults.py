@@ -1,0 +1,86 @@
+"""A user's plug-in that raises mid-run ends its clip with one line naming the plug-in, the clip
+and the frame (no traceback), exit status 1; in a run over several recordings the others keep
+their tables. Run from the command line, as a user runs it, on a plug-in file in the folder the
+command runs from."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+from analysis.recordings.reader import Recording
+from tests.helpers import make_sim_recording, run_cli, write_video
+
+# raises at the 6th frame (index 5) it is given, from its 3rd build on: in `tables` the 1st
+# build is the check before any run (one step), the 2nd the first recording's, the 3rd the
+# second recording's, so only the second recording fails
+RAISER = """
+BUILT = []
+
+
+class Raiser:
+    outputs = (("mean_level", "1"),)
+
+    def __init__(self, after: int = 5, from_build: int = 1) -> None:
+        BUILT.append(self)
+        self.after, self.n = after, 0
+        self.armed = len(BUILT) >= from_build
+
+    def step(self, frame):
+        if self.armed and self.n == self.after:
+            raise RuntimeError("my detector broke\\nsecond line of its message")
+        self.n += 1
+        return {"mean_level": float(frame.mean())}
+"""
+
+
+@pytest.fixture()
+def plugin_folder(tmp_path: Path) -> Path:
+    (tmp_path / "raiser.py").write_text(RAISER)
+    return tmp_path
+
+
+def _one_error_line(stderr: str) -> str:
+    assert "Traceback" not in stderr, stderr
+    errors = [ln for ln in stderr.splitlines() if "error:" in ln]
+    assert len(errors) == 1, stderr
+    return errors[0]
+
+
+def test_video_capture_ends_its_clip_in_one_line_naming_plugin_clip_and_frame(
+    plugin_folder: Path,
+) -> None:
+    # distinct frames (no repeats): the model's 6th frame is the clip's frame 5
+    frames = (np.random.default_rng(0).random((30, 48, 64)) * 255).astype(np.uint8)
+    write_video(plugin_folder / "clip.mp4", frames, 25.0)
+    proc = run_cli("capture", "video", "clip.mp4", "--fov-deg", "60", "--model", "raiser:Raiser",
+                   "--out", "clip.rrd", "--quiet", cwd=plugin_folder)  # fmt: skip
+    assert proc.returncode == 1, (proc.stdout, proc.stderr)
+    line = _one_error_line(proc.stderr)
+    for needle in ("'raiser:Raiser'", "clip.mp4", "at frame 5", "RuntimeError: my detector broke"):
+        assert needle in line, (needle, line)
+    assert "second line" not in proc.stderr
+    # the recording is published, readable, with the frames read and the run's end said
+    assert not (plugin_folder / "clip.partial.rrd").exists()
+    props = Recording(plugin_folder / "clip.rrd").properties()
+    assert props["run_end"]["stop_reason"] == "plug-in error", props["run_end"]
+
+
+def test_tables_keeps_the_other_recordings_and_names_the_failed_one(
+    plugin_folder: Path,
+) -> None:
+    a = make_sim_recording(plugin_folder / "a.rrd", seed=1)
+    b = make_sim_recording(plugin_folder / "b.rrd", seed=2)
+    out = plugin_folder / "tables"
+    proc = run_cli("analysis.cli", "tables", str(a), str(b), "--model",
+                   "raiser:Raiser:from_build=3", "--out", str(out), cwd=plugin_folder)  # fmt: skip
+    assert proc.returncode == 1, (proc.stdout, proc.stderr)
+    line = _one_error_line(proc.stderr)
+    for needle in ("'raiser:Raiser'", "b.rrd", "at frame 5", "my detector broke"):
+        assert needle in line, (needle, line)
+    kept = pl.read_parquet(out / "model_outputs.parquet")
+    assert kept["recording_id"].n_unique() == 1  # a's tables, written; b's left out
+    assert kept.height > 0 and kept["mean_level"].is_not_null().all()
