@@ -35,17 +35,11 @@ def _recording_options(args: argparse.Namespace) -> CaptureOptions:
 
 
 def _report_write_error(rec: RecordResult) -> None:
-    """One line when the file could not take more, or the model plug-in raised: what, where,
-    and what it keeps."""
-    if rec.plugin_error:
+    """One line when the file could not take more, or the plug-in raised (its frames kept)."""
+    if rec.write_error or rec.plugin_error:
         say(
-            f"{PROG}: error: {rec.plugin_error}; stopped: {rec.path} is a readable recording "
-            f"of the {rec.frames} frames read, the model's outputs up to the batch before it"
-        )
-    if rec.write_error:
-        say(
-            f"{PROG}: error: {rec.write_error}; stopped at once: {rec.path} is a readable "
-            f"recording of the first {rec.frames} frames"
+            f"{PROG}: error: {rec.plugin_error or rec.write_error}; stopped at once: {rec.path} "
+            f"is a readable recording of the first {rec.frames} frames"
         )
 
 
