@@ -23,6 +23,7 @@ from typing import Any, NoReturn
 from tqdm import tqdm
 
 from vdc.errors import UserError
+from vdc.interrupt import ctrl_c_ends_the_run
 from vdc.settings import (
     AT_LEAST_0,
     FINITE,
@@ -566,7 +567,8 @@ def run_command_line(
     where = f"{prog} {args.command}"
     try:
         # a model built for a new camera fits its calibration first: say so, not a silent minute
-        with fit_progress(CalibrationNotes(quiet=bool(getattr(args, "quiet", False)))):
+        notes = CalibrationNotes(quiet=bool(getattr(args, "quiet", False)))
+        with ctrl_c_ends_the_run(f"{prog}: interrupted"), fit_progress(notes):
             return int(args.func(args) or 0)
     except ValueError as exc:
         if not raised_on_purpose(exc):

@@ -1,18 +1,26 @@
 """A user's plug-in that raises mid-run ends its clip with one line naming the plug-in, the clip
 and the frame (no traceback), exit status 1; in a run over several recordings the others keep
-their tables. Run from the command line, as a user runs it, on a plug-in file in the folder the
-command runs from."""
+their tables. A plug-in that blocks forever in its pool workers: Ctrl-C, sent to the whole
+process group as a terminal sends it, ends the run, leaving no process behind (it was ignored:
+the parent's main thread, waiting on the workers, never ran its handler). Run from the command
+line, as a user runs it, on a plug-in file in the folder the command runs from."""
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import polars as pl
+import pyarrow.parquet as pq
 import pytest
 
 from analysis.recordings.reader import Recording
-from tests.helpers import make_sim_recording, run_cli, write_video
+from tests.footage_clips import write_collection
+from tests.helpers import make_sim_recording, run_cli, spawn, wait_until, write_video
 
 # raises at the 6th frame (index 5) it is given, from its 3rd build on: in `tables` the 1st
 # build is the check before any run (one step), the 2nd the first recording's, the 3rd the
@@ -84,3 +92,71 @@ def test_tables_keeps_the_other_recordings_and_names_the_failed_one(
     kept = pl.read_parquet(out / "model_outputs.parquet")
     assert kept["recording_id"].n_unique() == 1  # a's tables, written; b's left out
     assert kept.height > 0 and kept["mean_level"].is_not_null().all()
+
+
+# steps once (the detector's check before any run, in the parent), then blocks forever in the
+# pool workers, saying so in a file of its own first
+SLEEPER = """
+import os
+import time
+
+
+class Sleeper:
+    outputs = (("alert", "1"),)
+
+    def __init__(self, gain: float = 1.0, **camera) -> None:
+        self.gain, self.n = gain, 0
+
+    def step(self, frame):
+        self.n += 1
+        if self.n > 1:
+            open(f"blocked-{os.getpid()}", "w").close()
+            while True:
+                time.sleep(3600)
+        return {"alert": 0.0}
+"""
+
+
+def _group(pgid: int) -> list[int]:
+    """The live processes of process group ``pgid`` (zombies are not running: left out)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+        except OSError:
+            continue
+        fields = stat.rsplit(")", 1)[1].split()  # after "pid (comm)": state, ppid, pgrp, ...
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            found.append(int(entry))
+    return found
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_ctrl_c_ends_a_footage_boundary_whose_plugin_blocks(tmp_path: Path) -> None:
+    (tmp_path / "sleeper.py").write_text(SLEEPER)
+    labels = write_collection(tmp_path / "clips", drifts=(0.0,), seeds=(1,))
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = spawn([sys.executable, "-m", "analysis", "boundary", "--detector", "sleeper:Sleeper",
+                  "--param", "gain", "--values", "1", "--labels", str(labels), "--fov-deg", "60",
+                  "--jobs", "2", "--out", str(out)],
+                 cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                 text=True)  # fmt: skip
+    # the workers block in the plug-in: a hang guard, not a timing
+    blocked = wait_until(lambda: list(tmp_path.glob("blocked-*")) or proc.poll() is not None, 240)
+    assert blocked and proc.poll() is None, "the plug-in never blocked"
+    assert len(_group(proc.pid)) > 1  # the command and its workers (and the fork server)
+    for _ in range(3):  # Ctrl-C, repeated, to the whole group, as a terminal sends it
+        os.killpg(proc.pid, signal.SIGINT)
+    try:
+        proc.wait(timeout=60)  # a hang guard: it ends within seconds
+    except subprocess.TimeoutExpired:
+        pytest.fail("Ctrl-C did not end the run")
+    stderr = proc.stderr.read()
+    assert proc.returncode in (130, -signal.SIGINT), (proc.returncode, stderr)
+    assert "interrupted" in stderr and "Traceback" not in stderr, stderr
+    assert wait_until(lambda: not _group(proc.pid), 60), _group(proc.pid)  # no process left
+    for table in out.rglob("*.parquet"):  # what was written is whole
+        pq.read_metadata(table)
