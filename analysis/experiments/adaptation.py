@@ -54,6 +54,7 @@ from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback, one_pool
 from vdc.parquet_io import WroteFiles, table_set, write_tables
+from vdc.scratch import no_files_without_out
 from vdc.settings import AT_LEAST_0, AT_LEAST_1, POSITIVE, between
 
 CONTROLLERS = ("fixed", "hand", "adaptive", "policy")
@@ -220,9 +221,10 @@ class AdaptationResult(WroteFiles):
         return [self.markdown, f"verdict: {self.verdict}", f"wrote {wrote}"]
 
 
+@no_files_without_out
 @one_pool()  # its stages share one pool of workers
 def adaptation(
-    s: AdaptationSettings, out: str | Path, feedback: Feedback = QUIET
+    s: AdaptationSettings, out: str | Path | None, feedback: Feedback = QUIET
 ) -> AdaptationResult:
     """Run the held-out conditions with every controller; write ``adaptation.md``,
     ``adaptation.png`` and the Parquet tables into ``out``."""

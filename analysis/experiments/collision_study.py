@@ -28,6 +28,7 @@ from capture.sim import SimSettings
 from vdc.cli_support import option
 from vdc.executors import ExecutorSettings, one_pool
 from vdc.parquet_io import WroteFiles
+from vdc.scratch import no_files_without_out
 from vdc.settings import AT_LEAST_0, AT_LEAST_1, POSITIVE
 
 SEEDS_HELP = (  # --seeds of the campaigns (collision-study, reproduce)
@@ -139,10 +140,11 @@ class CollisionStudyResult(WroteFiles):
     paths: list[Path]
 
 
+@no_files_without_out
 @one_pool()  # its stages share one pool of workers
 def collision_study(
     settings: CollisionStudySettings,
-    out: str | Path,
+    out: str | Path | None,
     *,
     log: Callable[[str], None] | None = None,
     notice: Callable[[str], None] | None = None,
