@@ -26,15 +26,18 @@ class PluginError(ParameterError):
         self.cause = f"{type(cause).__name__}: {detail}" if detail else type(cause).__name__
         self.clip: str | None = None
         self.frame: int | None = None
+        self.span: tuple[int, int] | None = None  # its frames, when the failing one is unknown
         super().__init__(str(self))
 
     def at(self, frames: object) -> PluginError:
         """Name the failing frame from the numbers of the frames given to the failed call."""
-        if self.offset is not None and self.frame is None:
-            try:
+        try:
+            if self.offset is not None and self.frame is None:
                 self.frame = int(frames[self.offset])  # type: ignore[index]
-            except (IndexError, TypeError):
-                pass
+            elif self.offset is None and self.span is None and len(frames):  # type: ignore[arg-type]
+                self.span = (int(frames[0]), int(frames[-1]))  # type: ignore[index]
+        except (IndexError, TypeError, ValueError):
+            pass
         self.args = (str(self),)
         return self
 
@@ -48,4 +51,6 @@ class PluginError(ParameterError):
         where = f" on {self.clip}" if self.clip else ""
         if self.frame is not None:
             where += f" at frame {self.frame}"
+        elif self.span is not None:
+            where += f" in frames {self.span[0]}-{self.span[1]}"
         return f"model plug-in {self.ref!r} failed{where}: {self.cause}"

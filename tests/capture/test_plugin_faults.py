@@ -160,3 +160,41 @@ def test_ctrl_c_ends_a_footage_boundary_whose_plugin_blocks(tmp_path: Path) -> N
     assert wait_until(lambda: not _group(proc.pid), 60), _group(proc.pid)  # no process left
     for table in out.rglob("*.parquet"):  # what was written is whole
         pq.read_metadata(table)
+
+
+RUNNER = """
+class Runner:
+    outputs = (("x", "1"),)
+
+    def step(self, frame):
+        return {"x": 0.0}
+
+    def run(self, frames):
+        raise ValueError("cannot run a batch")
+"""
+
+
+def test_the_failing_frame_is_named_through_true_time_and_a_batch_run(tmp_path: Path) -> None:
+    """The frame named is the clip's: counted through the repeats the true-time model skips;
+    a plug-in whose own ``run`` raises is named with the batch's frames."""
+    from avdm.errors import PluginError
+    from avdm.registry import make_model
+    from avdm.true_time import TrueTimeModel
+
+    (tmp_path / "raiser_mod.py").write_text(RAISER)
+    (tmp_path / "runner_mod.py").write_text(RUNNER)
+    sys.path.insert(0, str(tmp_path))
+    try:
+        frames = np.zeros((10, 8, 8), np.uint8)
+        model = TrueTimeModel(make_model("raiser_mod:Raiser:after=2", fps=25.0))
+        repeat = np.array([0, 1, 1, 0, 1, 0, 0, 0, 0, 0], bool)  # new: 0, 3, 5, 6, ...
+        with pytest.raises(PluginError) as err:
+            model.run(frames, np.arange(10) / 25.0, repeat)
+        numbers = np.arange(100, 110)  # the clip's frame numbers of this batch
+        assert "at frame 105" in str(err.value.at(numbers).on("c.mp4"))  # its 3rd new frame
+        with pytest.raises(PluginError) as err:
+            make_model("runner_mod:Runner").run(frames)
+        line = str(err.value.at(numbers))
+        assert "in frames 100-109" in line and "ValueError: cannot run a batch" in line
+    finally:
+        sys.path.remove(str(tmp_path))
