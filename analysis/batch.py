@@ -49,6 +49,7 @@ from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
 from vdc.folders import expand_recordings, remove_output
 from vdc.parquet_io import WroteFiles, read_metadata, table_set, write_parquet
+from vdc.scratch import no_files_without_out
 
 PARTS = "parts"
 
@@ -207,10 +208,11 @@ def plan_tasks(
     return tasks, bad
 
 
+@no_files_without_out
 def batch(
     recordings: str | Path | Sequence[str | Path],
     settings: BatchSettings,
-    out: str | Path,
+    out: str | Path | None,
     *,
     progress: Callable[[int], None] | None = None,
     log: Callable[[str], None] | None = None,
@@ -280,6 +282,8 @@ def summarise_batch(out: str | Path) -> tuple[dict[str, pl.DataFrame], list[Path
     """``vdc-analyse summarise`` (``vdc.summarise``): concatenate the finished parts under
     ``out/parts`` into ``out/{frames,model_outputs,events,summary}.parquet``, as ``tables``
     writes them."""
+    if out is None:  # its input is that folder: None names nothing to summarise
+        raise UserError("summarise reads the folder a batch wrote: give it as out")
     out = Path(out)
     done = sorted((out / PARTS).glob("recording_id=*/model=*/summary.parquet"))
     if not done:

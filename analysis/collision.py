@@ -36,6 +36,7 @@ from vdc.cli_support import Settings, option
 from vdc.errors import UserError
 from vdc.folders import path_list
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
+from vdc.settings import POSITIVE, between
 
 # what the paper reports for its three phases (30 min each) [BRIEF]
 PAPER = {
@@ -51,15 +52,9 @@ class CollisionSettings(Settings):
     """``vdc-analyse collision``: what counts as a false alarm, and the density maps' bins."""
 
     false_alarm_m: float = option(
-        0.30, "avoidance with the wall farther ahead than this = false alarm, m"
+        0.30, "avoidance with the wall farther ahead than this = false alarm, m", range=POSITIVE
     )
-    bin_m: float = option(0.02, "density-map bin, m (0.005-0.2)")
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.false_alarm_m) and self.false_alarm_m > 0):
-            raise UserError(f"--false-alarm-m must be > 0, got {self.false_alarm_m}")
-        if not (math.isfinite(self.bin_m) and 0.005 <= self.bin_m <= 0.2):
-            raise UserError(f"--bin-m must be between 0.005 and 0.2 m, got {self.bin_m}")
+    bin_m: float = option(0.02, "density-map bin, m (0.005-0.2)", range=between(0.005, 0.2))
 
 
 def require_collision_recording(loaded: LoadedRecording) -> None:

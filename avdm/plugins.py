@@ -44,8 +44,8 @@ from typing import Any
 
 import numpy as np
 
-from avdm.base import FRAME_TABLE_COLUMNS, Output, check_frames, run_by_steps
-from avdm.errors import ParameterError
+from avdm.base import FRAME_TABLE_COLUMNS, Output, check_frames
+from avdm.errors import ParameterError, PluginError
 
 ENTRY_POINT_GROUP = "vdc.models"
 _REF_RE = re.compile(r"^(?P<module>[A-Za-z_][\w.]*):(?P<factory>[A-Za-z_][\w.]*)$")
@@ -241,7 +241,10 @@ class PluginModel:
             raise ParameterError(
                 f"a frame must have shape (H, W), got an array of shape {arr.shape}"
             )
-        out = self.inner.step(check_frames(arr[None])[0])
+        try:
+            out = self.inner.step(check_frames(arr[None])[0])
+        except Exception as exc:  # the user's code: one line naming it, no traceback
+            raise PluginError(self._ref, exc, offset=0) from None
         missing = [n for n in self._names if n not in out]
         if missing:
             raise ParameterError(
@@ -252,9 +255,19 @@ class PluginModel:
 
     def run(self, frames: np.ndarray) -> dict[str, np.ndarray]:
         if callable(getattr(self.inner, "run", None)):
-            out = self.inner.run(check_frames(frames))
+            try:
+                out = self.inner.run(check_frames(frames))
+            except Exception as exc:  # somewhere in these frames
+                raise PluginError(self._ref, exc) from None
             return {n: np.asarray(out[n], dtype=np.float64) for n in self._names}
-        return run_by_steps(self.step, frames, self._names)
+        rows = []
+        for i, frame in enumerate(check_frames(frames)):
+            try:
+                rows.append(self.step(frame))
+            except PluginError as exc:
+                exc.offset = i  # the frame's place in this call's frames
+                raise
+        return {n: np.array([r[n] for r in rows], dtype=np.float64) for n in self._names}
 
     def set_param(self, name: str, value: float) -> None:
         """Change a parameter while the model runs (a policy's doing)."""

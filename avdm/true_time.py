@@ -22,6 +22,7 @@ import dataclasses
 import numpy as np
 
 from avdm.base import Model
+from avdm.errors import PluginError
 
 ANGULAR_UNIT = "deg/s"
 
@@ -234,7 +235,12 @@ class TrueTimeModel:
         repeat = np.asarray(repeat, dtype=bool)
         new = np.flatnonzero(~repeat)
         out = {o.name: np.zeros(len(frames), dtype=np.float64) for o in self.outputs}
-        res = self.model.run(frames[new]) if len(new) else {k: np.zeros(0) for k in out}
+        try:
+            res = self.model.run(frames[new]) if len(new) else {k: np.zeros(0) for k in out}
+        except PluginError as exc:  # its place among the new frames -> among these frames
+            if exc.offset is not None:
+                exc.offset = int(new[exc.offset])
+            raise
         if len(new) and self.fps > 0:
             # true time since the previous new frame (the first frame ever: nominal interval)
             prev_t = np.concatenate(([np.nan if self._last_t is None else self._last_t], t_s[new]))

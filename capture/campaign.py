@@ -34,6 +34,7 @@ from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback, TaskOutcome, run_tasks
 from vdc.parquet_io import WroteFiles, write_parquet
+from vdc.scratch import no_files_without_out
 
 RUNS = "runs"
 RECORDINGS = "recordings"
@@ -235,8 +236,9 @@ def collect_runs(out: str | Path, keys: Sequence[str]) -> pl.DataFrame:
     return df.with_columns(pl.col(events).fill_null(0)).sort("run")
 
 
+@no_files_without_out
 def campaign(
-    settings: CampaignSettings, out: str | Path, feedback: Feedback = QUIET
+    settings: CampaignSettings, out: str | Path | None, feedback: Feedback = QUIET
 ) -> CampaignResult:
     """Record every run of the grid that has no row yet (all with ``force``) on the executor,
     then write ``OUT/runs.parquet``. A failed run is listed and does not stop the others."""

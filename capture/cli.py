@@ -35,11 +35,11 @@ def _recording_options(args: argparse.Namespace) -> CaptureOptions:
 
 
 def _report_write_error(rec: RecordResult) -> None:
-    """One line when the file could not take more: what, where, and what it keeps."""
-    if rec.write_error:
+    """One line when the file could not take more, or the plug-in raised (its frames kept)."""
+    if rec.write_error or rec.plugin_error:
         say(
-            f"{PROG}: error: {rec.write_error}; stopped at once: {rec.path} is a readable "
-            f"recording of the first {rec.frames} frames"
+            f"{PROG}: error: {rec.plugin_error or rec.write_error}; stopped at once: {rec.path} "
+            f"is a readable recording of the first {rec.frames} frames"
         )
 
 
@@ -111,7 +111,7 @@ def cmd_video(args: argparse.Namespace) -> int:
     res = record_video(s, args.out, _recording_options(args))
     rec = res.record
     _report_write_error(rec)
-    if rec.write_error:
+    if rec.write_error or rec.plugin_error:
         return rec.exit_status
     if res.lost:
         say(

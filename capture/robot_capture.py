@@ -56,10 +56,11 @@ from capture.tracker import (
 )
 from capture.wall_controller import WallController as WallController  # re-exported
 from vdc.blueprints import default_blueprint
-from vdc.cli_support import Settings, non_negative_float, option, positive_float
+from vdc.cli_support import Settings, option
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles
 from vdc.recording import LINK_STATS, camera_model_context
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, POSITIVE
 
 LINK_COUNTERS = (
     "packets",
@@ -447,8 +448,8 @@ class RobotSettings(Settings):
     calibration: str | None = option(
         None, "saved tracker homography (default: calibrate on the first overhead frame)"
     )
-    camera_fps: float = option(10.0, "pace of a video file or image sequence", type=positive_float)
-    tf_hz: float = option(0.0, "wall TF, Hz", type=non_negative_float, exclusive="tf")
+    camera_fps: float = option(10.0, "pace of a video file or image sequence", range=POSITIVE)
+    tf_hz: float = option(0.0, "wall TF, Hz", range=AT_LEAST_0, exclusive="tf")
     tf_schedule: str | None = option(
         None,
         "e.g. 0:30m,3:30m, or a file with one TF:DURATION per line",
@@ -458,10 +459,10 @@ class RobotSettings(Settings):
     save_calibration: str | None = option(
         None, "save the tracker's homography (calibrated on the first frame)", metavar="FILE"
     )
-    period_m: float = option(0.1, "wall period, m", type=positive_float)
+    period_m: float = option(0.1, "wall period, m", range=POSITIVE)
     scene: str = option("grating", "what the walls show", choices=SCENES)
     wall_port: str | None = option(None, "LED wall controller's serial port (line protocol)")
-    baud: int = option(3_000_000, "serial rate")
+    baud: int = option(3_000_000, "serial rate", range=AT_LEAST_1)
     model: str = option(
         "avdm",
         "the model the robot is to run: sent to it (PARAMS) with START; a robot that announces "

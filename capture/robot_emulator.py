@@ -40,8 +40,9 @@ from capture.serial_protocol import (
     encode_frame,
 )
 from capture.sim_robot import SimulatedRobot
-from vdc.cli_support import Settings, non_negative_float, non_negative_int, option, positive_float
+from vdc.cli_support import Settings, option
 from vdc.errors import UserError
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, FRACTION, POSITIVE, between
 
 
 @dataclasses.dataclass(frozen=True)
@@ -364,9 +365,9 @@ class EmulateSettings(Settings):
     """``vdc-capture emulate-robot`` as a settings object (one field per flag, same names)."""
 
     link: str = option("/tmp/vdc-robot", "stable path (symlink) to the emulated port")
-    tf_hz: float = option(0.0, "wall TF, Hz", type=non_negative_float)
-    minutes: float = option(1.0, "run length", type=positive_float)
-    seed: int = option(0, "random seed", type=non_negative_int)
+    tf_hz: float = option(0.0, "wall TF, Hz", range=AT_LEAST_0)
+    minutes: float = option(1.0, "run length", range=POSITIVE)
+    seed: int = option(0, "random seed", range=AT_LEAST_0)
     model: str | None = option(
         None,
         "run this model on board whatever the host asks for (any model, a plug-in too); "
@@ -376,26 +377,34 @@ class EmulateSettings(Settings):
         False,
         "play older firmware: ignore PARAMS, run --model (default avdm) and never announce",
     )
-    fps: float = option(33.0, "the robot camera's frame rate, Hz", type=positive_float)
-    width_px: int = option(99, "the robot camera's width, px (at most 255)")
-    height_px: int = option(72, "the robot camera's height, px (at most 255)")
-    hfov_deg: float = option(70.0, "the robot camera's horizontal field of view, deg")
+    fps: float = option(33.0, "the robot camera's frame rate, Hz", range=POSITIVE)
+    width_px: int = option(99, "the robot camera's width, px (at most 255)", range=between(2, 255))
+    height_px: int = option(
+        72, "the robot camera's height, px (at most 255)", range=between(1, 255)
+    )
+    hfov_deg: float = option(
+        70.0,
+        "the robot camera's horizontal field of view, deg",
+        range=between(0, 360, lo_open=True),
+    )
     corrupt_rate: float = option(
         0.0,
         "share of packets corrupted, e.g. 0.01 (1-3 bits flipped in each)",
-        type=non_negative_float,
+        range=FRACTION,
     )
-    drop_rate: float = option(0.0, "probability of dropping each packet", type=non_negative_float)
+    drop_rate: float = option(0.0, "probability of dropping each packet", range=FRACTION)
     disconnect_after: float | None = option(
         None,
         "close the port once, at this robot time after START (s): at the same frame whatever "
         "the load",
-        type=positive_float,
+        range=POSITIVE,
     )
-    reconnect_after: float = option(1.0, "seconds until the port reappears", type=positive_float)
-    decimation: int = option(1, "send the image with every Nth frame (slow links)")
+    reconnect_after: float = option(1.0, "seconds until the port reappears", range=POSITIVE)
+    decimation: int = option(
+        1, "send the image with every Nth frame (slow links)", range=AT_LEAST_1
+    )
     fast: bool = option(False, "do not pace frames at the camera rate")
-    wait: float = option(60.0, "seconds to wait for the host", type=positive_float)
+    wait: float = option(60.0, "seconds to wait for the host", range=POSITIVE)
     report: str | None = option(None, "write what was injected to this JSON file")
 
 

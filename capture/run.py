@@ -21,6 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from avdm.base import Model
+from avdm.errors import PluginError
 from avdm.true_time import TrueTimeModel
 from capture.device import Batch, CaptureDevice
 from capture.live_view import spawn_viewer
@@ -37,6 +38,8 @@ class CaptureResult:
     stop_reason: str
     wall_time_s: float
     write_error: str | None = None
+    # a model plug-in that raised (stop_reason "plug-in error"): the frames before it are kept
+    plugin_error: PluginError | None = None
 
 
 @dataclasses.dataclass
@@ -64,6 +67,7 @@ class RecordResult:
             res.wall_time_s,
             expected,
             res.write_error,
+            None if res.plugin_error is None else str(res.plugin_error),
         )
 
     @property
@@ -75,6 +79,7 @@ class RecordResult:
         return self.stop_reason == "finished"
 
     write_error: str | None = None  # why the file could not take more (disk full, ...)
+    plugin_error: str | None = None  # the model plug-in's failure that ended the run, one line
 
     @property
     def exit_status(self) -> int:
@@ -82,7 +87,7 @@ class RecordResult:
         when the file could not take more."""
         if self.complete:
             return 0
-        if self.stop_reason in ("write error", "link error"):
+        if self.stop_reason in ("write error", "link error", "plug-in error"):
             return 1
         return 130 if "SIGINT" in self.stop_reason else 143
 
@@ -210,11 +215,14 @@ def log_batch(
     for name, outputs in batch.onboard.items():
         recorder.log_model_outputs(name, batch.frame, batch.t_s, outputs, capture_ns=cap)
     if model is not None and model.name not in batch.onboard and len(batch.images):
-        if isinstance(model, TrueTimeModel):  # a real camera: new frames, true time
-            repeat = np.zeros(len(batch), bool) if batch.repeat is None else batch.repeat
-            outputs = model.run(batch.images, t_img, repeat)
-        else:
-            outputs = model.run(batch.images)  # ≡ per-frame step(), bit for bit
+        try:
+            if isinstance(model, TrueTimeModel):  # a real camera: new frames, true time
+                repeat = np.zeros(len(batch), bool) if batch.repeat is None else batch.repeat
+                outputs = model.run(batch.images, t_img, repeat)
+            else:
+                outputs = model.run(batch.images)  # ≡ per-frame step(), bit for bit
+        except PluginError as exc:  # the user's model: name the frame it failed on
+            raise exc.at(img_frames) from None
         recorder.log_model_outputs(model.name, img_frames, t_img, outputs, capture_ns=cap_img)
     if batch.link_stats is not None:
         recorder.log_link_stats(
@@ -254,6 +262,7 @@ def run_capture(
     events: dict[str, int] = {}
     reason = "error"
     prev_t: float | None = None
+    plugin_error: PluginError | None = None
     bar = tqdm(
         total=total_frames,
         unit="frame",
@@ -277,6 +286,10 @@ def run_capture(
                     except RecordingWriteError:
                         stop.reason = "write error"
                         break
+                    except PluginError as exc:  # the run ends; what it recorded is kept
+                        stop.reason, plugin_error = "plug-in error", exc
+                        frames += len(batch)  # its frames were logged before the model ran
+                        break
                     for kind, n in logged.items():
                         events[kind] = events.get(kind, 0) + n
                     if len(batch):
@@ -297,4 +310,4 @@ def run_capture(
             complete=reason == "finished",
             wall_time_s=round(wall, 3),
         )
-    return CaptureResult(frames, events, reason, wall, recorder.write_error)
+    return CaptureResult(frames, events, reason, wall, recorder.write_error, plugin_error)

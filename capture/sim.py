@@ -33,13 +33,11 @@ from vdc.blueprints import default_blueprint
 from vdc.cli_support import (
     Settings,
     check_below_nyquist,
-    non_negative_float,
-    non_negative_int,
     option,
-    positive_float,
 )
 from vdc.errors import UserError
 from vdc.recording import model_path
+from vdc.settings import AT_LEAST_0, POSITIVE, between
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,10 +52,10 @@ class SimSettings(Settings):
     period_m: float = option(
         0.1,
         "grating period along the wall, m; a natural scene drifts at TF x this",
-        type=positive_float,
+        range=POSITIVE,
     )
     tf_hz: float = option(
-        0.0, "wall drift temporal frequency, Hz", type=non_negative_float, exclusive="tf"
+        0.0, "wall drift temporal frequency, Hz", range=AT_LEAST_0, exclusive="tf"
     )
     tf_schedule: str | None = option(
         None,
@@ -66,9 +64,9 @@ class SimSettings(Settings):
         exclusive="tf",
     )
     minutes: float | None = option(
-        None, "run length (default: 30, or the schedule's total)", type=positive_float
+        None, "run length (default: 30, or the schedule's total)", range=POSITIVE
     )
-    seed: int = option(0, "random seed", type=non_negative_int)
+    seed: int = option(0, "random seed", range=AT_LEAST_0)
     behaviour: str = option(
         "profile",
         "profile: ring turns, online AVDM; collision: the robot avoids walls with an on-board "
@@ -85,7 +83,7 @@ class SimSettings(Settings):
         None,
         "collision mode: alert threshold in the detector's units (lgmd-plus: spikes/s, "
         "default 56; lgmd-colias: consecutive spikes, default 4)",
-        type=positive_float,
+        range=POSITIVE,
     )
     adaptive: bool = option(
         False,
@@ -95,14 +93,14 @@ class SimSettings(Settings):
     adaptive_gain: float = option(
         1.0,
         "collision mode: T_ffi = max(12, gain x mean AVDM deg/s over the last 60 s)",
-        type=non_negative_float,
+        range=AT_LEAST_0,
     )
     phase: str | None = option(None, "collision mode: a label for the study's tables")
-    contrast: float = option(1.0, "wall pattern contrast, 0-1", type=positive_float)
+    contrast: float = option(1.0, "wall pattern contrast, 0-1", range=between(0, 1, lo_open=True))
     image: str | None = option(None, "natural-scene wall from an image file", metavar="PATH")
-    noise_sd: float = option(0.0, "camera noise, 8-bit levels", type=non_negative_float)
+    noise_sd: float = option(0.0, "camera noise, 8-bit levels", range=AT_LEAST_0)
     overhead: bool = option(False, "also log an overhead camera")
-    overhead_fps: float = option(5.0, "overhead camera rate, Hz", type=positive_float)
+    overhead_fps: float = option(5.0, "overhead camera rate, Hz", range=POSITIVE)
 
     def __post_init__(self) -> None:
         check_below_nyquist(self.tf_hz, "--tf-hz")  # before any run: a faster wall aliases

@@ -41,15 +41,13 @@ from vdc.blueprints import video_blueprint
 from vdc.cli_support import (
     API_ONLY,
     Settings,
-    non_negative_float,
-    non_negative_int,
     option,
-    positive_float,
 )
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher, RateLookahead
 from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, RANGE, between
 from vdc.source_names import source_kind, source_name
 from vdc.sources import Reader, open_reader
 
@@ -63,13 +61,19 @@ class VideoSettings(Settings):
         positional=True,
     )
     fov_deg: float = option(
-        help="the camera's horizontal field of view, degrees", type=positive_float, required=True
+        help="the camera's horizontal field of view, degrees",
+        range=between(1, 360),
+        required=True,
     )
     fps: float | None = option(
-        None, "frame rate of an image sequence (or a camera), Hz", type=positive_float
+        None,
+        "frame rate of an image sequence (or a camera), Hz",
+        range=between(0, 10_000, lo_open=True),
     )
     width: int | None = option(
-        None, "working width, px (default: fov / (70/99 deg), the robot camera's pitch)"
+        None,
+        "working width, px (default: fov / (70/99 deg), the robot camera's pitch)",
+        range=between(8, 4096),
     )
     model: str = option(
         FOOTAGE_MODEL,
@@ -81,22 +85,14 @@ class VideoSettings(Settings):
         "a frame whose mean |difference| from the previous, on the native frames, is at most "
         "this (8-bit levels) "
         "repeats it",
-        type=non_negative_float,
+        range=AT_LEAST_0,
     )
     max_repeats: int = option(
-        3, "longer still stretches are a still scene, not repeats", type=non_negative_int
+        3, "longer still stretches are a still scene, not repeats", range=AT_LEAST_0
     )
-    batch_frames: int = dataclasses.field(default=128, metadata=API_ONLY)  # frames per batch
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.fov_deg) and 1.0 <= self.fov_deg <= 360.0):
-            raise UserError(f"--fov-deg must be between 1 and 360 degrees, got {self.fov_deg:g}")
-        if self.fps is not None and not (math.isfinite(self.fps) and 0 < self.fps <= 10_000):
-            raise UserError(f"--fps must be between 0 and 10000 Hz, got {self.fps:g}")
-        if self.width is not None and not 8 <= self.width <= 4096:
-            raise UserError(f"--width must be between 8 and 4096 px, got {self.width}")
-        if not (self.repeat_tol >= 0 and self.max_repeats >= 0):
-            raise UserError("--repeat-tol and --max-repeats must be >= 0")
+    batch_frames: int = dataclasses.field(
+        default=128, metadata={**API_ONLY, RANGE: AT_LEAST_1}
+    )  # frames per batch
 
     @property
     def kind(self) -> str:
@@ -419,6 +415,8 @@ def record_video(
         result = run_capture(device, model, recorder, total_frames=total, progress=options.progress)
     finally:
         finish_output(claim, recorder)
+    if result.plugin_error is not None:  # the one line names the clip too
+        result.plugin_error.on(settings.source)
     error = getattr(device.reader, "error", None)
     finished = result.stop_reason == "finished"  # a signal or a full disk is not a cut file
     ends = device.end_fields(finished)

@@ -89,3 +89,57 @@ def test_every_commands_settings_class_checks_its_types() -> None:
                 continue
             module, cls = cmd.settings.split(":")
             assert issubclass(getattr(importlib.import_module(module), cls), Settings), name
+
+
+def test_dataset_with_out_none_writes_nothing_and_returns_the_tables(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The README: ``out=None`` writes nothing, for every command function (dataset was a
+    TypeError from ``Path(None)``)."""
+    from analysis.dataset.synthetic import write_dataset
+
+    root = tmp_path / "ds"
+    write_dataset(root, episodes=2, codec="libx264", seconds=(1.0, 1.0), shape=(48, 64))
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    before = _files(root)
+    settings = vdc.DatasetSettings(jobs=1, recordings=False, page=False)
+    res = vdc.dataset(root, settings, out=None)
+    assert res.paths == [] and not list(work.iterdir())  # not even results/dataset
+    assert _files(root) == before
+    assert res.episodes.height == 2 and set(res.episodes["episode_index"]) == {0, 1}
+
+
+def test_complexity_of_nothing_says_so_in_one_line() -> None:
+    with pytest.raises(vdc.errors.UserError, match="no sources"):
+        vdc.complexity([], out=None)  # was an IndexError
+
+
+def test_every_command_function_takes_out_none() -> None:
+    """The README: ``out=None`` writes nothing, for every command function (most of them
+    took ``out`` as a required path and failed deep inside on ``Path(None)``)."""
+    import inspect
+
+    for name in vdc.__all__:
+        function = getattr(vdc, name)
+        if name == "summarise":  # its out is its input, the batch's folder: None is refused
+            continue
+        if inspect.isfunction(function) and "out" in inspect.signature(function).parameters:
+            annotation = str(inspect.signature(function).parameters["out"].annotation)
+            assert "None" in annotation, (name, annotation)
+
+
+def test_batch_with_out_none_writes_nothing_and_returns_the_tables(
+    recording: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    before = _files(recording.parent)
+    res = vdc.batch([recording], vdc.BatchSettings(models=("avdm",), jobs=1), out=None)
+    assert res.paths == [] and not list(tmp_path.iterdir())
+    assert _files(recording.parent) == before
+    written = vdc.batch([recording], vdc.BatchSettings(models=("avdm",), jobs=1), tmp_path / "w")
+    assert res.tables["summary"].equals(written.tables["summary"])
+    assert res.tables["summary"].height > 0
+    with pytest.raises(vdc.errors.UserError, match="summarise reads the folder"):
+        vdc.summarise(None)

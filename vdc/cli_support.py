@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
-import math
 import numbers
 import os
 import sys
@@ -24,6 +23,17 @@ from typing import Any, NoReturn
 from tqdm import tqdm
 
 from vdc.errors import UserError
+from vdc.interrupt import ctrl_c_ends_the_run
+from vdc.settings import (
+    AT_LEAST_0,
+    FINITE,
+    MAX_SIDE_PX,
+    POSITIVE,
+    RANGE,
+    Range,
+    check_ranges,
+    out_of_range,
+)
 
 EXIT_BAD_INPUT = 2
 
@@ -132,8 +142,9 @@ def check_field_types(settings: Any) -> None:
 
 class Settings:
     """The base of every command's settings dataclass: a value of another type than a field's
-    annotation is refused when the settings are built, in one line naming the field
-    (``ComplexitySettings(fov_deg="60")``), rather than failing deep inside a run.
+    annotation or outside its declared range (:mod:`vdc.settings`) is refused when the settings
+    are built, in one line naming the field (``ComplexitySettings(fov_deg="60")``), rather
+    than failing deep inside a run.
 
     A subclass's own ``__post_init__`` (its range checks) runs after the type check, with no
     call to make: :meth:`__init_subclass__` wraps it."""
@@ -146,6 +157,7 @@ class Settings:
 
         def post_init(self: Any, *args: Any) -> None:
             check_field_types(self)
+            check_ranges(self)
             own(self, *args)
 
         post_init._checks_types = True  # type: ignore[attr-defined]
@@ -154,6 +166,7 @@ class Settings:
 
     def __post_init__(self) -> None:
         check_field_types(self)
+        check_ranges(self)
 
 
 # the simulated arena camera's frame rate (capture.config.CameraConfig.fps): analysis checks
@@ -252,9 +265,6 @@ def parse_float_list(text: str) -> list[float]:
     return values
 
 
-MAX_SIDE_PX = 4096
-
-
 def parse_size(text: str) -> tuple[int, int]:
     """``"99x72"`` (W x H, as image sizes are usually written) → ``(H, W)``."""
     try:
@@ -272,42 +282,34 @@ def parse_size(text: str) -> tuple[int, int]:
     return h, w
 
 
-def finite_float(text: str) -> float:
-    """argparse type: a finite number ("nan" and "inf" are refused)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return v
+def ranged(parse: Callable[[str], Any], rng: Range) -> Callable[[str], Any]:
+    """argparse type: ``parse`` the text, then hold the number (or a list's each) to ``rng``,
+    the field's own range (:mod:`vdc.settings`): the flag refuses what the settings would."""
+
+    def parse_in_range(text: str) -> Any:
+        try:
+            value = parse(text)
+        except ValueError:
+            if parse is int:
+                raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+            if parse is float:
+                raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+            raise
+        bad = out_of_range(value, rng)
+        if bad is not None:
+            wanted = rng.wanted(isinstance(bad, numbers.Integral))
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}")
+        return value
+
+    parse_in_range.__name__ = getattr(parse, "__name__", "value")
+    return parse_in_range
 
 
-def non_negative_float(text: str) -> float:
-    """argparse type: a finite number >= 0."""
-    v = finite_float(text)
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return v
-
-
-def non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0 (seeds, counts)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return v
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    v = finite_float(text)
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
+# argparse types of the arguments that are not settings fields (a field states its range)
+finite_float = ranged(float, FINITE)
+non_negative_float = ranged(float, AT_LEAST_0)
+non_negative_int = ranged(int, AT_LEAST_0)
+positive_float = ranged(float, POSITIVE)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -334,9 +336,13 @@ def option(default: Any = dataclasses.MISSING, help: str = "", *aliases: str, **
         near_wall_m: float = option(0.15, "'near the wall' = within this of a wall, m")
 
     ``default=dataclasses.MISSING`` makes a required field (and flag); a callable
-    ``factory=`` gives a default computed per object (shown only as the help words it)."""
+    ``factory=`` gives a default computed per object (shown only as the help words it);
+    ``range=`` (:class:`vdc.settings.Range`) what its flag and the settings both allow."""
     factory = how.pop("factory", dataclasses.MISSING)
-    meta = {"flag": Flag(help, tuple(aliases), **how)}
+    rng = how.pop("range", None)
+    meta: dict[str, Any] = {"flag": Flag(help, tuple(aliases), **how)}
+    if rng is not None:
+        meta[RANGE] = rng
     return dataclasses.field(default=default, default_factory=factory, metadata=meta)
 
 
@@ -367,17 +373,21 @@ def stated_default(field: dataclasses.Field) -> str:
 
 def _parser_type(field: dataclasses.Field, flag: Flag) -> Callable[[str], Any] | None:
     """The parser type from the field's annotation (a string: modules use postponed
-    annotations): numbers must be finite, lists of numbers are comma-separated."""
-    if flag.type is not None:
-        return flag.type
+    annotations): numbers in the field's range (finite), lists of numbers comma-separated."""
+    rng = field.metadata.get(RANGE)
+    parse: Callable[[str], Any] | None = flag.type
     hint = str(field.type).replace(" ", "")
-    if hint.startswith("tuple[float"):
-        return parse_float_list
-    if hint in ("float", "float|None"):
-        return finite_float
-    if hint in ("int", "int|None"):
-        return int
-    return None
+    if parse is None:
+        if hint.startswith("tuple[float"):
+            parse = parse_float_list
+        elif hint in ("float", "float|None"):
+            parse = float
+            rng = rng or FINITE
+        elif hint in ("int", "int|None"):
+            parse = int
+    if parse is None or rng is None:
+        return parse
+    return ranged(parse, rng)
 
 
 def add_settings_flags(parser: argparse.ArgumentParser, cls: type) -> None:
@@ -557,7 +567,8 @@ def run_command_line(
     where = f"{prog} {args.command}"
     try:
         # a model built for a new camera fits its calibration first: say so, not a silent minute
-        with fit_progress(CalibrationNotes(quiet=bool(getattr(args, "quiet", False)))):
+        notes = CalibrationNotes(quiet=bool(getattr(args, "quiet", False)))
+        with ctrl_c_ends_the_run(f"{prog}: interrupted"), fit_progress(notes):
             return int(args.func(args) or 0)
     except ValueError as exc:
         if not raised_on_purpose(exc):

@@ -47,6 +47,7 @@ from vdc.pool_workers import (
     one_thread_per_worker,
     pool_context,
 )
+from vdc.settings import AT_LEAST_1
 
 EXECUTORS = ("local", "dask")
 
@@ -75,6 +76,7 @@ def executor_field(name: str) -> Any:
             help="worker processes of the local pool or of a local Dask cluster (default, and "
             "the local pool's cap: the cores this process may use; VDC_OVERSUBSCRIBE=1 lifts "
             "the cap)",
+            range=AT_LEAST_1,
         )
     return option(
         None,
@@ -97,8 +99,6 @@ class ExecutorSettings(Settings):
             object.__setattr__(self, "executor", "dask")  # a scheduler means Dask
         if self.executor not in EXECUTORS:
             raise UserError(f"--executor must be one of {', '.join(EXECUTORS)}")
-        if self.jobs < 1:
-            raise UserError(f"--jobs must be at least 1, got {self.jobs}")
         if self.scheduler and not self.scheduler.startswith(("tcp://", "tls://", "inproc://")):
             path = Path(self.scheduler).expanduser()
             # Client(scheduler_file=...) neither expands ~ nor times out on a missing file

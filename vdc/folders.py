@@ -118,6 +118,20 @@ def scan_folder(
     return FolderScan(sorted(found, key=str), skipped)
 
 
+def not_found(item: str | os.PathLike) -> str:
+    """Why ``item`` cannot be read, in one line: no such file; or, for a recording a capture
+    still writes or was killed while writing, its partial file (``<stem>.partial.rrd``) by
+    name, and what to do."""
+    path = Path(item)
+    partial = path.with_name(path.name.removesuffix(".rrd") + PARTIAL)
+    if path.suffix == ".rrd" and partial.exists():
+        return (
+            f"{os.fspath(item)!r} does not exist, but {str(partial)!r} does: a capture still "
+            "running or killed; analyse that file by name"
+        )
+    return f"{os.fspath(item)!r}: no such file or folder"
+
+
 def path_list(items: str | os.PathLike | Iterable[str | os.PathLike]) -> list[str]:
     """The paths a command was given, as a list of ``str``: a single path (a ``str`` or a
     ``Path``) is a list of one. Without this, a ``str`` given where a list is expected is
@@ -152,7 +166,7 @@ def expand_recordings(
         elif p.exists():
             found.append(item)
         else:
-            raise UserError(f"{item!r}: no such file or folder")
+            raise UserError(not_found(item))
     if dangling and notice is not None:
         notice(
             f"skipped {len(dangling)} entr{'y' if len(dangling) == 1 else 'ies'}: "

@@ -55,14 +55,12 @@ from avdm.policy import Policy
 from avdm.registry import add_overrides, parse_model_spec
 from vdc.cli_support import (
     check_below_nyquist,
-    non_negative_float,
-    non_negative_int,
     option,
-    positive_float,
 )
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings
 from vdc.parquet_io import WroteFiles, write_tables
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, FINITE, POSITIVE, at_least, between
 
 TARGET_HELP = "the success rate a detector must keep (default: {default}, the paper's 90 %)"
 COMPLEXITY_MEASURES = ("profile", "online")
@@ -148,9 +146,11 @@ class BoundarySettings(ExecutorSettings):
     )
     param: str = option("t_ffi", "the detector's sensitivity parameter swept by the grid")
     values: tuple[float, ...] = option(
-        (12.0, 20.0, 30.0, 45.0), "the parameter's values, comma-separated"
+        (12.0, 20.0, 30.0, 45.0), "the parameter's values, comma-separated", range=FINITE
     )
-    tf: tuple[float, ...] = option((0.0, 1.0, 3.0), "arena: wall TFs, Hz, comma-separated")
+    tf: tuple[float, ...] = option(
+        (0.0, 1.0, 3.0), "arena: wall TFs, Hz, comma-separated", range=AT_LEAST_0
+    )
     scenes: tuple[str, ...] = option(
         ("grating", "natural"),
         "arena: wall scenes, comma-separated (docs/guides/boundary.md#scenes)",
@@ -159,12 +159,14 @@ class BoundarySettings(ExecutorSettings):
         0,
         "arena grid: per scene, this many wall TFs drawn from --tf-range (one in each of as "
         "many equal strata, uniform in it, seeded by --seed and the scene) instead of --tf",
-        type=non_negative_int,
+        range=AT_LEAST_0,
     )
-    seed: int = option(1, "first random seed", type=non_negative_int)
-    seeds: int = option(5, "arena: runs per condition and value (seeds --seed, --seed+1, ...)")
-    minutes: float = option(10.0, "arena: length of each run", type=positive_float)
-    target: float = option(0.9, TARGET_HELP, type=positive_float)
+    seed: int = option(1, "first random seed", range=AT_LEAST_0)
+    seeds: int = option(
+        5, "arena: runs per condition and value (seeds --seed, --seed+1, ...)", range=AT_LEAST_1
+    )
+    minutes: float = option(10.0, "arena: length of each run", range=POSITIVE)
+    target: float = option(0.9, TARGET_HELP, range=between(0, 1, lo_open=True, hi_open=True))
     complexity: str = option(
         "profile",
         "arena: the complexity of a condition: profile = the AVDM's straight-driving response "
@@ -173,7 +175,9 @@ class BoundarySettings(ExecutorSettings):
         choices=COMPLEXITY_MEASURES,
     )
     false_alarm_m: float = option(
-        0.30, "arena: an avoidance with the wall farther than this is a false alarm, m"
+        0.30,
+        "arena: an avoidance with the wall farther than this is a false alarm, m",
+        range=POSITIVE,
     )
     no_fit: bool = option(False, "arena: do not fit a policy (policy.csv) from the grid")
     labels: str | None = option(
@@ -183,19 +187,21 @@ class BoundarySettings(ExecutorSettings):
         metavar="FILE",
     )
     fov_deg: float | None = option(
-        None, "footage mode: the camera's horizontal field of view, degrees", type=positive_float
+        None,
+        "footage mode: the camera's horizontal field of view, degrees",
+        range=between(1, 360),
     )
     alert_window_s: float = option(
         2.0,
         "footage mode: an alert at most this long before the collision frame is a hit, an "
         "earlier one a false alarm",
-        type=positive_float,
+        range=POSITIVE,
     )
     min_ttc_s: float = option(
         0.5,
         "footage mode: a first alert later than this before the collision is a miss (too late "
         "to turn away), s; 0 counts an alert at the moment of impact as a hit",
-        type=non_negative_float,
+        range=AT_LEAST_0,
     )
     profile_model: str = option("avdm", "arena: the AVDM variant that profiles the conditions")
     design: str = option(
@@ -204,12 +210,14 @@ class BoundarySettings(ExecutorSettings):
         "where the boundary is most uncertain (analysis.experiments.adaptive)",
         choices=DESIGNS,
     )
-    budget: int = option(12, "adaptive: detector runs per parameter value at most")
+    budget: int = option(
+        12, "adaptive: detector runs per parameter value at most", range=at_least(2)
+    )
     tf_range: str = option("0:3", "adaptive: the wall TFs the design may visit, LO:HI Hz")
     precision: float = option(
         2.0,
         "adaptive: a value stops once its boundary's 95 % interval is narrower, deg/s",
-        type=positive_float,
+        range=POSITIVE,
     )
     per_scene: bool = option(
         False,
@@ -217,7 +225,9 @@ class BoundarySettings(ExecutorSettings):
         "placed along its own TF axis, a boundary (the first crossing) per scene",
     )
     groups: int | None = option(
-        None, "footage mode: clips in N groups of similar complexity (default: up to 5 of 4)"
+        None,
+        "footage mode: clips in N groups of similar complexity (default: up to 5 of 4)",
+        range=AT_LEAST_1,
     )
     no_predictors: bool = option(
         False,
@@ -228,26 +238,19 @@ class BoundarySettings(ExecutorSettings):
         8,
         "arena predictors: SI/TI, MAFD, DIS flow and zlib measured on every Nth frame pair of "
         "a profiling run (1: every pair; the error of each N: docs/method/boundary.md)",
+        range=AT_LEAST_1,
     )
 
     def __post_init__(self) -> None:
         super().__post_init__()
 
         parse_model_spec(self.detector)  # a bad detector or plug-in fails before anything runs
-        if self.measure_every < 1:
-            raise UserError(f"--measure-every must be 1 or more, not {self.measure_every}")
         if self.param in OWN_COLUMNS:
             raise UserError(
                 f"--param {self.param}: vdc's tables have a column {self.param!r} of their own, "
                 "beside which the swept parameter is written; sweep a parameter of another "
                 "name (rename it in the plug-in)"
             )
-        if not 0 < self.target < 1:
-            raise UserError(f"--target must be between 0 and 1, got {self.target}")
-        if self.seeds < 1:
-            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
-        if self.budget < 2 or (self.groups is not None and self.groups < 1):
-            raise UserError("--budget must be at least 2 and --groups at least 1")
         if self.design == "adaptive" and (self.complexity != "profile" or self.labels):
             raise UserError("--design adaptive is for the arena with --complexity profile")
         if self.per_scene and self.design != "adaptive":

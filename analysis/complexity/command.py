@@ -65,14 +65,11 @@ from avdm.true_time import model_rate, repeats_of
 from vdc.cli_support import (
     API_ONLY,
     Settings,
-    non_negative_float,
-    non_negative_int,
     option,
-    positive_float,
 )
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
-from vdc.folders import path_list, remove_output, scan_folder
+from vdc.folders import not_found, path_list, remove_output, scan_folder
 from vdc.frame_metrics import (
     RANGE_CHOICES,
     RANGE_COLUMNS,
@@ -83,6 +80,7 @@ from vdc.frame_metrics import (
 from vdc.parquet_io import WroteFiles, read_metadata, table_set, write_parquet
 from vdc.recording import FOOTAGE_MODEL, NATIVE_METRICS, camera_model_context, working_size
 from vdc.resize import area_resize
+from vdc.settings import AT_LEAST_0, RANGE, between
 from vdc.source_names import unique_source_names
 from vdc.sources import VIDEO_SUFFIXES
 
@@ -106,28 +104,32 @@ class ComplexitySettings(Settings):
     flow_preset: str = option(  # "medium" keeps the finest scale on small frames
         "medium", "DIS optic-flow preset", choices=tuple(DIS_PRESETS)
     )
-    jpeg_quality: int = option(75, "JPEG quality, 1-100")
-    zlib_level: int = dataclasses.field(default=6, metadata=API_ONLY)  # zlib_ratio's level, 0-9
+    jpeg_quality: int = option(75, "JPEG quality, 1-100", range=between(1, 100))
+    zlib_level: int = dataclasses.field(default=6, metadata={**API_ONLY, RANGE: between(0, 9)})
     fov_deg: float | None = option(
         None,
         "video sources: the camera's horizontal field of view, degrees (needed for the AVDM "
         "and the flow in deg/s; without it a video gives the other metrics)",
-        type=positive_float,
+        range=between(1, 360),
     )
     fps: float | None = option(
-        None, "image sequences: frame rate, Hz (videos state their own)", type=positive_float
+        None,
+        "image sequences: frame rate, Hz (videos state their own)",
+        range=between(0, 10_000, lo_open=True),
     )
     width: int | None = option(
-        None, "video sources: working width, px (default: fov / (70/99 deg), the robot's pitch)"
+        None,
+        "video sources: working width, px (default: fov / (70/99 deg), the robot's pitch)",
+        range=between(8, 4096),
     )
     repeat_tol: float = option(
         0.5,
         "video sources: a frame whose mean |difference| from the previous native frame is at "
         "most this (8-bit levels) repeats it",
-        type=non_negative_float,
+        range=AT_LEAST_0,
     )
     max_repeats: int = option(
-        3, "longer still stretches are a still scene, not repeats", type=non_negative_int
+        3, "longer still stretches are a still scene, not repeats", range=AT_LEAST_0
     )
     color_range: str = option(
         "auto",
@@ -154,12 +156,6 @@ class ComplexitySettings(Settings):
         parse_metrics(self.metrics)
         if self.flow_preset not in DIS_PRESETS:
             raise UserError(f"--flow-preset must be one of {', '.join(DIS_PRESETS)}")
-        if not 1 <= self.jpeg_quality <= 100:
-            raise UserError(f"--jpeg-quality must be 1-100, got {self.jpeg_quality}")
-        if not 0 <= self.zlib_level <= 9:
-            raise UserError(f"--zlib-level must be 0-9, got {self.zlib_level}")
-        if self.width is not None and not 8 <= self.width <= 4096:
-            raise UserError(f"--width must be between 8 and 4096 px, got {self.width}")
         if self.color_range not in RANGE_CHOICES:
             choices = ", ".join(RANGE_CHOICES)
             raise UserError(f"--color-range must be one of {choices}, got {self.color_range!r}")
@@ -247,8 +243,10 @@ def expand_sources(
     a folder gives the recordings and videos in it and below, sorted, less what vdc wrote
     itself, unfinished captures and dangling links (``vdc.folders.scan_folder``), which
     ``notice`` hears about in one line per folder. A folder without any source, a missing
-    file or a pattern that matches nothing raises ValueError."""
+    file or a pattern that matches nothing raises ValueError, as does an empty list."""
     sources: list[str] = []
+    if not path_list(items):
+        raise UserError("complexity was given no sources: name a recording, video or folder")
     for item in path_list(items):
         p = Path(item)
         if p.is_dir():
@@ -273,7 +271,7 @@ def expand_sources(
                 raise UserError(f"image sequence {item!r} matches no files")
             sources.append(item)
         else:
-            raise UserError(f"{item!r}: no such file or folder")
+            raise UserError(not_found(item))
     return sources
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -87,13 +88,18 @@ class DatasetResult(WroteFiles):
 def dataset(
     path: str | Path,
     settings: DatasetSettings | None = None,
-    out: str | Path = "results/dataset",
+    out: str | Path | None = "results/dataset",
     feedback: Feedback | None = None,
 ) -> DatasetResult:
     """Profile the LeRobot dataset at ``path`` episode by episode into ``out`` (see the
     module). Needs the ``__main__`` guard in a script (it starts a process pool). A dataset
     that cannot be read at all (no meta/info.json, an unknown codebase_version) raises
-    UserError; an unreadable episode is listed in ``problems``."""
+    UserError; an unreadable episode is listed in ``problems``. ``out=None`` writes nothing
+    (the work is done in a folder removed before this returns) and returns the tables."""
+    if out is None:
+        with tempfile.TemporaryDirectory(prefix="vdc-dataset-") as tmp:
+            res = dataset(path, settings, tmp, feedback)
+        return dataclasses.replace(res, paths=[])  # nothing written remains
     return _run(Path(path), settings or DatasetSettings(), Path(out), feedback or Feedback())
 
 

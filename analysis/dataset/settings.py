@@ -12,14 +12,12 @@ from analysis.dataset.flags import FLAGS
 from vdc.cli_support import (
     API_ONLY,
     Settings,
-    non_negative_float,
-    non_negative_int,
     option,
-    positive_float,
 )
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, executor_field
 from vdc.recording import FOOTAGE_MODEL
+from vdc.settings import AT_LEAST_0, RANGE, between
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,21 +35,23 @@ class DatasetSettings(Settings):
         None,
         "the cameras' horizontal field of view, degrees: the AVDM's angular speed (omega_dps) "
         "and the shifts in degrees; without it they are left out, with one note",
-        type=positive_float,
+        range=between(1, 360),
     )
     model: str = option(
         FOOTAGE_MODEL, "the AVDM variant for omega_dps (default: {default}, as complexity)"
     )
     flow_preset: str = option("medium", "DIS optic-flow preset (flow_dps)")
-    width: int | None = option(None, "working width of the AVDM, px (default: from the fov)")
-    jpeg_quality: int = dataclasses.field(default=75, metadata=API_ONLY)  # jpeg_bpp's, 1-100
+    width: int | None = option(
+        None, "working width of the AVDM, px (default: from the fov)", range=between(8, 4096)
+    )
+    jpeg_quality: int = dataclasses.field(default=75, metadata={**API_ONLY, RANGE: between(1, 100)})
     repeat_tol: float = option(
         0.5,
         "a frame whose mean |difference| from the previous one is at most this (8-bit levels) "
         "shows nothing new (a repeat, a frozen or an idle frame)",
-        type=non_negative_float,
+        range=AT_LEAST_0,
     )
-    max_repeats: int = option(3, "at most this many repeats in a row", type=non_negative_int)
+    max_repeats: int = option(3, "at most this many repeats in a row", range=AT_LEAST_0)
     fail_on: str = option(
         "",
         "FLAG,...: exit 1 when an episode has one of these flags (all: any flag); the flags: "

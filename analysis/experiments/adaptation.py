@@ -50,10 +50,12 @@ from avdm.policy import load_policy
 from avdm.registry import add_overrides, parse_model_spec
 from capture.config import CollisionConfig, parse_schedule
 from capture.sim import SimSettings
-from vdc.cli_support import non_negative_int, option, positive_float
+from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback, one_pool
 from vdc.parquet_io import WroteFiles, table_set, write_tables
+from vdc.scratch import no_files_without_out
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, POSITIVE, between
 
 CONTROLLERS = ("fixed", "hand", "adaptive", "policy")
 BETTER, WORSE, SAME = "better", "worse", "no difference"
@@ -68,7 +70,9 @@ class AdaptationSettings(ExecutorSettings):
         None, "the policy file (policy.csv of vdc-analyse boundary)", metavar="FILE", required=True
     )
     detector: str = option("lgmd-plus-arena", "the detector the policy was fitted for")
-    tf: tuple[float, ...] = option((2.0,), "held-out wall TFs, Hz, comma-separated")
+    tf: tuple[float, ...] = option(
+        (2.0,), "held-out wall TFs, Hz, comma-separated", range=AT_LEAST_0
+    )
     scenes: tuple[str, ...] = option(
         ("grating", "natural"), "a scene of the held-out TFs (repeat the flag for several)"
     )
@@ -78,12 +82,14 @@ class AdaptationSettings(ExecutorSettings):
         "{default}; empty: none",
     )
     hand: str = option("t_ffi=30", "the paper's hand-adjusted threshold: detector overrides")
-    adaptive_gain: float = option(1.0, "the hand-made adaptive rule's gain", type=positive_float)
-    seed: int = option(101, "first random seed (other than the grid's)", type=non_negative_int)
-    seeds: int = option(5, "runs per condition and controller")
-    minutes: float = option(10.0, "length of each run at a constant TF", type=positive_float)
-    target: float = option(0.9, "the success rate to keep", type=positive_float)
-    false_alarm_m: float = option(0.30, "false-alarm distance, m", type=positive_float)
+    adaptive_gain: float = option(1.0, "the hand-made adaptive rule's gain", range=POSITIVE)
+    seed: int = option(101, "first random seed (other than the grid's)", range=AT_LEAST_0)
+    seeds: int = option(5, "runs per condition and controller", range=AT_LEAST_1)
+    minutes: float = option(10.0, "length of each run at a constant TF", range=POSITIVE)
+    target: float = option(
+        0.9, "the success rate to keep", range=between(0, 1, lo_open=True, hi_open=True)
+    )
+    false_alarm_m: float = option(0.30, "false-alarm distance, m", range=POSITIVE)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -93,10 +99,6 @@ class AdaptationSettings(ExecutorSettings):
         load_policy(self.policy)  # a bad policy file fails before anything runs
         parse_model_spec(self.policy_spec())
         parse_model_spec(self.hand_spec())
-        if not 0 < self.target < 1:
-            raise UserError(f"--target must be between 0 and 1, got {self.target}")
-        if self.seeds < 1:
-            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
         self.conditions()
 
     def policy_spec(self) -> str:
@@ -219,9 +221,10 @@ class AdaptationResult(WroteFiles):
         return [self.markdown, f"verdict: {self.verdict}", f"wrote {wrote}"]
 
 
+@no_files_without_out
 @one_pool()  # its stages share one pool of workers
 def adaptation(
-    s: AdaptationSettings, out: str | Path, feedback: Feedback = QUIET
+    s: AdaptationSettings, out: str | Path | None, feedback: Feedback = QUIET
 ) -> AdaptationResult:
     """Run the held-out conditions with every controller; write ``adaptation.md``,
     ``adaptation.png`` and the Parquet tables into ``out``."""

@@ -48,6 +48,7 @@ from capture.sim import record_sim
 from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback, one_pool, run_tasks_or_raise
 from vdc.parquet_io import table_set
+from vdc.scratch import no_files_without_out
 
 
 def record_and_measure(
@@ -221,9 +222,10 @@ def require_evidence(
             )
 
 
+@no_files_without_out
 @one_pool()  # its stages share one pool of workers
 def boundary(
-    settings: BoundarySettings, out: str | Path, feedback: Feedback = QUIET
+    settings: BoundarySettings, out: str | Path | None, feedback: Feedback = QUIET
 ) -> BoundaryResult:
     """Run the grid (arena) or the labelled clips (footage mode: ``settings.labels``) and
     write the tables, the figure, the report and, in the arena, ``policy.csv`` into ``out``."""

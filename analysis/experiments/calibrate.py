@@ -18,10 +18,11 @@ from avdm.base import Params
 from avdm.calibration import CalibrationResult, fit_decoding, valid_periods_px, valid_tfs_hz
 from avdm.calibration_store import CALIBRATION_FILE
 from avdm.registry import canonical_name, make_params
-from vdc.cli_support import Settings, option, parse_size, positive_float
+from vdc.cli_support import Settings, option, parse_size
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles
 from vdc.provenance import package_versions
+from vdc.settings import POSITIVE, SIDE_PX, between
 
 
 def calibration_entry(
@@ -111,17 +112,22 @@ def plot_calibration(result: CalibrationResult, path: Path) -> Path:
 class CalibrateSettings(Settings):
     """``vdc-analyse calibrate``: the geometry to fit (a, b) for and the gratings used."""
 
-    fps: float = option(300.0, "frame rate, Hz", type=positive_float)
+    fps: float = option(300.0, "frame rate, Hz", range=POSITIVE)
     size: tuple[int, int] = option(  # (H, W) px
-        (100, 100), "frame WIDTHxHEIGHT px", type=parse_size
+        (100, 100), "frame WIDTHxHEIGHT px", type=parse_size, range=SIDE_PX
     )
     deg_per_px: float | None = option(
         None,
         "degrees per pixel (default: 360/width, the offline-stimulus convention)",
-        type=positive_float,
+        range=POSITIVE,
     )
     model: str = option("avdm", "AVDM variant to calibrate")
-    contrasts: tuple[float, ...] = option((0.5, 1.0), "grating contrasts to include", "--contrast")
+    contrasts: tuple[float, ...] = option(
+        (0.5, 1.0),
+        "grating contrasts to include",
+        "--contrast",
+        range=between(0, 1, lo_open=True),
+    )
     name: str | None = option(None, "name of this calibration (default: from fps and size)")
     update_defaults: bool = option(
         False,

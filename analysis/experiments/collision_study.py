@@ -25,10 +25,11 @@ from analysis.collision import CollisionSettings, collision
 from analysis.experiments.captures import CaptureItem, check_detectors, run_captures
 from avdm.registry import add_overrides, parse_model_spec
 from capture.sim import SimSettings
-from vdc.cli_support import non_negative_int, option, positive_float
-from vdc.errors import UserError
+from vdc.cli_support import option
 from vdc.executors import ExecutorSettings, one_pool
 from vdc.parquet_io import WroteFiles
+from vdc.scratch import no_files_without_out
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, POSITIVE
 
 SEEDS_HELP = (  # --seeds of the campaigns (collision-study, reproduce)
     "runs per condition, seeds --seed, --seed+1, ...: every figure is given as a mean with its "
@@ -110,7 +111,7 @@ class CollisionStudySettings(ExecutorSettings):
     the runs go to the executor (``executor``, ``jobs``, ``scheduler``)."""
 
     minutes: float = option(
-        30.0, "length of each phase (default: {default}, the paper's)", type=positive_float
+        30.0, "length of each phase (default: {default}, the paper's)", range=POSITIVE
     )
     detector: str = option(
         "lgmd-plus-arena",
@@ -118,14 +119,12 @@ class CollisionStudySettings(ExecutorSettings):
         "alert on this arena's static walls)",
     )
     adjusted: str = option("t_ffi=30", "detector overrides of the 'adjusted threshold' phase")
-    seed: int = option(1, "first random seed", type=non_negative_int)
-    seeds: int = option(5, SEEDS_HELP, type=int)
-    false_alarm_m: float = option(0.30, "false-alarm distance, m", type=positive_float)
+    seed: int = option(1, "first random seed", range=AT_LEAST_0)
+    seeds: int = option(5, SEEDS_HELP, range=AT_LEAST_1)
+    false_alarm_m: float = option(0.30, "false-alarm distance, m", range=POSITIVE)
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.seeds < 1:
-            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
         parse_model_spec(self.detector)  # a bad detector fails before anything runs
         if self.adjusted:
             parse_model_spec(add_overrides(self.detector, self.adjusted))
@@ -141,10 +140,11 @@ class CollisionStudyResult(WroteFiles):
     paths: list[Path]
 
 
+@no_files_without_out
 @one_pool()  # its stages share one pool of workers
 def collision_study(
     settings: CollisionStudySettings,
-    out: str | Path,
+    out: str | Path | None,
     *,
     log: Callable[[str], None] | None = None,
     notice: Callable[[str], None] | None = None,

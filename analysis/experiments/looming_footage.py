@@ -43,8 +43,10 @@ import numpy as np
 import polars as pl
 
 from avdm.looming import render_looming
-from vdc.cli_support import Settings, option, positive_float
+from vdc.cli_support import Settings, option
+from vdc.errors import UserError
 from vdc.executors import QUIET, Feedback
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, FRACTION, MAX_SIDE_PX, POSITIVE, between
 
 # photographs scikit-image ships in its package (no download): busy and plain, indoor and out
 BACKGROUNDS = ("astronaut", "camera", "brick", "grass", "gravel", "coffee", "rocket", "page")
@@ -58,48 +60,34 @@ ENTER_S = (1.5, 3.0)
 class LoomingFootageSettings(Settings):
     """``vdc-analyse looming-footage``: how many clips, their raster and the condition ranges."""
 
-    clips: int = option(200, "clips to render (clip k is the same whatever the count)")
-    seed: int = option(0, "the collection's seed")
-    width_px: int = option(160, "frame width, px")
-    height_px: int = option(120, "frame height, px")
-    fps: float = option(25.0, "frame rate, Hz", type=positive_float)
-    hfov_deg: float = option(60.0, "horizontal field of view, deg", type=positive_float)
-    seconds: float = option(
-        6.0, "clip length, s (the object arrives at the end)", type=positive_float
+    clips: int = option(
+        200, "clips to render (clip k is the same whatever the count)", range=AT_LEAST_1
     )
-    near_miss_share: float = option(0.3, "share of clips that are near misses")
-    rotation_max_dps: float = option(30.0, "camera yaw drawn from +-this, deg/s")
-    rv_min_s: float = option(
-        0.08, "object radius over approach speed, lowest, s", type=positive_float
+    seed: int = option(0, "the collection's seed", range=AT_LEAST_0)
+    width_px: int = option(160, "frame width, px", range=between(16, MAX_SIDE_PX))
+    height_px: int = option(120, "frame height, px", range=between(16, MAX_SIDE_PX))
+    fps: float = option(25.0, "frame rate, Hz", range=between(0, 10_000, lo_open=True))
+    hfov_deg: float = option(
+        60.0, "horizontal field of view, deg", range=between(0, 170, lo_open=True, hi_open=True)
     )
-    rv_max_s: float = option(
-        0.3, "object radius over approach speed, highest, s", type=positive_float
-    )
+    seconds: float = option(6.0, "clip length, s (the object arrives at the end)", range=POSITIVE)
+    near_miss_share: float = option(0.3, "share of clips that are near misses", range=FRACTION)
+    rotation_max_dps: float = option(30.0, "camera yaw drawn from +-this, deg/s", range=AT_LEAST_0)
+    rv_min_s: float = option(0.08, "object radius over approach speed, lowest, s", range=POSITIVE)
+    rv_max_s: float = option(0.3, "object radius over approach speed, highest, s", range=POSITIVE)
     contrast_min: float = option(
-        0.2, "lowest contrast (1 = the photographs' own)", type=positive_float
+        0.2, "lowest contrast (1 = the photographs' own)", range=between(0, 1, lo_open=True)
     )
-    light_min: float = option(0.1, "lowest light level (1 = daylight)", type=positive_float)
-    noise_max: float = option(8.0, "highest sensor noise, grey levels (SD)")
+    light_min: float = option(
+        0.1, "lowest light level (1 = daylight)", range=between(0, 1, lo_open=True)
+    )
+    noise_max: float = option(8.0, "highest sensor noise, grey levels (SD)", range=AT_LEAST_0)
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.clips, int) and self.clips >= 1):
-            raise ValueError(f"--clips must be a whole number >= 1, got {self.clips!r}")
-        if self.width_px < 16 or self.height_px < 16:
-            raise ValueError(
-                f"frames of {self.width_px}x{self.height_px} px are too small: at least 16x16"
-            )
-        if not 0 < self.hfov_deg < 170:
-            raise ValueError(f"--hfov-deg must be between 0 and 170, got {self.hfov_deg:g}")
-        if not 0 <= self.near_miss_share <= 1:
-            raise ValueError(f"--near-miss-share must be in [0, 1], got {self.near_miss_share:g}")
         if self.rv_min_s > self.rv_max_s:
-            raise ValueError("--rv-min-s must not exceed --rv-max-s")
-        if not (self.contrast_min <= 1 and self.light_min <= 1):
-            raise ValueError("--contrast-min and --light-min must be at most 1")
-        if self.rotation_max_dps < 0 or self.noise_max < 0:
-            raise ValueError("--rotation-max-dps and --noise-max must be >= 0")
+            raise UserError("--rv-min-s must not exceed --rv-max-s")
         if self.seconds < ENTER_S[1] + 1:
-            raise ValueError(
+            raise UserError(
                 f"--seconds {self.seconds:g} is too short: at least {ENTER_S[1] + 1:g} s (the "
                 f"scene alone for 1 s before the object enters up to {ENTER_S[1]:g} s ahead)"
             )

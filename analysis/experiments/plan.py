@@ -6,9 +6,9 @@ import dataclasses
 from typing import Any, ClassVar
 
 from analysis.experiments.collision_study import SEEDS_HELP, seed_list
-from vdc.cli_support import non_negative_int, option, positive_float
-from vdc.errors import UserError
+from vdc.cli_support import option
 from vdc.executors import ExecutorSettings
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, POSITIVE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -19,19 +19,23 @@ class ReproduceSettings(ExecutorSettings):
     The simulated runs go to the executor (``executor``, ``jobs``, ``scheduler``)."""
 
     profile_minutes: float = option(
-        30.0, "profiling run length, min", type=positive_float, shown="30; 3 with --quick"
+        30.0, "profiling run length, min", range=POSITIVE, shown="30; 3 with --quick"
     )
     collision_minutes: float = option(
-        30.0, "collision phase length, min", type=positive_float, shown="30; 3 with --quick"
+        30.0, "collision phase length, min", range=POSITIVE, shown="30; 3 with --quick"
     )
     approach_repeats: int = option(
-        10, "approach repeats per TF", "--repeats", shown="10; 3 with --quick"
+        10,
+        "approach repeats per TF",
+        "--repeats",
+        range=AT_LEAST_1,
+        shown="10; 3 with --quick",
     )
     sweep_duration_s: float = option(
-        1.0, "seconds per sweep cell", type=positive_float, shown="1; 0.5 with --quick"
+        1.0, "seconds per sweep cell", range=POSITIVE, shown="1; 0.5 with --quick"
     )
-    seed: int = option(1, "first random seed", type=non_negative_int)
-    seeds: int = option(5, SEEDS_HELP, shown="5; 3 with --quick")
+    seed: int = option(1, "first random seed", range=AT_LEAST_0)
+    seeds: int = option(5, SEEDS_HELP, range=AT_LEAST_1, shown="5; 3 with --quick")
     detector: str = option("lgmd-plus-arena", "collision detector of the study")
     adjusted: str = option("t_ffi=30", "detector overrides of the 'adjusted threshold' phase")
 
@@ -65,11 +69,6 @@ class ReproduceSettings(ExecutorSettings):
         if values == defaults:
             return "full"
         return "custom"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.seeds < 1:
-            raise UserError(f"--seeds must be at least 1, got {self.seeds}")
 
     @property
     def seed_list(self) -> list[int]:

@@ -55,6 +55,7 @@ from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback, one_pool
 from vdc.parquet_io import WroteFiles
+from vdc.scratch import no_files_without_out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -305,9 +306,10 @@ def footage_study(
     return row | {"status": status, "recomputed": plan.clips}
 
 
+@no_files_without_out
 @one_pool()  # its stages share one pool of workers
 def power_study(
-    settings: PowerStudySettings, out: str | Path, feedback: Feedback = QUIET
+    settings: PowerStudySettings, out: str | Path | None, feedback: Feedback = QUIET
 ) -> PowerStudyResult:
     """Run the plan (``settings.quick``: its reduced version) into ``out`` and write the
     answer there (see the module); finished runs, clips and footage studies are reused."""

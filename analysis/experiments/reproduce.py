@@ -55,6 +55,7 @@ from analysis.recordings.segments import ProfileSettings, segment_summary, segme
 from capture.sim import SimSettings
 from vdc.executors import one_pool
 from vdc.parquet_io import WroteFiles, write_parquet
+from vdc.scratch import no_files_without_out
 
 
 def profile_items(plan: ReproduceSettings, folder: Path) -> list[CaptureItem]:
@@ -100,10 +101,11 @@ class ReproduceResult(WroteFiles):
         return claims_frame(self.claims)
 
 
+@no_files_without_out
 @one_pool()  # its stages share one pool of workers
 def reproduce(
     plan: ReproduceSettings = ReproduceSettings(),
-    out: str | Path = "results/reproduce",
+    out: str | Path | None = "results/reproduce",
     *,
     log: Callable[[str], None] | None = None,
 ) -> ReproduceResult:

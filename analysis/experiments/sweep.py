@@ -22,9 +22,10 @@ from matplotlib.figure import Figure
 from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model, make_params, require_angular_velocity
 from avdm.stimuli import WAVEFORMS, grating, omega_true_dps, period_px_from_sf
-from vdc.cli_support import Settings, option, parse_size, positive_float
+from vdc.cli_support import Settings, option, parse_size
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
+from vdc.settings import AT_LEAST_0, POSITIVE, SIDE_PX, between
 
 PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
 PAPER_TF_HZ = (1.0, 5.0, 50.0)  # columns: response vs SF
@@ -296,23 +297,26 @@ class SweepSettings(Settings):
     ``tf_hz`` lists are given: then their full grid) and the stimulus."""
 
     model: str = option("avdm", "model variant")
-    sf_upc: tuple[float, ...] | None = option(None, "spatial frequencies, upc, e.g. 1,5,10", "--sf")
-    tf_hz: tuple[float, ...] | None = option(None, "temporal frequencies, Hz, e.g. 1,3,10", "--tf")
+    sf_upc: tuple[float, ...] | None = option(
+        None, "spatial frequencies, upc, e.g. 1,5,10", "--sf", range=POSITIVE
+    )
+    tf_hz: tuple[float, ...] | None = option(
+        None, "temporal frequencies, Hz, e.g. 1,3,10", "--tf", range=AT_LEAST_0
+    )
     size: tuple[int, int] = option(  # (H, W) px; W px stand for 360°
-        (100, 100), "stimulus WIDTHxHEIGHT px; the width spans 360 deg", type=parse_size
+        (100, 100),
+        "stimulus WIDTHxHEIGHT px; the width spans 360 deg",
+        type=parse_size,
+        range=SIDE_PX,
     )
-    fps: float = option(300.0, "frame rate, Hz", type=positive_float)
-    duration_s: float = option(
-        1.0, "seconds of stimulus per cell", "--duration", type=positive_float
-    )
+    fps: float = option(300.0, "frame rate, Hz", range=POSITIVE)
+    duration_s: float = option(1.0, "seconds of stimulus per cell", "--duration", range=POSITIVE)
     contrast: float = option(
-        1.0, "Michelson contrast, peak-normalised, (0, 1]", type=positive_float
+        1.0, "Michelson contrast, peak-normalised, (0, 1]", range=between(0, 1, lo_open=True)
     )
     waveform: str = option("sine", "grating profile (--square: square)", choices=WAVEFORMS)
 
     def __post_init__(self) -> None:
-        if not 0 < self.contrast <= 1:
-            raise UserError(f"--contrast must be in (0, 1], got {self.contrast:g}")
         if self.waveform not in WAVEFORMS:
             raise UserError(f"waveform must be sine or square, got {self.waveform!r}")
         if not self.grid and (self.size[1] < 100 or self.fps < 300):

@@ -27,6 +27,7 @@ import pyarrow as pa
 import rerun as rr
 
 from vdc.errors import UserError
+from vdc.folders import not_found
 from vdc.recording import (
     CAMERA,
     DESCRIPTION,
@@ -58,13 +59,7 @@ class FrameChunk:
 
 def _check_path(path: Path) -> None:
     if not path.exists():
-        partial = path.with_name(path.name.removesuffix(".rrd") + ".partial.rrd")
-        if path.suffix == ".rrd" and partial.exists():  # capture.output's name, in progress
-            raise RecordingError(
-                f"{str(path)!r} does not exist, but {str(partial)!r} does: a capture still "
-                "running or killed; analyse that file by name"
-            )
-        raise RecordingError(f"{str(path)!r} does not exist")
+        raise RecordingError(not_found(path))
     if path.is_dir():
         raise RecordingError(f"{str(path)!r} is a directory, not an .rrd recording")
     try:

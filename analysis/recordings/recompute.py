@@ -18,7 +18,6 @@ writes identical rows. Frames are streamed chunk by chunk through all requested 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -36,13 +35,16 @@ from analysis.recordings.loading import (
 )
 from analysis.recordings.reader import RecordingError
 from avdm.base import Model, primary_output_name
+from avdm.errors import PluginError
 from avdm.registry import canonical_name, check_detector, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
-from vdc.cli_support import API_ONLY, Settings, non_negative_int, option, positive_float
+from vdc.cli_support import API_ONLY, Settings, option
 from vdc.errors import UserError
+from vdc.executors import TasksFailed
 from vdc.folders import expand_recordings, path_list
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
+from vdc.settings import AT_LEAST_0, POSITIVE, RANGE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,28 +55,28 @@ class SummarySettings(Settings):
         100.0,
         "response threshold, deg/s (default: {default}, the paper's)",
         "--threshold",
-        type=positive_float,
+        range=POSITIVE,
     )
     near_wall_m: float = option(  # PROPOSED: the paper does not define "near the wall"
-        0.15, "'near the wall' = robot centre within this of a wall, m", type=positive_float
+        0.15, "'near the wall' = robot centre within this of a wall, m", range=POSITIVE
     )
     centre_m: float = option(
-        0.25, "'centre' = farther than this from every wall, m", type=positive_float
+        0.25, "'centre' = farther than this from every wall, m", range=POSITIVE
     )
     # the models' first 2·Tw frames are left out of statistics
-    warmup_frames: int = dataclasses.field(default=20, metadata=API_ONLY)
+    warmup_frames: int = dataclasses.field(default=20, metadata={**API_ONLY, RANGE: AT_LEAST_0})
     # the robot's own turns (analysis/recordings/ego_motion.py): flagged in the frames table, and left
     # out of the summaries with exclude_turns
     turn_threshold_dps: float = option(
         TURN_THRESHOLD_DPS,
         "the robot turns when its own yaw rate exceeds this, deg/s",
-        type=positive_float,
+        range=POSITIVE,
     )
     turn_hold_frames: int = option(
         TURN_HOLD_FRAMES,
         "frames after a turn still counted as turning: the AVDM remembers a turn for its "
         "10-frame window",
-        type=non_negative_int,
+        range=AT_LEAST_0,
     )
     exclude_turns: bool = option(
         False,
@@ -82,15 +84,6 @@ class SummarySettings(Settings):
         "within --turn-hold-frames), so its own rotation is not counted as the scene's "
         "complexity",
     )
-
-    def __post_init__(self) -> None:
-        for name in ("threshold_dps", "near_wall_m", "centre_m", "turn_threshold_dps"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise UserError(f"{name}={v!r} must be a number >= 0")
-        for name in ("warmup_frames", "turn_hold_frames"):
-            if getattr(self, name) < 0:
-                raise UserError(f"{name}={getattr(self, name)} must be >= 0")
 
     @property
     def motion(self) -> str:
@@ -151,10 +144,13 @@ def recompute(
             t_c = sel["t_s"].to_numpy()
             rep = sel["repeat"].fill_null(False).to_numpy()
         for m in runners:
-            if isinstance(m, TrueTimeModel):
-                outs[m.name].append(m.run(chunk.images, t_c, rep))
-            else:
-                outs[m.name].append(m.run(chunk.images))
+            try:
+                if isinstance(m, TrueTimeModel):
+                    outs[m.name].append(m.run(chunk.images, t_c, rep))
+                else:
+                    outs[m.name].append(m.run(chunk.images))
+            except PluginError as exc:  # the user's model: the line names the frame
+                raise exc.at(chunk.frame).on(str(loaded.rec.path)) from None
         if progress is not None:
             progress(len(chunk.frame))
     frame = np.concatenate(frames)
@@ -415,10 +411,13 @@ def build_tables(
     settings: SummarySettings = SummarySettings(),
     progress: Callable[[int], None] | None = None,
     notices: Callable[[str], None] | None = None,
+    plugin_failures: list[PluginError] | None = None,
 ) -> tuple[dict[str, pl.DataFrame], dict[str, Any]]:
     """All four tables for ``paths``; ``specs`` None = the online model's logged outputs.
 
-    Returns the tables and the metadata to store with them."""
+    Returns the tables and the metadata to store with them. A model plug-in that raises on a
+    recording raises, or, given a ``plugin_failures`` list, goes into it and leaves that
+    recording out (the others are tabulated)."""
     frames, outputs, events, summary = [], [], [], []
     params: dict[str, dict[str, dict[str, Any]]] = {}
     arenas: dict[str, tuple[float, float]] = {}
@@ -433,12 +432,21 @@ def build_tables(
             continue
         distinct.add(loaded.recording_id, path)
         if specs and not checked:  # each model stepped once on this raster before any run
-            check_models(loaded, specs)
+            try:
+                check_models(loaded, specs)
+            except PluginError as exc:
+                raise exc.on(str(path)) from None
             checked = True
         if loaded.rec.notice and notices is not None:
             notices(loaded.rec.notice)
         if specs:
-            outs = recompute(loaded, specs, progress)
+            try:
+                outs = recompute(loaded, specs, progress)
+            except PluginError as exc:
+                if plugin_failures is None:
+                    raise
+                plugin_failures.append(exc)
+                continue
             params[loaded.recording_id] = model_params(loaded, specs)
         else:
             if not loaded.logged:
@@ -456,6 +464,8 @@ def build_tables(
         events.append(events_table(loaded))
         summary.append(summary_table(loaded, mo, settings))
     if not frames:  # nothing to tabulate: the first file's own reason
+        if plugin_failures:
+            raise plugin_failures[0]
         raise left[0][1] if left else RecordingError("no recordings given")
     for path, exc in left:
         if notices is not None:
@@ -538,6 +548,14 @@ def tables(
 
     notes = Notices(notice)
     recordings = expand_recordings(recordings, notes)
-    built, meta = build_tables(recordings, settings.models or None, settings, progress, notes)
+    failed: list[PluginError] = []
+    built, meta = build_tables(
+        recordings, settings.models or None, settings, progress, notes, failed
+    )
     paths = publish_tables(built, Path(out), meta) if out is not None else []
+    if failed:  # the others' tables are kept (written when out is given); the run failed
+        more = f" (and {len(failed) - 1} more recording(s))" if len(failed) > 1 else ""
+        kept = f"; the tables of the other {len(meta['recordings'])} recording(s) were "
+        kept += f"written to {out}" if out is not None else "built"
+        raise TasksFailed(f"{failed[0]}{more}{kept}")
     return TablesResult(built, meta, paths, list(notes))

@@ -17,6 +17,7 @@ from analysis.recordings.recompute import SummarySettings, TablesSettings, summa
 from analysis.stats import Estimate, mean_ci
 from vdc.cli_support import API_ONLY, option
 from vdc.errors import UserError
+from vdc.settings import AT_LEAST_1, POSITIVE, RANGE, between
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,19 +29,15 @@ class ProfileSettings(TablesSettings):
         "one profile per recording segment, or pooled per scene/TF/model",
         choices=("recording", "condition"),
     )
-    bin_dps: float = option(20.0, "histogram bin width above the threshold, deg/s")
-    cell_m: float = option(0.05, "heat-map cell size, m")
+    bin_dps: float = option(20.0, "histogram bin width above the threshold, deg/s", range=POSITIVE)
+    cell_m: float = option(0.05, "heat-map cell size, m", range=between(0.005, 0.5))
     # circles drawn in a PNG 3D profile (all go to the .rrd)
-    max_points: int = dataclasses.field(default=4000, metadata=API_ONLY)
+    max_points: int = dataclasses.field(default=4000, metadata={**API_ONLY, RANGE: AT_LEAST_1})
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.by not in ("recording", "condition"):
             raise UserError(f"--by must be recording or condition, got {self.by!r}")
-        if not (math.isfinite(self.bin_dps) and self.bin_dps > 0):
-            raise UserError(f"--bin-dps must be > 0, got {self.bin_dps}")
-        if not (math.isfinite(self.cell_m) and 0.005 <= self.cell_m <= 0.5):
-            raise UserError(f"--cell-m must be between 0.005 and 0.5 m, got {self.cell_m}")
 
 
 @dataclasses.dataclass

@@ -190,7 +190,7 @@ def test_a_tiny_adaptive_campaign_end_to_end(tmp_path: Path) -> None:
     [
         (["--design", "adaptive", "--tf-range", "3:1"], "--tf-range must be LO:HI"),
         (["--design", "adaptive", "--complexity", "online"], "--design adaptive is for"),
-        (["--design", "adaptive", "--budget", "1"], "--budget must be at least 2"),
+        (["--design", "adaptive", "--budget", "1"], "--budget: expected an integer >= 2"),
     ],
 )
 def test_bad_adaptive_input_is_one_line(tmp_path: Path, args, needle) -> None:

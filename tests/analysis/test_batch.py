@@ -147,7 +147,7 @@ def test_bad_batch_input_is_one_line(tmp_path: Path, recordings) -> None:
         (["--shard", "3/2"], "need 0 <= I < N"),
         (["--shard", "x"], "expected I/N"),
         (["--scheduler", str(tmp_path / "none.json")], "neither tcp://"),
-        (["--jobs", "0"], "--jobs must be at least 1"),
+        (["--jobs", "0"], "--jobs: expected an integer >= 1"),
         (["--model", "nope"], "unknown model"),
     ):
         proc = run_in_process(

@@ -157,7 +157,7 @@ def test_find_boundary_brackets_the_crossing() -> None:
          ["has no 'alert' output"]),
         (["--values", "12,abc"], ["--values"]),
         (["--param", "colour"], ["unknown parameter 'colour'"]),
-        (["--measure-every", "0"], ["--measure-every must be 1 or more"]),
+        (["--measure-every", "0"], ["--measure-every: expected an integer >= 1"]),
     ],
 )  # fmt: skip
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str], needles) -> None:

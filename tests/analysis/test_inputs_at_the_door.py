@@ -319,3 +319,18 @@ def test_footage_tables_hold_no_column_outside_the_reserved_set(tmp_path: Path) 
     for path in written:
         extra = set(pq.read_schema(path).names) - OWN_COLUMNS - {"threshold"}
         assert not extra, (path.name, extra)
+
+
+@pytest.mark.parametrize("command", ["tables", "batch", "complexity"])
+def test_a_missing_recording_beside_its_partial_file_names_the_partial_file(
+    tmp_path: Path, command: str
+) -> None:
+    """A killed capture left ``run.partial.rrd`` and no ``run.rrd``: the line names the
+    partial recording and what to do, not just 'no such file'."""
+    (tmp_path / "run.partial.rrd").write_bytes(b"RRF2" + bytes(60))
+    extra = ["--model", "avdm"] if command == "batch" else []
+    proc = run_in_process(
+        "analysis", command, str(tmp_path / "run.rrd"), *extra, "--out", str(tmp_path / "o")
+    )
+    assert_one_line_error(proc, "run.partial.rrd", "analyse that file by name")
+    assert not (tmp_path / "o").exists()

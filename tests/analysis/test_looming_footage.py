@@ -105,9 +105,9 @@ def test_the_flow_detector_alerts_on_collisions_in_the_encoded_clips(collection)
 
 def test_bad_settings_are_one_line() -> None:
     for kw, needle in (
-        ({"clips": 0}, "--clips"),
+        ({"clips": 0}, "LoomingFootageSettings.clips"),
         ({"seconds": 2.0}, "too short"),
-        ({"near_miss_share": 1.5}, "near-miss-share"),
+        ({"near_miss_share": 1.5}, "near_miss_share"),
     ):
         with pytest.raises(ValueError, match=needle):
             LoomingFootageSettings(**kw)

@@ -171,7 +171,7 @@ def test_signal_stops_cleanly_with_a_valid_recording(tmp_path: Path, sig, code) 
         (["--model", "avdm:beta=x"], ["expected a number"]),
         (["--scene", "natural", "--image", "/nonexistent.png"], ["does not exist"]),
         (["--image", "x.png"], ["--scene natural"]),
-        (["--contrast", "3"], ["wall contrast"]),
+        (["--contrast", "3"], ["--contrast", "in (0, 1]"]),
         (["--seed", "-2"], ["non-negative integer"]),
         (["--period-m", "0"], ["positive number"]),
     ],
