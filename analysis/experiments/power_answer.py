@@ -85,7 +85,8 @@ def footage_units(folder: Path, labels: pl.DataFrame) -> pl.DataFrame:
     (1: the detector got it wrong) and each measure's mean over the scene's frames
     (``omega_dps`` is avdm-natural there)."""
     clips = pl.read_parquet(folder / "boundary_clips.parquet").rename({"omega_dps": "avdm_natural"})
-    bg = labels.select("clip", pl.col("background").alias("scene"), "hazard_onset_frame")
+    scene = pl.col("scene") if "scene" in labels.columns else pl.col("background").alias("scene")
+    bg = labels.select("clip", scene, "hazard_onset_frame")
     clips = clips.join(bg, on="clip", how="left").join(
         paper_avdm(folder, bg), on="clip", how="left"
     )

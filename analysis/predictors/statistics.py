@@ -420,43 +420,15 @@ def arena_predictors(
             continue
         m = len(used)
         units = units_of(None if scene_of is None else [scene_of[c] for c in used], "conditions", m)
-        k_cl = units.clusters
         succ0 = np.array([s.mean() for s in shares])
         meas0 = np.array([np.nanmean(mtab[c], 0) for c in used])
         fails = succ0 < target
         counts = (int(fails.sum()), int((~fails).sum()))
-        if units.cluster is not None:
-            draws = cluster_draws(units.cluster, rng, BOOTSTRAP)
-            fail_b = np.where(draws >= 0, (1 - succ0)[np.maximum(draws, 0)], np.nan)
-        else:
-            succ_b, drawn = hierarchical_means(_padded(shares), rng, BOOTSTRAP)
-            meas_b, _ = hierarchical_means(_padded([mtab[c] for c in used]), rng, BOOTSTRAP,
-                                           drawn)  # fmt: skip
-        rho: dict[str, float] = {}
-        ci: dict[str, tuple[float, float]] = {}
-        boots: dict[str, np.ndarray] = {}
+        per_seed = (_padded(shares), _padded([mtab[c] for c in used]))
+        rows += rho_rows(names, meas0, 1 - succ0, units, value, counts, rng, per_seed)
         for j, name in enumerate(names):
             x = meas0[:, j]
             ok = np.isfinite(x)
-            boot = None
-            if units.cluster is not None:
-                r = finite_spearman(x, 1 - succ0)
-                if ok.all():
-                    xb = np.where(draws >= 0, x[np.maximum(draws, 0)], np.nan)
-                    boot = spearman_masked(xb, fail_b)
-                p = rho_p_clustered(r, int(ok.sum()), boot, units.n_units(ok)) if ok.all() \
-                    else math.nan  # fmt: skip
-            else:
-                r, p = permutation_p(x, 1 - succ0, rng)
-                xb = meas_b[:, :, j]
-                fin = np.isfinite(xb).all(1)
-                boot = spearman_rows(xb[fin], 1 - succ_b[fin]) if ok.all() else None
-            k_units = units.n_units(ok)
-            rho[name] = r
-            ci[name] = rho_interval(r, int(ok.sum()), boot, k_cl and k_units)
-            boots[name] = boot
-            rows.append(_row(name, value, "rho_failure", r, *ci[name], int(ok.sum()), units,
-                             k_units, *counts, p))  # fmt: skip
             # leave-one-condition-out needs >= 2 failing and >= 2 passing conditions: with
             # one, the held-out failing condition leaves no failure to fit a threshold on,
             # and a perfect predictor would score 0.5
@@ -465,25 +437,80 @@ def arena_predictors(
             loco_ci = (loco_interval(x, fails, rng, cluster=units.cluster) if enough
                        else (math.nan, math.nan))  # fmt: skip
             rows.append(_row(name, value, "loco_balanced_accuracy", loco, *loco_ci,
-                             int(ok.sum()), units, k_units, *counts))  # fmt: skip
-        for ref in AVDMS:
-            if ref not in rho:
-                continue
-            for j, name in enumerate(names):
-                if name == ref or (name in AVDMS and names.index(name) < names.index(ref)):
-                    continue
-                r12 = finite_spearman(meas0[:, names.index(ref)], meas0[:, j])
-                pair = None
-                if k_cl and boots[ref] is not None and boots[name] is not None:
-                    pair = (boots[ref], boots[name])
-                d, lo, hi, p = rho_difference(rho[ref], ci[ref], rho[name], ci[name], r12, m,
-                                              pair, k_cl)  # fmt: skip
-                stat = f"paired_rho_failure_vs_{ref}"
-                rows.append(_row(name, value, stat, d, lo, hi, m, units, units.n_units(),
-                                 *counts, p, _role(ref, name, stat)))  # fmt: skip
+                             int(ok.sum()), units, units.n_units(ok), *counts))  # fmt: skip
         unit_table = pl.DataFrame(meas0, schema=names, orient="row")
         rows += _combined_rows(unit_table, 1 - succ0, value, units, counts)
     return _table(rows, "arena")
+
+
+def rho_rows(
+    names: list[str],
+    meas: np.ndarray,
+    fail: np.ndarray,
+    units: Units,
+    value: float,
+    counts: tuple[int, int],
+    rng: np.random.Generator,
+    per_seed: tuple[np.ndarray, np.ndarray] | None = None,
+) -> list[dict[str, Any]]:
+    """The ``rho_failure`` rows of each measure (``meas`` (C, M), the conditions' means) with
+    the failure rate ``fail`` (C,), and the paired rows of each AVDM against the others.
+
+    Clustered ``units`` (scenes): one cluster bootstrap (:func:`~analysis.predictors.inference.
+    cluster_draws`, the same draws for every measure), ρ's interval and one-sided p on t with
+    scenes − 1 degrees of freedom, the paired difference's from the same draws. Independent
+    conditions: the hierarchical bootstrap of ``per_seed`` (the conditions' per-seed success
+    shares and measures, NaN-padded), the exact permutation p."""
+    rows: list[dict[str, Any]] = []
+    m = len(fail)
+    k_cl = units.clusters
+    if units.cluster is not None:
+        draws = cluster_draws(units.cluster, rng, BOOTSTRAP)
+        fail_b = np.where(draws >= 0, fail[np.maximum(draws, 0)], np.nan)
+    elif per_seed is not None:
+        succ_b, drawn = hierarchical_means(per_seed[0], rng, BOOTSTRAP)
+        meas_b, _ = hierarchical_means(per_seed[1], rng, BOOTSTRAP, drawn)
+    rho: dict[str, float] = {}
+    ci: dict[str, tuple[float, float]] = {}
+    boots: dict[str, np.ndarray | None] = {}
+    for j, name in enumerate(names):
+        x = meas[:, j]
+        ok = np.isfinite(x)
+        boot = None
+        if units.cluster is not None:
+            r = finite_spearman(x, fail)
+            p = math.nan
+            if ok.all():
+                xb = np.where(draws >= 0, x[np.maximum(draws, 0)], np.nan)
+                boot = spearman_masked(xb, fail_b)
+                p = rho_p_clustered(r, m, boot, units.n_units())
+        else:
+            r, p = permutation_p(x, fail, rng)
+            if per_seed is not None and ok.all():
+                xb = meas_b[:, :, j]
+                fin = np.isfinite(xb).all(1)
+                boot = spearman_rows(xb[fin], 1 - succ_b[fin])
+        k_units = units.n_units(ok)
+        rho[name] = r
+        ci[name] = rho_interval(r, int(ok.sum()), boot, k_cl and k_units)
+        boots[name] = boot
+        rows.append(_row(name, value, "rho_failure", r, *ci[name], int(ok.sum()), units,
+                         k_units, *counts, p))  # fmt: skip
+    for ref in AVDMS:
+        if ref not in rho:
+            continue
+        for j, name in enumerate(names):
+            if name == ref or (name in AVDMS and names.index(name) < names.index(ref)):
+                continue
+            r12 = finite_spearman(meas[:, names.index(ref)], meas[:, j])
+            b1, b2 = boots[ref], boots[name]
+            pair = (b1, b2) if k_cl and b1 is not None and b2 is not None else None
+            d, lo, hi, p = rho_difference(rho[ref], ci[ref], rho[name], ci[name], r12, m, pair,
+                                          k_cl)  # fmt: skip
+            stat = f"paired_rho_failure_vs_{ref}"
+            rows.append(_row(name, value, stat, d, lo, hi, m, units, units.n_units(), *counts,
+                             p, _role(ref, name, stat)))  # fmt: skip
+    return rows
 
 
 # --- verdicts ----------------------------------------------------------------------------------
@@ -517,7 +544,7 @@ def too_few(r: dict[str, Any], mode: str) -> str | None:
     return f"{have}: too few to judge ({' and '.join(n for _, n in short)} needed)"
 
 
-def _judged(rows: list[dict[str, Any]], mode: str) -> list[dict[str, Any]]:
+def judge(rows: list[dict[str, Any]], mode: str) -> list[dict[str, Any]]:
     """Verdicts (the module's rules): comparison rows (a ``role``) with too few units
     (:func:`too_few`) get no verdict; the primary comparison is judged at 5 %; the rest by
     Holm's adjusted p over the whole table (every value of the parameter), each saying whether
@@ -547,7 +574,7 @@ def _judged(rows: list[dict[str, Any]], mode: str) -> list[dict[str, Any]]:
 
 
 def _verdict(r: dict[str, Any], own: dict[tuple, dict[str, Any]]) -> str:
-    """A judged comparison's verdict (see :func:`_judged`)."""
+    """A judged comparison's verdict (see :func:`judge`)."""
     if not r["statistic"].startswith("paired_"):  # a model's gain over SI/TI: its own sign
         if not r["survives"]:
             return "no difference shown"
@@ -589,7 +616,7 @@ TABLE_SCHEMA = {
 
 def _table(rows: list[dict[str, Any]], mode: str) -> pl.DataFrame:
     """The rows judged, as :data:`PREDICTOR_COLUMNS`."""
-    rows = _judged(rows, mode)
+    rows = judge(rows, mode)
     full = [{k: r.get(k) for k in TABLE_SCHEMA} for r in rows]
     return pl.DataFrame(full, schema=TABLE_SCHEMA).with_columns(
         pl.col("estimate", "ci_low", "ci_high", "p_value", "p_holm").fill_nan(None)
