@@ -1,22 +1,31 @@
-"""Intervals and tests over the units that vary (issue 42): :mod:`analysis.predictors.statistics`.
+"""Intervals and tests over the units that vary (issues 42, 57), for the predictors.
 
-A prediction question's units are its **conditions** (arena) or **clips** (footage); seeds and
-frames are nested inside them. Every interval here is over those units:
+A prediction question's independent units are its **scenes** where its conditions (arena) or
+clips (footage) share them, else the conditions or clips; seeds and frames are nested inside
+them. Every interval here is over those units:
 
 * Spearman ρ over conditions: a Fisher-z interval whose standard error is the wider of
-  Bonett & Wright's (2000) over conditions and the hierarchical bootstrap's (conditions
-  resampled, then seeds within each: Davison & Hinkley 1997, §3.8), and an exact permutation
-  p (one-sided, the sign fixed in advance: a higher measure, more failure) over the
-  conditions: every permutation up to :data:`EXACT_UP_TO` conditions, else
-  :data:`PERMUTATIONS` random ones.
+  Bonett & Wright's (2000) over conditions and a bootstrap's: over scenes, the cluster
+  bootstrap (:func:`cluster_draws`: scenes drawn with all their conditions; Davison & Hinkley
+  1997, §3.8; Field & Welsh 2007) with t on scenes − 1 degrees of freedom and a one-sided p
+  from the same standard error (:func:`rho_p_clustered`); over conditions, the hierarchical
+  bootstrap (conditions, then seeds within each) and an exact permutation p (one-sided, the
+  sign fixed in advance: a higher measure, more failure): every permutation up to
+  :data:`EXACT_UP_TO` conditions, else :data:`PERMUTATIONS` random ones.
 * AUROC: Newcombe's (2006, Stat. Med. 25:559, method 5) score interval, which keeps its width
   when the classes separate (a percentile bootstrap collapses to [1, 1] there and missed a
-  true 0.993 in half of the repeats at n = 30); with frames clustered in clips, its sample
-  sizes divided by the design effect of Obuchowski's (1997, Biometrics 53:567) clustered
-  DeLong variance.
+  true 0.993 in half of the repeats at n = 30); with units clustered (clips in scenes, frames
+  in clips or scenes), its sample sizes divided by the design effect of Obuchowski's (1997,
+  Biometrics 53:567) clustered DeLong variance and its quantile t on clusters − 1 degrees of
+  freedom.
 * Two measures on the same units: paired AUROCs by the (clustered) DeLong covariance of their
   difference; two dependent Spearman ρ by Steiger's (1980) Z on Fisher's z (the Bonett–Wright
-  variance) with Zou's (2007, Psychol. Methods 12:399) interval for the difference.
+  variance, or the cluster bootstrap's where wider) with Zou's (2007, Psychol. Methods 12:399)
+  interval for the difference.
+* Means of per-unit values: the cluster-robust variance (:func:`cluster_mean`).
+* With few clusters a normal reference over-rejects (Cameron, Gelbach & Miller 2008; Cameron &
+  Miller 2015): every clustered interval and test is referred to t on clusters − 1 degrees of
+  freedom (:func:`t_quantile`).
 * Many comparisons: Holm's (1979) step-down adjustment, valid under any dependence.
 
 Everything is NumPy, vectorised over measures or repeats (the coverage tests run thousands).
