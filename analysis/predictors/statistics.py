@@ -20,8 +20,10 @@ at least two; else ``unit`` is ``clip`` or ``condition``, taken as independent, 
 :func:`table_note` says so in one line. Why these methods
 (:mod:`analysis.predictors.inference`):
 
-* AUROCs and their paired differences: Obuchowski's (1997) clustered DeLong variance, the
-  scenes' summed placement values; analytic and exact for DeLong's case of clusters of one.
+* AUROCs and their paired differences: Obuchowski's (1997) clustered DeLong variance (the
+  scenes' summed placement values; DeLong's with clusters of one), or the delete-one-scene
+  jackknife's where wider (it is, with few scenes: it errs wide where Obuchowski's errs
+  narrow); analytic, no resampling.
 * Spearman ρ over conditions: a cluster bootstrap (scenes drawn with replacement, each with all
   its conditions; resampling the top stage alone carries the variance of everything below it:
   Davison & Hinkley 1997, §3.8; Field & Welsh 2007). A permutation of conditions is not valid

@@ -280,7 +280,7 @@ def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
     stats = set(res.predictors["statistic"])
     assert {"clip_auroc", "frame_auroc_pooled", "frame_auroc_within_clip"} <= stats
     # the report names each statistic in words (since 40d33c2), not by its column name
-    assert f"### {STATS['clip_auroc']} (n = " in res.markdown
+    assert f"### {STATS['clip_auroc']} (intervals over " in res.markdown
     # the still clips' paper AVDM is 0, a number: the combined models with it are fitted
     assert "si_p910+ti_p910+avdm" in set(res.predictors["measure"])
 

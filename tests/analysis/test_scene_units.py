@@ -220,3 +220,22 @@ def test_less_inverted_is_not_better() -> None:
     else:
         assert avdm["ci_low"] < 0.5 and prim["p_value"] < 0.001
         assert prim["verdict"].startswith("not shown: the better of the two does not predict")
+
+
+def test_the_cluster_jackknife_is_the_auroc_of_each_cluster_left_out() -> None:
+    """:func:`jackknife_cov` from pair sums equals leaving each cluster out and recomputing the
+    AUROCs (ties and clusters in any order); it is at least as wide as Obuchowski's here."""
+    from analysis.predictors.inference import delong_cov, jackknife_cov
+    from analysis.predictors.statistics import auroc_columns
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(60, 2)).round(0)  # rounded: ties within and across clusters
+    pos = rng.random(60) < 0.4
+    cl = rng.integers(0, 12, 60)
+    left = np.array([auroc_columns(x[cl != g], pos[cl != g]) for g in np.unique(cl)])
+    k = len(left)
+    d = left - left.mean(0)
+    # the same sums in another order: equal to float rounding
+    np.testing.assert_allclose(jackknife_cov(x, pos, cl), (k - 1) / k * d.T @ d, atol=1e-15)
+    assert np.all(np.diag(jackknife_cov(x, pos, cl)) > 0)
+    assert np.isfinite(delong_cov(x, pos, cl)[1]).all()
