@@ -243,7 +243,8 @@ def in_words(r: dict[str, Any]) -> str:
     stat = "ρ with the failure rate" if r["source"] == "arena" else "clip AUROC"
     counted = "conditions" if r["source"] == "arena" else "clips"
     est = (
-        f"over {units_phrase(r, counted)} ({share_phrase(r)}) the AVDM's {stat} is "
+        f"over {units_phrase(r, counted)}{f' ({share})' if (share := share_phrase(r)) else ''}"
+        f"; the AVDM's {stat} is "
         f"{_fmt(r['avdm_estimate'], r['avdm_ci_low'], r['avdm_ci_high'])}, TI's "
         f"{_fmt(r['ti_estimate'], r['ti_ci_low'], r['ti_ci_high'])}; the difference "
         f"{_fmt(r['difference'], r['difference_low'], r['difference_high'])}, "
@@ -317,9 +318,9 @@ def first_paragraph(primary: pl.DataFrame) -> str:
         names = ", ".join(f"{r['source']} {r['detector']}" for r in few)
         parts.append(
             f"{len(few)} of the {len(rows)} studies cannot be judged ({names}): too few "
-            f"independent units, scenes above all ({MIN_CONDITIONS} arena scenes, or "
-            f"{MIN_SCENES} footage scenes with {MIN_FAILURES} failing and as many correct "
-            "clips, needed)"
+            "scenes, or units in a class, each says which below ("
+            f"{MIN_CONDITIONS} arena scenes, or {MIN_SCENES} footage scenes with "
+            f"{MIN_FAILURES} failing and as many correct clips, are needed)"
         )
     unjudged = len(rows) - len(judged) - len(few)
     if unjudged:
