@@ -8,7 +8,7 @@ the tables its studies wrote.
 * ``secondaries.parquet``: every other comparison, Holm-corrected within its study
   (:mod:`analysis.predictors.statistics`);
 * ``per_scene.parquet`` / ``per_scene.png`` (exploratory: a post hoc reading, no interval, no
-  test; each cell on its scene's few units, ``units``): where each measure fails to rank the
+  test; each cell on its scene's few units, ``n``): where each measure fails to rank the
   conditions (arena) or clips (footage, by background photograph). Per scene, over the pairs
   of units whose failure differs, the **discordant share**: the share the measure orders against the
   failure (a higher measure, less failure; ties half). 0: it ranks the scene's units
@@ -32,7 +32,7 @@ from matplotlib.figure import Figure
 
 from analysis.boundary.command import WARMUP_FRAMES
 from analysis.predictors.inference import holm
-from analysis.predictors.report import label, units_phrase
+from analysis.predictors.report import label, settings_meta, units_phrase
 from analysis.predictors.statistics import (
     HEADLINE,
     MEASURES,
@@ -77,8 +77,9 @@ def discordant_share(x: np.ndarray, fail: np.ndarray, group: np.ndarray | None =
 
 def arena_units(folder: Path) -> pl.DataFrame:
     """One row per condition of an arena study: scene, failure (1 − the mean of its seeds'
-    success shares, as the predictors take it) and each measure's mean over its profiling
-    runs."""
+    success shares, as the predictors take it), ``failing`` (its success below the study's
+    target, as the predictors count it) and each measure's mean over its profiling runs."""
+    target = settings_meta(folder).get("target", 0.9)
     runs = pl.read_parquet(folder / "boundary_runs.parquet")
     measures = pl.read_parquet(folder / "predictor_measures.parquet")
     names = [m for m in MEASURES if m in measures.columns]
@@ -89,7 +90,8 @@ def arena_units(folder: Path) -> pl.DataFrame:
         .agg((1 - (pl.col("avoidances") / events).mean()).alias("failure"))
     )
     means = measures.group_by("condition", "scene").agg(pl.col(names).mean())
-    return means.join(fail, on="condition", how="inner").sort("condition")
+    units = means.join(fail, on="condition", how="inner").sort("condition")
+    return units.with_columns((1 - pl.col("failure") < target).alias("failing"))
 
 
 def footage_units(folder: Path, labels: pl.DataFrame) -> pl.DataFrame:
@@ -104,7 +106,11 @@ def footage_units(folder: Path, labels: pl.DataFrame) -> pl.DataFrame:
     )
     names = [m for m in MEASURES if m in clips.columns]
     return clips.select(
-        "clip", "scene", (~pl.col("correct")).cast(pl.Float64).alias("failure"), *names
+        "clip",
+        "scene",
+        (~pl.col("correct")).cast(pl.Float64).alias("failure"),
+        (~pl.col("correct")).alias("failing"),
+        *names,
     )
 
 
@@ -129,7 +135,8 @@ def paper_avdm(folder: Path, onsets: pl.DataFrame) -> pl.DataFrame:
 
 def per_scene(units: pl.DataFrame) -> pl.DataFrame:
     """Per measure and scene (and :data:`ACROSS`), the discordant share (see the module) with
-    the units and the pairs it is over."""
+    the units it is over: ``n``, ``n_failing`` and ``n_correct`` (as the predictors count
+    them). Exploratory: no interval."""
     names = [m for m in MEASURES if m in units.columns]
     scenes = units["scene"].unique(maintain_order=True).to_list()
     rows = []
@@ -141,8 +148,9 @@ def per_scene(units: pl.DataFrame) -> pl.DataFrame:
             rows.append({
                 "measure": m,
                 "scene": sc,
-                "units": part.height,
-                "failing_units": int((f > 0).sum()),
+                "n": part.height,
+                "n_failing": int(part["failing"].sum()),
+                "n_correct": int((~part["failing"]).sum()),
                 "discordant_share": discordant_share(part[m].to_numpy(), f, group),
             })  # fmt: skip
     return pl.DataFrame(rows)
@@ -165,7 +173,9 @@ def plot_per_scene(tables: dict[str, pl.DataFrame], path: Path, quick: bool) -> 
         image = ax.imshow(grid, cmap="RdYlGn_r", vmin=0, vmax=1, aspect="auto")
         for (i, j), v in np.ndenumerate(grid):
             ax.text(j, i, "–" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", size=7)
-        ax.set_xticks(range(len(scenes)), scenes, rotation=40, ha="right", size=8)
+        sizes = dict(zip(t["scene"], t["n"], strict=True))  # the units each column rests on
+        ticks = [f"{sc} (n {sizes[sc]})" for sc in scenes]
+        ax.set_xticks(range(len(scenes)), ticks, rotation=40, ha="right", size=8)
         ax.set_yticks(range(len(measures)), [label(m) for m in measures], size=8)
         ax.axvline(len(scenes) - 1.5, color="k", lw=1)  # the across-scenes column apart
         ax.set_title(title, size=10)
@@ -390,12 +400,12 @@ def write_answer(
 
 def scene_sizes(scenes: pl.DataFrame) -> str:
     """The units each scene's cell rests on, in words (the per-scene table's ``units``)."""
-    if not scenes.height or "units" not in scenes.columns:
+    if not scenes.height or "n" not in scenes.columns:
         return ""
     own = scenes.filter(pl.col("scene") != ACROSS)
     if not own.height:
         return ""
-    lo, hi = int(own["units"].min()), int(own["units"].max())
+    lo, hi = int(own["n"].min()), int(own["n"].max())
     n = f"{lo}" if lo == hi else f"{lo}-{hi}"
     return f"Each scene's cell rests on {n} units."
 
