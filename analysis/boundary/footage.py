@@ -8,10 +8,8 @@ The labels table (CSV or Parquet) has one row per clip:
   empty when nothing collides;
 * ``hazard_onset_frame`` (optional): the frame at which the hazard enters the scene; the
   clip's complexity is measured on the frames before it, and an alert before it is early;
-* ``scene`` (optional): the photograph, place or session the clip shares with others. Clips
-  that share a scene share its effect on the measures and on the detector: the predictors'
-  intervals and tests are then over the scenes (:mod:`analysis.predictors.statistics`).
-  Without it the clips are taken as independent, and every table and the run say so.
+* ``scene`` (optional): the photograph, place or session clips share, the predictors' unit
+  (:mod:`analysis.predictors.statistics`); without it clips are taken as independent.
 
 Each clip is read as ``vdc-capture video`` reads it (the working raster, its true frame rate)
 and the detector runs on it; the clip's complexity is measured as ``vdc-analyse complexity``
@@ -67,8 +65,7 @@ from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.complexity.meter import METRICS
-from analysis.predictors.footage import footage_predictor_tables, scene_end
-from analysis.predictors.statistics import table_note
+from analysis.predictors.footage import footage_predictor_tables, scene_column, scene_end
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
 from avdm.registry import check_detector, make_model
@@ -135,15 +132,7 @@ def read_labels(path: str | Path) -> pl.DataFrame:
                 "or empty"
             )
         df = df.with_columns(onset.cast(pl.Int64).alias("hazard_onset_frame"))
-    if "scene" in df.columns:  # optional: what clips share (the predictors' unit)
-        scene = df["scene"].cast(pl.Utf8)
-        empty = df.filter(scene.is_null() | (scene.str.strip_chars() == ""))
-        if empty.height:
-            raise UserError(
-                f"labels table {str(path)!r}: clip {empty['clip'][0]!r} has no scene: name "
-                "every clip's scene (the photograph, place or session it shares) or none"
-            )
-        df = df.with_columns(scene.str.strip_chars().alias("scene"))
+    df = scene_column(df, f"labels table {str(path)!r}")  # optional: what clips share
     if df["clip"].n_unique() != df.height:
         dup = df.filter(pl.col("clip").is_duplicated())["clip"][0]
         raise UserError(f"labels table {str(path)!r} lists clip {dup!r} twice")
@@ -514,12 +503,9 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
         )
         md = footage_report(s, summary, stats, bounds, clips)
         if not s.no_predictors:  # every measure judged by the clips (and frames) it gets wrong
-            table, more, section = footage_predictor_tables(
-                s, labels, clips, out / "complexity", stage
+            _, more, section = footage_predictor_tables(
+                s, labels, clips, out / "complexity", stage, feedback.log
             )
-            note = table_note(table)
-            if note:
-                feedback.log(note)
             paths += more
             md += "\n" + section
         return published(stage, out, BoundaryResult(clips, stats, bounds, None, paths, md))

@@ -43,7 +43,7 @@ from analysis.experiments.predictor_runs import (
     measures_table,
     read_cached_measures,
 )
-from analysis.predictors.statistics import table_note
+from analysis.predictors.verdicts import table_note
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
 from vdc.errors import UserError

@@ -33,13 +33,8 @@ from matplotlib.figure import Figure
 from analysis.boundary.command import WARMUP_FRAMES
 from analysis.predictors.inference import holm
 from analysis.predictors.report import label, settings_meta, units_phrase
-from analysis.predictors.statistics import (
-    HEADLINE,
-    MEASURES,
-    MIN_CONDITIONS,
-    MIN_FAILURES,
-    MIN_SCENES,
-)
+from analysis.predictors.statistics import HEADLINE, MEASURES
+from analysis.predictors.verdicts import MIN_CONDITIONS, MIN_FAILURES, MIN_SCENES
 from analysis.stats import ALPHA
 from vdc.parquet_io import write_parquet
 

@@ -40,8 +40,10 @@ import polars as pl
 from analysis.boundary.command import WARMUP_FRAMES, BoundarySettings
 from analysis.complexity.meter import DIS_PRESETS
 from analysis.experiments.captures import profiling_items
+from analysis.predictors.arena import arena_predictors
 from analysis.predictors.report import PredictorResult, settings_meta, write_predictors
-from analysis.predictors.statistics import MEASURES, arena_predictors, table_note
+from analysis.predictors.statistics import MEASURES
+from analysis.predictors.verdicts import table_note
 from analysis.recordings.loading import load_recording
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel

@@ -17,13 +17,8 @@ import polars as pl
 import pyarrow.parquet as pq
 from matplotlib.figure import Figure
 
-from analysis.predictors.statistics import (
-    HEADLINE,
-    MIN_CONDITIONS,
-    MIN_FAILURES,
-    MIN_SCENES,
-    table_note,
-)
+from analysis.predictors.statistics import HEADLINE
+from analysis.predictors.verdicts import MIN_CONDITIONS, MIN_FAILURES, MIN_SCENES, table_note
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles, write_parquet
 

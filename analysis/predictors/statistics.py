@@ -33,8 +33,9 @@ at least two; else ``unit`` is ``clip`` or ``condition``, taken as independent, 
   Miller 2015): every clustered interval and test is referred to t on scenes − 1 degrees of
   freedom, at any number of scenes (it tends to the normal as they grow).
 
-Arena: ``rho_failure`` (Spearman ρ between the measure and the failure rate, 1 − success,
-across conditions; p one-sided, a higher measure with more failure) and
+Arena (:mod:`analysis.predictors.arena`): ``rho_failure`` (Spearman ρ between the measure and
+the failure rate, 1 − success, across conditions; p one-sided, a higher measure with more
+failure) and
 ``loco_balanced_accuracy`` ("fails the target" predicted for each condition by a threshold on
 the measure fitted on the others; refused below 2 failing or 2 passing conditions).
 
@@ -49,13 +50,13 @@ Both modes: ``paired_<statistic>_vs_<avdm>`` (the AVDM's statistic minus the mea
 units), and ``cv_logloss`` / ``cv_logloss_gain_vs_si_p910+ti_p910`` (a ridge-logistic model of
 the failure rate on sets of measures, :data:`COMBINED`, each scene, or unit, held out).
 
-**Verdicts.** One comparison is primary (:data:`PRIMARY`), judged at 5 %; the rest are
-Holm-corrected. None is judged on fewer independent units than :data:`MIN_CONDITIONS` (arena)
-or :data:`MIN_SCENES` (footage), nor on footage with a smaller class than
-:data:`MIN_FAILURES`: "8 scenes: too few to judge (20 scenes ... needed)". A measure is
-"better" only when it predicts failure beyond chance itself, in the expected direction (its
-own interval clear of chance); two measures both against the expected sign are "both against
-the expected sign": less inverted is not better.
+**Verdicts** (:mod:`analysis.predictors.verdicts`). One comparison is primary
+(:data:`PRIMARY`), judged at 5 %; the rest are Holm-corrected. None is judged on fewer
+independent units than ``MIN_CONDITIONS`` (arena) or ``MIN_SCENES`` (footage), nor on footage
+with a smaller class than ``MIN_FAILURES``: "8 scenes: too few to judge (20 needed)". A
+measure is "better" only when it predicts failure beyond chance itself, in the expected
+direction (its own interval clear of chance); two measures both against the expected sign are
+"both against the expected sign": less inverted is not better.
 """
 
 from __future__ import annotations
@@ -68,23 +69,14 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.predictors.held_out import loco_interval, loco_threshold
 from analysis.predictors.inference import (
-    BOOTSTRAP,
     auroc_difference,
     auroc_interval,
-    cluster_draws,
     cluster_mean,
-    hierarchical_means,
-    holm,
     newcombe_interval,
-    permutation_p,
-    rho_difference,
-    rho_interval,
-    rho_p_clustered,
-    spearman_masked,
 )
-from analysis.stats import ALPHA, scipy_special, scipy_stats
+from analysis.predictors.verdicts import Units, judge, units_of
+from analysis.stats import scipy_special, scipy_stats
 
 RIDGE = 0.1  # the combined logistic's L2 penalty on standardised coefficients (few units)
 # every measure, its column in the measures tables, in the order the reports list them
@@ -124,18 +116,6 @@ HEADLINE = {  # the statistic each mode ranks measures by
 # The paper's question, named before any data: does the paper's AVDM predict failure better
 # than P.910 TI? Judged at 5 % alone; every other comparison is Holm-corrected.
 PRIMARY = ("avdm", "ti_p910")
-# Below these no comparison gets a verdict ("too few to judge"): the units that give 80 %
-# power at two-sided 5 % for the effects the question is about (docs/boundary.md, "How many
-# conditions and clips"). Arena: two dependent Spearman rho of 0.71 and 0.31 (the default
-# grid's TI and AVDM) whose measures correlate 0.7 need 24 independent units (Steiger's test;
-# 47 at 0.3): 24 scenes where conditions share them. Footage: an AUROC difference of 0.10
-# between measures correlated 0.6 needs 46 failing clips, and as many that do not fail
-# (Hanley & McNeil; 94 at 0.3), and, clips that share scenes, at least MIN_SCENES scenes: with
-# fewer clusters even a clustered test over-rejects (8 scenes: 9-12 % at a nominal 5 %;
-# Cameron & Miller 2015 put reliable inference at 20-50 clusters, with t on G - 1 df).
-MIN_CONDITIONS = 24
-MIN_SCENES = 20
-MIN_FAILURES = 46
 # Footage failures scored apart (issue 42): statistic and the clips each is told from. The
 # sign is fixed in advance and the same for each: a higher measure, more of that failure (the
 # paper's hypothesis); a measure that goes the other way scores below 0.5.
@@ -248,41 +228,6 @@ def cv_logistic_losses(
     return losses
 
 
-@dataclasses.dataclass(frozen=True)
-class Units:
-    """What a table's intervals resample or cluster on: ``unit`` (``scene`` where the units
-    share scenes, else ``condition`` or ``clip``, taken as independent), the cluster label of
-    each unit (None: every unit its own), the units' name (``counted``: conditions, clips) and
-    what :func:`table_note` says where they are taken as independent."""
-
-    unit: str
-    cluster: np.ndarray | None
-    counted: str
-    size: int  # the units (conditions, clips)
-
-    def n_units(self, ok: np.ndarray | None = None) -> int:
-        """The clusters (or units) among the units ``ok`` (bool, all by default)."""
-        if self.cluster is None:
-            return self.size if ok is None else int(ok.sum())
-        return len(np.unique(self.cluster if ok is None else self.cluster[ok]))
-
-    @property
-    def clusters(self) -> int | None:
-        """K for a clustered interval (None: units independent)."""
-        return None if self.cluster is None else self.n_units()
-
-
-def units_of(scene: Sequence[Any] | None, counted: str, size: int) -> Units:
-    """The units of one table: clustered on ``scene`` (per unit) where every unit names one
-    and there are at least 2; else the units (``counted``: ``conditions`` or ``clips``) taken
-    as independent (:func:`table_note` says so)."""
-    if scene is not None:
-        labels = [None if s is None else str(s) for s in scene]
-        if None not in labels and len(set(labels)) >= 2:
-            return Units("scene", np.asarray(labels, str), counted, len(labels))
-    return Units(counted.removesuffix("s"), None, counted, size)
-
-
 def _row(measure: str, value: float, statistic: str, est: float, lo: float, hi: float, n: int,
          units: Units, n_units: int, n_failing: int | None = None,
          n_correct: int | None = None, p: float = math.nan, role: str | None = None,
@@ -366,236 +311,6 @@ def measures_present(columns: Sequence[str]) -> list[str]:
     return [m for m in MEASURES if m in columns]
 
 
-# --- arena ------------------------------------------------------------------------------------
-
-
-def _padded(parts: Sequence[np.ndarray]) -> np.ndarray:
-    """Per-condition arrays (S_c, ...) stacked into (C, max S_c, ...), NaN-padded."""
-    s_max = max(len(p) for p in parts)
-    out = np.full((len(parts), s_max, *parts[0].shape[1:]), np.nan)
-    for i, p in enumerate(parts):
-        out[i, : len(p)] = p
-    return out
-
-
-def arena_predictors(
-    runs: pl.DataFrame,
-    measures: pl.DataFrame,
-    param: str,
-    target: float,
-    *,
-    seed: int = 0,
-) -> pl.DataFrame:
-    """The predictor table of an arena grid; its units are the scenes (the wall textures its
-    conditions share), or the conditions where all share one scene.
-
-    ``runs``: one row per closed-loop run (condition, ``param``, seed, avoidances, crashes);
-    ``measures``: one row per profiling run (condition, seed, one column per measure in
-    :data:`MEASURES`, and ``scene``: the condition's wall scene). A condition's success is the
-    mean of its seeds' shares (as ``boundary`` computes it); its measure the mean over its
-    profiling runs. With 2 or more scenes, ρ's interval and p are over the scenes
-    (:func:`~analysis.predictors.inference.cluster_draws`: scenes resampled with all their
-    conditions, t on scenes − 1 degrees of freedom); with one, over the conditions (the
-    hierarchical bootstrap, conditions then seeds; the exact permutation p). Returns
-    :data:`PREDICTOR_COLUMNS`."""
-    names = measures_present(measures.columns)
-    rng = np.random.default_rng(seed)
-    rows: list[dict[str, Any]] = []
-    conds = [c for c in measures["condition"].unique(maintain_order=True)]
-    mtab = {c: measures.filter(pl.col("condition") == c).select(names).to_numpy().astype(float)
-            for c in conds}  # fmt: skip
-    scene_of = (
-        dict(measures.select("condition", "scene").unique("condition").iter_rows())
-        if "scene" in measures.columns
-        else None
-    )
-    for (value,), g in runs.group_by(param, maintain_order=True):
-        shares, used = [], []
-        for c in conds:
-            r = g.filter(pl.col("condition") == c)
-            n = (r["avoidances"] + r["crashes"]).to_numpy()
-            k = r["avoidances"].to_numpy()
-            if (n > 0).any() and len(mtab[c]):
-                shares.append(k[n > 0] / n[n > 0])
-                used.append(c)
-        if len(used) < 3:
-            continue
-        m = len(used)
-        units = units_of(None if scene_of is None else [scene_of[c] for c in used], "conditions", m)
-        succ0 = np.array([s.mean() for s in shares])
-        meas0 = np.array([np.nanmean(mtab[c], 0) for c in used])
-        fails = succ0 < target
-        counts = (int(fails.sum()), int((~fails).sum()))
-        per_seed = (_padded(shares), _padded([mtab[c] for c in used]))
-        rows += rho_rows(names, meas0, 1 - succ0, units, value, counts, rng, per_seed)
-        for j, name in enumerate(names):
-            x = meas0[:, j]
-            ok = np.isfinite(x)
-            # leave-one-condition-out needs >= 2 failing and >= 2 passing conditions: with
-            # one, the held-out failing condition leaves no failure to fit a threshold on,
-            # and a perfect predictor would score 0.5
-            enough = min(int(fails[ok].sum()), int((~fails[ok]).sum())) >= 2
-            loco = loco_threshold(x, fails) if enough else math.nan
-            loco_ci = (loco_interval(x, fails, rng, cluster=units.cluster) if enough
-                       else (math.nan, math.nan))  # fmt: skip
-            rows.append(_row(name, value, "loco_balanced_accuracy", loco, *loco_ci,
-                             int(ok.sum()), units, units.n_units(ok), *counts))  # fmt: skip
-        unit_table = pl.DataFrame(meas0, schema=names, orient="row")
-        rows += _combined_rows(unit_table, 1 - succ0, value, units, counts)
-    return _table(rows, "arena")
-
-
-def rho_rows(
-    names: list[str],
-    meas: np.ndarray,
-    fail: np.ndarray,
-    units: Units,
-    value: float,
-    counts: tuple[int, int],
-    rng: np.random.Generator,
-    per_seed: tuple[np.ndarray, np.ndarray] | None = None,
-) -> list[dict[str, Any]]:
-    """The ``rho_failure`` rows of each measure (``meas`` (C, M), the conditions' means) with
-    the failure rate ``fail`` (C,), and the paired rows of each AVDM against the others.
-
-    Clustered ``units`` (scenes): one cluster bootstrap (:func:`~analysis.predictors.inference.
-    cluster_draws`, the same draws for every measure), ρ's interval and one-sided p on t with
-    scenes − 1 degrees of freedom, the paired difference's from the same draws. Independent
-    conditions: the hierarchical bootstrap of ``per_seed`` (the conditions' per-seed success
-    shares and measures, NaN-padded), the exact permutation p."""
-    rows: list[dict[str, Any]] = []
-    m = len(fail)
-    k_cl = units.clusters
-    if units.cluster is not None:
-        draws = cluster_draws(units.cluster, rng, BOOTSTRAP)
-        fail_b = np.where(draws >= 0, fail[np.maximum(draws, 0)], np.nan)
-    elif per_seed is not None:
-        succ_b, drawn = hierarchical_means(per_seed[0], rng, BOOTSTRAP)
-        meas_b, _ = hierarchical_means(per_seed[1], rng, BOOTSTRAP, drawn)
-    rho: dict[str, float] = {}
-    ci: dict[str, tuple[float, float]] = {}
-    boots: dict[str, np.ndarray | None] = {}
-    for j, name in enumerate(names):
-        x = meas[:, j]
-        ok = np.isfinite(x)
-        boot = None
-        if units.cluster is not None:
-            r = finite_spearman(x, fail)
-            p = math.nan
-            if ok.all():
-                xb = np.where(draws >= 0, x[np.maximum(draws, 0)], np.nan)
-                boot = spearman_masked(xb, fail_b)
-                p = rho_p_clustered(r, m, boot, units.n_units())
-        else:
-            r, p = permutation_p(x, fail, rng)
-            if per_seed is not None and ok.all():
-                xb = meas_b[:, :, j]
-                fin = np.isfinite(xb).all(1)
-                boot = spearman_rows(xb[fin], 1 - succ_b[fin])
-        k_units = units.n_units(ok)
-        rho[name] = r
-        ci[name] = rho_interval(r, int(ok.sum()), boot, k_cl and k_units)
-        boots[name] = boot
-        rows.append(_row(name, value, "rho_failure", r, *ci[name], int(ok.sum()), units,
-                         k_units, *counts, p))  # fmt: skip
-    for ref in AVDMS:
-        if ref not in rho:
-            continue
-        for j, name in enumerate(names):
-            if name == ref or (name in AVDMS and names.index(name) < names.index(ref)):
-                continue
-            r12 = finite_spearman(meas[:, names.index(ref)], meas[:, j])
-            b1, b2 = boots[ref], boots[name]
-            pair = (b1, b2) if k_cl and b1 is not None and b2 is not None else None
-            d, lo, hi, p = rho_difference(rho[ref], ci[ref], rho[name], ci[name], r12, m, pair,
-                                          k_cl)  # fmt: skip
-            stat = f"paired_rho_failure_vs_{ref}"
-            rows.append(_row(name, value, stat, d, lo, hi, m, units, units.n_units(), *counts,
-                             p, _role(ref, name, stat)))  # fmt: skip
-    return rows
-
-
-# --- verdicts ----------------------------------------------------------------------------------
-
-
-def chance(statistic: str) -> float:
-    """A statistic's value when the measure knows nothing of failure: ρ 0, an AUROC 0.5."""
-    return 0.0 if statistic.startswith("rho") else 0.5
-
-
-def too_few(r: dict[str, Any], mode: str) -> str | None:
-    """Why a comparison row gets no verdict for lack of units, or None: fewer independent units
-    than :data:`MIN_CONDITIONS` (arena) or :data:`MIN_SCENES` (footage), or, on footage, a
-    smaller class than :data:`MIN_FAILURES` (named as the smaller class)."""
-    need = MIN_CONDITIONS if mode == "arena" else MIN_SCENES
-    unit = r["unit"]
-    short: list[tuple[str, str]] = []  # (what there is, what is needed)
-    if r["n_units"] < need:
-        short.append((f"{r['n_units']} {unit}{'s' if r['n_units'] != 1 else ''}", f"{need}"))
-    if mode == "footage":
-        fail, ok = r["n_failing"] or 0, r["n_correct"] or 0
-        smaller, k = ("failing", fail) if fail <= ok else ("correct", ok)
-        if k < MIN_FAILURES:
-            what = f"{k} {smaller} {r['counted']} (the smaller class)"
-            short.append((what, f"{MIN_FAILURES} of each class"))
-    if not short:
-        return None
-    if len(short) == 2:
-        short[0] = (short[0][0], f"{need} {unit}s")
-    have = " and ".join(h for h, _ in short)
-    return f"{have}: too few to judge ({' and '.join(n for _, n in short)} needed)"
-
-
-def judge(rows: list[dict[str, Any]], mode: str) -> list[dict[str, Any]]:
-    """Verdicts (the module's rules): comparison rows (a ``role``) with too few units
-    (:func:`too_few`) get no verdict; the primary comparison is judged at 5 %; the rest by
-    Holm's adjusted p over the whole table (every value of the parameter), each saying whether
-    it survives. "better" (the AVDM's statistic higher) or "worse" needs the winner to predict
-    failure beyond chance itself, in the expected direction (its own interval clear of
-    chance); two measures both against the expected sign are "both against the expected
-    sign", never one better for being less inverted."""
-    own = {(r["statistic"], r["value"], r["measure"]): r for r in rows if r["role"] is None}
-    cmp = [r for r in rows if r["role"] is not None]
-    for r in cmp:
-        short = too_few(r, mode)
-        if short:
-            r["verdict"] = short
-        elif not math.isfinite(r["p_value"]):
-            r["verdict"] = "undetermined"
-    family = [r for r in cmp if r.get("verdict") is None and r["role"] == "secondary"]
-    adj = holm(np.array([r["p_value"] for r in family]))
-    for r, a in zip(family, adj, strict=True):
-        r["p_holm"] = float(a)
-    for r in cmp:
-        if r.get("verdict") is not None:
-            continue
-        p = r["p_value"] if r["role"] == "primary" else r["p_holm"]  # the primary: uncorrected
-        r["survives"] = bool(p < ALPHA)
-        r["verdict"] = _verdict(r, own)
-    return rows
-
-
-def _verdict(r: dict[str, Any], own: dict[tuple, dict[str, Any]]) -> str:
-    """A judged comparison's verdict (see :func:`judge`)."""
-    if not r["statistic"].startswith("paired_"):  # a model's gain over SI/TI: its own sign
-        if not r["survives"]:
-            return "no difference shown"
-        return "better" if r["estimate"] > 0 else "worse"
-    ref = r["statistic"].rsplit("_vs_", 1)[1]
-    head = r["statistic"].removeprefix("paired_").rsplit("_vs_", 1)[0]
-    mine = own.get((head, r["value"], ref))
-    theirs = own.get((head, r["value"], r["measure"]))
-    base = chance(head)
-    if mine and theirs and mine["estimate"] < base and theirs["estimate"] < base:
-        return "both against the expected sign"
-    if not r["survives"]:
-        return "no difference shown"
-    winner = mine if r["estimate"] > 0 else theirs
-    if winner is None or not (winner["ci_low"] > base):
-        return "not shown: the better of the two does not predict failure beyond chance"
-    return "better" if r["estimate"] > 0 else "worse"
-
-
 TABLE_SCHEMA = {
     "measure": pl.String,
     "value": pl.Float64,
@@ -622,22 +337,6 @@ def _table(rows: list[dict[str, Any]], mode: str) -> pl.DataFrame:
     full = [{k: r.get(k) for k in TABLE_SCHEMA} for r in rows]
     return pl.DataFrame(full, schema=TABLE_SCHEMA).with_columns(
         pl.col("estimate", "ci_low", "ci_high", "p_value", "p_holm").fill_nan(None)
-    )
-
-
-def table_note(table: pl.DataFrame) -> str | None:
-    """The one line a predictor table says where its units are taken as independent (its
-    ``unit`` is not ``scene``: no scene named, or all units in one); None where they are
-    clustered on scenes. Printed by the commands and written in the reports."""
-    units = set(table["unit"].drop_nulls().to_list()) if table.height else set()
-    if not units or units == {"scene"}:
-        return None
-    counted = "conditions" if "condition" in units else "clips"
-    where = "the runs name" if counted == "conditions" else "the labels name"
-    return (
-        f"{counted.capitalize()} taken as independent: {where} no scene (the photograph, "
-        f"place or session {counted} share), or one; where {counted} share a scene, their "
-        "intervals are too narrow and their verdicts too many."
     )
 
 

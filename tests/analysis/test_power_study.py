@@ -142,8 +142,9 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
     verdicts survive Holm over the judged studies (the plan's own run: 4 verdicts, 1 stands)."""
     from analysis.experiments.power_answer import first_paragraph, with_holm_across
 
-    base = {"param": "v", "value": 1.0, "statistic": "s", "n": 48, "n_failing": 20, "n_correct": 28, "n_units": 24,
-            "unit": "condition", "status": "ran", "avdm_estimate": 0.1, "avdm_ci_low": 0.0,
+    base = {"param": "v", "value": 1.0, "statistic": "s", "n": 48, "n_failing": 20,
+            "n_correct": 28, "n_units": 48, "unit": "condition", "status": "ran",
+            "avdm_estimate": 0.1, "avdm_ci_low": 0.0,
             "avdm_ci_high": 0.2, "ti_estimate": 0.2, "ti_ci_low": 0.1, "ti_ci_high": 0.3,
             "difference": -0.1, "difference_low": -0.2, "difference_high": 0.0}  # fmt: skip
     studies = [

@@ -11,10 +11,10 @@ import polars as pl
 import pytest
 import scipy.stats
 
+from analysis.predictors.arena import arena_predictors
 from analysis.predictors.held_out import loco_threshold
 from analysis.predictors.report import STATS, plot_predictors, predictors_report
 from analysis.predictors.statistics import (
-    arena_predictors,
     auroc,
     finite_spearman,
     footage_predictors,

@@ -18,15 +18,10 @@ import numpy as np
 import polars as pl
 import pytest
 
+from analysis.predictors.arena import rho_rows
 from analysis.predictors.report import predictors_report
-from analysis.predictors.statistics import (
-    MIN_SCENES,
-    footage_predictors,
-    judge,
-    rho_rows,
-    table_note,
-    units_of,
-)
+from analysis.predictors.statistics import footage_predictors
+from analysis.predictors.verdicts import MIN_SCENES, judge, table_note, units_of
 
 REPEATS = 200
 COVERAGE_BAR = 0.93
