@@ -179,7 +179,8 @@ class BoundarySettings(ExecutorSettings):
     labels: str | None = option(
         None,
         "footage mode: a table (CSV or Parquet) of clip, label and collision_frame (empty: no "
-        "collision); clips relative to its folder",
+        "collision), optionally scene (what clips share: the predictors' unit); clips relative "
+        "to its folder",
         metavar="FILE",
     )
     fov_deg: float | None = option(

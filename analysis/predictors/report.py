@@ -314,8 +314,9 @@ def write_predictors(
     return the paths and the report section."""
 
     name = "predictor_measures.parquet" if mode == "arena" else "predictor_frames.parquet"
+    note = table_note(table)  # the units taken as independent, said in the table too
     paths = [
-        write_parquet(table, stage / "predictors.parquet", meta),
+        write_parquet(table, stage / "predictors.parquet", meta | {"units_note": note}),
         write_parquet(measures, stage / name, meta),
         plot_predictors(table, stage / "predictors.png", title),
     ]

@@ -4,10 +4,12 @@ same backgrounds with nothing colliding."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import polars as pl
+import pyarrow.parquet as pq
 import pytest
 
 from analysis.boundary.command import BoundarySettings
@@ -74,6 +76,8 @@ def test_the_readme_looming_detector_breaks_on_busy_backgrounds(
     # the labels name no scene: the run says, in one line, that its clips are independent
     assert sum(line.startswith("Clips taken as independent") for line in said) == 1, said
     assert "Clips taken as independent" in (tmp_path / "boundary.md").read_text()
+    kv = pq.read_schema(tmp_path / "predictors.parquet").metadata  # and in the table itself
+    assert json.loads(kv[b"vdc.units_note"]).startswith("Clips taken as independent")
     clips = res.runs
     still = clips.filter(pl.col("clip").str.contains("drift0-"))
     assert still.filter(pl.col("collision"))["hit"].all()  # on a still background it works
