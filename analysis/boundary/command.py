@@ -89,7 +89,8 @@ OWN_COLUMNS = frozenset(
     | {"frames", "alert_nan_frames", "first_alert_frame", "hit", "false_alarm", "failure"}
     | {"complexity_frames", "startup_frames_left_out", "alert", "positive", "keep", "avdm"}
     | {"avdm_natural", "measure_version", "every", "sampled_frames", "profiler", "rrd_stamp"}
-    | {"measure", "statistic", "estimate", "ci_low", "ci_high", "n", "n_failures", "unit"}
+    | {"measure", "statistic", "estimate", "ci_low", "ci_high", "n", "n_failing", "n_correct"}
+    | {"unit", "n_units"}
     | {"p_value", "p_holm", "role", "survives", "verdict", "omega_dps", "omega_valid"}
     | {"si_p910", "ti_p910", "si_legacy", "ti_legacy", "mafd", "flow_dps", "edge_density"}
     | {"zlib_ratio", "jpeg_bpp", "codec_bpp"}
@@ -183,7 +184,8 @@ class BoundarySettings(ExecutorSettings):
     labels: str | None = option(
         None,
         "footage mode: a table (CSV or Parquet) of clip, label and collision_frame (empty: no "
-        "collision); clips relative to its folder",
+        "collision), optionally scene (what clips share: the predictors' unit); clips relative "
+        "to its folder",
         metavar="FILE",
     )
     fov_deg: float | None = option(

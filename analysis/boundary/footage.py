@@ -7,7 +7,9 @@ The labels table (CSV or Parquet) has one row per clip:
 * ``collision_frame``: the source frame (0-based) at which the object reaches the camera, or
   empty when nothing collides;
 * ``hazard_onset_frame`` (optional): the frame at which the hazard enters the scene; the
-  clip's complexity is measured on the frames before it, and an alert before it is early.
+  clip's complexity is measured on the frames before it, and an alert before it is early;
+* ``scene`` (optional): the photograph, place or session clips share, the predictors' unit
+  (:mod:`analysis.predictors.statistics`); without it clips are taken as independent.
 
 Each clip is read as ``vdc-capture video`` reads it (the working raster, its true frame rate)
 and the detector runs on it; the clip's complexity is measured as ``vdc-analyse complexity``
@@ -63,7 +65,7 @@ from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.complexity.meter import METRICS
-from analysis.predictors.footage import footage_predictor_tables, scene_end
+from analysis.predictors.footage import footage_predictor_tables, scene_column, scene_end
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
 from avdm.registry import check_detector, make_model
@@ -109,6 +111,7 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     )
     if "hazard_onset_frame" in df.columns:  # optional: where the hazard enters the scene
         df = df.with_columns(_frame_numbers(df, "hazard_onset_frame", path))
+    df = scene_column(df, f"labels table {str(path)!r}")  # optional: what clips share
     if df["clip"].n_unique() != df.height:
         dup = df.filter(pl.col("clip").is_duplicated())["clip"][0]
         raise UserError(f"labels table {str(path)!r} lists clip {dup!r} twice")
@@ -453,6 +456,7 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
                     "label": row["label"],
                     "collision_frame": row["collision_frame"],
                     "collision": row["collision_frame"] is not None,
+                    **({"scene": row["scene"]} if "scene" in row else {}),
                     s.param: v,
                     **results[f"{row['clip']} {s.param}={v:g}"],
                     **{k: v for k, v in c.items() if k != "source"},
@@ -504,7 +508,9 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
         )
         md = footage_report(s, summary, stats, bounds, clips)
         if not s.no_predictors:  # every measure judged by the clips (and frames) it gets wrong
-            _, more, section = footage_predictor_tables(s, labels, clips, out / "complexity", stage)
+            _, more, section = footage_predictor_tables(
+                s, labels, clips, out / "complexity", stage, feedback.log
+            )
             paths += more
             md += "\n" + section
         return published(stage, out, BoundaryResult(clips, stats, bounds, None, paths, md))

@@ -43,6 +43,7 @@ from analysis.experiments.predictor_runs import (
     measures_table,
     read_cached_measures,
 )
+from analysis.predictors.verdicts import table_note
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
 from vdc.errors import UserError
@@ -307,7 +308,10 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
             policy, f"{s.detector}: success against complexity", x_label, fits,
         )  # fmt: skip
         if measures is not None:
-            _, more, section = arena_predictor_tables(s, runs, measures, stage)
+            table, more, section = arena_predictor_tables(s, runs, measures, stage)
+            note = table_note(table)
+            if note:
+                feedback.log(note)
             paths += more
             md += "\n" + section
         return published(stage, out, BoundaryResult(runs, conditions, bounds, policy, paths, md))

@@ -24,6 +24,8 @@ footage format of ``vdc-analyse boundary --labels``, docs/guides/boundary.md) ha
 * ``hazard_onset_frame``: the first frame the object is drawn (its image radius reaches 1 px
   with its centre in view; empty for a near miss that never comes into view); measures of the
   scene are taken before it;
+* ``scene``: the background photograph, which the clips over it share (the unit the
+  predictors' intervals are over: ``vdc-analyse boundary --labels``);
 * every drawn condition, with units: ``background``, ``object``, ``rotation_dps``, ``rv_s``,
   ``miss_radii``, ``contrast``, ``light``, ``noise_sd``, ``enter_s``, ``fps``, ``hfov_deg``.
 
@@ -191,6 +193,8 @@ def looming_footage(
             "label": "collision" if collision else "near-miss",
             "collision_frame": n - 1 if collision else None,
             "hazard_onset_frame": clip.hazard_onset_frame,
+            # the photograph is what clips share: the predictors' unit (issue 57)
+            "scene": c["background"],
             **c,
             "fps": s.fps,
             "hfov_deg": s.hfov_deg,

@@ -7,14 +7,17 @@ the tables its studies wrote.
   and each measure's own statistic with its interval;
 * ``secondaries.parquet``: every other comparison, Holm-corrected within its study
   (:mod:`analysis.predictors.statistics`);
-* ``per_scene.parquet`` / ``per_scene.png``: where each measure fails to rank the conditions
-  (arena) or clips (footage, by background photograph). Per scene, over the pairs of units
-  whose failure differs, the **discordant share**: the share the measure orders against the
+* ``per_scene.parquet`` / ``per_scene.png`` (exploratory: a post hoc reading, no interval, no
+  test; each cell on its scene's few units, ``n``): where each measure fails to rank the
+  conditions (arena) or clips (footage, by background photograph). Per scene, over the pairs
+  of units whose failure differs, the **discordant share**: the share the measure orders against the
   failure (a higher measure, less failure; ties half). 0: it ranks the scene's units
   perfectly; 0.5: no better than chance; 1: inverted. The column ``across scenes`` takes the
   pairs whose units lie in different scenes: a measure may rank within scenes and not across
   them (the interaction the plan expects), or the reverse;
-* ``answer.md``: its first paragraph the result in plain words.
+* ``answer.md``: its first paragraph generated from the corrected table: the verdicts that
+  stand after Holm's correction over the judged studies, each study's unit and n (scenes,
+  conditions or clips, failing and correct), and what the runs cannot tell.
 """
 
 from __future__ import annotations
@@ -29,8 +32,9 @@ from matplotlib.figure import Figure
 
 from analysis.boundary.command import WARMUP_FRAMES
 from analysis.predictors.inference import holm
-from analysis.predictors.report import label
-from analysis.predictors.statistics import HEADLINE, MEASURES, MIN_CONDITIONS, MIN_FAILURES
+from analysis.predictors.report import label, settings_meta, units_phrase
+from analysis.predictors.statistics import HEADLINE, MEASURES
+from analysis.predictors.verdicts import MIN_CONDITIONS, MIN_FAILURES, MIN_SCENES
 from analysis.stats import ALPHA
 from vdc.parquet_io import write_parquet
 
@@ -41,6 +45,9 @@ QUICK_BANNER = (
     "runs without `--quick` (docs/findings/power_plan.md)."
 )
 ACROSS = "across scenes"
+# the plan's target share of failing conditions (arena) or clips (footage): both classes well
+# populated (docs/findings/power_plan.md)
+FAILURE_TARGET = (0.30, 0.50)
 FAILING = ("miss", "early", "false_alarm")  # a clip's failure modes (boundary footage mode)
 
 
@@ -65,8 +72,9 @@ def discordant_share(x: np.ndarray, fail: np.ndarray, group: np.ndarray | None =
 
 def arena_units(folder: Path) -> pl.DataFrame:
     """One row per condition of an arena study: scene, failure (1 − the mean of its seeds'
-    success shares, as the predictors take it) and each measure's mean over its profiling
-    runs."""
+    success shares, as the predictors take it), ``failing`` (its success below the study's
+    target, as the predictors count it) and each measure's mean over its profiling runs."""
+    target = settings_meta(folder).get("target", 0.9)
     runs = pl.read_parquet(folder / "boundary_runs.parquet")
     measures = pl.read_parquet(folder / "predictor_measures.parquet")
     names = [m for m in MEASURES if m in measures.columns]
@@ -77,7 +85,8 @@ def arena_units(folder: Path) -> pl.DataFrame:
         .agg((1 - (pl.col("avoidances") / events).mean()).alias("failure"))
     )
     means = measures.group_by("condition", "scene").agg(pl.col(names).mean())
-    return means.join(fail, on="condition", how="inner").sort("condition")
+    units = means.join(fail, on="condition", how="inner").sort("condition")
+    return units.with_columns((1 - pl.col("failure") < target).alias("failing"))
 
 
 def footage_units(folder: Path, labels: pl.DataFrame) -> pl.DataFrame:
@@ -85,13 +94,18 @@ def footage_units(folder: Path, labels: pl.DataFrame) -> pl.DataFrame:
     (1: the detector got it wrong) and each measure's mean over the scene's frames
     (``omega_dps`` is avdm-natural there)."""
     clips = pl.read_parquet(folder / "boundary_clips.parquet").rename({"omega_dps": "avdm_natural"})
-    bg = labels.select("clip", pl.col("background").alias("scene"), "hazard_onset_frame")
+    scene = pl.col("scene") if "scene" in labels.columns else pl.col("background").alias("scene")
+    bg = labels.select("clip", scene, "hazard_onset_frame")
     clips = clips.join(bg, on="clip", how="left").join(
         paper_avdm(folder, bg), on="clip", how="left"
     )
     names = [m for m in MEASURES if m in clips.columns]
     return clips.select(
-        "clip", "scene", (~pl.col("correct")).cast(pl.Float64).alias("failure"), *names
+        "clip",
+        "scene",
+        (~pl.col("correct")).cast(pl.Float64).alias("failure"),
+        (~pl.col("correct")).alias("failing"),
+        *names,
     )
 
 
@@ -116,7 +130,8 @@ def paper_avdm(folder: Path, onsets: pl.DataFrame) -> pl.DataFrame:
 
 def per_scene(units: pl.DataFrame) -> pl.DataFrame:
     """Per measure and scene (and :data:`ACROSS`), the discordant share (see the module) with
-    the units and the pairs it is over."""
+    the units it is over: ``n``, ``n_failing`` and ``n_correct`` (as the predictors count
+    them). Exploratory: no interval."""
     names = [m for m in MEASURES if m in units.columns]
     scenes = units["scene"].unique(maintain_order=True).to_list()
     rows = []
@@ -128,8 +143,9 @@ def per_scene(units: pl.DataFrame) -> pl.DataFrame:
             rows.append({
                 "measure": m,
                 "scene": sc,
-                "units": part.height,
-                "failing_units": int((f > 0).sum()),
+                "n": part.height,
+                "n_failing": int(part["failing"].sum()),
+                "n_correct": int((~part["failing"]).sum()),
                 "discordant_share": discordant_share(part[m].to_numpy(), f, group),
             })  # fmt: skip
     return pl.DataFrame(rows)
@@ -152,7 +168,9 @@ def plot_per_scene(tables: dict[str, pl.DataFrame], path: Path, quick: bool) -> 
         image = ax.imshow(grid, cmap="RdYlGn_r", vmin=0, vmax=1, aspect="auto")
         for (i, j), v in np.ndenumerate(grid):
             ax.text(j, i, "–" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", size=7)
-        ax.set_xticks(range(len(scenes)), scenes, rotation=40, ha="right", size=8)
+        sizes = dict(zip(t["scene"], t["n"], strict=True))  # the units each column rests on
+        ticks = [f"{sc} (n {sizes[sc]})" for sc in scenes]
+        ax.set_xticks(range(len(scenes)), ticks, rotation=40, ha="right", size=8)
         ax.set_yticks(range(len(measures)), [label(m) for m in measures], size=8)
         ax.axvline(len(scenes) - 1.5, color="k", lw=1)  # the across-scenes column apart
         ax.set_title(title, size=10)
@@ -163,8 +181,8 @@ def plot_per_scene(tables: dict[str, pl.DataFrame], path: Path, quick: bool) -> 
         bar.set_label("discordant share: 0 ranks the scene's units, 0.5 chance, 1 inverted")
     head = "QUICK RUN (--quick): not findings. " if quick else ""
     fig.suptitle(
-        f"{head}Where each measure fails to rank the conditions (arena) or clips (footage), "
-        "scene by scene",
+        f"{head}Exploratory (post hoc, no interval): where each measure fails to rank the "
+        "conditions (arena) or clips (footage), scene by scene",
         color="C3" if quick else "k",
     )
     fig.savefig(path, dpi=110)
@@ -193,7 +211,10 @@ def primary_row(study: dict[str, Any], table: pl.DataFrame | None) -> dict[str, 
     p = prim.row(0, named=True)
     stat = HEADLINE[study["source"]]
     own = {r["measure"]: r for r in table.filter(pl.col("statistic") == stat).iter_rows(named=True)}
-    out = row | {"statistic": stat, "n": p["n"], "n_failures": p["n_failures"], "unit": p["unit"]}
+    fail, ok = p["n_failing"], p["n_correct"]
+    share = fail / (fail + ok) if fail is not None and ok is not None and fail + ok else None
+    out = row | {"statistic": stat, "n": p["n"], "n_failing": fail, "n_correct": ok,
+                 "failure_share": share, "unit": p["unit"], "n_units": p["n_units"]}  # fmt: skip
     for name, m in (("avdm", "avdm"), ("ti", "ti_p910")):
         r = own.get(m, {})
         out |= {f"{name}_{k}": r.get(k) for k in ("estimate", "ci_low", "ci_high")}
@@ -206,8 +227,18 @@ def primary_row(study: dict[str, Any], table: pl.DataFrame | None) -> dict[str, 
     }
 
 
+def share_phrase(r: dict[str, Any]) -> str:
+    """A study's failure share beside the plan's target."""
+    share = r.get("failure_share")
+    if share is None:
+        return ""
+    lo, hi = FAILURE_TARGET
+    where = "inside" if lo <= share <= hi else "outside"
+    return f"{100 * share:.0f} % failing, {where} the plan's {100 * lo:.0f}-{100 * hi:.0f} %"
+
+
 def in_words(r: dict[str, Any]) -> str:
-    """One study's primary comparison as a clause."""
+    """One study's primary comparison as a clause, with its unit and n."""
     who = f"{r['source']}, {r['detector']} ({r['param']} {r['value']:g})"
     v = r.get("verdict") or ""
     if v.startswith("no evidence"):
@@ -215,26 +246,37 @@ def in_words(r: dict[str, Any]) -> str:
     if r.get("statistic") is None:
         return f"{who}: undetermined"
     stat = "ρ with the failure rate" if r["source"] == "arena" else "clip AUROC"
+    counted = "conditions" if r["source"] == "arena" else "clips"
     est = (
-        f"over {r['n']} {r['unit']}s ({r['n_failures']} failing) the AVDM's {stat} is "
+        f"over {units_phrase(r, counted)}{f' ({share})' if (share := share_phrase(r)) else ''}"
+        f"; the AVDM's {stat} is "
         f"{_fmt(r['avdm_estimate'], r['avdm_ci_low'], r['avdm_ci_high'])}, TI's "
         f"{_fmt(r['ti_estimate'], r['ti_ci_low'], r['ti_ci_high'])}; the difference "
         f"{_fmt(r['difference'], r['difference_low'], r['difference_high'])}, "
         f"p = {_p(r['p_value'])}"
     )
-    if v.startswith("too few"):
-        need = MIN_CONDITIONS if r["source"] == "arena" else MIN_FAILURES
-        what = "conditions" if r["source"] == "arena" else "failing clips"
-        return (
-            f"{who}: {est}: no verdict, below the power threshold ({need} {what} needed): "
-            "no difference at this power"
-        )
+    if "too few to judge" in v:
+        return f"{who}: {est}: no verdict ({v})"
+    if v == "both against the expected sign":
+        return f"{who}: {est}: both against the expected sign, so neither is better"
     if v in ("better", "worse"):
-        return f"{who}: {est}: the AVDM predicts the failures {v} than TI"
+        across = r.get("p_holm_across")
+        held = across is None or across < ALPHA
+        tail = "" if held else " alone at 5 %, not after Holm's correction over the studies"
+        return f"{who}: {est}: the AVDM predicts the failures {v} than TI{tail}"
+    if v.startswith("not shown"):
+        return f"{who}: {est}: {v}"
     return f"{who}: {est}: no difference at this power"
 
 
-JUDGED = ("better", "worse", "no difference shown")  # the verdicts a judged study gets
+# the verdicts a judged study gets (its p tested; the rest: too few units, or no evidence)
+JUDGED = (
+    "better",
+    "worse",
+    "no difference shown",
+    "both against the expected sign",
+    "not shown: the better of the two does not predict failure beyond chance",
+)
 
 
 def with_holm_across(primary: pl.DataFrame) -> pl.DataFrame:
@@ -252,38 +294,53 @@ def with_holm_across(primary: pl.DataFrame) -> pl.DataFrame:
 
 
 def first_paragraph(primary: pl.DataFrame) -> str:
-    """answer.md's first paragraph: the question and each study's answer in plain words."""
+    """answer.md's first paragraph, generated from the corrected table: the verdicts that stand
+    after Holm's correction over the judged studies (none is counted uncorrected), each
+    study's unit and n, and what the runs cannot tell."""
     rows = list(primary.iter_rows(named=True))
-    verdicts = [r.get("verdict") or "" for r in rows]
-    counts = {v: verdicts.count(v) for v in ("better", "worse", "no difference shown")}
-    unjudged = len(rows) - sum(counts.values())
+    judged = [r for r in rows if r.get("verdict") in JUDGED]
+    decided = [r for r in judged if r.get("verdict") in ("better", "worse")]
+    kept = [r for r in decided if (r.get("p_holm_across") or 1.0) < ALPHA]
+    few = [r for r in rows if "too few to judge" in (r.get("verdict") or "")]
     parts = []
-    if counts["better"]:
-        parts.append(f"the AVDM predicted the failures better than TI in {counts['better']}")
-    if counts["worse"]:
-        parts.append(f"TI predicted them better than the AVDM in {counts['worse']}")
-    if counts["no difference shown"]:
-        parts.append(f"no difference at this power in {counts['no difference shown']}")
-    if unjudged:
-        parts.append(
-            f"{unjudged} below the power thresholds or without evidence, so no verdict: no "
-            "difference at this power"
-        )
-    gist = "; ".join(parts) + f" (of {len(rows)} studies)"
-    across = ""
-    decided = [r for r in rows if r.get("verdict") in ("better", "worse")]
-    if decided and len(rows) > 1:
-        kept = [r for r in decided if (r.get("p_holm_across") or 1.0) < ALPHA]
-        n_judged = sum(1 for r in rows if r.get("verdict") in JUDGED)
+    if judged:
         names = ", ".join(f"{r['source']} {r['detector']}" for r in kept) or "none"
-        across = (
-            f" Each study is judged alone, as the plan fixed; with Holm's correction over the "
-            f"{n_judged} judged studies, {len(kept)} of the {len(decided)} verdicts "
-            f"{'stands' if len(kept) == 1 else 'stand'} ({names})."
+        parts.append(
+            f"with Holm's correction over the {len(judged)} judged "
+            f"stud{'ies' if len(judged) != 1 else 'y'}, {len(kept)} of the {len(decided)} "
+            f"verdicts {'stands' if len(kept) == 1 else 'stand'} ({names})"
         )
+        for r in kept:
+            parts.append(
+                f"in {r['source']} {r['detector']} the AVDM predicts the failures "
+                f"{r['verdict']} than TI"
+            )
+        inverted = [r for r in judged if r["verdict"] == "both against the expected sign"]
+        if inverted:
+            names = ", ".join(f"{r['source']} {r['detector']}" for r in inverted)
+            parts.append(f"in {names} both are against the expected sign: neither is better")
+    if few:
+        names = ", ".join(f"{r['source']} {r['detector']}" for r in few)
+        parts.append(
+            f"{len(few)} of the {len(rows)} studies cannot be judged ({names}): too few "
+            "scenes, or units in a class, each says which below ("
+            f"{MIN_CONDITIONS} arena scenes, or {MIN_SCENES} footage scenes with "
+            f"{MIN_FAILURES} failing and as many correct clips, are needed)"
+        )
+    unjudged = len(rows) - len(judged) - len(few)
+    if unjudged:
+        parts.append(f"{unjudged} without evidence")
+    gist = "; ".join(parts) if parts else "no study"
+    cannot = (
+        " What these runs cannot tell: which measure predicts better where a study has too "
+        "few scenes; whether other scenes, detector values or settings would change this; "
+        "the per-scene reading below is exploratory."
+    )
     return (
         "**Does the AVDM predict where collision detectors fail better than P.910 TI?** "
-        f"Across the plan's studies: {gist}.{across} " + "; ".join(in_words(r) for r in rows) + "."
+        f"Across the plan's {len(rows)} studies: {gist}.{cannot} "
+        + "; ".join(in_words(r) for r in rows)
+        + "."
     )
 
 
@@ -328,7 +385,7 @@ def write_answer(
         plot_per_scene(scene_tables, out / "per_scene.png", quick),
         write_parquet(studies, out / "studies.parquet", meta),
     ]
-    text = answer_markdown(primary, sec, studies, quick, plan)
+    text = answer_markdown(primary, sec, studies, quick, plan, scenes)
     md = out / "answer.md"
     tmp = md.with_suffix(".partial")
     tmp.write_text(text, encoding="utf-8")
@@ -336,31 +393,56 @@ def write_answer(
     return primary, [*paths, md], text
 
 
+def scene_sizes(scenes: pl.DataFrame) -> str:
+    """The units each scene's cell rests on, in words (the per-scene table's ``units``)."""
+    if not scenes.height or "n" not in scenes.columns:
+        return ""
+    own = scenes.filter(pl.col("scene") != ACROSS)
+    if not own.height:
+        return ""
+    lo, hi = int(own["n"].min()), int(own["n"].max())
+    n = f"{lo}" if lo == hi else f"{lo}-{hi}"
+    return f"Each scene's cell rests on {n} units."
+
+
 def answer_markdown(
-    primary: pl.DataFrame, sec: pl.DataFrame, studies: pl.DataFrame, quick: bool, plan: Any
+    primary: pl.DataFrame,
+    sec: pl.DataFrame,
+    studies: pl.DataFrame,
+    quick: bool,
+    plan: Any,
+    scene_units: pl.DataFrame | None = None,
 ) -> str:
-    """answer.md (see the module)."""
+    """answer.md (see the module); ``scene_units``: the per-scene table."""
+    scene_units = pl.DataFrame() if scene_units is None else scene_units
     lines = [QUICK_BANNER + "\n"] if quick else []
     lines += [first_paragraph(primary) + "\n", "## The primary comparison\n"]
     lines += [
         "The AVDM against P.910 TI, named before the runs (docs/findings/power_plan.md): arena, "
         "the "
         "difference of their Spearman ρ with a condition's failure rate (Steiger's test, Zou's "
-        "interval); footage, of their clip AUROCs (DeLong). 95 % intervals; judged at 5 % "
-        f"alone, and only on at least {MIN_CONDITIONS} conditions or {MIN_FAILURES} failing "
-        "clips (the power thresholds).\n",
-        "| source | detector | n | AVDM | TI | AVDM − TI | p | Holm p over the studies | verdict |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "interval); footage, of their clip AUROCs (DeLong). 95 % intervals over the scenes "
+        "(clustered; t on scenes − 1 degrees of freedom); judged at 5 % alone, and only on at "
+        f"least {MIN_CONDITIONS} arena scenes, or {MIN_SCENES} footage scenes with "
+        f"{MIN_FAILURES} failing and as many correct clips; a verdict stands in the first "
+        "paragraph only after Holm's correction over the judged studies. Failing: the share "
+        f"beside the plan's target of {100 * FAILURE_TARGET[0]:.0f}-"
+        f"{100 * FAILURE_TARGET[1]:.0f} %.\n",
+        "| source | detector | units | n | failing | correct | failing share (target "
+        f"{100 * FAILURE_TARGET[0]:.0f}-{100 * FAILURE_TARGET[1]:.0f} %) | AVDM | TI | AVDM − TI "
+        "| p | Holm p over the studies | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in primary.iter_rows(named=True):
         if r.get("statistic") is None:
-            lines.append(f"| {r['source']} | {r['detector']} | — | — | — | — | — | — | "
-                         f"{(r.get('verdict') or '')[:120]} |")  # fmt: skip
+            lines.append(f"| {r['source']} | {r['detector']} |" + " — |" * 10
+                         + f" {(r.get('verdict') or '')[:120]} |")  # fmt: skip
             continue
         across = r.get("p_holm_across")
         lines.append(
-            f"| {r['source']} | {r['detector']} ({r['param']} {r['value']:g}) | {r['n']} "
-            f"({r['n_failures']} failing) | "
+            f"| {r['source']} | {r['detector']} ({r['param']} {r['value']:g}) | "
+            f"{r['n_units']} {r['unit']}s | {r['n']} | {r['n_failing']} | {r['n_correct']} | "
+            f"{share_phrase(r)} | "
             f"{_fmt(r['avdm_estimate'], r['avdm_ci_low'], r['avdm_ci_high'])} | "
             f"{_fmt(r['ti_estimate'], r['ti_ci_low'], r['ti_ci_high'])} | "
             f"{_fmt(r['difference'], r['difference_low'], r['difference_high'], 3)} | "
@@ -389,13 +471,14 @@ def answer_markdown(
     else:
         lines.append("None: no study held the evidence to compare measures.\n")
     lines += [
-        "## Where each measure fails to rank the conditions\n",
+        "## Where each measure fails to rank the conditions (exploratory)\n",
         "![per scene: the share of pairs each measure orders against the failure](per_scene.png)\n",
-        "Per scene (arena: wall scene, its conditions the drawn TFs; footage: the background "
+        "**Exploratory: a post hoc reading, not planned, with no interval and no test.** Per "
+        "scene (arena: wall scene, its conditions the drawn TFs; footage: the background "
         "photograph, its units the clips), over the pairs of units whose failure differs, the "
         "share the measure orders against the failure (0: ranks them; 0.5: chance; 1: "
         "inverted); the last column takes the pairs from different scenes "
-        "(`per_scene.parquet`).\n",
+        f"(`per_scene.parquet`, with each cell's units). {scene_sizes(scene_units)}\n",
         "## The studies\n",
         f"The plan: {plan.conditions()} arena conditions ({len(plan.scenes)} scenes × "
         f"{plan.tf_draws} TFs from {plan.tf_range} Hz) × {plan.seeds} seed(s) of "

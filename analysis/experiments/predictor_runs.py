@@ -40,8 +40,10 @@ import polars as pl
 from analysis.boundary.command import WARMUP_FRAMES, BoundarySettings
 from analysis.complexity.meter import DIS_PRESETS
 from analysis.experiments.captures import profiling_items
+from analysis.predictors.arena import arena_predictors
 from analysis.predictors.report import PredictorResult, settings_meta, write_predictors
-from analysis.predictors.statistics import MEASURES, arena_predictors
+from analysis.predictors.statistics import MEASURES
+from analysis.predictors.verdicts import table_note
 from analysis.recordings.loading import load_recording
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel
@@ -269,6 +271,9 @@ def predictors_for_folder(
     md = md[:cut] if cut >= 0 else md
     with table_set(folder) as stage:
         table, paths, section = arena_predictor_tables(s, runs, measures, stage)
+        note = table_note(table)
+        if note and log is not None:
+            log(note)
         (stage / "boundary.md").write_text(md + "\n" + section, encoding="utf-8")
     paths = [folder / p.name for p in paths]
     return PredictorResult(table, measures, paths, section)

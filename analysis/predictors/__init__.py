@@ -1,6 +1,7 @@
 """Which complexity measure predicts where a detector fails.
 
-Modules: ``statistics`` (AUROC, rank correlations, cross-validated thresholds) → ``report``
+Modules: ``statistics`` (AUROC, rank correlations, cross-validated thresholds; ``arena`` its
+arena table, ``verdicts`` the units and the verdicts' rules) → ``report``
 (the table, figure and page: ``PredictorResult``) ; ``footage`` (per frame, on labelled footage).
 The measures of an arena grid's profiling runs are taken while they are recorded:
 ``analysis.experiments.predictor_runs.predictors`` (``vdc.predictors``).

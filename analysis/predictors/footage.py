@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -23,8 +24,10 @@ from analysis.complexity.command import ComplexitySettings
 from analysis.complexity.meter import METRICS
 from analysis.predictors.report import write_predictors
 from analysis.predictors.statistics import MEASURES, footage_predictors
+from analysis.predictors.verdicts import table_note
 from avdm.registry import make_model
 from avdm.true_time import TrueTimeModel
+from vdc.errors import UserError
 from vdc.executors import run_tasks_or_raise
 from vdc.frame_batches import FrameBatcher, working_camera
 from vdc.sources import open_reader
@@ -96,17 +99,34 @@ def scene_end(row: dict[str, Any], fps: float, window_s: float) -> int | None:
     return None
 
 
+def scene_column(labels: pl.DataFrame, where: str) -> pl.DataFrame:
+    """``labels`` with its optional ``scene`` column (the photograph, place or session clips
+    share: the predictors' unit) as text; UserError, in one line naming ``where``, when some
+    clips name one and others do not (which clips share what would be unknown)."""
+    if "scene" not in labels.columns:
+        return labels
+    scene = labels["scene"].cast(pl.Utf8).str.strip_chars()
+    empty = labels.filter(scene.is_null() | (scene == ""))
+    if empty.height:
+        raise UserError(
+            f"{where}: clip {empty['clip'][0]!r} has no scene: name every clip's scene (the "
+            "photograph, place or session it shares) or none"
+        )
+    return labels.with_columns(scene.alias("scene"))
+
+
 def footage_predictor_tables(
     s: Any,
     labels: pl.DataFrame,
     clips: pl.DataFrame,
     complexity_dir: Path,
     stage: Path,
+    log: Callable[[str], None] | None = None,
 ) -> tuple[pl.DataFrame, list[Path], str]:
     """The predictor tables of a labelled collection, written into ``stage``: (table, paths,
     report section). ``clips`` is ``boundary_clips.parquet`` (one row per clip and value with
     ``correct`` and each measure's mean); ``complexity_dir`` where ``complexity`` wrote its
-    per-frame table."""
+    per-frame table. ``log`` is told, in one line, where the clips are taken as independent."""
 
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {f"{v:g}": with_override(s.detector, s.param, v) for v in values}
@@ -155,6 +175,9 @@ def footage_predictor_tables(
         pl.col("clip").replace_strict(paper_means, return_dtype=pl.Float64).alias("avdm")
     )
     table = footage_predictors(clip_table, frames_df, s.param)
+    note = table_note(table)
+    if note and log is not None:
+        log(note)
     meta = {"settings": dataclasses.asdict(s)}
     paths, section = write_predictors(
         table,

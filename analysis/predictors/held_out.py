@@ -87,7 +87,11 @@ def _middle_of_best(ba: np.ndarray) -> np.ndarray:
 
 
 def loco_bootstrap(
-    x: np.ndarray, fails: np.ndarray, rng: np.random.Generator, n_boot: int = BOOTSTRAP
+    x: np.ndarray,
+    fails: np.ndarray,
+    rng: np.random.Generator,
+    n_boot: int = BOOTSTRAP,
+    cluster: np.ndarray | None = None,
 ) -> np.ndarray:
     """:func:`loco_threshold` on ``n_boot`` resamples of the conditions, (n_boot,) finite.
 
@@ -95,11 +99,18 @@ def loco_bootstrap(
     its copies (a copy left in training would predict itself), its threshold fitted on the
     others as in :func:`loco_rows` (midpoints between the training values, the middle of tied
     best ones), and the balanced accuracy weighs each condition by its copies. x (N,) float
-    (finite), fails (N,) bool. Resamples without both classes are left out."""
+    (finite), fails (N,) bool. Resamples without both classes are left out. With ``cluster``
+    (N,) labels (the conditions' scenes) the scenes are drawn instead, each condition weighed
+    by its scene's draws (conditions that share a scene are not independent)."""
     order = np.argsort(x, kind="stable")
     x, fails = np.asarray(x, float)[order], np.asarray(fails, bool)[order]
     n = len(x)
-    w_all = rng.multinomial(n, np.full(n, 1 / n), size=n_boot).astype(float)  # (B, N)
+    if cluster is None:
+        w_all = rng.multinomial(n, np.full(n, 1 / n), size=n_boot).astype(float)  # (B, N)
+    else:
+        _, inv = np.unique(np.asarray(cluster)[order], return_inverse=True)
+        k = int(inv.max()) + 1
+        w_all = rng.multinomial(k, np.full(k, 1 / k), size=n_boot)[:, inv].astype(float)
     pred = np.zeros((n_boot, n), bool)
     rows = np.arange(n_boot)
     for i in range(n):
@@ -136,7 +147,11 @@ def loco_bootstrap(
 
 
 def loco_interval(
-    x: np.ndarray, fails: np.ndarray, rng: np.random.Generator, n_boot: int = BOOTSTRAP
+    x: np.ndarray,
+    fails: np.ndarray,
+    rng: np.random.Generator,
+    n_boot: int = BOOTSTRAP,
+    cluster: np.ndarray | None = None,
 ) -> tuple[float, float]:
     """95 % interval of :func:`loco_threshold` over conditions: the union of the percentile
     interval of :func:`loco_bootstrap` and a Beta posterior of the held-out counts
@@ -144,10 +159,12 @@ def loco_interval(
     Brodersen et al. 2010). The posterior alone covers too little (83-95 % on known truths):
     the held-out predictions share their thresholds. The bootstrap alone collapses to [1, 1]
     where the classes separate, as every resample separates too. Their union is conservative,
-    98-100 % and about 1.1-1.6x the posterior's width (``benchmarks/bench_loco_interval.py``)."""
+    98-100 % and about 1.1-1.6x the posterior's width (``benchmarks/bench_loco_interval.py``).
+    ``cluster``: the conditions' scenes, resampled in place of the conditions."""
     ok = np.isfinite(x)
     x, fails = np.asarray(x, float)[ok], np.asarray(fails, bool)[ok]
-    boot = loco_bootstrap(x, fails, rng, n_boot)
+    cl = None if cluster is None else np.asarray(cluster)[ok]
+    boot = loco_bootstrap(x, fails, rng, n_boot, cl)
     if len(boot) < n_boot // 2:
         return math.nan, math.nan
     lo, hi = np.quantile(boot, [ALPHA / 2, 1 - ALPHA / 2])

@@ -1,22 +1,31 @@
-"""Intervals and tests over the units that vary (issue 42): :mod:`analysis.predictors.statistics`.
+"""Intervals and tests over the units that vary (issues 42, 57), for the predictors.
 
-A prediction question's units are its **conditions** (arena) or **clips** (footage); seeds and
-frames are nested inside them. Every interval here is over those units:
+A prediction question's independent units are its **scenes** where its conditions (arena) or
+clips (footage) share them, else the conditions or clips; seeds and frames are nested inside
+them. Every interval here is over those units:
 
 * Spearman ρ over conditions: a Fisher-z interval whose standard error is the wider of
-  Bonett & Wright's (2000) over conditions and the hierarchical bootstrap's (conditions
-  resampled, then seeds within each: Davison & Hinkley 1997, §3.8), and an exact permutation
-  p (one-sided, the sign fixed in advance: a higher measure, more failure) over the
-  conditions: every permutation up to :data:`EXACT_UP_TO` conditions, else
-  :data:`PERMUTATIONS` random ones.
+  Bonett & Wright's (2000) over conditions and a bootstrap's: over scenes, the cluster
+  bootstrap (:func:`cluster_draws`: scenes drawn with all their conditions; Davison & Hinkley
+  1997, §3.8; Field & Welsh 2007) with t on scenes − 1 degrees of freedom and a one-sided p
+  from the same standard error (:func:`rho_p_clustered`); over conditions, the hierarchical
+  bootstrap (conditions, then seeds within each) and an exact permutation p (one-sided, the
+  sign fixed in advance: a higher measure, more failure): every permutation up to
+  :data:`EXACT_UP_TO` conditions, else :data:`PERMUTATIONS` random ones.
 * AUROC: Newcombe's (2006, Stat. Med. 25:559, method 5) score interval, which keeps its width
   when the classes separate (a percentile bootstrap collapses to [1, 1] there and missed a
-  true 0.993 in half of the repeats at n = 30); with frames clustered in clips, its sample
-  sizes divided by the design effect of Obuchowski's (1997, Biometrics 53:567) clustered
-  DeLong variance.
+  true 0.993 in half of the repeats at n = 30); with units clustered (clips in scenes, frames
+  in clips or scenes), its sample sizes divided by the design effect of Obuchowski's (1997,
+  Biometrics 53:567) clustered DeLong variance (or the delete-one-cluster jackknife's,
+  :func:`jackknife_cov`, where wider) and its quantile t on clusters − 1 degrees of freedom.
 * Two measures on the same units: paired AUROCs by the (clustered) DeLong covariance of their
   difference; two dependent Spearman ρ by Steiger's (1980) Z on Fisher's z (the Bonett–Wright
-  variance) with Zou's (2007, Psychol. Methods 12:399) interval for the difference.
+  variance, or the cluster bootstrap's where wider) with Zou's (2007, Psychol. Methods 12:399)
+  interval for the difference.
+* Means of per-unit values: the cluster-robust variance (:func:`cluster_mean`).
+* With few clusters a normal reference over-rejects (Cameron, Gelbach & Miller 2008; Cameron &
+  Miller 2015): every clustered interval and test is referred to t on clusters − 1 degrees of
+  freedom (:func:`t_quantile`).
 * Many comparisons: Holm's (1979) step-down adjustment, valid under any dependence.
 
 Everything is NumPy, vectorised over measures or repeats (the coverage tests run thousands).
@@ -29,7 +38,7 @@ import math
 
 import numpy as np
 
-from analysis.stats import scipy_stats
+from analysis.stats import ALPHA, scipy_stats
 
 # scipy.stats.norm.ppf(0.5 + analysis.stats.CONFIDENCE / 2) (a test holds it to it, bit for
 # bit): written out so that importing the predictors does not import scipy.stats
@@ -44,13 +53,13 @@ RHO_CAP = 0.999  # |rho| = 1 has an infinite Fisher z: capped (an interval end n
 
 
 def newcombe_interval(
-    a: np.ndarray | float, n1: np.ndarray | float, n0: np.ndarray | float
+    a: np.ndarray | float, n1: np.ndarray | float, n0: np.ndarray | float, z: float = Z
 ) -> tuple[np.ndarray, np.ndarray]:
     """Newcombe's score interval for an AUROC ``a`` from ``n1`` positives and ``n0``
     negatives (arrays broadcast; float sample sizes allowed: effective sizes). The ends are the
     θ where (a − θ)² = z² V(θ), V the Hanley–McNeil variance with n₁ − 1 and n₀ − 1 replaced by
     N − 1, N = (n₁ + n₀)/2; found by bisection (60 halvings: 1e-18 of the unit interval). NaN
-    where a is NaN or a class is empty."""
+    where a is NaN or a class is empty. ``z``: the quantile (a t quantile over few clusters)."""
     a, n1, n0 = np.broadcast_arrays(*(np.asarray(v, float) for v in (a, n1, n0)))
     ok = np.isfinite(a) & (n1 > 0) & (n0 > 0)
     a_ = np.where(ok, a, 0.5)
@@ -64,7 +73,7 @@ def newcombe_interval(
             / (n1_ * n0_)
             * (1 + (big_n - 1) * (1 - theta) / (2 - theta) + (big_n - 1) * theta / (1 + theta))
         )
-        return (a_ - theta) ** 2 - Z**2 * var
+        return (a_ - theta) ** 2 - z**2 * var
 
     def root(outer: np.ndarray) -> np.ndarray:  # between outer (excess >= 0) and a (<= 0)
         lo, hi = outer.copy(), a_.copy()
@@ -129,12 +138,59 @@ def delong_cov(
     return a, s10 / n1 + s01 / n0 + (s11 + s11.T) / (n1 * n0)
 
 
+def jackknife_cov(x: np.ndarray, positive: np.ndarray, cluster: np.ndarray) -> np.ndarray:
+    """The delete-one-cluster jackknife covariance (M, M) of the AUROCs of the columns of x
+    (N, M) (finite): each cluster left out in turn, the AUROC of the rest from the pair sums
+    (all pairs, less the cluster's positives' and negatives' pairs, plus its own pairs, counted
+    twice). ((K − 1)/K Σ (A₍g₎ − Ā)(A₍g₎ − Ā)ᵀ; NaN where a cluster holds a whole class.)
+    Wider than Obuchowski's with few clusters, as the jackknife is (CR3 against CR1)."""
+    positive = np.asarray(positive, bool)
+    m = x.shape[1]
+    _, inv = np.unique(np.asarray(cluster), return_inverse=True)
+    k = int(inv.max()) + 1
+    n1, n0 = int(positive.sum()), int((~positive).sum())
+    v10, v01 = placements(x, positive)
+    pos_sum = np.zeros((k, m))
+    neg_sum = np.zeros((k, m))
+    np.add.at(pos_sum, inv[positive], v10 * n0)  # pairs of a cluster's positives with all
+    np.add.at(neg_sum, inv[~positive], v01 * n1)  # pairs of all positives with its negatives
+    # each cluster's own pairs: ranks within the cluster, all at once (a key that sorts by
+    # cluster, then value; equal only for equal values in one cluster), less the ranks of the
+    # clusters before it
+    n = len(inv)
+    dense = scipy_stats().rankdata(x, method="dense", axis=0)
+    key = inv[:, None] * (n + 1.0) + dense
+    before_all = np.concatenate([[0], np.cumsum(np.bincount(inv, minlength=k))])[inv]
+    before_pos = np.concatenate([[0], np.cumsum(np.bincount(inv[positive], minlength=k))])
+    r_all = scipy_stats().rankdata(key, axis=0) - before_all[:, None]
+    r_pos = scipy_stats().rankdata(key[positive], axis=0) - before_pos[inv[positive]][:, None]
+    own = np.zeros((k, m))
+    np.add.at(own, inv[positive], r_all[positive] - r_pos)
+    m1 = np.bincount(inv[positive], minlength=k)[:, None]
+    m0 = np.bincount(inv[~positive], minlength=k)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        left = (n1 * n0 * v10.mean(0) - pos_sum - neg_sum + own) / ((n1 - m1) * (n0 - m0))
+    if not np.isfinite(left).all() or k < 2:
+        return np.full((m, m), np.nan)
+    d = left - left.mean(0)
+    return (k - 1) / k * d.T @ d
+
+
+def t_quantile(clusters: int) -> float:
+    """The two-sided 95 % quantile of Student's t on ``clusters`` − 1 degrees of freedom: the
+    reference of every clustered interval and test here (Cameron & Miller 2015); NaN below 2."""
+    if clusters < 2:
+        return math.nan
+    return float(scipy_stats().t.ppf(1 - ALPHA / 2, clusters - 1))
+
+
 def auroc_interval(
     x: np.ndarray, positive: np.ndarray, cluster: np.ndarray | None = None
 ) -> tuple[float, float, float]:
     """One measure's AUROC (x (N,), NaN rows left out) with its 95 % interval: Newcombe's, on
-    sample sizes divided by the design effect of the clips (clustered DeLong variance over the
-    unclustered; where both are 0, at separation, the frames per clip of each class)."""
+    sample sizes divided by the design effect of the clusters (clustered DeLong variance over
+    the unclustered; where both are 0, at separation, the units per cluster of each class),
+    with a t quantile on K − 1 degrees of freedom for K clusters (a normal one without)."""
     x, positive = np.asarray(x, float), np.asarray(positive, bool)
     ok = np.isfinite(x)
     x, positive = x[ok], positive[ok]
@@ -142,17 +198,22 @@ def auroc_interval(
     if n1 == 0 or n0 == 0:
         return math.nan, math.nan, math.nan
     a, var_iid = delong_cov(x[:, None], positive)
-    deff = 1.0
+    deff, z = 1.0, Z
     if cluster is not None:
         cl = np.asarray(cluster)[ok]
+        k = len(np.unique(cl))
+        if k < 2:  # one cluster: no interval over clusters
+            return float(a[0]), math.nan, math.nan
+        z = t_quantile(k)
         _, var_c = delong_cov(x[:, None], positive, cl)
+        var_c = np.fmax(var_c, jackknife_cov(x[:, None], positive, cl))  # the wider
         if var_iid[0, 0] > 0 and np.isfinite(var_c[0, 0]):
             deff = max(1.0, float(var_c[0, 0] / var_iid[0, 0]))
         else:
             k1 = len(np.unique(cl[positive]))
             k0 = len(np.unique(cl[~positive]))
             deff = max(1.0, n1 / k1, n0 / k0)
-    lo, hi = newcombe_interval(a[0], n1 / deff, n0 / deff)
+    lo, hi = newcombe_interval(a[0], n1 / deff, n0 / deff, z)
     return float(a[0]), float(lo), float(hi)
 
 
@@ -160,8 +221,9 @@ def auroc_difference(
     x1: np.ndarray, x2: np.ndarray, positive: np.ndarray, cluster: np.ndarray | None = None
 ) -> tuple[float, float, float, float]:
     """AUROC of x1 minus that of x2 on the same units (rows where both are finite), with its
-    95 % interval and two-sided p from the (clustered) DeLong covariance. (estimate, low,
-    high, p); a zero variance with a zero difference gives p = 1."""
+    95 % interval and two-sided p from the (clustered) DeLong covariance: with ``cluster``,
+    Obuchowski's, referred to t on K − 1 degrees of freedom (K clusters). (estimate, low, high,
+    p); a zero variance with a zero difference gives p = 1."""
 
     x = np.column_stack([x1, x2]).astype(float)
     ok = np.isfinite(x).all(1)
@@ -172,13 +234,91 @@ def auroc_difference(
     a, cov = delong_cov(x[ok], pos, cl)
     d = float(a[0] - a[1])
     var = float(cov[0, 0] + cov[1, 1] - 2 * cov[0, 1])
+    if cl is not None:  # the wider of Obuchowski's and the jackknife's
+        jack = jackknife_cov(x[ok], pos, cl)
+        var = float(np.fmax(var, jack[0, 0] + jack[1, 1] - 2 * jack[0, 1]))
     if not math.isfinite(var):
         return d, math.nan, math.nan, math.nan
     se = math.sqrt(max(var, 0.0))
     if se == 0:
         return d, d, d, 1.0 if d == 0 else 0.0
-    p = float(2 * scipy_stats().norm.sf(abs(d) / se))
-    return d, d - Z * se, d + Z * se, p
+    if cl is None:
+        return d, d - Z * se, d + Z * se, float(2 * scipy_stats().norm.sf(abs(d) / se))
+    k = len(np.unique(cl))
+    q = t_quantile(k)
+    return d, d - q * se, d + q * se, float(2 * scipy_stats().t.sf(abs(d) / se, k - 1))
+
+
+# --- means over clusters ------------------------------------------------------------------------
+
+
+def cluster_mean(
+    v: np.ndarray, cluster: np.ndarray | None = None
+) -> tuple[float, float, float, float, int]:
+    """The mean of per-unit values ``v`` (N,) (NaN left out) with its 95 % interval and the
+    two-sided p of a zero mean: with ``cluster`` (N,) labels the cluster-robust variance (CR1:
+    the clusters' summed residuals, × K/(K − 1)) on t with K − 1 degrees of freedom (Cameron &
+    Miller 2015); without, Student's t over the units. (mean, low, high, p, units or clusters)."""
+    v = np.asarray(v, float)
+    ok = np.isfinite(v)
+    v = v[ok]
+    n = len(v)
+    if cluster is None:
+        cl = np.arange(n)
+    else:
+        cl = np.asarray(cluster)[ok]
+    if n == 0:
+        return math.nan, math.nan, math.nan, math.nan, 0
+    _, inv = np.unique(cl, return_inverse=True)
+    k = int(inv.max()) + 1
+    mean = float(v.mean())
+    if k < 2:
+        return mean, math.nan, math.nan, math.nan, k
+    resid = np.bincount(inv, weights=v - mean, minlength=k)
+    se = math.sqrt(k / (k - 1) * float((resid**2).sum())) / n
+    q = t_quantile(k)
+    if se == 0:
+        return mean, mean, mean, 1.0 if mean == 0 else 0.0, k
+    p = float(2 * scipy_stats().t.sf(abs(mean) / se, k - 1))
+    return mean, mean - q * se, mean + q * se, p, k
+
+
+def cluster_draws(cluster: np.ndarray, rng: np.random.Generator, boots: int) -> np.ndarray:
+    """The cluster bootstrap's draws (Davison & Hinkley 1997, §3.8, resampling the top stage;
+    Field & Welsh 2007): K clusters drawn with replacement, each with all its units.
+    ``cluster`` (N,) labels; returns (B, K × the largest cluster) unit indices, −1 where a
+    drawn cluster has fewer units than the largest (no unit)."""
+    _, inv = np.unique(np.asarray(cluster), return_inverse=True)
+    k = int(inv.max()) + 1
+    sizes = np.bincount(inv, minlength=k)
+    members = np.full((k, sizes.max()), -1)
+    for g in range(k):
+        members[g, : sizes[g]] = np.flatnonzero(inv == g)
+    drawn = rng.integers(0, k, (boots, k))
+    return members[drawn].reshape(boots, -1)
+
+
+def spearman_masked(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Spearman ρ of each row pair of x, y (B, L), NaN entries left out of both: (B,); NaN
+    where a row holds fewer than 3 pairs or is constant."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    if ok.all() and x.shape[1] >= 3:  # nothing left out (clusters of one size): plain ranks
+        rx = scipy_stats().rankdata(x, axis=1)
+        ry = scipy_stats().rankdata(y, axis=1)
+        rx -= rx.mean(1, keepdims=True)
+        ry -= ry.mean(1, keepdims=True)
+        den = np.sqrt((rx**2).sum(1) * (ry**2).sum(1))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(den > 0, (rx * ry).sum(1) / np.where(den > 0, den, 1.0), math.nan)
+    x, y = np.where(ok, x, np.nan), np.where(ok, y, np.nan)
+    rx = scipy_stats().rankdata(x, axis=1, nan_policy="omit")
+    ry = scipy_stats().rankdata(y, axis=1, nan_policy="omit")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rx = rx - np.nanmean(rx, 1, keepdims=True)
+        ry = ry - np.nanmean(ry, 1, keepdims=True)
+        den = np.sqrt(np.nansum(rx**2, 1) * np.nansum(ry**2, 1))
+        rho = np.nansum(rx * ry, 1) / np.where(den > 0, den, 1.0)
+    return np.where((den > 0) & (ok.sum(1) >= 3), rho, math.nan)
 
 
 # --- Spearman rho over conditions ---------------------------------------------------------------
@@ -193,12 +333,9 @@ def rho_se(rho: np.ndarray | float, n: int) -> np.ndarray:
     return np.sqrt((1 + np.asarray(rho, float) ** 2 / 2) / max(n - 3, 1))
 
 
-def rho_interval(rho: float, n: int, boot: np.ndarray | None = None) -> tuple[float, float]:
-    """The 95 % interval of a Spearman ρ over ``n`` conditions: Fisher z ± 1.96 × the wider of
-    the Bonett–Wright standard error and the standard deviation of z over the hierarchical
-    bootstrap's ρ (``boot``, conditions then seeds resampled). NaN below 4 conditions."""
-    if not math.isfinite(rho) or n < 4:
-        return math.nan, math.nan
+def _rho_z_se(rho: float, n: int, boot: np.ndarray | None) -> tuple[float, float]:
+    """Fisher's z of ρ and its standard error: the wider of Bonett–Wright's over ``n`` units
+    and the standard deviation of z over the bootstrap's ρ (``boot``)."""
     se = float(rho_se(rho, n))
     # |rho| = 1 has no finite z: capped half a step below it (Spearman's values step by
     # 12 / (n (n^2 - 1)) next to 1), so a perfect order on few conditions keeps a width
@@ -208,8 +345,33 @@ def rho_interval(rho: float, n: int, boot: np.ndarray | None = None) -> tuple[fl
         b = b[np.isfinite(b)]
         if len(b) >= 10:
             se = max(se, float(np.arctanh(np.clip(b, -cap, cap)).std(ddof=1)))
-    z = float(np.arctanh(np.clip(rho, -cap, cap)))
-    return float(np.tanh(z - Z * se)), float(np.tanh(z + Z * se))
+    return float(np.arctanh(np.clip(rho, -cap, cap))), se
+
+
+def rho_interval(
+    rho: float, n: int, boot: np.ndarray | None = None, clusters: int | None = None
+) -> tuple[float, float]:
+    """The 95 % interval of a Spearman ρ over ``n`` conditions: Fisher z ± q × the wider of
+    the Bonett–Wright standard error and the standard deviation of z over the bootstrap's ρ
+    (``boot``: conditions then seeds resampled, or with ``clusters`` scenes). q: 1.96, or with
+    ``clusters`` K the t quantile on K − 1 degrees of freedom. NaN below 4 conditions or 2
+    clusters."""
+    if not math.isfinite(rho) or n < 4 or (clusters is not None and clusters < 2):
+        return math.nan, math.nan
+    z, se = _rho_z_se(rho, n, boot)
+    q = Z if clusters is None else t_quantile(clusters)
+    return float(np.tanh(z - q * se)), float(np.tanh(z + q * se))
+
+
+def rho_p_clustered(rho: float, n: int, boot: np.ndarray, clusters: int) -> float:
+    """One-sided p of a Spearman ρ over ``n`` conditions in ``clusters`` scenes (a higher
+    measure, more failure): Fisher's z over its cluster-bootstrap standard error
+    (:func:`rho_interval`'s) on t with K − 1 degrees of freedom. A permutation of conditions
+    is not valid here: conditions that share a scene are not exchangeable."""
+    if not math.isfinite(rho) or n < 4 or clusters < 2:
+        return math.nan
+    z, se = _rho_z_se(rho, n, boot)
+    return float(scipy_stats().t.sf(z / se, clusters - 1))
 
 
 def _all_perms(n: int) -> np.ndarray:
@@ -249,11 +411,16 @@ def rho_difference(
     ci2: tuple[float, float],
     r12: float,
     n: int,
+    boot: tuple[np.ndarray, np.ndarray] | None = None,
+    clusters: int | None = None,
 ) -> tuple[float, float, float, float]:
     """Two Spearman ρ with one variable in common (the failure rate), over the same ``n``
     conditions: (r1 − r2, low, high, two-sided p). The interval is Zou's from each ρ's own
     interval; p is Steiger's Z on Fisher's z (the correlation between the two estimates from
-    r12, the two measures' own ρ, Bonett–Wright's variance factor)."""
+    r12, the two measures' own ρ, Bonett–Wright's variance factor). With ``clusters`` (K
+    scenes) and ``boot`` (the two ρ over the same cluster-bootstrap draws): the z difference's
+    standard error is the wider of Steiger's and the bootstrap's, referred to t on K − 1
+    degrees of freedom, and Zou's correlation of the two estimates is the bootstrap's."""
 
     vals = (r1, r2, r12, *ci1, *ci2)
     if n < 4 or not all(math.isfinite(v) for v in vals):
@@ -262,10 +429,23 @@ def rho_difference(
     s = (r12 * (1 - 2 * rbar2) - 0.5 * rbar2 * (1 - 2 * rbar2 - r12**2)) / (1 - rbar2) ** 2
     var = 2 * (1 - s) * (1 + rbar2 / 2) / (n - 3)
     zdiff = float(_z(r1) - _z(r2))
-    p = float(2 * scipy_stats().norm.sf(abs(zdiff) / math.sqrt(var))) if var > 0 else 1.0
     c = ((r12 - r1 * r2 / 2) * (1 - r1**2 - r2**2 - r12**2) + r12**3) / max(
         (1 - r1**2) * (1 - r2**2), 1e-12
     )
+    if clusters is None or boot is None:
+        p = float(2 * scipy_stats().norm.sf(abs(zdiff) / math.sqrt(var))) if var > 0 else 1.0
+    else:
+        b1, b2 = (np.asarray(b, float) for b in boot)
+        fin = np.isfinite(b1) & np.isfinite(b2)
+        if fin.sum() >= 10:
+            var = max(var, float((_z(b1[fin]) - _z(b2[fin])).var(ddof=1)))
+            if b1[fin].std() > 0 and b2[fin].std() > 0:
+                c = float(np.corrcoef(b1[fin], b2[fin])[0, 1])
+        p = (
+            float(2 * scipy_stats().t.sf(abs(zdiff) / math.sqrt(var), clusters - 1))
+            if var > 0 and clusters >= 2
+            else math.nan
+        )
     c = min(max(c, -1.0), 1.0)
     l1, u1 = ci1
     l2, u2 = ci2

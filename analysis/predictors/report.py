@@ -17,7 +17,8 @@ import polars as pl
 import pyarrow.parquet as pq
 from matplotlib.figure import Figure
 
-from analysis.predictors.statistics import HEADLINE, MIN_CONDITIONS, MIN_FAILURES
+from analysis.predictors.statistics import HEADLINE
+from analysis.predictors.verdicts import MIN_CONDITIONS, MIN_FAILURES, MIN_SCENES, table_note
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles, write_parquet
 
@@ -65,9 +66,14 @@ STATS = {
 CHANCE = {"rho_failure": 0.0}  # the rest: AUROC-like, chance 0.5
 EMPTY = (
     "no statistic could be computed: the arena needs at least 3 conditions with runs whose "
-    "success varies (4 for an interval on ρ, {conds} to compare two measures); footage needs "
-    "clips the detector gets wrong and clips it gets right ({fails} of each to compare)"
+    "success varies (4 for an interval on ρ; {conds} scenes to compare two measures); footage "
+    "needs clips the detector gets wrong and clips it gets right ({fails} of each, over "
+    "{scenes} scenes, to compare)"
 )
+
+
+def _empty() -> str:
+    return EMPTY.format(conds=MIN_CONDITIONS, fails=MIN_FAILURES, scenes=MIN_SCENES)
 
 
 def label(measure: str) -> str:
@@ -83,7 +89,7 @@ def plot_predictors(table: pl.DataFrame, path: Path, title: str) -> Path:
     axes = np.atleast_1d(fig.subplots(1, max(1, len(stats))))
     if not stats:  # never a blank figure: the reason, in the panel
         ax = axes[0]
-        ax.text(0.5, 0.5, fill(EMPTY.format(conds=MIN_CONDITIONS, fails=MIN_FAILURES), 60),
+        ax.text(0.5, 0.5, fill(_empty(), 60),
                 ha="center", va="center", transform=ax.transAxes)  # fmt: skip
         ax.set_axis_off()
         ax.set_title("no estimate")
@@ -132,48 +138,102 @@ def _p(v: Any) -> str:
     return "—" if v is None else f"{v:.2g}" if v >= 0.001 else "< 0.001"
 
 
+def units_phrase(r: dict[str, Any], counted: str) -> str:
+    """A row's units in words: "8 scenes, 96 clips" where it clusters on scenes, else "96 clips
+    taken as independent"; then its failing and correct units."""
+    if r["unit"] == "scene":
+        units = f"{r['n_units']} scenes, {r['n']} {counted}"
+    else:
+        units = f"{r['n']} {counted} taken as independent"
+    if r.get("n_failing") is None:
+        return units
+    return f"{units}: {r['n_failing']} failing, {r['n_correct']} correct"
+
+
+def primary_clause(r: dict[str, Any], avdm: str, ti: str) -> str:
+    """What the primary comparison row ``r`` says, in words (``avdm``/``ti``: their own
+    statistics as text)."""
+    v = r["verdict"] or ""
+    if "too few to judge" in v:
+        return f"no verdict: {v}"
+    if v in ("better", "worse"):
+        return f"the AVDM predicts the failures {v} than TI (p = {_p(r['p_value'])})"
+    if v == "both against the expected sign":
+        return (
+            f"no verdict: both are against the expected sign (AVDM {avdm}, TI {ti}: a higher "
+            "measure with less failure), so neither predicts it and neither is better"
+        )
+    if v.startswith("not shown"):
+        return f"no verdict: {v.removeprefix('not shown: ')}"
+    return "no evidence that the AVDM does better or worse than TI"
+
+
 def predictor_headline(table: pl.DataFrame, param: str, mode: str) -> str:
-    """The section's first sentence: the paper's question (the AVDM against P.910 TI, named in
-    advance) answered in plain words, per parameter value, with n and how sure."""
-    unit = "conditions" if mode == "arena" else "clips"
+    """The section's first paragraph, generated from the judged table: the paper's question
+    (the AVDM against P.910 TI, named in advance) answered per parameter value with its unit
+    and n; how many secondary comparisons survive Holm; and what the runs cannot tell."""
+    counted = "conditions" if mode == "arena" else "clips"
     prim = table.filter(pl.col("role") == "primary")
     if not table.height or not prim.height:
-        why = EMPTY.format(conds=MIN_CONDITIONS, fails=MIN_FAILURES)
+        why = _empty()
         return f"These runs cannot say whether the AVDM predicts failure better than TI: {why}."
     stat = HEADLINE[mode]
     parts = []
     for r in prim.iter_rows(named=True):
         own = table.filter((pl.col("statistic") == stat) & (pl.col("value") == r["value"]))
         get = {x["measure"]: x for x in own.iter_rows(named=True)}
-        both = f"AVDM {_fmt(get.get('avdm'))}, TI {_fmt(get.get('ti_p910'))}"
-        at = f"at {param} {r['value']:g} ({r['n']} {unit}; {both})"
-        v = r["verdict"] or ""
-        if v.startswith("too few"):
-            parts.append(f"{at}: too few to tell ({v.split('(')[1].rstrip(')')})")
-        elif v in ("better", "worse"):
-            parts.append(f"{at}: the AVDM predicts {v} than TI (p = {_p(r['p_value'])})")
-        else:
-            parts.append(f"{at}: no evidence that the AVDM does better or worse than TI")
+        avdm, ti = _fmt(get.get("avdm")), _fmt(get.get("ti_p910"))
+        at = f"at {param} {r['value']:g} ({units_phrase(r, counted)}; AVDM {avdm}, TI {ti})"
+        parts.append(f"{at}: {primary_clause(r, avdm, ti)}")
+    sec = table.filter(pl.col("role") == "secondary")
+    judged = sec.filter(pl.col("p_holm").is_not_null())
+    kept = judged.filter(pl.col("verdict").is_in(["better", "worse"]))
+    second = (
+        f" Of {sec.height} secondary comparison{'s' if sec.height != 1 else ''}, "
+        f"{judged.height} had the units to be judged "
+        f"and {kept.height} {'keeps a verdict' if kept.height == 1 else 'keep a verdict'} after "
+        "Holm's correction."
+    )
+    cannot = []
+    if prim.filter(pl.col("verdict").str.contains("too few to judge")).height:
+        cannot.append("which measure predicts better, from fewer scenes or failures than a "
+                      "verdict needs")  # fmt: skip
+    note = table_note(table)
+    if note:
+        cannot.append(f"whether it holds over scenes: the {counted} were taken as independent")
+    cannot.append("whether other scenes, detector values or settings would change this")
     return (
         "**In one sentence:** does the paper's AVDM predict where this detector fails better "
-        f"than P.910 TI ({STATS[stat]}; 95 % intervals)? " + "; ".join(parts) + "."
+        f"than P.910 TI ({STATS[stat]}; 95 % intervals)? "
+        + "; ".join(parts)
+        + "."
+        + second
+        + " What these runs cannot tell: "
+        + "; ".join(cannot)
+        + "."
     )
 
 
 def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
     """The ``## Which measure predicts it`` section of ``boundary.md``: the answer first, then
-    every measure's statistic, then each comparison with n, p, Holm's p and whether it
-    survives."""
+    every measure's statistic, then each comparison with its units, n, p, Holm's p and whether
+    it survives."""
+    note = table_note(table)
+    over = "scenes (conditions' wall scenes; clips' `scene`)" if note is None else (
+        "conditions (seeds resampled within them)" if mode == "arena" else "clips")  # fmt: skip
     lines = [
         "## Which measure predicts where it breaks\n",
         predictor_headline(table, param, mode) + "\n",
+        *([f"**{note}**\n"] if note else []),
         "![each measure's predictive power, ranked, 95 % intervals](predictors.png)\n",
-        f"Every measure per value of `{param}`, with its 95 % interval over the "
-        f"{'conditions (seeds resampled within them)' if mode == 'arena' else 'clips'} "
-        "(`predictors.parquet`: each row names its unit and its n). The one comparison named "
-        "in advance is the paper's AVDM against P.910 TI; every other is Holm-corrected. No "
-        f"comparison is judged on fewer than {MIN_CONDITIONS} conditions or {MIN_FAILURES} "
-        "failing clips (80 % power for the effects in question; docs/method/boundary.md).\n",
+        f"Every measure per value of `{param}`, with its 95 % interval over the {over} "
+        "(`predictors.parquet`: each row names its `unit`, `n_units`, its n and its failing "
+        "and correct units). The one comparison named in advance is the paper's AVDM against "
+        "P.910 TI; every other is Holm-corrected. No comparison is judged on fewer than "
+        f"{MIN_CONDITIONS} scenes (arena) or {MIN_SCENES} scenes and {MIN_FAILURES} failing "
+        "and as many correct clips (footage): 80 % power for the effects in question, and "
+        "enough scenes for an interval over them to hold (docs/method/boundary.md). A measure is "
+        "better only when it predicts the failures beyond chance itself.\n",
     ]
     values = table["value"].unique(maintain_order=True).to_list()
     for stat in STATS:
@@ -181,8 +241,10 @@ def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
         if not t.height:
             continue
         order = ranked(table, stat)["measure"].to_list()
-        n = t["n"].max()
-        lines.append(f"### {STATS[stat]} (n = {n} {t['unit'][0]}s at most)\n")
+        lines.append(
+            f"### {STATS[stat]} (intervals over {t['n_units'].max()} {t['unit'][0]}s; "
+            f"n = {t['n'].max()} at most)\n"
+        )
         lines.append("| measure | " + " | ".join(f"{param} {v:g}" for v in values) + " |")
         lines.append("|---|" + "---|" * len(values))
         for m in order:
@@ -196,10 +258,10 @@ def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
     if cmp.height:
         lines.append("### Comparisons (the AVDM minus the measure; Holm-corrected but the first)\n")
         lines.append(
-            f"| against | statistic | {param} | difference [95 %] | n | p | Holm p | survives | "
-            "verdict |"
+            f"| against | statistic | {param} | difference [95 %] | units | n | failing | "
+            "correct | p | Holm p | survives | verdict |"
         )
-        lines.append("|---|---|---|---|---|---|---|---|---|")
+        lines.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
         cmp = cmp.sort(pl.col("role") != "primary", "statistic", "value")
         for r in cmp.iter_rows(named=True):
             ref = r["statistic"].rsplit("_vs_", 1)[-1]
@@ -211,12 +273,13 @@ def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
                 who = f"**{who} (primary)**"
             surv = "—" if r["survives"] is None else "yes" if r["survives"] else "no"
             lines.append(
-                f"| {who} | {stat} | {r['value']:g} | {_fmt(r, 3)} | {r['n']} | "
+                f"| {who} | {stat} | {r['value']:g} | {_fmt(r, 3)} | {r['n_units']} "
+                f"{r['unit']}s | {r['n']} | {r['n_failing']} | {r['n_correct']} | "
                 f"{_p(r['p_value'])} | {_p(r['p_holm'])} | {surv} | {r['verdict']} |"
             )
         lines.append("")
     if not table.height:
-        lines.append(EMPTY.format(conds=MIN_CONDITIONS, fails=MIN_FAILURES).capitalize() + ".\n")
+        lines.append(_empty().capitalize() + ".\n")
     return "\n".join(lines) + "\n"
 
 
@@ -251,8 +314,9 @@ def write_predictors(
     return the paths and the report section."""
 
     name = "predictor_measures.parquet" if mode == "arena" else "predictor_frames.parquet"
+    note = table_note(table)  # the units taken as independent, said in the table too
     paths = [
-        write_parquet(table, stage / "predictors.parquet", meta),
+        write_parquet(table, stage / "predictors.parquet", meta | {"units_note": note}),
         write_parquet(measures, stage / name, meta),
         plot_predictors(table, stage / "predictors.png", title),
     ]

@@ -1,38 +1,67 @@
-"""Which complexity measure predicts where a detector breaks (issues 32, 42).
+"""Which complexity measure predicts where a detector breaks (issues 32, 42, 57).
 
 ``vdc-analyse boundary`` finds where a detector's success falls; this module asks which of the
 complexity measures vdc computes (:data:`MEASURES`) orders the cases as the detector fails
 them. One table, ``predictors.parquet``, one row per measure, parameter value and statistic
-(:data:`PREDICTOR_COLUMNS`): the estimate, its 95 % interval, ``n`` (the units the statistic used),
-``n_failures`` (the failing units, or the fewer class), ``unit`` (``condition``, ``clip`` or
-``frame``), and for comparisons ``p_value``, ``p_holm``, ``role``, ``survives`` and ``verdict``.
-Intervals and tests: :mod:`analysis.predictors.inference`, over the units that vary.
+(:data:`PREDICTOR_COLUMNS`): the estimate, its 95 % interval, ``n`` (the conditions, clips or
+frames the statistic used), ``n_failing`` and ``n_correct`` (those the detector fails and gets
+right: conditions below and at or above the target, clips, frames), ``unit`` and ``n_units``
+(what the interval resamples or clusters on, and how many), and for comparisons ``p_value``,
+``p_holm``, ``role``, ``survives`` and ``verdict``.
 
-Arena (units: conditions):
+**The scene is the unit** (issue 57). Clips that share a photograph, place or session, and
+arena conditions that share a wall scene, share that scene's effect on the measures and on
+the failures: they are not independent, and an interval over them as if they were is too
+narrow (on null truths with a photograph effect of sd 0.5, 8 photographs x 60 clips covered
+89 % and gave 10.5 % false verdicts; sd 1: 61 % and 39 %). So every interval and p over clips
+or conditions is over the scenes: ``unit`` is ``scene`` and ``n_units`` the scenes, where the
+labels name each clip's ``scene`` (footage) or the runs their wall scene (arena) and there are
+at least two; else ``unit`` is ``clip`` or ``condition``, taken as independent, and
+:func:`table_note` says so in one line. Why these methods
+(:mod:`analysis.predictors.inference`):
 
-* ``rho_failure``: Spearman ρ between the measure and the failure rate (1 − success) across
-  conditions, with an exact one-sided permutation p over the conditions;
-* ``loco_balanced_accuracy``: "fails the target" predicted for each condition by a threshold
-  on the measure fitted on the others; refused (NaN) below 2 failing or 2 passing conditions.
+* AUROCs and their paired differences: Obuchowski's (1997) clustered DeLong variance (the
+  scenes' summed placement values; DeLong's with clusters of one), or the delete-one-scene
+  jackknife's where wider (it is, with few scenes: it errs wide where Obuchowski's errs
+  narrow); analytic, no resampling.
+* Spearman ρ over conditions: a cluster bootstrap (scenes drawn with replacement, each with all
+  its conditions; resampling the top stage alone carries the variance of everything below it:
+  Davison & Hinkley 1997, §3.8; Field & Welsh 2007). A permutation of conditions is not valid
+  when conditions share a scene.
+* Means of per-unit values (held-out losses, within-clip AUROCs): the cluster-robust variance.
+* With few clusters a normal reference over-rejects (Cameron, Gelbach & Miller 2008; Cameron &
+  Miller 2015): every clustered interval and test is referred to t on scenes − 1 degrees of
+  freedom, at any number of scenes (it tends to the normal as they grow).
 
-Footage (units: clips):
+Arena (:mod:`analysis.predictors.arena`): ``rho_failure`` (Spearman ρ between the measure and
+the failure rate, 1 − success, across conditions; p one-sided, a higher measure with more
+failure) and
+``loco_balanced_accuracy`` ("fails the target" predicted for each condition by a threshold on
+the measure fitted on the others; refused below 2 failing or 2 passing conditions).
 
-* ``clip_auroc``: the AUROC of the clip's measure for a clip the detector gets wrong; with a
-  ``failure`` column, ``clip_auroc_miss``, ``clip_auroc_early`` and ``clip_auroc_false_alarm``
-  score the failure modes apart (:data:`FAILURE_MODES`);
-* ``frame_auroc_pooled`` (frames clustered by clip) and ``frame_auroc_within_clip`` (the mean
-  of the clips' own): frames where the detector alerts with no collision near against quiet
-  frames (:func:`analysis.predictors.footage.frame_classes`).
+Footage: ``clip_auroc`` (the AUROC of the clip's measure for a clip the detector gets wrong);
+with a ``failure`` column, ``clip_auroc_miss``, ``clip_auroc_early`` and
+``clip_auroc_false_alarm`` score the failure modes apart (:data:`FAILURE_MODES`; their
+``n_correct`` counts the correct clips of the class each is told from);
+``frame_auroc_pooled`` (frames clustered by scene, or by clip without scenes) and
+``frame_auroc_within_clip`` (the mean of the clips' own; frames counted).
 
 Both modes: ``paired_<statistic>_vs_<avdm>`` (the AVDM's statistic minus the measure's, same
 units), and ``cv_logloss`` / ``cv_logloss_gain_vs_si_p910+ti_p910`` (a ridge-logistic model of
-the failure rate on sets of measures, :data:`COMBINED`, each unit held out). One comparison is
-primary (:data:`PRIMARY`); the rest are Holm-corrected; none is judged on fewer units than
-:data:`MIN_CONDITIONS` or :data:`MIN_FAILURES`.
+the failure rate on sets of measures, :data:`COMBINED`, each scene, or unit, held out).
+
+**Verdicts** (:mod:`analysis.predictors.verdicts`). One comparison is primary
+(:data:`PRIMARY`), judged at 5 %; the rest are Holm-corrected. None is judged on fewer
+independent units than ``MIN_CONDITIONS`` (arena) or ``MIN_SCENES`` (footage), nor on footage
+with a smaller class than ``MIN_FAILURES``: "8 scenes: too few to judge (20 needed)". A
+measure is "better" only when it predicts failure beyond chance itself, in the expected
+direction (its own interval clear of chance); two measures both against the expected sign are
+"both against the expected sign": less inverted is not better.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterator, Sequence
 from typing import Any
@@ -40,19 +69,14 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.predictors.held_out import loco_interval, loco_threshold
 from analysis.predictors.inference import (
-    BOOTSTRAP,
     auroc_difference,
     auroc_interval,
-    hierarchical_means,
-    holm,
+    cluster_mean,
     newcombe_interval,
-    permutation_p,
-    rho_difference,
-    rho_interval,
 )
-from analysis.stats import ALPHA, mean_ci, scipy_special, scipy_stats
+from analysis.predictors.verdicts import Units, judge, units_of
+from analysis.stats import scipy_special, scipy_stats
 
 RIDGE = 0.1  # the combined logistic's L2 penalty on standardised coefficients (few units)
 # every measure, its column in the measures tables, in the order the reports list them
@@ -82,8 +106,8 @@ COMBINED = (
     ("avdm_natural",),
 )
 PREDICTOR_COLUMNS = (
-    *("measure", "value", "statistic", "estimate", "ci_low", "ci_high", "n", "n_failures"),
-    *("unit", "p_value", "p_holm", "role", "survives", "verdict"),
+    *("measure", "value", "statistic", "estimate", "ci_low", "ci_high", "n", "n_failing"),
+    *("n_correct", "unit", "n_units", "p_value", "p_holm", "role", "survives", "verdict"),
 )
 HEADLINE = {  # the statistic each mode ranks measures by
     "arena": "rho_failure",
@@ -92,14 +116,6 @@ HEADLINE = {  # the statistic each mode ranks measures by
 # The paper's question, named before any data: does the paper's AVDM predict failure better
 # than P.910 TI? Judged at 5 % alone; every other comparison is Holm-corrected.
 PRIMARY = ("avdm", "ti_p910")
-# Below these no comparison gets a verdict ("too few ... to judge"): the units that give 80 %
-# power at two-sided 5 % for the effects the question is about (docs/method/boundary.md, "How many
-# conditions and clips"). Arena: two dependent Spearman rho of 0.71 and 0.31 (the default
-# grid's TI and AVDM) whose measures correlate 0.7 need 24 conditions (Steiger's test; 47 at
-# 0.3). Footage: an AUROC difference of 0.10 between measures correlated 0.6 needs 46 failing
-# clips, and as many that do not fail (Hanley & McNeil; 94 at 0.3).
-MIN_CONDITIONS = 24
-MIN_FAILURES = 46
 # Footage failures scored apart (issue 42): statistic and the clips each is told from. The
 # sign is fixed in advance and the same for each: a higher measure, more of that failure (the
 # paper's hypothesis); a measure that goes the other way scores below 0.5.
@@ -188,25 +204,34 @@ def fit_logistic(X: np.ndarray, y: np.ndarray, ridge: float = RIDGE) -> np.ndarr
     return beta
 
 
-def cv_logistic_losses(X: np.ndarray, y: np.ndarray, ridge: float = RIDGE) -> np.ndarray:
-    """Leave-one-unit-out held-out cross-entropy of :func:`fit_logistic` per unit (N,),
-    measures standardised on the training units. X (N, K), y (N,) failure rates in [0, 1]."""
+def cv_logistic_losses(
+    X: np.ndarray, y: np.ndarray, ridge: float = RIDGE, cluster: np.ndarray | None = None
+) -> np.ndarray:
+    """Held-out cross-entropy of :func:`fit_logistic` per unit (N,), each unit held out (with
+    ``cluster``: each cluster, all its units at once: a unit's scene-mates would otherwise
+    teach the model its scene), measures standardised on the training units. X (N, K), y (N,)
+    failure rates in [0, 1]."""
     n = len(y)
     losses = np.full(n, math.nan)
-    for i in range(n):
-        rest = np.arange(n) != i
+    groups = np.arange(n) if cluster is None else np.asarray(cluster)
+    for g in dict.fromkeys(groups.tolist()):
+        held = groups == g
+        rest = ~held
+        if not rest.any():
+            continue
         mu, sd = X[rest].mean(0), X[rest].std(0)
         sd = np.where(sd > 0, sd, 1.0)
         beta = fit_logistic((X[rest] - mu) / sd, y[rest], ridge)
-        p = scipy_special().expit(beta[0] + ((X[i] - mu) / sd) @ beta[1:])
-        p = float(np.clip(p, 1e-6, 1 - 1e-6))
-        losses[i] = -(y[i] * math.log(p) + (1 - y[i]) * math.log(1 - p))
+        p = scipy_special().expit(beta[0] + ((X[held] - mu) / sd) @ beta[1:])
+        p = np.clip(p, 1e-6, 1 - 1e-6)
+        losses[held] = -(y[held] * np.log(p) + (1 - y[held]) * np.log(1 - p))
     return losses
 
 
 def _row(measure: str, value: float, statistic: str, est: float, lo: float, hi: float, n: int,
-         unit: str, n_failures: int | None = None, p: float = math.nan,
-         role: str | None = None) -> dict[str, Any]:  # fmt: skip
+         units: Units, n_units: int, n_failing: int | None = None,
+         n_correct: int | None = None, p: float = math.nan, role: str | None = None,
+         counted: str | None = None) -> dict[str, Any]:  # fmt: skip
     return {
         "measure": measure,
         "value": float(value),
@@ -215,10 +240,13 @@ def _row(measure: str, value: float, statistic: str, est: float, lo: float, hi: 
         "ci_low": float(lo),
         "ci_high": float(hi),
         "n": int(n),
-        "n_failures": n_failures,
-        "unit": unit,
+        "n_failing": n_failing,
+        "n_correct": n_correct,
+        "unit": units.unit,
+        "n_units": int(n_units),
         "p_value": float(p),
         "role": role,
+        "counted": counted or units.counted,  # what n_failing / n_correct count (not a column)
     }
 
 
@@ -230,50 +258,51 @@ def _role(ref: str, measure: str, statistic: str) -> str:
     return "primary" if primary else "secondary"
 
 
-def _t_row(measure: str, value: float, statistic: str, d: np.ndarray, unit: str,
-           n_failures: int | None, role: str = "secondary") -> dict[str, Any]:  # fmt: skip
-    """A mean of per-unit differences ``d`` with its t-interval and two-sided paired-t p."""
-
+def _mean_row(measure: str, value: float, statistic: str, d: np.ndarray, units: Units,
+              cluster: np.ndarray | None, counts: tuple[int, int], role: str | None = None,
+              bounds: tuple[float, float] | None = None,
+              counted: str | None = None) -> dict[str, Any]:  # fmt: skip
+    """A mean of per-unit values ``d`` with its interval and two-sided p
+    (:func:`~analysis.predictors.inference.cluster_mean`, clustered on ``cluster``)."""
     d = np.asarray(d, float)
-    d = d[np.isfinite(d)]
-    n = len(d)
-    if n < 2:
-        return _row(measure, value, statistic, d.mean() if n else math.nan, math.nan, math.nan,
-                    n, unit, n_failures, role=role)  # fmt: skip
-    est = mean_ci(d)
-    sd = d.std(ddof=1)
-    p = (
-        float(2 * scipy_stats().t.sf(abs(d.mean()) / (sd / math.sqrt(n)), n - 1))
-        if sd > 0
-        else (1.0 if d.mean() == 0 else 0.0)
-    )
-    return _row(measure, value, statistic, est.mean, est.low, est.high, n, unit, n_failures, p,
-                role)  # fmt: skip
+    ok = np.isfinite(d)
+    est, lo, hi, p, k = cluster_mean(d, cluster)
+    if bounds is not None and math.isfinite(lo):
+        lo, hi = max(lo, bounds[0]), min(hi, bounds[1])
+    return _row(measure, value, statistic, est, lo, hi, int(ok.sum()), units, k, *counts, p,
+                role, counted)  # fmt: skip
 
 
 def _combined_rows(
-    unit_measures: pl.DataFrame, failure: np.ndarray, value: float, unit: str, n_failures: int
+    unit_measures: pl.DataFrame,
+    failure: np.ndarray,
+    value: float,
+    units: Units,
+    counts: tuple[int, int],
 ) -> list[dict[str, Any]]:
     """The combined logistic models on units (rows of ``unit_measures``) with failure rates:
-    each set's mean held-out loss, and its gain over SI/TI (the mean of the per-unit loss
-    differences, t-interval and paired-t p over the held-out units)."""
+    each set's mean held-out loss (each scene held out at once where the units share scenes),
+    and its gain over SI/TI (the mean of the per-unit loss differences; interval and p
+    clustered on the scenes)."""
     rows = []
     losses: dict[str, np.ndarray] = {}
     n = len(failure)
+    enough = n >= 4 and (units.cluster is None or units.n_units() >= 3)
     for combo in COMBINED:
         if not all(c in unit_measures.columns for c in combo):
             continue
         X = unit_measures.select(combo).to_numpy().astype(float)
-        if n < 4 or not np.isfinite(X).all():
+        if not enough or not np.isfinite(X).all():
             continue
-        losses["+".join(combo)] = cv_logistic_losses(X, failure)
+        losses["+".join(combo)] = cv_logistic_losses(X, failure, cluster=units.cluster)
     base = losses.get("+".join(BASELINE))
     for name, loss in losses.items():
-        e = mean_ci(loss)
-        rows.append(_row(name, value, "cv_logloss", e.mean, e.low, e.high, n, unit, n_failures))
+        rows.append(_mean_row(name, value, "cv_logloss", loss, units, units.cluster, counts))
+        rows[-1]["p_value"] = math.nan  # a loss is not tested against 0
         if base is not None and name != "+".join(BASELINE):
             stat = f"cv_logloss_gain_vs_{'+'.join(BASELINE)}"
-            rows.append(_t_row(name, value, stat, base - loss, unit, n_failures))
+            rows.append(_mean_row(name, value, stat, base - loss, units, units.cluster, counts,
+                                  "secondary"))  # fmt: skip
     return rows
 
 
@@ -282,143 +311,31 @@ def measures_present(columns: Sequence[str]) -> list[str]:
     return [m for m in MEASURES if m in columns]
 
 
-# --- arena ------------------------------------------------------------------------------------
-
-
-def _padded(parts: Sequence[np.ndarray]) -> np.ndarray:
-    """Per-condition arrays (S_c, ...) stacked into (C, max S_c, ...), NaN-padded."""
-    s_max = max(len(p) for p in parts)
-    out = np.full((len(parts), s_max, *parts[0].shape[1:]), np.nan)
-    for i, p in enumerate(parts):
-        out[i, : len(p)] = p
-    return out
-
-
-def arena_predictors(
-    runs: pl.DataFrame,
-    measures: pl.DataFrame,
-    param: str,
-    target: float,
-    *,
-    seed: int = 0,
-) -> pl.DataFrame:
-    """The predictor table of an arena grid; its units are the conditions.
-
-    ``runs``: one row per closed-loop run (condition, ``param``, seed, avoidances, crashes);
-    ``measures``: one row per profiling run (condition, seed, one column per measure in
-    :data:`MEASURES`, the condition's scene as the run saw it). A condition's success is the
-    mean of its seeds' shares (as ``boundary`` computes it); its measure the mean over its
-    profiling runs. ρ's interval: :func:`~analysis.predictors.inference.rho_interval` on the
-    hierarchical bootstrap (conditions, then seeds within them, the same draws for every
-    measure); its p: the exact permutation p over conditions. Returns :data:`PREDICTOR_COLUMNS`."""
-    names = measures_present(measures.columns)
-    rng = np.random.default_rng(seed)
-    rows: list[dict[str, Any]] = []
-    conds = [c for c in measures["condition"].unique(maintain_order=True)]
-    mtab = {c: measures.filter(pl.col("condition") == c).select(names).to_numpy().astype(float)
-            for c in conds}  # fmt: skip
-    for (value,), g in runs.group_by(param, maintain_order=True):
-        shares, used = [], []
-        for c in conds:
-            r = g.filter(pl.col("condition") == c)
-            n = (r["avoidances"] + r["crashes"]).to_numpy()
-            k = r["avoidances"].to_numpy()
-            if (n > 0).any() and len(mtab[c]):
-                shares.append(k[n > 0] / n[n > 0])
-                used.append(c)
-        if len(used) < 3:
-            continue
-        m = len(used)
-        succ0 = np.array([s.mean() for s in shares])
-        meas0 = np.array([np.nanmean(mtab[c], 0) for c in used])
-        fails = succ0 < target
-        n_fail = int(fails.sum())
-        succ_b, drawn = hierarchical_means(_padded(shares), rng, BOOTSTRAP)
-        meas_b, _ = hierarchical_means(_padded([mtab[c] for c in used]), rng, BOOTSTRAP, drawn)
-        rho: dict[str, float] = {}
-        ci: dict[str, tuple[float, float]] = {}
-        for j, name in enumerate(names):
-            x = meas0[:, j]
-            ok = np.isfinite(x)
-            r, p = permutation_p(x, 1 - succ0, rng)
-            xb = meas_b[:, :, j]
-            fin = np.isfinite(xb).all(1)
-            boot = spearman_rows(xb[fin], 1 - succ_b[fin]) if ok.all() else None
-            rho[name], ci[name] = r, rho_interval(r, int(ok.sum()), boot)
-            rows.append(_row(name, value, "rho_failure", r, *ci[name], int(ok.sum()),
-                             "condition", n_fail, p))  # fmt: skip
-            # leave-one-condition-out needs >= 2 failing and >= 2 passing conditions: with
-            # one, the held-out failing condition leaves no failure to fit a threshold on,
-            # and a perfect predictor would score 0.5
-            enough = min(int(fails[ok].sum()), int((~fails[ok]).sum())) >= 2
-            loco = loco_threshold(x, fails) if enough else math.nan
-            loco_ci = loco_interval(x, fails, rng) if enough else (math.nan, math.nan)
-            rows.append(_row(name, value, "loco_balanced_accuracy", loco, *loco_ci,
-                             int(ok.sum()), "condition", n_fail))  # fmt: skip
-        for ref in AVDMS:
-            if ref not in rho:
-                continue
-            for j, name in enumerate(names):
-                if name == ref or (name in AVDMS and names.index(name) < names.index(ref)):
-                    continue
-                r12 = finite_spearman(meas0[:, names.index(ref)], meas0[:, j])
-                d, lo, hi, p = rho_difference(rho[ref], ci[ref], rho[name], ci[name], r12, m)
-                stat = f"paired_rho_failure_vs_{ref}"
-                rows.append(_row(name, value, stat, d, lo, hi, m, "condition", n_fail, p,
-                                 _role(ref, name, stat)))  # fmt: skip
-        unit = pl.DataFrame(meas0, schema=names, orient="row")
-        rows += _combined_rows(unit, 1 - succ0, value, "condition", n_fail)
-    return _table(rows, "arena")
-
-
-def _judged(rows: list[dict[str, Any]], mode: str) -> list[dict[str, Any]]:
-    """Verdicts: comparison rows (a ``role``) with fewer units than the power calculation
-    asks for (:data:`MIN_CONDITIONS`, :data:`MIN_FAILURES`) get "too few ... to judge"; the
-    primary comparison is judged at 5 %; the rest by Holm's adjusted p over the whole table
-    (every value of the parameter), each saying whether it survives."""
-    cmp = [r for r in rows if r["role"] is not None]
-    for r in cmp:
-        if mode == "arena" and r["n"] < MIN_CONDITIONS:
-            r["verdict"] = f"too few conditions to judge ({r['n']}; {MIN_CONDITIONS} needed)"
-        elif mode == "footage" and (r["n_failures"] or 0) < MIN_FAILURES:
-            r["verdict"] = f"too few failures to judge ({r['n_failures']}; {MIN_FAILURES} needed)"
-        elif not math.isfinite(r["p_value"]):
-            r["verdict"] = "undetermined"
-    family = [r for r in cmp if r.get("verdict") is None and r["role"] == "secondary"]
-    adj = holm(np.array([r["p_value"] for r in family]))
-    for r, a in zip(family, adj, strict=True):
-        r["p_holm"] = float(a)
-    for r in cmp:
-        if r.get("verdict") is not None:
-            continue
-        p = r["p_value"] if r["role"] == "primary" else r["p_holm"]  # the primary: uncorrected
-        r["survives"] = bool(p < ALPHA)
-        r["verdict"] = (
-            ("better" if r["estimate"] > 0 else "worse") if r["survives"] else "no difference shown"
-        )
-    return rows
+TABLE_SCHEMA = {
+    "measure": pl.String,
+    "value": pl.Float64,
+    "statistic": pl.String,
+    "estimate": pl.Float64,
+    "ci_low": pl.Float64,
+    "ci_high": pl.Float64,
+    "n": pl.Int64,
+    "n_failing": pl.Int64,
+    "n_correct": pl.Int64,
+    "unit": pl.String,
+    "n_units": pl.Int64,
+    "p_value": pl.Float64,
+    "p_holm": pl.Float64,
+    "role": pl.String,
+    "survives": pl.Boolean,
+    "verdict": pl.String,
+}
 
 
 def _table(rows: list[dict[str, Any]], mode: str) -> pl.DataFrame:
-    schema = {
-        "measure": pl.String,
-        "value": pl.Float64,
-        "statistic": pl.String,
-        "estimate": pl.Float64,
-        "ci_low": pl.Float64,
-        "ci_high": pl.Float64,
-        "n": pl.Int64,
-        "n_failures": pl.Int64,
-        "unit": pl.String,
-        "p_value": pl.Float64,
-        "p_holm": pl.Float64,
-        "role": pl.String,
-        "survives": pl.Boolean,
-        "verdict": pl.String,
-    }
-    rows = _judged(rows, mode)
-    full = [{k: r.get(k) for k in schema} for r in rows]
-    return pl.DataFrame(full, schema=schema).with_columns(
+    """The rows judged, as :data:`PREDICTOR_COLUMNS`."""
+    rows = judge(rows, mode)
+    full = [{k: r.get(k) for k in TABLE_SCHEMA} for r in rows]
+    return pl.DataFrame(full, schema=TABLE_SCHEMA).with_columns(
         pl.col("estimate", "ci_low", "ci_high", "p_value", "p_holm").fill_nan(None)
     )
 
@@ -433,88 +350,130 @@ def footage_predictors(
     *,
     seed: int = 0,
 ) -> pl.DataFrame:
-    """The predictor table of a labelled collection; its units are the clips.
+    """The predictor table of a labelled collection; its units are the scenes (the labels'
+    ``scene`` column: the photograph, place or session clips share), or the clips, taken as
+    independent, without one.
 
-    ``clips``: one row per clip and value (clip, ``param``, correct, optionally ``failure``:
-    :data:`FAILURE_MODES` or ``hit``/``quiet``, and one column per measure: its mean over the
-    scene the detector faced); ``frames``: one row per frame and value (clip, ``param``,
-    frame, positive, keep, one column per measure). AUROC intervals: Newcombe's, frames
-    clustered by clip (:func:`~analysis.predictors.inference.auroc_interval`); paired
-    differences by the (clustered) DeLong covariance. Returns :data:`PREDICTOR_COLUMNS`."""
+    ``clips``: one row per clip and value (clip, ``param``, correct, optionally ``scene`` and
+    ``failure``: :data:`FAILURE_MODES` or ``hit``/``quiet``, and one column per measure: its
+    mean over the scene the detector faced); ``frames``: one row per frame and value (clip,
+    ``param``, frame, positive, keep, one column per measure). AUROC intervals: Newcombe's on
+    the design effect of Obuchowski's clustered DeLong variance, clustered on the scenes (on
+    the clips for frames without scenes), t on clusters − 1 degrees of freedom
+    (:func:`~analysis.predictors.inference.auroc_interval`); paired differences by the
+    clustered DeLong covariance. Returns :data:`PREDICTOR_COLUMNS`."""
     del seed  # every interval here is analytic: nothing is drawn
     names = measures_present(clips.columns)
     rows: list[dict[str, Any]] = []
     for (value,), g in clips.group_by(param, maintain_order=True):
+        scene = g["scene"].to_list() if "scene" in g.columns else None
+        units = units_of(scene, "clips", g.height)
         wrong = ~g["correct"].to_numpy().astype(bool)
         X = g.select(names).to_numpy().astype(float)
-        rows += _auroc_rows(names, X, wrong, value, "clip_auroc", "clip")
+        rows += _auroc_rows(names, X, wrong, value, "clip_auroc", units, units.cluster)
         if "failure" in g.columns:
             kind = g["failure"].to_numpy()
             for mode, (stat, pool) in FAILURE_MODES.items():
                 sel = np.isin(kind, (mode, *pool))
                 if sel.any():
-                    rows += _auroc_rows(names, X[sel], kind[sel] == mode, value, stat, "clip")
+                    cl = None if units.cluster is None else units.cluster[sel]
+                    right = np.isin(kind[sel], ("hit", "quiet"))  # the correct clips in the pool
+                    rows += _auroc_rows(names, X[sel], kind[sel] == mode, value, stat, units, cl,
+                                        correct=right)  # fmt: skip
         f = frames.filter((pl.col(param) == value) & pl.col("keep"))
         names_f = [m for m in names if m in f.columns]
         if f.height:
             fx = f.select(names_f).to_numpy().astype(float)
             pos = f["positive"].to_numpy().astype(bool)
             clip = f["clip"].to_numpy()
-            rows += _auroc_rows(names_f, fx, pos, value, "frame_auroc_pooled", "frame", clip)
-            rows += _within_clip_rows(names_f, fx, pos, clip, value)
-        rows += _combined_rows(g.select(names), wrong.astype(float), value, "clip",
-                               int(min(wrong.sum(), (~wrong).sum())))  # fmt: skip
+            if units.cluster is not None:  # frames clustered on their clip's scene
+                of = dict(zip(g["clip"].to_list(), units.cluster.tolist(), strict=True))
+                frame_units = dataclasses.replace(units, counted="frames")
+                frame_cl = np.array([of[c] for c in clip])
+            else:  # on their clip
+                frame_units = Units("clip", clip, "frames", len(clip))
+                frame_cl = clip
+            rows += _auroc_rows(names_f, fx, pos, value, "frame_auroc_pooled", frame_units,
+                                frame_cl)  # fmt: skip
+            scene_of = None
+            if units.cluster is not None:
+                scene_of = dict(zip(g["clip"].to_list(), units.cluster.tolist(), strict=True))
+            rows += _within_clip_rows(names_f, fx, pos, clip, value, units, scene_of)
+        rows += _combined_rows(g.select(names), wrong.astype(float), value, units,
+                               (int(wrong.sum()), int((~wrong).sum())))  # fmt: skip
     return _table(rows, "footage")
 
 
 def _auroc_rows(names: list[str], X: np.ndarray, pos: np.ndarray, value: float, stat: str,
-                unit: str, cluster: np.ndarray | None = None) -> list[dict[str, Any]]:  # fmt: skip
+                units: Units, cluster: np.ndarray | None,
+                correct: np.ndarray | None = None) -> list[dict[str, Any]]:  # fmt: skip
     """Each measure's AUROC (X (N, M), pos (N,)) with its interval, and (for the headline
-    and the frame statistics) each AVDM against the others, paired on the same units."""
+    and the frame statistics) each AVDM against the others, paired on the same units.
+    ``cluster`` (N,): each unit's cluster (None: units independent); ``correct`` (N,): the
+    units that are correct (default: those not ``pos``)."""
     rows = []
+    right = ~pos if correct is None else np.asarray(correct, bool)
+
+    def counts(ok: np.ndarray) -> tuple[int, int, int]:
+        k = int(ok.sum()) if cluster is None else len(np.unique(cluster[ok]))
+        return k, int(pos[ok].sum()), int(right[ok].sum())
+
     for j, name in enumerate(names):
         ok = np.isfinite(X[:, j])
         a, lo, hi = auroc_interval(X[:, j], pos, cluster)
-        fewer = int(min(pos[ok].sum(), (~pos[ok]).sum()))
-        rows.append(_row(name, value, stat, a, lo, hi, int(ok.sum()), unit, fewer))
+        rows.append(_row(name, value, stat, a, lo, hi, int(ok.sum()), units, *counts(ok)))
     if stat not in ("clip_auroc", "frame_auroc_pooled"):
         return rows
     for ref, i, j, name in _avdm_pairs(names):
         ok = np.isfinite(X[:, i]) & np.isfinite(X[:, j])
         d, lo, hi, p = auroc_difference(X[:, i], X[:, j], pos, cluster)
-        fewer = int(min(pos[ok].sum(), (~pos[ok]).sum()))
         st = f"paired_{stat}_vs_{ref}"
-        rows.append(_row(name, value, st, d, lo, hi, int(ok.sum()), unit, fewer, p,
+        rows.append(_row(name, value, st, d, lo, hi, int(ok.sum()), units, *counts(ok), p,
                          _role(ref, name, st)))  # fmt: skip
     return rows
 
 
 def _within_clip_rows(names: list[str], fx: np.ndarray, pos: np.ndarray, clip: np.ndarray,
-                      value: float) -> list[dict[str, Any]]:  # fmt: skip
-    """The mean over clips (with both kinds of frame) of each clip's own frame AUROC: a
-    t-interval over those clips; each AVDM against the others by a paired t over them."""
+                      value: float, units: Units,
+                      scene_of: dict[str, str] | None) -> list[dict[str, Any]]:  # fmt: skip
+    """The mean over clips (with both kinds of frame) of each clip's own frame AUROC, with its
+    interval over the clips' scenes (cluster-robust, t on scenes − 1 degrees of freedom) or
+    the clips; each AVDM against the others by the same mean of their per-clip differences.
+    ``n_failing`` / ``n_correct``: the alerting and quiet frames of those clips."""
     ids = list(dict.fromkeys(clip.tolist()))
-    per = []
+    per, used = [], []
+    fail_frames = quiet_frames = 0
     for c in ids:
         sel = clip == c
         if pos[sel].any() and not pos[sel].all():
             per.append(auroc_matrix(fx[sel], pos[sel]))
+            used.append(c)
+            fail_frames += int(pos[sel].sum())
+            quiet_frames += int((~pos[sel]).sum())
     per_clip = np.array(per).reshape(len(per), len(names))
+    cl = None if scene_of is None else np.array([scene_of[c] for c in used])
     rows = []
     stat = "frame_auroc_within_clip"
+    counts = (fail_frames, quiet_frames)
     for j, name in enumerate(names):
         v = per_clip[:, j]
-        e = mean_ci(v, bounds=(0.0, 1.0))
-        # clips that all score alike give a t-interval of no width: at least Newcombe's for
+        r = _mean_row(name, value, stat, v, units, cl, counts, bounds=(0.0, 1.0),
+                      counted="frames")  # fmt: skip
+        r["p_value"] = math.nan
+        # clips that all score alike give an interval of no width: at least Newcombe's for
         # one pair per clip, the least information the clips could hold
-        lo, hi = newcombe_interval(e.mean, e.n, e.n)
-        lo, hi = min(e.low, float(lo)), max(e.high, float(hi))
-        rows.append(_row(name, value, stat, e.mean, lo, hi, e.n, "clip", e.n))
+        n_eff = r["n_units"]
+        if n_eff >= 1 and math.isfinite(r["estimate"]):
+            lo, hi = newcombe_interval(r["estimate"], n_eff, n_eff)
+            low = float(lo) if not math.isfinite(r["ci_low"]) else min(r["ci_low"], float(lo))
+            high = float(hi) if not math.isfinite(r["ci_high"]) else max(r["ci_high"], float(hi))
+            r["ci_low"], r["ci_high"] = low, high
+        rows.append(r)
     for ref, i, j, name in _avdm_pairs(names):
         d = per_clip[:, i] - per_clip[:, j]
         st = f"paired_{stat}_vs_{ref}"
-        n = int(np.isfinite(d).sum())
-        rows.append(_t_row(name, value, st, d, "clip", n, _role(ref, name, st)))
+        rows.append(_mean_row(name, value, st, d, units, cl, counts, _role(ref, name, st),
+                              counted="frames"))  # fmt: skip
     return rows
 
 

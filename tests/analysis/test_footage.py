@@ -4,10 +4,12 @@ same backgrounds with nothing colliding."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import polars as pl
+import pyarrow.parquet as pq
 import pytest
 
 from analysis.boundary.command import BoundarySettings
@@ -16,6 +18,7 @@ from tests.figures import assert_figure, recording_figures
 from tests.footage_clips import COLLISION_FRAME, FPS, write_collection
 from tests.helpers import assert_one_line_error
 from tests.in_process import run_in_process
+from vdc.executors import Feedback
 
 DRIFTS = (0.0, 0.5, 1.0, 2.0, 4.0)  # px per frame: five groups of clips, ever busier
 WINDOW_S = 1.0
@@ -68,7 +71,13 @@ def test_the_readme_looming_detector_breaks_on_busy_backgrounds(
     # scored with --min-ttc-s 0 (any alert inside the window is a hit): this test is about
     # where the drift breaks it, not how early it alerts (0.5 s made its still hits misses)
     cfg = settings(labels, "examples.looming:Looming", "threshold", "0.05", min_ttc_s=0.0)
-    res = boundary(cfg, tmp_path)
+    said: list[str] = []
+    res = boundary(cfg, tmp_path, Feedback(said.append))
+    # the labels name no scene: the run says, in one line, that its clips are independent
+    assert sum(line.startswith("Clips taken as independent") for line in said) == 1, said
+    assert "Clips taken as independent" in (tmp_path / "boundary.md").read_text()
+    kv = pq.read_schema(tmp_path / "predictors.parquet").metadata  # and in the table itself
+    assert json.loads(kv[b"vdc.units_note"]).startswith("Clips taken as independent")
     clips = res.runs
     still = clips.filter(pl.col("clip").str.contains("drift0-"))
     assert still.filter(pl.col("collision"))["hit"].all()  # on a still background it works
@@ -114,6 +123,10 @@ def test_the_flow_detector_is_not_fooled_by_the_drift(labels: Path, tmp_path: Pa
         (
             "clip,label,collision_frame,hazard_onset_frame\n{clip},looming,30,x\n",
             ["hazard_onset_frame must be"],
+        ),
+        (  # a scene for some clips and not others: which clips share what is unknown
+            "clip,label,collision_frame,scene\n{clip},looming,30,\n",
+            ["has no scene", "every clip's scene"],
         ),
     ],
 )

@@ -38,9 +38,10 @@ def test_the_quick_plan_writes_the_answer_marked_as_not_findings(quick) -> None:
     answer = (out / "answer.md").read_text()
     first, second = answer.split("\n\n")[:2]
     assert first.startswith("**Quick run") and "not findings" in first
-    # every study is far below the plan's power: the answer says so in words
+    # every study is far below the plan's power: the answer says so in words, naming the units
     assert second.startswith("**Does the AVDM predict")
-    assert "no difference at this power" in second
+    assert "cannot be judged" in second and "too few to judge" in second
+    assert "What these runs cannot tell" in second
     assert "QUICK RUN" in res.report()[0]
     for name in ("primary", "secondaries", "per_scene", "studies"):
         kv = pq.read_schema(out / f"{name}.parquet").metadata
@@ -57,13 +58,15 @@ def test_each_detector_gets_its_primary_comparison(quick) -> None:
     ]
     assert list(zip(primary["source"], primary["detector"], strict=True)) == want
     arena = primary.filter(pl.col("source") == "arena")
-    # 3 conditions, below the 24 the power calculation asks for: no verdict, said so
+    # 3 conditions in 3 scenes, below the 24 scenes the power calculation asks for: no
+    # verdict, said so; the scenes are the unit
     assert arena["n"].to_list() == [QUICK.conditions()] * 2
-    assert all(v.startswith("too few conditions") for v in arena["verdict"])
+    assert arena["unit"].to_list() == ["scene"] * 2 and arena["n_units"].to_list() == [3] * 2
+    assert all(v == "3 scenes: too few to judge (24 needed)" for v in arena["verdict"])
     assert arena["statistic"].to_list() == ["rho_failure"] * 2
     # a footage study either judged its clips or says why it could not (no alert at all)
     for r in primary.filter(pl.col("source") == "footage").iter_rows(named=True):
-        assert r["verdict"].startswith(("too few failures", "no evidence")), r
+        assert "too few to judge" in r["verdict"] or r["verdict"].startswith("no evidence"), r
     # the secondaries are the studies' own comparisons, never the primary one
     sec = pl.read_parquet(out / "secondaries.parquet")
     assert sec.height and set(sec["role"]) == {"secondary"}
@@ -139,8 +142,9 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
     verdicts survive Holm over the judged studies (the plan's own run: 4 verdicts, 1 stands)."""
     from analysis.experiments.power_answer import first_paragraph, with_holm_across
 
-    base = {"param": "v", "value": 1.0, "statistic": "s", "n": 48, "n_failures": 20,
-            "unit": "condition", "status": "ran", "avdm_estimate": 0.1, "avdm_ci_low": 0.0,
+    base = {"param": "v", "value": 1.0, "statistic": "s", "n": 48, "n_failing": 20,
+            "n_correct": 28, "n_units": 48, "unit": "condition", "status": "ran",
+            "avdm_estimate": 0.1, "avdm_ci_low": 0.0,
             "avdm_ci_high": 0.2, "ti_estimate": 0.2, "ti_ci_low": 0.1, "ti_ci_high": 0.3,
             "difference": -0.1, "difference_low": -0.2, "difference_high": 0.0}  # fmt: skip
     studies = [
@@ -149,7 +153,12 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
         ("footage", "lgmd-plus", 0.25, "no difference shown"),
         ("footage", "looming", 0.048, "worse"),
         ("footage", "flow-ttc", 0.013, "worse"),
-        ("footage", "unjudged", 0.001, "too few failures to judge (9; 46 needed)"),
+        (
+            "footage",
+            "unjudged",
+            0.001,
+            "9 failing clips (the smaller class): too few to judge (46 of each class needed)",
+        ),
     ]
     primary = with_holm_across(pl.DataFrame([
         base | {"source": s, "detector": d, "p_value": p, "verdict": v} for s, d, p, v in studies

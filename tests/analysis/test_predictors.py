@@ -11,10 +11,10 @@ import polars as pl
 import pytest
 import scipy.stats
 
+from analysis.predictors.arena import arena_predictors
 from analysis.predictors.held_out import loco_threshold
 from analysis.predictors.report import STATS, plot_predictors, predictors_report
 from analysis.predictors.statistics import (
-    arena_predictors,
     auroc,
     finite_spearman,
     footage_predictors,
@@ -85,7 +85,7 @@ def arena() -> pl.DataFrame:
 
 def test_a_perfect_measure_gets_rho_1_and_a_shuffled_one_an_interval_around_0(arena) -> None:
     assert set(arena.columns) >= {"measure", "value", "statistic", "estimate", "ci_low",
-                                  "ci_high", "n", "n_failures", "unit", "p_value", "p_holm",
+                                  "ci_high", "n", "n_failing", "unit", "p_value", "p_holm",
                                   "role", "survives", "verdict"}  # fmt: skip
     assert set(arena["unit"]) == {"condition"}  # every row names its unit
     good = _get(arena, "avdm", "rho_failure")
@@ -98,7 +98,7 @@ def test_a_perfect_measure_gets_rho_1_and_a_shuffled_one_an_interval_around_0(ar
     # 8 conditions are below the power calculation's 24: an estimate, no verdict
     paired = _get(arena, "ti_p910", "paired_rho_failure_vs_avdm")
     assert paired["role"] == "primary" and paired["estimate"] > 0
-    assert paired["verdict"] == "too few conditions to judge (8; 24 needed)"
+    assert paired["verdict"] == "8 conditions: too few to judge (24 needed)"
     assert paired["survives"] is None
     # SI/TI alone know nothing; adding the perfect measure lowers the held-out loss
     gain = _get(arena, "si_p910+ti_p910+avdm", "cv_logloss_gain_vs_si_p910+ti_p910")
@@ -131,7 +131,7 @@ def test_leave_one_condition_out_refuses_with_one_failing_condition() -> None:
                  "si_p910": rng.normal()} for c in range(6)]  # fmt: skip
     t = arena_predictors(pl.DataFrame(runs), pl.DataFrame(measures), "t_ffi", 0.8)
     loco = _get(t, "avdm", "loco_balanced_accuracy")
-    assert loco["estimate"] is None and loco["n_failures"] == 1
+    assert loco["estimate"] is None and loco["n_failing"] == 1
     assert (
         loco_threshold(np.array([-0.0, -1, -2, -3]), np.array([True, False, False, False])) == 0.5
     )
@@ -183,8 +183,10 @@ def test_footage_auroc_perfect_shuffled_and_within_clip(footage, tmp_path) -> No
     good = _get(footage, "avdm", "clip_auroc")
     # separated: the interval keeps its width (a percentile bootstrap collapsed to [1, 1])
     assert good["estimate"] == 1.0 and 0.85 < good["ci_low"] < 1.0 and good["n"] == 40
-    assert good["unit"] == "clip" and good["n_failures"] == 12
-    assert _get(footage, "ti_p910", "frame_auroc_pooled")["unit"] == "frame"
+    assert good["unit"] == "clip" and good["n_failing"] == 12
+    # frames clustered in their clips: the clips are what the interval clusters on
+    pooled = _get(footage, "ti_p910", "frame_auroc_pooled")
+    assert pooled["unit"] == "clip" and pooled["n_units"] == 40
     noise = _get(footage, "si_p910", "clip_auroc")
     assert noise["ci_low"] < 0.5 < noise["ci_high"]
     tracks = _get(footage, "ti_p910", "frame_auroc_within_clip")
@@ -201,7 +203,7 @@ def test_footage_auroc_perfect_shuffled_and_within_clip(footage, tmp_path) -> No
     assert_figure(png, saved, title="test predictors", labels=("95 % interval",), min_axes=2)
     md = predictors_report(footage, "threshold", "footage")
     assert "1.00 [1.00, 1.00]" not in md
-    assert "too few failures to judge (12; 46 needed)" in md
+    assert "12 failing clips (the smaller class): too few to judge (46 of each class needed)" in md
 
 
 def test_the_arena_grid_gains_its_predictors_from_cached_measures(tmp_path) -> None:
@@ -264,10 +266,22 @@ def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
     from tests.footage_clips import write_collection
 
     labels = write_collection(tmp_path / "clips", drifts=(0.0, 4.0), seeds=(1, 2))
+    # a clip with the object and one without over the same drifting texture share their
+    # background: their scene (4 scenes of 2 clips)
+    table = pl.read_csv(labels)
+    table.with_columns(pl.col("clip").str.extract(r"-(drift.*)\.mp4$").alias("scene")).write_csv(
+        labels)  # fmt: skip
     s = vdc.BoundarySettings(labels=str(labels), fov_deg=60.0, detector="examples.looming:Looming",
                              param="threshold", values="0.05", jobs=1)  # fmt: skip
     vdc.boundary(s, tmp_path / "out")
     res = vdc.predictors(tmp_path / "out")
+    clips = pl.read_parquet(tmp_path / "out" / "boundary_clips.parquet")
+    assert clips["scene"].n_unique() == 4
+    # every statistic is over the 4 scenes the 8 clips share (too few for any verdict)
+    assert set(res.predictors["unit"]) == {"scene"}
+    assert set(res.predictors["n_units"]) <= {0, 1, 2, 3, 4}
+    verdicts = res.predictors.filter(pl.col("role").is_not_null())["verdict"]
+    assert all("too few to judge" in v for v in verdicts), verdicts.to_list()
     frames = res.measures
     assert frames["clip"].n_unique() == 8
     assert {"avdm", "avdm_natural", "ti_p910", "flow_dps", "positive", "keep"} <= set(
@@ -278,7 +292,7 @@ def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
     stats = set(res.predictors["statistic"])
     assert {"clip_auroc", "frame_auroc_pooled", "frame_auroc_within_clip"} <= stats
     # the report names each statistic in words (since 40d33c2), not by its column name
-    assert f"### {STATS['clip_auroc']} (n = " in res.markdown
+    assert f"### {STATS['clip_auroc']} (intervals over " in res.markdown
     # the still clips' paper AVDM is 0, a number: the combined models with it are fitted
     assert "si_p910+ti_p910+avdm" in set(res.predictors["measure"])
 
@@ -348,5 +362,5 @@ def test_failure_modes_with_opposite_signs_are_scored_apart() -> None:
     assert mixed["ci_low"] < 0.5 < mixed["ci_high"]  # one class: the signs cancel
     miss = _get(t, "si_p910", "clip_auroc_miss")
     fa = _get(t, "si_p910", "clip_auroc_false_alarm")
-    assert miss["estimate"] < 0.1 and miss["n"] == 30 and miss["n_failures"] == 10
+    assert miss["estimate"] < 0.1 and miss["n"] == 30 and miss["n_failing"] == 10
     assert fa["estimate"] > 0.9 and fa["n"] == 30
