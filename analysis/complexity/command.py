@@ -105,7 +105,9 @@ class ComplexitySettings(Settings):
         "medium", "DIS optic-flow preset", choices=tuple(DIS_PRESETS)
     )
     jpeg_quality: int = option(75, "JPEG quality, 1-100", range=between(1, 100))
-    zlib_level: int = dataclasses.field(default=6, metadata={**API_ONLY, RANGE: between(0, 9)})
+    zlib_level: int = dataclasses.field(  # zlib_ratio's compression level
+        default=6, metadata={**API_ONLY, RANGE: between(0, 9)}
+    )
     fov_deg: float | None = option(
         None,
         "video sources: the camera's horizontal field of view, degrees (needed for the AVDM "

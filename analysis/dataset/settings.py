@@ -44,7 +44,9 @@ class DatasetSettings(Settings):
     width: int | None = option(
         None, "working width of the AVDM, px (default: from the fov)", range=between(8, 4096)
     )
-    jpeg_quality: int = dataclasses.field(default=75, metadata={**API_ONLY, RANGE: between(1, 100)})
+    jpeg_quality: int = dataclasses.field(  # jpeg_bpp's quality
+        default=75, metadata={**API_ONLY, RANGE: between(1, 100)}
+    )
     repeat_tol: float = option(
         0.5,
         "a frame whose mean |difference| from the previous one is at most this (8-bit levels) "

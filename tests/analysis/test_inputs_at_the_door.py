@@ -15,7 +15,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from analysis.boundary.command import OWN_COLUMNS, BoundarySettings
-from analysis.boundary.footage import clip_length, read_labels
+from analysis.boundary.labels import clip_length, read_labels
 from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.experiments.boundary_campaign import boundary
 from analysis.recordings.recompute import TablesSettings, tables

@@ -11,7 +11,7 @@ import av
 import numpy as np
 import pytest
 
-from analysis.boundary.footage import read_labels
+from analysis.boundary.labels import read_labels
 from analysis.experiments.looming_footage import (
     LoomingFootageSettings,
     draw_conditions,
