@@ -50,11 +50,13 @@ class DatasetResult(WroteFiles):
     notes: list[str]
     reused: int = 0
     dataset_problems: list[str] = dataclasses.field(default_factory=list)
+    # per camera: which kind it was taken for (fixed, or moving with the robot) and why
+    cameras: list[str] = dataclasses.field(default_factory=list)
 
     def report(self) -> list[str]:
         """Lines for people: what was profiled, what was flagged, what was written."""
         eps = self.episodes
-        lines: list[str] = []  # the notes were said as the run started
+        lines: list[str] = [f"camera {c}" for c in self.cameras]
         if eps is not None:
             flagged = eps.filter(pl.col("flag_count") > 0)
             lines.append(
@@ -122,6 +124,10 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
                 f"--episodes: {', '.join(map(str, absent)) or 'none given'}: not an episode of "
                 f"{root} (its episodes: {len(ds.listed)}, indices {listed})"
             )
+    unknown = [c for c in settings.moving_camera_list() if c not in ds.cameras]
+    if unknown:
+        raise UserError(f"--moving-cameras: {unknown[0]!r} is not a camera of {root} (its "
+                        f"cameras: {', '.join(ds.cameras)})")  # fmt: skip
     videos = [v for v in ds.videos if wanted is None or v.episode in wanted]
     notes = [n for n in [no_fov_note(settings)] if n]
     for n in notes:
@@ -179,6 +185,8 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         for k in sorted(results, key=_order)
     ]
     views = {(r["row"]["episode_index"], r["row"]["camera"]): r["views"] for r in results.values()}
+    pose_deltas = {(r["row"]["episode_index"], r["row"]["camera"]): r.get("pose_delta")
+                   for r in results.values()}  # fmt: skip
     widths = {cam: _width(ds.info, cam) for cam in ds.cameras}
     meta = {"command": "dataset", "dataset": str(root), "version": ds.version,
             "settings": dataclasses.asdict(settings)}  # fmt: skip
@@ -188,10 +196,13 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         schema={"file": pl.String, "episode_index": pl.Int64, "message": pl.String},
     )  # fmt: skip
     eps = None
+    motions: dict[str, dict[str, Any]] = {}
     if rows:
-        eps, frame_table = finish(rows, pl.concat(frames, how="diagonal_relaxed"), views,
-                                  widths, settings.fov_deg)  # fmt: skip
-        eps = severity(eps)
+        eps, frame_table, motions = finish(
+            rows, pl.concat(frames, how="diagonal_relaxed"), views, widths, settings.fov_deg,
+            pose_deltas, settings.moving_camera_list(), settings.flag_thresholds(),
+        )  # fmt: skip
+        eps = severity(eps, settings.flag_thresholds())
     try:
         with table_set(out) as stage:
             tables = {"episodes": eps, "frames": frame_table if rows else None,
@@ -216,6 +227,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
     return DatasetResult(
         paths, eps, [p.line() for p in problems], sorted(set(failed)), notes, reused,
         [p.line() for p in problems if p.episode is None],
+        [m["evidence"] for m in motions.values()],
     )  # fmt: skip
 
 

@@ -77,7 +77,7 @@ def thumbnails(ds: Dataset, episode: int, camera: str, frame: int) -> np.ndarray
 def plot_measures(eps: pl.DataFrame, path: Path) -> Path:
     """The measures across the dataset: a panel per measure, one bar per episode × camera,
     red where it reaches the panel's flag threshold (a dashed line)."""
-    by_col = {col: (thr, name) for name, (col, thr, _, _) in FLAGS.items()}
+    by_col = {f.column: (f.threshold, name) for name, f in FLAGS.items()}
     e = eps.sort("episode_index", "camera")
     x = np.arange(len(e))
     # fixed margins, not a constrained layout: that measures every label's extent in a draw
@@ -147,8 +147,9 @@ def write_page(
             f"({html.escape(flag)}: {html.escape(FLAGS[flag][3])})</p>{img}"
         )
     rules = "".join(
-        f"<tr><td>{n}</td><td>{c} &ge; {t:g} {u}</td><td>{html.escape(m)}</td></tr>"
-        for n, (c, t, u, m) in FLAGS.items()
+        f"<tr><td>{n}</td><td>{f.evidence} &ge; {f.threshold:g} {f.unit}</td>"
+        f"<td>{html.escape(f.meaning)}</td></tr>"
+        for n, f in FLAGS.items()
     )
     bad = "".join(f"<li>{html.escape(p.line())}</li>" for p in problems)
     rates = ", ".join(f"{r:.4g}" for r in sorted({ds.rate(c) for c in ds.cameras}))

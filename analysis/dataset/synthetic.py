@@ -35,6 +35,8 @@ data's own timeline (``timestamp = frame_index / fps``):
 * ``drift_ms``: episode → d: the video's clock runs fast, its frames spaced so that the last
   one comes d ms later than the data's last timestamp (the start is exact);
 * ``bump``: (episode e, p): the camera moved p px to the right from episode e on;
+* ``knock``: (episode e, frame f, p): the camera knocked p px to the right at frame f of
+  episode e, and left there (the episodes after e too);
 * ``lag_ms``: episode → L: each frame shows the scene as it was L ms before its timestamp;
 * ``idle_head_s``: episode → s: nothing moves for the first s seconds;
 * ``blurred``: episodes filmed out of focus (a Gaussian blur, sigma 2.5 px);
@@ -80,6 +82,7 @@ class Faults:
     dropped: dict[int, tuple[int, int]] = dataclasses.field(default_factory=dict)
     drift_ms: dict[int, float] = dataclasses.field(default_factory=dict)
     bump: tuple[int, int] | None = None
+    knock: tuple[int, int, int] | None = None
     lag_ms: dict[int, float] = dataclasses.field(default_factory=dict)
     idle_head_s: dict[int, float] = dataclasses.field(default_factory=dict)
     blurred: frozenset[int] = frozenset()
@@ -88,8 +91,15 @@ class Faults:
     def clean(self, episode: int) -> bool:
         """Whether ``episode`` has no fault (a bumped camera's episodes are faulty)."""
         bumped = self.bump is not None and episode >= self.bump[0]
-        return not bumped and not any(
-            episode in getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "bump"
+        knocked = self.knock is not None and episode >= self.knock[0]
+        return (
+            not bumped
+            and not knocked
+            and not any(
+                episode in getattr(self, f.name)
+                for f in dataclasses.fields(self)
+                if f.name not in ("bump", "knock")
+            )
         )
 
 
@@ -106,16 +116,17 @@ STANDARD_FAULTS = Faults(
 )
 
 
-def _scene(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """(canvas RGB uint8 of the view plus a margin, object RGB uint8): real photographs."""
+def _scene(height: int, width: int, pan_px: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(canvas RGB uint8 of the view plus a margin, ``pan_px`` more either side, object RGB
+    uint8): real photographs."""
     try:  # scikit-image (its photographs) comes with the test extra only
         from skimage import data  # lazy: optional extra
     except ImportError:
         raise UserError(
             "writing a test dataset needs scikit-image (pip install scikit-image)"
         ) from None
-    bg = cv2.resize(data.astronaut(), (width + 2 * MARGIN_PX, height + 2 * MARGIN_PX),
-                    interpolation=cv2.INTER_AREA)  # fmt: skip
+    bg = cv2.resize(data.astronaut(), (width + 2 * (MARGIN_PX + pan_px),
+                    height + 2 * MARGIN_PX), interpolation=cv2.INTER_AREA)  # fmt: skip
     side = max(8, height // 4)
     obj = cv2.resize(data.coffee()[0:400, 100:500], (side, side), interpolation=cv2.INTER_AREA)
     return bg, obj
@@ -144,28 +155,43 @@ def state_at(state: np.ndarray, fps: float, t: float) -> np.ndarray:
 
 
 def render(bg: np.ndarray, obj: np.ndarray, s: np.ndarray, shape: tuple[int, int],
-           shift_px: int = 0) -> np.ndarray:  # fmt: skip
+           shift_px: float = 0) -> np.ndarray:  # fmt: skip
     """The camera's (H, W, 3) uint8 view of the scene with the object at state ``s`` (px:
     joint 0 horizontal from the left quarter, joint 1 vertical), the camera moved right by
-    ``shift_px``. Sub-pixel positions are rendered by a warp (bilinear)."""
+    ``shift_px`` (a camera that pans: a fraction of a px too). Sub-pixel positions are
+    rendered by a warp (bilinear)."""
     h, w = shape
+    mx = (bg.shape[1] - w) // 2  # the canvas's margins: MARGIN_PX, wider for a pan
+    my = (bg.shape[0] - h) // 2
     canvas = bg.astype(np.float32)
     side = obj.shape[0]
-    x = MARGIN_PX + w * 0.2 + float(s[0])
-    y = MARGIN_PX + h * 0.4 + float(s[1])
+    x = mx + w * 0.2 + float(s[0])
+    y = my + h * 0.4 + float(s[1])
     m = np.float32([[1, 0, x], [0, 1, y]])
     size = (canvas.shape[1], canvas.shape[0])
     placed = cv2.warpAffine(obj.astype(np.float32), m, size, flags=cv2.INTER_LINEAR)
     mask = cv2.warpAffine(np.ones((side, side), np.float32), m, size, flags=cv2.INTER_LINEAR)
     canvas = canvas * (1 - mask[..., None]) + placed
-    ox = MARGIN_PX + shift_px
-    return np.clip(canvas[MARGIN_PX : MARGIN_PX + h, ox : ox + w], 0, 255).astype(np.uint8)
+    if float(shift_px).is_integer():
+        ox = mx + int(shift_px)
+        return np.clip(canvas[my : my + h, ox : ox + w], 0, 255).astype(np.uint8)
+    crop = np.float32([[1, 0, -(mx + shift_px)], [0, 1, -my]])
+    view = cv2.warpAffine(canvas, crop, (w, h), flags=cv2.INTER_LINEAR)
+    return np.clip(view, 0, 255).astype(np.uint8)
 
 
 def _episode_frames(
-    e: int, n: int, fps: float, shape: tuple[int, int], faults: Faults, scene: tuple, seed: int
+    e: int,
+    n: int,
+    fps: float,
+    shape: tuple[int, int],
+    faults: Faults,
+    scene: tuple,
+    seed: int,
+    pan_px_per_unit: float = 0.0,
 ) -> tuple[np.ndarray, list[tuple[float, np.ndarray]]]:
-    """(state (n, STATE_DIM), [(video time since the episode's start s, RGB frame)])."""
+    """(state (n, STATE_DIM), [(video time since the episode's start s, RGB frame)]); the
+    camera pans right by ``pan_px_per_unit`` × joint 0 (a camera on the arm)."""
     bg, obj = scene
     amplitude = shape[1] * (0.45 + 0.1 * ((e * 7) % 3))  # px: the object crosses the view
     state = trajectory(n, fps, faults.idle_head_s.get(e, 0.0), amplitude, seed + e)
@@ -180,7 +206,12 @@ def _episode_frames(
         if d0 <= i < d0 + dn:
             continue  # lost: a gap in the video's times
         if not (f0 <= i < f0 + k) or img is None:
-            img = render(bg, obj, state_at(state, fps, i / fps - lag), shape, shift)
+            seen = state_at(state, fps, i / fps - lag)
+            knocked = faults.knock is not None and (
+                e > faults.knock[0] or (e == faults.knock[0] and i >= faults.knock[1])
+            )
+            at = shift + pan_px_per_unit * float(seen[0]) + (faults.knock[2] if knocked else 0)
+            img = render(bg, obj, seen, shape, at)
             if e in faults.blurred:
                 img = cv2.GaussianBlur(img, (0, 0), 2.5)
             if e in faults.overexposed:
@@ -341,20 +372,25 @@ def write_dataset(
     cameras: tuple[str, ...] = ("observation.images.front",),
     seed: int = 0,
     image_cameras: tuple[str, ...] = (),
+    pan_px_per_unit: float = 0.0,
 ) -> dict[str, Any]:
     """Write a LeRobot dataset at ``root`` (see the module) and return its truth: ``lengths``
     (frames per episode), ``faults``, ``fps``, ``cameras``. Episode lengths are spread evenly
     over ``seconds``; the first camera carries the faults, the others see the clean scene
     (their own, shifted a little). Faults name episodes below ``episodes``. The cameras in
     ``image_cameras`` are stored as LeRobot image features instead of video: one PNG per frame,
-    ``images/{key}/episode-{e:06d}/frame-{i:06d}.png``."""
+    ``images/{key}/episode-{e:06d}/frame-{i:06d}.png``. With ``pan_px_per_unit`` the first
+    camera is on the arm: its view pans right by that many px per unit of joint 0 (the object
+    crosses up to 0.65 × the width in joint 0's units)."""
     if version not in ("v3.0", "v2.1"):
         raise UserError(f"version must be v3.0 or v2.1, got {version!r}")
     if codec not in CODECS:
         raise UserError(f"codec must be one of {', '.join(CODECS)}, got {codec!r}")
     root = Path(root)
     (root / "meta").mkdir(parents=True, exist_ok=True)
-    scene = _scene(*shape)
+    knock_px = faults.knock[2] if faults.knock is not None else 0
+    pan_px = math.ceil(abs(pan_px_per_unit) * 0.66 * shape[1]) + abs(knock_px)
+    scene = _scene(*shape, pan_px)
     span = np.linspace(seconds[0], seconds[1], episodes) if episodes > 1 else [seconds[0]]
     lengths = [round(float(s) * fps) for s in span]
     clean = Faults()
@@ -364,7 +400,8 @@ def write_dataset(
         for c, cam in enumerate(cameras):
             f = faults if c == 0 else clean
             sc = scene if c == 0 else (np.roll(scene[0], 5 * c, axis=1), scene[1])
-            state, frames = _episode_frames(e, n, fps, shape, f, sc, seed)
+            pan = pan_px_per_unit if c == 0 else 0.0
+            state, frames = _episode_frames(e, n, fps, shape, f, sc, seed, pan)
             per_cam[cam].append(frames)
         states.append(state)
     info: dict[str, Any] = {

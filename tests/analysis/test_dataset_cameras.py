@@ -1,0 +1,107 @@
+"""``vdc-analyse dataset`` on cameras that move with the robot, flags on evidence, and the
+v2.1 / H.264 example's idle head and lag: datasets written by
+``analysis.dataset.synthetic`` in the exact layout, with known truths."""
+
+from __future__ import annotations
+
+import pytest
+
+from analysis.dataset import DatasetSettings, dataset
+from analysis.dataset.flags import FLAGS
+from analysis.dataset.synthetic import Faults, write_dataset
+from vdc.errors import UserError
+
+KNOCK = (5, 60, 25)  # episode 5's camera knocked 25 px at its frame 60
+
+
+@pytest.fixture(scope="module")
+def panning(tmp_path_factory):
+    """Six episodes whose camera is on the arm: its view pans 1 px per unit of joint 0 (up to
+    80 px over an episode), and a knock of 25 px at frame 60 of the last."""
+    root = tmp_path_factory.mktemp("arm") / "ds"
+    write_dataset(root, episodes=6, codec="libx264", pan_px_per_unit=1.0,
+                  faults=Faults(knock=KNOCK))  # fmt: skip
+    out = root.parent / "out"
+    res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), out)
+    return root, out, res
+
+
+def _rows(res) -> dict[int, dict]:
+    return {r["episode_index"]: r for r in res.episodes.iter_rows(named=True)}
+
+
+def test_a_camera_on_the_arm_flags_no_clean_episode_and_finds_the_knock_at_its_frame(
+    panning,
+) -> None:
+    _, _, res = panning
+    rows = _rows(res)
+    e, frame, px = KNOCK
+    for i, r in rows.items():
+        if i != e:  # clean: the pan is the state's, not a fault (every one flagged before)
+            assert r["flags"] == "", (i, r["flags"], r["shift_within_px"], r["shift_px"])
+        assert r["camera_motion"] == "moves with the robot"
+    r = rows[e]
+    assert r["flags"] == "moved_within"
+    # the knock's size: phase correlation of the views, less the state's pan (the map learnt
+    # from the dataset's own frames: R² 0.95): measured 24.85 px for 25, within 1.5 px
+    assert r["shift_within_px"] == pytest.approx(px, abs=1.5)
+    assert r["shift_within_low_px"] >= FLAGS["moved_within"].threshold
+    assert r["shift_frame"] == pytest.approx(frame, abs=1)  # the strip shows the knock
+    # the terminal says which kind the camera was taken for, and from what
+    report = "\n".join(res.report())
+    assert "moves with the robot (learnt: the state's change explains R²" in report
+    assert r["camera_motion_r2"] > 0.5
+
+
+def test_the_user_can_name_the_moving_camera_and_turn_a_flag_off(panning) -> None:
+    root, out, _ = panning
+    # the second run reads the measures back (no setting here changes what is measured)
+    s = DatasetSettings(jobs=1, page=False, recordings=False,
+                        moving_cameras="observation.images.front",
+                        thresholds="moved_within=off,lag=80")  # fmt: skip
+    res = dataset(root, s, out)
+    assert res.reused == 6
+    rows = _rows(res)
+    assert all(r["flags"] == "" for r in rows.values())
+    assert any("as --moving-cameras says" in line for line in res.report())
+    with pytest.raises(UserError, match="--moving-cameras: 'wrist' is not a camera"):
+        dataset(root, DatasetSettings(moving_cameras="wrist", page=False), out)
+
+
+def test_thresholds_are_parsed_and_bad_ones_refused() -> None:
+    s = DatasetSettings(thresholds="lag=80, idle=off")
+    assert s.flag_thresholds() == {"lag": 80.0, "idle": None}
+    for bad in ("lag", "nope=3", "lag=-1", "lag=many"):
+        with pytest.raises(UserError, match="--thresholds"):
+            DatasetSettings(thresholds=bad)
+
+
+@pytest.fixture(scope="module")
+def example_v21(tmp_path_factory):
+    """The v2.1 / H.264 example's idle head (1 s) and blurred episode, in five episodes."""
+    root = tmp_path_factory.mktemp("v21") / "ds"
+    faults = Faults(idle_head_s={1: 1.0}, blurred=frozenset({2}))
+    write_dataset(root, episodes=5, version="v2.1", codec="libx264", faults=faults)
+    res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False),
+                  root.parent / "out")  # fmt: skip
+    return res
+
+
+def test_the_v21_h264_idle_head_is_found(example_v21) -> None:
+    rows = _rows(example_v21)
+    # H.264 at CRF 30 codes every second frame again as a key frame, which changed a still
+    # view's block by 12 levels (it read 0.033 s): the first frame is within 3 of 1 s
+    assert rows[1]["idle_head_s"] == pytest.approx(1.0, abs=3 / 30)
+    assert "idle" in rows[1]["flags"]
+    for e in (0, 3, 4):
+        assert rows[e]["idle_head_s"] < 0.1, e
+
+
+def test_the_blurred_episode_gets_no_lag_and_no_lag_is_flagged_on_a_point(example_v21) -> None:
+    rows = _rows(example_v21)
+    assert rows[2]["flags"] == "blurred"  # it was flagged lag too, on a 169-ms point
+    for e, r in rows.items():
+        assert "lag" not in r["flags"], e
+        if r["lag_ms"] is None and r["lag_low_ms"] is not None:  # an interval without a lag
+            assert r["lag_note"].startswith("cannot tell"), (e, r["lag_note"])
+            assert r["lag_high_ms"] - r["lag_low_ms"] >= 0.9 * 800
