@@ -5,12 +5,13 @@ thresholds (docs/dataset.md says why each is where it is)."""
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any, NamedTuple
 
 import numpy as np
 import polars as pl
 
-from analysis.dataset.measure import phase_shift
+from analysis.dataset.measure import MOTION_SPAN_FRAMES, lag_of, phase_shift
 
 # flag, the column it shows, the column of its evidence, its threshold, the threshold's unit
 # (what it means: _MEANINGS): an episode is flagged when its evidence >= the threshold. The
@@ -50,7 +51,7 @@ _MEANINGS = {
 }
 
 
-class Flag(NamedTuple):
+class FlagRule(NamedTuple):
     """One flag: the column it shows, its threshold, the threshold's unit, what it means, and
     the column of its evidence (compared with the threshold)."""
 
@@ -61,15 +62,16 @@ class Flag(NamedTuple):
     evidence: str
 
 
-FLAGS: dict[str, Flag] = {
-    name: Flag(column, float(thr) if "." in thr else int(thr), unit, _MEANINGS[name], evidence)
+FLAGS: dict[str, FlagRule] = {
+    name: FlagRule(column, float(thr) if "." in thr else int(thr), unit, _MEANINGS[name], evidence)
     for name, column, evidence, thr, unit in (
         row.split() for row in _FLAG_TABLE.strip().splitlines()
     )
 }
 FLOAT_COLUMNS = (
     "from_s", "to_s", "drift_start_ms", "drift_end_ms", "lag_ms", "lag_low_ms", "lag_high_ms",
-    "lag_peak_ms",
+    "lag_peak_ms", "lag_camera_ms", "lag_camera_low_ms", "lag_camera_high_ms",
+    "lag_camera_clear_ms",
     "lag_r", "shift_deg", "shift_within_deg", "shift_px", "shift_within_px", "shift_dx_px",
     "shift_dy_px", "frozen_longest_s", "frozen_total_s", "idle_head_s", "idle_tail_s",
     "shift_low_px", "shift_within_low_px", "shift_step_px", "camera_motion_r2",
@@ -91,14 +93,18 @@ Z95 = 1.959964
 # a camera moves with the robot where a linear map of the state's change explains at least
 # this share of the view's frame-to-frame motion (R², no intercept) ...
 MOVING_MIN_R2 = 0.5
-# ... and that motion is at least this (px a frame, root mean square): a fixed camera's view
-# moves by its codec's noise and by its moving objects' pull on the phase correlation: 0.17 px
-# a frame on the test datasets, where a camera on the arm moves 0.5-1 px
+# ... and that motion is at least this (px a frame, root mean square). A fixed camera's view
+# moves by its codec's noise and by its moving objects' pull on the whole-frame phase
+# correlation (0.17-0.22 px a frame on the test datasets, R² 0.65: the object moves with the
+# state), a camera on the arm by 0.5-1 px and more. Taking a fixed camera for a moving one
+# costs little: only the part of its motion the state explains is taken out, a bump stays
+# whole; the other way, every pan would be a fault
 MOVING_MIN_PX = 0.3
-# a step of the view: the residual motion summed from the episode's start, its median over
-# the STEP_WINDOW_S after a frame less its median over the STEP_WINDOW_S before; a knock that
-# lasts shows whole, while a frozen run (the view held, then caught up) cancels out
-STEP_WINDOW_S = 0.5
+# a step of the view: each frame's view against the one MOTION_SPAN_FRAMES before, less what
+# the state's change over those frames explains; the median of that over the frames from t on
+# (a knock at t lasts: it is in each of them; a frozen run caught up, or one frame's misread,
+# is in a few). Its noise: the median of k draws varies by about 1.2533 / √k of one draw
+STEP_MEDIAN_SD = 1.2533 / math.sqrt(MOTION_SPAN_FRAMES)
 
 
 def flag_thresholds(overrides: dict[str, float | None] | None = None) -> dict[str, float | None]:
@@ -181,17 +187,18 @@ def learn_camera_motion(d: np.ndarray, s: np.ndarray) -> dict[str, Any]:
             "moving": r2 >= MOVING_MIN_R2 and px >= MOVING_MIN_PX}  # fmt: skip
 
 
-def _steps(c: np.ndarray, h: int) -> np.ndarray:
-    """(n, 2): at each frame t the median of ``c`` over frames t..t+h-1 less its median over
-    t-h..t-1 (NaN where either window leaves the episode)."""
-    n = len(c)
+def _steps(r: np.ndarray, k: int) -> np.ndarray:
+    """(n, 2): at each frame t the median of ``r`` (the residual of each frame's view against
+    the view ``k`` frames before) over frames t..t+k-1: a step at t is in all k of them, a
+    single frame's misread in one (NaN where the window leaves the episode)."""
+    n = len(r)
     out = np.full((n, 2), np.nan)
-    if n < 2 * h or h < 1:
+    if n < k or k < 1:
         return out
-    win = np.lib.stride_tricks.sliding_window_view(c, h, axis=0)  # (n - h + 1, 2, h)
-    med = np.median(win, axis=2)  # med[i]: frames i..i+h-1
-    t = np.arange(h, n - h + 1)
-    out[t] = med[t] - med[t - h]
+    win = np.lib.stride_tricks.sliding_window_view(r, k, axis=0)  # (n - k + 1, 2, k)
+    with warnings.catch_warnings():  # a window of NaNs (the first frames) is a NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        out[: n - k + 1] = np.nanmedian(win, axis=2)
     return out
 
 
@@ -239,8 +246,7 @@ def _view_shifts(
     last view against its first), each less what the state's change explains where the
     camera moves with the robot; ``shift_frame`` the frame of the step."""
     parts = frames.sort("frame").partition_by("episode_index", "camera", as_dict=True)
-    fps = 1.0 / float(frames["dt_s"].median() or 1.0)
-    h = max(2, round(STEP_WINDOW_S * fps))
+    k = MOTION_SPAN_FRAMES
     refs: dict[str, tuple[np.ndarray, np.ndarray | None]] = {}
     for (e, cam), v in sorted(views.items()):
         pd = pose_deltas.get((e, cam))
@@ -251,19 +257,28 @@ def _view_shifts(
     for key, fr in parts.items():
         m = motions[key[1]]
         d = fr.select("view_dx_px", "view_dy_px").to_numpy().astype(np.float64)
+        if "view_span_dx_px" in fr.columns:
+            span = fr.select("view_span_dx_px", "view_span_dy_px").to_numpy().astype(np.float64)
+        else:
+            span = np.full_like(d, np.nan)
         pd = pose_deltas.get(key)
         if m["moving"] and m["map"] is not None and pd is not None and len(pd) == len(d):
-            d = d - np.asarray(pd, np.float64) @ m["map"]
-        d[0] = 0.0  # the first frame: nothing before it
-        resid[key] = d
-        steps[key] = _steps(np.cumsum(np.nan_to_num(d), axis=0), h)
+            step_pose = np.asarray(pd, np.float64).copy()
+            step_pose[0] = 0.0  # the first row is the pose itself, not a change
+            d = d - step_pose @ m["map"]
+            over_k = np.cumsum(step_pose, axis=0)
+            over_k[k:] = over_k[k:] - over_k[:-k]  # the pose's change over the k frames before
+            span = span - over_k @ m["map"]
+        resid[key] = span
+        steps[key] = _steps(span, k)
     spread = {}
     for cam in motions:
         r = np.vstack([v for k, v in resid.items() if k[1] == cam] or [np.zeros((0, 2))])
         st = np.vstack([v for k, v in steps.items() if k[1] == cam] or [np.zeros((0, 2))])
-        pair = math.hypot(_sigma(r[1:, 0]), _sigma(r[1:, 1])) if len(r) > 1 else 0.0
-        step = math.hypot(_sigma(st[:, 0]), _sigma(st[:, 1])) if len(st) else 0.0
-        spread[cam] = (pair, step)
+        # one comparison's spread (the views' against the reference, the last against the
+        # first), and the step's: the median of k of them
+        pair = math.hypot(_sigma(r[:, 0]), _sigma(r[:, 1])) if len(r) else 0.0
+        spread[cam] = (pair, pair * STEP_MEDIAN_SD)
     for r in rows:
         key = (r["episode_index"], r["camera"])
         cam = r["camera"]
@@ -289,10 +304,6 @@ def _view_shifts(
         mag = np.hypot(st[:, 0], st[:, 1]) if st is not None else np.zeros(0)
         t = int(np.nanargmax(mag)) if np.isfinite(mag).any() else None
         step = float(mag[t]) if t is not None else 0.0
-        if t is not None:  # the step's frame: the largest single motion the state leaves
-            near = resid[key][max(1, t - h) : t + h]  # unexplained, within a window of it
-            if len(near):
-                t = max(1, t - h) + int(np.nanargmax(np.nan_to_num(np.hypot(*near.T))))
         r["shift_px"] = math.hypot(dx, dy)
         r["shift_dx_px"], r["shift_dy_px"] = dx, dy
         r["shift_low_px"] = max(0.0, r["shift_px"] - Z95 * pair_sd)
@@ -304,13 +315,63 @@ def _view_shifts(
             (step, step_low) if step_low > end_low else (end, end_low)
         )
         r["shift_step_px"] = step
-        r["shift_frame"] = t
+        # the step's frame, where the step clears its noise (else no frame: the largest step
+        # of a steady view is a place in its noise)
+        r["shift_frame"] = t if step_low > 0 else None
         r["camera_motion"] = m["kind"]
         r["camera_motion_r2"] = m["r2"]
         r["camera_motion_px"] = m["px"]
         deg = fov_deg / widths[cam] if fov_deg and widths.get(cam) else None
         r["shift_deg"] = r["shift_px"] * deg if deg else None
         r["shift_within_deg"] = r["shift_within_px"] * deg if deg else None
+
+
+def camera_lags(
+    frames: pl.DataFrame, order: tuple[str, ...] = ()
+) -> dict[tuple[int, str], dict[str, Any]]:
+    """Each episode's cameras checked against each other for lag: the delay of each camera's
+    image motion behind the episode's first camera's (``order``: the dataset's cameras; ms,
+    positive: this camera late), as :func:`analysis.dataset.measure.lag_of` reads the image's
+    against the state's, on the first camera's frame times (the other's motion interpolated
+    there: the cameras' rates and sizes may differ; a mean difference per pixel and frame
+    interval does not depend on either). Keyed by (episode, camera) for every camera but the
+    first: ``lag_camera_ms`` (None where it cannot tell), ``lag_camera_low_ms``,
+    ``lag_camera_high_ms``, ``lag_camera_note``, ``lag_camera_ref`` (the first camera)."""
+    rank = {c: i for i, c in enumerate(order)}
+    parts = frames.sort("frame").partition_by("episode_index", "camera", as_dict=True)
+    by_ep: dict[int, list[str]] = {}
+    for e, cam in parts:
+        by_ep.setdefault(e, []).append(cam)
+
+    def motion(fr: pl.DataFrame) -> tuple[np.ndarray, np.ndarray, float]:
+        t = fr["t_s"].to_numpy().astype(np.float64)
+        dt = fr["dt_s"].to_numpy().astype(np.float64)
+        fps = 1.0 / float(np.nanmedian(dt)) if np.isfinite(dt).any() else math.nan
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rate = fr["mafd"].to_numpy().astype(np.float64) / (dt * fps)
+        rate[fr["frozen"].to_numpy()] = np.nan  # a frozen frame says nothing of the motion
+        return t, rate, fps
+
+    out: dict[tuple[int, str], dict[str, Any]] = {}
+    for e, cams in by_ep.items():
+        if len(cams) < 2:
+            continue
+        cams.sort(key=lambda c: (rank.get(c, len(rank)), c))
+        t0, x, fps = motion(parts[(e, cams[0])])
+        for cam in cams[1:]:
+            t1, y, _ = motion(parts[(e, cam)])
+            ok = np.isfinite(y)
+            if len(t0) < 3 or ok.sum() < 3 or not math.isfinite(fps):
+                continue
+            # the other camera's motion where the first's frames are (NaN outside its times)
+            yy = np.interp(t0, t1[ok], y[ok], left=np.nan, right=np.nan)
+            lag = lag_of(x[1:], yy[1:], fps)
+            out[(e, cam)] = {
+                "lag_camera_ms": lag["lag_ms"], "lag_camera_low_ms": lag["lag_low_ms"],
+                "lag_camera_high_ms": lag["lag_high_ms"], "lag_camera_note": lag["lag_note"],
+                "lag_camera_ref": cams[0],
+            }  # fmt: skip
+    return out
 
 
 def finish(
@@ -322,6 +383,7 @@ def finish(
     pose_deltas: dict[tuple[int, str], np.ndarray | None] | None = None,
     moving_cameras: tuple[str, ...] = (),
     thresholds: dict[str, float | None] | None = None,
+    camera_order: tuple[str, ...] = (),
 ) -> tuple[pl.DataFrame, pl.DataFrame, dict[str, dict[str, Any]]]:
     """(episodes, frames, cameras) with the dataset's measures and the flags added: ``blurred``
     per frame and ``blurred_share``; each camera's motion learnt against the robot's state
@@ -361,6 +423,23 @@ def finish(
         frames = frames.with_columns(view_dx_px=pl.lit(math.nan), view_dy_px=pl.lit(math.nan))
     motions = camera_motions(frames, pose_deltas, moving_cameras)
     _view_shifts(rows, frames, views, pose_deltas, widths, fov_deg, motions)
+    against = camera_lags(frames, camera_order)
+    none = dict.fromkeys(("lag_camera_ms", "lag_camera_low_ms", "lag_camera_high_ms",
+                          "lag_camera_note", "lag_camera_ref"))  # fmt: skip
+    # a delay between two cameras is the late one's: its evidence (how far the interval lies
+    # from 0) goes to the camera behind, this one or the first
+    late: dict[tuple[int, str], float] = {}
+    for (e, cam), lag in against.items():
+        if lag["lag_camera_ms"] is None:
+            continue
+        low, high = lag["lag_camera_low_ms"], lag["lag_camera_high_ms"]
+        behind, clear = (cam, low) if low > 0 else (lag["lag_camera_ref"], -high)
+        if clear > 0:
+            late[(e, behind)] = max(clear, late.get((e, behind), 0.0))
+    for r in rows:
+        key = (r["episode_index"], r["camera"])
+        r.update(against.get(key, none))
+        r["lag_camera_clear_ms"] = late.get(key, 0.0)
     eps = pl.DataFrame(rows, infer_schema_length=None)
     # a column every row of which is None (no lag measurable, no field of view) keeps its type
     eps = eps.with_columns(
@@ -369,7 +448,11 @@ def finish(
             for c in eps.columns
             if c in FLOAT_COLUMNS or c.endswith("_mean")
         ],
-        *[pl.col(c).cast(pl.String) for c in ("lag_note", "video_path") if c in eps.columns],
+        *[
+            pl.col(c).cast(pl.String)
+            for c in ("lag_note", "video_path", "lag_camera_note", "lag_camera_ref")
+            if c in eps.columns
+        ],
     )
     eps = eps.join(blur, on=["episode_index", "camera"], how="left")
     units = ((pl.col("frames_decoded") / fps) / SHARE_BLOCK_S).clip(1)
@@ -383,18 +466,20 @@ def finish(
         pl.max_horizontal(pl.col("drift_start_ms").abs(), pl.col("drift_end_ms").abs())
         .alias("drift_abs_ms"),
         pl.col("lag_ms").abs().alias("lag_abs_ms"),
-        # the lag's evidence: how far its whole interval lies from 0 (0 where it holds 0)
-        pl.max_horizontal(pl.col("lag_low_ms"), -pl.col("lag_high_ms"), pl.lit(0.0))
-        .alias("lag_clear_ms"),
+        # the lag's evidence: how far its whole interval lies from 0 (0 where it holds 0),
+        # against the state or against the episode's first camera
+        pl.max_horizontal(
+            pl.when(pl.col("lag_ms").is_null()).then(0.0)
+            .otherwise(pl.max_horizontal(pl.col("lag_low_ms"), -pl.col("lag_high_ms"))),
+            pl.col("lag_camera_clear_ms"),
+            pl.lit(0.0),
+        ).alias("lag_clear_ms"),
         (pl.col("length") - pl.col("frames_decoded") - pl.col("dropped")).clip(0)
         .alias("frames_missing"),
         **share_low,
     )  # fmt: skip
     eps = eps.with_columns(
         (pl.col("drift_abs_ms") - DRIFT_RESOLUTION_MS).clip(0).alias("drift_low_ms"),
-        # no lag (cannot tell, not measurable): no evidence
-        pl.when(pl.col("lag_ms").is_null()).then(0.0).otherwise(pl.col("lag_clear_ms"))
-        .alias("lag_clear_ms"),
     )  # fmt: skip
     named = [
         pl.when(pl.col(f.evidence).fill_null(0).fill_nan(0) >= thr_of[name])

@@ -68,23 +68,54 @@ VIEW_MAX_WIDTH = 320  # the first and last views kept for the camera's shift, px
 # this wide: a pan of a few px a frame is still seen at a fifth of a px, at a quarter of the
 # cost of the full view (about 0.2 ms a frame at 160 × 120)
 MOTION_MAX_WIDTH = 160
+# and against the frame this many before: a knock shows in every such comparison that spans
+# it (this many in a row), while a misread (two motions in the view: a gripper that stays put
+# while the background pans) is a single frame's (analysis.dataset.flags takes the median)
+MOTION_SPAN_FRAMES = 5
 PRE_BLUR_PX = 1.5  # sigma of the views' common blur before their shift is measured
+
+
+def _vertex(minus: float, centre: float, plus: float) -> float:
+    """The offset (-0.5..0.5) of the parabola's vertex through three samples around a peak."""
+    curve = minus - 2 * centre + plus
+    return float(np.clip(0.5 * (minus - plus) / curve, -0.5, 0.5)) if curve < 0 else 0.0
 
 
 def phase_shift(
     ref: np.ndarray, img: np.ndarray, win: np.ndarray | None = None
 ) -> tuple[float, float]:
-    """(dx, dy) px that moves ``ref`` onto ``img`` (phase correlation, Hanning window)."""
+    """(dx, dy) px that moves ``ref`` onto ``img``: phase correlation (Hanning window), its
+    peak refined by a parabola through its neighbours along each axis. Not OpenCV's
+    ``phaseCorrelate``, whose centroid over the 5 × 5 px around the peak mixes in a second
+    peak 2-3 px away: a camera on the arm whose gripper (or object) stays put in its view
+    read its 2.5-px pan as 1.2 px, and as 3 px on a frame now and then."""
     if ref.shape != img.shape:
         return math.nan, math.nan
     if win is None:
         win = cv2.createHanningWindow((ref.shape[1], ref.shape[0]), cv2.CV_32F)
-    # both blurred alike first: phase correlation whitens the spectrum, so a blurred or
-    # heavily compressed view's empty high frequencies (codec noise) would vote as loudly as
-    # the scene's structure; a common blur of PRE_BLUR_PX leaves only the structure
-    a = cv2.GaussianBlur(ref, (0, 0), PRE_BLUR_PX)
-    b = cv2.GaussianBlur(img, (0, 0), PRE_BLUR_PX)
-    (dx, dy), _ = cv2.phaseCorrelate(a, b, win)
+    return spectra_shift(spectrum(ref, win), spectrum(img, win), ref.shape)
+
+
+def spectrum(img: np.ndarray, win: np.ndarray) -> np.ndarray:
+    """The view's spectrum for :func:`spectra_shift` (kept from frame to frame: each frame's
+    is taken once)."""
+    # blurred first: phase correlation whitens the spectrum, so a blurred or heavily
+    # compressed view's empty high frequencies (codec noise) would vote as loudly as the
+    # scene's structure; a common blur of PRE_BLUR_PX leaves only the structure
+    return np.fft.rfft2(cv2.GaussianBlur(img, (0, 0), PRE_BLUR_PX) * win)
+
+
+def spectra_shift(a: np.ndarray, b: np.ndarray, shape: tuple[int, ...]) -> tuple[float, float]:
+    """:func:`phase_shift` from the two views' :func:`spectrum`."""
+    cross = b * np.conj(a)
+    corr = np.fft.irfft2(cross / (np.abs(cross) + 1e-12), s=shape)
+    h, w = corr.shape
+    iy, ix = np.unravel_index(int(np.argmax(corr)), corr.shape)
+    c = corr[iy, ix]
+    fx = _vertex(corr[iy, (ix - 1) % w], c, corr[iy, (ix + 1) % w])
+    fy = _vertex(corr[(iy - 1) % h, ix], c, corr[(iy + 1) % h, ix])
+    dx = (ix + w // 2) % w - w // 2 + fx  # wrapped: a shift of w - 1 is one of -1
+    dy = (iy + h // 2) % h - h // 2 + fy
     return float(dx), float(dy)
 
 
@@ -343,8 +374,9 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
     stats: list[tuple[float, float, float, float]] = []
     change: list[tuple[float, float]] = []  # against the frame before, and the one before it
     first_last: list[np.ndarray] = []
-    view_motion: list[tuple[float, float]] = []  # (dx, dy) px of the frame's view on the last's
-    small_last: list[Any] = [None, None]  # the last frame made small, its Hanning window
+    motions: list[tuple[float, float]] = []  # (dx, dy) px of the frame's view on the last's
+    spans: list[tuple[float, float]] = []  # ... and on the view MOTION_SPAN_FRAMES before
+    small_last: list[Any] = [None, None, []]  # the small frame's shape, window, last spectra
     try:
         h, w = reader.info["src_height_px"], reader.info["src_width_px"]
         size = working_size(h, w, settings.fov_deg, settings.width) if settings.fov_deg else None
@@ -359,12 +391,18 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
                 if not first_last:
                     first_last.append(_view(fr.luma))
                 small = _small(fr.luma)
-                if small_last[0] is None or small_last[0].shape != small.shape:
-                    view_motion.append((math.nan, math.nan))
+                if small_last[0] != small.shape:  # the first frame (or a new size)
                     small_last[1] = cv2.createHanningWindow(small.shape[::-1], cv2.CV_32F)
-                else:
-                    view_motion.append(phase_shift(small_last[0], small, small_last[1]))
-                small_last[0] = small
+                    small_last[0], small_last[2] = small.shape, []
+                spec = spectrum(small, small_last[1])
+                kept = small_last[2]
+                nan = (math.nan, math.nan)
+                motions.append(spectra_shift(kept[-1], spec, small.shape) if kept else nan)
+                spans.append(
+                    spectra_shift(kept[0], spec, small.shape)
+                    if len(kept) == MOTION_SPAN_FRAMES else nan
+                )  # fmt: skip
+                small_last[2] = [*kept, spec][-MOTION_SPAN_FRAMES:]
                 last[:] = [fr.luma, last[0]]
                 yield fr
 
@@ -411,10 +449,13 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
         pl.Series("overexposed", st[:, 3] >= CLIPPED_SHARE),
     )  # fmt: skip
     # the view's motion in source px (the small frame's scaled back)
-    vm = np.asarray(view_motion, dtype=np.float64).reshape(-1, 2) * (w / min(w, MOTION_MAX_WIDTH))
+    scale = w / min(w, MOTION_MAX_WIDTH)
+    vm = np.asarray(motions, dtype=np.float64).reshape(-1, 2) * scale
+    vk = np.asarray(spans, dtype=np.float64).reshape(-1, 2) * scale
     frames = frames.with_columns(
-        pl.Series("view_dx_px", vm[:, 0]), pl.Series("view_dy_px", vm[:, 1])
-    )
+        pl.Series("view_dx_px", vm[:, 0]), pl.Series("view_dy_px", vm[:, 1]),
+        pl.Series("view_span_dx_px", vk[:, 0]), pl.Series("view_span_dy_px", vk[:, 1]),
+    )  # fmt: skip
     problems: list[str] = []
     row, extra, pose_delta = episode_measures(video, data, frames, fps, batcher, problems)
     frames = frames.with_columns(*extra)

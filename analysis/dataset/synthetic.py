@@ -2,9 +2,10 @@
 places: the truth the dataset command is tested against, and the worked example of
 docs/dataset.md (``python -m analysis.dataset.synthetic OUT``).
 
-The scene is a real photograph (scikit-image's ``astronaut``) seen by a fixed third-person
-camera, with an object (scikit-image's ``coffee``: a white cup on a dark table) that the robot
-moves across it: the object's image position is a fixed linear function of
+The scene is a real photograph (matplotlib's sample ``grace_hopper.jpg``, installed with
+matplotlib: no optional extra) seen by a fixed third-person camera (or one on the arm that
+pans with it), with an object (matplotlib's gift box on a dark table) that the robot moves
+across it: the object's image position is a fixed linear function of
 ``observation.state`` at the time the camera saw it. Each episode starts and ends at the home
 pose (state 0) and moves as ``sin²`` in between, so every episode's first frame is the camera's
 reference view.
@@ -49,6 +50,7 @@ import dataclasses
 import json
 import math
 import os
+import shutil
 import sys
 import threading
 import time
@@ -62,6 +64,7 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+from matplotlib import cbook
 
 from vdc.errors import UserError
 
@@ -116,30 +119,43 @@ STANDARD_FAULTS = Faults(
 )
 
 
+def _photo(name: str) -> np.ndarray:
+    """A photograph from matplotlib's sample data (installed with matplotlib, a dependency of
+    vdc: nothing downloaded), (H, W, 3) RGB uint8 or (H, W, 4) RGBA."""
+    with cbook.get_sample_data(name) as f:
+        buf = np.frombuffer(f.read(), np.uint8)
+    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise UserError(f"matplotlib's sample photograph {name} cannot be read")
+    return cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+
+
 def _scene(height: int, width: int, pan_px: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """(canvas RGB uint8 of the view plus a margin, ``pan_px`` more either side, object RGB
-    uint8): real photographs."""
-    try:  # scikit-image (its photographs) comes with the test extra only
-        from skimage import data  # lazy: optional extra
-    except ImportError:
-        raise UserError(
-            "writing a test dataset needs scikit-image (pip install scikit-image)"
-        ) from None
-    bg = cv2.resize(data.astronaut(), (width + 2 * (MARGIN_PX + pan_px),
+    uint8): real photographs that come with matplotlib (a portrait; a blue gift box on a
+    dark table, the object the robot moves)."""
+    bg = cv2.resize(_photo("grace_hopper.jpg"), (width + 2 * (MARGIN_PX + pan_px),
                     height + 2 * MARGIN_PX), interpolation=cv2.INTER_AREA)  # fmt: skip
     side = max(8, height // 4)
-    obj = cv2.resize(data.coffee()[0:400, 100:500], (side, side), interpolation=cv2.INTER_AREA)
+    box = _photo("Minduka_Present_Blue_Pack.png").astype(np.float32)
+    alpha = box[..., 3:] / 255.0
+    table = np.float32([40, 32, 28])  # dark brown: the box stands out of the portrait
+    obj = box[..., :3] * alpha + table * (1 - alpha)
+    obj = cv2.resize(np.clip(obj, 0, 255).astype(np.uint8), (side, side),
+                     interpolation=cv2.INTER_AREA)  # fmt: skip
     return bg, obj
 
 
-def trajectory(n: int, fps: float, idle_s: float, amplitude: float, seed: int) -> np.ndarray:
+def trajectory(
+    n: int, fps: float, idle_s: float, amplitude: float, seed: int, strokes: int = 1
+) -> np.ndarray:
     """(n, STATE_DIM) float64 joint positions at t = i / fps: still for ``idle_s``, then out
-    and back to the home pose (0) as sin²; joint 0 moves the object across the view, joint 1
-    up and down (a third of it), the others follow slowly."""
+    and back to the home pose (0) as sin², ``strokes`` times; joint 0 moves the object across
+    the view, joint 1 up and down (a third of it), the others follow slowly."""
     t = np.arange(n) / fps
     dur = n / fps
     u = np.clip((t - idle_s) / max(dur - idle_s - 1 / fps, 1e-9), 0, 1)
-    base = np.sin(np.pi * u) ** 2
+    base = np.sin(np.pi * strokes * u) ** 2
     rng = np.random.default_rng(seed)
     gains = np.concatenate(([1.0, 0.33], rng.uniform(0.05, 0.2, STATE_DIM - 2)))
     return amplitude * base[:, None] * gains[None, :]
@@ -189,12 +205,13 @@ def _episode_frames(
     scene: tuple,
     seed: int,
     pan_px_per_unit: float = 0.0,
+    strokes: int = 1,
 ) -> tuple[np.ndarray, list[tuple[float, np.ndarray]]]:
     """(state (n, STATE_DIM), [(video time since the episode's start s, RGB frame)]); the
     camera pans right by ``pan_px_per_unit`` × joint 0 (a camera on the arm)."""
     bg, obj = scene
     amplitude = shape[1] * (0.45 + 0.1 * ((e * 7) % 3))  # px: the object crosses the view
-    state = trajectory(n, fps, faults.idle_head_s.get(e, 0.0), amplitude, seed + e)
+    state = trajectory(n, fps, faults.idle_head_s.get(e, 0.0), amplitude, seed + e, strokes)
     lag = faults.lag_ms.get(e, 0.0) / 1000
     shift = faults.bump[1] if faults.bump is not None and e >= faults.bump[0] else 0
     drift = faults.drift_ms.get(e, 0.0) / 1000
@@ -373,6 +390,7 @@ def write_dataset(
     seed: int = 0,
     image_cameras: tuple[str, ...] = (),
     pan_px_per_unit: float = 0.0,
+    strokes: int = 1,
 ) -> dict[str, Any]:
     """Write a LeRobot dataset at ``root`` (see the module) and return its truth: ``lengths``
     (frames per episode), ``faults``, ``fps``, ``cameras``. Episode lengths are spread evenly
@@ -381,12 +399,36 @@ def write_dataset(
     ``image_cameras`` are stored as LeRobot image features instead of video: one PNG per frame,
     ``images/{key}/episode-{e:06d}/frame-{i:06d}.png``. With ``pan_px_per_unit`` the first
     camera is on the arm: its view pans right by that many px per unit of joint 0 (the object
-    crosses up to 0.65 × the width in joint 0's units)."""
+    crosses up to 0.65 × the width in joint 0's units). ``strokes``: out-and-back motions per
+    episode (more strokes: more evidence of a lag)."""
     if version not in ("v3.0", "v2.1"):
         raise UserError(f"version must be v3.0 or v2.1, got {version!r}")
     if codec not in CODECS:
         raise UserError(f"codec must be one of {', '.join(CODECS)}, got {codec!r}")
     root = Path(root)
+    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+        raise UserError(f"{root} exists and is not an empty folder: give a new folder")
+    # written into a hidden folder beside it, renamed when whole: a failed or killed write
+    # leaves no half dataset under the name (a leftover hidden folder is removed on failure)
+    part = root.with_name(f".{root.name}.partial-{os.getpid()}")
+    shutil.rmtree(part, ignore_errors=True)
+    try:
+        truth = _write(part, episodes, version, codec, fps, shape, seconds, faults, cameras,
+                       seed, image_cameras, pan_px_per_unit, strokes)  # fmt: skip
+        if root.exists():
+            root.rmdir()  # empty: checked above
+        part.rename(root)
+    except BaseException:
+        shutil.rmtree(part, ignore_errors=True)
+        raise
+    return truth
+
+
+def _write(root: Path, episodes: int, version: str, codec: str, fps: float,
+           shape: tuple[int, int], seconds: tuple[float, float], faults: Faults,
+           cameras: tuple[str, ...], seed: int, image_cameras: tuple[str, ...],
+           pan_px_per_unit: float, strokes: int) -> dict[str, Any]:  # fmt: skip
+    """:func:`write_dataset` into ``root`` (a new folder)."""
     (root / "meta").mkdir(parents=True, exist_ok=True)
     knock_px = faults.knock[2] if faults.knock is not None else 0
     pan_px = math.ceil(abs(pan_px_per_unit) * 0.66 * shape[1]) + abs(knock_px)
@@ -401,7 +443,7 @@ def write_dataset(
             f = faults if c == 0 else clean
             sc = scene if c == 0 else (np.roll(scene[0], 5 * c, axis=1), scene[1])
             pan = pan_px_per_unit if c == 0 else 0.0
-            state, frames = _episode_frames(e, n, fps, shape, f, sc, seed, pan)
+            state, frames = _episode_frames(e, n, fps, shape, f, sc, seed, pan, strokes)
             per_cam[cam].append(frames)
         states.append(state)
     info: dict[str, Any] = {

@@ -4,12 +4,17 @@ v2.1 / H.264 example's idle head and lag: datasets written by
 
 from __future__ import annotations
 
+import json
+import shlex
+import shutil
+
 import pytest
 
 from analysis.dataset import DatasetSettings, dataset
 from analysis.dataset.flags import FLAGS
 from analysis.dataset.synthetic import Faults, write_dataset
 from vdc.errors import UserError
+from vdc.executors import Feedback
 
 KNOCK = (5, 60, 25)  # episode 5's camera knocked 25 px at its frame 60
 
@@ -22,8 +27,10 @@ def panning(tmp_path_factory):
     write_dataset(root, episodes=6, codec="libx264", pan_px_per_unit=1.0,
                   faults=Faults(knock=KNOCK))  # fmt: skip
     out = root.parent / "out"
-    res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), out)
-    return root, out, res
+    said: list[str] = []
+    res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), out,
+                  feedback=Feedback(log=said.append))  # fmt: skip
+    return root, out, res, said
 
 
 def _rows(res) -> dict[int, dict]:
@@ -33,7 +40,7 @@ def _rows(res) -> dict[int, dict]:
 def test_a_camera_on_the_arm_flags_no_clean_episode_and_finds_the_knock_at_its_frame(
     panning,
 ) -> None:
-    _, _, res = panning
+    _, _, res, _ = panning
     rows = _rows(res)
     e, frame, px = KNOCK
     for i, r in rows.items():
@@ -53,8 +60,10 @@ def test_a_camera_on_the_arm_flags_no_clean_episode_and_finds_the_knock_at_its_f
     assert r["camera_motion_r2"] > 0.5
 
 
-def test_the_user_can_name_the_moving_camera_and_turn_a_flag_off(panning) -> None:
-    root, out, _ = panning
+def test_the_user_can_name_the_moving_camera_and_turn_a_flag_off(panning, tmp_path) -> None:
+    root, first, _, _ = panning
+    out = tmp_path / "out"
+    shutil.copytree(first, out)  # the measures kept, the first run's files left as they were
     # the second run reads the measures back (no setting here changes what is measured)
     s = DatasetSettings(jobs=1, page=False, recordings=False,
                         moving_cameras="observation.images.front",
@@ -66,6 +75,30 @@ def test_the_user_can_name_the_moving_camera_and_turn_a_flag_off(panning) -> Non
     assert any("as --moving-cameras says" in line for line in res.report())
     with pytest.raises(UserError, match="--moving-cameras: 'wrist' is not a camera"):
         dataset(root, DatasetSettings(moving_cameras="wrist", page=False), out)
+
+
+def test_the_flagged_episodes_are_listed_for_lerobots_own_tool(panning) -> None:
+    root, out, res, said = panning
+    listing = json.loads((out / "flagged_episodes.json").read_text())
+    assert listing["episode_indices"] == [KNOCK[0]] == res.flagged
+    cmd = shlex.split(listing["lerobot_edit_dataset"])
+    # lerobot-edit-dataset's flags (LeRobot's dataset-tools guide): the list as one argument
+    assert cmd[0] == "lerobot-edit-dataset"
+    assert cmd[cmd.index("--operation.type") + 1] == "delete_episodes"
+    assert cmd[cmd.index("--operation.episode_indices") + 1] == f"[{KNOCK[0]}]"
+    assert cmd[cmd.index("--root") + 1] == str(root.resolve())
+    assert "--new_root" in cmd  # into a new dataset: the original is kept
+    lines = res.report()
+    assert any(listing["lerobot_edit_dataset"] in line for line in lines)
+    # the episodes' list ends with the clean count; the run counted the streams as it went
+    assert "  5 episode(s) clean" in lines
+    assert "6 of 6 camera stream(s) measured" in said
+
+
+def test_a_file_given_as_the_dataset_is_said_to_be_a_file(panning) -> None:
+    root, out, _, _ = panning
+    with pytest.raises(UserError, match=r"info\.json is a file, not a folder"):
+        dataset(root / "meta" / "info.json", DatasetSettings(page=False), out)
 
 
 def test_thresholds_are_parsed_and_bad_ones_refused() -> None:
@@ -105,3 +138,31 @@ def test_the_blurred_episode_gets_no_lag_and_no_lag_is_flagged_on_a_point(exampl
         if r["lag_ms"] is None and r["lag_low_ms"] is not None:  # an interval without a lag
             assert r["lag_note"].startswith("cannot tell"), (e, r["lag_note"])
             assert r["lag_high_ms"] - r["lag_low_ms"] >= 0.9 * 800
+
+
+def test_two_cameras_are_checked_against_each_other_for_lag(tmp_path) -> None:
+    """Episode 1's front camera shows the scene 150 ms late (its wrist camera on time), three
+    strokes in 6 s: the front is late against the state and against the wrist camera, and
+    the flag lands on the front camera, the one behind."""
+    root = tmp_path / "ds"
+    write_dataset(root, episodes=3, version="v2.1", codec="libx264", strokes=3,
+                  seconds=(6.0, 6.0), faults=Faults(lag_ms={1: 150.0}),
+                  cameras=("observation.images.front", "observation.images.wrist"))  # fmt: skip
+    res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), tmp_path / "o")
+    rows = {(r["episode_index"], r["camera"]): r for r in res.episodes.iter_rows(named=True)}
+    wrist = rows[(1, "observation.images.wrist")]
+    # the wrist's motion against the front's (the first camera): the front 150 ms late reads
+    # as the wrist 150 ms early; measured -137 ms (a 33-ms frame grid): within 30 ms
+    assert wrist["lag_camera_ref"] == "observation.images.front"
+    assert wrist["lag_camera_ms"] == pytest.approx(-150, abs=30)
+    assert wrist["lag_camera_high_ms"] < -FLAGS["lag"].threshold
+    assert "lag" in rows[(1, "observation.images.front")]["flags"]
+    assert "lag" not in wrist["flags"]
+    for e in (0, 2):  # on time: the two cameras agree within 10 ms, nothing flagged
+        r = rows[(e, "observation.images.wrist")]
+        assert (
+            abs(r["lag_camera_ms"]) < 10 and r["lag_camera_low_ms"] <= 0 <= r["lag_camera_high_ms"]
+        )
+        assert not any(
+            rows[(e, c)]["flags"] for c in ("observation.images.front", "observation.images.wrist")
+        )
