@@ -542,8 +542,12 @@ if __name__ == "__main__":  # python -m analysis.dataset.synthetic OUT [v3.0|v2.
     args = sys.argv[1:]
     if not args:
         sys.exit("usage: python -m analysis.dataset.synthetic OUT [v3.0|v2.1] [libsvtav1|libx264]")
-    truth = write_dataset(args[0], version=args[1] if len(args) > 1 else "v3.0",
-                          codec=args[2] if len(args) > 2 else "libsvtav1")  # fmt: skip
+    try:
+        truth = write_dataset(args[0], version=args[1] if len(args) > 1 else "v3.0",
+                              codec=args[2] if len(args) > 2 else "libsvtav1")  # fmt: skip
+    except UserError as exc:  # one line, exit 2, as vdc's commands say it
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
     print(f"wrote {len(truth['lengths'])} episodes ({truth['version']}, {truth['codec']}) "
           f"to {args[0]}")  # fmt: skip
 

@@ -7,11 +7,14 @@ from __future__ import annotations
 import json
 import shlex
 import shutil
+import subprocess
+import sys
 
 import pytest
 
 from analysis.dataset import DatasetSettings, dataset
 from analysis.dataset.flags import FLAGS
+from analysis.dataset.page import number
 from analysis.dataset.synthetic import Faults, write_dataset
 from vdc.errors import UserError
 from vdc.executors import Feedback
@@ -166,3 +169,33 @@ def test_two_cameras_are_checked_against_each_other_for_lag(tmp_path) -> None:
         assert not any(
             rows[(e, c)]["flags"] for c in ("observation.images.front", "observation.images.wrist")
         )
+
+
+def test_the_example_is_written_without_scikit_image_and_a_failed_write_leaves_nothing(
+    tmp_path,
+) -> None:
+    # a plain install has no scikit-image: the scene's photographs come with matplotlib
+    code = (
+        "import sys; sys.modules['skimage'] = None\n"
+        "from analysis.dataset.synthetic import write_dataset, Faults\n"
+        f"write_dataset({str(tmp_path / 'ok')!r}, episodes=2, codec='libx264', "
+        "seconds=(1.0, 1.0), faults=Faults())\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "ok" / "meta" / "info.json").is_file()
+    # a write that fails midway (after the frames are drawn) leaves no folder, hidden or not
+    bad = tmp_path / "bad"
+    with pytest.raises(UserError, match="image camera 'nope'"):
+        write_dataset(bad, episodes=2, codec="libx264", seconds=(1.0, 1.0), faults=Faults(),
+                      image_cameras=("nope",))  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ok"]
+    with pytest.raises(UserError, match="not an empty folder"):
+        write_dataset(tmp_path / "ok", episodes=1)
+
+
+def test_the_page_rounds_its_numbers() -> None:
+    # it printed -0, 1.78e-08 and -0.000112
+    assert number(-0.000112, 1) == "0.0" and number(1.78e-08, 2) == "0.00"
+    assert number(-0.04, 1) == "0.0" and number(12.345, 1) == "12.3"
+    assert number(None, 1) == "-" and number(float("nan"), 2) == "-"
