@@ -1,5 +1,6 @@
 """What the whole dataset decides about each episode: blur against the camera's own
-sharpness, the camera's shift against its reference view, and the flags with their
+sharpness, each camera's motion learnt against the robot's state and the shifts it leaves
+unexplained, the cameras' lag against each other, and the flags with their evidence and
 thresholds (docs/dataset.md says why each is where it is)."""
 
 from __future__ import annotations

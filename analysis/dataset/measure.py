@@ -1,8 +1,8 @@
 """One camera of one episode measured (one executor task): every frame of its window decoded
 once, through the same batcher as every other vdc source (``vdc.frame_batches``), beside the
 episode's rows of data. The measures that need the whole dataset (blur against the camera's
-own sharpness, the camera's shift against its reference view) are finished by the caller
-(``analysis.dataset.faults``)."""
+own sharpness, the camera's motion against the state and its shifts) are finished by the
+caller (``analysis.dataset.flags``)."""
 
 from __future__ import annotations
 
