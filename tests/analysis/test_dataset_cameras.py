@@ -146,11 +146,13 @@ def test_the_blurred_episode_gets_no_lag_and_no_lag_is_flagged_on_a_point(exampl
 def test_two_cameras_are_checked_against_each_other_for_lag(tmp_path) -> None:
     """Episode 1's front camera shows the scene 150 ms late (its wrist camera on time), three
     strokes in 6 s: the front is late against the state and against the wrist camera, and
-    the flag lands on the front camera, the one behind."""
+    the flag lands on the front camera, the one behind. The cameras' sizes differ (96 × 128
+    and 120 × 160)."""
     root = tmp_path / "ds"
     write_dataset(root, episodes=3, version="v2.1", codec="libx264", strokes=3,
                   seconds=(6.0, 6.0), faults=Faults(lag_ms={1: 150.0}),
-                  cameras=("observation.images.front", "observation.images.wrist"))  # fmt: skip
+                  cameras=("observation.images.front", "observation.images.wrist"),
+                  camera_shapes={"observation.images.wrist": (120, 160)})  # fmt: skip
     res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), tmp_path / "o")
     rows = {(r["episode_index"], r["camera"]): r for r in res.episodes.iter_rows(named=True)}
     wrist = rows[(1, "observation.images.wrist")]
