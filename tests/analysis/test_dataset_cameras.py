@@ -201,3 +201,19 @@ def test_the_page_rounds_its_numbers() -> None:
     assert number(-0.000112, 1) == "0.0" and number(1.78e-08, 2) == "0.00"
     assert number(-0.04, 1) == "0.0" and number(12.345, 1) == "12.3"
     assert number(None, 1) == "-" and number(float("nan"), 2) == "-"
+
+
+def test_a_fixed_cameras_knock_is_found_at_its_frame_and_after_it(tmp_path) -> None:
+    """A fixed camera knocked 8 px at frame 45 of episode 2 (and left there): episode 2 moved
+    within, at frame 45; episode 3 moved against the reference view; the others clean."""
+    root = tmp_path / "ds"
+    write_dataset(root, episodes=4, codec="libx264", faults=Faults(knock=(2, 45, 8)))
+    res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), tmp_path / "o")
+    rows = _rows(res)
+    assert all(r["camera_motion"] == "fixed" for r in rows.values())
+    assert rows[0]["flags"] == rows[1]["flags"] == ""
+    assert rows[2]["flags"] == "moved_within" and rows[3]["flags"] == "moved"
+    # whole px shifts: phase correlation reads them within 0.3 px (H.264 at CRF 30)
+    assert rows[2]["shift_within_px"] == pytest.approx(8, abs=0.3)
+    assert rows[2]["shift_frame"] == pytest.approx(45, abs=1)
+    assert rows[3]["shift_px"] == pytest.approx(8, abs=0.3)
