@@ -16,6 +16,8 @@ from analysis.dataset import DatasetSettings, dataset
 from analysis.dataset.flags import FLAGS
 from analysis.dataset.page import number
 from analysis.dataset.synthetic import Faults, write_dataset
+from tests.helpers import assert_one_line_error
+from tests.in_process import run_in_process
 from vdc.errors import UserError
 from vdc.executors import Feedback
 
@@ -217,3 +219,13 @@ def test_a_fixed_cameras_knock_is_found_at_its_frame_and_after_it(tmp_path) -> N
     assert rows[2]["shift_within_px"] == pytest.approx(8, abs=0.3)
     assert rows[2]["shift_frame"] == pytest.approx(45, abs=1)
     assert rows[3]["shift_px"] == pytest.approx(8, abs=0.3)
+
+
+def test_the_command_line_refuses_a_bad_threshold_and_a_file_in_one_line(panning) -> None:
+    root, out, _, _ = panning
+    proc = run_in_process("analysis", "dataset", str(root), "--out", str(out),
+                          "--thresholds", "lag=soon")  # fmt: skip
+    assert_one_line_error(proc, "--thresholds", "lag", "'soon'")
+    info = root / "meta" / "info.json"
+    proc = run_in_process("analysis", "dataset", str(info), "--out", str(out))
+    assert_one_line_error(proc, str(info), "is a file, not a folder")
