@@ -4,9 +4,13 @@ Every camera of every episode is decoded once (an executor task each: the local 
 Dask), beside the episode's rows of data, and measured: counts, drift between the video's
 clock and the data's, dropped, repeated and frozen frames, idle head and tail, the default
 complexity metrics (and the AVDM's angular speed in deg/s with ``--fov-deg``), blur and
-exposure, the camera's shift against its reference view, and its lag behind the robot's
-state. Each measure that crosses its threshold (``analysis.dataset.flags.FLAGS``) flags the
-episode. The dataset is read, never imported: pyarrow and PyAV, no torch, no lerobot.
+exposure, the camera's shift against its reference view beyond what the robot's motion
+explains (each camera's motion learnt against the state over the dataset: a wrist camera's pan
+is not a fault), and its lag behind the robot's state and behind the episode's first camera.
+Each flag whose evidence (an estimate's interval, not its point) reaches its threshold
+(``analysis.dataset.flags.FLAGS``) flags the episode; the flagged episodes are listed with
+the ``lerobot-edit-dataset`` command that deletes them (``flagged_episodes.json``). The
+dataset is read, never imported: pyarrow and PyAV, no torch, no lerobot.
 
 Writes into ``out``: ``episodes.parquet`` (one row per episode × camera), ``frames.parquet``
 (one row per decoded frame), ``problems.parquet`` (what could not be read, or contradicts the

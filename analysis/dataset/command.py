@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import json
+import shlex
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +38,26 @@ from vdc.errors import UserError
 from vdc.executors import Feedback, run_tasks
 from vdc.parquet_io import WroteFiles, table_set, write_tables
 
+LIST_MAX = 25  # the terminal lists at most this many flagged episodes (all are in the files)
+FLAGGED_FILE = "flagged_episodes.json"  # the flagged episodes and the command deleting them
+PROGRESS_EVERY_S = 3.0  # a count of the camera streams measured, at least this often
+
+
+def delete_command(root: Path, episodes: list[int]) -> str:
+    """``lerobot-edit-dataset``'s command deleting ``episodes`` from the dataset at ``root``
+    into a new dataset beside it (the original kept: a wrong index once deleted a whole
+    dataset's folder, lerobot issue 2712). The repo id is the folder's last two names, as
+    LeRobot keeps a local dataset under ``$HF_LEROBOT_HOME/{owner}/{name}``."""
+    root = root.resolve()
+    repo = f"{root.parent.name}/{root.name}"
+    indices = "[" + ", ".join(map(str, episodes)) + "]"
+    return " ".join([
+        "lerobot-edit-dataset", "--repo_id", shlex.quote(repo), "--root", shlex.quote(str(root)),
+        "--new_repo_id", shlex.quote(f"{repo}_clean"),
+        "--new_root", shlex.quote(str(root.with_name(f"{root.name}_clean"))),
+        "--operation.type", "delete_episodes", "--operation.episode_indices", shlex.quote(indices),
+    ])  # fmt: skip
+
 
 @dataclasses.dataclass(frozen=True)
 class DatasetResult(WroteFiles):
@@ -51,21 +74,38 @@ class DatasetResult(WroteFiles):
     notes: list[str]
     reused: int = 0
     dataset_problems: list[str] = dataclasses.field(default_factory=list)
+    # per camera: which kind it was taken for (fixed, or moving with the robot) and why
+    cameras: list[str] = dataclasses.field(default_factory=list)
+    # the flagged episodes (those of ``fail_on``'s flags when it names any) and the
+    # lerobot-edit-dataset command that deletes them (None: none flagged)
+    flagged: list[int] = dataclasses.field(default_factory=list)
+    delete_command: str | None = None
 
     def report(self) -> list[str]:
         """Lines for people: what was profiled, what was flagged, what was written."""
         eps = self.episodes
-        lines: list[str] = []  # the notes were said as the run started
+        lines: list[str] = [f"camera {c}" for c in self.cameras]
         if eps is not None:
+            n_eps = eps["episode_index"].n_unique()
             flagged = eps.filter(pl.col("flag_count") > 0)
+            by_ep: dict[int, list[str]] = {}
+            for r in flagged.iter_rows(named=True):  # worst first, one line an episode
+                by_ep.setdefault(r["episode_index"], []).append(f"{r['camera']}: {r['flags']}")
             lines.append(
-                f"{eps['episode_index'].n_unique()} episode(s), {eps.height} camera stream(s) "
-                f"profiled; {flagged.height} flagged"
+                f"{n_eps} episode(s), {eps.height} camera stream(s) profiled; "
+                f"{len(by_ep)} episode(s) flagged"
             )
-            for r in flagged.head(10).iter_rows(named=True):
-                lines.append(f"  episode {r['episode_index']} {r['camera']}: {r['flags']}")
-            if flagged.height > 10:
-                lines.append(f"  ... and {flagged.height - 10} more (dataset.html)")
+            shown = list(by_ep.items())
+            if len(shown) > LIST_MAX:  # a long list: the worst, the rest in the files
+                shown = shown[: LIST_MAX - 1]
+            for e, what in shown:
+                lines.append(f"  episode {e}: {'; '.join(what)}")
+            if len(shown) < len(by_ep):
+                lines.append(
+                    f"  ... and {len(by_ep) - len(shown)} more episode(s) flagged "
+                    f"({FLAGGED_FILE}, dataset.html)"
+                )
+            lines.append(f"  {n_eps - len(by_ep)} episode(s) clean")
         if self.failed:
             lines.append(f"--fail-on: episode(s) {', '.join(map(str, self.failed))} flagged")
         # the dataset's own problems (its metadata disagreeing): they bear on every episode
@@ -77,6 +117,11 @@ class DatasetResult(WroteFiles):
         if rrds:  # one folder of recordings, not a name per episode
             tables.append(f"{rrds[0].parent}/ ({len(rrds)} episode recording(s))")
         lines.append("wrote " + ", ".join(tables))
+        if self.delete_command:
+            lines.append(
+                f"to delete the {len(self.flagged)} flagged episode(s) with LeRobot's own tool "
+                f"(into a new dataset; vdc does not run it): {self.delete_command}"
+            )
         return lines
 
     @property
@@ -128,6 +173,10 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
                 f"--episodes: {', '.join(map(str, absent)) or 'none given'}: not an episode of "
                 f"{root} (its episodes: {len(ds.listed)}, indices {listed})"
             )
+    unknown = [c for c in settings.moving_camera_list() if c not in ds.cameras]
+    if unknown:
+        raise UserError(f"--moving-cameras: {unknown[0]!r} is not a camera of {root} (its "
+                        f"cameras: {', '.join(ds.cameras)})")  # fmt: skip
     videos = [v for v in ds.videos if wanted is None or v.episode in wanted]
     notes = [n for n in [no_fov_note(settings)] if n]
     for n in notes:
@@ -153,8 +202,15 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         (k, (v, settings, ds.rate(v.camera), out)) for k, v in by_key.items() if k not in results
     ]
 
+    n_done = [0, time.monotonic()]  # streams measured, when the count was last said
+
     def done(outcome: Any) -> None:
         feedback.progress(1)
+        n_done[0] += 1
+        now = time.monotonic()
+        if now - n_done[1] >= PROGRESS_EVERY_S or n_done[0] == len(tasks):
+            feedback.log(f"{n_done[0]} of {len(tasks)} camera stream(s) measured")
+            n_done[1] = now
         if outcome.error is None:
             results[outcome.key] = outcome.result
             return
@@ -165,6 +221,12 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             problems.append(problem)
             feedback.log(f"error: {problem.line()}")
 
+    if tasks:
+        feedback.log(
+            f"measuring {len(tasks)} camera stream(s) of "
+            f"{len({by_key[k].episode for k, _ in tasks})} episode(s); a count every "
+            f"{PROGRESS_EVERY_S:g} s"
+        )
     if tasks:  # the task lives in resume: a worker imports the measuring, not this command
         run_tasks(measured, tasks, settings.executor_settings(), done,
                   feedback.log, shared_paths=(root, out))  # fmt: skip
@@ -185,6 +247,8 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         for k in sorted(results, key=_order)
     ]
     views = {(r["row"]["episode_index"], r["row"]["camera"]): r["views"] for r in results.values()}
+    pose_deltas = {(r["row"]["episode_index"], r["row"]["camera"]): r.get("pose_delta")
+                   for r in results.values()}  # fmt: skip
     widths = {cam: _width(ds.info, cam) for cam in ds.cameras}
     meta = {"command": "dataset", "dataset": str(root), "version": ds.version,
             "settings": dataclasses.asdict(settings)}  # fmt: skip
@@ -194,17 +258,38 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         schema={"file": pl.String, "episode_index": pl.Int64, "message": pl.String},
     )  # fmt: skip
     eps = None
+    motions: dict[str, dict[str, Any]] = {}
     if rows:
-        eps, frame_table = finish(rows, pl.concat(frames, how="diagonal_relaxed"), views,
-                                  widths, settings.fov_deg)  # fmt: skip
-        eps = severity(eps)
+        eps, frame_table, motions = finish(
+            rows, pl.concat(frames, how="diagonal_relaxed"), views, widths, settings.fov_deg,
+            pose_deltas, settings.moving_camera_list(), settings.flag_thresholds(),
+            tuple(ds.cameras),
+        )  # fmt: skip
+        eps = severity(eps, settings.flag_thresholds())
     try:
         with table_set(out) as stage:
             tables = {"episodes": eps, "frames": frame_table if rows else None,
                       "problems": problem_table}  # fmt: skip
             paths = write_tables(stage, tables, meta)
+            if eps is not None:
+                flagged, command = _flagged(root, eps, settings)
+                listing = {"dataset": str(root), "episode_indices": flagged,
+                           "flags": {str(r["episode_index"]): r["flags"]
+                                     for r in eps.iter_rows(named=True) if r["flags"]},
+                           "lerobot_edit_dataset": command}  # fmt: skip
+                (stage / FLAGGED_FILE).write_text(json.dumps(listing, indent=2) + "\n")
+                paths.append(stage / FLAGGED_FILE)
             if settings.page and eps is not None:
-                paths.append(write_page(stage / "dataset.html", ds, eps, frame_table, problems))
+                paths.append(
+                    write_page(
+                        stage / "dataset.html",
+                        ds,
+                        eps,
+                        frame_table,
+                        problems,
+                        tuple(m["evidence"] for m in motions.values()),
+                    )
+                )
             if settings.recordings and eps is not None:
                 paths += _recordings(stage, ds, eps, frame_table, feedback)
     except OSError as exc:  # the output's fault (a full disk): the run's error
@@ -222,7 +307,20 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
     return DatasetResult(
         paths, eps, [p.line() for p in problems], sorted(set(failed)), notes, reused,
         [p.line() for p in problems if p.episode is None],
+        [m["evidence"] for m in motions.values()],
+        *(_flagged(root, eps, settings) if eps is not None else ([], None)),
     )  # fmt: skip
+
+
+def _flagged(root: Path, eps: pl.DataFrame, settings: DatasetSettings) -> tuple:
+    """(the flagged episodes: those with a flag of ``fail_on`` where it names any, else with
+    any flag; the command deleting them, or None)."""
+    fail = set(settings.fail_names())
+    out = sorted({
+        int(r["episode_index"]) for r in eps.iter_rows(named=True)
+        if (fail & set(filter(None, r["flags"].split(","))) if fail else r["flags"])
+    })  # fmt: skip
+    return out, delete_command(root, out) if out else None
 
 
 def _rates_said(ds: Any) -> str:

@@ -96,6 +96,9 @@ def read_info(root: Path) -> dict[str, Any]:
     """``meta/info.json`` checked: a missing or unreadable file, or an unknown
     ``codebase_version``, raises UserError naming it."""
     path = root / "meta" / "info.json"
+    if root.exists() and not root.is_dir():
+        raise UserError(f"{root} is a file, not a folder: give the LeRobot dataset's folder (the "
+                        "one holding meta/info.json)")  # fmt: skip
     if not root.is_dir():
         raise UserError(f"{root}: no such folder (give a LeRobot dataset folder)")
     if not path.is_file():

@@ -1,8 +1,8 @@
 """One camera of one episode measured (one executor task): every frame of its window decoded
 once, through the same batcher as every other vdc source (``vdc.frame_batches``), beside the
 episode's rows of data. The measures that need the whole dataset (blur against the camera's
-own sharpness, the camera's shift against its reference view) are finished by the caller
-(``analysis.dataset.faults``)."""
+own sharpness, the camera's motion against the state and its shifts) are finished by the
+caller (``analysis.dataset.flags``)."""
 
 from __future__ import annotations
 
@@ -41,6 +41,14 @@ LAG_SEARCH_S, LAG_MIN_R = 0.4, 0.5
 # either end, and what is left (2.1 s) must hold strokes enough for a peak
 LAG_MIN_S = 2 * LAG_SEARCH_S + 2.1
 SMOOTH_FRAMES = 3
+# an interval covering at least this share of the search (2 × LAG_SEARCH_S) says nothing
+# of the delay: "cannot tell", no lag reported and none flagged
+LAG_CANNOT_TELL_SHARE = 0.9
+# idle: the image moves from the first run of at least this many frames that each differ
+# from the frames before (STILL_LEVELS): a key frame coded again changes an unchanged view
+# by up to 12 levels in a block with H.264 at CRF 30 (the v2.1 example), once, between
+# copies that change nothing, while a motion changes frame after frame
+IDLE_RUN_FRAMES = 3
 # the interval: a delete-one-block jackknife over contiguous blocks of at least LAG_BLOCK_S,
 # with Student's t on blocks - 1 degrees of freedom. Measured on known delays
 # (benchmarks/bench_lag_interval.py: arm strokes, codec-like noise, lost frames, 3-30 s at
@@ -56,6 +64,68 @@ LAG_BLOCK_S = 0.75
 # changes its block by 12 or more
 BLOCK_PX, STILL_LEVELS = 16, 10.0
 VIEW_MAX_WIDTH = 320  # the first and last views kept for the camera's shift, px wide at most
+# the view's motion from frame to frame (phase correlation) is read on the frame made at most
+# this wide: a pan of a few px a frame is still seen at a fifth of a px, at a quarter of the
+# cost of the full view (about 0.2 ms a frame at 160 × 120)
+MOTION_MAX_WIDTH = 160
+# and against the frame this many before: a knock shows in every such comparison that spans
+# it (this many in a row), while a misread (two motions in the view: a gripper that stays put
+# while the background pans) is a single frame's (analysis.dataset.flags takes the median)
+MOTION_SPAN_FRAMES = 5
+PRE_BLUR_PX = 1.5  # sigma of the views' common blur before their shift is measured
+
+
+def _vertex(minus: float, centre: float, plus: float) -> float:
+    """The offset (-0.5..0.5) of the parabola's vertex through three samples around a peak."""
+    curve = minus - 2 * centre + plus
+    return float(np.clip(0.5 * (minus - plus) / curve, -0.5, 0.5)) if curve < 0 else 0.0
+
+
+def phase_shift(
+    ref: np.ndarray, img: np.ndarray, win: np.ndarray | None = None
+) -> tuple[float, float]:
+    """(dx, dy) px that moves ``ref`` onto ``img``: phase correlation (Hanning window), its
+    peak refined by a parabola through its neighbours along each axis. Not OpenCV's
+    ``phaseCorrelate``, whose centroid over the 5 × 5 px around the peak mixes in a second
+    peak 2-3 px away: a camera on the arm whose gripper (or object) stays put in its view
+    read its 2.5-px pan as 1.2 px, and as 3 px on a frame now and then."""
+    if ref.shape != img.shape:
+        return math.nan, math.nan
+    if win is None:
+        win = cv2.createHanningWindow((ref.shape[1], ref.shape[0]), cv2.CV_32F)
+    return spectra_shift(spectrum(ref, win), spectrum(img, win), ref.shape)
+
+
+def spectrum(img: np.ndarray, win: np.ndarray) -> np.ndarray:
+    """The view's spectrum for :func:`spectra_shift` (kept from frame to frame: each frame's
+    is taken once)."""
+    # blurred first: phase correlation whitens the spectrum, so a blurred or heavily
+    # compressed view's empty high frequencies (codec noise) would vote as loudly as the
+    # scene's structure; a common blur of PRE_BLUR_PX leaves only the structure
+    return np.fft.rfft2(cv2.GaussianBlur(img, (0, 0), PRE_BLUR_PX) * win)
+
+
+def spectra_shift(a: np.ndarray, b: np.ndarray, shape: tuple[int, ...]) -> tuple[float, float]:
+    """:func:`phase_shift` from the two views' :func:`spectrum`."""
+    cross = b * np.conj(a)
+    corr = np.fft.irfft2(cross / (np.abs(cross) + 1e-12), s=shape)
+    h, w = corr.shape
+    iy, ix = np.unravel_index(int(np.argmax(corr)), corr.shape)
+    c = corr[iy, ix]
+    fx = _vertex(corr[iy, (ix - 1) % w], c, corr[iy, (ix + 1) % w])
+    fy = _vertex(corr[(iy - 1) % h, ix], c, corr[(iy + 1) % h, ix])
+    dx = (ix + w // 2) % w - w // 2 + fx  # wrapped: a shift of w - 1 is one of -1
+    dy = (iy + h // 2) % h - h // 2 + fy
+    return float(dx), float(dy)
+
+
+def _small(grey: np.ndarray) -> np.ndarray:
+    """The frame at most :data:`MOTION_MAX_WIDTH` px wide, float32, for its motion."""
+    h, w = grey.shape
+    if w > MOTION_MAX_WIDTH:
+        grey = cv2.resize(grey, (MOTION_MAX_WIDTH, max(1, round(h * MOTION_MAX_WIDTH / w))),
+                          interpolation=cv2.INTER_AREA)  # fmt: skip
+    return grey.astype(np.float32)
 
 
 def _view(grey: np.ndarray) -> np.ndarray:
@@ -257,7 +327,8 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> dict:
     unknown (a frozen or lost frame), left out of every sum. ``lag_note`` says why there is no
     value."""
 
-    none = {"lag_ms": None, "lag_low_ms": None, "lag_high_ms": None, "lag_r": None}
+    none = {"lag_ms": None, "lag_low_ms": None, "lag_high_ms": None, "lag_r": None,
+            "lag_peak_ms": None}  # fmt: skip
     if len(speed_state) < LAG_MIN_S * fps:
         return none | {"lag_note": f"not measurable: shorter than {LAG_MIN_S:g} s"}
     if np.nanstd(speed_state) == 0 or np.nanstd(motion) == 0:
@@ -265,7 +336,11 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> dict:
     peak, m = lag_peaks(speed_state, motion, fps)
     lag, r = peak(np.arange(m))
     if r < LAG_MIN_R:
-        return none | {"lag_r": r, "lag_note": f"not measurable: motions match poorly (r {r:.2f})"}
+        return none | {
+            "lag_r": r,
+            "lag_peak_ms": lag,
+            "lag_note": f"not measurable: motions match poorly (r {r:.2f})",
+        }
     # contiguous blocks, each left out in turn: neighbouring frames' noise stays together
     blocks = max(2, m // max(2, round(LAG_BLOCK_S * fps)))
     edges = np.linspace(0, m, blocks + 1).round().astype(int)
@@ -273,8 +348,14 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> dict:
     se = math.sqrt((blocks - 1) / blocks * ((left_out - left_out.mean()) ** 2).sum())
     half = float(scipy_stats().t.ppf(0.975, blocks - 1)) * se
     reach = LAG_SEARCH_S * 1000  # no delay beyond the search can be read: the interval ends there
-    return {"lag_ms": lag, "lag_low_ms": max(lag - half, -reach),
-            "lag_high_ms": min(lag + half, reach), "lag_r": r, "lag_note": None}  # fmt: skip
+    low, high = max(lag - half, -reach), min(lag + half, reach)
+    if high - low >= LAG_CANNOT_TELL_SHARE * 2 * reach:
+        # the interval is the search itself: the peak is one of many the data allow
+        return none | {"lag_low_ms": low, "lag_high_ms": high, "lag_r": r, "lag_peak_ms": lag,
+                       "lag_note": f"cannot tell: the interval [{low:.0f}, {high:.0f}] ms "
+                       f"fills the search (peak at {lag:.0f} ms, r {r:.2f})"}  # fmt: skip
+    return {"lag_ms": lag, "lag_low_ms": low, "lag_high_ms": high, "lag_r": r,
+            "lag_peak_ms": lag, "lag_note": None}  # fmt: skip
 
 
 def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str, Any]:
@@ -293,6 +374,9 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
     stats: list[tuple[float, float, float, float]] = []
     change: list[tuple[float, float]] = []  # against the frame before, and the one before it
     first_last: list[np.ndarray] = []
+    motions: list[tuple[float, float]] = []  # (dx, dy) px of the frame's view on the last's
+    spans: list[tuple[float, float]] = []  # ... and on the view MOTION_SPAN_FRAMES before
+    small_last: list[Any] = [None, None, []]  # the small frame's shape, window, last spectra
     try:
         h, w = reader.info["src_height_px"], reader.info["src_width_px"]
         size = working_size(h, w, settings.fov_deg, settings.width) if settings.fov_deg else None
@@ -306,6 +390,19 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
                 change.append((c1, c2))
                 if not first_last:
                     first_last.append(_view(fr.luma))
+                small = _small(fr.luma)
+                if small_last[0] != small.shape:  # the first frame (or a new size)
+                    small_last[1] = cv2.createHanningWindow(small.shape[::-1], cv2.CV_32F)
+                    small_last[0], small_last[2] = small.shape, []
+                spec = spectrum(small, small_last[1])
+                kept = small_last[2]
+                nan = (math.nan, math.nan)
+                motions.append(spectra_shift(kept[-1], spec, small.shape) if kept else nan)
+                spans.append(
+                    spectra_shift(kept[0], spec, small.shape)
+                    if len(kept) == MOTION_SPAN_FRAMES else nan
+                )  # fmt: skip
+                small_last[2] = [*kept, spec][-MOTION_SPAN_FRAMES:]
                 last[:] = [fr.luma, last[0]]
                 yield fr
 
@@ -351,10 +448,19 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
         pl.Series("underexposed", st[:, 2] >= CLIPPED_SHARE),
         pl.Series("overexposed", st[:, 3] >= CLIPPED_SHARE),
     )  # fmt: skip
+    # the view's motion in source px (the small frame's scaled back)
+    scale = w / min(w, MOTION_MAX_WIDTH)
+    vm = np.asarray(motions, dtype=np.float64).reshape(-1, 2) * scale
+    vk = np.asarray(spans, dtype=np.float64).reshape(-1, 2) * scale
+    frames = frames.with_columns(
+        pl.Series("view_dx_px", vm[:, 0]), pl.Series("view_dy_px", vm[:, 1]),
+        pl.Series("view_span_dx_px", vk[:, 0]), pl.Series("view_span_dy_px", vk[:, 1]),
+    )  # fmt: skip
     problems: list[str] = []
-    row, extra = episode_measures(video, data, frames, fps, batcher, problems)
+    row, extra, pose_delta = episode_measures(video, data, frames, fps, batcher, problems)
     frames = frames.with_columns(*extra)
-    return {"row": row, "frames": frames, "views": first_last, "problems": problems}
+    return {"row": row, "frames": frames, "views": first_last, "problems": problems,
+            "pose_delta": pose_delta}  # fmt: skip
 
 
 def clock_rows(ts: np.ndarray) -> int:
@@ -381,9 +487,12 @@ def _clock_problem(ts: np.ndarray, k: int) -> str:
 def episode_measures(
     video, data, frames: pl.DataFrame, fps: float, batcher, problems: list[str]
 ) -> tuple:
-    """(the episode's row, the per-frame columns ``still`` and ``state_moving``); what is
-    wrong with the episode's data is added to ``problems`` (a timestamp that is not a time or
-    goes backwards: the data's clock is then used up to it, :func:`clock_rows`)."""
+    """(the episode's row, the per-frame columns ``still`` and ``state_moving``, the pose's
+    change at each frame: (frames, D) float32, the state at the frame's time less the state at
+    the frame before's, on the data's rows; the first row is the pose at the first frame, and
+    None without a state or action); what is wrong with the episode's data is added to
+    ``problems`` (a timestamp that is not a time or goes backwards: the data's clock is then
+    used up to it, :func:`clock_rows`)."""
     t_v = frames["t_s"].to_numpy()
     mafd = frames["mafd"].to_numpy()
     ts = data.timestamp
@@ -421,7 +530,13 @@ def episode_measures(
     frozen = [(s - 1, n + 1) if s > 0 and c1[s - 1] else (s, n) for s, n in _runs(frozen_frame)]
     for s, _ in frozen:
         frozen_frame[s] = True
-    image_moves = np.flatnonzero(~still[1:]) + 1  # frames that differ from the one before
+    # frames that start (end) a run of IDLE_RUN_FRAMES frames each differing from the ones
+    # before: a single changed frame between copies is a key frame coded again, not motion
+    moving_img = ~still
+    moving_img[0] = False  # the first frame has nothing before it to differ from
+    k_run = min(IDLE_RUN_FRAMES, max(1, len(moving_img) - 1))
+    runs_img = [(s0, n0) for s0, n0 in _runs(moving_img) if n0 >= k_run]
+    image_moves = np.array([runs_img[0][0], sum(runs_img[-1]) - 1] if runs_img else [], int)
     state_moves = np.flatnonzero(moving_data)
     end = ts[-1] if len(ts) else 0.0
     head_img = t_v[image_moves[0] - 1] if len(image_moves) else t_v[-1]
@@ -467,8 +582,17 @@ def episode_measures(
                  "edge_density", "jpeg_bpp", "omega_dps", "flow_dps", "zlib_ratio"):  # fmt: skip
             v = frames[m].fill_nan(None).mean()
             row[f"{m}_mean"] = None if v is None else float(v)
-    return row, [
-        pl.Series("still", still),
-        pl.Series("state_moving", state_moving),
-        pl.Series("frozen", frozen_frame),
-    ]
+    pose_delta = None
+    if pose is not None and len(pose):
+        at = np.asarray(pose, dtype=np.float64)[idx]
+        at[~on_clock] = np.nan  # frames past a broken clock have no pose
+        pose_delta = np.vstack([at[:1], np.diff(at, axis=0)]).astype(np.float32)
+    return (
+        row,
+        [
+            pl.Series("still", still),
+            pl.Series("state_moving", state_moving),
+            pl.Series("frozen", frozen_frame),
+        ],
+        pose_delta,
+    )

@@ -22,12 +22,45 @@ from vdc.sources import open_reader
 STRIP_HALF = 4  # frames either side of the flagged one
 THUMB_WIDTH = 128  # px
 
+# the episodes' table: (column, header with its unit, decimals; None: text). The page fits a
+# 1,280-px window: the measures a flag reads, rounded to what they can tell
 EPISODE_COLUMNS = (
-    "episode_index", "camera", "flags", "frames_decoded", "length", "fps", "dropped",
-    "drift_start_ms", "drift_end_ms", "frozen_longest_s", "idle_head_s", "idle_tail_s",
-    "lag_ms", "lag_low_ms", "lag_high_ms", "shift_px", "shift_within_px", "blurred_share",
-    "underexposed_share", "overexposed_share", "ti_p910_mean", "omega_dps_mean",
+    ("episode_index", "episode", 0), ("camera", "camera", None), ("flags", "flags", None),
+    ("frames_decoded", "frames", 0), ("dropped", "dropped, frames", 0),
+    ("drift_end_ms", "drift at end, ms", 1), ("frozen_longest_s", "frozen run, s", 2),
+    ("idle_head_s", "idle head, s", 2), ("idle_tail_s", "idle tail, s", 2),
+    ("lag_ms", "lag, ms [95 % interval]", 0), ("shift_px", "shift, px", 1),
+    ("shift_within_px", "shift within, px", 1), ("shift_frame", "at frame", 0),
+    ("blurred_share", "blurred, share", 2), ("underexposed_share", "dark, share", 2),
+    ("overexposed_share", "bright, share", 2), ("ti_p910_mean", "TI (P.910), mean", 1),
+    ("omega_dps_mean", "ω, deg/s", 1),
 )  # fmt: skip
+
+
+def number(v: Any, decimals: int) -> str:
+    """``v`` rounded to ``decimals`` (no ``-0``; "-" for none or NaN)."""
+    if v is None or (isinstance(v, float) and v != v):
+        return "-"
+    r = round(float(v), decimals)
+    return f"{0.0 if r == 0 else r:.{decimals}f}"
+
+
+def _cell(r: dict[str, Any], col: str, decimals: int | None) -> str:
+    v = r.get(col)
+    if col == "camera":  # LeRobot's keys share a long prefix: the page shows the rest
+        return html.escape(str(v).removeprefix("observation.images."))
+    if col == "lag_ms":
+        if v is None:  # why there is none: the note's first words
+            note = str(r.get("lag_note") or "-").split(":")[0]
+            return html.escape(note)
+        return (
+            f"{number(v, 0)} [{number(r.get('lag_low_ms'), 0)}, {number(r.get('lag_high_ms'), 0)}]"
+        )
+    if decimals is None:
+        return html.escape("-" if v is None else str(v))
+    return number(v, decimals)
+
+
 # the figure: one panel per measure, episodes along x, flagged episodes in red
 PANELS = (
     ("drift_end_ms", "drift at the end, ms"), ("dropped", "dropped frames"),
@@ -76,8 +109,9 @@ def thumbnails(ds: Dataset, episode: int, camera: str, frame: int) -> np.ndarray
 
 def plot_measures(eps: pl.DataFrame, path: Path) -> Path:
     """The measures across the dataset: a panel per measure, one bar per episode × camera,
-    red where it reaches the panel's flag threshold (a dashed line)."""
-    by_col = {col: (thr, name) for name, (col, thr, _, _) in FLAGS.items()}
+    red where the episode carries the panel's flag (its evidence past the threshold, dashed:
+    an estimate whose interval does not clear it stays grey)."""
+    by_col = {f.column: (f.threshold, name) for name, f in FLAGS.items()}
     e = eps.sort("episode_index", "camera")
     x = np.arange(len(e))
     # fixed margins, not a constrained layout: that measures every label's extent in a draw
@@ -91,10 +125,10 @@ def plot_measures(eps: pl.DataFrame, path: Path) -> Path:
             continue
         v = e[col].cast(pl.Float64).fill_null(np.nan).to_numpy()
         key = "drift_abs_ms" if col == "drift_end_ms" else "lag_abs_ms" if col == "lag_ms" else col
-        thr = by_col[key][0] if key in by_col else np.inf
-        over = np.abs(np.nan_to_num(v)) >= thr
+        flag = by_col[key][1] if key in by_col else None
+        over = np.array([flag in f.split(",") for f in e["flags"]], bool)
         ax.bar(x, np.nan_to_num(v), color=np.where(over, "#c0392b", "#7f8c8d"))
-        if col == "lag_ms":
+        if col == "lag_ms" and "lag_low_ms" in e.columns:
             lo = e["lag_low_ms"].cast(pl.Float64).fill_null(np.nan).to_numpy()
             hi = e["lag_high_ms"].cast(pl.Float64).fill_null(np.nan).to_numpy()
             ax.errorbar(x, np.nan_to_num(v), yerr=[np.nan_to_num(v - lo), np.nan_to_num(hi - v)],
@@ -108,32 +142,33 @@ def plot_measures(eps: pl.DataFrame, path: Path) -> Path:
         ax.set_title(title, fontsize=10)
         ax.set_xticks(x, [str(i) for i in e["episode_index"]], fontsize=7)
         ax.set_xlabel("episode", fontsize=8)
-    fig.suptitle("Each episode's measures (red: at or past the flag's threshold, dashed)")
+    fig.suptitle("Each episode's measures (red: flagged, its evidence past the threshold, dashed)")
     fig.savefig(path, dpi=90)
     return path
 
 
 def write_page(
-    path: Path, ds: Dataset, eps: pl.DataFrame, frames: pl.DataFrame, problems: list[Problem]
+    path: Path,
+    ds: Dataset,
+    eps: pl.DataFrame,
+    frames: pl.DataFrame,
+    problems: list[Problem],
+    cameras: tuple[str, ...] = (),
 ) -> Path:
-    """Write ``path`` (see the module); ``eps`` worst first."""
+    """Write ``path`` (see the module); ``eps`` worst first; ``cameras``: a line per camera,
+    the kind it was taken for (fixed, or moving with the robot) and why."""
     fig = plot_measures(eps, path.with_suffix(".png"))
     figure = base64.b64encode(fig.read_bytes()).decode()
     fig.unlink()
-    cols = [c for c in EPISODE_COLUMNS if c in eps.columns]
-
-    def cell(v: Any) -> str:
-        if isinstance(v, float):
-            return "-" if v != v else f"{v:.3g}"
-        return html.escape("-" if v is None else str(v))
-
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+    cols = [c for c in EPISODE_COLUMNS if c[0] in eps.columns]
+    head = "".join(f"<th>{html.escape(h)}</th>" for _, h, _ in cols)
     body = "".join(
         f"<tr{' class=flag' if r['flags'] else ''}>"
-        + "".join(f"<td>{cell(r[c])}</td>" for c in cols)
+        + "".join(f"<td>{_cell(r, c, d)}</td>" for c, _, d in cols)
         + "</tr>"
         for r in eps.iter_rows(named=True)
     )
+    kinds = "".join(f"<li>{html.escape(c)}</li>" for c in cameras)
     strips = []
     marks = first_flags(eps, frames)
     for r in eps.filter(pl.col("flag_count") > 0).iter_rows(named=True):
@@ -147,22 +182,26 @@ def write_page(
             f"({html.escape(flag)}: {html.escape(FLAGS[flag][3])})</p>{img}"
         )
     rules = "".join(
-        f"<tr><td>{n}</td><td>{c} &ge; {t:g} {u}</td><td>{html.escape(m)}</td></tr>"
-        for n, (c, t, u, m) in FLAGS.items()
+        f"<tr><td>{n}</td><td>{f.evidence} &ge; {f.threshold:g} {f.unit}</td>"
+        f"<td>{html.escape(f.meaning)}</td></tr>"
+        for n, f in FLAGS.items()
     )
     bad = "".join(f"<li>{html.escape(p.line())}</li>" for p in problems)
     rates = ", ".join(f"{r:.4g}" for r in sorted({ds.rate(c) for c in ds.cameras}))
     n_flag = eps.filter(pl.col("flag_count") > 0).height
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>vdc dataset</title>
-<style>body{{font-family:sans-serif}} table{{border-collapse:collapse;font-size:12px}}
-td,th{{border:1px solid #ccc;padding:2px 5px}} tr.flag{{background:#fbe3e0}}</style></head><body>
+<style>body{{font-family:sans-serif;max-width:1260px}}
+table{{border-collapse:collapse;font-size:11px}} td{{text-align:right}}
+td,th{{border:1px solid #ccc;padding:2px 4px}} th{{font-weight:normal;background:#eee}}
+tr.flag{{background:#fbe3e0}} img{{max-width:100%}}</style></head><body>
 <h1>{html.escape(str(ds.root))}</h1>
 <p>LeRobot {html.escape(ds.version)}, {len(ds.episodes)} episode(s), {len(ds.cameras)} camera(s),
 measured at {rates} fps (info.json states {ds.fps:g}): {n_flag} episode × camera flagged,
 {len(problems)} problem(s).</p>
 {f"<h2>Problems (unreadable or inconsistent)</h2><ul>{bad}</ul>" if bad else ""}
+{f"<h2>Cameras</h2><ul>{kinds}</ul>" if kinds else ""}
 <h2>Episodes, worst first</h2><table><tr>{head}</tr>{body}</table>
-<h2>Across the dataset</h2><img src="data:image/png;base64,{figure}" style="max-width:100%">
+<h2>Across the dataset</h2><img src="data:image/png;base64,{figure}">
 <h2>Flagged episodes</h2>{"".join(strips) or "<p>none</p>"}
 <h2>Flags</h2><table><tr><th>flag</th><th>when</th><th>meaning</th></tr>{rules}</table>
 </body></html>"""

@@ -24,9 +24,20 @@ from vdc.recording import pid_alive
 
 RESULTS = "episode_results"  # the folder of ``out`` holding the measured episodes
 # bumped when a measure's computation changes: results of an older version are measured again
-RESULT_VERSION = 2  # 2: the rate measured at (fps) and the data's problems kept
+RESULT_VERSION = 4  # 2: the rate measured at (fps) and the data's problems kept; 3: idle
+# runs and the lag's "cannot tell"; 4: the view's motion and the pose's change per frame
 # settings that decide where or what is reported, never what is measured
-_NOT_MEASURED = {"fail_on", "episodes", "page", "recordings", "executor", "jobs", "scheduler"}
+_NOT_MEASURED = {
+    "fail_on",
+    "episodes",
+    "page",
+    "recordings",
+    "executor",
+    "jobs",
+    "scheduler",
+    "thresholds",
+    "moving_cameras",
+}
 
 
 def _stat(path: str) -> list[int] | None:

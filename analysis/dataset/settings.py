@@ -6,6 +6,7 @@ each on this machine)."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from analysis.complexity.meter import DEFAULT_METRICS, MODEL_METRICS, parse_metrics
 from analysis.dataset.flags import FLAGS
@@ -60,6 +61,16 @@ class DatasetSettings(Settings):
         "frozen, dropped, drift, moved, moved_within, lag, idle, idle_tail, blurred, "
         "underexposed, overexposed, short",
     )
+    thresholds: str = option(
+        "",
+        "FLAG=VALUE,...: a flag's threshold in its unit (docs/dataset.md lists the defaults), "
+        "or FLAG=off to turn it off, e.g. lag=80,idle_tail=off",
+    )
+    moving_cameras: str = option(
+        "",
+        "KEY,...: the cameras that move with the robot (wrist, arm), taken so without learning "
+        "it; their view's motion is explained by the state's before a shift is a fault",
+    )
     episodes: str | None = option(None, "only these episodes: comma-separated indices")
     page: bool = option(True, "write dataset.html (the episodes worst first, with thumbnails)")
     recordings: bool = option(
@@ -79,7 +90,34 @@ class DatasetSettings(Settings):
                 f"--fail-on: unknown flag {unknown[0]!r}; choose from {', '.join(FLAGS)} or all"
             )
         self.episode_list()
+        self.flag_thresholds()
         self.executor_settings()
+
+    def flag_thresholds(self) -> dict[str, float | None]:
+        """The thresholds given (flag → value, None: off)."""
+        out: dict[str, float | None] = {}
+        for item in filter(None, (t.strip() for t in self.thresholds.split(","))):
+            name, eq, value = (x.strip() for x in item.partition("="))
+            if name not in FLAGS or not eq:
+                raise UserError(
+                    f"--thresholds: give FLAG=VALUE or FLAG=off, got {item!r} (the flags: "
+                    f"{', '.join(FLAGS)})"
+                )
+            if value.lower() == "off":
+                out[name] = None
+                continue
+            try:
+                v = float(value)
+            except ValueError:
+                v = math.nan
+            if not math.isfinite(v) or v < 0:
+                raise UserError(f"--thresholds: {name}'s threshold must be a number >= 0 or "
+                                f"off, got {value!r}")  # fmt: skip
+            out[name] = v
+        return out
+
+    def moving_camera_list(self) -> tuple[str, ...]:
+        return tuple(c.strip() for c in self.moving_cameras.split(",") if c.strip())
 
     def fail_names(self) -> list[str]:
         names = [n.strip() for n in self.fail_on.split(",") if n.strip()]

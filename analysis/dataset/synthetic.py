@@ -2,9 +2,10 @@
 places: the truth the dataset command is tested against, and the worked example of
 docs/guides/dataset.md (``python -m analysis.dataset.synthetic OUT``).
 
-The scene is a real photograph (scikit-image's ``astronaut``) seen by a fixed third-person
-camera, with an object (scikit-image's ``coffee``: a white cup on a dark table) that the robot
-moves across it: the object's image position is a fixed linear function of
+The scene is a real photograph (matplotlib's sample ``grace_hopper.jpg``, installed with
+matplotlib: no optional extra) seen by a fixed third-person camera (or one on the arm that
+pans with it), with an object (matplotlib's gift box on a dark table) that the robot moves
+across it: the object's image position is a fixed linear function of
 ``observation.state`` at the time the camera saw it. Each episode starts and ends at the home
 pose (state 0) and moves as ``sin²`` in between, so every episode's first frame is the camera's
 reference view.
@@ -35,6 +36,8 @@ data's own timeline (``timestamp = frame_index / fps``):
 * ``drift_ms``: episode → d: the video's clock runs fast, its frames spaced so that the last
   one comes d ms later than the data's last timestamp (the start is exact);
 * ``bump``: (episode e, p): the camera moved p px to the right from episode e on;
+* ``knock``: (episode e, frame f, p): the camera knocked p px to the right at frame f of
+  episode e, and left there (the episodes after e too);
 * ``lag_ms``: episode → L: each frame shows the scene as it was L ms before its timestamp;
 * ``idle_head_s``: episode → s: nothing moves for the first s seconds;
 * ``blurred``: episodes filmed out of focus (a Gaussian blur, sigma 2.5 px);
@@ -47,6 +50,7 @@ import dataclasses
 import json
 import math
 import os
+import shutil
 import sys
 import threading
 import time
@@ -60,6 +64,7 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+from matplotlib import cbook
 
 from vdc.errors import UserError
 
@@ -80,6 +85,7 @@ class Faults:
     dropped: dict[int, tuple[int, int]] = dataclasses.field(default_factory=dict)
     drift_ms: dict[int, float] = dataclasses.field(default_factory=dict)
     bump: tuple[int, int] | None = None
+    knock: tuple[int, int, int] | None = None
     lag_ms: dict[int, float] = dataclasses.field(default_factory=dict)
     idle_head_s: dict[int, float] = dataclasses.field(default_factory=dict)
     blurred: frozenset[int] = frozenset()
@@ -88,8 +94,15 @@ class Faults:
     def clean(self, episode: int) -> bool:
         """Whether ``episode`` has no fault (a bumped camera's episodes are faulty)."""
         bumped = self.bump is not None and episode >= self.bump[0]
-        return not bumped and not any(
-            episode in getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "bump"
+        knocked = self.knock is not None and episode >= self.knock[0]
+        return (
+            not bumped
+            and not knocked
+            and not any(
+                episode in getattr(self, f.name)
+                for f in dataclasses.fields(self)
+                if f.name not in ("bump", "knock")
+            )
         )
 
 
@@ -106,29 +119,43 @@ STANDARD_FAULTS = Faults(
 )
 
 
-def _scene(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """(canvas RGB uint8 of the view plus a margin, object RGB uint8): real photographs."""
-    try:  # scikit-image (its photographs) comes with the test extra only
-        from skimage import data  # lazy: optional extra
-    except ImportError:
-        raise UserError(
-            "writing a test dataset needs scikit-image (pip install scikit-image)"
-        ) from None
-    bg = cv2.resize(data.astronaut(), (width + 2 * MARGIN_PX, height + 2 * MARGIN_PX),
-                    interpolation=cv2.INTER_AREA)  # fmt: skip
+def _photo(name: str) -> np.ndarray:
+    """A photograph from matplotlib's sample data (installed with matplotlib, a dependency of
+    vdc: nothing downloaded), (H, W, 3) RGB uint8 or (H, W, 4) RGBA."""
+    with cbook.get_sample_data(name) as f:
+        buf = np.frombuffer(f.read(), np.uint8)
+    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise UserError(f"matplotlib's sample photograph {name} cannot be read")
+    return cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+
+
+def _scene(height: int, width: int, pan_px: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(canvas RGB uint8 of the view plus a margin, ``pan_px`` more either side, object RGB
+    uint8): real photographs that come with matplotlib (a portrait; a blue gift box on a
+    dark table, the object the robot moves)."""
+    bg = cv2.resize(_photo("grace_hopper.jpg"), (width + 2 * (MARGIN_PX + pan_px),
+                    height + 2 * MARGIN_PX), interpolation=cv2.INTER_AREA)  # fmt: skip
     side = max(8, height // 4)
-    obj = cv2.resize(data.coffee()[0:400, 100:500], (side, side), interpolation=cv2.INTER_AREA)
+    box = _photo("Minduka_Present_Blue_Pack.png").astype(np.float32)
+    alpha = box[..., 3:] / 255.0
+    table = np.float32([40, 32, 28])  # dark brown: the box stands out of the portrait
+    obj = box[..., :3] * alpha + table * (1 - alpha)
+    obj = cv2.resize(np.clip(obj, 0, 255).astype(np.uint8), (side, side),
+                     interpolation=cv2.INTER_AREA)  # fmt: skip
     return bg, obj
 
 
-def trajectory(n: int, fps: float, idle_s: float, amplitude: float, seed: int) -> np.ndarray:
+def trajectory(
+    n: int, fps: float, idle_s: float, amplitude: float, seed: int, strokes: int = 1
+) -> np.ndarray:
     """(n, STATE_DIM) float64 joint positions at t = i / fps: still for ``idle_s``, then out
-    and back to the home pose (0) as sin²; joint 0 moves the object across the view, joint 1
-    up and down (a third of it), the others follow slowly."""
+    and back to the home pose (0) as sin², ``strokes`` times; joint 0 moves the object across
+    the view, joint 1 up and down (a third of it), the others follow slowly."""
     t = np.arange(n) / fps
     dur = n / fps
     u = np.clip((t - idle_s) / max(dur - idle_s - 1 / fps, 1e-9), 0, 1)
-    base = np.sin(np.pi * u) ** 2
+    base = np.sin(np.pi * strokes * u) ** 2
     rng = np.random.default_rng(seed)
     gains = np.concatenate(([1.0, 0.33], rng.uniform(0.05, 0.2, STATE_DIM - 2)))
     return amplitude * base[:, None] * gains[None, :]
@@ -144,31 +171,50 @@ def state_at(state: np.ndarray, fps: float, t: float) -> np.ndarray:
 
 
 def render(bg: np.ndarray, obj: np.ndarray, s: np.ndarray, shape: tuple[int, int],
-           shift_px: int = 0) -> np.ndarray:  # fmt: skip
+           shift_px: float = 0) -> np.ndarray:  # fmt: skip
     """The camera's (H, W, 3) uint8 view of the scene with the object at state ``s`` (px:
     joint 0 horizontal from the left quarter, joint 1 vertical), the camera moved right by
-    ``shift_px``. Sub-pixel positions are rendered by a warp (bilinear)."""
+    ``shift_px`` (a camera that pans: a fraction of a px too). Sub-pixel positions are
+    rendered by a warp (bilinear)."""
     h, w = shape
+    mx = (bg.shape[1] - w) // 2  # the canvas's margins: MARGIN_PX, wider for a pan
+    my = (bg.shape[0] - h) // 2
     canvas = bg.astype(np.float32)
     side = obj.shape[0]
-    x = MARGIN_PX + w * 0.2 + float(s[0])
-    y = MARGIN_PX + h * 0.4 + float(s[1])
+    x = mx + w * 0.2 + float(s[0])
+    y = my + h * 0.4 + float(s[1])
     m = np.float32([[1, 0, x], [0, 1, y]])
     size = (canvas.shape[1], canvas.shape[0])
     placed = cv2.warpAffine(obj.astype(np.float32), m, size, flags=cv2.INTER_LINEAR)
     mask = cv2.warpAffine(np.ones((side, side), np.float32), m, size, flags=cv2.INTER_LINEAR)
     canvas = canvas * (1 - mask[..., None]) + placed
-    ox = MARGIN_PX + shift_px
-    return np.clip(canvas[MARGIN_PX : MARGIN_PX + h, ox : ox + w], 0, 255).astype(np.uint8)
+    if float(shift_px).is_integer():
+        ox = mx + int(shift_px)
+        return np.clip(canvas[my : my + h, ox : ox + w], 0, 255).astype(np.uint8)
+    crop = np.float32([[1, 0, -(mx + shift_px)], [0, 1, -my]])
+    view = cv2.warpAffine(canvas, crop, (w, h), flags=cv2.INTER_LINEAR)
+    return np.clip(view, 0, 255).astype(np.uint8)
 
 
 def _episode_frames(
-    e: int, n: int, fps: float, shape: tuple[int, int], faults: Faults, scene: tuple, seed: int
+    e: int,
+    n: int,
+    fps: float,
+    shape: tuple[int, int],
+    faults: Faults,
+    scene: tuple,
+    seed: int,
+    pan_px_per_unit: float = 0.0,
+    strokes: int = 1,
+    state_width: int | None = None,
 ) -> tuple[np.ndarray, list[tuple[float, np.ndarray]]]:
-    """(state (n, STATE_DIM), [(video time since the episode's start s, RGB frame)])."""
+    """(state (n, STATE_DIM), [(video time since the episode's start s, RGB frame)]); the
+    camera pans right by ``pan_px_per_unit`` × joint 0 (a camera on the arm). The state's
+    scale: ``state_width`` (the dataset's first camera's width; default this one's)."""
     bg, obj = scene
-    amplitude = shape[1] * (0.45 + 0.1 * ((e * 7) % 3))  # px: the object crosses the view
-    state = trajectory(n, fps, faults.idle_head_s.get(e, 0.0), amplitude, seed + e)
+    # px: the object crosses the view
+    amplitude = (state_width or shape[1]) * (0.45 + 0.1 * ((e * 7) % 3))
+    state = trajectory(n, fps, faults.idle_head_s.get(e, 0.0), amplitude, seed + e, strokes)
     lag = faults.lag_ms.get(e, 0.0) / 1000
     shift = faults.bump[1] if faults.bump is not None and e >= faults.bump[0] else 0
     drift = faults.drift_ms.get(e, 0.0) / 1000
@@ -180,7 +226,12 @@ def _episode_frames(
         if d0 <= i < d0 + dn:
             continue  # lost: a gap in the video's times
         if not (f0 <= i < f0 + k) or img is None:
-            img = render(bg, obj, state_at(state, fps, i / fps - lag), shape, shift)
+            seen = state_at(state, fps, i / fps - lag)
+            knocked = faults.knock is not None and (
+                e > faults.knock[0] or (e == faults.knock[0] and i >= faults.knock[1])
+            )
+            at = shift + pan_px_per_unit * float(seen[0]) + (faults.knock[2] if knocked else 0)
+            img = render(bg, obj, seen, shape, at)
             if e in faults.blurred:
                 img = cv2.GaussianBlur(img, (0, 0), 2.5)
             if e in faults.overexposed:
@@ -288,18 +339,25 @@ def encode_file(
 
 
 def _features(
-    cameras: tuple[str, ...], shape: tuple[int, int], codec: str, fps: float, images: tuple = ()
+    cameras: tuple[str, ...],
+    shapes: dict[str, tuple],
+    codec: str,
+    fps: float,
+    images: tuple = (),
 ) -> dict:
-    video_info = {
-        "video.height": shape[0], "video.width": shape[1], "video.codec": CODECS[codec],
-        "video.pix_fmt": "yuv420p", "video.is_depth_map": False, "video.fps": fps,
-        "video.channels": 3, "has_audio": False,
-    }  # fmt: skip
+    def video_info(shape: tuple) -> dict:
+        return {
+            "video.height": shape[0], "video.width": shape[1], "video.codec": CODECS[codec],
+            "video.pix_fmt": "yuv420p", "video.is_depth_map": False, "video.fps": fps,
+            "video.channels": 3, "has_audio": False,
+        }  # fmt: skip
+
     names = [f"joint_{j}" for j in range(STATE_DIM)]
     feats: dict[str, Any] = {
-        cam: {"dtype": "image" if cam in images else "video", "shape": [shape[0], shape[1], 3],
+        cam: {"dtype": "image" if cam in images else "video",
+              "shape": [shapes[cam][0], shapes[cam][1], 3],
               "names": ["height", "width", "channels"]}
-        | ({} if cam in images else {"info": video_info})
+        | ({} if cam in images else {"info": video_info(shapes[cam])})
         for cam in cameras
     }  # fmt: skip
     feats |= {
@@ -341,20 +399,56 @@ def write_dataset(
     cameras: tuple[str, ...] = ("observation.images.front",),
     seed: int = 0,
     image_cameras: tuple[str, ...] = (),
+    pan_px_per_unit: float = 0.0,
+    strokes: int = 1,
+    camera_shapes: dict[str, tuple[int, int]] | None = None,
 ) -> dict[str, Any]:
     """Write a LeRobot dataset at ``root`` (see the module) and return its truth: ``lengths``
     (frames per episode), ``faults``, ``fps``, ``cameras``. Episode lengths are spread evenly
     over ``seconds``; the first camera carries the faults, the others see the clean scene
     (their own, shifted a little). Faults name episodes below ``episodes``. The cameras in
     ``image_cameras`` are stored as LeRobot image features instead of video: one PNG per frame,
-    ``images/{key}/episode-{e:06d}/frame-{i:06d}.png``."""
+    ``images/{key}/episode-{e:06d}/frame-{i:06d}.png``. With ``pan_px_per_unit`` the first
+    camera is on the arm: its view pans right by that many px per unit of joint 0 (the object
+    crosses up to 0.65 × the width in joint 0's units). ``strokes``: out-and-back motions per
+    episode (more strokes: more evidence of a lag). ``camera_shapes``: a camera's own (height,
+    width), where it is not ``shape``."""
     if version not in ("v3.0", "v2.1"):
         raise UserError(f"version must be v3.0 or v2.1, got {version!r}")
     if codec not in CODECS:
         raise UserError(f"codec must be one of {', '.join(CODECS)}, got {codec!r}")
     root = Path(root)
+    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+        raise UserError(f"{root} exists and is not an empty folder: give a new folder")
+    # written into a hidden folder beside it, renamed when whole: a failed or killed write
+    # leaves no half dataset under the name (a leftover hidden folder is removed on failure)
+    part = root.with_name(f".{root.name}.partial-{os.getpid()}")
+    shutil.rmtree(part, ignore_errors=True)
+    try:
+        truth = _write(part, episodes, version, codec, fps, shape, seconds, faults, cameras,
+                       seed, image_cameras, pan_px_per_unit, strokes,
+                       camera_shapes)  # fmt: skip
+        if root.exists():
+            root.rmdir()  # empty: checked above
+        part.rename(root)
+    except BaseException:
+        shutil.rmtree(part, ignore_errors=True)
+        raise
+    return truth
+
+
+def _write(root: Path, episodes: int, version: str, codec: str, fps: float,
+           shape: tuple[int, int], seconds: tuple[float, float], faults: Faults,
+           cameras: tuple[str, ...], seed: int, image_cameras: tuple[str, ...],
+           pan_px_per_unit: float, strokes: int,
+           camera_shapes: dict[str, tuple[int, int]] | None) -> dict[str, Any]:  # fmt: skip
+    """:func:`write_dataset` into ``root`` (a new folder)."""
     (root / "meta").mkdir(parents=True, exist_ok=True)
-    scene = _scene(*shape)
+    knock_px = faults.knock[2] if faults.knock is not None else 0
+    pan_px = math.ceil(abs(pan_px_per_unit) * 0.66 * shape[1]) + abs(knock_px)
+    shapes = {cam: tuple((camera_shapes or {}).get(cam, shape)) for cam in cameras}
+    scenes = {cam: _scene(*shapes[cam], pan_px if c == 0 else 0)
+              for c, cam in enumerate(cameras)}  # fmt: skip
     span = np.linspace(seconds[0], seconds[1], episodes) if episodes > 1 else [seconds[0]]
     lengths = [round(float(s) * fps) for s in span]
     clean = Faults()
@@ -363,15 +457,18 @@ def write_dataset(
     for e, n in enumerate(lengths):
         for c, cam in enumerate(cameras):
             f = faults if c == 0 else clean
-            sc = scene if c == 0 else (np.roll(scene[0], 5 * c, axis=1), scene[1])
-            state, frames = _episode_frames(e, n, fps, shape, f, sc, seed)
+            sc = scenes[cam]
+            sc = sc if c == 0 else (np.roll(sc[0], 5 * c, axis=1), sc[1])
+            pan = pan_px_per_unit if c == 0 else 0.0
+            state, frames = _episode_frames(e, n, fps, shapes[cam], f, sc, seed, pan, strokes,
+                                            shape[1])  # fmt: skip
             per_cam[cam].append(frames)
         states.append(state)
     info: dict[str, Any] = {
         "codebase_version": version, "robot_type": "synthetic_arm",
         "total_episodes": episodes, "total_frames": int(sum(lengths)), "total_tasks": 1,
         "chunks_size": 1000, "fps": fps, "splits": {"train": f"0:{episodes}"},
-        "features": _features(cameras, shape, codec, fps, image_cameras),
+        "features": _features(cameras, shapes, codec, fps, image_cameras),
     }  # fmt: skip
     for cam in image_cameras:
         if cam not in per_cam:
@@ -382,15 +479,15 @@ def write_dataset(
             for i, (_, rgb) in enumerate(frames):  # a PNG carries no time: frame i is row i
                 cv2.imwrite(str(folder / f"frame-{i:06d}.png"), rgb[..., ::-1])
     if version == "v3.0":
-        _write_v3(root, info, lengths, states, per_cam, codec, fps, shape)
+        _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes)
     else:
-        _write_v21(root, info, lengths, states, per_cam, codec, fps, shape)
+        _write_v21(root, info, lengths, states, per_cam, codec, fps, shapes)
     return {"lengths": lengths, "faults": faults, "fps": fps, "cameras": cameras,
             "version": version, "codec": codec, "shape": shape,
             "image_cameras": image_cameras}  # fmt: skip
 
 
-def _write_v3(root, info, lengths, states, per_cam, codec, fps, shape) -> None:
+def _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes) -> None:
     info |= {
         "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
         "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
@@ -414,7 +511,7 @@ def _write_v3(root, info, lengths, states, per_cam, codec, fps, shape) -> None:
             win.append((t0, end))
             t0 = end
         path = root / "videos" / cam / "chunk-000" / "file-000.mp4"
-        encode_file(path, codec, fps, shape, timed)
+        encode_file(path, codec, fps, shapes[cam], timed)
         windows[cam] = win
     cols: dict[str, list] = {
         "episode_index": list(range(len(lengths))),
@@ -435,7 +532,7 @@ def _write_v3(root, info, lengths, states, per_cam, codec, fps, shape) -> None:
     pq.write_table(pa.table(cols), out / "file-000.parquet")
 
 
-def _write_v21(root, info, lengths, states, per_cam, codec, fps, shape) -> None:
+def _write_v21(root, info, lengths, states, per_cam, codec, fps, shapes) -> None:
     info |= {
         "total_chunks": 1, "total_videos": len(lengths) * len(per_cam),
         "data_path": "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet",
@@ -456,15 +553,19 @@ def _write_v21(root, info, lengths, states, per_cam, codec, fps, shape) -> None:
     for cam, eps in per_cam.items():
         for e, frames in enumerate(eps):
             path = root / "videos" / "chunk-000" / cam / f"episode_{e:06d}.mp4"
-            encode_file(path, codec, fps, shape, frames)
+            encode_file(path, codec, fps, shapes[cam], frames)
 
 
 if __name__ == "__main__":  # python -m analysis.dataset.synthetic OUT [v3.0|v2.1] [codec]
     args = sys.argv[1:]
     if not args:
         sys.exit("usage: python -m analysis.dataset.synthetic OUT [v3.0|v2.1] [libsvtav1|libx264]")
-    truth = write_dataset(args[0], version=args[1] if len(args) > 1 else "v3.0",
-                          codec=args[2] if len(args) > 2 else "libsvtav1")  # fmt: skip
+    try:
+        truth = write_dataset(args[0], version=args[1] if len(args) > 1 else "v3.0",
+                              codec=args[2] if len(args) > 2 else "libsvtav1")  # fmt: skip
+    except UserError as exc:  # one line, exit 2, as vdc's commands say it
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
     print(f"wrote {len(truth['lengths'])} episodes ({truth['version']}, {truth['codec']}) "
           f"to {args[0]}")  # fmt: skip
 

@@ -17,9 +17,11 @@ from analysis.dataset.window import WindowReader
 
 FPS = 30.0
 FAULTS = STANDARD_FAULTS
-# the flags each episode must carry, exactly (episodes 0, 8 and 9 are clean)
+# the flags each episode must carry, exactly (episodes 0, 8 and 9 are clean). Episode 4's
+# 100-ms lag is not flagged: one out-and-back stroke in 3-4 s cannot tell it (its interval
+# fills the search, and a flag needs its interval past the threshold)
 EXPECTED = {
-    1: {"frozen"}, 2: {"dropped"}, 3: {"drift"}, 4: {"lag"}, 5: {"idle"}, 6: {"blurred"},
+    1: {"frozen"}, 2: {"dropped"}, 3: {"drift"}, 4: set(), 5: {"idle"}, 6: {"blurred"},
     7: {"overexposed"}, 10: {"moved"}, 11: {"moved"},
 }  # fmt: skip
 
@@ -51,6 +53,10 @@ def test_each_flag_finds_its_fault_and_no_clean_episode_is_flagged(profiled) -> 
         flags = set(filter(None, r["flags"].split(",")))
         assert flags == EXPECTED.get(e, set()), (e, r["flags"])
         assert FAULTS.clean(e) == (e not in EXPECTED)
+    # no flag fires on a point estimate: a flagged estimate's interval clears its threshold
+    for e, r in rows.items():
+        for name in filter(None, r["flags"].split(",")):
+            assert r[FLAGS[name].evidence] >= FLAGS[name].threshold, (e, name)
 
 
 def test_frozen_dropped_and_drift_are_measured_in_physical_units(profiled) -> None:
@@ -72,13 +78,16 @@ def test_lag_idle_and_camera_shift_are_measured(profiled) -> None:
     # lag: the peak of the motions' cross-correlation on a 33 ms frame grid, refined by a
     # parabola; measured 106 ms for 100 (AV1's noise on a small moving object): within 30 ms
     lag = rows[4]
-    assert lag["lag_ms"] == pytest.approx(FAULTS.lag_ms[4], abs=30)
-    assert lag["lag_low_ms"] <= lag["lag_ms"] <= lag["lag_high_ms"]
-    # its interval holds the truth; it need not exclude 0: one out-and-back stroke in 3-4 s
-    # is little evidence (tests/analysis/test_lag_interval.py checks how often it covers)
+    assert lag["lag_peak_ms"] == pytest.approx(FAULTS.lag_ms[4], abs=30)
+    # its interval holds the truth and fills the search: one out-and-back stroke in 3-4 s is
+    # too little evidence (tests/analysis/test_lag_interval.py checks how often it covers),
+    # so no lag is reported, and the note says why
     assert lag["lag_low_ms"] <= FAULTS.lag_ms[4] <= lag["lag_high_ms"]
+    if lag["lag_ms"] is None:
+        assert lag["lag_note"].startswith("cannot tell: the interval")
+        assert "lag" not in lag["flags"]
     for e in (0, 8, 9):  # clean episodes: within 2/3 of the 50 ms threshold
-        assert rows[e]["lag_ms"] is not None and abs(rows[e]["lag_ms"]) < 35
+        assert rows[e]["lag_peak_ms"] is not None and abs(rows[e]["lag_peak_ms"]) < 35
     # idle head: nothing moves for s seconds; the first motion is seen within 3 frames
     assert rows[5]["idle_head_s"] == pytest.approx(FAULTS.idle_head_s[5], abs=3 / FPS)
     e0, p = FAULTS.bump
@@ -112,7 +121,7 @@ def test_fail_on_names_the_flagged_episodes_and_the_tables_are_written(profiled)
     assert any("no --fov-deg" in n for n in res.notes)
     page = res.files.dataset.read_text()
     # worst first, each flagged episode with its strip of thumbnails
-    assert page.count("<h3>episode") == len(EXPECTED)
+    assert page.count("<h3>episode") == sum(bool(f) for f in EXPECTED.values())
     assert set(FLAGS) >= {f for fl in EXPECTED.values() for f in fl}
 
 
