@@ -22,7 +22,7 @@ Footage (units: clips):
   score the failure modes apart (:data:`FAILURE_MODES`);
 * ``frame_auroc_pooled`` (frames clustered by clip) and ``frame_auroc_within_clip`` (the mean
   of the clips' own): frames where the detector alerts with no collision near against quiet
-  frames (:func:`analysis.predictors.footage.frame_classes`).
+  frames (:func:`analysis.boundary.footage_predictors.frame_classes`).
 
 Both modes: ``paired_<statistic>_vs_<avdm>`` (the AVDM's statistic minus the measure's, same
 units), and ``cv_logloss`` / ``cv_logloss_gain_vs_si_p910+ti_p910`` (a ridge-logistic model of
