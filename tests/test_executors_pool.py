@@ -1,7 +1,8 @@
 """The local pool's and a local Dask cluster's workers: forked warm (vdc's modules imported
 and the metric kernels loaded before the first task), one BLAS and one OpenCV thread each
 even when the script loaded NumPy first with the default threads; and a plain script that
-starts workers from its top level without the ``__main__`` guard ends in one line.
+starts workers from its top level without the ``__main__`` guard gets one error, before any
+worker starts.
 
 Each case runs as a real script in a child process with the BLAS variables removed from its
 environment (the suite sets OPENBLAS_NUM_THREADS=1 for itself, which would hide a missing
@@ -120,13 +121,47 @@ print("results", [o.result for o in out])
 
 
 @pytest.mark.parametrize("executor", ["local", pytest.param("dask", marks=pytest.mark.dask)])
-def test_a_plain_script_without_the_main_guard_is_one_line(tmp_path, executor) -> None:
+def test_a_plain_script_without_the_main_guard_gets_one_error_before_any_worker(
+    tmp_path, executor
+) -> None:
+    """A library call raises (it does not end the interpreter): one traceback, the script's
+    own, no worker's, ending in the one line that names the script's line and the guard."""
     proc = _run(tmp_path, UNGUARDED.format(executor=executor))
-    assert proc.returncode == 2
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1, proc.stderr
-    assert "script.py, line 7" in lines[0] and 'if __name__ == "__main__":' in lines[0]
+    assert proc.returncode == 1
+    assert proc.stderr.count("Traceback") == 1, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("vdc.executors.MissingMainGuard: script.py, line 7: "), last
+    assert 'if __name__ == "__main__":' in last
     assert "results" not in proc.stdout and "failed" not in proc.stderr
+
+
+def test_a_library_caller_catches_the_missing_guard_as_a_user_error(tmp_path) -> None:
+    script = UNGUARDED.format(executor="local").replace(
+        "\nout = run_tasks", "\nfrom vdc.errors import UserError\ntry:\n    out = run_tasks"
+    ).replace(
+        "\nprint(\"results\"", "\nexcept UserError as e:\n    print('caught', type(e).__name__, e)"
+        "\n    raise SystemExit(0)\nprint(\"results\""
+    )  # fmt: skip
+    proc = _run(tmp_path, script)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    assert proc.stdout.startswith("caught MissingMainGuard script.py, line 9: "), proc.stdout
+
+
+def test_a_command_line_prints_the_missing_guard_as_one_line_exit_2(tmp_path) -> None:
+    """A script that runs ``vdc-analyse``'s main from its top level: the command line prints
+    the error as one line and exits 2 (the unreadable input leaves no task, the check comes
+    first all the same)."""
+    script = (
+        "from analysis.cli import main\n"
+        "open('x.rrd', 'wb').write(b'not a recording')\n"
+        "raise SystemExit(main(['batch', 'x.rrd', '--out', 'o']))\n"
+    )
+    proc = _run(tmp_path, script)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr, proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1, proc.stderr  # the line before it is the command's plan
+    assert errors[0].startswith("vdc-analyse batch: error: script.py, line 3: "), errors
 
 
 def test_the_same_script_with_the_guard_runs(tmp_path) -> None:

@@ -14,7 +14,7 @@
 Every worker, local or Dask, runs one OpenCV thread and one BLAS thread
 (:func:`one_thread_per_worker`). Starting workers runs a plain script again from the top in
 each of them: a script that calls a command at its top level without the
-``if __name__ == "__main__":`` guard ends with one line saying so (:func:`check_main_guard`).
+``if __name__ == "__main__":`` guard gets one error saying so (:func:`check_main_guard`).
 
 Tasks are module-level functions with small, picklable arguments (paths, not arrays) that
 write their own outputs and return a small dict. Both sides use
@@ -413,25 +413,27 @@ def unguarded_main_line() -> tuple[str, int] | None:
     return None
 
 
+class MissingMainGuard(UserError):
+    """A plain script starts local workers from its top level, outside
+    ``if __name__ == "__main__":``; the message is one line naming the script and line."""
+
+
 def check_main_guard(settings: ExecutorSettings) -> None:
-    """End a plain script that starts local workers from its top level without
-    ``if __name__ == "__main__":`` with one line saying what to add, exit status 2, before
-    any worker starts (each would run the script again; see :func:`unguarded_main_line`).
-    An existing Dask cluster's workers do not run the script: no check then."""
+    """Raise :class:`MissingMainGuard` when a plain script starts local workers from its top
+    level without ``if __name__ == "__main__":``, before any worker starts (each would run the
+    script again; see :func:`unguarded_main_line`): a command line prints it as one line, exit
+    status 2. An existing Dask cluster's workers do not run the script: no check then."""
     if settings.scheduler:
         return
     where = unguarded_main_line()
     if where is None:
         return
     script, line = where
-    print(
+    raise MissingMainGuard(
         f"{Path(script).name}, line {line}: vdc runs its work in worker processes, which "
         "import this script again: put the script's top-level code under if __name__ == "
-        '"__main__": (see the examples in the docs)',
-        file=sys.stderr,
-        flush=True,
+        '"__main__": (see the examples in the docs)'
     )
-    raise SystemExit(2)
 
 
 def run_tasks(
