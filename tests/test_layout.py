@@ -107,6 +107,42 @@ def test_import_vdc_is_fast_and_its_api_resolves() -> None:
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
+def test_every_package_face_comes_from_the_one_lazy_loader() -> None:
+    """``avdm``, the facade ``vdc`` and the command packages load their names through one
+    helper (``avdm.lazy.lazy_face``): no module writes a ``__getattr__`` of its own."""
+    own, faces = [], set()
+    for name, source in module_sources().items():
+        for node in ast.parse(source).body:
+            if isinstance(node, ast.FunctionDef) and node.name in ("__getattr__", "__dir__"):
+                own.append(f"{name}:{node.lineno}")
+            elif isinstance(node, ast.Assign) and "__getattr__" in ast.unparse(node.targets[0]):
+                called = node.value.func if isinstance(node.value, ast.Call) else None
+                if isinstance(called, ast.Name) and called.id.lstrip("_") == "lazy_face":
+                    faces.add(name)
+                else:
+                    own.append(f"{name}:{node.lineno}")
+    assert not own, own
+    assert {"vdc", "avdm", "vdc.catalog", "analysis.recordings", "analysis.boundary"} <= faces
+    code = (
+        "import sys, vdc, avdm, analysis.boundary as b\n"
+        "assert {f.__getattr__.__module__ for f in (vdc, avdm, b)} == {'avdm.lazy'}\n"
+        "from analysis.batch import summarise_batch\n"
+        "assert vdc.summarise is summarise_batch and vdc.__dict__['summarise'] is summarise_batch\n"
+        "assert vdc.catalog is sys.modules['vdc.catalog'] and 'catalog' in dir(vdc)\n"
+        "assert avdm.make_model is sys.modules['avdm.registry'].make_model\n"
+        "assert 'make_model' in dir(avdm) and 'footage_boundary' in dir(b)\n"
+        "for face, name in ((vdc, 'vdc'), (avdm, 'avdm')):\n"
+        "    try:\n"
+        "        face.nope\n"
+        "    except AttributeError as e:\n"
+        "        assert str(e) == f\"module '{name}' has no attribute 'nope'\", e\n"
+        "    else:\n"
+        "        raise AssertionError(name)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
 def test_no_file_holds_a_merge_conflict_marker() -> None:
     """A merge resolved by hand once left both sides of a conflict in docs/architecture.md for
     several rounds; a line that starts a conflict block is never meant to be committed."""
