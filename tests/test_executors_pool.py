@@ -32,7 +32,8 @@ def worker_state(_k: int) -> dict:
     return {
         "blas": [i["num_threads"] for i in threadpoolctl.threadpool_info()],
         "opencv": cv2.getNumThreads(),
-        "warm": "vdc.warm" in sys.modules,
+        # the fork server's preload ran: the worker inherited what it imported
+        "warm": "vdc.warm_fork_server" in sys.modules and "av" in sys.modules,
         # a kernel whose compiled code is loaded has signatures before its first call here
         "kernels": len(fm.chosen_sums.signatures),
         "ppid": os.getppid(),
@@ -93,20 +94,43 @@ def test_the_fork_server_holds_one_thread_when_it_forks(tmp_path) -> None:
     """Forking copies one thread: what the server imported must have started none (a lock
     held by a thread that the child lacks would hang the child)."""
     script = """
-import multiprocessing.forkserver as fs
+import os
+from pathlib import Path
 from vdc.executors import pool_context
-from vdc.warm import threads_now
+
+def server_threads(path):  # the child's parent is the fork server
+    status = Path(f"/proc/{os.getppid()}/status").read_text()
+    Path(path).write_text(status.split("Threads:")[1].split()[0])
 
 if __name__ == "__main__":
-    child = pool_context().Process(target=threads_now)
+    child = pool_context().Process(target=server_threads, args=("threads.txt",))
     child.start()  # forked: the server has preloaded by now
     child.join()
-    pid = fs._forkserver._forkserver_pid
-    print(open(f"/proc/{pid}/status").read().split("Threads:")[1].split()[0])
+    print(Path("threads.txt").read_text())
 """
     proc = _run(tmp_path, script)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.split()[-1] == "1"
+
+
+def test_importing_warm_changes_nothing_and_walks_no_stack() -> None:
+    """``vdc.warm`` warms a fork server only when asked (its preload module calls it): its
+    import sets no environment variable and loads nothing heavy, and it does not look at the
+    call stack to tell where it runs."""
+    code = (
+        "import os, sys; before = dict(os.environ); import vdc.warm; "
+        "assert dict(os.environ) == before, set(os.environ) ^ set(before); "
+        "heavy = [m for m in ('numpy', 'cv2', 'av', 'numba') if m in sys.modules]; "
+        "assert not heavy, heavy"
+    )
+    env = {k: v for k, v in _env().items() if k not in BLAS_VARS}
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    source = (ROOT / "vdc" / "warm.py").read_text()
+    assert "_getframe" not in source and "f_back" not in source
+    from vdc.pool_workers import WARM_PRELOAD
+
+    assert WARM_PRELOAD == ["vdc.warm_fork_server"]  # a module whose import is the warm-up
 
 
 UNGUARDED = """
@@ -275,3 +299,37 @@ if __name__ == "__main__":
     got = json.loads(proc.stdout.strip().splitlines()[-1])
     assert got["narrow"] == [[got["every"][0]]]
     assert got["wide"] == [got["every"], got["every"]]
+
+
+def test_a_pool_knows_its_workers_and_when_one_has_died(tmp_path) -> None:
+    """``WorkerPool`` finds its workers through the context it made them with (the standard
+    pool keeps them private): a dead worker marks it broken, and ``end_workers`` kills and
+    collects every one, as a SIGTERM to the caller does."""
+    script = """
+import json, os
+from vdc.executors import ExecutorSettings, open_executor
+from vdc.pool_workers import end_workers
+
+if __name__ == "__main__":
+    with open_executor(ExecutorSettings("local", 2), 2) as (pool, _):
+        pids = sorted(pool.submit(os.getpid).result() for _ in range(4))
+        seen = sorted(p.pid for p in pool.workers())
+        healthy = pool.is_broken()
+        try:
+            pool.submit(os._exit, 1).result()
+        except Exception as exc:
+            died = type(exc).__name__
+        broken = pool.is_broken()
+    with open_executor(ExecutorSettings("local", 2), 2) as (pool, _):
+        pool.submit(os.getpid).result()
+        end_workers(pool)
+        ended = [p.exitcode for p in pool.workers()]
+    print(json.dumps({"pids": pids, "seen": seen, "healthy": healthy, "died": died,
+                      "broken": broken, "ended": ended}))
+"""
+    proc = _run(tmp_path, script)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert got["seen"] and set(got["pids"]) <= set(got["seen"]), got  # started on demand
+    assert got["healthy"] is False and got["died"] == "BrokenProcessPool" and got["broken"]
+    assert got["ended"] and all(code == -9 for code in got["ended"]), got  # SIGKILL, collected

@@ -39,6 +39,7 @@ from typing import Any
 from vdc.cli_support import Settings, option
 from vdc.errors import UserError
 from vdc.pool_workers import (
+    WorkerPool,
     _die_with_parent,
     _worker_parent,
     _workers_end_before_parent,
@@ -173,7 +174,7 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
         return client, None
     # our own cluster: loopback only (a Dask port runs pickled code as the user), processes
     # with one thread each (the models' Python loops hold the GIL)
-    # workers forked from the local pool's warm fork server (vdc.warm preloaded), as the
+    # workers forked from the local pool's warm fork server (vdc.warm_fork_server preloaded), as the
     # local pool's are
     import dask  # lazy: optional extra
 
@@ -301,9 +302,7 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
         reused = kept.take(key) if kept is not None else None
         pool = reused[0] if reused is not None else None
         if pool is None:
-            pool = cf.ProcessPoolExecutor(
-                workers, mp_context=ctx, initializer=_die_with_parent, initargs=initargs
-            )
+            pool = WorkerPool(workers, ctx, initializer=_die_with_parent, initargs=initargs)
         ok = False
         try:
             with _workers_end_before_parent(pool):
@@ -314,7 +313,7 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
             raise
         finally:
             # a pool whose worker died is broken for good: never kept
-            if ok and kept is not None and not getattr(pool, "_broken", False):
+            if ok and kept is not None and not pool.is_broken():
                 kept.keep(key, pool, None, lambda p=pool: _shut(p))
             else:
                 if kept is not None and kept.executor is pool:
