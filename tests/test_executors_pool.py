@@ -332,4 +332,6 @@ if __name__ == "__main__":
     got = json.loads(proc.stdout.strip().splitlines()[-1])
     assert got["seen"] and set(got["pids"]) <= set(got["seen"]), got  # started on demand
     assert got["healthy"] is False and got["died"] == "BrokenProcessPool" and got["broken"]
-    assert got["ended"] and all(code == -9 for code in got["ended"]), got  # SIGKILL, collected
+    # killed and collected: -9, or 255 where the pool's own thread read the exit status first
+    # (the standard library's forkserver process objects then report 255)
+    assert got["ended"] and all(code in (-9, 255) for code in got["ended"]), got
