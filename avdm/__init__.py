@@ -16,8 +16,9 @@ as polars does, must not be loaded there (``vdc/warm.py``).
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from avdm.lazy import lazy_face
 
 if TYPE_CHECKING:  # what the names are, for type checkers and IDEs
     from avdm.avdm_model import AVDM_OUTPUTS, Avdm, AvdmParams
@@ -54,14 +55,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    module = _API.get(name)
-    if module is None:
-        raise AttributeError(f"module 'avdm' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value  # once loaded, a plain attribute
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_API})
+__getattr__, __dir__ = lazy_face(__name__, _API)

@@ -1,7 +1,8 @@
 """The local pool's and a local Dask cluster's workers: forked warm (vdc's modules imported
 and the metric kernels loaded before the first task), one BLAS and one OpenCV thread each
 even when the script loaded NumPy first with the default threads; and a plain script that
-starts workers from its top level without the ``__main__`` guard ends in one line.
+starts workers from its top level without the ``__main__`` guard gets one error, before any
+worker starts.
 
 Each case runs as a real script in a child process with the BLAS variables removed from its
 environment (the suite sets OPENBLAS_NUM_THREADS=1 for itself, which would hide a missing
@@ -31,7 +32,8 @@ def worker_state(_k: int) -> dict:
     return {
         "blas": [i["num_threads"] for i in threadpoolctl.threadpool_info()],
         "opencv": cv2.getNumThreads(),
-        "warm": "vdc.warm" in sys.modules,
+        # the fork server's preload ran: the worker inherited what it imported
+        "warm": "vdc.warm_fork_server" in sys.modules and "av" in sys.modules,
         # a kernel whose compiled code is loaded has signatures before its first call here
         "kernels": len(fm.chosen_sums.signatures),
         "ppid": os.getppid(),
@@ -92,20 +94,43 @@ def test_the_fork_server_holds_one_thread_when_it_forks(tmp_path) -> None:
     """Forking copies one thread: what the server imported must have started none (a lock
     held by a thread that the child lacks would hang the child)."""
     script = """
-import multiprocessing.forkserver as fs
+import os
+from pathlib import Path
 from vdc.executors import pool_context
-from vdc.warm import threads_now
+
+def server_threads(path):  # the child's parent is the fork server
+    status = Path(f"/proc/{os.getppid()}/status").read_text()
+    Path(path).write_text(status.split("Threads:")[1].split()[0])
 
 if __name__ == "__main__":
-    child = pool_context().Process(target=threads_now)
+    child = pool_context().Process(target=server_threads, args=("threads.txt",))
     child.start()  # forked: the server has preloaded by now
     child.join()
-    pid = fs._forkserver._forkserver_pid
-    print(open(f"/proc/{pid}/status").read().split("Threads:")[1].split()[0])
+    print(Path("threads.txt").read_text())
 """
     proc = _run(tmp_path, script)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.split()[-1] == "1"
+
+
+def test_importing_warm_changes_nothing_and_walks_no_stack() -> None:
+    """``vdc.warm`` warms a fork server only when asked (its preload module calls it): its
+    import sets no environment variable and loads nothing heavy, and it does not look at the
+    call stack to tell where it runs."""
+    code = (
+        "import os, sys; before = dict(os.environ); import vdc.warm; "
+        "assert dict(os.environ) == before, set(os.environ) ^ set(before); "
+        "heavy = [m for m in ('numpy', 'cv2', 'av', 'numba') if m in sys.modules]; "
+        "assert not heavy, heavy"
+    )
+    env = {k: v for k, v in _env().items() if k not in BLAS_VARS}
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    source = (ROOT / "vdc" / "warm.py").read_text()
+    assert "_getframe" not in source and "f_back" not in source
+    from vdc.pool_workers import WARM_PRELOAD
+
+    assert WARM_PRELOAD == ["vdc.warm_fork_server"]  # a module whose import is the warm-up
 
 
 UNGUARDED = """
@@ -120,13 +145,47 @@ print("results", [o.result for o in out])
 
 
 @pytest.mark.parametrize("executor", ["local", pytest.param("dask", marks=pytest.mark.dask)])
-def test_a_plain_script_without_the_main_guard_is_one_line(tmp_path, executor) -> None:
+def test_a_plain_script_without_the_main_guard_gets_one_error_before_any_worker(
+    tmp_path, executor
+) -> None:
+    """A library call raises (it does not end the interpreter): one traceback, the script's
+    own, no worker's, ending in the one line that names the script's line and the guard."""
     proc = _run(tmp_path, UNGUARDED.format(executor=executor))
-    assert proc.returncode == 2
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1, proc.stderr
-    assert "script.py, line 7" in lines[0] and 'if __name__ == "__main__":' in lines[0]
+    assert proc.returncode == 1
+    assert proc.stderr.count("Traceback") == 1, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("vdc.executors.MissingMainGuard: script.py, line 7: "), last
+    assert 'if __name__ == "__main__":' in last
     assert "results" not in proc.stdout and "failed" not in proc.stderr
+
+
+def test_a_library_caller_catches_the_missing_guard_as_a_user_error(tmp_path) -> None:
+    script = UNGUARDED.format(executor="local").replace(
+        "\nout = run_tasks", "\nfrom vdc.errors import UserError\ntry:\n    out = run_tasks"
+    ).replace(
+        "\nprint(\"results\"", "\nexcept UserError as e:\n    print('caught', type(e).__name__, e)"
+        "\n    raise SystemExit(0)\nprint(\"results\""
+    )  # fmt: skip
+    proc = _run(tmp_path, script)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    assert proc.stdout.startswith("caught MissingMainGuard script.py, line 9: "), proc.stdout
+
+
+def test_a_command_line_prints_the_missing_guard_as_one_line_exit_2(tmp_path) -> None:
+    """A script that runs ``vdc-analyse``'s main from its top level: the command line prints
+    the error as one line and exits 2 (the unreadable input leaves no task, the check comes
+    first all the same)."""
+    script = (
+        "from analysis.cli import main\n"
+        "open('x.rrd', 'wb').write(b'not a recording')\n"
+        "raise SystemExit(main(['batch', 'x.rrd', '--out', 'o']))\n"
+    )
+    proc = _run(tmp_path, script)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr, proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1, proc.stderr  # the line before it is the command's plan
+    assert errors[0].startswith("vdc-analyse batch: error: script.py, line 3: "), errors
 
 
 def test_the_same_script_with_the_guard_runs(tmp_path) -> None:
@@ -240,3 +299,43 @@ if __name__ == "__main__":
     got = json.loads(proc.stdout.strip().splitlines()[-1])
     assert got["narrow"] == [[got["every"][0]]]
     assert got["wide"] == [got["every"], got["every"]]
+
+
+def test_a_pool_knows_its_workers_and_when_one_has_died(tmp_path) -> None:
+    """``WorkerPool`` finds its workers through the context it made them with (the standard
+    pool keeps them private): a dead worker marks it broken, and ``end_workers`` kills and
+    collects every one, as a SIGTERM to the caller does."""
+    script = """
+import json, os
+from vdc.executors import ExecutorSettings, open_executor
+from vdc.pool_workers import end_workers
+
+if __name__ == "__main__":
+    with open_executor(ExecutorSettings("local", 2), 2) as (pool, _):
+        pids = sorted(pool.submit(os.getpid).result() for _ in range(4))
+        seen = sorted(p.pid for p in pool.workers())
+        healthy = pool.is_broken()
+        try:
+            pool.submit(os._exit, 1).result()
+        except Exception as exc:
+            died = type(exc).__name__
+        broken = pool.is_broken()
+    with open_executor(ExecutorSettings("local", 2), 2) as (pool, _):
+        pool.submit(os.getpid).result()
+        end_workers(pool)
+        ended = [p.exitcode for p in pool.workers()]
+    print(json.dumps({"pids": pids, "seen": seen, "healthy": healthy, "died": died,
+                      "broken": broken, "ended": ended}))
+"""
+    proc = _run(tmp_path, script)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    # workers start on demand: the tasks ran on some of those the pool knows
+    assert got["seen"] and set(got["pids"]) <= set(got["seen"]), (
+        f"Python {sys.version.split()[0]}: ProcessPoolExecutor no longer starts its workers "
+        f"through its mp_context's Process (vdc.pool_workers.WorkerPool cannot see them): {got}"
+    )
+    assert got["healthy"] is False and got["died"] == "BrokenProcessPool" and got["broken"]
+    # killed and collected: -9, or 255 where the pool's own thread read the exit status first
+    # (the standard library's forkserver process objects then report 255)
+    assert got["ended"] and all(code in (-9, 255) for code in got["ended"]), got

@@ -77,3 +77,31 @@ def test_a_pool_worker_loads_pandas_only_when_asked(tmp_path) -> None:
     assert got["error"] is None
     assert got["here"] is False
     assert got["worker"] == {"before": False, "frame": "DataFrame", "null": True}
+
+
+def test_pyarrow_still_remembers_that_pandas_was_not_there(tmp_path) -> None:
+    """The one detail ``vdc.no_pandas`` rests on (pyarrow's pandas shim tries the import once
+    and remembers a failure, ``_PandasAPIShim._tried_importing_pandas``), checked through what
+    it does: after the asking, further conversions load no pandas, and an explicit use still
+    does. A new pyarrow that changes it fails here by name."""
+    script = (
+        "import sys, pyarrow as pa\n"
+        "from vdc.no_pandas import arrow_without_pandas\n"
+        "arrow_without_pandas()\n"
+        "pa.array([1]); pa.array(['a', None]); pa.table({'a': [1.5]})\n"
+        "after = 'pandas' in sys.modules\n"
+        "kind = type(pa.table({'a': [1]}).to_pandas()).__name__\n"
+        "print(pa.__version__, after, kind)\n"
+    )
+    proc = _run(tmp_path, "-c", script)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    version, after, kind = proc.stdout.split()
+    assert after == "False", (
+        f"pyarrow {version} imports pandas again after a failed look: its pandas shim no "
+        "longer remembers (_PandasAPIShim._tried_importing_pandas); vdc.no_pandas saves "
+        "nothing now (the plain path runs): drop it or follow the change"
+    )
+    assert kind == "DataFrame", (
+        f"pyarrow {version} no longer retries pandas on an explicit use after a failed look: "
+        "vdc.no_pandas would break to_pandas(); drop it"
+    )

@@ -27,11 +27,10 @@ The package also holds what capture and analysis agree on (neither imports the o
 
 from __future__ import annotations
 
-import importlib
 from importlib.metadata import version as _version
-from typing import Any
 
 from vdc.lazy import api_stub as _api_stub
+from vdc.lazy import lazy_face as _lazy_face
 
 # name -> module that defines it
 _API = {
@@ -111,21 +110,7 @@ _RENAMED = {"summarise": "summarise_batch"}
 _MODULES = {"catalog": "vdc.catalog"}
 
 
-def __getattr__(name: str) -> Any:
-    if name in _MODULES:
-        value = importlib.import_module(_MODULES[name])
-        globals()[name] = value
-        return value
-    module = _API.get(name)
-    if module is None:
-        raise AttributeError(f"module 'vdc' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), _RENAMED.get(name, name))
-    globals()[name] = value  # once loaded, a plain attribute
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_API, *_MODULES])
+__getattr__, __dir__ = _lazy_face(__name__, _API, _RENAMED, _MODULES)
 
 
 def _stub() -> str:

@@ -14,7 +14,7 @@
 Every worker, local or Dask, runs one OpenCV thread and one BLAS thread
 (:func:`one_thread_per_worker`). Starting workers runs a plain script again from the top in
 each of them: a script that calls a command at its top level without the
-``if __name__ == "__main__":`` guard ends with one line saying so (:func:`check_main_guard`).
+``if __name__ == "__main__":`` guard gets one error saying so (:func:`check_main_guard`).
 
 Tasks are module-level functions with small, picklable arguments (paths, not arrays) that
 write their own outputs and return a small dict. Both sides use
@@ -39,6 +39,7 @@ from typing import Any
 from vdc.cli_support import Settings, option
 from vdc.errors import UserError
 from vdc.pool_workers import (
+    WorkerPool,
     _die_with_parent,
     _worker_parent,
     _workers_end_before_parent,
@@ -173,7 +174,7 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
         return client, None
     # our own cluster: loopback only (a Dask port runs pickled code as the user), processes
     # with one thread each (the models' Python loops hold the GIL)
-    # workers forked from the local pool's warm fork server (vdc.warm preloaded), as the
+    # workers forked from the local pool's warm fork server (vdc.warm_fork_server preloaded), as the
     # local pool's are
     import dask  # lazy: optional extra
 
@@ -301,9 +302,7 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
         reused = kept.take(key) if kept is not None else None
         pool = reused[0] if reused is not None else None
         if pool is None:
-            pool = cf.ProcessPoolExecutor(
-                workers, mp_context=ctx, initializer=_die_with_parent, initargs=initargs
-            )
+            pool = WorkerPool(workers, ctx, initializer=_die_with_parent, initargs=initargs)
         ok = False
         try:
             with _workers_end_before_parent(pool):
@@ -314,7 +313,7 @@ def open_executor(settings: ExecutorSettings, n_tasks: int) -> Iterator[tuple[cf
             raise
         finally:
             # a pool whose worker died is broken for good: never kept
-            if ok and kept is not None and not getattr(pool, "_broken", False):
+            if ok and kept is not None and not pool.is_broken():
                 kept.keep(key, pool, None, lambda p=pool: _shut(p))
             else:
                 if kept is not None and kept.executor is pool:
@@ -413,25 +412,27 @@ def unguarded_main_line() -> tuple[str, int] | None:
     return None
 
 
+class MissingMainGuard(UserError):
+    """A plain script starts local workers from its top level, outside
+    ``if __name__ == "__main__":``; the message is one line naming the script and line."""
+
+
 def check_main_guard(settings: ExecutorSettings) -> None:
-    """End a plain script that starts local workers from its top level without
-    ``if __name__ == "__main__":`` with one line saying what to add, exit status 2, before
-    any worker starts (each would run the script again; see :func:`unguarded_main_line`).
-    An existing Dask cluster's workers do not run the script: no check then."""
+    """Raise :class:`MissingMainGuard` when a plain script starts local workers from its top
+    level without ``if __name__ == "__main__":``, before any worker starts (each would run the
+    script again; see :func:`unguarded_main_line`): a command line prints it as one line, exit
+    status 2. An existing Dask cluster's workers do not run the script: no check then."""
     if settings.scheduler:
         return
     where = unguarded_main_line()
     if where is None:
         return
     script, line = where
-    print(
+    raise MissingMainGuard(
         f"{Path(script).name}, line {line}: vdc runs its work in worker processes, which "
         "import this script again: put the script's top-level code under if __name__ == "
-        '"__main__": (see the examples in the docs)',
-        file=sys.stderr,
-        flush=True,
+        '"__main__": (see the examples in the docs)'
     )
-    raise SystemExit(2)
 
 
 def run_tasks(

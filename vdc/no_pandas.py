@@ -14,6 +14,15 @@ before any such use would lose pandas' missing-value conventions.
 
 Plain standard library until pyarrow loads: the console scripts call it before anything
 heavy.
+
+It rests on one detail pyarrow does not promise: its pandas shim tries the import once and
+remembers a failure (``_PandasAPIShim._tried_importing_pandas``, ``pandas-shim.pxi``, pyarrow
+26), while an explicit use tries again. vdc reads and sets none of its private attributes;
+only :func:`_ask_now` relies on that behaviour, and if a new pyarrow drops it, the plain path
+follows (pyarrow imports pandas on its first conversion, as without this module).
+``tests/test_no_pandas.py`` fails naming the pyarrow version if it changes. Measured (pyarrow
+26, Python 3.11): pyarrow's first list conversion costs 0.21-0.23 s of CPU without this
+module, 0.00 s with it.
 """
 
 from __future__ import annotations
@@ -34,7 +43,8 @@ class _NoPandas(importlib.abc.MetaPathFinder):
 
 
 def _ask_now(pa: ModuleType) -> None:
-    """pyarrow's first look for pandas, while pandas cannot load: it remembers the answer."""
+    """pyarrow's first look for pandas, while pandas cannot load: it remembers the answer
+    (the one place that relies on pyarrow's undocumented behaviour; see the module)."""
     if "pandas" in sys.modules:  # already imported by someone: nothing to save
         return
     blocker = _NoPandas()

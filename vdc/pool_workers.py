@@ -1,7 +1,8 @@
 """How a local pool's workers start and end (:mod:`vdc.executors` runs the tasks).
 
-* They fork from a warm ``forkserver`` (``vdc.warm`` preloaded), or start fresh (``spawn``)
-  where there is none (:func:`pool_context`).
+* They fork from a warm ``forkserver`` (its preload, ``vdc.warm_fork_server``, warms it), or
+  start fresh (``spawn``) where there is none (:func:`pool_context`), in a :class:`WorkerPool`,
+  which knows its workers.
 * Each is one core's worth of work: one OpenCV, BLAS and FFmpeg thread
   (:func:`one_thread_per_worker`), on the cores of the process that started the pool, with
   its environment, and no pandas for pyarrow's sake (:mod:`vdc.no_pandas`).
@@ -31,7 +32,7 @@ from vdc.no_pandas import arrow_without_pandas
 
 
 def _die_with_parent(
-    parent_pid: int,
+    parent_pid: int | None,
     threads: int = 1,
     pool_pid: int | None = None,
     environ: dict[str, str] | None = None,
@@ -46,9 +47,12 @@ def _die_with_parent(
     caller that narrowed or widened its cores since, as ``taskset`` or a benchmark does, had
     every worker on the old ones).
 
-    ``parent_pid`` is this worker's parent: the pool's process (``spawn``) or the fork server
-    (``pool_pid`` is then the pool's process). The fork server does not end before its
-    workers (they hold its liveness pipe), so a worker watches the pool's process itself.
+    ``parent_pid`` is this worker's parent: the pool's process (``spawn``), or None for the
+    fork server (``pool_pid`` is then the pool's process): the standard library names no
+    public way to ask the server's process id, so the worker takes its parent as it finds it
+    once PDEATHSIG is set; a server that ended before that is caught by the watch on the
+    pool's process. The fork server does not end before its workers (they hold its liveness
+    pipe), so a worker watches the pool's process itself.
 
     * Linux: the kernel sends SIGKILL when the parent dies (``PR_SET_PDEATHSIG``); the parent
       may already be gone by then, so that is checked once after asking;
@@ -72,6 +76,8 @@ def _die_with_parent(
             ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
         except (OSError, AttributeError):  # another libc: the watch thread still works
             pass
+    if parent_pid is None:
+        parent_pid = os.getppid()
     if os.getppid() != parent_pid:
         os._exit(1)
     pidfd = None
@@ -121,8 +127,9 @@ def one_thread_per_worker(threads: int = 1) -> None:
     workers than cores), which vdc's own pipelines may use (``vdc.pipeline.usable_threads``).
 
     The BLAS limit is set at run time (threadpoolctl), so it holds whenever NumPy was loaded:
-    in the fork server before (``vdc.warm`` sets the environment first), or in a worker that
-    imported it with the script it re-ran; it also holds for a BLAS loaded later."""
+    in the fork server before (``vdc.warm.warm_fork_server`` sets the environment first), or
+    in a worker that imported it with the script it re-ran; it also holds for a BLAS loaded
+    later."""
     os.environ[SINGLE_THREAD_ENV] = str(max(1, threads))
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"  # for what loads later, and the worker's own child processes
@@ -130,11 +137,53 @@ def one_thread_per_worker(threads: int = 1) -> None:
     threadpool_limits(1)  # BLAS and OpenMP runtimes already loaded
 
 
-def end_workers(pool: cf.ProcessPoolExecutor) -> None:
+class _Remembering:
+    """A multiprocessing context that remembers every process made with it (the rest is the
+    context's own): how a :class:`WorkerPool` knows its workers."""
+
+    def __init__(self, ctx: multiprocessing.context.BaseContext) -> None:
+        self.ctx = ctx
+        self.processes: list[multiprocessing.process.BaseProcess] = []
+
+    def Process(self, *args: Any, **kwargs: Any) -> multiprocessing.process.BaseProcess:
+        process = self.ctx.Process(*args, **kwargs)
+        self.processes.append(process)
+        return process
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.ctx, name)
+
+
+class WorkerPool(cf.ProcessPoolExecutor):
+    """The standard process pool, made through a context that remembers its workers: the
+    pool itself keeps them private (``_processes``), and a SIGTERM or an abandoned run must
+    end them (:func:`end_workers`)."""
+
+    def __init__(
+        self, max_workers: int, mp_context: multiprocessing.context.BaseContext, **kwargs: Any
+    ) -> None:
+        self.made = _Remembering(mp_context)
+        super().__init__(max_workers, mp_context=self.made, **kwargs)  # type: ignore[arg-type]
+
+    def workers(self) -> list[multiprocessing.process.BaseProcess]:
+        """Every worker this pool started (a finished one too)."""
+        return list(self.made.processes)
+
+    def is_broken(self) -> bool:
+        """Whether a worker has ended: the pool is then broken for good (it ends its other
+        workers and fails every pending task); vdc's pools never retire a worker."""
+        for p in self.workers():
+            with contextlib.suppress(ValueError):  # closed: it had ended
+                if not p.is_alive():
+                    return True
+        return False
+
+
+def end_workers(pool: WorkerPool) -> None:
     """Kill the pool's workers and collect each: then none runs and their files are closed.
     SIGKILL, as PDEATHSIG sends: a capture's own SIGTERM handler would finish a truncated run
     and mark it done; killed, it leaves its partial file for a re-run."""
-    procs = list((getattr(pool, "_processes", None) or {}).values())
+    procs = pool.workers()
     for p in procs:
         with contextlib.suppress(OSError, ValueError, AttributeError):
             p.kill()
@@ -144,7 +193,7 @@ def end_workers(pool: cf.ProcessPoolExecutor) -> None:
 
 
 @contextlib.contextmanager
-def _workers_end_before_parent(pool: cf.ProcessPoolExecutor) -> Iterator[None]:
+def _workers_end_before_parent(pool: WorkerPool) -> Iterator[None]:
     """While the block runs, SIGTERM first ends and collects the pool's workers, then ends
     this process by SIGTERM as before: PDEATHSIG alone let a worker on a busy machine hold its
     partial recording and lock after the parent's exit had been reported."""
@@ -172,36 +221,33 @@ def _workers_end_before_parent(pool: cf.ProcessPoolExecutor) -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-# what the fork server imports before it forks the first worker (the modules it lists)
-WARM_PRELOAD = ["vdc.warm"]
+# what the fork server imports before it forks the first worker: a module whose import warms
+# it (vdc.warm.warm_fork_server); the stdlib's fork server can only import its preload list
+WARM_PRELOAD = ["vdc.warm_fork_server"]
 
 
 def pool_context() -> multiprocessing.context.BaseContext:
-    """The local pool's start method: a warm ``forkserver`` (``vdc.warm`` preloaded, started
-    now so that it warms while the caller plans), or ``spawn`` where there is none.
+    """The local pool's start method: a warm ``forkserver`` (``vdc.warm_fork_server``
+    preloaded, started now so that it warms while the caller plans), or ``spawn`` where there
+    is none.
 
-    The fork server is one per process (the standard library's): vdc sets its preload list
-    only if it is not running yet. Started by someone else without ``vdc.warm``, its workers
-    start cold but still right (each imports what it needs)."""
+    The fork server is one per process (the standard library's): the preload list is set at
+    every call, and counts only when the server starts (a running one keeps its own). Started
+    by someone else without it, its workers start cold but still right (each imports what it
+    needs). Not the default "__main__": the server must not run the caller's script."""
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     ctx = multiprocessing.get_context("forkserver")
-    server = forkserver._forkserver  # the stdlib's one server: is it running yet?
-    if getattr(server, "_forkserver_pid", None) is None:
-        # not the default "__main__": the server must not run the caller's script
-        ctx.set_forkserver_preload(WARM_PRELOAD)
+    ctx.set_forkserver_preload(WARM_PRELOAD)
     forkserver.ensure_running()
     return ctx
 
 
-def _worker_parent(ctx: multiprocessing.context.BaseContext) -> int:
-    """The process a new worker's parent is: the fork server (which ends when this process
-    does, however it ends: its pipe from this process closes), or this process."""
-    if ctx.get_start_method() == "forkserver":
-        pid = getattr(forkserver._forkserver, "_forkserver_pid", None)
-        if pid is not None:
-            return pid
-    return os.getpid()
+def _worker_parent(ctx: multiprocessing.context.BaseContext) -> int | None:
+    """The process a new worker's parent is, for :func:`_die_with_parent`: this process
+    (``spawn``), or None: the fork server, which the worker finds itself (its pid is the
+    server's private detail)."""
+    return None if ctx.get_start_method() == "forkserver" else os.getpid()
 
 
 def caller_cores() -> frozenset[int] | None:

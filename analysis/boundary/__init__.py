@@ -3,8 +3,9 @@
 A boundary campaign reads, in order: ``command`` (settings, per-run and per-condition statistics,
 the boundary per scene, the result) → ``fit`` (the fitted success curve, its crossing and
 interval) → ``plot`` and ``report_tables`` (the figure and the report). ``footage`` is the
-labelled-footage mode. The arena campaign itself records simulated runs, so it lives with the
-experiments: ``analysis.experiments.boundary_campaign.boundary`` (``vdc.boundary``).
+labelled-footage mode, ``footage_predictors`` its per-frame predictor tables. The arena campaign
+itself records simulated runs, so it lives with the experiments:
+``analysis.experiments.boundary_campaign.boundary`` (``vdc.boundary``).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ if TYPE_CHECKING:
     from analysis.boundary.command import BoundaryResult, BoundarySettings
     from analysis.boundary.fit import fit_crossing
     from analysis.boundary.footage import footage_boundary
+    from analysis.boundary.footage_predictors import footage_predictor_tables
     from analysis.boundary.plot import plot_boundary
 
 # the public face: name -> the module that defines it (loaded on first use)
@@ -25,6 +27,7 @@ _FACE = {
     "BoundaryResult": "analysis.boundary.command",
     "fit_crossing": "analysis.boundary.fit",
     "footage_boundary": "analysis.boundary.footage",
+    "footage_predictor_tables": "analysis.boundary.footage_predictors",
     "plot_boundary": "analysis.boundary.plot",
 }
 __all__ = [
@@ -32,6 +35,7 @@ __all__ = [
     "BoundarySettings",
     "fit_crossing",
     "footage_boundary",
+    "footage_predictor_tables",
     "plot_boundary",
 ]
 __getattr__, __dir__ = lazy_face(__name__, _FACE)

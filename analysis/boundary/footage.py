@@ -61,12 +61,12 @@ from analysis.boundary.fit import (
     fit_section,
     with_fit,
 )
+from analysis.boundary.footage_predictors import footage_predictor_tables, scene_end
 from analysis.boundary.labels import read_labels
 from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.complexity.meter import METRICS
-from analysis.predictors.footage import footage_predictor_tables, scene_end
 from analysis.stats import mean_ci, share_ci
 from avdm.base import alert_frames, require_alert
 from avdm.registry import check_detector, make_model

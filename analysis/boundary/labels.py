@@ -10,7 +10,7 @@ from pathlib import Path
 
 import polars as pl
 
-from analysis.predictors.footage import scene_column
+from analysis.boundary.footage_predictors import scene_column
 from vdc.errors import UserError
 from vdc.sources import open_reader
 

@@ -38,6 +38,7 @@ import polars as pl
 
 from analysis.batch import PARTS, parse_shard, readable_part
 from analysis.complexity import figures
+from analysis.complexity.complexity_rrd import OUTPUT_MARKER, write_complexity_rrd
 from analysis.complexity.meter import (
     ANGULAR_METRICS,
     DEFAULT_METRICS,
@@ -57,7 +58,6 @@ from analysis.complexity.source_metrics import (
     part_path,
     rank_correlations,
 )
-from analysis.recordings.analysis_rrd import OUTPUT_MARKER, write_complexity_rrd
 from analysis.recordings.reader import Recording, RecordingError
 from analysis.recordings.recompute import DistinctRecordings
 from avdm.registry import require_angular_velocity

@@ -1,8 +1,9 @@
 """Which complexity measure predicts where a detector fails.
 
 Modules: ``statistics`` (AUROC, rank correlations, cross-validated thresholds; ``arena`` its
-arena table, ``verdicts`` the units and the verdicts' rules) → ``report``
-(the table, figure and page: ``PredictorResult``) ; ``footage`` (per frame, on labelled footage).
+arena table, ``verdicts`` the units and the verdicts' rules) → ``report`` (the table, figure
+and page: ``PredictorResult``). Per frame on labelled footage, footage mode computes them:
+``analysis.boundary.footage_predictors`` (``footage_predictor_tables``).
 The measures of an arena grid's profiling runs are taken while they are recorded:
 ``analysis.experiments.predictor_runs.predictors`` (``vdc.predictors``).
 """
@@ -14,7 +15,6 @@ from typing import TYPE_CHECKING
 from vdc.lazy import lazy_face
 
 if TYPE_CHECKING:
-    from analysis.predictors.footage import footage_predictor_tables
     from analysis.predictors.report import PredictorResult, plot_predictors, write_predictors
 
 # the public face: name -> the module that defines it (loaded on first use)
@@ -22,11 +22,9 @@ _FACE = {
     "PredictorResult": "analysis.predictors.report",
     "write_predictors": "analysis.predictors.report",
     "plot_predictors": "analysis.predictors.report",
-    "footage_predictor_tables": "analysis.predictors.footage",
 }
 __all__ = [
     "PredictorResult",
-    "footage_predictor_tables",
     "plot_predictors",
     "write_predictors",
 ]

@@ -44,7 +44,9 @@ with a ``failure`` column, ``clip_auroc_miss``, ``clip_auroc_early`` and
 ``clip_auroc_false_alarm`` score the failure modes apart (:data:`FAILURE_MODES`; their
 ``n_correct`` counts the correct clips of the class each is told from);
 ``frame_auroc_pooled`` (frames clustered by scene, or by clip without scenes) and
-``frame_auroc_within_clip`` (the mean of the clips' own; frames counted).
+``frame_auroc_within_clip`` (the mean of the clips' own; frames counted): frames where the
+detector alerts with no collision near against quiet frames
+(:func:`analysis.boundary.footage_predictors.frame_classes`).
 
 Both modes: ``paired_<statistic>_vs_<avdm>`` (the AVDM's statistic minus the measure's, same
 units), and ``cv_logloss`` / ``cv_logloss_gain_vs_si_p910+ti_p910`` (a ridge-logistic model of

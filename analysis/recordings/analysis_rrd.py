@@ -24,13 +24,11 @@ import polars as pl
 import rerun as rr
 import rerun.blueprint as rrb
 
-from analysis.complexity.source_metrics import metrics_present, normalised
 from analysis.recordings.segments import ProfileSegment, ProfileSettings, heat_map, histogram_over
 from avdm.base import primary_output_name
 from vdc.recording import (
     APP_ID,
     CAMERA,
-    COMPLEXITY_ROOT,
     FRAME_TIMELINE,
     MODEL_ROOT,
     TIME_TIMELINE,
@@ -188,36 +186,6 @@ def write_variants_rrd(
                     indexes=idx,
                     columns=rr.Scalars.columns(scalars=values[a : a + batch]),
                 )
-    rec.flush()
-    rec.disconnect()
-    return path
-
-
-OUTPUT_MARKER = "vdc_output"  # the property that marks a recording vdc derived from another
-
-
-def write_complexity_rrd(df: pl.DataFrame, recording_id: str, path: Path) -> Path:
-    """The normalised metrics under ``/complexity/<metric>`` with the source's recording id,
-    on its ``frame`` and ``time`` timelines (so it merges with the source in the viewer)."""
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
-    rec.save(str(path))
-    # an output, not a source: a folder scan that meets it skips it (plan_sources)
-    rec.send_property(OUTPUT_MARKER, rr.AnyValues(command="complexity", of=recording_id))
-
-    norm = normalised(df)
-    idx = [
-        rr.TimeColumn(FRAME_TIMELINE, sequence=df["frame"].to_numpy()),
-        rr.TimeColumn(
-            TIME_TIMELINE,
-            duration=np.rint(df["t_s"].to_numpy() * 1e9).astype("timedelta64[ns]"),
-        ),
-    ]
-    for m in metrics_present(df):
-        entity = f"{COMPLEXITY_ROOT}/{m}"
-        rec.log(entity, rr.SeriesLines(names=[f"{m} (normalised)"]), static=True)
-        rec.send_columns(entity, indexes=idx, columns=rr.Scalars.columns(scalars=norm[m]))
     rec.flush()
     rec.disconnect()
     return path

@@ -319,7 +319,7 @@ def test_frame_classes_leave_out_the_start_up_and_the_window() -> None:
     """A busy clip alerts from its third frame on: its only quiet frames are the start-up,
     where the AVDM is still rising from 0; with the start-up left out, no quiet frame is left
     to make a within-clip AUROC of 1 from that artefact."""
-    from analysis.predictors.footage import frame_classes
+    from analysis.boundary.footage_predictors import frame_classes
 
     frames = np.arange(100)
     alert = (frames >= 2).astype(float)

@@ -1,6 +1,7 @@
 """Footage mode's predictors (:mod:`analysis.predictors.statistics`): every measure per frame of
-every
-clip, beside the detector's alert at every parameter value.
+every clip, beside the detector's alert at every parameter value. Footage mode
+(:mod:`analysis.boundary.footage`) computes them, so they live with it: the predictors package
+holds the statistics and the report, and imports nothing of the boundary.
 
 The measures are those ``vdc-analyse complexity`` wrote for the clips
 (``OUT/complexity/complexity.parquet``: ``omega_dps`` is ``avdm-natural``) and the paper's
