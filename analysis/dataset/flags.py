@@ -20,7 +20,7 @@ from analysis.dataset.measure import MOTION_SPAN_FRAMES, lag_of, phase_shift
 # length, the idle head: the shorter of the image's and the state's, both must be still),
 # and the near end of the value's 95 % interval where it is an estimate (a shift, the lag,
 # the drift, a share of frames), so that no flag fires on a point estimate its interval does
-# not carry past the threshold. One row a flag, read into FLAGS below; docs/dataset.md says
+# not carry past the threshold. One row a flag, read into FLAGS below; docs/guides/dataset.md says
 # why each is where.
 _FLAG_TABLE = """
 frozen       frozen_longest_s   frozen_longest_s    0.2  s

@@ -63,7 +63,7 @@ class DatasetSettings(Settings):
     )
     thresholds: str = option(
         "",
-        "FLAG=VALUE,...: a flag's threshold in its unit (docs/dataset.md lists the defaults), "
+        "FLAG=VALUE,...: a flag's threshold in its unit (docs/guides/dataset.md lists the defaults), "
         "or FLAG=off to turn it off, e.g. lag=80,idle_tail=off",
     )
     moving_cameras: str = option(

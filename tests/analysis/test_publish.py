@@ -139,7 +139,7 @@ def test_a_dataset_given_as_its_own_out_keeps_every_entry(tmp_path: Path) -> Non
     (root / ".cache" / "huggingface").mkdir(parents=True)
     (root / ".cache" / "huggingface" / "download.lock").write_text("x")
     vdc_writes = {"episodes.parquet", "frames.parquet", "problems.parquet", "dataset.html",
-                  "recordings", "episode_results"}  # fmt: skip
+                  "recordings", "episode_results", "flagged_episodes.json"}  # fmt: skip
     before = snapshot(root, vdc_writes)
     for _ in range(2):  # the second run reads the dataset beside its own outputs
         proc = run_in_process("analysis", "dataset", str(root), "--out", str(root), "--jobs", "1")
