@@ -143,10 +143,10 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from vdc.executors import Feedback
 
     settings = settings_from_args(CampaignSettings, args)
-    total = len(settings.runs())
-    # disable=None: a bar on terminals, silence in pipes and CI logs
-    with progress_bar(total, "campaign", "run", args.quiet) as bar:
-        res = campaign(settings, args.out, Feedback(say, bar.update))
+    # counted on the heartbeat line (terminals, VDC_PROGRESS=1); the campaign expects the runs
+    # it records (not those already done)
+    with progress_bar(None, "campaign", "run", args.quiet) as bar:
+        res = campaign(settings, args.out, Feedback(say, bar.update, bar.expect))
     ran = len(res.outcomes) - len(res.failures)
     print(tasks_line(res, "runs", ran, "recorded"))
     if res.paths:

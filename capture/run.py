@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import signal
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -18,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from avdm.base import Model
 from avdm.true_time import TrueTimeModel
@@ -26,6 +24,7 @@ from capture.device import Batch, CaptureDevice
 from capture.live_view import spawn_viewer
 from capture.output import OutputClaim
 from capture.recorder import Recorder, RecordingWriteError
+from vdc.heartbeat import Count
 
 
 @dataclasses.dataclass
@@ -254,14 +253,8 @@ def run_capture(
     events: dict[str, int] = {}
     reason = "error"
     prev_t: float | None = None
-    bar = tqdm(
-        total=total_frames,
-        unit="frame",
-        disable=not progress or None,
-        file=sys.stderr,
-        desc="capture",
-        leave=False,
-    )
+    # frames counted on the command's heartbeat line (vdc.heartbeat), if it has one
+    bar = Count(total_frames, "capture", "frame", quiet=not progress)
     try:
         with stop_on_signals() as stop:
             device.connect()

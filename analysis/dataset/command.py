@@ -147,6 +147,8 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         (k, (v, settings, ds.rate(v.camera), out)) for k, v in by_key.items() if k not in results
     ]
 
+    feedback.expect(len(tasks))
+
     def done(outcome: Any) -> None:
         feedback.progress(1)
         if outcome.error is None:

@@ -133,6 +133,7 @@ def _record_all(
         row = finished_row(it, kind, measure_every)
         if row is not None:
             finished[it.key] = row
+            feedback.expect(1)  # counted done at once; run_tasks_or_raise expects the rest
             feedback.progress(1)
             continue
         task = (it.key, it.settings, str(it.path), kind, false_alarm_m, measure_every)

@@ -180,6 +180,7 @@ def looming_footage(
     feedback.log(
         f"looming-footage: {s.clips} clips of {n} frames ({s.width_px}x{s.height_px}) into {out}"
     )
+    feedback.expect(s.clips)
     for k in range(s.clips):
         c = draw_conditions(s, k)
         collision = c["miss_radii"] == 0.0

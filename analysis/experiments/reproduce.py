@@ -53,7 +53,8 @@ from analysis.recordings.reader import Recording
 from analysis.recordings.recompute import SummarySettings, build_tables, summary_rows
 from analysis.recordings.segments import ProfileSettings, segment_summary, segments_from_tables
 from capture.sim import SimSettings
-from vdc.executors import one_pool
+from vdc.executors import QUIET, Feedback, one_pool
+from vdc.heartbeat import Count
 from vdc.parquet_io import WroteFiles, write_parquet
 
 
@@ -106,12 +107,14 @@ def reproduce(
     out: str | Path = "results/reproduce",
     *,
     log: Callable[[str], None] | None = None,
+    feedback: Feedback = QUIET,
 ) -> ReproduceResult:
     """``vdc-analyse reproduce``: run every step into ``out`` (reusing finished recordings)
-    and write the claim-by-claim report; ``log`` gets one line per step."""
+    and write the claim-by-claim report; ``feedback`` (or just ``log``) gets one line per
+    step and counts the simulated runs (``vdc.Feedback.printing()`` prints them)."""
     t0 = time.perf_counter()
     out = Path(out)
-    log = log or (lambda _m: None)
+    log = log or feedback.log
     out.mkdir(parents=True, exist_ok=True)
     rec_dir = out / "recordings"
     phases = study_phases(plan.detector, plan.adjusted)
@@ -121,11 +124,13 @@ def reproduce(
     )
     items = profile_items(plan, rec_dir / "profiling")
     items += phase_items(phases, plan.collision_minutes, plan.seed_list, rec_dir / "collision")
-    paths = run_captures(items, plan, log)
+    paths = run_captures(items, plan, log, feedback)
 
     log("SF-TF sweep")
     cfg = SweepConfig(duration_s=plan.sweep_duration_s)
-    df = run_sweep("avdm", paper_cells(), cfg)
+    cells = paper_cells()
+    with Count(len(cells), "SF-TF sweep", "cell") as count:  # on the heartbeat, if one runs
+        df = run_sweep("avdm", cells, cfg, progress=count.update)
     meta = {"model": "avdm", "stimulus": dataclasses.asdict(cfg)}
     write_parquet(df, out / "sweep" / "sweep.parquet", meta)
     write_parquet(monotonicity(df), out / "sweep" / "monotonicity.parquet", meta)
@@ -135,7 +140,8 @@ def reproduce(
 
     log("open-loop approach")
     acfg = ApproachConfig(repeats=plan.approach_repeats, seed=plan.seed)
-    runs, summary = run_approach(acfg)
+    with Count(len(acfg.tfs_hz) * acfg.repeats, "approach", "approach") as count:
+        runs, summary = run_approach(acfg, progress=count.update)
     write_parquet(runs, out / "approach" / "approach.parquet", dataclasses.asdict(acfg))
     write_parquet(summary, out / "approach" / "approach_summary.parquet", dataclasses.asdict(acfg))
     plot_approach(runs, summary, out / "approach" / "approach.png")
@@ -143,7 +149,8 @@ def reproduce(
     log("profiling")
     prof_paths = [paths[k] for k, _, _ in profile_items(plan, rec_dir / "profiling")]
     settings = SummarySettings()
-    tables, tmeta = build_tables(prof_paths, PROFILE_MODELS, settings)
+    with Count(None, "profiling", "frame") as count:
+        tables, tmeta = build_tables(prof_paths, PROFILE_MODELS, settings, count.update)
     tables["summary"] = with_motion_summaries(tables, settings)
     for name, t in tables.items():
         write_parquet(t, out / "profiling" / f"{name}.parquet", tmeta)
