@@ -171,12 +171,12 @@ def add_output_options(p: argparse.ArgumentParser, default: str) -> None:
         metavar="URL",
         help="also stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (no heartbeat)")
 
 
 def _campaign_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="results/campaign", help="output folder (default: %(default)s)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (no heartbeat)")
 
 
 # the sub-commands: each one's flags are its settings dataclass's fields (vdc.cli_support)

@@ -150,6 +150,8 @@ class Heartbeat:
         busy = [c for c in self.counters if (c.done < c.total if c.total else c.done > 0)]
         counted = f": {busy[-1].line()}" if busy else ""
         stage = self.stage.rstrip(".:;")
+        if len(stage) > 100:  # a long log line, shortened: the count after it is the news
+            stage = stage[:99].rstrip() + "…"
         return f"{self.what}: {duration(now - self.t0)} in; {stage}{counted}."
 
     def _print(self, line: str) -> None:
@@ -184,6 +186,16 @@ class Heartbeat:
 
 # the heartbeat of the command running in this process (set inside a Heartbeat's block)
 _current: Heartbeat | None = None
+
+
+def _forget_in_child() -> None:
+    """A forked worker has no ticker thread, and its copy of the lock may be held: its lines
+    go straight to stderr."""
+    global _current
+    _current = None
+
+
+os.register_at_fork(after_in_child=_forget_in_child)
 
 
 def current() -> Heartbeat | None:
