@@ -109,12 +109,8 @@ def _campaign(entry: str, unit: str, *inputs: str) -> Callable[[argparse.Namespa
         fn = getattr(importlib.import_module(module), name)
         with progress_bar(None, name, unit) as bar:
             settings = settings_from_args(load_settings_class(args.settings_target), args)
-            res = fn(
-                *map(args.__getattribute__, inputs),
-                settings,
-                args.out,
-                Feedback(say, bar.update, bar.expect),
-            )
+            feedback = Feedback(say, bar.update, bar.expect)
+            res = fn(*map(args.__getattribute__, inputs), settings, args.out, feedback)
         print("\n".join(res.report()))
         return getattr(res, "exit_status", 0)
 

@@ -94,7 +94,7 @@ class CaptureOptions:
     force: bool = False  # replace an existing output file
     live_url: str | None = None  # also stream to the viewer at this URL
     spawn: bool = False  # also stream to a new viewer
-    progress: bool = False  # a progress bar on stderr
+    progress: bool = False  # the frames counted on the heartbeat line (vdc.heartbeat), if one runs
     log: Callable[[str], None] | None = None  # gets one line on what is recorded, before the run
 
     def output_path(self, out: str | Path | None, recording_id: str) -> Path:

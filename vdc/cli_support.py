@@ -184,7 +184,7 @@ class OneLineParser(argparse.ArgumentParser):
 def say(message: str) -> None:
     """A line on stderr, at once (a command's log: progress notes beside its stdout results);
     through the command's heartbeat when it has one (:mod:`vdc.heartbeat`)."""
-    heartbeat.say(message)
+    heartbeat.emit(message)
 
 
 def progress_bar(total: int | None, desc: str, unit: str = "cell", quiet: bool = False) -> Any:

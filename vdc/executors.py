@@ -38,6 +38,7 @@ from typing import Any
 
 from vdc.cli_support import Settings, option
 from vdc.errors import UserError
+from vdc.heartbeat import EVERY_S, Heartbeat
 from vdc.pool_workers import (
     _die_with_parent,
     _worker_parent,
@@ -155,10 +156,9 @@ class Feedback:
             with vdc.Feedback.printing("boundary") as feedback:
                 vdc.boundary(settings, "results/boundary", feedback)
         """
-        from vdc.heartbeat import EVERY_S, Heartbeat
-
         with Heartbeat(what, every_s or EVERY_S) as hb:
-            yield hb.feedback(unit)
+            count = hb.counter(what, unit)
+            yield Feedback(hb.log, count.update, count.expect)
 
 
 QUIET = Feedback()

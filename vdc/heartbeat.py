@@ -101,8 +101,8 @@ class Counter:
 class Heartbeat:
     """The lines of one command on ``stream`` (default stderr), and a heartbeat line when
     nothing was printed for ``every_s`` seconds. Use it as a context manager (the ticker
-    thread runs inside the block); :meth:`feedback` is the :class:`vdc.Feedback` that
-    reports to it."""
+    thread runs inside the block); :meth:`vdc.Feedback.printing` gives a Feedback that
+    reports to one."""
 
     def __init__(self, what: str, every_s: float = EVERY_S, stream: TextIO | None = None) -> None:
         self.what, self.every_s, self.stream = what, every_s, stream
@@ -132,14 +132,6 @@ class Heartbeat:
     def drop(self, c: Counter) -> None:
         with self.lock, contextlib.suppress(ValueError):
             self.counters.remove(c)
-
-    def feedback(self, unit: str = "run") -> Any:
-        """A :class:`vdc.Feedback` whose ``log`` prints here and whose ``progress`` and
-        ``expect`` count ``unit``s."""
-        from vdc.executors import Feedback  # vdc.executors imports this module
-
-        c = self.counter(self.what, unit)
-        return Feedback(self.log, c.update, c.expect)
 
     # -- the ticker
     def tick_line(self) -> str:
@@ -202,7 +194,7 @@ def current() -> Heartbeat | None:
     return _current
 
 
-def say(line: str) -> None:
+def emit(line: str) -> None:
     """A line on stderr at once; through the running heartbeat when there is one (it then
     knows what the command is doing)."""
     hb = _current
