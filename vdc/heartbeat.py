@@ -119,9 +119,9 @@ class Heartbeat:
         """Print ``line`` (a line of the command's log) and remember it as what it is doing."""
         with self.lock:
             self._print(line)
-            stripped = line.strip()
-            if stripped:
-                self.stage = stripped
+            # an indented line is a detail of the stage (a run finished), not a new stage
+            if line.strip() and not line[:1].isspace():
+                self.stage = line.strip()
 
     def counter(self, desc: str, unit: str, total: int | None = None) -> Counter:
         c = Counter(desc, unit, total)
