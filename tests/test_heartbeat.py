@@ -83,3 +83,17 @@ def test_a_library_call_prints_when_asked_and_is_quiet_by_default(tmp_path, capf
     assert err[0].startswith("looming-footage: 4 clips"), err
     beats = [line for line in err if line.startswith("  ... looming: ")]
     assert any(" of 4 clips done" in b for b in beats), err
+
+
+def test_a_count_reads_as_english() -> None:
+    from vdc.heartbeat import Counter, duration, plural
+
+    assert [plural("run", 2), plural("clip", 1), plural("stimulus", 60)] == [
+        "runs",
+        "clip",
+        "stimuli",
+    ]
+    assert [duration(5), duration(75), duration(3700)] == ["5 s", "1 min 15 s", "1 h 1 min"]
+    c = Counter("sweep", "cell", None)
+    c.expect(10)
+    assert c.line() == "0 of 10 cells done, no estimate before the first cell ends"

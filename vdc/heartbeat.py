@@ -55,8 +55,16 @@ def duration(seconds: float) -> str:
     return f"{s // 3600} h {s % 3600 // 60} min"
 
 
+IRREGULAR = {"stimulus": "stimuli"}
+
+
 def plural(noun: str, n: int) -> str:
-    return noun if n == 1 else noun + ("es" if noun.endswith(("s", "sh", "ch")) else "s")
+    """``run`` → ``runs``, ``stimulus`` → ``stimuli``, unless there is one."""
+    if n == 1:
+        return noun
+    if noun in IRREGULAR:
+        return IRREGULAR[noun]
+    return noun + ("es" if noun.endswith(("s", "sh", "ch")) else "s")
 
 
 class Counter:
