@@ -125,8 +125,8 @@ def cmd_complexity(args: argparse.Namespace) -> int:
     sources = expand_sources(args.sources, _notice)
     n = len(sources)
     with (
-        progress_bar(None, "complexity", "frame") as frames,
-        progress_bar(n, "clips", "clip", quiet=n == 1) as clips,
+        progress_bar(None, "measuring", "frame") as frames,
+        progress_bar(n, "measuring", "clip", quiet=n == 1) as clips,
     ):
         res = complexity(
             sources, settings, args.out, progress=frames.update,

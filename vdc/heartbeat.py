@@ -149,7 +149,8 @@ class Heartbeat:
         # the newest stage still counting (a finished one's "12 of 12" says nothing now)
         busy = [c for c in self.counters if (c.done < c.total if c.total else c.done > 0)]
         counted = f": {busy[-1].line()}" if busy else ""
-        stage = self.stage.rstrip(".:;")
+        # before its first line, a command is what it counts (measuring, the sweep, ...)
+        stage = (busy[-1].desc if busy and self.stage == "starting" else self.stage).rstrip(".:;")
         if len(stage) > 100:  # a long log line, shortened: the count after it is the news
             stage = stage[:99].rstrip() + "…"
         return f"{self.what}: {duration(now - self.t0)} in; {stage}{counted}."
