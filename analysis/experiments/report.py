@@ -6,6 +6,7 @@ from __future__ import annotations
 import base64
 import html
 import math
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -351,7 +352,8 @@ def write_report(
         f"<h2>{html.escape(name)}</h2>{_md_html(lines)}" for name, lines in sections[:4]
     )
     method = "".join(f"<li>{html.escape(c.measured)}</li>" for c in claims)
-    warn = f"<p class='provisional'>{html.escape(banner)}</p>" if banner else ""
+    code = re.sub(r"`([^`]+)`", r"<code>\1</code>", html.escape(banner))  # Markdown's code
+    warn = f"<p class='provisional'>{code}</p>" if banner else ""
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>vdc reproduction</title>
 <style>body{{font-family:sans-serif;max-width:1200px;margin:2em auto}}
 table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px;vertical-align:top}}
