@@ -95,7 +95,7 @@ def run_captures(
             todo.append((key, (key, settings, str(out))))
     if not todo:
         return paths
-    log(f"recording {len(todo)} run(s) on {executor.where()}")
+    log(f"recording {len(todo)} run(s) on {executor.where()}.")
     finished = 0
     feedback.expect(len(todo))
 

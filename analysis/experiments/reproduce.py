@@ -119,14 +119,14 @@ def reproduce(
     rec_dir = out / "recordings"
     phases = study_phases(plan.detector, plan.adjusted)
     log(
-        f"recording {len(PROFILE_CONDITIONS)} profiling conditions and {len(phases)} collision "
-        f"phases x {plan.seeds} seeds ({plan.where()})"
+        f"Stage 1 of 6: recording {len(PROFILE_CONDITIONS)} profiling conditions and "
+        f"{len(phases)} collision phases x {plan.seeds} seeds ({plan.where()})."
     )
     items = profile_items(plan, rec_dir / "profiling")
     items += phase_items(phases, plan.collision_minutes, plan.seed_list, rec_dir / "collision")
     paths = run_captures(items, plan, log, feedback)
 
-    log("SF-TF sweep")
+    log("Stage 2 of 6: the SF-TF sweep (Fig. 3).")
     cfg = SweepConfig(duration_s=plan.sweep_duration_s)
     cells = paper_cells()
     with Count(len(cells), "SF-TF sweep", "cell") as count:  # on the heartbeat, if one runs
@@ -138,7 +138,7 @@ def reproduce(
         df, out / "sweep" / "sweep.png", cfg, "avdm on drifting sine gratings, 100x100 px, 300 Hz"
     )
 
-    log("open-loop approach")
+    log("Stage 3 of 6: the open-loop approach (Fig. 4).")
     acfg = ApproachConfig(repeats=plan.approach_repeats, seed=plan.seed)
     with Count(len(acfg.tfs_hz) * acfg.repeats, "approach", "approach") as count:
         runs, summary = run_approach(acfg, progress=count.update)
@@ -146,7 +146,7 @@ def reproduce(
     write_parquet(summary, out / "approach" / "approach_summary.parquet", dataclasses.asdict(acfg))
     plot_approach(runs, summary, out / "approach" / "approach.png")
 
-    log("profiling")
+    log("Stage 4 of 6: profiling tables and figures (Figs. 6-7).")
     prof_paths = [paths[k] for k, _, _ in profile_items(plan, rec_dir / "profiling")]
     settings = SummarySettings()
     with Count(None, "profiling", "frame") as count:
@@ -174,11 +174,11 @@ def reproduce(
         tmeta,
     )
 
-    log("collision study")
+    log("Stage 5 of 6: the collision study (Fig. 8).")
     col_paths = [str(p) for k, p in paths.items() if k.startswith("tf")]  # phase keys
     collision(col_paths, CollisionSettings(), out / "collision")
 
-    log("report")
+    log("Stage 6 of 6: the claims and the report.")
     claims = evaluate_claims(out)
     write_parquet(
         claims_frame(claims),
