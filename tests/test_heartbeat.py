@@ -97,3 +97,12 @@ def test_a_count_reads_as_english() -> None:
     c = Counter("sweep", "cell", None)
     c.expect(10)
     assert c.line() == "0 of 10 cells done, no estimate before the first cell ends"
+
+
+def test_a_command_that_waits_for_the_user_has_no_heartbeat() -> None:
+    """A catalog server or a robot emulator waits for hours by design: a line every 4 s would
+    bury the one that matters (its URL, its device)."""
+    from vdc.heartbeat import waits
+
+    assert waits(["catalog", "serve", "results"]) and waits(["emulate-robot", "--link", "x"])
+    assert not waits(["catalog", "query", "results"]) and not waits(["boundary"])

@@ -557,7 +557,13 @@ def run_command_line(
     quiet = bool(getattr(args, "quiet", False))
     # never silent: on a terminal (or VDC_PROGRESS=1) a line at least every few seconds
     # (one the console script started, vdc.launch, is kept)
-    fresh = heartbeat.wanted() and not quiet and heartbeat.current() is None
+    words = [args.command, str(getattr(args, "action", ""))]
+    fresh = (
+        heartbeat.wanted()
+        and not quiet
+        and heartbeat.current() is None
+        and not heartbeat.waits(words)
+    )
     beat = heartbeat.Heartbeat(where) if fresh else contextlib.nullcontext()
     try:
         # a model built for a new camera fits its calibration first: say so, not a silent minute

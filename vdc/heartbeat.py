@@ -23,10 +23,10 @@ import time
 from typing import Any, TextIO
 
 # A line at most 4 s after the last: the promise is one at least every 10 s, and the 6 s
-# left is margin for a loaded machine (the ticker thread waits for a core and for the GIL
-# that the main thread's model loops hand over every 5 ms; at a load of 14 on 2 cores we
-# measured waits well under a second). Frequent enough that a person sees it move, rare
-# enough that a 4-minute run prints about 60 lines.
+# left is margin for a loaded machine (the ticker thread waits for a core and for the GIL,
+# which Python hands between threads every 5 ms; at a load of 11 on 2 cores the lines of a
+# quick reproduction came 4.0-4.6 s apart, the ticker looking every 0.5 s). Frequent enough
+# that a person sees it move, rare enough that a 4-minute run prints about 60 lines.
 EVERY_S = 4.0
 
 ENV = "VDC_PROGRESS"  # "1": heartbeat lines on stderr even when it is not a terminal
@@ -43,6 +43,15 @@ def wanted(stream: TextIO | None = None) -> bool:
         return bool(stream.isatty())
     except (AttributeError, ValueError):
         return False
+
+
+# commands that wait for the user (a server, a robot emulator): no heartbeat, however long
+WAITING = (("catalog", "serve"), ("emulate-robot",))
+
+
+def waits(words: list[str]) -> bool:
+    """Whether a command line's words (after the program) start a command that waits."""
+    return any(tuple(words[: len(w)]) == w for w in WAITING)
 
 
 def duration(seconds: float) -> str:

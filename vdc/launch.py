@@ -29,7 +29,7 @@ def launch(prog: str, module: str) -> int:
     # from the first second (vdc.cli_support.run_command_line keeps this one)
     beat = (
         heartbeat.Heartbeat(command)
-        if heartbeat.wanted() and "--quiet" not in argv
+        if heartbeat.wanted() and "--quiet" not in argv and not heartbeat.waits(argv)
         else contextlib.nullcontext()
     )
     try:
