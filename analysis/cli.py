@@ -109,9 +109,8 @@ def _campaign(entry: str, unit: str, *inputs: str) -> Callable[[argparse.Namespa
         fn = getattr(importlib.import_module(module), name)
         with progress_bar(None, name, unit) as bar:
             settings = settings_from_args(load_settings_class(args.settings_target), args)
-            res = fn(
-                *map(args.__getattribute__, inputs), settings, args.out, Feedback(say, bar.update)
-            )
+            feedback = Feedback(say, bar.update, bar.expect)
+            res = fn(*map(args.__getattribute__, inputs), settings, args.out, feedback)
         print("\n".join(res.report()))
         return getattr(res, "exit_status", 0)
 
@@ -126,8 +125,8 @@ def cmd_complexity(args: argparse.Namespace) -> int:
     sources = expand_sources(args.sources, _notice)
     n = len(sources)
     with (
-        progress_bar(None, "complexity", "frame") as frames,
-        progress_bar(n, "clips", "clip", quiet=n == 1) as clips,
+        progress_bar(None, "measuring", "frame") as frames,
+        progress_bar(n, "measuring", "clip", quiet=n == 1) as clips,
     ):
         res = complexity(
             sources, settings, args.out, progress=frames.update,
@@ -165,7 +164,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from analysis.experiments.reproduce import reproduce
 
     plan = ReproduceSettings.make(args.quick, **flag_values(ReproduceSettings, args))
-    res = reproduce(plan, args.out, log=say)
+    with progress_bar(None, "reproduce", "run") as bar:
+        res = reproduce(plan, args.out, feedback=Feedback(say, bar.update, bar.expect))
     for c in res.claims:
         print(f"[{c.verdict:^13}] {c.claim}")
     print(f"report: {res.files.report_md} and {res.files.report_html} ({res.elapsed_s:.0f} s)")

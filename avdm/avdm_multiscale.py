@@ -391,8 +391,8 @@ class AvdmMultiScale(FrameStream):
         p = self.params
         if (h, w) != (p.height_px, p.width_px):
             raise ParameterError(
-                f"frames of {h}x{w} px (HxW) but this avdm-natural is calibrated for "
-                f"{p.height_px}x{p.width_px}: build it for the frames' raster, e.g. "
+                f"frames of {w}x{h} px (WxH) but this avdm-natural is calibrated for "
+                f"{p.width_px}x{p.height_px}: build it for the frames' raster, e.g. "
                 "make_model(spec, **vdc.recording.camera_model_context(W, H, fps, fov))"
             )
         self._geo = scale_geometry(p, h, w)

@@ -133,7 +133,7 @@ def check_frames(frames: np.ndarray, *, min_h: int = 1, min_w: int = 2) -> np.nd
         raise ParameterError(f"frames must not be empty, got shape {arr.shape}")
     if h < min_h or w < min_w:
         raise ParameterError(
-            f"frames of {h}x{w} px (HxW) are too small: need at least {min_h}x{min_w}"
+            f"frames of {w}x{h} px (WxH) are too small: need at least {min_w}x{min_h}"
         )
     if arr.dtype == np.uint8:
         return np.ascontiguousarray(arr)
@@ -186,7 +186,8 @@ class FrameStream:
             self._shape, self._dtype = (h, w), frames.dtype
         elif (h, w) != self._shape:
             raise ParameterError(
-                f"frame shape changed from {self._shape} to {(h, w)} (HxW); call reset() first"
+                f"frame shape changed from {self._shape[1]}x{self._shape[0]} to {w}x{h} px (WxH); "
+                "call reset() first"
             )
         elif (frames.dtype == np.uint8) != (self._dtype == np.uint8):
             raise ParameterError(

@@ -55,9 +55,9 @@ class FitNote:
     cache_file: str = ""
 
     def camera(self) -> str:
-        """``33 Hz, 0.7071 deg/px, 72x99 px`` (H x W)."""
+        """``33 Hz, 0.7071 deg/px, 99x72 px`` (W x H, as every size vdc prints)."""
         h, w = self.size_hw
-        return f"{self.fps:g} Hz, {self.deg_per_px:.4g} deg/px, {h}x{w} px"
+        return f"{self.fps:g} Hz, {self.deg_per_px:.4g} deg/px, {w}x{h} px"
 
 
 _REPORT: contextvars.ContextVar[Callable[[FitNote], None] | None] = contextvars.ContextVar(

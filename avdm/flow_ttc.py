@@ -166,7 +166,8 @@ class FlowTtc:
         prev = self._prev
         if prev is not None and prev.shape != cur.shape:
             raise ParameterError(
-                f"frame shape changed from {prev.shape} to {cur.shape} (HxW); call reset() first"
+                f"frame shape changed from {prev.shape[1]}x{prev.shape[0]} to "
+                f"{cur.shape[1]}x{cur.shape[0]} px (WxH); call reset() first"
             )
         if prev is not None and is_u8 != self._is_u8:
             raise ParameterError("frame dtype changed between uint8 and float; call reset() first")

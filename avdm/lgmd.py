@@ -336,7 +336,8 @@ class _LgmdBase:
             self._is_u8 = is_u8
         elif (h, w) != self._shape:
             raise ParameterError(
-                f"frame shape changed from {self._shape} to {(h, w)} (HxW); call reset() first"
+                f"frame shape changed from {self._shape[1]}x{self._shape[0]} to {w}x{h} px (WxH); "
+                "call reset() first"
             )
         elif is_u8 != self._is_u8:
             raise ParameterError("frame dtype changed between uint8 and float; call reset() first")
@@ -469,7 +470,7 @@ class LgmdColias(_LgmdBase):
         b = self.params.border
         if h <= 2 * b or w <= 2 * b:
             raise ParameterError(
-                f"frames of {h}x{w} px (HxW) leave nothing inside the "
+                f"frames of {w}x{h} px (WxH) leave nothing inside the "
                 f"lgmd-colias border={b}: use larger frames or a smaller border"
             )
         return super()._advance(frames)

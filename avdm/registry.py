@@ -382,13 +382,13 @@ def check_detector(
         first = str(exc).splitlines()[0] if str(exc) else ""
         why = first if isinstance(exc, ValueError) else f"{type(exc).__name__}: {first}"
         raise ParameterError(
-            f"{what} {model.name!r} cannot run on a {h}x{w} frame (HxW): {why}"
+            f"{what} {model.name!r} cannot run on a {w}x{h} frame (WxH): {why}"
         ) from None
     names = [o.name for o in model.outputs] if not alert else ["alert"]
     lacking = [n for n in names if not isinstance(out, Mapping) or n not in out]
     if lacking and not alert:
         raise ParameterError(
-            f"model {model.name!r}: step() on a {h}x{w} frame (HxW) returned no "
+            f"model {model.name!r}: step() on a {w}x{h} frame (WxH) returned no "
             f"{', '.join(lacking)} (it declares {', '.join(names)})"
         )
     if not alert:
@@ -399,7 +399,7 @@ def check_detector(
     )
     if not finite:
         raise ParameterError(
-            f"detector {model.name!r} returned alert={value!r} on a {h}x{w} frame (HxW): it "
+            f"detector {model.name!r} returned alert={value!r} on a {w}x{h} frame (WxH): it "
             "must be a finite number (1 = collision ahead, 0 = not) or a bool"
         )
     return model

@@ -251,6 +251,7 @@ def campaign(
         f"{settings.where()}"
     )
     (out / RECORDINGS).mkdir(parents=True, exist_ok=True)
+    feedback.expect(len(todo))
 
     def done(outcome: TaskOutcome) -> None:
         if outcome.error is not None:

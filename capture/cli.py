@@ -143,10 +143,10 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from vdc.executors import Feedback
 
     settings = settings_from_args(CampaignSettings, args)
-    total = len(settings.runs())
-    # disable=None: a bar on terminals, silence in pipes and CI logs
-    with progress_bar(total, "campaign", "run", args.quiet) as bar:
-        res = campaign(settings, args.out, Feedback(say, bar.update))
+    # counted on the heartbeat line (terminals, VDC_PROGRESS=1); the campaign expects the runs
+    # it records (not those already done)
+    with progress_bar(None, "campaign", "run", args.quiet) as bar:
+        res = campaign(settings, args.out, Feedback(say, bar.update, bar.expect))
     ran = len(res.outcomes) - len(res.failures)
     print(tasks_line(res, "runs", ran, "recorded"))
     if res.paths:
@@ -171,12 +171,12 @@ def add_output_options(p: argparse.ArgumentParser, default: str) -> None:
         metavar="URL",
         help="also stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (no heartbeat)")
 
 
 def _campaign_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="results/campaign", help="output folder (default: %(default)s)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (no heartbeat)")
 
 
 # the sub-commands: each one's flags are its settings dataclass's fields (vdc.cli_support)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import signal
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -18,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from avdm.base import Model
 from avdm.errors import PluginError
@@ -27,6 +25,7 @@ from capture.device import Batch, CaptureDevice
 from capture.live_view import spawn_viewer
 from capture.output import OutputClaim
 from capture.recorder import Recorder, RecordingWriteError
+from vdc.heartbeat import Count
 
 
 @dataclasses.dataclass
@@ -100,7 +99,7 @@ class CaptureOptions:
     force: bool = False  # replace an existing output file
     live_url: str | None = None  # also stream to the viewer at this URL
     spawn: bool = False  # also stream to a new viewer
-    progress: bool = False  # a progress bar on stderr
+    progress: bool = False  # the frames counted on the heartbeat line (vdc.heartbeat), if one runs
     log: Callable[[str], None] | None = None  # gets one line on what is recorded, before the run
 
     def output_path(self, out: str | Path | None, recording_id: str) -> Path:
@@ -263,14 +262,8 @@ def run_capture(
     reason = "error"
     prev_t: float | None = None
     plugin_error: PluginError | None = None
-    bar = tqdm(
-        total=total_frames,
-        unit="frame",
-        disable=not progress or None,
-        file=sys.stderr,
-        desc="capture",
-        leave=False,
-    )
+    # frames counted on the command's heartbeat line (vdc.heartbeat), if it has one
+    bar = Count(total_frames, "capture", "frame", quiet=not progress)
     try:
         with stop_on_signals() as stop:
             device.connect()

@@ -163,8 +163,9 @@ def record_sim(
     options: CaptureOptions = DEFAULT_CAPTURE,
 ) -> RecordResult:
     """Simulate a run and write it to ``out`` (default ``recordings/<run id>.rrd``), as
-    ``options`` say (replace, stream live, a bar, a line of log). Ctrl-C or SIGTERM (in the
-    main thread) ends the run cleanly: the result says so and the file is valid."""
+    ``options`` say (replace, stream live, a count of frames, a line of log). Ctrl-C or
+    SIGTERM (in the main thread) ends the run cleanly: the result says so and the file is
+    valid."""
 
     config = settings.to_config()
     ctx = config.camera.model_context()

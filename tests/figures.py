@@ -34,13 +34,38 @@ def describe(fig, path: object) -> dict:
                 "zlabel": ax.get_zlabel() if hasattr(ax, "get_zlabel") else "",
                 "artists": len(ax.lines) + len(ax.collections) + len(ax.patches) + len(ax.images),
                 "colorbar": hasattr(ax, "_colorbar"),  # a colour bar's axes (matplotlib sets it)
+                "xlim": [float(x) for x in ax.get_xlim()],
+                "ylim": [float(y) for y in ax.get_ylim()],
             }
         )
     return {
         "name": Path(os.fsdecode(path)).name if isinstance(path, str | os.PathLike) else "",
         "suptitle": sup.get_text() if sup is not None else "",
         "axes": axes,
+        "clipped": clipped_texts(fig),
     }
+
+
+def clipped_texts(fig) -> list[str]:
+    """The suptitle, titles and axis labels that reach beyond the figure's edges (as drawn: a
+    saved figure has a renderer). 1 px of slack: antialiasing, not clipping."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    # a Figure() made without pyplot has a bare canvas: measure on Agg, as it was saved
+    canvas = fig.canvas if hasattr(fig.canvas, "get_renderer") else FigureCanvasAgg(fig)
+    renderer = canvas.get_renderer()
+    box = fig.bbox
+    texts = [getattr(fig, "_suptitle", None)]
+    for ax in fig.get_axes():
+        texts += [ax.title, ax._left_title, ax._right_title, ax.xaxis.label, ax.yaxis.label]
+    out = []
+    for t in texts:
+        if t is None or not t.get_text() or not t.get_visible():
+            continue
+        e = t.get_window_extent(renderer)
+        if e.x0 < box.x0 - 1 or e.x1 > box.x1 + 1 or e.y0 < box.y0 - 1 or e.y1 > box.y1 + 1:
+            out.append(t.get_text())
+    return out
 
 
 def _install(record) -> object:

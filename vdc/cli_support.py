@@ -8,6 +8,7 @@ way.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import importlib
 import numbers
@@ -20,8 +21,7 @@ from collections.abc import Callable, Sequence
 from pathlib import PurePath
 from typing import Any, NoReturn
 
-from tqdm import tqdm
-
+from vdc import heartbeat
 from vdc.errors import UserError
 from vdc.interrupt import ctrl_c_ends_the_run
 from vdc.settings import (
@@ -195,16 +195,15 @@ class OneLineParser(argparse.ArgumentParser):
 
 
 def say(message: str) -> None:
-    """A line on stderr, at once (a command's log: progress notes beside its stdout results)."""
-    print(message, file=sys.stderr, flush=True)
+    """A line on stderr, at once (a command's log: progress notes beside its stdout results);
+    through the command's heartbeat when it has one (:mod:`vdc.heartbeat`)."""
+    heartbeat.emit(message)
 
 
 def progress_bar(total: int | None, desc: str, unit: str = "cell", quiet: bool = False) -> Any:
-    """A tqdm bar on stderr for long work: on terminals only (``disable=None`` keeps pipes and
-    CI logs clean), or never with ``quiet``."""
-
-    disable = True if quiet else None
-    return tqdm(total=total, desc=desc, unit=unit, disable=disable, leave=False, file=sys.stderr)
+    """The count of a long stage's units, shown by the command's heartbeat line (on terminals
+    and with ``VDC_PROGRESS=1``; see :mod:`vdc.heartbeat`), or never with ``quiet``."""
+    return heartbeat.Count(total, desc, unit, quiet)
 
 
 def tasks_line(res: Any, units: str, ran: int, verb: str) -> str:
@@ -565,10 +564,21 @@ def run_command_line(
 
     args = parser.parse_args(argv)
     where = f"{prog} {args.command}"
+    quiet = bool(getattr(args, "quiet", False))
+    # never silent: on a terminal (or VDC_PROGRESS=1) a line at least every few seconds
+    # (one the console script started, vdc.launch, is kept)
+    words = [args.command, str(getattr(args, "action", ""))]
+    fresh = (
+        heartbeat.wanted()
+        and not quiet
+        and heartbeat.current() is None
+        and not heartbeat.waits(words)
+    )
+    beat = heartbeat.Heartbeat(where) if fresh else contextlib.nullcontext()
     try:
         # a model built for a new camera fits its calibration first: say so, not a silent minute
-        notes = CalibrationNotes(quiet=bool(getattr(args, "quiet", False)))
-        with ctrl_c_ends_the_run(f"{prog}: interrupted"), fit_progress(notes):
+        notes = CalibrationNotes(quiet=quiet)
+        with beat, ctrl_c_ends_the_run(f"{prog}: interrupted"), fit_progress(notes):
             return int(args.func(args) or 0)
     except ValueError as exc:
         if not raised_on_purpose(exc):

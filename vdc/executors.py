@@ -38,6 +38,7 @@ from typing import Any
 
 from vdc.cli_support import Settings, option
 from vdc.errors import UserError
+from vdc.heartbeat import EVERY_S, Heartbeat
 from vdc.pool_workers import (
     WorkerPool,
     _die_with_parent,
@@ -135,10 +136,30 @@ def _quiet(_what: Any) -> None:
 class Feedback:
     """What a long command tells its caller as it goes: ``log`` takes a line for people
     (the command line prints it on stderr), ``progress`` takes how many more units (runs,
-    clips, ...) are done (the command line moves its bar). Both do nothing by default."""
+    clips, ...) are done (the command line moves its count), ``expect`` how many more units
+    are planned (the count's total, for an estimate of what is left). All do nothing by
+    default; :meth:`printing` prints them, as the command line does."""
 
     log: Callable[[str], None] = _quiet
     progress: Callable[[int], None] = _quiet
+    expect: Callable[[int], None] = _quiet
+
+    @staticmethod
+    @contextlib.contextmanager
+    def printing(
+        what: str = "vdc", unit: str = "run", every_s: float | None = None
+    ) -> Iterator[Feedback]:
+        """Inside the block, a Feedback that prints on stderr: each line logged, and when
+        nothing was printed for a few seconds a line with the time so far, what is running
+        and how many ``unit``s of how many are done, with an estimate of the time left
+        (:class:`vdc.heartbeat.Heartbeat`)::
+
+            with vdc.Feedback.printing("boundary") as feedback:
+                vdc.boundary(settings, "results/boundary", feedback)
+        """
+        with Heartbeat(what, every_s or EVERY_S) as hb:
+            count = hb.counter(what, unit)
+            yield Feedback(hb.log, count.update, count.expect)
 
 
 QUIET = Feedback()
@@ -493,11 +514,14 @@ def run_tasks_or_raise(
     feedback: Feedback = QUIET,
     shared_paths: Sequence[str | Path] = (),
 ) -> dict[str, dict[str, Any]]:
-    """A campaign's loop: :func:`run_tasks` with one ``feedback.progress`` unit and, for a
+    """A campaign's loop: :func:`run_tasks` with ``feedback.expect`` of every task, one
+    ``feedback.progress`` unit per finished task and, for a
     failure, one ``feedback.log`` line per finished task; the results by key in the order
     they finished. A failed task does not stop the others: when all have finished,
     :class:`TasksFailed` names the failed ones (``what``: a task's noun, e.g. "run")."""
     results: dict[str, dict[str, Any]] = {}
+
+    feedback.expect(len(tasks))
 
     def done(outcome: TaskOutcome) -> None:
         feedback.progress(1)

@@ -4,9 +4,11 @@ traceback."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import sys
 
+from vdc import heartbeat  # standard library only: nothing heavy
 from vdc.no_pandas import arrow_without_pandas  # standard library only: nothing heavy
 from vdc.shadow import shadowed  # standard library only: nothing heavy
 
@@ -21,8 +23,18 @@ def launch(prog: str, module: str) -> int:
         print(f"{prog}: {problem}", file=sys.stderr)
         return 2
     arrow_without_pandas()  # pandas' import is 0.25 s of every command's CPU otherwise
+    argv = sys.argv[1:]
+    command = f"{prog} {argv[0]}" if argv and not argv[0].startswith("-") else prog
+    # the heartbeat starts before the modules load (seconds on a busy machine): never silent
+    # from the first second (vdc.cli_support.run_command_line keeps this one)
+    beat = (
+        heartbeat.Heartbeat(command)
+        if heartbeat.wanted() and "--quiet" not in argv and not heartbeat.waits(argv)
+        else contextlib.nullcontext()
+    )
     try:
-        return int(importlib.import_module(module).main() or 0)
+        with beat:
+            return int(importlib.import_module(module).main() or 0)
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130

@@ -86,6 +86,9 @@ def plot_boundary(
         ax.set_xlabel(x_label)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
+        low, high = ax.get_xlim()
+        if low < 0:  # complexity is a speed, ≥ 0: an interval reaching below 0 is cut there
+            ax.set_xlim(0, high)
     fig.suptitle(title)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)

@@ -579,15 +579,15 @@ def complexity(
         if failures:
             paths.append(write_parquet(fails, stage / "failures.parquet", meta))
         paths.append(figures.plot_collection(clips, stage / "complexity_collection.png"))
-        paths.append(
-            figures.write_summary_html(clips, failures, stage / "complexity.html", paths[-1])
-        )
+        shown = paths[-1]  # the page's figure: the collection's, or one clip's over time
         if per_clip:
             for p in parts:
                 rid = p["recording_id"][0]
                 c = corr.filter(pl.col("recording_id") == rid)
                 paths.append(figures.plot_complexity(p, c, stage / f"complexity_{rid}.png"))
+                shown = paths[-1] if len(parts) == 1 else shown
                 paths.append(write_complexity_rrd(p, rid, stage / f"complexity_{rid}.rrd"))
+        paths.append(figures.write_summary_html(clips, failures, stage / "complexity.html", shown))
     if not failures:  # an earlier run's failures are measured now (only vdc's own file)
         remove_output(out, "failures.parquet")
     paths = [out / p.name for p in paths]

@@ -15,7 +15,7 @@ import polars as pl
 from matplotlib.figure import Figure
 
 from analysis.complexity.meter import METRICS
-from analysis.complexity.source_metrics import metrics_present, normalised
+from analysis.complexity.source_metrics import metrics_present
 from analysis.profile import correlation_panel, save_figure
 
 _LABELS = {
@@ -80,7 +80,8 @@ def plot_collection(clips: pl.DataFrame, path: Path) -> Path:
 def write_summary_html(
     clips: pl.DataFrame, failures: list[tuple[str, str]], path: Path, figure: Path
 ) -> Path:
-    """A self-contained page: the collection figure, then the clip table (means and maxima)."""
+    """A self-contained page: ``figure`` (the collection's, or one clip's over time), then the
+    clip table (means and maxima)."""
     cols = [
         "recording_id", "codec", "width_px", "height_px", "fps", "duration_s", "frames",
         "repeated_frames", "dropped_frames", "raster", "omega_dps_mean", "omega_dps_max",
@@ -101,11 +102,23 @@ def write_summary_html(
         for r in clips.iter_rows(named=True)
     )
     failed = "".join(f"<li>{html.escape(s)}: {html.escape(e)}</li>" for s, e in failures)
+    one = clips.height == 1
+    heading = (
+        f"Complexity of {clips['recording_id'][0]}"
+        if one
+        else (f"Complexity of {clips.height} clips")
+    )
+    shown = (
+        "The clip over time: each metric in its own unit, and how they correlate over frames."
+        if one
+        else "The collection: clips ranked by their mean, and the AVDM against the others."
+    )
     img = base64.b64encode(figure.read_bytes()).decode()
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>vdc complexity</title>
 <style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse;font-size:12px}}
 td,th{{border:1px solid #ccc;padding:3px 6px;text-align:right}}</style></head><body>
-<h1>Complexity of {clips.height} clip(s)</h1>
+<h1>{html.escape(heading)}</h1>
+<p>{shown}</p>
 <p>Per clip, the mean and max over its frames. SI/TI follow ITU-T P.910 (2022) on the
 source's native frames (column raster); the AVDM and the flow are in deg/s on the model
 raster. Per-frame values: complexity.parquet; every statistic: clips.parquet.</p>
@@ -116,19 +129,49 @@ raster. Per-frame values: complexity.parquet; every statistic: clips.parquet.</p
     return path
 
 
+# each metric's unit, as docs/guides/video.md's table of columns gives it
+UNITS = {
+    "omega_dps": "deg/s",
+    "flow_dps": "deg/s",
+    "si_p910": "P.910 (×255)",
+    "ti_p910": "P.910 (×255)",
+    "si_legacy": "8-bit levels",
+    "ti_legacy": "8-bit levels",
+    "mafd": "8-bit levels",
+    "edge_density": "share of pixels",
+    "zlib_ratio": "compressed / raw",
+    "jpeg_bpp": "bits/pixel",
+    "codec_bpp": "bits/pixel",
+}
+
+
 def plot_complexity(df: pl.DataFrame, corr: pl.DataFrame, path: Path) -> Path:
-    norm = normalised(df)
+    """One source over time: a panel per metric in its own unit (on a shared time axis), and
+    the Spearman correlations of every pair over frames."""
     t = df["t_s"].to_numpy()
-    fig = Figure(figsize=(16, 5.5), layout="constrained")
-    (ax, axc) = fig.subplots(1, 2, gridspec_kw={"width_ratios": [2.2, 1]})
     metrics = metrics_present(df)
-    for m in metrics:
-        ax.plot(t, norm[m], lw=1.6 if m == "omega_dps" else 0.8, label=m, alpha=0.9)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("metric / its 99th percentile")
-    ax.set_title("complexity metrics over time (normalised)")
-    ax.legend(fontsize=7, ncol=2)
-    ax.grid(alpha=0.3)
+    fig = Figure(figsize=(16, max(5.5, 1.3 * len(metrics) + 1)), layout="constrained")
+    grid = fig.add_gridspec(len(metrics), 2, width_ratios=[2.2, 1])
+    first = None
+    for k, m in enumerate(metrics):
+        ax = fig.add_subplot(grid[k, 0], sharex=first)
+        first = first or ax
+        v = df[m].cast(pl.Float64).fill_null(np.nan).to_numpy()
+        ax.plot(t, v, lw=1.2 if m == "omega_dps" else 0.9, color=f"C{k % 10}")
+        ax.set_ylabel(f"{m}\n({UNITS.get(m, '')})", fontsize=7)
+        ax.tick_params(labelsize=7)
+        if np.isfinite(v).any() and np.nanmin(v) >= 0:
+            ax.set_ylim(bottom=0)  # every metric is ≥ 0: no axis below its range
+        ax.grid(alpha=0.3)
+        if k < len(metrics) - 1:
+            ax.tick_params(labelbottom=False)
+        else:
+            ax.set_xlabel("time (s)")
+    if first is not None:
+        first.set_title("each metric over time, in its own unit")
+        if len(t) > 1:
+            first.set_xlim(float(np.nanmin(t)), float(np.nanmax(t)))  # the clip, no margin
+    axc = fig.add_subplot(grid[:, 1])
     pairs = ((r["metric_a"], r["metric_b"], r["spearman"]) for r in corr.iter_rows(named=True))
     correlation_panel(fig, axc, metrics, pairs, "Spearman rank correlation over frames", fontsize=6)
     fig.suptitle(str(df["recording_id"][0]))

@@ -202,6 +202,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         (k, (v, settings, ds.rate(v.camera), out)) for k, v in by_key.items() if k not in results
     ]
 
+    feedback.expect(len(tasks))
     n_done = [0, time.monotonic()]  # streams measured, when the count was last said
 
     def done(outcome: Any) -> None:

@@ -63,8 +63,8 @@ class DatasetSettings(Settings):
     )
     thresholds: str = option(
         "",
-        "FLAG=VALUE,...: a flag's threshold in its unit (docs/guides/dataset.md lists the defaults), "
-        "or FLAG=off to turn it off, e.g. lag=80,idle_tail=off",
+        "FLAG=VALUE,...: a flag's threshold in its unit (docs/guides/dataset.md lists the "
+        "defaults), or FLAG=off to turn it off, e.g. lag=80,idle_tail=off",
     )
     moving_cameras: str = option(
         "",

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -64,9 +65,19 @@ def approach_run(cfg: ApproachConfig, tf_hz: float, repeat: int) -> pl.DataFrame
     )
 
 
-def run_approach(cfg: ApproachConfig) -> tuple[pl.DataFrame, pl.DataFrame]:
-    """All runs (frames after the model's warm-up) and the per-distance-bin summary."""
-    runs = pl.concat([approach_run(cfg, tf, r) for tf in cfg.tfs_hz for r in range(cfg.repeats)])
+def run_approach(
+    cfg: ApproachConfig, progress: Callable[[int], None] | None = None
+) -> tuple[pl.DataFrame, pl.DataFrame]:
+    """All runs (frames after the model's warm-up) and the per-distance-bin summary;
+    ``progress`` hears of each approach as it ends."""
+
+    def one(tf: float, r: int) -> pl.DataFrame:
+        df = approach_run(cfg, tf, r)
+        if progress is not None:
+            progress(1)
+        return df
+
+    runs = pl.concat([one(tf, r) for tf in cfg.tfs_hz for r in range(cfg.repeats)])
     runs = runs.filter(pl.col("frame") >= 20)
     summary = (
         runs.with_columns(

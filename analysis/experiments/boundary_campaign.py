@@ -135,6 +135,7 @@ def _record_all(
         row = finished_row(it, kind, measure_every)
         if row is not None:
             finished[it.key] = row
+            feedback.expect(1)  # counted done at once; run_tasks_or_raise expects the rest
             feedback.progress(1)
             continue
         task = (it.key, it.settings, str(it.path), kind, false_alarm_m, measure_every)
@@ -150,7 +151,7 @@ def _record_all(
     rows = [{**it.columns, **results[it.key]} for it in items if it.key in results]
     reused = sum(bool(r.get("reused")) for r in rows)
     if reused:
-        feedback.log(f"reused {reused} of {len(items)} {kind} run(s) that an earlier run finished")
+        feedback.log(f"reused {reused} of {len(items)} {kind} run(s) that an earlier run finished.")
     return rows
 
 
@@ -267,17 +268,17 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
         f"boundary of {s.detector} over {s.param} = {list(s.grid_values())}: {len(s.conditions())} "
         f"condition(s) x {len(s.grid_values())} value(s) x {s.seeds} seed(s) of "
         f"{s.minutes:g} min = {len(items)} run(s)"
-        + (f", plus {len(prof)} profiling run(s)" if prof else "")
+        + (f", plus {len(prof)} profiling run(s)." if prof else ".")
     )
     # one line per stage on the log (a pipe has no bar): nothing silent between plan and results
     stages = 3 if prof else 2
-    feedback.log(f"stage 1/{stages}: {len(items)} closed-loop run(s) of {s.detector}")
+    feedback.log(f"stage 1/{stages}: {len(items)} closed-loop run(s) of {s.detector}.")
     runs = run_grid(items, "collision", s, s.false_alarm_m, feedback)
     require_evidence(runs, None, s, items[0].settings)  # never a verdict from no evidence
     if prof:
         feedback.log(
             f"stage 2/{stages}: {len(prof)} profiling run(s) (the AVDM's response to each "
-            "condition, driving straight)"
+            "condition, driving straight)."
         )
         # every complexity measure of a profiling run, by the worker that just recorded it
         every = 0 if s.no_predictors else s.measure_every
@@ -290,7 +291,7 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
     feedback.log(
         f"stage {stages}/{stages}: success per condition, the boundary per {s.param} value"
         + ("" if s.no_fit else ", the policy")
-        + f"; writing {out}"
+        + f"; writing {out}."
     )
     conditions = condition_statistics(runs, complexity, ["condition", s.param])
     fitted, fits = grid_fits(runs, complexity, s.param, s.target)

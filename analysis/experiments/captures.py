@@ -21,7 +21,9 @@ from avdm.registry import check_detector
 from capture.run import REPLACE_OUTPUT
 from capture.sim import SimSettings, record_sim
 from vdc.executors import (
+    QUIET,
     ExecutorSettings,
+    Feedback,
     TaskOutcome,
     TasksFailed,
     failure_report,
@@ -71,9 +73,13 @@ def _record(key: str, settings: SimSettings, out: str) -> dict:
 
 
 def run_captures(
-    items: Sequence[CaptureItem], executor: ExecutorSettings, log: Callable[[str], None]
+    items: Sequence[CaptureItem],
+    executor: ExecutorSettings,
+    log: Callable[[str], None],
+    feedback: Feedback = QUIET,
 ) -> dict[str, Path]:
-    """Record every (key, settings, output) not already there on ``executor``; key → path.
+    """Record every (key, settings, output) not already there on ``executor``; key → path;
+    ``feedback`` counts the runs to record (``expect``) and those finished (``progress``).
 
     A failed run does not stop the others: they finish and are kept, then
     :class:`TasksFailed` names the failed ones (a re-run records only those)."""
@@ -89,12 +95,14 @@ def run_captures(
             todo.append((key, (key, settings, str(out))))
     if not todo:
         return paths
-    log(f"recording {len(todo)} run(s) on {executor.where()}")
+    log(f"recording {len(todo)} run(s) on {executor.where()}.")
     finished = 0
+    feedback.expect(len(todo))
 
     def done(outcome: TaskOutcome) -> None:
         nonlocal finished
         finished += 1
+        feedback.progress(1)
         if outcome.error is None:
             secs = outcome.result["seconds"] if outcome.result else float("nan")
             log(f"  [{finished}/{len(todo)}] {outcome.key} recorded in {secs:.0f} s")

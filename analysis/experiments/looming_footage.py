@@ -168,8 +168,10 @@ def looming_footage(
     n = s.n_frames
     rows, files, reused = [], [], 0
     feedback.log(
-        f"looming-footage: {s.clips} clips of {n} frames ({s.width_px}x{s.height_px}) into {out}"
+        f"looming-footage: {s.clips} clips of {n} frames ({s.width_px}x{s.height_px} px) "
+        f"into {out}."
     )
+    feedback.expect(s.clips)
     for k in range(s.clips):
         c = draw_conditions(s, k)
         collision = c["miss_radii"] == 0.0

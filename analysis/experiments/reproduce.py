@@ -53,7 +53,8 @@ from analysis.recordings.reader import Recording
 from analysis.recordings.recompute import SummarySettings, build_tables, summary_rows
 from analysis.recordings.segments import ProfileSettings, segment_summary, segments_from_tables
 from capture.sim import SimSettings
-from vdc.executors import one_pool
+from vdc.executors import QUIET, Feedback, one_pool
+from vdc.heartbeat import Count
 from vdc.parquet_io import WroteFiles, write_parquet
 from vdc.scratch import no_files_without_out
 
@@ -108,26 +109,30 @@ def reproduce(
     out: str | Path | None = "results/reproduce",
     *,
     log: Callable[[str], None] | None = None,
+    feedback: Feedback = QUIET,
 ) -> ReproduceResult:
     """``vdc-analyse reproduce``: run every step into ``out`` (reusing finished recordings)
-    and write the claim-by-claim report; ``log`` gets one line per step."""
+    and write the claim-by-claim report; ``feedback`` (or just ``log``) gets one line per
+    step and counts the simulated runs (``vdc.Feedback.printing()`` prints them)."""
     t0 = time.perf_counter()
     out = Path(out)
-    log = log or (lambda _m: None)
+    log = log or feedback.log
     out.mkdir(parents=True, exist_ok=True)
     rec_dir = out / "recordings"
     phases = study_phases(plan.detector, plan.adjusted)
     log(
-        f"recording {len(PROFILE_CONDITIONS)} profiling conditions and {len(phases)} collision "
-        f"phases x {plan.seeds} seeds ({plan.where()})"
+        f"Stage 1 of 6: recording {len(PROFILE_CONDITIONS)} profiling conditions and "
+        f"{len(phases)} collision phases x {plan.seeds} seeds ({plan.where()})."
     )
     items = profile_items(plan, rec_dir / "profiling")
     items += phase_items(phases, plan.collision_minutes, plan.seed_list, rec_dir / "collision")
-    paths = run_captures(items, plan, log)
+    paths = run_captures(items, plan, log, feedback)
 
-    log("SF-TF sweep")
+    log("Stage 2 of 6: the SF-TF sweep (Fig. 3).")
     cfg = SweepConfig(duration_s=plan.sweep_duration_s)
-    df = run_sweep("avdm", paper_cells(), cfg)
+    cells = paper_cells()
+    with Count(len(cells), "SF-TF sweep", "cell") as count:  # on the heartbeat, if one runs
+        df = run_sweep("avdm", cells, cfg, progress=count.update)
     meta = {"model": "avdm", "stimulus": dataclasses.asdict(cfg)}
     write_parquet(df, out / "sweep" / "sweep.parquet", meta)
     write_parquet(monotonicity(df), out / "sweep" / "monotonicity.parquet", meta)
@@ -135,17 +140,19 @@ def reproduce(
         df, out / "sweep" / "sweep.png", cfg, "avdm on drifting sine gratings, 100x100 px, 300 Hz"
     )
 
-    log("open-loop approach")
+    log("Stage 3 of 6: the open-loop approach (Fig. 4).")
     acfg = ApproachConfig(repeats=plan.approach_repeats, seed=plan.seed)
-    runs, summary = run_approach(acfg)
+    with Count(len(acfg.tfs_hz) * acfg.repeats, "approach", "approach") as count:
+        runs, summary = run_approach(acfg, progress=count.update)
     write_parquet(runs, out / "approach" / "approach.parquet", dataclasses.asdict(acfg))
     write_parquet(summary, out / "approach" / "approach_summary.parquet", dataclasses.asdict(acfg))
     plot_approach(runs, summary, out / "approach" / "approach.png")
 
-    log("profiling")
+    log("Stage 4 of 6: profiling tables and figures (Figs. 6-7).")
     prof_paths = [paths[k] for k, _, _ in profile_items(plan, rec_dir / "profiling")]
     settings = SummarySettings()
-    tables, tmeta = build_tables(prof_paths, PROFILE_MODELS, settings)
+    with Count(None, "profiling", "frame") as count:
+        tables, tmeta = build_tables(prof_paths, PROFILE_MODELS, settings, count.update)
     tables["summary"] = with_motion_summaries(tables, settings)
     for name, t in tables.items():
         write_parquet(t, out / "profiling" / f"{name}.parquet", tmeta)
@@ -169,11 +176,11 @@ def reproduce(
         tmeta,
     )
 
-    log("collision study")
+    log("Stage 5 of 6: the collision study (Fig. 8).")
     col_paths = [str(p) for k, p in paths.items() if k.startswith("tf")]  # phase keys
     collision(col_paths, CollisionSettings(), out / "collision")
 
-    log("report")
+    log("Stage 6 of 6: the claims and the report.")
     claims = evaluate_claims(out)
     write_parquet(
         claims_frame(claims),

@@ -183,6 +183,11 @@ def monotonicity(df: pl.DataFrame, min_points: int = 4) -> pl.DataFrame:
     return pl.DataFrame(out).sort("along", "fixed_value", descending=[True, False])
 
 
+# a grating whose period is 2 px (SF = W/2) sits at the Nyquist limit: counter-phase flicker,
+# not a motion stimulus; reproduce's claim 1 leaves it out, and the figure says so
+NYQUIST_PERIOD_PX = 2.0
+
+
 def _valid_band(ax: Axes, x_lo: float, x_hi: float, bad_from: float, label: str) -> None:
     if bad_from < x_hi:
         ax.axvspan(max(bad_from, x_lo), x_hi, color="0.9", zorder=0, label=label)
@@ -210,7 +215,12 @@ def plot_paper(df: pl.DataFrame, path: Path, config: SweepConfig, title: str) ->
             _panel(ax, g[x_col], g, x_label)
             _valid_band(ax, g[x_col].min(), g[x_col].max() * 1.1, bad_from, band)
             along = x_col.split("_")[0]  # as monotonicity names it
-            ax.set_title(f"{named(value)}   ρ = {rho.get((along, value), np.nan):+.2f}")
+            panel = f"{named(value)}   ρ = {rho.get((along, value), np.nan):+.2f}"
+            if fixed_col == "sf_upc" and w / value <= NYQUIST_PERIOD_PX:
+                # counter-phase flicker, not motion: shown, and said to be left out of the claim
+                panel += "\nexcluded: at the Nyquist limit"
+                ax.set_facecolor("0.94")
+            ax.set_title(panel)
     for ax in axes.flat:
         ax.legend(fontsize=7, loc="best")
     fig.suptitle(title)

@@ -119,7 +119,9 @@ def plot_predictors(table: pl.DataFrame, path: Path, title: str) -> Path:
         ax.grid(alpha=0.3)
         if drawn:
             ax.legend(fontsize=7, title="value", title_fontsize=7)
-    fig.suptitle(title)
+    # wrapped to the figure's width: one panel is 6 in, about 50 characters of a suptitle
+    # (14.4 pt, a character about 0.6 of that wide); a detector's module path runs longer
+    fig.suptitle(fill(title, max(30, int(fig.get_figwidth() * 72 / (14.4 * 0.6)))))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     return path

@@ -106,7 +106,7 @@ def _cli(plugins: Path, *args: str) -> subprocess.CompletedProcess:
     ("kind", "needle"),
     [
         *KINDS.items(),
-        ("NanAlert", "returned alert=nan on a 72x99 frame"),
+        ("NanAlert", "returned alert=nan on a 99x72 frame"),
         ("Raises", "IndexError"),
     ],
 )
@@ -149,7 +149,7 @@ def test_an_unfit_plugin_stops_footage_mode_and_the_closed_loop(plugins, tmp_pat
         "--out", str(tmp_path / "footage"),
     )  # fmt: skip
     # stepped on the clips' own working raster
-    assert_one_line_error(proc, "step() returned no alert", "frame (HxW)")
+    assert_one_line_error(proc, "step() returned no alert", "frame (WxH)")
     proc = _cli(
         plugins, "capture", "sim", "--behaviour", "collision", "--model",
         "unfit_detectors:NoStep", "--minutes", "0.02", "--out", str(tmp_path / "run.rrd"),

@@ -72,6 +72,30 @@ def test_quick_reproduction_writes_every_artefact_and_reuses_runs(tmp_path: Path
         assert_figure(out / rel, figures, title=title, labels=labels)
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64") == 5  # self-contained
+    # the first screen: shorter runs than the protocol's make provisional verdicts, said
+    # above the claims; each claim's row carries its numbers
+    assert "Provisional: these verdicts come from a custom run" in html
+    assert html.index("class='provisional'") < html.index("<h2>Claims</h2>")
+    md = (out / "report.md").read_text()
+    claims_rows = md.split("## Claims")[1].split("\n## ")[0].splitlines()
+    claims_rows = [ln for ln in claims_rows if ln.startswith("| ") and ln[2].isdigit()]
+    assert len(claims_rows) == 9
+    for line in claims_rows:
+        ours = line.strip("|").split("|")[3]
+        assert re.search(r"\d", ours), line
+        assert line.rstrip(" |").endswith("(provisional)"), line
+    # SF 50 upc is shown excluded in the claim's numbers and in the figure, as its text says
+    assert "SF 50 upc: excluded" in claims_rows[0]
+    (sweep,) = [f for f in saved_figures(record) if f["name"] == "sweep.png"]
+    assert [a["title"] for a in sweep["axes"] if "excluded" in a["title"]] == [
+        "SF = 50 upc (period 2 px)   ρ = "
+        + next(a["title"] for a in sweep["axes"] if "SF = 50" in a["title"]).split("ρ = ")[1]
+    ]
+    # every symbol explained before its first use: its first occurrence is its key's row
+    for symbol in ("ω̂", "λ̂", "ρ", "Page's L", "upc"):
+        first = md.index(symbol)
+        assert md[first - 2 : first] == "| ", (symbol, md[first - 80 : first + 20])
+    assert "against the paper's 229" in md  # our avoidance count, commented
     # the report's numbers are recomputed from the tables it ships with
     table = pl.read_parquet(out / "claims.parquet")  # long: claim x condition x quantity
     claims = table.unique("claim_index", keep="first", maintain_order=True)

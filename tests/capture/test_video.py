@@ -426,8 +426,8 @@ def test_a_new_cameras_calibration_says_what_it_fits_and_that_it_is_cached(
 ) -> None:
     """The first clip from a camera with no shipped or cached fit: ``vdc-capture video``
     says what it fits (avdm-natural, for which camera), counts its stimuli and says where it
-    cached the fit, before the run (a log line per stage on a pipe; a bar on a terminal); the
-    second clip from that camera fits nothing and says nothing of it."""
+    cached the fit, before the run (a log line per stage on a pipe; a count on the heartbeat
+    line on a terminal); the second clip from that camera fits nothing and says nothing of it."""
     import os
     import re
 
@@ -440,9 +440,10 @@ def test_a_new_cameras_calibration_says_what_it_fits_and_that_it_is_cached(
     assert first.returncode == 0, first.stderr
     lines = first.stderr.splitlines()
     start = [ln for ln in lines if ln.startswith("calibrating avdm-natural for this camera")]
-    # the working raster at the robot camera's pitch: round(40 / (70/99)) = 57 px wide, 43 high
+    # the working raster at the robot camera's pitch: round(40 / (70/99)) = 57 px wide, 43 high,
+    # written W x H as every size vdc prints
     assert len(start) == 1 and re.fullmatch(
-        r"calibrating avdm-natural for this camera \(25 Hz, 0\.7\d* deg/px, 43x57 px\): "
+        r"calibrating avdm-natural for this camera \(25 Hz, 0\.7\d* deg/px, 57x43 px\): "
         r"60 stimuli, once; the fit is then cached",
         start[0],
     ), start
