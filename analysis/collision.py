@@ -32,11 +32,11 @@ from analysis.recordings.loading import LoadedRecording, Notices, load_recording
 from analysis.recordings.recompute import DistinctRecordings, SummarySettings, events_table
 from analysis.recordings.segments import safe_key
 from analysis.stats import Estimate, mean_ci, share_ci
-from vdc.cli_support import Settings, option
+from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.folders import path_list
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
-from vdc.settings import POSITIVE, between
+from vdc.settings import POSITIVE, Settings, between
 
 # what the paper reports for its three phases (30 min each) [BRIEF]
 PAPER = {

@@ -56,11 +56,11 @@ from capture.tracker import (
 )
 from capture.wall_controller import WallController as WallController  # re-exported
 from vdc.blueprints import default_blueprint
-from vdc.cli_support import Settings, option
+from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles
 from vdc.recording import LINK_STATS, camera_model_context
-from vdc.settings import AT_LEAST_0, AT_LEAST_1, POSITIVE
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, POSITIVE, Settings
 
 LINK_COUNTERS = (
     "packets",

@@ -40,9 +40,9 @@ from capture.serial_protocol import (
     encode_frame,
 )
 from capture.sim_robot import SimulatedRobot
-from vdc.cli_support import Settings, option
+from vdc.cli_support import option
 from vdc.errors import UserError
-from vdc.settings import AT_LEAST_0, AT_LEAST_1, FRACTION, POSITIVE, between
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, FRACTION, POSITIVE, Settings, between
 
 
 @dataclasses.dataclass(frozen=True)

@@ -30,14 +30,10 @@ from capture.recording_start import start_recording
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from capture.sim_robot import SimulatedRobot, load_wall_image, ring_turn_event  # noqa: F401
 from vdc.blueprints import default_blueprint
-from vdc.cli_support import (
-    Settings,
-    check_below_nyquist,
-    option,
-)
+from vdc.cli_support import check_below_nyquist, option
 from vdc.errors import UserError
 from vdc.recording import model_path
-from vdc.settings import AT_LEAST_0, POSITIVE, between
+from vdc.settings import AT_LEAST_0, POSITIVE, Settings, between
 
 
 @dataclasses.dataclass(frozen=True)

@@ -38,16 +38,12 @@ from capture.output import claim_output
 from capture.recording_start import start_recording
 from capture.run import DEFAULT_CAPTURE, CaptureOptions, RecordResult, finish_output, run_capture
 from vdc.blueprints import video_blueprint
-from vdc.cli_support import (
-    API_ONLY,
-    Settings,
-    option,
-)
+from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher, RateLookahead
 from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
-from vdc.settings import AT_LEAST_0, AT_LEAST_1, RANGE, between
+from vdc.settings import API_ONLY, AT_LEAST_0, AT_LEAST_1, RANGE, Settings, between
 from vdc.source_names import source_kind, source_name
 from vdc.sources import Reader, open_reader
 

@@ -13,7 +13,7 @@ import pytest
 import vdc
 from analysis.cli import COMMANDS as ANALYSE
 from capture.cli import COMMANDS as CAPTURE
-from vdc.cli_support import Settings, SettingsTypeError
+from vdc.settings import Settings, SettingsTypeError
 
 
 @pytest.fixture(scope="module")

@@ -20,9 +20,9 @@ import vdc
 from analysis.experiments.looming_footage import LoomingFootageSettings
 from tests.helpers import assert_one_line_error
 from tests.in_process import run_in_process
-from vdc.cli_support import Settings, _field_types, _parser_type, parse_size
+from vdc.cli_support import _parser_type, parse_size
 from vdc.errors import UserError
-from vdc.settings import Range, SettingsRangeError, field_range
+from vdc.settings import Range, Settings, SettingsRangeError, _field_types, field_range
 
 
 def _settings_classes() -> list[type]:

@@ -36,7 +36,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-from vdc.cli_support import Settings, option
+from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.heartbeat import EVERY_S, Heartbeat
 from vdc.pool_workers import (
@@ -49,7 +49,7 @@ from vdc.pool_workers import (
     one_thread_per_worker,
     pool_context,
 )
-from vdc.settings import AT_LEAST_1
+from vdc.settings import AT_LEAST_1, Settings
 
 EXECUTORS = ("local", "dask")
 

@@ -53,10 +53,7 @@ from analysis.recordings.loading import load_recording
 from analysis.stats import mean_ci, share_ci
 from avdm.policy import Policy
 from avdm.registry import add_overrides, parse_model_spec
-from vdc.cli_support import (
-    check_below_nyquist,
-    option,
-)
+from vdc.cli_support import check_below_nyquist, option
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings
 from vdc.parquet_io import WroteFiles, write_tables

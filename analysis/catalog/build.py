@@ -55,7 +55,7 @@ from analysis.recordings.recompute import SummarySettings, events_table, primary
 from avdm.calibration_store import cache_dir
 from avdm.registry import make_model
 from vdc.blueprints import dataset_blueprint, default_blueprint, video_blueprint
-from vdc.cli_support import Settings, option
+from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.folders import path_list
 from vdc.recording import (
@@ -64,6 +64,7 @@ from vdc.recording import (
     PARTIAL_SUFFIX,
     capture_writing,
 )
+from vdc.settings import Settings
 
 # the summary layer's property section: capitalised, so that the viewer's segment table (which
 # orders sections by name, RecordingInfo first) shows it before the recordings' own sections

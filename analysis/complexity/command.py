@@ -62,11 +62,7 @@ from analysis.recordings.reader import Recording, RecordingError
 from analysis.recordings.recompute import DistinctRecordings
 from avdm.registry import require_angular_velocity
 from avdm.true_time import model_rate, repeats_of
-from vdc.cli_support import (
-    API_ONLY,
-    Settings,
-    option,
-)
+from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
 from vdc.folders import not_found, path_list, remove_output, scan_folder
@@ -80,7 +76,7 @@ from vdc.frame_metrics import (
 from vdc.parquet_io import WroteFiles, read_metadata, table_set, write_parquet
 from vdc.recording import FOOTAGE_MODEL, NATIVE_METRICS, camera_model_context, working_size
 from vdc.resize import area_resize
-from vdc.settings import AT_LEAST_0, RANGE, between
+from vdc.settings import API_ONLY, AT_LEAST_0, RANGE, Settings, between
 from vdc.source_names import unique_source_names
 from vdc.sources import VIDEO_SUFFIXES
 

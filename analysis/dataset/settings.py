@@ -10,15 +10,11 @@ import math
 
 from analysis.complexity.meter import DEFAULT_METRICS, MODEL_METRICS, parse_metrics
 from analysis.dataset.flags import FLAGS
-from vdc.cli_support import (
-    API_ONLY,
-    Settings,
-    option,
-)
+from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, executor_field
 from vdc.recording import FOOTAGE_MODEL
-from vdc.settings import AT_LEAST_0, RANGE, between
+from vdc.settings import API_ONLY, AT_LEAST_0, RANGE, Settings, between
 
 
 @dataclasses.dataclass(frozen=True)

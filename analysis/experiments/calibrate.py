@@ -18,11 +18,11 @@ from avdm.base import Params
 from avdm.calibration import CalibrationResult, fit_decoding, valid_periods_px, valid_tfs_hz
 from avdm.calibration_store import CALIBRATION_FILE
 from avdm.registry import canonical_name, make_params
-from vdc.cli_support import Settings, option, parse_size
+from vdc.cli_support import option, parse_size
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles
 from vdc.provenance import package_versions
-from vdc.settings import POSITIVE, SIDE_PX, between
+from vdc.settings import POSITIVE, SIDE_PX, Settings, between
 
 
 def calibration_entry(

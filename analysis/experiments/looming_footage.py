@@ -45,10 +45,10 @@ import numpy as np
 import polars as pl
 
 from avdm.looming import render_looming
-from vdc.cli_support import Settings, option
+from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import QUIET, Feedback
-from vdc.settings import AT_LEAST_0, AT_LEAST_1, FRACTION, MAX_SIDE_PX, POSITIVE, between
+from vdc.settings import AT_LEAST_0, AT_LEAST_1, FRACTION, MAX_SIDE_PX, POSITIVE, Settings, between
 
 # photographs scikit-image ships in its package (no download): busy and plain, indoor and out
 BACKGROUNDS = ("astronaut", "camera", "brick", "grass", "gravel", "coffee", "rocket", "page")

@@ -22,10 +22,10 @@ from matplotlib.figure import Figure
 from analysis.stats import spearman
 from avdm.registry import canonical_name, make_model, make_params, require_angular_velocity
 from avdm.stimuli import WAVEFORMS, grating, omega_true_dps, period_px_from_sf
-from vdc.cli_support import Settings, option, parse_size
+from vdc.cli_support import option, parse_size
 from vdc.errors import UserError
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
-from vdc.settings import AT_LEAST_0, POSITIVE, SIDE_PX, between
+from vdc.settings import AT_LEAST_0, POSITIVE, SIDE_PX, Settings, between
 
 PAPER_SF_UPC = (1.0, 10.0, 50.0)  # rows: response vs TF
 PAPER_TF_HZ = (1.0, 5.0, 50.0)  # columns: response vs SF

@@ -39,7 +39,8 @@ from avdm.errors import PluginError
 from avdm.registry import canonical_name, check_detector, make_model, parse_model_spec
 from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
-from vdc.cli_support import API_ONLY, Settings, option
+from vdc.cli_support import option
+from vdc.settings import API_ONLY, Settings
 from vdc.errors import UserError
 from vdc.executors import TasksFailed
 from vdc.folders import expand_recordings, path_list

@@ -15,7 +15,8 @@ import polars as pl
 
 from analysis.recordings.recompute import SummarySettings, TablesSettings, summary_statistics
 from analysis.stats import Estimate, mean_ci
-from vdc.cli_support import API_ONLY, option
+from vdc.cli_support import option
+from vdc.settings import API_ONLY
 from vdc.errors import UserError
 from vdc.settings import AT_LEAST_1, POSITIVE, RANGE, between
 
