@@ -95,6 +95,7 @@ OWN_COLUMNS = frozenset(
     | {"p_value", "p_holm", "role", "survives", "verdict", "omega_dps", "omega_valid"}
     | {"si_p910", "ti_p910", "si_legacy", "ti_legacy", "mafd", "flow_dps", "edge_density"}
     | {"zlib_ratio", "jpeg_bpp", "codec_bpp"}
+    | {"n_units"}
     | _with_intervals("boundary_dps", "boundary_tf", "success", "complexity", "hit_rate")
     | _with_intervals("avoidances_per_30min", "crashes_per_30min", "false_alarms_per_30min")
     | _with_intervals("dtc_median_m", "false_alarm_rate", "correct", "ttc_first_alert_s")

@@ -89,6 +89,9 @@ class CrossingFit:
     curve_p: np.ndarray  # (M,) the best fit's success
     band_low: np.ndarray  # (M,) the 95 % band
     band_high: np.ndarray
+    unit: str = "run"  # what the interval's scale treats as independent: run, condition, scene
+    n_units: int = 0  # how many of them
+    scene_dispersion: float = math.nan  # the scenes' jackknife scale (NaN: fewer than 2 scenes)
 
     @property
     def width(self) -> float:
@@ -113,6 +116,7 @@ def fit_crossing(
     domain: tuple[float, float] | None = None,
     condition: Sequence[Any] | np.ndarray | None = None,
     *,
+    scene: Sequence[Any] | np.ndarray | None = None,
     band: bool = True,
 ) -> CrossingFit:
     """Fit the monotone logistic curve to runs at complexity ``x`` (R,) with ``k`` successes of
@@ -127,6 +131,7 @@ def fit_crossing(
     x, k, n = (np.asarray(v, float).ravel() for v in (x, k, n))
     keep = (n > 0) & np.isfinite(x) & np.isfinite(k)
     cond = np.asarray(x if condition is None else condition).ravel()[keep]
+    sc = None if scene is None else np.asarray(scene).ravel()[keep]
     x, k, n = x[keep], k[keep], n[keep]
     lo, hi = domain if domain is not None else ((x.min(), x.max()) if x.size else (0.0, 1.0))
     lo, hi = float(min(lo, hi)), float(max(lo, hi))
@@ -162,11 +167,25 @@ def fit_crossing(
     p_best = _curve(target, floor_of[best[1]], slope_of[best[1]], u, tu[best[0]])
     p_best = np.clip(p_best, 0.01, 0.99)  # a step's 1 - 1e-9 would make one crash a 'misfit'
     phi, df = dispersion(k, n, p_best, cond)
+    phi_conditions = phi
     if df > 0:  # phi is estimated: the F quantiles in place of chi2's (quasi-likelihood)
         cut_1 = float(scipy_stats().f.ppf(0.95, 1, df))
         cut_2 = 2.0 * float(scipy_stats().f.ppf(0.95, 2, df))
     else:
         cut_1, cut_2 = DEVIANCE_1, DEVIANCE_2
+    unit, n_units = ("condition", int(np.unique(cond).size)) if df > 0 else ("run", int(x.size))
+    n_scenes = 0 if sc is None else int(np.unique(sc).size)
+    phi_s = math.nan
+    if n_scenes >= 2:  # the scene is the unit: its jackknife scale, F(1, scenes - 1)
+        phi_s = scene_dispersion(u, k, n, target, floor_of[best[1]], _refined_slope(ll, best),
+                                 tu[best[0]], sc)  # fmt: skip
+        cut_s = float(scipy_stats().f.ppf(0.95, 1, n_scenes - 1))
+        # never below the conditions' scale (a floor: see scene_dispersion), and the wider
+        # of the two intervals
+        if max(phi, phi_s) * cut_s > phi * cut_1:
+            phi, cut_1 = max(phi, phi_s), cut_s
+            cut_2 = 2.0 * float(scipy_stats().f.ppf(0.95, 2, n_scenes - 1))
+        unit, n_units = "scene", n_scenes
     top = _refined_max(ll, floors.size)  # (N_T,) the profile over a continuous steepness
     dev = 2.0 * (max(top.max(), ll.max()) - ll) / phi  # (N_T, S)
     profile = 2.0 * (max(top.max(), ll.max()) - np.maximum(top, ll.max(1))) / phi
@@ -196,8 +215,8 @@ def fit_crossing(
     if not band:
         band_low, band_high = curve_p.copy(), curve_p.copy()
     return CrossingFit(
-        state, boundary, low, high, (lo, hi), phi, int(x.size), t_grid, weights, curve_x,
-        curve_p, band_low, band_high,
+        state, boundary, low, high, (lo, hi), phi_conditions, int(x.size), t_grid, weights,
+        curve_x, curve_p, band_low, band_high, unit, n_units, phi_s,
     )  # fmt: skip
 
 
@@ -220,6 +239,59 @@ def dispersion(k: np.ndarray, n: np.ndarray, p: np.ndarray, cond: np.ndarray) ->
         chi2 = ((k - n * p) ** 2 / np.maximum(n * p * (1 - p), 1e-12)).sum()
         return max(1.0, float(chi2 / (k.size - 2))), int(k.size - 2)
     return 1.0, 0
+
+
+def scene_dispersion(
+    u: np.ndarray,
+    k: np.ndarray,
+    n: np.ndarray,
+    target: float,
+    floor: float,
+    slope: float,
+    tu: float,
+    scene: np.ndarray,
+) -> float:
+    """XXX"""
+    _, inv = np.unique(scene, return_inverse=True)
+    g = int(inv.max()) + 1
+    sp = scipy_special()
+    s = sp.expit(_eta(target, floor, slope, u, tu))
+    p = floor + (1 - floor) * s
+    # d log-likelihood / d eta = (k - n p) s / p; its Fisher weight n (1 - f) s^2 (1 - s) / p
+    # (1 - p = (1 - f)(1 - s): stable where p is near 1)
+    score_eta = (k - n * p) * s / np.maximum(p, 1e-12)
+    weight = n * (1 - floor) * s**2 * (1 - s) / np.maximum(p, 1e-12)
+    deriv = np.column_stack([np.full_like(u, slope), -slope * (u - tu)])  # d eta / d(t, log b)
+    scores = np.zeros((g, 2))
+    np.add.at(scores, inv, score_eta[:, None] * deriv)
+    infos = np.zeros((g, 2, 2))
+    np.add.at(infos, inv, weight[:, None, None] * deriv[:, :, None] * deriv[:, None, :])
+    info = infos.sum(0)
+    try:
+        bread = np.linalg.inv(info)
+        # each scene left out, one Newton step from the fit: the jackknife's pseudo-fits
+        shifts = np.stack([np.linalg.solve(info - infos[i], scores[i]) for i in range(g)])
+    except np.linalg.LinAlgError:  # the scenes left cannot place a curve: nothing known
+        return math.inf
+    shifts -= shifts.mean(0)
+    robust = (g - 1) / g * float((shifts[:, 0] ** 2).sum())
+    model = bread[0, 0]
+    return float(robust / model) if model > 0 and math.isfinite(robust) else math.inf
+
+
+def _refined_slope(ll: np.ndarray, best: tuple[Any, ...]) -> float:
+    """The steepness of the best fit off the grid: the vertex of the parabola (in log
+    steepness) through the best grid steepness at the best crossing and its neighbours."""
+    s = SLOPES.size
+    j = int(best[1]) % s
+    row = ll[best[0], (int(best[1]) // s) * s : (int(best[1]) // s + 1) * s]
+    if j < 2 or j > s - 2:
+        return float(SLOPES[j])
+    y0, y1, y2 = row[j - 1], row[j], row[j + 1]
+    curv = y2 - 2 * y1 + y0
+    step = math.log(SLOPES[2] / SLOPES[1])
+    off = float(np.clip(0.5 * (y0 - y2) / curv, -1, 1)) if curv < 0 else 0.0
+    return float(SLOPES[j] * math.exp(off * step))
 
 
 def _refined_max(ll: np.ndarray, floors: int) -> np.ndarray:
@@ -342,6 +414,7 @@ def fit_columns(fit: CrossingFit, to_tf: Any = None) -> dict[str, Any]:
         row
         | dict(zip(names, tf, strict=True))
         | {"fit_runs": fit.runs, "fit_dispersion": fit.dispersion}
+        | {"unit": fit.unit, "n_units": fit.n_units}
     )
 
 
@@ -428,6 +501,7 @@ def grid_fits(
             target,
             domain,
             g["condition"].to_numpy(),  # its seeds share the condition's departure
+            scene=g["scene"].to_numpy() if "scene" in g.columns else None,  # and its scene's
         )
         fits[value] = f
         rows.append({by: value} | fit_columns(f, to_tf))
