@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary.fit import describe_boundary, fit_section
+from analysis.boundary.fit import describe_boundary, exploratory_note, fit_section
 from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.boundary.scenes import check_scenes, draw_tfs
@@ -460,7 +460,7 @@ class BoundaryResult(WroteFiles):
         param = self.boundaries.columns[0]
         lines = [
             f"boundary at {param} = {r[param]:g}{', ' + r['scene'] if r.get('scene') else ''}: "
-            f"{describe_boundary(r)}"
+            f"{describe_boundary(r)}{exploratory_note(r)}"
             for r in self.boundaries.iter_rows(named=True)
         ]
         wanted = ("boundary.md", "boundary.png", "policy.csv")
@@ -542,7 +542,10 @@ def arena_report(
     ]
     for row in bounds.iter_rows(named=True):
         scene = f", {row['scene']}" if row.get("scene") else ""  # --per-scene
-        lines.append(f"- {s.param} = {row[s.param]:g}{scene}: {describe_boundary(row)}")
+        lines.append(
+            f"- {s.param} = {row[s.param]:g}{scene}: {describe_boundary(row)}"
+            f"{exploratory_note(row)}"  # one scene's own runs: a look, not a verdict
+        )
     lines += ["", "## Performance per condition\n"]
     columns = {
         "complexity (deg/s)": ("complexity", 1.0),

@@ -551,9 +551,12 @@ def describe_boundary(row: dict[str, Any]) -> str:
 FIT_NOTE = (
     "The boundary is where a monotone logistic curve of success against complexity, fitted "
     "to every run (binomial counts), crosses the target; its 95 % interval is the "
-    "profile-likelihood interval, widened by the conditions' overdispersion (a scene that "
-    "departs from the curve, seeds that differ) with F quantiles on conditions − 2 degrees "
-    "of freedom, its ends interpolated (`analysis/boundary/fit.py`). "
+    "profile-likelihood interval, widened by what varies: over 2 or more scenes, the scene is "
+    "the unit (conditions of one scene share its departure from the curve): the spread of the "
+    "crossing with each scene left out, never less than the conditions' overdispersion, with "
+    "F quantiles on scenes − 1 degrees of freedom (2 scenes: 1, so a wide interval); within "
+    "one scene, the conditions' overdispersion on conditions − 2. Its ends are interpolated "
+    "(`analysis/boundary/fit.py`); the table's *unit* says which, with their number. "
     "*Undetermined*: the runs cannot place it (the interval is unbounded); *beyond the "
     "design's range* only where success is above the target at 95 % confidence everywhere on it."
 )
@@ -562,8 +565,25 @@ FIT_NOTE = (
 PER_SCENE_NOTE = (
     " Per scene (`--per-scene`): each scene's runs alone, up to its first clearly failing run "
     "(the boundary is the *first* crossing along that scene's TF axis), wall TF through that "
-    "scene's profile."
+    "scene's profile. **Exploratory**: each row is one scene's boundary, from its own runs "
+    "(the n in the table), its interval over its own conditions; it says nothing of another "
+    "scene's, and many rows read together are many looks."
 )
+
+
+def exploratory_note(row: dict[str, Any]) -> str:
+    """For a ``--per-scene`` row (one scene's boundary): " (exploratory: this scene's 7 runs
+    alone)"; "" for any other row."""
+    if not row.get("scene") or "fit_runs" not in row:
+        return ""
+    return f" (exploratory: this scene's {row['fit_runs']} runs alone)"
+
+
+def _unit_cell(r: dict[str, Any]) -> str:
+    """The interval's unit and how many: "2 scenes", "6 conditions" (— for older tables)."""
+    if not r.get("unit") or r.get("n_units") is None:
+        return "—"
+    return f"{r['n_units']} {r['unit']}{'s' if r['n_units'] != 1 else ''}"
 
 
 def fit_section(bounds: pl.DataFrame, by: str) -> list[str]:
@@ -577,10 +597,10 @@ def fit_section(bounds: pl.DataFrame, by: str) -> list[str]:
 
     head = (
         f"| {by} |{' scene |' if scene else ''} state | boundary (deg/s) | 95 % | wall TF (Hz) "
-        "| 95 % | runs |"
+        "| 95 % | runs | unit |"
     )
     lines = [FIT_NOTE + (PER_SCENE_NOTE if scene else ""), "", head]
-    lines.append("|---|---|---|---|---|---|---|" + ("---|" if scene else ""))
+    lines.append("|---|---|---|---|---|---|---|---|" + ("---|" if scene else ""))
     for r in bounds.iter_rows(named=True):
         dps = _span(r["boundary_dps_low"], r["boundary_dps_high"], "", 1).strip() or "—"
         tf = _span(r["boundary_tf_low"], r["boundary_tf_high"], "", 2).strip() or "—"
@@ -591,7 +611,7 @@ def fit_section(bounds: pl.DataFrame, by: str) -> list[str]:
         tf_point = f"{r['boundary_tf_hz']:.2f}" if placed and _finite(r["boundary_tf_hz"]) else "—"
         lines.append(
             f"| {r[by]:g} |{scene_cell(r)} {r['fit_state']} | {point} | {dps} | {tf_point} | "
-            f"{tf} | {r['fit_runs']} |"
+            f"{tf} | {r['fit_runs']} | {_unit_cell(r)} |"
         )
     return [*lines, ""]
 
