@@ -67,9 +67,10 @@ def main() -> None:
         "--truths", default=",".join(TRUTHS), help="comma-separated, of " + ", ".join(TRUTHS)
     )
     ap.add_argument(
-        "--no-run-blocks",
-        action="store_true",
-        help="skip psignifit with a block per run (its slowest reading: 1-2 s per fit)",
+        "--blocks",
+        default="run,condition",
+        help="psignifit's readings, comma-separated: run (a block per run, its slowest: 1-2 s "
+        "per fit), condition (a block per condition)",
     )
     args = ap.parse_args()
     for truth in args.truths.split(","):
@@ -86,13 +87,15 @@ def main() -> None:
             f = fit_crossing(x, k, n, TARGET, DOMAIN, condition, scene=scene, band=False)
             got["vdc fit_crossing"].append((f.low, f.high, time.perf_counter() - t))
             t = time.perf_counter()
-            if not args.no_run_blocks:
+            if "run" in args.blocks.split(","):
                 got["psignifit, a block per run"].append((*psignifit_interval(x, k, n),
                                                           time.perf_counter() - t))  # fmt: skip
             xc = np.unique(x)
             kc = np.array([k[x == c].sum() for c in xc])
             nc = np.array([n[x == c].sum() for c in xc])
             t = time.perf_counter()
+            if "condition" not in args.blocks.split(","):
+                continue
             got["psignifit, a block per condition"].append((*psignifit_interval(xc, kc, nc),
                                                             time.perf_counter() - t))  # fmt: skip
         for name, rows in got.items():
