@@ -28,8 +28,8 @@ hit or miss per clip in footage mode), a binomial likelihood.
   between grid points.
 * **The scene is the unit** where runs name 2 or more scenes (``scene``): the conditions of
   one scene (its TFs) share the scene's departure from the curve, which no dispersion over
-  conditions sees (0.84 coverage on the default 2 x 3 grid under a scene effect of sd 0.5,
-  0.78 with 10-minute runs, 0.66 on 8 x 6). The scale is then the scenes' jackknife
+  conditions sees (0.875 coverage on the default 2 x 3 grid under a scene effect of sd 0.5,
+  0.765 with 10-minute runs, 0.765 on 8 x 6). The scale is then the scenes' jackknife
   (:func:`scene_dispersion`: the crossing's variance with each scene left out, over its
   model variance), never below the conditions' ``phi``, with F(1, scenes - 1) as the
   cut-off; the wider of this and the conditions' interval is kept. Why this and not the
