@@ -34,8 +34,8 @@ hit or miss per clip in footage mode), a binomial likelihood.
   model variance), never below the conditions' ``phi``, with F(1, scenes - 1) as the
   cut-off; the wider of this and the conditions' interval is kept. Why this and not the
   alternatives: a dispersion of the scenes' pooled counts has scenes - 2 (to 3) degrees of
-  freedom, none on the default grid of 2 scenes; a GLMM's scene variance is not estimable
-  from 2 scenes either, and its profile interval under-covers where it is estimated as 0; a
+  freedom, none on the default grid of 2 scenes; a GLMM's scene variance rests on 1 degree
+  of freedom too, and where it is estimated as 0 its interval is the conditions'; a
   bootstrap over 2 (or 8) scenes has 2 (8) distinct draws. The jackknife needs only the
   per-scene scores and information at the fit (one Newton step per scene left out, no
   refit: the fit costs the same), and its t reference on scenes - 1 degrees of freedom is
