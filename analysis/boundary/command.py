@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary.fit import describe_boundary, fit_section
+from analysis.boundary.fit import describe_boundary, exploratory_note, fit_section
 from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.boundary.scenes import check_scenes, draw_tfs
@@ -91,6 +91,7 @@ OWN_COLUMNS = frozenset(
     | {"p_value", "p_holm", "role", "survives", "verdict", "omega_dps", "omega_valid"}
     | {"si_p910", "ti_p910", "si_legacy", "ti_legacy", "mafd", "flow_dps", "edge_density"}
     | {"zlib_ratio", "jpeg_bpp", "codec_bpp"}
+    | {"n_units"}
     | _with_intervals("boundary_dps", "boundary_tf", "success", "complexity", "hit_rate")
     | _with_intervals("avoidances_per_30min", "crashes_per_30min", "false_alarms_per_30min")
     | _with_intervals("dtc_median_m", "false_alarm_rate", "correct", "ttc_first_alert_s")
@@ -462,7 +463,7 @@ class BoundaryResult(WroteFiles):
         param = self.boundaries.columns[0]
         lines = [
             f"boundary at {param} = {r[param]:g}{', ' + r['scene'] if r.get('scene') else ''}: "
-            f"{describe_boundary(r)}"
+            f"{describe_boundary(r)}{exploratory_note(r)}"
             for r in self.boundaries.iter_rows(named=True)
         ]
         wanted = ("boundary.md", "boundary.png", "policy.csv")
@@ -544,7 +545,10 @@ def arena_report(
     ]
     for row in bounds.iter_rows(named=True):
         scene = f", {row['scene']}" if row.get("scene") else ""  # --per-scene
-        lines.append(f"- {s.param} = {row[s.param]:g}{scene}: {describe_boundary(row)}")
+        lines.append(
+            f"- {s.param} = {row[s.param]:g}{scene}: {describe_boundary(row)}"
+            f"{exploratory_note(row)}"  # one scene's own runs: a look, not a verdict
+        )
     lines += ["", "## Performance per condition\n"]
     columns = {
         "complexity (deg/s)": ("complexity", 1.0),

@@ -22,10 +22,30 @@ hit or miss per clip in footage mode), a binomial likelihood.
   quasi-likelihood correction with the condition as the unit (:func:`dispersion`; runs with
   one trial each, as clips, have none); with ``phi`` estimated, the cut-offs below are F
   quantiles with ``conditions - 2`` degrees of freedom in place of chi2's. (A per-run
-  dispersion treated a condition's seeds as independent: 35-65 % coverage under a scene
+  dispersion treated a condition's seeds as independent: 35-65 % coverage under a condition
   effect of sd 0.5 on the log-odds.) The steepness is profiled continuously (a parabola
   through the grid's best and its neighbours), and the interval's ends are interpolated
   between grid points.
+* **The scene is the unit** where runs name 2 or more scenes (``scene``): the conditions of
+  one scene (its TFs) share the scene's departure from the curve, which no dispersion over
+  conditions sees (0.875 coverage on the default 2 x 3 grid under a scene effect of sd 0.5,
+  0.765 with 10-minute runs, 0.765 on 8 x 6). The scale is then the scenes' jackknife
+  (:func:`scene_dispersion`: the crossing's variance with each scene left out, over its
+  model variance), never below the conditions' ``phi``, with F(1, scenes - 1) as the
+  cut-off; the wider of this and the conditions' interval is kept. Why this and not the
+  alternatives: a dispersion of the scenes' pooled counts has scenes - 2 (to 3) degrees of
+  freedom, none on the default grid of 2 scenes; a GLMM's scene variance rests on 1 degree
+  of freedom too, and where it is estimated as 0 its interval is the conditions'; a
+  bootstrap over 2 (or 8) scenes has 2 (8) distinct draws. The jackknife needs only the
+  per-scene scores and information at the fit (one Newton step per scene left out, no
+  refit: the fit costs the same), and its t reference on scenes - 1 degrees of freedom is
+  the few-cluster rule (Cameron, Gelbach & Miller 2008); the floor at ``phi`` keeps two
+  scenes that agree by chance (1 degree of freedom) from making the interval narrower
+  than the conditions show. With 2 scenes the cut-off is F(1, 1) = 161: the interval is wide,
+  often unbounded, which is what 2 scenes know about the population of scenes; 8 scenes of
+  6 TFs place it to 2.8 deg/s. What is estimated is the population's boundary: where the
+  success averaged over scenes, conditions and seeds crosses the target (a pooled binomial
+  fit's estimand), 0.3 deg/s below the median scene's under a scene effect of sd 0.5.
 * **The 95 % interval** is the profile-likelihood interval of ``t``: every ``t`` whose best
   curve is within ``chi2(1, 0.95) / 2`` (deviance 3.84, scaled by ``phi``) of the best one.
   Where that set reaches an edge of the widened range, that side is unbounded.
@@ -89,6 +109,9 @@ class CrossingFit:
     curve_p: np.ndarray  # (M,) the best fit's success
     band_low: np.ndarray  # (M,) the 95 % band
     band_high: np.ndarray
+    unit: str = "run"  # what the interval's scale treats as independent: run, condition, scene
+    n_units: int = 0  # how many of them
+    scene_dispersion: float = math.nan  # the scenes' jackknife scale (NaN: fewer than 2 scenes)
 
     @property
     def width(self) -> float:
@@ -113,6 +136,7 @@ def fit_crossing(
     domain: tuple[float, float] | None = None,
     condition: Sequence[Any] | np.ndarray | None = None,
     *,
+    scene: Sequence[Any] | np.ndarray | None = None,
     band: bool = True,
 ) -> CrossingFit:
     """Fit the monotone logistic curve to runs at complexity ``x`` (R,) with ``k`` successes of
@@ -122,11 +146,15 @@ def fit_crossing(
     ``condition`` (R,) names the condition (scene and TF) of each run, default: runs at the
     same complexity share one. The dispersion is the conditions' (their pooled counts about
     the curve, :func:`dispersion`), so a condition that departs from the curve as a whole
-    widens the interval, not only seeds that differ. ``band=False`` skips the 95 % band of
-    curves (the coverage tests need only the interval)."""
+    widens the interval, not only seeds that differ. ``scene`` (R,) names each run's scene:
+    with 2 or more, the scene is the unit (:func:`scene_dispersion`, F(1, scenes - 1)), so a
+    scene whose conditions all depart from the curve widens it too; the fit's ``unit`` and
+    ``n_units`` say which unit it took (scene, condition or run). ``band=False`` skips the
+    95 % band of curves (the coverage tests need only the interval)."""
     x, k, n = (np.asarray(v, float).ravel() for v in (x, k, n))
     keep = (n > 0) & np.isfinite(x) & np.isfinite(k)
     cond = np.asarray(x if condition is None else condition).ravel()[keep]
+    sc = None if scene is None else np.asarray(scene).ravel()[keep]
     x, k, n = x[keep], k[keep], n[keep]
     lo, hi = domain if domain is not None else ((x.min(), x.max()) if x.size else (0.0, 1.0))
     lo, hi = float(min(lo, hi)), float(max(lo, hi))
@@ -162,11 +190,25 @@ def fit_crossing(
     p_best = _curve(target, floor_of[best[1]], slope_of[best[1]], u, tu[best[0]])
     p_best = np.clip(p_best, 0.01, 0.99)  # a step's 1 - 1e-9 would make one crash a 'misfit'
     phi, df = dispersion(k, n, p_best, cond)
+    phi_conditions = phi
     if df > 0:  # phi is estimated: the F quantiles in place of chi2's (quasi-likelihood)
         cut_1 = float(scipy_stats().f.ppf(0.95, 1, df))
         cut_2 = 2.0 * float(scipy_stats().f.ppf(0.95, 2, df))
     else:
         cut_1, cut_2 = DEVIANCE_1, DEVIANCE_2
+    unit, n_units = ("condition", int(np.unique(cond).size)) if df > 0 else ("run", int(x.size))
+    n_scenes = 0 if sc is None else int(np.unique(sc).size)
+    phi_s = math.nan
+    if n_scenes >= 2:  # the scene is the unit: its jackknife scale, F(1, scenes - 1)
+        phi_s = scene_dispersion(u, k, n, target, floor_of[best[1]], _refined_slope(ll, best),
+                                 tu[best[0]], sc)  # fmt: skip
+        cut_s = float(scipy_stats().f.ppf(0.95, 1, n_scenes - 1))
+        # never below the conditions' scale (a floor: see scene_dispersion), and the wider
+        # of the two intervals
+        if max(phi, phi_s) * cut_s > phi * cut_1:
+            phi, cut_1 = max(phi, phi_s), cut_s
+            cut_2 = 2.0 * float(scipy_stats().f.ppf(0.95, 2, n_scenes - 1))
+        unit, n_units = "scene", n_scenes
     top = _refined_max(ll, floors.size)  # (N_T,) the profile over a continuous steepness
     dev = 2.0 * (max(top.max(), ll.max()) - ll) / phi  # (N_T, S)
     profile = 2.0 * (max(top.max(), ll.max()) - np.maximum(top, ll.max(1))) / phi
@@ -196,8 +238,8 @@ def fit_crossing(
     if not band:
         band_low, band_high = curve_p.copy(), curve_p.copy()
     return CrossingFit(
-        state, boundary, low, high, (lo, hi), phi, int(x.size), t_grid, weights, curve_x,
-        curve_p, band_low, band_high,
+        state, boundary, low, high, (lo, hi), phi_conditions, int(x.size), t_grid, weights,
+        curve_x, curve_p, band_low, band_high, unit, n_units, phi_s,
     )  # fmt: skip
 
 
@@ -220,6 +262,65 @@ def dispersion(k: np.ndarray, n: np.ndarray, p: np.ndarray, cond: np.ndarray) ->
         chi2 = ((k - n * p) ** 2 / np.maximum(n * p * (1 - p), 1e-12)).sum()
         return max(1.0, float(chi2 / (k.size - 2))), int(k.size - 2)
     return 1.0, 0
+
+
+def scene_dispersion(
+    u: np.ndarray,
+    k: np.ndarray,
+    n: np.ndarray,
+    target: float,
+    floor: float,
+    slope: float,
+    tu: float,
+    scene: np.ndarray,
+) -> float:
+    """The scenes' scale for the crossing's interval: the delete-one-scene jackknife variance
+    of the crossing ``t`` over its model (binomial) variance, (G - 1) / G sum_g (d_g - mean)^2
+    / (J^-1)_tt, where d_g is the change in (t, log b) with scene g left out, one Newton step
+    from the fit: (J - J_g)^-1 S_g (S_g, J_g: scene g's score and information at the fit, the
+    floor held at its fitted value). Used with F(1, G - 1) (:func:`fit_crossing`). ``u``,
+    ``tu``: complexity and crossing in spans from the domain's start; ``slope``: per span.
+    inf where leaving a scene out leaves a curve the others cannot place."""
+    _, inv = np.unique(scene, return_inverse=True)
+    g = int(inv.max()) + 1
+    sp = scipy_special()
+    s = sp.expit(_eta(target, floor, slope, u, tu))
+    p = floor + (1 - floor) * s
+    # d log-likelihood / d eta = (k - n p) s / p; its Fisher weight n (1 - f) s^2 (1 - s) / p
+    # (1 - p = (1 - f)(1 - s): stable where p is near 1)
+    score_eta = (k - n * p) * s / np.maximum(p, 1e-12)
+    weight = n * (1 - floor) * s**2 * (1 - s) / np.maximum(p, 1e-12)
+    deriv = np.column_stack([np.full_like(u, slope), -slope * (u - tu)])  # d eta / d(t, log b)
+    scores = np.zeros((g, 2))
+    np.add.at(scores, inv, score_eta[:, None] * deriv)
+    infos = np.zeros((g, 2, 2))
+    np.add.at(infos, inv, weight[:, None, None] * deriv[:, :, None] * deriv[:, None, :])
+    info = infos.sum(0)
+    try:
+        bread = np.linalg.inv(info)
+        # each scene left out, one Newton step from the fit: the jackknife's pseudo-fits
+        shifts = np.stack([np.linalg.solve(info - infos[i], scores[i]) for i in range(g)])
+    except np.linalg.LinAlgError:  # the scenes left cannot place a curve: nothing known
+        return math.inf
+    shifts -= shifts.mean(0)
+    robust = (g - 1) / g * float((shifts[:, 0] ** 2).sum())
+    model = bread[0, 0]
+    return float(robust / model) if model > 0 and math.isfinite(robust) else math.inf
+
+
+def _refined_slope(ll: np.ndarray, best: tuple[Any, ...]) -> float:
+    """The steepness of the best fit off the grid: the vertex of the parabola (in log
+    steepness) through the best grid steepness at the best crossing and its neighbours."""
+    s = SLOPES.size
+    j = int(best[1]) % s
+    row = ll[best[0], (int(best[1]) // s) * s : (int(best[1]) // s + 1) * s]
+    if j < 2 or j > s - 2:
+        return float(SLOPES[j])
+    y0, y1, y2 = row[j - 1], row[j], row[j + 1]
+    curv = y2 - 2 * y1 + y0
+    step = math.log(SLOPES[2] / SLOPES[1])
+    off = float(np.clip(0.5 * (y0 - y2) / curv, -1, 1)) if curv < 0 else 0.0
+    return float(SLOPES[j] * math.exp(off * step))
 
 
 def _refined_max(ll: np.ndarray, floors: int) -> np.ndarray:
@@ -342,6 +443,7 @@ def fit_columns(fit: CrossingFit, to_tf: Any = None) -> dict[str, Any]:
         row
         | dict(zip(names, tf, strict=True))
         | {"fit_runs": fit.runs, "fit_dispersion": fit.dispersion}
+        | {"unit": fit.unit, "n_units": fit.n_units}
     )
 
 
@@ -428,6 +530,7 @@ def grid_fits(
             target,
             domain,
             g["condition"].to_numpy(),  # its seeds share the condition's departure
+            scene=g["scene"].to_numpy() if "scene" in g.columns else None,  # and its scene's
         )
         fits[value] = f
         rows.append({by: value} | fit_columns(f, to_tf))
@@ -477,9 +580,12 @@ def describe_boundary(row: dict[str, Any]) -> str:
 FIT_NOTE = (
     "The boundary is where a monotone logistic curve of success against complexity, fitted "
     "to every run (binomial counts), crosses the target; its 95 % interval is the "
-    "profile-likelihood interval, widened by the conditions' overdispersion (a scene that "
-    "departs from the curve, seeds that differ) with F quantiles on conditions − 2 degrees "
-    "of freedom, its ends interpolated (`analysis/boundary/fit.py`). "
+    "profile-likelihood interval, widened by what varies: over 2 or more scenes, the scene is "
+    "the unit (conditions of one scene share its departure from the curve): the spread of the "
+    "crossing with each scene left out, never less than the conditions' overdispersion, with "
+    "F quantiles on scenes − 1 degrees of freedom (2 scenes: 1, so a wide interval); within "
+    "one scene, the conditions' overdispersion on conditions − 2. Its ends are interpolated "
+    "(`analysis/boundary/fit.py`); the table's *unit* says which, with their number. "
     "*Undetermined*: the runs cannot place it (the interval is unbounded); *beyond the "
     "design's range* only where success is above the target at 95 % confidence everywhere on it."
 )
@@ -488,8 +594,25 @@ FIT_NOTE = (
 PER_SCENE_NOTE = (
     " Per scene (`--per-scene`): each scene's runs alone, up to its first clearly failing run "
     "(the boundary is the *first* crossing along that scene's TF axis), wall TF through that "
-    "scene's profile."
+    "scene's profile. **Exploratory**: each row is one scene's boundary, from its own runs "
+    "(the n in the table), its interval over its own conditions; it says nothing of another "
+    "scene's, and many rows read together are many looks."
 )
+
+
+def exploratory_note(row: dict[str, Any]) -> str:
+    """For a ``--per-scene`` row (one scene's boundary): " (exploratory: this scene's 7 runs
+    alone)"; "" for any other row."""
+    if not row.get("scene") or "fit_runs" not in row:
+        return ""
+    return f" (exploratory: this scene's {row['fit_runs']} runs alone)"
+
+
+def _unit_cell(r: dict[str, Any]) -> str:
+    """The interval's unit and how many: "2 scenes", "6 conditions" (— for older tables)."""
+    if not r.get("unit") or r.get("n_units") is None:
+        return "—"
+    return f"{r['n_units']} {r['unit']}{'s' if r['n_units'] != 1 else ''}"
 
 
 def fit_section(bounds: pl.DataFrame, by: str) -> list[str]:
@@ -503,10 +626,10 @@ def fit_section(bounds: pl.DataFrame, by: str) -> list[str]:
 
     head = (
         f"| {by} |{' scene |' if scene else ''} state | boundary (deg/s) | 95 % | wall TF (Hz) "
-        "| 95 % | runs |"
+        "| 95 % | runs | unit |"
     )
     lines = [FIT_NOTE + (PER_SCENE_NOTE if scene else ""), "", head]
-    lines.append("|---|---|---|---|---|---|---|" + ("---|" if scene else ""))
+    lines.append("|---|---|---|---|---|---|---|---|" + ("---|" if scene else ""))
     for r in bounds.iter_rows(named=True):
         dps = _span(r["boundary_dps_low"], r["boundary_dps_high"], "", 1).strip() or "—"
         tf = _span(r["boundary_tf_low"], r["boundary_tf_high"], "", 2).strip() or "—"
@@ -517,7 +640,7 @@ def fit_section(bounds: pl.DataFrame, by: str) -> list[str]:
         tf_point = f"{r['boundary_tf_hz']:.2f}" if placed and _finite(r["boundary_tf_hz"]) else "—"
         lines.append(
             f"| {r[by]:g} |{scene_cell(r)} {r['fit_state']} | {point} | {dps} | {tf_point} | "
-            f"{tf} | {r['fit_runs']} |"
+            f"{tf} | {r['fit_runs']} | {_unit_cell(r)} |"
         )
     return [*lines, ""]
 

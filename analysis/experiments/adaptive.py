@@ -220,7 +220,8 @@ def design_runs(
             g = rows[v]
             k = [r["avoidances"] for r in g]
             n = [r["avoidances"] + r["crashes"] for r in g]
-            fits[v] = fit_crossing([r["complexity_dps"] for r in g], k, n, target, domain)
+            x = [r["complexity_dps"] for r in g]
+            fits[v] = fit_crossing(x, k, n, target, domain, scene=[r["scene"] for r in g])
             f = fits[v]
             log(
                 f"  value {v:g}, batch {round_no}: {len(g)} run(s), boundary {f.boundary:.1f} "

@@ -144,6 +144,15 @@ def test_the_files_have_a_row_per_value_and_scene(tmp_path: Path) -> None:
     assert any(line.startswith("- t_ffi = 45, natural: ") for line in md.splitlines())
     assert (tmp_path / "boundary.png").stat().st_size > 10_000
     assert any(", grating: " in line for line in res.report())
+    # each scene's boundary is exploratory and says its n: its runs, its interval's unit
+    assert "**Exploratory**" in md
+    for r in bounds.iter_rows(named=True):
+        note = f"(exploratory: this scene's {r['fit_runs']} runs alone)"
+        assert any(line.startswith(f"- t_ffi = {r['t_ffi']:g}, {r['scene']}: ")
+                   and line.endswith(note) for line in md.splitlines())  # fmt: skip
+        assert any(f", {r['scene']}: " in line and note in line for line in res.report())
+        assert r["unit"] in ("condition", "run") and r["n_units"] >= 1  # one scene: not "scene"
+        assert f"| {r['fit_runs']} | {r['n_units']} {r['unit']}" in md
 
 
 def test_per_scene_without_the_adaptive_design_is_one_line(tmp_path: Path) -> None:
