@@ -6,8 +6,8 @@ each block's variance n psi (1 - psi) [1 + (n - 1) eta^2], a credible interval w
 nuisance parameters integrated out. It is given the same counts twice: one block per run
 (its default reading of such data) and one block per condition (the pooled seeds). vdc's fit
 (:func:`analysis.boundary.fit.fit_crossing`) takes the runs with their conditions. Truth as in
-``tests/analysis/test_boundary_coverage.py``: no extra variation, a per-run effect (sd 0.4 on
-the log-odds) and a per-condition effect (sd 0.5); success falls through 90 % at 16 deg/s.
+``tests/analysis/boundary/test_boundary_coverage.py``: no extra variation, a per-run effect (sd
+0.4 on the log-odds) and a per-condition effect (sd 0.5); success falls through 90 % at 16 deg/s.
 
 psignifit is fitted to the failure rate (rising), a logistic with guess and lapse rates fixed
 at 0 (the truth has no floor) and ``thresh_PC`` 0.1: its threshold is then vdc's boundary.
@@ -27,7 +27,7 @@ import warnings
 import numpy as np
 
 from analysis.boundary.fit import fit_crossing
-from tests.analysis.test_boundary_coverage import DOMAIN, TARGET, TRUTH, campaign
+from tests.analysis.boundary.test_boundary_coverage import DOMAIN, TARGET, TRUTH, campaign
 
 TRUTHS = {"none": {}, "per run": {"run_sd": 0.4}, "per condition": {"condition_sd": 0.5}}
 

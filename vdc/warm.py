@@ -8,7 +8,7 @@ the fork server, each worker inherits them by forking (copy on write).
 
 Only what starts no thread at import belongs here: a fork copies one thread, so a library
 whose threads hold locks (polars' and Rerun's runtimes) must be imported by each worker
-itself. :func:`threads_now` checks it (``tests/test_executors_pool.py``).
+itself. :func:`threads_now` checks it (``tests/vdc/test_executors_pool.py``).
 
 The BLAS limit is set before NumPy loads OpenBLAS: it reads its thread count once, when it
 loads, and a worker is one core's worth of work (the pool has one worker per core).
