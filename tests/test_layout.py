@@ -739,3 +739,83 @@ def test_the_api_stub_is_current() -> None:
     assert stub == vdc._stub(), f"vdc/__init__.pyi is stale: regenerate it with {fix}"
     # every public name is typed from the module that defines it (no Any, no re-export)
     assert all(f" as {name}\n" in stub for name in vdc.__all__)
+
+
+# -- the tests mirror the packages ----------------------------------------------------------
+def analysis_packages() -> dict[str, set[str]]:
+    """Each command package of analysis/ (a folder with ``__init__.py``) and its modules."""
+    return {
+        d.name: {p.stem for p in d.glob("*.py") if p.stem != "__init__"}
+        for d in sorted((ROOT / "analysis").iterdir())
+        if (d / "__init__.py").is_file()
+    }
+
+
+def _named_after(stem: str, name: str) -> bool:
+    # ``test_power_study`` is named after ``power`` and ``power_study``, not ``pow``
+    return stem == name or stem.startswith(name + "_")
+
+
+def misplaced_tests(paths: list[str], packages: dict[str, set[str]]) -> list[str]:
+    """The rule of docs/development.md: a test file under tests/analysis/ whose name starts
+    with a package's name (or its singular: ``test_predictor_coverage``) sits in that package's
+    folder; a file left in tests/analysis/ itself (a stand-alone module's test, or one of several
+    commands) is not named after a module of a package (``test_power*``: experiments/power.py);
+    and every folder under tests/analysis/ is a package's."""
+    bad = []
+    for path in paths:
+        parts = path.split("/")
+        if parts[:2] != ["tests", "analysis"] or not parts[-1].startswith("test_"):
+            continue
+        stem = parts[-1].removeprefix("test_").removesuffix(".py")
+        folder = parts[2] if len(parts) == 4 else None
+        if len(parts) > 4 or (folder is not None and folder not in packages):
+            bad.append(f"{path}: tests/analysis/<package>/ is one level, named after a package")
+            continue
+        owners = [p for p in packages if _named_after(stem, p) or _named_after(stem, p[:-1])]
+        if owners and folder not in owners:
+            bad.append(f"{path}: belongs in tests/analysis/{owners[0]}/")
+        elif folder is None and not owners:
+            modules = sorted(
+                p for p, mods in packages.items() if any(_named_after(stem, m) for m in mods)
+            )
+            if modules:
+                bad.append(f"{path}: named after a module of {' or '.join(modules)}: move it there")
+    return bad
+
+
+def test_the_analysis_tests_sit_in_their_packages_folders() -> None:
+    paths = [p.relative_to(ROOT).as_posix() for p in (ROOT / "tests").rglob("test_*.py")]
+    assert not misplaced_tests(paths, analysis_packages()), misplaced_tests(
+        paths, analysis_packages()
+    )
+
+
+def test_a_misplaced_analysis_test_is_found() -> None:
+    packages = {"dataset": {"measure", "window"}, "predictors": {"held_out"}}
+    good = [
+        "tests/analysis/dataset/test_dataset_faults.py",
+        "tests/analysis/dataset/test_lag_interval.py",  # named after nothing: any folder
+        "tests/analysis/predictors/test_predictor_coverage.py",
+        "tests/analysis/test_batch.py",  # a stand-alone module's test stays flat
+        "tests/analysis/test_measurement_log.py",  # "measure" is not a prefix of "measurement"
+    ]
+    assert not misplaced_tests(good, packages)
+    for path in (
+        "tests/analysis/test_dataset_faults.py",  # flat, named after a package
+        "tests/analysis/test_predictor_coverage.py",  # the singular counts
+        "tests/analysis/predictors/test_dataset_x.py",  # another package's folder
+        "tests/analysis/test_window.py",  # flat, named after a package's module
+        "tests/analysis/test_held_out_folds.py",
+        "tests/analysis/stats/test_stats.py",  # a folder that is no package
+        "tests/analysis/dataset/more/test_x.py",
+    ):
+        assert misplaced_tests([*good, path], packages), path
+
+
+def test_the_longest_first_order_names_existing_test_files() -> None:
+    """tests/conftest.py starts the longest files first by their paths: a file moved without
+    its entry there would silently lose its place."""
+    from tests.conftest import LONGEST_FIRST
+
+    assert [p for p in LONGEST_FIRST if not (ROOT / p).is_file()] == []

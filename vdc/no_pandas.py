@@ -20,7 +20,7 @@ remembers a failure (``_PandasAPIShim._tried_importing_pandas``, ``pandas-shim.p
 26), while an explicit use tries again. vdc reads and sets none of its private attributes;
 only :func:`_ask_now` relies on that behaviour, and if a new pyarrow drops it, the plain path
 follows (pyarrow imports pandas on its first conversion, as without this module).
-``tests/test_no_pandas.py`` fails naming the pyarrow version if it changes. Measured (pyarrow
+``tests/vdc/test_no_pandas.py`` fails naming the pyarrow version if it changes. Measured (pyarrow
 26, Python 3.11): pyarrow's first list conversion costs 0.21-0.23 s of CPU without this
 module, 0.00 s with it.
 """

@@ -12,7 +12,7 @@ and nothing else does.
 
 Only what starts no thread at import belongs in :data:`PRELOAD`: a fork copies one thread, so
 a library whose threads hold locks (polars' and Rerun's runtimes) must be imported by each
-worker itself. :func:`threads_now` checks it (``tests/test_executors_pool.py``).
+worker itself. :func:`threads_now` checks it (``tests/vdc/test_executors_pool.py``).
 """
 
 from __future__ import annotations

@@ -73,8 +73,9 @@ def _with_intervals(*names: str) -> set[str]:
 # vdc's own columns in the tables a boundary campaign writes (boundary*.parquet, the predictor
 # tables; footage mode's clips, arena mode's runs and profiles): the parameter swept by --param
 # is a column beside them, so none may share its name (a detector parameter named ``frame`` or
-# ``value`` collided with one). tests/analysis/test_inputs_at_the_door.py and test_boundary.py
-# check that the tables written hold no column outside this set.
+# ``value`` collided with one). tests/analysis/test_inputs_at_the_door.py and
+# tests/analysis/boundary/test_boundary.py check that the tables written hold no column outside
+# this set.
 OWN_COLUMNS = frozenset(
     {"frame", "t_s", "recording_id", "model", "source", "key", "row_version", "reused", "value"}
     | {"condition", "scene", "tf_hz", "seed", "seeds", "batch", "phase", "detector", "design"}

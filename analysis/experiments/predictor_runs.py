@@ -61,7 +61,8 @@ CODEC_CRF = 23
 
 
 # full-range grey -> limited-range luma (16-235), exactly what FFmpeg's gray -> yuv420p
-# conversion computes (checked against it pixel for pixel in tests/analysis/test_predictors.py)
+# conversion computes (checked against it pixel for pixel in
+# tests/analysis/predictors/test_predictors.py)
 _LIMITED_LUMA = np.rint(16 + np.arange(256) * 219 / 255).astype(np.uint8)
 
 

@@ -25,7 +25,7 @@ from vdc.executors import Feedback
 # at T_ffi = 30, the paper's adjusted threshold, it is not (tests/capture/test_collision_mode)
 GRID = BoundarySettings(
     tf="0,3", scenes="grating", values="12,30", seeds=3, minutes=1.5, jobs=2, no_predictors=True
-)  # the predictors: tests/analysis/test_predictors.py
+)  # the predictors: tests/analysis/predictors/test_predictors.py
 
 
 @pytest.fixture(scope="module")

@@ -44,7 +44,7 @@ SCRIPT = """
 import json, sys
 import numpy as np  # loaded with the default BLAS threads, before any pool exists
 import threadpoolctl
-from tests.test_executors_pool import worker_state
+from tests.vdc.test_executors_pool import worker_state
 from vdc.executors import ExecutorSettings, run_tasks
 
 if __name__ == "__main__":

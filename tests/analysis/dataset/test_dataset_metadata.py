@@ -288,7 +288,7 @@ def test_timestamps_going_backwards_are_said_and_the_lag_measured_before_them(
     assert f"{DATA} (episode 1)" in line and "goes backwards at row 105" in line
     rows = _rows(res)
     # the lag's estimate on one out-and-back stroke: 96-98 ms measured here (the whole clean
-    # episode gives 97); within 30 ms as tests/analysis/test_dataset_faults.py allows (the
+    # episode gives 97); within 30 ms as tests/analysis/dataset/test_dataset_faults.py allows (the
     # peak: its interval on one stroke may fill the search, and lag_ms is then left out)
     assert rows[1]["lag_peak_ms"] == pytest.approx(100, abs=30)
     assert rows[1]["drift_end_ms"] is None  # no last timestamp to hold the video's end against

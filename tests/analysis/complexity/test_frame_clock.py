@@ -14,8 +14,10 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.analysis.test_lost_frames import measured, zero_packets
-from tests.analysis.test_lost_frames import quiet_ffmpeg as quiet_ffmpeg  # autouse here too
+from tests.analysis.complexity.test_lost_frames import measured, zero_packets
+from tests.analysis.complexity.test_lost_frames import (
+    quiet_ffmpeg as quiet_ffmpeg,  # autouse here too
+)
 
 N, FPS = 60, 25
 
@@ -115,8 +117,8 @@ def test_two_clips_with_one_stem_in_one_folder_keep_apart(tmp_path):
     """``take.mp4`` and ``take.mkv`` side by side (and a ``take.mp4`` in another folder): each
     gets its own recording id, rows, figure and ``.rrd``; nothing overwrites another's."""
     from analysis.complexity.command import ComplexitySettings, complexity
-    from tests.analysis.test_lost_frames import N as FRAMES
-    from tests.analysis.test_lost_frames import write_clip
+    from tests.analysis.complexity.test_lost_frames import N as FRAMES
+    from tests.analysis.complexity.test_lost_frames import write_clip
 
     folder = tmp_path / "day1"
     folder.mkdir()

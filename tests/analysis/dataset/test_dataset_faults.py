@@ -80,7 +80,7 @@ def test_lag_idle_and_camera_shift_are_measured(profiled) -> None:
     lag = rows[4]
     assert lag["lag_peak_ms"] == pytest.approx(FAULTS.lag_ms[4], abs=30)
     # its interval holds the truth and fills the search: one out-and-back stroke in 3-4 s is
-    # too little evidence (tests/analysis/test_lag_interval.py checks how often it covers),
+    # too little evidence (tests/analysis/dataset/test_lag_interval.py checks how often it covers),
     # so no lag is reported, and the note says why
     assert lag["lag_low_ms"] <= FAULTS.lag_ms[4] <= lag["lag_high_ms"]
     if lag["lag_ms"] is None:

@@ -56,7 +56,7 @@ def test_the_fit_finds_a_constructed_crossing_and_its_interval_covers_it() -> No
     assert fit.success(14.0) == pytest.approx(TARGET, abs=0.1)  # the curve crosses there
 
 
-# coverage with 200 repeats under three truths: tests/analysis/test_boundary_coverage.py
+# coverage with 200 repeats under three truths: tests/analysis/boundary/test_boundary_coverage.py
 
 
 def test_runs_that_cannot_place_the_boundary_say_undetermined_never_beyond() -> None:

@@ -13,7 +13,7 @@ import pytest
 from analysis.complexity.command import ComplexitySettings
 from analysis.complexity.meter import METRICS, parse_metrics
 from analysis.complexity.source_metrics import measure_video
-from tests.analysis.test_native_metrics import FOV
+from tests.analysis.complexity.test_native_metrics import FOV
 from tests.helpers import write_pan
 from vdc.pipeline import pipelined
 
@@ -111,7 +111,7 @@ def test_reading_again_gives_the_full_range_values_of_a_second_pass(tmp_path, fi
     batcher that reads the file again for the frames before it (``reopen``, as the command
     does) gives the native metrics of the one that measures every frame in full range beside,
     bit for bit, and no second reading happens when none is needed."""
-    from tests.analysis.test_color_range import encode_luma
+    from tests.vdc.test_color_range import encode_luma
     from vdc.frame_batches import FrameBatcher
     from vdc.sources import open_reader
 

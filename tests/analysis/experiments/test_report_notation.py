@@ -12,7 +12,7 @@ import pytest
 from analysis.experiments import report
 from analysis.experiments.claims import Claim, profiling_claims
 from analysis.experiments.plan import ReproduceSettings
-from tests.analysis.test_claims import _summary
+from tests.analysis.experiments.test_claims import _summary
 
 
 def _key(page: str) -> dict[str, str]:
