@@ -6,9 +6,9 @@ each block's variance n psi (1 - psi) [1 + (n - 1) eta^2], a credible interval w
 nuisance parameters integrated out. It is given the same counts twice: one block per run
 (its default reading of such data) and one block per condition (the pooled seeds). vdc's fit
 (:func:`analysis.boundary.fit.fit_crossing`) takes the runs with their conditions and scenes.
-Designs and truths as in ``tests/analysis/boundary/test_boundary_coverage.py`` (the default grid of 2
-scenes x 3 TFs x 5 seeds, each scene its own profile): no extra variation, a per-run effect
-(sd 0.4 on the log-odds), a per-condition effect (sd 0.5) and a scene effect (sd 0.5); the
+Designs and truths as in ``tests/analysis/boundary/test_boundary_coverage.py`` (the default
+grid of 2 scenes x 3 TFs x 5 seeds, each scene its own profile): no extra variation, a per-run
+effect (sd 0.4 on the log-odds), a per-condition effect (sd 0.5) and a scene effect (sd 0.5); the
 truth an interval must cover is the population's boundary (the success averaged over the
 effects crosses 90 %); the coverage of the median scene's (16 deg/s) is printed beside it.
 

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary.fit import describe_boundary, exploratory_note, fit_section
+from analysis.boundary.fit_text import describe_boundary, exploratory_note, fit_section
 from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
 from analysis.boundary.scenes import check_scenes, draw_tfs

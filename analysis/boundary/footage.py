@@ -54,13 +54,8 @@ from analysis.boundary.command import (
     published,
     with_override,
 )
-from analysis.boundary.fit import (
-    describe_boundary,
-    fit_columns,
-    fit_crossing,
-    fit_section,
-    with_fit,
-)
+from analysis.boundary.fit import fit_columns, fit_crossing, with_fit
+from analysis.boundary.fit_text import describe_boundary, fit_section
 from analysis.boundary.footage_predictors import footage_predictor_tables, scene_end
 from analysis.boundary.labels import read_labels
 from analysis.boundary.plot import plot_boundary

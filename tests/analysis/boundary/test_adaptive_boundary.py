@@ -13,7 +13,8 @@ import polars as pl
 import pytest
 import scipy.special
 
-from analysis.boundary.fit import describe_fit, dps_to_tf, fit_columns, fit_crossing, tf_to_dps
+from analysis.boundary.fit import dps_to_tf, fit_columns, fit_crossing, tf_to_dps
+from analysis.boundary.fit_text import describe_fit
 from analysis.experiments.adaptation import AdaptationSettings
 from analysis.experiments.adaptive import (
     DesignSettings,

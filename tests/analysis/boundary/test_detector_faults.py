@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from analysis.boundary.command import BoundarySettings
-from analysis.boundary.fit import describe_boundary
+from analysis.boundary.fit_text import describe_boundary
 from analysis.boundary.report_tables import interval
 from analysis.experiments.boundary_campaign import boundary
 from analysis.experiments.captures import run_captures
