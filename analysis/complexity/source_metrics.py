@@ -230,7 +230,11 @@ def measure_video(
                 "for the AVDM and the flow in deg/s, or ask for pixel metrics (--metrics)"
             )
     model_metrics = tuple(m for m in MODEL_METRICS if m in metrics)
-    reader = open_reader(source, settings.fps)
+    threads = usable_threads()
+    # on more than one core each frame's measuring spreads over them (vdc.frame_batches) and
+    # FFmpeg decodes on one thread of its own: its frame threads would cost more CPU
+    decoder_threads = 1 if threads > 1 else None
+    reader = open_reader(source, settings.fps, decoder_threads)
     batches = None
     try:
         info = reader.info
@@ -245,11 +249,13 @@ def measure_video(
         native = tuple(m for m in NATIVE_METRICS if m in metrics)
         batches = FrameBatcher(
             reader, size, fps, batch_frames=128, repeat_tol=settings.repeat_tol,
-            max_repeats=settings.max_repeats, metrics=native, threads=usable_threads(),
+            max_repeats=settings.max_repeats, metrics=native, threads=threads,
             jpeg_quality=settings.jpeg_quality, color_range=settings.color_range,
             # a file or image sequence can be read again (a camera cannot): no second SI/TI
             # pass for the range decision (vdc.frame_batches)
-            reopen=None if info["kind"] == "camera" else lambda: open_reader(source, settings.fps),
+            reopen=None
+            if info["kind"] == "camera"
+            else lambda: open_reader(source, settings.fps, decoder_threads),
         )  # fmt: skip
         stream: FrameBatcher | RateLookahead = batches
         if ctx is not None:
