@@ -44,6 +44,7 @@ from siti_tools.siti import SiTiCalculator  # noqa: E402
 
 from tests.helpers import write_pan  # noqa: E402
 from vdc import frame_metrics as fm  # noqa: E402
+from vdc import siti_kernel as sk  # noqa: E402
 
 SIZES = {"720p": (1280, 720), "1080p": (1920, 1080)}
 FRAMES = 50  # the short clip; the long one 4 times as long
@@ -54,22 +55,22 @@ F32 = np.float32
 @numba.njit(**OPTS)
 def lookup_frame(y, lut, rows):  # pragma: no cover - compiled
     for i in range(y.shape[0]):
-        fm._map_row(y[i], lut, rows[i % 3])
+        sk._map_row(y[i], lut, rows[i % 3])
 
 
 @numba.njit(**OPTS)
 def ti_frame(y, prev, lut, rows, sums):  # pragma: no cover - compiled
     for i in range(y.shape[0]):
-        fm._map_row(y[i], lut, rows[0])
+        sk._map_row(y[i], lut, rows[0])
     for i in range(y.shape[0]):
-        fm._diff_row32(rows[0], prev[i], lut, y.shape[1], sums)
+        sk._diff_row32(rows[0], prev[i], lut, y.shape[1], sums)
 
 
 @numba.njit(**OPTS)
 def mafd_frame(y, prev):  # pragma: no cover - compiled
     s = 0
     for i in range(y.shape[0]):
-        s += fm._abs_diff_row(y[i], prev[i])
+        s += sk._abs_diff_row(y[i], prev[i])
     return s
 
 
@@ -97,7 +98,7 @@ def sobel_frame(rows, h, sums, root):  # pragma: no cover - compiled
     for i in range(2, h):
         a, b, c = rows[(i - 2) % 3], rows[(i - 1) % 3], rows[i % 3]
         if root:
-            fm._sobel_row32(a, b, c, w, sums)
+            sk._sobel_row32(a, b, c, w, sums)
         else:
             _sobel_no_sqrt(a, b, c, w, sums)
 
@@ -140,13 +141,13 @@ def one_size(label: str, folder: Path, rounds: int) -> None:
     luma = planes(short)
     prev, y = luma[FRAMES // 2 - 1], luma[FRAMES // 2]
     lut, legacy = fm.p910_table(8, "limited"), fm._every_code(fm.legacy_lut(8, "limited"))
-    rows = fm._aligned_rows32(3, w)
+    rows = sk._aligned_rows32(3, w)
     rows[:, :w] = lut[y[:3]]
     sums = np.zeros(2)
     cases = {
         "decoding": lambda: decode(clip),
         "decoding_short": lambda: decode(short),
-        "kernel": lambda: fm.chosen_sums(y, prev, lut, legacy, True, True, False, True),
+        "kernel": lambda: sk.chosen_sums(y, prev, lut, legacy, True, True, False, True),
         "lookup": lambda: lookup_frame(y, lut, rows),
         "ti": lambda: ti_frame(y, prev, lut, rows, sums),
         "mafd": lambda: mafd_frame(y, prev),
@@ -158,7 +159,7 @@ def one_size(label: str, folder: Path, rounds: int) -> None:
     dec = (t["decoding"] - t["decoding_short"]) / (3 * FRAMES)
     # the TI stage looks one frame up before it sums: its own part is the difference
     ti_own = t["ti"] - t["lookup"]
-    a = fm.chosen_sums(y, prev, lut, legacy, True, True, False)
+    a = sk.chosen_sums(y, prev, lut, legacy, True, True, False)
     n_int, n_all = (h - 2) * (w - 2), float(y.size)
     # siti-tools' own float64 arithmetic on the float64 table's values
     v, v_prev = fm.p910_lut(8, "limited")[y], fm.p910_lut(8, "limited")[prev]

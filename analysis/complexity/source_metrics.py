@@ -333,6 +333,21 @@ def with_p910_corrections(table: pl.DataFrame, fix: np.ndarray) -> pl.DataFrame:
     )
 
 
+def largest_first(tasks: list[dict[str, str]]) -> list[dict[str, str]]:
+    """The tasks with the largest source file first (ties and sources that are not files,
+    image sequences and cameras, after them in their order): the pool hands tasks out in
+    this order, so the longest clips start first and the short ones fill in beside them,
+    instead of one long clip started last keeping a single worker busy alone at the end."""
+
+    def size(t: dict[str, str]) -> int:
+        try:
+            return Path(t["source"]).stat().st_size
+        except OSError:
+            return 0
+
+    return sorted(tasks, key=size, reverse=True)  # stable: equal sizes keep their order
+
+
 # the settings that say where and which sources run, not what their numbers are
 RUN_FIELDS = ("executor", "jobs", "scheduler", "shard", "force", "rrd")
 

@@ -189,3 +189,16 @@ def test_ordered_map_keeps_order_hands_on_errors_and_stops() -> None:
     assert [next(early) for _ in range(4)] == [0, 1, 4, 9]
     early.close()  # the endless source's thread and the measuring threads end
     assert threading.active_count() == before
+
+
+def test_a_collection_hands_out_its_largest_clips_first(tmp_path, clip) -> None:
+    """The pool takes tasks in the order given: the largest files first, sources that are
+    not files (an image-sequence pattern) last, equal sizes in their own order."""
+    from analysis.complexity.source_metrics import largest_first
+
+    small = write_pan(tmp_path / "small.mp4", 64, 48, 4, step_px=7)
+    big = write_pan(tmp_path / "big.mp4", 384, 240, 60, step_px=7)
+    assert big.stat().st_size > clip.stat().st_size > small.stat().st_size
+    tasks = [{"source": str(p)} for p in (small, str(tmp_path / "f%03d.png"), clip, big)]
+    order = [t["source"] for t in largest_first(tasks)]
+    assert order == [str(big), str(clip), str(small), str(tmp_path / "f%03d.png")]
