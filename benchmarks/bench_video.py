@@ -211,15 +211,16 @@ def one_core(clips: dict[str, tuple[Path, Path]], runs: int, siti_frames: int) -
         print(f"  load average {load:.1f} before, {os.getloadavg()[0]:.1f} after", flush=True)
         load = os.getloadavg()[0]
     label, (_, first) = next(iter(clips.items()))
-    n, wall, _ = timed(lambda: sititools(first, siti_frames))
-    st_ms = wall / n * 1e3
     got = results[label]
-    print(
-        f"siti-tools calculate() on the first {n} frames of the {label} clip: {st_ms:.1f} "
-        f"ms/frame, share {got['decoding alone (luma)'][0] / st_ms:.3f}\n"
-        f"vdc si/ti per frame: {got['FFmpeg siti filter'][0] / got['vdc si/ti'][0]:.1f}x "
-        f"FFmpeg's siti, {st_ms / got['vdc si/ti'][0]:.0f}x siti-tools"
-    )
+    if "FFmpeg siti filter" in CONFIGS:  # else --no-references
+        n, wall, _ = timed(lambda: sititools(first, siti_frames))
+        st_ms = wall / n * 1e3
+        print(
+            f"siti-tools calculate() on the first {n} frames of the {label} clip: {st_ms:.1f} "
+            f"ms/frame, share {got['decoding alone (luma)'][0] / st_ms:.3f}\n"
+            f"vdc si/ti per frame: {got['FFmpeg siti filter'][0] / got['vdc si/ti'][0]:.1f}x "
+            f"FFmpeg's siti, {st_ms / got['vdc si/ti'][0]:.0f}x siti-tools"
+        )
     short = [
         f"{label} {k.removeprefix('vdc ')} {v:.2f}"
         for label, sh in shares.items()
@@ -314,6 +315,10 @@ def main() -> None:
     ap.add_argument("--sizes", default="720p,1080p", help="720p, 1080p (comma-separated)")
     ap.add_argument("--sititools-frames", type=int, default=50)
     ap.add_argument(
+        "--no-references", action="store_true",
+        help="leave out FFmpeg's siti filter and siti-tools (minutes at 1080p)",
+    )  # fmt: skip
+    ap.add_argument(
         "--cores", type=int, default=1,
         help="cores vdc's configurations run on (decoding alone: one core, always)",
     )  # fmt: skip
@@ -344,6 +349,8 @@ def main() -> None:
                 short = write_clip(d / f"{size}-{codec}.mp4", w, h, args.seconds, codec)
                 long = repeat_clip(short, d / f"{size}-{codec}-long.mp4", args.repeat)
                 clips[f"{size} {codec}"] = short, long
+        if args.no_references:
+            del CONFIGS["FFmpeg siti filter"]
         VDC_CORES[:] = cores[: max(1, args.cores)]
         if len(VDC_CORES) > 1:
             TARGET_SHARE.update(TARGET_SHARE_TWO_CORES)
