@@ -15,7 +15,7 @@ import numpy as np
 from avdm.true_time import ModelRate, model_rate, repeats_of
 from vdc.errors import UserError
 from vdc.frame_metrics import NativeMeter, decide_ranges, full_range_p910
-from vdc.pipeline import pipelined
+from vdc.pipeline import ordered_map, pipelined
 from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
 from vdc.resize import area_resize
 
@@ -108,11 +108,7 @@ class FrameBatcher:
         self.meter.copy_previous = not reader.planes_persist
         reader.grey = size is not None  # no working raster: no grey conversion (0.3 ms at 720p)
         if threads > 1:
-            if size is None:  # no resize: the metrics are the only stage after decoding
-                stages = [lambda fr: self._resize(self._measure(fr))]
-            else:
-                stages = [self._measure, self._resize]
-            self._it: Iterator[tuple] = pipelined(reader.frames(), stages)
+            self._it: Iterator[tuple] = self._on_threads(threads)
         else:
             self._it = (self._resize(self._measure(fr)) for fr in reader.frames())
         self._index = 0
@@ -123,6 +119,37 @@ class FrameBatcher:
         self.repeats_total = 0
         self.last_t_s: float | None = None
         self.ended = False
+
+    def _on_threads(self, threads: int) -> Iterator[tuple]:
+        """What the plain loop yields, with decoding in a thread of its own and each frame's
+        measuring and resize on ``threads`` threads at once (``vdc.pipeline.ordered_map``: a
+        frame's metrics depend only on it and the frame before it), then finished in frame
+        order (``NativeMeter.finish``: the range decision): the same bits as the plain loop,
+        with one clip spread over every core."""
+        persist = self.reader.planes_persist
+
+        def paired() -> Iterator[tuple]:
+            prev = None
+            for fr in self.reader.frames():
+                # a reader whose buffers are reused: the plane kept for the next frame's TI
+                y = fr.native if persist else fr.native.copy()
+                yield fr, y, prev
+                prev = y
+
+        def work(item: tuple) -> tuple:
+            fr, y, prev = item
+            m = self.meter.measure(y, prev, fr.packet_bytes)
+            small = None if self.size is None else area_resize(fr.luma, self.size)
+            return fr, m, small
+
+        measured = ordered_map(work, pipelined(paired(), []), threads)
+        try:
+            for fr, m, small in measured:
+                got = self.meter.finish(m)
+                row = np.array([got[k] for k in NATIVE_METRICS])
+                yield small, fr.t_s, fr.note, row, fr.lost_before
+        finally:
+            measured.close()
 
     def _measure(self, fr: SourceFrame) -> tuple[SourceFrame, np.ndarray]:
         """A frame's native metrics (one frame after another: the meter keeps the previous)."""

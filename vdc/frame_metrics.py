@@ -23,10 +23,15 @@ range as its reference tool does (:func:`decide_ranges`): a range the stream tag
 takes limited (FFmpeg's ``siti``), and the P.910 variant takes full if any frame's luma
 leaves the limited range (below 16 or above 235 at 8 bits: siti-tools refuses limited range
 on such input, "Input appears to be full range"), else limited. A range the user gives wins
-for both. One fused Numba pass
+for both. One fused Numba pass (``vdc.siti_kernel``)
 reads each pixel once for both SI/TI variants and the MAFD: the display and PQ curves are a
-lookup table over the 2^B code values (exactly siti-tools' float64 arithmetic, evaluated once
-per code value instead of once per pixel).
+lookup table over the 2^B code values (siti-tools' float64 arithmetic, evaluated once per
+code value instead of once per pixel). P.910's table and its sums are then float32: within
+about 1e-8 relative of siti-tools' values, far inside the three decimals it prints.
+
+:meth:`NativeMeter.measure` (a frame against the frame before it: any thread, any order) and
+:meth:`NativeMeter.finish` (in frame order) let one clip's frames be measured side by side on
+several cores, with the same bits as :meth:`NativeMeter.update` frame after frame.
 """
 
 from __future__ import annotations
@@ -40,9 +45,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from avdm.jit import kernel
 from vdc.errors import UserError
 from vdc.recording import NATIVE_METRICS
+from vdc.siti_kernel import chosen_sums
 
 # the smallest frame side the native metrics take: SI's 3x3 Sobel filter (P.910) needs an
 # interior pixel, which a frame of 2 px or less on a side does not have
@@ -172,136 +177,13 @@ def _every_code(lut: np.ndarray) -> np.ndarray:
     return np.concatenate((lut, np.full(size - len(lut), lut[-1])))
 
 
-@kernel(fastmath=True, nogil=True)
-def _map_row(codes, lut, out):  # pragma: no cover - compiled
-    for j in range(codes.shape[0]):
-        out[j] = lut[codes[j]]
-
-
-@kernel(fastmath=True, nogil=True)
-def _sobel_row(r0, r1, r2, w, sums):  # pragma: no cover - compiled
-    """Add the interior Sobel magnitudes of the middle row (its first ``w`` columns) to
-    sums[0] (Σm) and sums[1] (Σm²)."""
-    s = 0.0
-    ss = 0.0
-    for j in range(1, w - 1):
-        gx = (r0[j + 1] + 2.0 * r1[j + 1] + r2[j + 1]) - (r0[j - 1] + 2.0 * r1[j - 1] + r2[j - 1])
-        gy = (r2[j - 1] + 2.0 * r2[j] + r2[j + 1]) - (r0[j - 1] + 2.0 * r0[j] + r0[j + 1])
-        m = math.sqrt(gx * gx + gy * gy)
-        s += m
-        ss += m * m
-    sums[0] += s
-    sums[1] += ss
-
-
-@kernel(fastmath=True, nogil=True, error_model="numpy")
-def _diff_row(a, prev_codes, lut, w, sums):  # pragma: no cover - compiled
-    """Add Σd and Σd² of d = a − lut[prev_codes] over the first ``w`` columns to sums[0],
-    sums[1]: the previous row looked up here instead of into a buffer first (one pass over
-    the row less: measured 0.29 against 0.36 ms per 720p frame)."""
-    s = 0.0
-    ss = 0.0
-    for j in range(w):
-        d = a[j] - lut[prev_codes[j]]
-        s += d
-        ss += d * d
-    sums[0] += s
-    sums[1] += ss
-
-
-@kernel(fastmath=True, nogil=True)
-def _abs_diff_row(a, b):  # pragma: no cover - compiled
-    s = 0
-    for j in range(a.shape[0]):
-        d = np.int32(a[j]) - np.int32(b[j])
-        s += d if d >= 0 else -d
-    return s
-
-
-@kernel(fastmath=True, nogil=True, error_model="numpy")
-def _range_row(a, lo_hi):  # pragma: no cover - compiled
-    """Lower lo_hi[0] to the row's smallest code and raise lo_hi[1] to its largest. The row's
-    extremes are taken in its own type (min/max without a branch: a vectorised loop; widening
-    each code to int64 first kept it scalar, 0.27 against 0.02 ms per 720p frame)."""
-    lo = a[0]
-    hi = a[0]
-    for j in range(a.shape[0]):
-        v = a[j]
-        lo = min(lo, v)
-        hi = max(hi, v)
-    lo_hi[0] = min(lo_hi[0], np.int64(lo))
-    lo_hi[1] = max(lo_hi[1], np.int64(hi))
-
-
-@kernel(nogil=True)
-def _aligned_rows(n, w):  # pragma: no cover - compiled
-    """(n, ≥w) float64 rows that each start on a 64-byte boundary. The sums below are
-    vectorised, and how a vectorised loop groups its additions can depend on where its
-    arrays start: aligned buffers make a frame's sums the same bits wherever the frame
-    itself lies in memory (a decoder's plane or a copy)."""
-    wp = (w + 7) // 8 * 8
-    buf = np.empty(n * wp + 8)
-    off = ((64 - buf.ctypes.data % 64) % 64) // 8
-    return buf[off : off + n * wp].reshape((n, wp))  # C-contiguous: columns w.. are spare
-
-
-@kernel(nogil=True)
-def frame_sums(y, prev, lut_a, lut_b, have_prev):  # pragma: no cover - compiled
-    """One pass over luma ``y`` (H, W) uint8/uint16 and the previous frame ``prev``:
-    (10,) float64 = Σm, Σm² of the interior Sobel magnitude and Σd, Σd² of the frame
-    difference in the domains of ``lut_a`` and ``lut_b``, then Σ|y − prev| and the interior
-    pixel count (:func:`chosen_sums` with both domains)."""
-    return chosen_sums(y, prev, lut_a, lut_b, have_prev, True, True)[:10]
-
-
-@kernel(nogil=True)
-def chosen_sums(
-    y, prev, lut_a, lut_b, have_prev, want_a, want_b, want_range=False
-):  # pragma: no cover
-    """:func:`frame_sums` for the chosen domains only (``want_a``, ``want_b``; the sums of a
-    domain not wanted stay 0): one variant of SI/TI costs half of both; (12,) float64, the
-    last two the smallest and largest code of ``y`` where ``want_range`` (else 0; the same
-    pass instead of two reductions over the frame). Rows are looked up
-    into three-row buffers that stay in the L1 cache: cheaper than keeping the previous
-    frame's values (measured: 3.3 against 6.7 ms at 720p). A domain's sums are the same bits
-    whether the other is computed or not (each has its own buffers and accumulators)."""
-    h, w = y.shape
-    out = np.zeros(12)
-    lo_hi = np.array([np.int64(2**62), np.int64(-1)])
-    rows_a = _aligned_rows(3, w)
-    rows_b = _aligned_rows(3, w)
-    sa = np.zeros(2)
-    sb = np.zeros(2)
-    ta = np.zeros(2)
-    tb = np.zeros(2)
-    mad = 0
-    for i in range(h):
-        k = i % 3
-        if want_a:
-            _map_row(y[i], lut_a, rows_a[k])
-        if want_b:
-            _map_row(y[i], lut_b, rows_b[k])
-        if have_prev:
-            if want_a:
-                _diff_row(rows_a[k], prev[i], lut_a, w, ta)
-            if want_b:
-                _diff_row(rows_b[k], prev[i], lut_b, w, tb)
-            mad += _abs_diff_row(y[i], prev[i])
-        if want_range:
-            _range_row(y[i], lo_hi)
-        if i >= 2:
-            r0, r1, r2 = (i - 2) % 3, (i - 1) % 3, k
-            if want_a:
-                _sobel_row(rows_a[r0], rows_a[r1], rows_a[r2], w, sa)
-            if want_b:
-                _sobel_row(rows_b[r0], rows_b[r1], rows_b[r2], w, sb)
-    out[0], out[1], out[2], out[3] = sa[0], sa[1], ta[0], ta[1]
-    out[4], out[5], out[6], out[7] = sb[0], sb[1], tb[0], tb[1]
-    out[8] = mad
-    out[9] = (h - 2) * (w - 2)
-    if want_range:
-        out[10], out[11] = lo_hi[0], lo_hi[1]
-    return out
+def p910_table(bit_depth: int, color_range: str) -> np.ndarray:
+    """:func:`p910_lut` over every code the frames' type holds (:func:`_every_code`), in
+    float32: the P.910 kernel computes in 32-bit floats (the table, the Sobel, its square
+    root and each row's sums; the frame's sums in float64). That keeps SI and TI within
+    about 1e-8 relative of siti-tools' float64 values on real clips (the tests hold them to
+    the 3 decimals siti-tools prints), at about half the float64 kernel's cost."""
+    return _every_code(p910_lut(bit_depth, color_range)).astype(np.float32)
 
 
 def _std(s: float, ss: float, n: float) -> float:
@@ -352,8 +234,8 @@ class NativeMeter:
         self._detect = self.p910_range == "detect"
         # the P.910 range in use: while detecting, limited until the luma leaves it
         self.p910_now = "limited" if self._detect else (self.p910_range or self.color_range)
-        self._p910 = _every_code(p910_lut(self.bit_depth, self.p910_now))
-        self._p910_full = _every_code(p910_lut(self.bit_depth, "full")) if self._detect else None
+        self._p910 = p910_table(self.bit_depth, self.p910_now)
+        self._p910_full = p910_table(self.bit_depth, "full") if self._detect else None
         self._legacy = _every_code(legacy_lut(self.bit_depth, self.color_range))
         unknown = set(self.metrics) - set(NATIVE_METRICS)
         if unknown:
@@ -402,59 +284,119 @@ class NativeMeter:
         return np.array([m[k] for k in NATIVE_METRICS])
 
     def update(self, y: np.ndarray, packet_bytes: int | None = None) -> dict[str, float]:
+        """One frame after the last: :meth:`finish` of :meth:`measure` against the previous
+        frame this meter kept."""
+        prev = self._prev
+        out = self.finish(self.measure(y, prev, packet_bytes))
+        # another reader may reuse the buffer a frame views
+        self._prev = y.copy() if self.copy_previous else y
+        return out
+
+    def measure(
+        self, y: np.ndarray, prev: np.ndarray | None, packet_bytes: int | None = None
+    ) -> FrameMeasure:
+        """The work on one frame that depends only on it and the frame before it (``prev``;
+        None for a source's first frame): the kernel's sums, Canny, the JPEG. Safe to call
+        from several threads at once on different frames (the kernels release the GIL), in
+        any order: :meth:`finish`, called in frame order, makes the values the same bits as
+        :meth:`update` frame after frame (it measures a frame again where the range in use
+        changed after this was called)."""
         want = np.uint8 if self.bit_depth == 8 else np.uint16
         if y.ndim != 2 or y.dtype != want or min(y.shape) < MIN_SIDE_PX:
             raise UserError(f"expected ({self.bit_depth}-bit) luma (H, W) {want.__name__}")
-        prev = self._prev
         if prev is not None and prev.shape != y.shape:
             raise UserError(f"the frame size changed from {prev.shape} to {y.shape}")
+        lut = self._p910  # the range in use now (a later frame may change it: finish checks)
+        detecting = self._want_p910 and self._detect and self.left_limited_at is None
+        s = self._sums(y, prev, lut, detecting)
+        alt = None
+        if detecting and self.full_alternative:  # the full-range values, in case one leaves
+            alt = self._full_sums(y, prev)
+        n_all = float(y.size)
+        edge = jpeg = math.nan
+        if "edge_density" in self.metrics or "jpeg_bpp" in self.metrics:
+            y8 = y if self.bit_depth == 8 else (y >> (self.bit_depth - 8)).astype(np.uint8)
+            if "edge_density" in self.metrics:
+                edge = float(np.count_nonzero(cv2.Canny(y8, 100, 200))) / n_all
+            if "jpeg_bpp" in self.metrics:
+                ok, jpg = cv2.imencode(".jpg", y8, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+                jpeg = 8.0 * len(jpg) / n_all if ok else math.nan
+        codec = math.nan
+        if "codec_bpp" in self.metrics and packet_bytes:
+            codec = 8.0 * packet_bytes / n_all
+        return FrameMeasure(y, prev, lut, detecting, s, alt, edge, jpeg, codec)
+
+    def _sums(self, y: np.ndarray, prev: np.ndarray | None, lut: np.ndarray, scan: bool):
+        have = prev is not None
+        return chosen_sums(
+            y, prev if have else y, lut, self._legacy, have, self._want_p910,
+            self._want_legacy, scan,
+        )  # fmt: skip
+
+    def _full_sums(self, y: np.ndarray, prev: np.ndarray | None) -> tuple[float, float]:
+        """(si, ti) of P.910 in full range (ti NaN without a previous frame)."""
+        have = prev is not None
+        # the same call as a meter in full range makes (types and all: another signature is
+        # another compiled kernel, whose float32 sums may be grouped otherwise)
+        a = chosen_sums(
+            y, prev if have else y, self._p910_full, self._legacy, have, True, False, False
+        )
+        n_int, n_all = (y.shape[0] - 2) * (y.shape[1] - 2), float(y.size)
+        return _std(a[0], a[1], n_int), _std(a[2], a[3], n_all) if have else math.nan
+
+    def finish(self, m: FrameMeasure) -> dict[str, float]:
+        """A frame's metrics from its :meth:`measure`, the frames in order (the range
+        decision carries from frame to frame)."""
+        y, prev = m.y, m.prev
         have = prev is not None
         want_a, want_b = self._want_p910, self._want_legacy
         n_int, n_all = (y.shape[0] - 2) * (y.shape[1] - 2), float(y.size)
         nan = math.nan
         detecting = want_a and self._detect and self.left_limited_at is None
-        # the frame's sums in the range in use, and while detecting its smallest and largest
-        # code (the same pass)
-        s = chosen_sums(
-            y, prev if have else y, self._p910, self._legacy, have, want_a, want_b, detecting
-        )
+        s = m.sums
+        if detecting and not m.detecting:  # cannot happen: a range is never left again
+            raise RuntimeError("a frame measured without its range scan")
+        if m.lut is not self._p910:  # the range changed after it was measured: again
+            s = self._sums(y, prev, self._p910, False)
         if detecting:
             scale = 2 ** (self.bit_depth - 8)
             if s[10] < 16 * scale or s[11] > 235 * scale:  # leaves_limited: full from here on,
                 self.left_limited_at = self.frames_seen  # as siti-tools reads it
                 self.p910_now = "full"
                 self._p910 = self._p910_full
-                s = chosen_sums(
-                    y, prev if have else y, self._p910, self._legacy, have, want_a, want_b
-                )
-            elif self.full_alternative:  # the full-range values, in case a later frame leaves
-                full = self._p910_full
-                a = chosen_sums(y, prev if have else y, full, full, have, True, False)
-                self._full_alt.append(
-                    (_std(a[0], a[1], n_int), _std(a[2], a[3], n_all) if have else nan)
-                )
-        y8 = y if self.bit_depth == 8 else (y >> (self.bit_depth - 8)).astype(np.uint8)
+                s = self._sums(y, prev, self._p910, False)
+            elif self.full_alternative:
+                self._full_alt.append(m.full_alt or self._full_sums(y, prev))
         out = {
             "si_p910": _std(s[0], s[1], n_int) if want_a else nan,
             "ti_p910": _std(s[2], s[3], n_all) if have and want_a else nan,
             "si_legacy": _std(s[4], s[5], n_int) if want_b else nan,
             "ti_legacy": _std(s[6], s[7], n_all) if have and want_b else nan,
             "mafd": s[8] / n_all * self._mafd_scale if have else nan,
-            "edge_density": nan,
-            "jpeg_bpp": nan,
-            "codec_bpp": nan,
+            "edge_density": m.edge_density,
+            "jpeg_bpp": m.jpeg_bpp,
+            "codec_bpp": m.codec_bpp,
         }
-        if "edge_density" in self.metrics:
-            out["edge_density"] = float(np.count_nonzero(cv2.Canny(y8, 100, 200))) / n_all
-        if "jpeg_bpp" in self.metrics:
-            ok, jpg = cv2.imencode(".jpg", y8, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
-            out["jpeg_bpp"] = 8.0 * len(jpg) / n_all if ok else nan
-        if "codec_bpp" in self.metrics and packet_bytes:
-            out["codec_bpp"] = 8.0 * packet_bytes / n_all
-        # another reader may reuse the buffer a frame views
-        self._prev = y.copy() if self.copy_previous else y
         self.frames_seen += 1
         return out
+
+
+@dataclasses.dataclass
+class FrameMeasure:
+    """:meth:`NativeMeter.measure` of one frame: the frame and the one before it (None: the
+    first), the P.910 table it was measured with, whether its range was scanned
+    (``detecting``), the kernel's (12,) sums, the full-range (si, ti) while detecting (where
+    the meter keeps them), and the metrics of the frame alone (NaN where not asked)."""
+
+    y: np.ndarray
+    prev: np.ndarray | None
+    lut: np.ndarray
+    detecting: bool
+    sums: np.ndarray
+    full_alt: tuple[float, float] | None
+    edge_density: float
+    jpeg_bpp: float
+    codec_bpp: float
 
 
 # the luma of these formats is one plane of 2-byte samples holding the code value in its low

@@ -12,10 +12,12 @@ sees the same items in the same order as a plain loop would: the results are the
 
 from __future__ import annotations
 
+import collections
 import os
 import queue
 import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent import futures
 from typing import Any
 
 _END = object()
@@ -105,3 +107,31 @@ def pipelined(
         stop.set()
         for t in threads:
             t.join()
+
+
+def ordered_map(
+    fn: Callable[[Any], Any], items: Iterable[Any], threads: int, depth: int | None = None
+) -> Iterator[Any]:
+    """``fn(item)`` for each of ``items`` on ``threads`` threads at once, yielded in the
+    items' order: for work on a frame that depends on nothing but its inputs (one frame's
+    metrics against the frame before it), so that it spreads over every core while another
+    thread decodes. At most ``depth`` (default 2 × ``threads``) items are in flight. An
+    exception in ``fn`` or in ``items`` is raised here, at its item; closing the generator
+    early cancels what has not started and waits for what has."""
+    depth = depth or 2 * threads
+    pending: collections.deque[futures.Future] = collections.deque()
+    ex = futures.ThreadPoolExecutor(threads, thread_name_prefix="vdc-measure")
+    try:
+        for x in items:
+            pending.append(ex.submit(fn, x))
+            while len(pending) >= depth or (pending and pending[0].done()):
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+    finally:
+        for f in pending:
+            f.cancel()
+        ex.shutdown(wait=True)
+        close = getattr(items, "close", None)
+        if close is not None:
+            close()

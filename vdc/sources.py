@@ -105,13 +105,16 @@ class Reader:
         pass
 
 
-def open_video(path: str) -> tuple[Any, Any]:
+def open_video(path: str, decoder_threads: int | None = None) -> tuple[Any, Any]:
     """The video file ``path`` opened with PyAV: its container (close it) and first video
     stream, set to decode with FFmpeg's frame threads except in a pool worker (one core each:
     vdc.executors; one thread set, as libdav1d, the AV1 decoder, ignores the thread type). A
     missing, empty or unreadable file, or one with no video stream, raises UserError naming
     it. A decoded frame's plane views the frame's reference-counted buffer, which FFmpeg's
-    pools hand out again only when no frame references it: a reader sets ``planes_persist``."""
+    pools hand out again only when no frame references it: a reader sets ``planes_persist``.
+    ``decoder_threads`` 1: FFmpeg decodes on the calling thread alone, as in a pool worker
+    (a caller that spreads each frame's measuring over the cores: FFmpeg's frame threads
+    cost 20-30 % more CPU per frame than one thread, measured on 720p H.264)."""
     import av  # lazy: start-up
 
     p = Path(path)
@@ -127,7 +130,7 @@ def open_video(path: str) -> tuple[Any, Any]:
         container.close()
         raise UserError(f"{path!r} holds no video stream")
     stream = container.streams.video[0]
-    single = os.environ.get("VDC_WORKER_THREADS") == "1"
+    single = os.environ.get("VDC_WORKER_THREADS") == "1" or decoder_threads == 1
     stream.thread_type, stream.codec_context.thread_count = ("NONE", 1) if single else ("AUTO", 0)
     return container, stream
 
@@ -135,8 +138,8 @@ def open_video(path: str) -> tuple[Any, Any]:
 class _PyAvReader(Reader):
     planes_persist = True  # PyAV's planes: see open_video
 
-    def __init__(self, path: str) -> None:
-        self.container, self.stream = open_video(path)
+    def __init__(self, path: str, decoder_threads: int | None = None) -> None:
+        self.container, self.stream = open_video(path, decoder_threads)
         rate = self.stream.average_rate or self.stream.guessed_rate or self.stream.base_rate
         tb = self.stream.time_base
         start = self.stream.start_time
@@ -567,13 +570,16 @@ def display_grey(frame: Any, native: np.ndarray) -> np.ndarray:
     return frame.to_ndarray(format="gray")
 
 
-def open_reader(source: str, fps: float | None = None) -> Reader:
+def open_reader(
+    source: str, fps: float | None = None, decoder_threads: int | None = None
+) -> Reader:
     """The reader of ``source``: a video file, an image-sequence pattern (needs ``fps``) or a
     camera index. A missing, empty or unreadable source, or one with frames too small for the
-    metrics (``require_frame_size``), raises UserError in one line naming it."""
+    metrics (``require_frame_size``), raises UserError in one line naming it.
+    ``decoder_threads``: a video file's decoding threads (:func:`open_video`)."""
     kind = source_kind(source)
     if kind == "file":
-        reader: Reader = _PyAvReader(source)
+        reader: Reader = _PyAvReader(source, decoder_threads)
     elif kind == "camera":
         reader = _CameraReader(source, fps)
     else:

@@ -53,6 +53,7 @@ from analysis.complexity.meter import (
 )
 from analysis.complexity.source_metrics import (
     complexity_task,
+    largest_first,
     measured_settings,
     metrics_present,
     part_path,
@@ -510,7 +511,7 @@ def complexity(
         args = [
             (t["source"], (t["source"], t["recording_id"], t["key"], dataclasses.asdict(settings),
                            str(out)))
-            for t in by_source.values()
+            for t in largest_first(list(by_source.values()))
         ]  # fmt: skip
         outcomes = run_tasks(
             complexity_task, args, settings.executor_settings(), on_done=done, log=log,

@@ -230,7 +230,11 @@ def measure_video(
                 "for the AVDM and the flow in deg/s, or ask for pixel metrics (--metrics)"
             )
     model_metrics = tuple(m for m in MODEL_METRICS if m in metrics)
-    reader = open_reader(source, settings.fps)
+    threads = usable_threads()
+    # on more than one core each frame's measuring spreads over them (vdc.frame_batches) and
+    # FFmpeg decodes on one thread of its own: its frame threads would cost more CPU
+    decoder_threads = 1 if threads > 1 else None
+    reader = open_reader(source, settings.fps, decoder_threads)
     batches = None
     try:
         info = reader.info
@@ -245,11 +249,13 @@ def measure_video(
         native = tuple(m for m in NATIVE_METRICS if m in metrics)
         batches = FrameBatcher(
             reader, size, fps, batch_frames=128, repeat_tol=settings.repeat_tol,
-            max_repeats=settings.max_repeats, metrics=native, threads=usable_threads(),
+            max_repeats=settings.max_repeats, metrics=native, threads=threads,
             jpeg_quality=settings.jpeg_quality, color_range=settings.color_range,
             # a file or image sequence can be read again (a camera cannot): no second SI/TI
             # pass for the range decision (vdc.frame_batches)
-            reopen=None if info["kind"] == "camera" else lambda: open_reader(source, settings.fps),
+            reopen=None
+            if info["kind"] == "camera"
+            else lambda: open_reader(source, settings.fps, decoder_threads),
         )  # fmt: skip
         stream: FrameBatcher | RateLookahead = batches
         if ctx is not None:
@@ -325,6 +331,21 @@ def with_p910_corrections(table: pl.DataFrame, fix: np.ndarray) -> pl.DataFrame:
         for j, name in enumerate(("si_p910", "ti_p910"))
         if name in table.columns  # --metrics may ask for one of the two
     )
+
+
+def largest_first(tasks: list[dict[str, str]]) -> list[dict[str, str]]:
+    """The tasks with the largest source file first (ties and sources that are not files,
+    image sequences and cameras, after them in their order): the pool hands tasks out in
+    this order, so the longest clips start first and the short ones fill in beside them,
+    instead of one long clip started last keeping a single worker busy alone at the end."""
+
+    def size(t: dict[str, str]) -> int:
+        try:
+            return Path(t["source"]).stat().st_size
+        except OSError:
+            return 0
+
+    return sorted(tasks, key=size, reverse=True)  # stable: equal sizes keep their order
 
 
 # the settings that say where and which sources run, not what their numbers are

@@ -133,3 +133,73 @@ def test_reading_again_gives_the_full_range_values_of_a_second_pass(tmp_path, fi
         np.testing.assert_array_equal(a, b)
     assert len(got["again"][1]) == first_out  # every frame before the excursion
     assert len(reopened) == (1 if first_out else 0)
+
+
+@pytest.mark.parametrize("reopen", [False, True])
+def test_frames_measured_on_several_threads_give_the_plain_loops_bits(tmp_path, reopen) -> None:
+    """An untagged clip whose luma leaves 16..235 at frame 5 (so the P.910 range changes
+    while later frames are being measured on other threads): the batcher that measures each
+    frame on 3 threads (``threads=3``: decoding in its own thread, the frames' metrics and
+    resize side by side, finished in order) gives the plain loop's native metrics, images,
+    full-range corrections and ranges, bit for bit; with every metric and without ``reopen``
+    (a camera's full-range values beside each frame) or with it (a file read again)."""
+    from tests.analysis.test_color_range import encode_luma
+
+    from vdc.frame_batches import FrameBatcher
+    from vdc.sources import open_reader
+
+    path = encode_luma(tmp_path / "late.mp4", [(20, 230)] * 5 + [(44, 246)] * 19, None)
+    got = {}
+    for threads in (1, 3):
+        reader = open_reader(str(path))
+        again = (lambda: open_reader(str(path))) if reopen else None
+        b = FrameBatcher(reader, (62, 99), 25.0, batch_frames=4, threads=threads, reopen=again)
+        batches = list(iter(b.next_batch, None))
+        got[threads] = (
+            np.concatenate([fb.native_metrics for fb in batches]),
+            np.concatenate([fb.images for fb in batches]),
+            b.p910_late_corrections(),
+            b.color_ranges(),
+        )
+        b.close()
+        reader.close()
+    assert got[1][3]["color_range_p910"] == "full" and len(got[1][2]) == 5
+    assert np.isfinite(got[1][0]).sum() > 24 * 5  # the metrics were computed
+    for a, b in zip(got[3][:3], got[1][:3], strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert got[3][3] == got[1][3]
+
+
+def test_ordered_map_keeps_order_hands_on_errors_and_stops() -> None:
+    import time
+
+    from vdc.pipeline import ordered_map
+
+    before = threading.active_count()
+
+    def slow_square(x: int) -> int:
+        time.sleep(0.001 * (x % 3))  # later items finish first: the order must hold anyway
+        if x == 11:
+            raise ArithmeticError("eleven")
+        return x * x
+
+    assert list(ordered_map(slow_square, range(10), threads=3)) == [x * x for x in range(10)]
+    with pytest.raises(ArithmeticError, match="eleven"):
+        list(ordered_map(slow_square, range(100), threads=3))
+    early = ordered_map(slow_square, pipelined(iter(range(10**9)), []), threads=2)
+    assert [next(early) for _ in range(4)] == [0, 1, 4, 9]
+    early.close()  # the endless source's thread and the measuring threads end
+    assert threading.active_count() == before
+
+
+def test_a_collection_hands_out_its_largest_clips_first(tmp_path, clip) -> None:
+    """The pool takes tasks in the order given: the largest files first, sources that are
+    not files (an image-sequence pattern) last, equal sizes in their own order."""
+    from analysis.complexity.source_metrics import largest_first
+
+    small = write_pan(tmp_path / "small.mp4", 64, 48, 4, step_px=7)
+    big = write_pan(tmp_path / "big.mp4", 384, 240, 60, step_px=7)
+    assert big.stat().st_size > clip.stat().st_size > small.stat().st_size
+    tasks = [{"source": str(p)} for p in (small, str(tmp_path / "f%03d.png"), clip, big)]
+    order = [t["source"] for t in largest_first(tasks)]
+    assert order == [str(big), str(clip), str(small), str(tmp_path / "f%03d.png")]

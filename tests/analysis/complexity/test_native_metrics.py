@@ -17,7 +17,7 @@ from siti_tools.siti import ColorRange, SiTiCalculator
 from skimage import data
 
 from analysis.complexity.command import ComplexitySettings, complexity
-from tests.helpers import assert_one_line_error, ffmpeg_siti, write_pan
+from tests.helpers import SITI_TOOLS_PRINTED_ATOL, assert_one_line_error, ffmpeg_siti, write_pan
 from tests.in_process import run_in_process
 from vdc.frame_metrics import NativeMeter, luma_plane, stream_format
 from vdc.source_names import source_name
@@ -52,10 +52,11 @@ def test_p910_si_ti_equal_siti_tools_on_the_file(coded, color_range: str) -> Non
     )
     si, ti, n = calc.calculate(str(coded[color_range]))
     assert n == len(rows) == 24
-    # the same float64 arithmetic per code value (a lookup table), summed in another order
-    # (Σm, Σm² in one pass against numpy's two-pass std): ~1e-13 apart; 1e-9 is ample on any CPU
-    np.testing.assert_allclose([r["si_p910"] for r in rows], si, rtol=1e-9)
-    np.testing.assert_allclose([r["ti_p910"] for r in rows][1:], ti, rtol=1e-9)
+    # to the precision siti-tools prints (3 decimals): vdc's float32 against its float64
+    # (tests.helpers.SITI_TOOLS_PRINTED_ATOL says why)
+    tol = {"rtol": 0, "atol": SITI_TOOLS_PRINTED_ATOL}
+    np.testing.assert_allclose([r["si_p910"] for r in rows], si, **tol)
+    np.testing.assert_allclose([r["ti_p910"] for r in rows][1:], ti, **tol)
     assert np.isnan(rows[0]["ti_p910"])  # no TI on the first frame, as siti-tools
 
 
