@@ -143,8 +143,7 @@ def test_frames_measured_on_several_threads_give_the_plain_loops_bits(tmp_path, 
     resize side by side, finished in order) gives the plain loop's native metrics, images,
     full-range corrections and ranges, bit for bit; with every metric and without ``reopen``
     (a camera's full-range values beside each frame) or with it (a file read again)."""
-    from tests.analysis.test_color_range import encode_luma
-
+    from tests.vdc.test_color_range import encode_luma
     from vdc.frame_batches import FrameBatcher
     from vdc.sources import open_reader
 
@@ -153,7 +152,8 @@ def test_frames_measured_on_several_threads_give_the_plain_loops_bits(tmp_path, 
     for threads in (1, 3):
         reader = open_reader(str(path))
         again = (lambda: open_reader(str(path))) if reopen else None
-        b = FrameBatcher(reader, (62, 99), 25.0, batch_frames=4, threads=threads, reopen=again)
+        b = FrameBatcher(reader, (62, 99), 25.0, batch_frames=4, threads=threads,
+                         measure_on_threads=True, reopen=again)  # fmt: skip
         batches = list(iter(b.next_batch, None))
         got[threads] = (
             np.concatenate([fb.native_metrics for fb in batches]),
