@@ -190,16 +190,22 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
     out.mkdir(parents=True, exist_ok=True)  # each episode's result is kept there as it ends
     clear_partials(out)
     by_key = {f"{v.episode}:{v.camera}": v for v in videos}
+
+    def rates(v: EpisodeVideo) -> tuple[float, float]:  # the camera's, the data's beside it
+        return ds.rate(v.camera), ds.data_rate(v.camera)
+
     results: dict[str, dict[str, Any]] = {}
     # what an earlier (killed) run measured is read back here, without a worker
     for key, v in by_key.items():
-        kept = read_result(result_path(out, v, settings, ds.rate(v.camera)))
+        kept = read_result(result_path(out, v, settings, *rates(v)))
         if kept is not None:
             results[key] = kept
     if results:
         feedback.log(f"{len(results)} camera stream(s) read back from an earlier run's results")
     tasks = [
-        (k, (v, settings, ds.rate(v.camera), out)) for k, v in by_key.items() if k not in results
+        (k, (v, settings, ds.rate(v.camera), out, ds.data_rate(v.camera)))
+        for k, v in by_key.items()
+        if k not in results
     ]
 
     feedback.expect(len(tasks))
@@ -231,7 +237,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
     if tasks:  # the task lives in resume: a worker imports the measuring, not this command
         run_tasks(measured, tasks, settings.executor_settings(), done,
                   feedback.log, shared_paths=(root, out))  # fmt: skip
-    drop_stale(out, [result_path(out, v, settings, ds.rate(v.camera)) for v in videos])
+    drop_stale(out, [result_path(out, v, settings, *rates(v)) for v in videos])
     for k in sorted(results, key=_order):  # what the measuring found wrong with the data
         v = by_key[k]
         for msg in results[k].get("problems", ()):

@@ -351,7 +351,8 @@ def camera_lags(
         with np.errstate(invalid="ignore", divide="ignore"):
             rate = fr["mafd"].to_numpy().astype(np.float64) / (dt * fps)
         rate[fr["frozen"].to_numpy()] = np.nan  # a frozen frame says nothing of the motion
-        return t, rate, fps
+        # each change at its interval's middle: the cameras' intervals differ with their rates
+        return t - 0.5 / fps, rate, fps
 
     out: dict[tuple[int, str], dict[str, Any]] = {}
     for e, cams in by_ep.items():
@@ -404,21 +405,24 @@ def finish(
     )
     # frozen is judged on sharp frames only: a blurred view hides small motion (on the test
     # datasets a blurred moving object changed no block by the still threshold for 0.43 s)
-    fps = 1.0 / float(frames["dt_s"].median() or 1.0)
+    # each camera's own frame interval: the cameras' rates may differ
+    dt = frames.group_by("camera").agg(pl.col("dt_s").median().fill_null(1.0).alias("_dt"))
     frames = frames.with_columns((pl.col("frozen") & ~pl.col("blurred")).alias("frozen"))
     blur = (
         frames.sort("episode_index", "camera", "frame")
+        .join(dt, on="camera")
         .group_by("episode_index", "camera")
         .agg(
             pl.col("blurred").mean().alias("blurred_share"),
             pl.col("frozen").alias("_fz"),
+            pl.col("_dt").first(),
         )
         .with_columns(
-            pl.col("_fz").map_elements(lambda f: _longest(f) / fps, return_dtype=pl.Float64)
+            (pl.col("_fz").map_elements(_longest, return_dtype=pl.Int64) * pl.col("_dt"))
             .alias("frozen_longest_s"),
-            (pl.col("_fz").list.sum() / fps).alias("frozen_total_s"),
+            (pl.col("_fz").list.sum() * pl.col("_dt")).alias("frozen_total_s"),
         )
-        .drop("_fz")
+        .drop("_fz", "_dt")
     )  # fmt: skip
     if "view_dx_px" not in frames.columns:  # (results kept by an older version are re-measured)
         frames = frames.with_columns(view_dx_px=pl.lit(math.nan), view_dy_px=pl.lit(math.nan))
@@ -456,7 +460,7 @@ def finish(
         ],
     )
     eps = eps.join(blur, on=["episode_index", "camera"], how="left")
-    units = ((pl.col("frames_decoded") / fps) / SHARE_BLOCK_S).clip(1)
+    units = ((pl.col("frames_decoded") / pl.col("fps")) / SHARE_BLOCK_S).clip(1)
     share_low = {
         f"{n}_low": pl.struct(pl.col(f"{n}_share").alias("s"), units.alias("n")).map_elements(
             lambda x: wilson_low(x["s"], x["n"]), return_dtype=pl.Float64

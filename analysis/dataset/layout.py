@@ -71,7 +71,9 @@ class Dataset:
     """A dataset's layout: ``root``, ``info`` (meta/info.json), ``version``, ``fps`` (as
     info.json states it), ``cameras`` (video and image features), the episodes' camera videos,
     the problems met, ``listed`` (every episode index the index lists, readable or not) and
-    ``rates``: each camera's rate (frames/s) as the evidence agrees (:func:`agreed_rate`)."""
+    ``rates``: each camera's rate (frames/s) as the evidence agrees (:func:`agreed_rate`);
+    ``data_rates``: the data's rate beside a camera recording at a rate of its own (its
+    ``video.fps`` in info.json's features, borne out by its video), elsewhere the camera's."""
 
     root: Path
     info: dict[str, Any]
@@ -82,6 +84,7 @@ class Dataset:
     problems: list[Problem]
     listed: list[int] = dataclasses.field(default_factory=list)
     rates: dict[str, float] = dataclasses.field(default_factory=dict)
+    data_rates: dict[str, float] = dataclasses.field(default_factory=dict)
 
     @property
     def episodes(self) -> list[int]:
@@ -90,6 +93,10 @@ class Dataset:
     def rate(self, camera: str) -> float:
         """The rate ``camera`` is measured at (frames/s)."""
         return self.rates.get(camera, self.fps)
+
+    def data_rate(self, camera: str) -> float:
+        """The rate of the data's rows beside ``camera`` (frames/s)."""
+        return self.data_rates.get(camera, self.rate(camera))
 
 
 def read_info(root: Path) -> dict[str, Any]:
@@ -394,6 +401,8 @@ def stream_rate(path: str) -> float | None:
     try:
         with av.open(path) as c:
             s = c.streams.video[0]
+            # read while the file is open: the stream belongs to the container, freed at close
+            base = float(s.time_base or 0)
             pts = []
             for packet in c.demux(s):
                 if packet.pts is not None:
@@ -402,7 +411,7 @@ def stream_rate(path: str) -> float | None:
                     break
     except (OSError, av.FFmpegError, IndexError):
         return None  # the episode's own problem, said when it is measured
-    times = np.sort(np.asarray(pts, np.float64)) * float(s.time_base or 0)
+    times = np.sort(np.asarray(pts, np.float64)) * base
     return _median_rate(np.diff(times))
 
 
@@ -446,25 +455,43 @@ def agreed_rate(evidence: list[tuple[str, float | None]]) -> tuple[float, bool]:
     return next(r for (_, r), v in zip(known, votes, strict=True) if v == best), False
 
 
+def _own_rate(info: dict[str, Any], cam: str) -> float | None:
+    """``video.fps`` in info.json's features for ``cam`` (LeRobot's per-camera video info),
+    or None where it is not a rate."""
+    feat = info.get("features", {}).get(cam)
+    own = (feat.get("info") or {}).get("video.fps") if isinstance(feat, dict) else None
+    ok = isinstance(own, (int, float)) and not isinstance(own, bool) and math.isfinite(own)
+    return float(own) if ok and own > 0 else None
+
+
 def _rates(ds: Dataset) -> dict[str, float]:
     """Each camera's rate from info.json's fps, its video's own rate (its first episode's
     file) and the data's timestamps (:func:`agreed_rate`); where they disagree, a problem of
-    the dataset naming each and the rate measured at."""
+    the dataset naming each and the rate measured at. A camera whose own ``video.fps``
+    differs from the fps the data's timestamps bear out records at a rate of its own (LeRobot
+    allows it): its rate is its ``video.fps`` against its video's, the data's stays the fps
+    (``ds.data_rates``)."""
     info_path = str(ds.root / "meta" / "info.json")
     data = data_rate(list(dict.fromkeys(v.data_path for v in ds.videos))[:3])
+    data_said = data is None or agreed_rate([("", ds.fps), ("", data)])[1]
     rates = {}
     for cam in ds.cameras:
         first = next((v for v in ds.videos if v.camera == cam), None)
         if first is None:
             continue
         stream = stream_rate(first.path) if first.kind == "video" else None
-        evidence = [
-            (f"info.json's fps {ds.fps:g}", ds.fps),
-            (f"the video's frames {stream:.4g} fps (their median interval in "
-             f"{Path(first.path).name})" if stream else "", stream),
-            (f"the data's timestamp {data:.4g} fps (its median interval in "
-             f"{Path(first.data_path).name})" if data else "", data),
-        ]  # fmt: skip
+        own = _own_rate(ds.info, cam)
+        stream_said = (f"the video's frames {stream:.4g} fps (their median interval in "
+                       f"{Path(first.path).name})" if stream else "", stream)  # fmt: skip
+        if own is not None and data_said and not agreed_rate([("", ds.fps), ("", own)])[1]:
+            evidence = [(f"info.json's {cam} video.fps {own:g}", own), stream_said]
+            ds.data_rates[cam] = ds.fps
+        else:
+            evidence = [
+                (f"info.json's fps {ds.fps:g}", ds.fps), stream_said,
+                (f"the data's timestamp {data:.4g} fps (its median interval in "
+                 f"{Path(first.data_path).name})" if data else "", data),
+            ]  # fmt: skip
         rates[cam], agreed = agreed_rate(evidence)
         if not agreed:
             said = "; ".join(name for name, r in evidence if r is not None)

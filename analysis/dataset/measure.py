@@ -358,11 +358,13 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> dict:
             "lag_peak_ms": lag, "lag_note": None}  # fmt: skip
 
 
-def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str, Any]:
-    """Measure one camera of one episode at the dataset's ``fps`` (see the module). Returns
-    ``row`` (dict: the episode's measures), ``frames`` (polars DataFrame: one row per decoded
-    frame) and ``views`` (first, last: float32 grey images for the camera's shift). Unreadable input
-    raises UserError naming the file."""
+def measure_episode(
+    video: EpisodeVideo, settings: Any, fps: float, data_fps: float | None = None
+) -> dict[str, Any]:
+    """Measure one camera of one episode at its ``fps``, its data's rows at ``data_fps`` (None:
+    ``fps``), see the module. Returns ``row`` (dict: the episode's measures), ``frames`` (polars
+    DataFrame: one row per decoded frame) and ``views`` (first, last: float32 grey images for
+    the camera's shift). Unreadable input raises UserError naming the file."""
     data = read_episode_data(video.data_path, video.episode)
 
     def opened() -> Any:
@@ -457,7 +459,8 @@ def measure_episode(video: EpisodeVideo, settings: Any, fps: float) -> dict[str,
         pl.Series("view_span_dx_px", vk[:, 0]), pl.Series("view_span_dy_px", vk[:, 1]),
     )  # fmt: skip
     problems: list[str] = []
-    row, extra, pose_delta = episode_measures(video, data, frames, fps, batcher, problems)
+    row, extra, pose_delta = episode_measures(video, data, frames, (fps, data_fps or fps),
+                                              batcher, problems)  # fmt: skip
     frames = frames.with_columns(*extra)
     return {"row": row, "frames": frames, "views": first_last, "problems": problems,
             "pose_delta": pose_delta}  # fmt: skip
@@ -485,14 +488,15 @@ def _clock_problem(ts: np.ndarray, k: int) -> str:
 
 
 def episode_measures(
-    video, data, frames: pl.DataFrame, fps: float, batcher, problems: list[str]
+    video, data, frames: pl.DataFrame, rates: tuple[float, float], batcher, problems: list[str]
 ) -> tuple:
     """(the episode's row, the per-frame columns ``still`` and ``state_moving``, the pose's
     change at each frame: (frames, D) float32, the state at the frame's time less the state at
     the frame before's, on the data's rows; the first row is the pose at the first frame, and
     None without a state or action); what is wrong with the episode's data is added to
     ``problems`` (a timestamp that is not a time or goes backwards: the data's clock is then
-    used up to it, :func:`clock_rows`)."""
+    used up to it, :func:`clock_rows`). ``rates``: (the camera's frames/s, the data's rows/s)."""
+    fps, data_fps = rates
     t_v = frames["t_s"].to_numpy()
     mafd = frames["mafd"].to_numpy()
     ts = data.timestamp
@@ -512,7 +516,7 @@ def episode_measures(
     peak = float(speed.max()) if len(speed) else 0.0
     moving_data = speed > STATE_MOVING_SHARE * peak if peak > 0 else np.zeros(len(ts), bool)
     # each frame at its own time on the data's clock: the state moved in the interval before
-    idx = np.clip(np.searchsorted(ts, t_v - 0.5 / fps), 0, len(ts) - 1)
+    idx = np.clip(np.searchsorted(ts, t_v - 0.5 / data_fps), 0, len(ts) - 1)
     # frames past the data's clock (cut where it broke) have no state to be judged against
     on_clock = t_v <= ts[-1] + 1 / fps if clock_cut else np.ones(len(t_v), bool)
     state_moving = moving_data[idx] & on_clock
@@ -546,16 +550,20 @@ def episode_measures(
     with np.errstate(invalid="ignore", divide="ignore"):
         rate = mafd / (frames["dt_s"].to_numpy() * fps)  # change per nominal interval
     rate[frozen_frame] = np.nan  # a frozen frame says nothing of the scene's motion
-    # the lag on the data's clock once the drift between the clocks is taken out (a linear
-    # map making the first and last frames agree with the data's): a clock running fast is
-    # the drift's to report, a constant delay the lag's
+    # the lag on the data's clock, the drift between the clocks taken out (a linear map making
+    # the first and last frames agree): a fast clock is the drift's, a constant delay the lag's
+    last_ts, length = (ts[-1] if len(ts) else None), video.length
+    if fps != data_fps:  # the camera's own frames over the episode; its frame at the data's end
+        length = math.ceil(video.length * fps / data_fps - 1e-6)
+        last_ts = ts[0] + math.floor((last_ts - ts[0]) * fps + 1e-3) / fps if len(ts) else None
     t_c = t_v
     if clock_cut and len(t_v):  # no last timestamp to map: the first frames agree, the rates
         t_c = t_v + (ts[0] - t_v[0])  # taken as equal
     elif len(t_v) > 1 and len(ts) > 1 and t_v[-1] > t_v[0]:
-        t_c = ts[0] + (t_v - t_v[0]) * (ts[-1] - ts[0]) / (t_v[-1] - t_v[0])
-    motion = np.interp(ts, t_c[1:], rate[1:]) if len(t_v) > 1 else np.zeros(len(ts))
-    lag = lag_of(speed[1:], motion[1:], fps)
+        t_c = ts[0] + (t_v - t_v[0]) * (last_ts - ts[0]) / (t_v[-1] - t_v[0])
+    half = 0.5 / fps - 0.5 / data_fps  # each change at its interval's middle, as the state's
+    motion = np.interp(ts, t_c[1:] - half, rate[1:]) if len(t_v) > 1 else np.zeros(len(ts))
+    lag = lag_of(speed[1:], motion[1:], data_fps)  # on the data's rows
     if pose is None:
         lag |= {"lag_note": "not measurable: the dataset has no state or action"}
     elif clock_cut and lag["lag_note"]:
@@ -565,9 +573,9 @@ def episode_measures(
     row = {
         "episode_index": video.episode, "camera": video.camera, "video_path": video.path,
         "from_s": video.from_s, "to_s": video.to_s, "frames_decoded": len(t_v),
-        "length": video.length, "data_timestamps": len(data.timestamp),
+        "length": length, "data_timestamps": len(data.timestamp),
         "drift_start_ms": (t_v[0] - ts[0]) * 1000 if len(ts) else None,
-        "drift_end_ms": (t_v[-1] - ts[-1]) * 1000 if len(ts) and not clock_cut else None,
+        "drift_end_ms": (t_v[-1] - last_ts) * 1000 if len(ts) and not clock_cut else None,
         "fps": float(fps),
         "dropped": int(dropped), "repeated": int(batcher.repeats_total),
         "idle_head_s": float(min(head_img, head_state)),
@@ -587,12 +595,6 @@ def episode_measures(
         at = np.asarray(pose, dtype=np.float64)[idx]
         at[~on_clock] = np.nan  # frames past a broken clock have no pose
         pose_delta = np.vstack([at[:1], np.diff(at, axis=0)]).astype(np.float32)
-    return (
-        row,
-        [
-            pl.Series("still", still),
-            pl.Series("state_moving", state_moving),
-            pl.Series("frozen", frozen_frame),
-        ],
-        pose_delta,
-    )
+    extra = [pl.Series("still", still), pl.Series("state_moving", state_moving),
+             pl.Series("frozen", frozen_frame)]  # fmt: skip
+    return row, extra, pose_delta

@@ -48,14 +48,17 @@ def _stat(path: str) -> list[int] | None:
     return [st.st_size, st.st_mtime_ns]
 
 
-def result_path(out: Path, video: EpisodeVideo, settings: Any, fps: float) -> Path:
+def result_path(
+    out: Path, video: EpisodeVideo, settings: Any, fps: float, data_fps: float | None = None
+) -> Path:
     """Where ``video``'s result is kept under ``out``: its episode and camera, and a hash of
-    what it is measured from."""
+    what it is measured from (``data_fps``: the data's rate, where not the camera's)."""
     measured = {k: v for k, v in dataclasses.asdict(settings).items() if k not in _NOT_MEASURED}
     data_stat = _stat(video.data_path)
     video_stat = _stat(video.path) if video.kind == "video" else None
     key = json.dumps(
-        [RESULT_VERSION, measured, dataclasses.asdict(video), fps, data_stat, video_stat],
+        [RESULT_VERSION, measured, dataclasses.asdict(video), fps, data_stat, video_stat]
+        + ([data_fps] if data_fps not in (None, fps) else []),
         sort_keys=True, default=str,
     )  # fmt: skip
     digest = hashlib.sha1(key.encode()).hexdigest()[:16]
@@ -63,15 +66,17 @@ def result_path(out: Path, video: EpisodeVideo, settings: Any, fps: float) -> Pa
     return out / RESULTS / f"episode_{video.episode:06d}.{cam}.{digest}.pkl"
 
 
-def measured(video: EpisodeVideo, settings: Any, fps: float, out: Path) -> dict[str, Any]:
+def measured(
+    video: EpisodeVideo, settings: Any, fps: float, out: Path, data_fps: float | None = None
+) -> dict[str, Any]:
     """An executor task: :func:`measure_episode`'s result for ``video``, read back from
     ``out/episode_results/`` when a run measured it from the same input with the same settings,
     else measured and kept there. The result's ``reused`` says which."""
-    path = result_path(out, video, settings, fps)
+    path = result_path(out, video, settings, fps, data_fps)
     kept = read_result(path)
     if kept is not None:
         return kept
-    result = measure_episode(video, settings, fps)
+    result = measure_episode(video, settings, fps, data_fps)
     tmp = path.with_name(f"{path.name}.partial-{os.getpid()}")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

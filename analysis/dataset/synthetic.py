@@ -207,10 +207,12 @@ def _episode_frames(
     pan_px_per_unit: float = 0.0,
     strokes: int = 1,
     state_width: int | None = None,
+    cam_fps: float | None = None,
 ) -> tuple[np.ndarray, list[tuple[float, np.ndarray]]]:
     """(state (n, STATE_DIM), [(video time since the episode's start s, RGB frame)]); the
     camera pans right by ``pan_px_per_unit`` × joint 0 (a camera on the arm). The state's
-    scale: ``state_width`` (the dataset's first camera's width; default this one's)."""
+    scale: ``state_width`` (the dataset's first camera's width; default this one's). A camera
+    at ``cam_fps`` (default ``fps``) films n / fps s in its own frames (the faults' too)."""
     bg, obj = scene
     # px: the object crosses the view
     amplitude = (state_width or shape[1]) * (0.45 + 0.1 * ((e * 7) % 3))
@@ -218,15 +220,16 @@ def _episode_frames(
     lag = faults.lag_ms.get(e, 0.0) / 1000
     shift = faults.bump[1] if faults.bump is not None and e >= faults.bump[0] else 0
     drift = faults.drift_ms.get(e, 0.0) / 1000
-    f0, k = faults.frozen.get(e, (n, 0))
-    d0, dn = faults.dropped.get(e, (n, 0))
+    m = math.ceil(n * (cf := cam_fps or fps) / fps - 1e-6)  # the camera's frames
+    f0, k = faults.frozen.get(e, (m, 0))
+    d0, dn = faults.dropped.get(e, (m, 0))
     frames: list[tuple[float, np.ndarray]] = []
     img = None
-    for i in range(n):
+    for i in range(m):
         if d0 <= i < d0 + dn:
             continue  # lost: a gap in the video's times
         if not (f0 <= i < f0 + k) or img is None:
-            seen = state_at(state, fps, i / fps - lag)
+            seen = state_at(state, fps, i / cf - lag)
             knocked = faults.knock is not None and (
                 e > faults.knock[0] or (e == faults.knock[0] and i >= faults.knock[1])
             )
@@ -236,7 +239,7 @@ def _episode_frames(
                 img = cv2.GaussianBlur(img, (0, 0), 2.5)
             if e in faults.overexposed:
                 img = np.clip(img.astype(np.float32) * 2.2 + 70, 0, 255).astype(np.uint8)
-        t = i / fps + drift * i / max(n - 1, 1)
+        t = i / cf + drift * i / max(m - 1, 1)
         frames.append((t, img))
     return state, frames
 
@@ -342,10 +345,10 @@ def _features(
     cameras: tuple[str, ...],
     shapes: dict[str, tuple],
     codec: str,
-    fps: float,
+    rates: dict[str, float],
     images: tuple = (),
 ) -> dict:
-    def video_info(shape: tuple) -> dict:
+    def video_info(shape: tuple, fps: float) -> dict:
         return {
             "video.height": shape[0], "video.width": shape[1], "video.codec": CODECS[codec],
             "video.pix_fmt": "yuv420p", "video.is_depth_map": False, "video.fps": fps,
@@ -357,7 +360,7 @@ def _features(
         cam: {"dtype": "image" if cam in images else "video",
               "shape": [shapes[cam][0], shapes[cam][1], 3],
               "names": ["height", "width", "channels"]}
-        | ({} if cam in images else {"info": video_info(shapes[cam])})
+        | ({} if cam in images else {"info": video_info(shapes[cam], rates[cam])})
         for cam in cameras
     }  # fmt: skip
     feats |= {
@@ -402,6 +405,7 @@ def write_dataset(
     pan_px_per_unit: float = 0.0,
     strokes: int = 1,
     camera_shapes: dict[str, tuple[int, int]] | None = None,
+    camera_fps: dict[str, float] | None = None,
 ) -> dict[str, Any]:
     """Write a LeRobot dataset at ``root`` (see the module) and return its truth: ``lengths``
     (frames per episode), ``faults``, ``fps``, ``cameras``. Episode lengths are spread evenly
@@ -411,8 +415,8 @@ def write_dataset(
     ``images/{key}/episode-{e:06d}/frame-{i:06d}.png``. With ``pan_px_per_unit`` the first
     camera is on the arm: its view pans right by that many px per unit of joint 0 (the object
     crosses up to 0.65 × the width in joint 0's units). ``strokes``: out-and-back motions per
-    episode (more strokes: more evidence of a lag). ``camera_shapes``: a camera's own (height,
-    width), where it is not ``shape``."""
+    episode (more strokes: more evidence of a lag). ``camera_shapes``, ``camera_fps``: a
+    camera's own (height, width) and rate (its video's and ``video.fps``), where not given."""
     if version not in ("v3.0", "v2.1"):
         raise UserError(f"version must be v3.0 or v2.1, got {version!r}")
     if codec not in CODECS:
@@ -426,7 +430,7 @@ def write_dataset(
     shutil.rmtree(part, ignore_errors=True)
     try:
         truth = _write(part, episodes, version, codec, fps, shape, seconds, faults, cameras,
-                       seed, image_cameras, pan_px_per_unit, strokes,
+                       seed, image_cameras, pan_px_per_unit, strokes, camera_fps or {},
                        camera_shapes)  # fmt: skip
         if root.exists():
             root.rmdir()  # empty: checked above
@@ -440,35 +444,35 @@ def write_dataset(
 def _write(root: Path, episodes: int, version: str, codec: str, fps: float,
            shape: tuple[int, int], seconds: tuple[float, float], faults: Faults,
            cameras: tuple[str, ...], seed: int, image_cameras: tuple[str, ...],
-           pan_px_per_unit: float, strokes: int,
+           pan_px_per_unit: float, strokes: int, camera_fps: dict[str, float],
            camera_shapes: dict[str, tuple[int, int]] | None) -> dict[str, Any]:  # fmt: skip
     """:func:`write_dataset` into ``root`` (a new folder)."""
     (root / "meta").mkdir(parents=True, exist_ok=True)
     knock_px = faults.knock[2] if faults.knock is not None else 0
     pan_px = math.ceil(abs(pan_px_per_unit) * 0.66 * shape[1]) + abs(knock_px)
     shapes = {cam: tuple((camera_shapes or {}).get(cam, shape)) for cam in cameras}
+    rates = {cam: float(camera_fps.get(cam, fps)) for cam in cameras}
     scenes = {cam: _scene(*shapes[cam], pan_px if c == 0 else 0)
               for c, cam in enumerate(cameras)}  # fmt: skip
     span = np.linspace(seconds[0], seconds[1], episodes) if episodes > 1 else [seconds[0]]
     lengths = [round(float(s) * fps) for s in span]
-    clean = Faults()
     per_cam: dict[str, list] = {cam: [] for cam in cameras}  # [(state, frames)] per episode
     states = []
     for e, n in enumerate(lengths):
         for c, cam in enumerate(cameras):
-            f = faults if c == 0 else clean
+            f = faults if c == 0 else Faults()
             sc = scenes[cam]
             sc = sc if c == 0 else (np.roll(sc[0], 5 * c, axis=1), sc[1])
             pan = pan_px_per_unit if c == 0 else 0.0
             state, frames = _episode_frames(e, n, fps, shapes[cam], f, sc, seed, pan, strokes,
-                                            shape[1])  # fmt: skip
+                                            shape[1], rates[cam])  # fmt: skip
             per_cam[cam].append(frames)
         states.append(state)
     info: dict[str, Any] = {
         "codebase_version": version, "robot_type": "synthetic_arm",
         "total_episodes": episodes, "total_frames": int(sum(lengths)), "total_tasks": 1,
         "chunks_size": 1000, "fps": fps, "splits": {"train": f"0:{episodes}"},
-        "features": _features(cameras, shapes, codec, fps, image_cameras),
+        "features": _features(cameras, shapes, codec, rates, image_cameras),
     }  # fmt: skip
     for cam in image_cameras:
         if cam not in per_cam:
@@ -479,15 +483,15 @@ def _write(root: Path, episodes: int, version: str, codec: str, fps: float,
             for i, (_, rgb) in enumerate(frames):  # a PNG carries no time: frame i is row i
                 cv2.imwrite(str(folder / f"frame-{i:06d}.png"), rgb[..., ::-1])
     if version == "v3.0":
-        _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes)
+        _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes, rates)
     else:
-        _write_v21(root, info, lengths, states, per_cam, codec, fps, shapes)
+        _write_v21(root, info, lengths, states, per_cam, codec, fps, shapes, rates)
     return {"lengths": lengths, "faults": faults, "fps": fps, "cameras": cameras,
             "version": version, "codec": codec, "shape": shape,
             "image_cameras": image_cameras}  # fmt: skip
 
 
-def _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes) -> None:
+def _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes, rates) -> None:
     info |= {
         "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
         "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
@@ -507,11 +511,11 @@ def _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes) -> None:
         t0, win, timed = 0.0, [], []
         for frames in eps:
             timed += [(t0 + t, img) for t, img in frames]
-            end = t0 + frames[-1][0] + 1 / fps  # the window ends one interval after its last
+            end = t0 + frames[-1][0] + 1 / rates[cam]  # one interval after its last frame
             win.append((t0, end))
             t0 = end
         path = root / "videos" / cam / "chunk-000" / "file-000.mp4"
-        encode_file(path, codec, fps, shapes[cam], timed)
+        encode_file(path, codec, rates[cam], shapes[cam], timed)
         windows[cam] = win
     cols: dict[str, list] = {
         "episode_index": list(range(len(lengths))),
@@ -532,7 +536,7 @@ def _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes) -> None:
     pq.write_table(pa.table(cols), out / "file-000.parquet")
 
 
-def _write_v21(root, info, lengths, states, per_cam, codec, fps, shapes) -> None:
+def _write_v21(root, info, lengths, states, per_cam, codec, fps, shapes, rates) -> None:
     info |= {
         "total_chunks": 1, "total_videos": len(lengths) * len(per_cam),
         "data_path": "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet",
@@ -553,7 +557,7 @@ def _write_v21(root, info, lengths, states, per_cam, codec, fps, shapes) -> None
     for cam, eps in per_cam.items():
         for e, frames in enumerate(eps):
             path = root / "videos" / "chunk-000" / cam / f"episode_{e:06d}.mp4"
-            encode_file(path, codec, fps, shapes[cam], frames)
+            encode_file(path, codec, rates[cam], shapes[cam], frames)
 
 
 if __name__ == "__main__":  # python -m analysis.dataset.synthetic OUT [v3.0|v2.1] [codec]

@@ -229,3 +229,47 @@ def test_the_command_line_refuses_a_bad_threshold_and_a_file_in_one_line(panning
     info = root / "meta" / "info.json"
     proc = run_in_process("analysis", "dataset", str(info), "--out", str(out))
     assert_one_line_error(proc, str(info), "is a file, not a folder")
+
+
+def test_a_camera_at_half_the_rate_is_measured_in_its_own_frames(tmp_path) -> None:
+    """The wrist camera films at 15 fps (its video's frames, its ``video.fps``) beside a top
+    camera and data at 30 fps: measured at 15 with no rate problem; a clean episode flags
+    nothing; 5 of its own frames dropped count 5, and a 100-ms lag reads 100 ms (before: 30 of
+    its 60 frames counted missing and flagged short, its end 33 ms off flagged drift, a lag on
+    the data's rows read at its rate: doubled)."""
+    slow, fast = "observation.images.wrist", "observation.images.top"
+    root = tmp_path / "ds"
+    write_dataset(root, episodes=3, codec="libx264", seconds=(6.0, 6.0), strokes=3,
+                  faults=Faults(dropped={1: (20, 5)}, lag_ms={2: 100.0}),
+                  cameras=(slow, fast), camera_fps={slow: 15.0})  # fmt: skip
+    info = json.loads((root / "meta" / "info.json").read_text())
+    assert info["fps"] == 30 and info["features"][slow]["info"]["video.fps"] == 15
+    res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), tmp_path / "o")
+    assert res.dataset_problems == []  # its own video.fps borne out by its video
+    rows = {(r["episode_index"], r["camera"]): r for r in res.episodes.iter_rows(named=True)}
+    for e in range(3):
+        r = rows[(e, slow)]
+        # 6 s at 15 fps: 90 frames, its own (the data has 180 rows)
+        assert r["fps"] == 15 and r["length"] == 90 and r["data_timestamps"] == 180
+        assert r["frames_decoded"] == 90 - (5 if e == 1 else 0)
+        assert r["frames_missing"] == 0
+        assert not {"frozen", "drift", "short"} & set(r["flags"].split(","))
+        # its last frame is the one holding the data's last row: the clocks agree within the
+        # MP4's and float32's rounding (DRIFT_RESOLUTION_MS)
+        assert r["drift_abs_ms"] < 1.0, (e, r["drift_start_ms"], r["drift_end_ms"])
+        assert rows[(e, fast)]["flags"] == "" and rows[(e, fast)]["fps"] == 30
+    assert rows[(0, slow)]["flags"] == ""
+    assert rows[(1, slow)]["flags"] == "dropped" and rows[(1, slow)]["dropped"] == 5
+    for e in (0, 1):  # on time: the intervals against the state and between cameras hold 0
+        r = rows[(e, slow)]
+        assert r["lag_low_ms"] <= 0 <= r["lag_high_ms"], (e, r["lag_ms"])
+        r = rows[(e, fast)]
+        assert r["lag_camera_low_ms"] <= 0 <= r["lag_camera_high_ms"], (e, r["lag_camera_ms"])
+    late = rows[(2, slow)]
+    assert late["flags"] == "lag"
+    # measured 102 ms [76, 129] (it read 120 with the wrist's clock stretched to the data's
+    # last row, 33 ms after its last frame): the interval holds 100, the point within 30 ms
+    assert late["lag_low_ms"] <= 100 <= late["lag_high_ms"]
+    assert late["lag_ms"] == pytest.approx(100, abs=30)
+    # the top camera against the late wrist (the first camera): 100 ms early
+    assert rows[(2, fast)]["lag_camera_ms"] == pytest.approx(-100, abs=30)

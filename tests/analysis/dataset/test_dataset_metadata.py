@@ -112,6 +112,21 @@ def test_data_timestamps_at_another_rate_are_outvoted_and_named(made) -> None:
     assert p.episode is None and "timestamp 15 fps" in p.message and "fps 30" in p.message
 
 
+def test_a_cameras_own_video_fps_is_held_against_its_video(made) -> None:
+    """A camera's own ``video.fps`` (LeRobot's per-camera info) of 15 on a 30-fps video: the
+    camera may record at a rate of its own, but this one's video says 30: measured at 30, the
+    disagreement named; the same 15 borne out by a 15-fps video is no problem
+    (test_dataset_cameras.py)."""
+    root = _copy(made, "v3", "own15")
+    info = json.loads((root / "meta" / "info.json").read_text())
+    info["features"][CAM]["info"]["video.fps"] = 15
+    _edit_info(root, features=info["features"])
+    ds = open_dataset(root)
+    assert ds.rate(CAM) == FPS == ds.data_rate(CAM)
+    (p,) = ds.problems
+    assert f"{CAM} video.fps 15" in p.message and "video's frames 30 fps" in p.message
+
+
 def test_the_rate_followed_is_the_one_the_evidence_agrees_on() -> None:
     stated, video, data = ("stated", 30.0), ("video", 29.97), ("data", 15.0)
     assert agreed_rate([stated, video, data]) == (30.0, False)  # 30 and 29.97 agree
