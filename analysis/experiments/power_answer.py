@@ -324,7 +324,8 @@ def first_paragraph(primary: pl.DataFrame) -> str:
         parts.append(
             f"{len(few)} of the {len(rows)} studies cannot be judged ({names}): too few "
             "scenes, or units in a class, each says which below ("
-            f"{MIN_CONDITIONS} arena scenes, or {MIN_SCENES} footage scenes with "
+            f"{MIN_SCENES} arena scenes and {MIN_CONDITIONS} conditions, or {MIN_SCENES} "
+            "footage scenes with "
             f"{MIN_FAILURES} failing and as many correct clips, are needed)"
         )
     unjudged = len(rows) - len(judged) - len(few)
@@ -423,7 +424,8 @@ def answer_markdown(
         "difference of their Spearman ρ with a condition's failure rate (Steiger's test, Zou's "
         "interval); footage, of their clip AUROCs (DeLong). 95 % intervals over the scenes "
         "(clustered; t on scenes − 1 degrees of freedom); judged at 5 % alone, and only on at "
-        f"least {MIN_CONDITIONS} arena scenes, or {MIN_SCENES} footage scenes with "
+        f"least {MIN_SCENES} arena scenes and {MIN_CONDITIONS} conditions, or {MIN_SCENES} "
+        "footage scenes with "
         f"{MIN_FAILURES} failing and as many correct clips; a verdict stands in the first "
         "paragraph only after Holm's correction over the judged studies. Failing: the share "
         f"beside the plan's target of {100 * FAILURE_TARGET[0]:.0f}-"

@@ -58,11 +58,11 @@ def test_each_detector_gets_its_primary_comparison(quick) -> None:
     ]
     assert list(zip(primary["source"], primary["detector"], strict=True)) == want
     arena = primary.filter(pl.col("source") == "arena")
-    # 3 conditions in 3 scenes, below the 24 scenes the power calculation asks for: no
+    # 3 conditions in 3 scenes, below the 20 scenes a clustered verdict asks for: no
     # verdict, said so; the scenes are the unit
     assert arena["n"].to_list() == [QUICK.conditions()] * 2
     assert arena["unit"].to_list() == ["scene"] * 2 and arena["n_units"].to_list() == [3] * 2
-    assert all(v == "3 scenes: too few to judge (24 needed)" for v in arena["verdict"])
+    assert all(v == "3 scenes: too few to judge (20 needed)" for v in arena["verdict"])
     assert arena["statistic"].to_list() == ["rho_failure"] * 2
     # a footage study either judged its clips or says why it could not (no alert at all)
     for r in primary.filter(pl.col("source") == "footage").iter_rows(named=True):
