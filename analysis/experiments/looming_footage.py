@@ -57,7 +57,7 @@ OBJECTS = ("chelsea", "coins", "horse", "moon", "immunohistochemistry")
 # scenes, each a real photograph a PyPI package ships as a file (scikit-image's data folder,
 # matplotlib's sample_data; nothing downloaded). Left out: chessboard, color, logo, phantom
 # (drawn, not photographed), horse (a silhouette), motorcycle_right (the left one's stereo
-# twin: the same scene), lfw_subset (25 px faces). File per name; where in PACKAGE_PHOTOS.
+# twin: the same scene), lfw_subset (25 px faces). File per name (photo_file: in which package).
 PHOTOS_2026_12 = {
     "astronaut": "astronaut.png", "camera": "camera.png", "brick": "brick.png",
     "grass": "grass.png", "gravel": "gravel.png", "coffee": "coffee.png",

@@ -22,6 +22,7 @@ the tables its studies wrote.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -203,7 +204,17 @@ def _p(v: Any) -> str:
 
 def primary_row(study: dict[str, Any], table: pl.DataFrame | None) -> dict[str, Any]:
     """The primary comparison of one study (``table``: its predictors.parquet; None: it holds
-    no evidence), with the AVDM's and TI's own statistic."""
+    no evidence), with the AVDM's and TI's own statistic; a study named in advance as unable
+    to inform (``cannot_inform``) keeps its numbers and gets that as its verdict."""
+    row = _primary_row(study, table)
+    row["deviation"] = study.get("deviation") or ""
+    row["planned_value"] = study.get("planned_value", study["value"])
+    if study.get("cannot_inform"):
+        row["verdict"] = study["cannot_inform"]
+    return row
+
+
+def _primary_row(study: dict[str, Any], table: pl.DataFrame | None) -> dict[str, Any]:
     row = {k: study[k] for k in ("source", "detector", "param", "value", "status")}
     prim = None if table is None else table.filter(pl.col("role") == "primary")
     if prim is None or prim.height == 0:
@@ -241,6 +252,10 @@ def in_words(r: dict[str, Any]) -> str:
     """One study's primary comparison as a clause, with its unit and n."""
     who = f"{r['source']}, {r['detector']} ({r['param']} {r['value']:g})"
     v = r.get("verdict") or ""
+    if r.get("deviation"):
+        who += f" [{r['deviation']}]"
+    if v.startswith("cannot inform"):
+        return f"{who}: {v}; left out of the verdicts"
     if v.startswith("no evidence"):
         return f"{who}: {v.split(';')[0]}"
     if r.get("statistic") is None:
@@ -302,6 +317,7 @@ def first_paragraph(primary: pl.DataFrame) -> str:
     decided = [r for r in judged if r.get("verdict") in ("better", "worse")]
     kept = [r for r in decided if (r.get("p_holm_across") or 1.0) < ALPHA]
     few = [r for r in rows if "too few to judge" in (r.get("verdict") or "")]
+    mute = [r for r in rows if (r.get("verdict") or "").startswith("cannot inform")]
     parts = []
     if judged:
         names = ", ".join(f"{r['source']} {r['detector']}" for r in kept) or "none"
@@ -328,18 +344,29 @@ def first_paragraph(primary: pl.DataFrame) -> str:
             "footage scenes with "
             f"{MIN_FAILURES} failing and as many correct clips, are needed)"
         )
-    unjudged = len(rows) - len(judged) - len(few)
+    if mute:
+        names = ", ".join(f"{r['source']} {r['detector']}" for r in mute)
+        parts.append(
+            f"{len(mute)} named before the runs as unable to inform ({names}) and left out"
+        )
+    unjudged = len(rows) - len(judged) - len(few) - len(mute)
     if unjudged:
         parts.append(f"{unjudged} without evidence")
     gist = "; ".join(parts) if parts else "no study"
+    sure = (
+        " How sure: each verdict is a two-sided test at 5 % over scenes (intervals clustered on "
+        "them), and only those that survive Holm's correction over the judged studies are "
+        "counted here."
+    )
     cannot = (
         " What these runs cannot tell: which measure predicts better where a study has too "
         "few scenes; whether other scenes, detector values or settings would change this; "
-        "the per-scene reading below is exploratory."
+        "a difference smaller than the plan's powered gap; the per-scene reading below is "
+        "exploratory."
     )
     return (
-        "**Does the AVDM predict where collision detectors fail better than P.910 TI?** "
-        f"Across the plan's {len(rows)} studies: {gist}.{cannot} "
+        "**Does the AVDM predict where collision detectors fail better than P.910 TI, over "
+        f"scenes?** Across the plan's {len(rows)} studies: {gist}.{sure}{cannot} "
         + "; ".join(in_words(r) for r in rows)
         + "."
     )
@@ -419,8 +446,8 @@ def answer_markdown(
     lines = [QUICK_BANNER + "\n"] if quick else []
     lines += [first_paragraph(primary) + "\n", "## The primary comparison\n"]
     lines += [
-        "The AVDM against P.910 TI, named before the runs (docs/findings/power_plan.md): arena, "
-        "the "
+        "The AVDM against P.910 TI, named before the runs (docs/findings/power_plan.md and "
+        "its amendment): arena, the "
         "difference of their Spearman ρ with a condition's failure rate (Steiger's test, Zou's "
         "interval); footage, of their clip AUROCs (DeLong). 95 % intervals over the scenes "
         "(clustered; t on scenes − 1 degrees of freedom); judged at 5 % alone, and only on at "
@@ -430,19 +457,20 @@ def answer_markdown(
         "paragraph only after Holm's correction over the judged studies. Failing: the share "
         f"beside the plan's target of {100 * FAILURE_TARGET[0]:.0f}-"
         f"{100 * FAILURE_TARGET[1]:.0f} %.\n",
-        "| source | detector | units | n | failing | correct | failing share (target "
-        f"{100 * FAILURE_TARGET[0]:.0f}-{100 * FAILURE_TARGET[1]:.0f} %) | AVDM | TI | AVDM − TI "
-        "| p | Holm p over the studies | verdict |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| source | detector | deviation from the plan | units | n | failing | correct | "
+        f"failing share (target {100 * FAILURE_TARGET[0]:.0f}-{100 * FAILURE_TARGET[1]:.0f} %)"
+        " | AVDM | TI | AVDM − TI | p | Holm p over the studies | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in primary.iter_rows(named=True):
+        dev = r.get("deviation") or "none"
         if r.get("statistic") is None:
-            lines.append(f"| {r['source']} | {r['detector']} |" + " — |" * 10
+            lines.append(f"| {r['source']} | {r['detector']} | {dev} |" + " — |" * 10
                          + f" {(r.get('verdict') or '')[:120]} |")  # fmt: skip
             continue
         across = r.get("p_holm_across")
         lines.append(
-            f"| {r['source']} | {r['detector']} ({r['param']} {r['value']:g}) | "
+            f"| {r['source']} | {r['detector']} ({r['param']} {r['value']:g}) | {dev} | "
             f"{r['n_units']} {r['unit']}s | {r['n']} | {r['n_failing']} | {r['n_correct']} | "
             f"{share_phrase(r)} | "
             f"{_fmt(r['avdm_estimate'], r['avdm_ci_low'], r['avdm_ci_high'])} | "
@@ -485,13 +513,138 @@ def answer_markdown(
         f"The plan: {plan.conditions()} arena conditions ({len(plan.scenes)} scenes × "
         f"{plan.tf_draws} TFs from {plan.tf_range} Hz) × {plan.seeds} seed(s) of "
         f"{plan.minutes:g}-min runs, {plan.arena_runs()} runs with the profiling; "
-        f"{plan.clips} clips of {plan.clip_seconds:g} s.\n",
-        "| source | detector | units | computed by this call | status | folder |",
-        "|---|---|---|---|---|---|",
+        f"{plan.clips} clips of {plan.clip_seconds:g} s. Version "
+        f"{getattr(plan, 'name', '2026-11')} of the plan"
+        + (
+            " (docs/findings/power_plan_amendment.md)"
+            if getattr(plan, "name", "") == "2026-12"
+            else " (docs/findings/power_plan.md)"
+        )
+        + ".\n",
+        "| source | detector | units | failing in the confirmation | deviation from the plan "
+        "| computed by this call | status | folder |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in studies.iter_rows(named=True):
-        lines.append(f"| {r['source']} | {r['detector']} | {r['units']} | {r['recomputed']} | "
-                     f"{r['status'][:100]} | `{Path(r['folder']).name}` |")  # fmt: skip
-    cmd = "vdc-analyse power-study" + (" --quick" if quick else "")
+        conf = r.get("first_seed_failing")
+        conf = "—" if conf is None else f"{100 * conf:.0f} %"
+        dev = r.get("deviation") or "none"
+        lines.append(f"| {r['source']} | {r['detector']} | {r['units']} | {conf} | {dev} | "
+                     f"{r['recomputed']} | {r['status'][:100]} | "
+                     f"`{Path(r['folder']).name}` |")  # fmt: skip
+    cmd = f"vdc-analyse power-study --plan {getattr(plan, 'name', '2026-11')}" + (
+        " --quick" if quick else ""
+    )
     lines += ["", f"Re-run (finished runs are reused): `{cmd} --out <this folder>`.\n"]
     return "\n".join(lines)
+
+
+# --- the published answer (docs/findings/<study>/) and the docs' result section ----------------
+
+PUBLISHED = ("answer.md", "primary.parquet", "secondaries.parquet", "per_scene.parquet",
+             "studies.parquet")  # fmt: skip
+BEGIN, END = "<!-- power-study:begin (generated) -->", "<!-- power-study:end -->"
+FINDINGS = Path("docs/findings/power-2026-12")  # where the amended plan's answer is committed
+PENDING = (
+    "The amended plan's run (docs/findings/power_plan_amendment.md) is pending: no result is "
+    "committed yet, and none is quoted here."
+)
+
+
+def publish(out: Path, dest: Path, studies: pl.DataFrame, feedback: Any = None) -> list[Path]:
+    """Copy a finished study's answer (:data:`PUBLISHED`) from ``out`` into ``dest`` with
+    ``made_by.json``: the commit of the code that made it (and whether its tree had
+    uncommitted changes), vdc's version, the plan and whether it was a quick run."""
+    import shutil
+    import subprocess
+
+    from vdc import __version__
+
+    dest.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name in PUBLISHED:
+        tmp = dest / f".{name}.partial"
+        shutil.copyfile(out / name, tmp)
+        tmp.replace(dest / name)
+        written.append(dest / name)
+    repo = Path(__file__).resolve().parents[2]
+
+    def git(*args: str) -> str:
+        try:
+            run = subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True,
+                                 timeout=30, check=False)  # fmt: skip
+        except (OSError, subprocess.SubprocessError):
+            return ""
+        return run.stdout.strip() if run.returncode == 0 else ""
+
+    meta = {
+        "commit": git("rev-parse", "HEAD") or "unknown",
+        "uncommitted_changes": bool(git("status", "--porcelain", "--untracked-files=no")),
+        "vdc": __version__,
+        "quick": _quick(out),
+        "studies": studies.height,
+    }
+    tmp = dest / ".made_by.json.partial"
+    tmp.write_text(json.dumps(meta, indent=1) + "\n")
+    tmp.replace(dest / "made_by.json")
+    written.append(dest / "made_by.json")
+    if feedback is not None:
+        feedback.log(f"published the answer into {dest} (commit {meta['commit'][:12]})")
+    return written
+
+
+def _quick(out: Path) -> bool:
+    import pyarrow.parquet as pq
+
+    kv = pq.read_schema(out / "primary.parquet").metadata or {}
+    return bool(json.loads(kv.get(b"vdc.quick", b"false")))
+
+
+def result_section(folder: Path) -> str:
+    """The docs' result section, generated from the committed tables in ``folder`` (the
+    pending sentence where there are none): answer.md's first paragraph rebuilt from
+    ``primary.parquet``, each study's line, and the commit that made them."""
+    if not (folder / "primary.parquet").exists():
+        return PENDING
+    primary = pl.read_parquet(folder / "primary.parquet")
+    made = json.loads((folder / "made_by.json").read_text())
+    lines = [first_paragraph(primary), ""]
+    lines += [
+        "| source | detector | deviation | units | failing share | AVDM − TI | "
+        "Holm p over the studies | verdict |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in primary.iter_rows(named=True):
+        units = f"{r['n_units']} {r['unit']}s, n {r['n']}" if r.get("n_units") else "—"
+        diff = _fmt(r.get("difference"), r.get("difference_low"), r.get("difference_high"), 3)
+        across = r.get("p_holm_across")
+        lines.append(
+            f"| {r['source']} | {r['detector']} | {r.get('deviation') or 'none'} | {units} | "
+            f"{share_phrase(r) or '—'} | {diff} | {_p(across) if across is not None else '—'} | "
+            f"{(r.get('verdict') or '')[:100]} |"
+        )
+    quick = " (a QUICK run: not findings)" if made.get("quick") else ""
+    lines += ["", f"Generated from `{folder.as_posix()}`, made by commit "
+              f"{made['commit'][:12]} (vdc {made['vdc']}){quick}."]  # fmt: skip
+    return "\n".join(lines)
+
+
+def section_in(text: str) -> str | None:
+    """The generated section between :data:`BEGIN` and :data:`END` in a doc, or None."""
+    if BEGIN not in text or END not in text:
+        return None
+    return text.split(BEGIN, 1)[1].split(END, 1)[0].strip("\n")
+
+
+def update_section(doc: Path, folder: Path = FINDINGS) -> bool:
+    """Rewrite ``doc``'s generated section from ``folder``; True when it changed."""
+    text = doc.read_text(encoding="utf-8")
+    old = section_in(text)
+    if old is None:
+        raise ValueError(f"{doc} has no generated section ({BEGIN} ... {END})")
+    new = result_section(folder)
+    if old == new:
+        return False
+    head, rest = text.split(BEGIN, 1)
+    doc.write_text(head + BEGIN + "\n" + new + "\n" + END + rest.split(END, 1)[1], "utf-8")
+    return True

@@ -46,10 +46,12 @@ from typing import Any
 import polars as pl
 
 from analysis.boundary.command import BoundarySettings
+from analysis.boundary.scenes import PHOTOS
 from analysis.experiments.boundary_campaign import boundary, finished_row, grid_items
 from analysis.experiments.captures import profiling_items
 from analysis.experiments.looming_footage import LoomingFootageSettings, looming_footage
-from analysis.experiments.power_answer import write_answer
+from analysis.experiments.power_answer import publish, write_answer
+from analysis.experiments.power_pilot import footage_pilot
 from analysis.experiments.predictor_runs import EVERY
 from vdc.cli_support import option
 from vdc.errors import UserError
@@ -73,6 +75,20 @@ class StudyPlan:
     clip_seconds: float
     clip_size: tuple[int, int]  # (width, height) px of the rendered clips
     footage_detectors: tuple[tuple[str, str, float], ...]
+    name: str = "2026-11"  # the plan's version: docs/findings/power_plan.md (2026-11) or its
+    # amendment (2026-12, docs/findings/power_plan_amendment.md)
+    collection: str = "2026-11"  # looming-footage --collection: the footage's photographs
+    # the amendment: each value confirmed on the first seed of every arena condition, and on a
+    # pilot of ``pilot_clips`` clips of the collection's seed ``pilot_seed`` (outside the
+    # study's clips), and moved one step (``steps``: detector -> (value when fewer than
+    # MOVE_BELOW fail, value when more than MOVE_ABOVE fail)) when outside 20-60 %
+    confirm: bool = False
+    pilot_clips: int = 0
+    pilot_seed: int = 1
+    steps: tuple[tuple[str, str, float, float], ...] = ()  # (source, detector, fewer, more)
+    # studies that cannot inform by construction, named before the runs: run for the record,
+    # left out of the verdicts and of Holm's correction over the studies
+    uninformative: tuple[tuple[str, str, str], ...] = ()  # (source, detector, why)
     min_ttc_s: float = 0.5  # a later first alert is a miss (docs/findings/power_plan.md)
     # an alert earlier than this before contact is early: the object enters 1.5-3 s before
     # contact (analysis.experiments.looming_footage.ENTER_S), so one earlier than 3 s comes
@@ -106,6 +122,44 @@ FULL = StudyPlan(
         ("flow-ttc", "tau_alert_s", 1.0),
     ),
 )
+# docs/findings/power_plan_amendment.md (2026-12-07): 23 scenes (21 package photographs and
+# the two procedural generators, one scene each) x 3 TFs, 483 clips over 21 photographs.
+PHOTO_SCENES = tuple(f"photo-{p}" for p in PHOTOS)
+LGMD_FOOTAGE_CANNOT_INFORM = (
+    "cannot inform by construction: LGMD+ misses almost every collision clip and rejects "
+    "every near miss, so its failures are the collision clips, and whether a clip collides "
+    "is drawn independently of its scene: no measure of the scene can predict it"
+)
+AMENDED = dataclasses.replace(
+    FULL,
+    name="2026-12",
+    scenes=("grating", "natural", *PHOTO_SCENES),
+    tf_draws=3,
+    clips=483,  # 23 per photograph
+    collection="2026-12",
+    confirm=True,
+    pilot_clips=40,
+    steps=(
+        ("arena", "lgmd-plus-arena", 8.0, 20.0),  # the plan's 12 -> 20 when too many fail
+        ("arena", "flow-ttc", 0.4, 0.8),  # the plan's 0.6 -> 0.4 / 0.8
+        ("footage", "examples.looming:Looming", 0.04, 0.01),
+        ("footage", "flow-ttc", 0.7, 1.5),  # too many failing: misses, so alert earlier
+    ),
+    uninformative=(("footage", "lgmd-plus", LGMD_FOOTAGE_CANNOT_INFORM),),
+)
+MOVE_BELOW, MOVE_ABOVE = 0.20, 0.60  # the plan's band for the first-seed confirmation
+QUICK_AMENDED = dataclasses.replace(
+    AMENDED,
+    scenes=("natural", "photo-grass", "photo-hopper"),
+    tf_draws=1,
+    seeds=1,
+    minutes=0.25,
+    clips=4,
+    clip_seconds=4.0,
+    clip_size=(96, 72),
+    pilot_clips=2,
+)
+PLANS = {"2026-11": FULL, "2026-12": AMENDED}
 QUICK = dataclasses.replace(
     FULL,
     scenes=("grating", "natural", "photo-grass"),
@@ -130,9 +184,24 @@ class PowerStudySettings(ExecutorSettings):
         "the reduced version (3 conditions, 1 seed of 15-s runs, 4 clips): checks every step "
         "in about a minute; its verdicts are not findings",
     )
+    plan_version: str = option(
+        "2026-12",
+        "which plan: 2026-12, the amended one (docs/findings/power_plan_amendment.md), or "
+        "2026-11, the first (docs/findings/power_plan.md)",
+        "--plan",
+        choices=tuple(PLANS),
+    )
+    publish_findings: str = option(
+        "",
+        "when every study has finished, copy the answer's tables and answer.md into this "
+        "folder (e.g. docs/findings/power-2026-12) with the commit of the code that made them",
+        metavar="DIR",
+    )
 
     def plan(self) -> StudyPlan:
-        return QUICK if self.quick else FULL
+        if self.quick:
+            return QUICK_AMENDED if self.plan_version == "2026-12" else QUICK
+        return PLANS[self.plan_version]
 
 
 @dataclasses.dataclass
@@ -156,6 +225,80 @@ class PowerStudyResult(WroteFiles):
         first = self.answer.split("\n\n")[1 if self.quick else 0]
         head = ["QUICK RUN: its verdicts are not findings"] if self.quick else []
         return [*head, first.replace("**", ""), f"wrote {self.paths[-1]} and beside it"]
+
+
+# What decides a study's outcomes and measures: the simulation and the detectors (capture,
+# avdm), the clips' rendering, the complexity measures, footage mode's judging, the
+# predictors' statistics and verdicts, and this plan. A study is reused only with the same
+# vdc version and the same source of these (code_key); else it is set aside and recomputed.
+CODE_MODULES = (
+    "avdm", "capture", "analysis.boundary", "analysis.complexity", "analysis.predictors",
+    "analysis.experiments.boundary_campaign", "analysis.experiments.captures",
+    "analysis.experiments.predictor_runs", "analysis.experiments.looming_footage",
+    "analysis.experiments.power", "analysis.experiments.power_pilot",
+    "analysis.experiments.power_study", "analysis.experiments.power_answer",
+)  # fmt: skip
+
+
+def code_key(modules: tuple[str, ...] = CODE_MODULES) -> dict[str, str]:
+    """``{vdc, code}``: the package version and the SHA-256 of the source of ``modules``
+    (a package: every ``.py`` under it), by relative path and content."""
+    import importlib.util
+
+    from vdc import __version__
+
+    digest = hashlib.sha256()
+    for name in modules:
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.origin is None:
+            raise ValueError(f"no module {name!r} to hash")
+        origin = Path(spec.origin)
+        files = sorted(origin.parent.rglob("*.py")) if origin.name == "__init__.py" else [origin]
+        for f in files:
+            digest.update(f"{name}/{f.relative_to(origin.parent)}\0".encode())
+            digest.update(f.read_bytes())
+    return {"vdc": __version__, "code": digest.hexdigest()}
+
+
+def set_aside_stale(out: Path, key: dict[str, str], feedback: Feedback) -> list[Path]:
+    """Where ``out/code.json`` names other code than ``key``, its studies (``arena``,
+    ``footage``) are renamed ``<name>.stale-<old code[:8]>`` (kept, not deleted) so that
+    everything is computed again, and the log says so; then ``code.json`` names ``key``.
+    Returns the folders set aside."""
+    marker = out / "code.json"
+    moved: list[Path] = []
+    if marker.exists():
+        old = json.loads(marker.read_text())
+        if old != key:
+            feedback.log(
+                f"the code that scores and measures changed since the last run (vdc "
+                f"{old.get('vdc')}, code {str(old.get('code'))[:12]} -> vdc {key['vdc']}, "
+                f"code {key['code'][:12]}): every study is computed again"
+            )
+            for name in ("arena", "footage"):
+                if (out / name).exists():
+                    dst = out / f"{name}.stale-{str(old.get('code'))[:8]}"
+                    n = 1
+                    while dst.exists():
+                        dst, n = out / f"{name}.stale-{str(old.get('code'))[:8]}-{n}", n + 1
+                    (out / name).rename(dst)
+                    feedback.log(f"  {out / name} set aside as {dst.name}")
+                    moved.append(dst)
+    elif any((out / n).exists() for n in ("arena", "footage")):  # before code.json existed
+        feedback.log("no code.json: the studies here predate the code key and are recomputed")
+        for name in ("arena", "footage"):
+            if (out / name).exists():
+                dst = out / f"{name}.stale-unknown"
+                (out / name).rename(dst)
+                moved.append(dst)
+    _mark_json(marker, key)
+    return moved
+
+
+def _mark_json(path: Path, value: dict[str, Any]) -> None:
+    tmp = path.with_suffix(".partial")
+    tmp.write_text(json.dumps(value))
+    tmp.replace(path)
 
 
 def _done(marker: Path, key: dict[str, Any]) -> str | None:
@@ -212,7 +355,21 @@ def arena_study(
         no_fit=True, **_executor(s),
     )  # fmt: skip
     row = _row("arena", detector, param, value, folder, plan.conditions() * plan.seeds)
-    key, marker = _outcome_key(bs), folder / "study.json"
+    if plan.confirm:  # the first seed of every condition, in its own folder, before the rest
+        first = folder / "first-seed"
+        first.mkdir(parents=True, exist_ok=True)
+        if not (first / "recordings").exists():
+            os.symlink(Path("..") / ".." / "recordings", first / "recordings", True)
+        check = dataclasses.replace(bs, seeds=1)
+        share = _first_seed_share(check, first, feedback, start)
+        moved = move(plan, "arena", detector, param, value, share)
+        row |= {"first_seed_failing": share, "deviation": moved[1]}
+        if moved[0] != value:
+            value = moved[0]
+            bs = dataclasses.replace(bs, values=(value,))
+            row["value"] = value
+            feedback.log(f"arena study of {detector}: {moved[1]}")
+    key, marker = {"settings": _outcome_key(bs), **code_key()}, folder / "study.json"
     status = _done(marker, key)
     if status is not None and _all_finished(bs, folder):  # its tables are these runs' already
         feedback.log(f"arena study of {detector}: every run finished and analysed: reused")
@@ -226,6 +383,50 @@ def arena_study(
     profiles = pl.read_parquet(folder / "boundary_profiles.parquet")
     fresh = int((~res.runs["reused"]).sum()) + int((~profiles["reused"]).sum())
     return row | {"status": "ran", "recomputed": fresh}
+
+
+def _first_seed_share(
+    bs: BoundarySettings, folder: Path, feedback: Feedback, start: float
+) -> float | None:
+    """The share of the arena conditions failing on their first seed (a condition fails when
+    its success share is below the campaign's target, as the answer counts it); None where
+    the first seed holds no evidence."""
+    marker, key = folder / "study.json", {"settings": _outcome_key(bs), **code_key()}
+    if _done(marker, key) is None or not (folder / "boundary_runs.parquet").exists():
+        try:
+            boundary(bs, folder, feedback)
+        except UserError as e:
+            _mark(marker, key, f"no evidence: {e}")
+            return None
+        _mark(marker, key, "ran")
+    runs = pl.read_parquet(folder / "boundary_runs.parquet")
+    events = pl.col("avoidances") + pl.col("crashes")
+    success = (
+        runs.filter(events > 0)
+        .group_by("condition")
+        .agg((pl.col("avoidances") / events).mean().alias("success"))
+    )
+    if not success.height:
+        return None
+    return float((success["success"] < bs.target).mean())
+
+
+def move(
+    plan: StudyPlan, source: str, detector: str, param: str, value: float, share: float | None
+) -> tuple[float, str]:
+    """The plan's rule: a value whose confirmation puts fewer than 20 % or more than 60 % of
+    the units in failure moves one step (``plan.steps``), once; (the value, what was done, in
+    words: the study's ``deviation``)."""
+    if share is None:
+        return value, f"{param} {value:g} not confirmed: no evidence in the confirmation"
+    steps = {(src, d): (lo, hi) for src, d, lo, hi in plan.steps}
+    where = f"{100 * share:.0f} % failing in the confirmation"
+    if MOVE_BELOW <= share <= MOVE_ABOVE or (source, detector) not in steps:
+        kept = "inside" if MOVE_BELOW <= share <= MOVE_ABOVE else "outside (no step named)"
+        return value, f"{param} {value:g} kept: {where}, {kept} 20-60 %"
+    fewer, more = steps[(source, detector)]
+    new = fewer if share < MOVE_BELOW else more
+    return new, f"{param} moved {value:g} -> {new:g}: {where}, outside 20-60 %"
 
 
 def _all_finished(bs: BoundarySettings, folder: Path) -> bool:
@@ -248,11 +449,15 @@ def _row(source: str, detector: str, param: str, value: float, folder: Path, uni
         "source": source,
         "detector": detector,
         "param": param,
+        "planned_value": value,  # the plan's; ``value`` the one run (moved by the rule)
         "value": value,
         "folder": str(folder),
         "units": units,
         "status": "",
         "recomputed": 0,
+        "first_seed_failing": None,  # the confirmation's failing share (arena: first seed)
+        "deviation": "",  # what differs from the plan, in words ("" none)
+        "cannot_inform": "",  # named in advance: why the study cannot inform ("" it can)
     }
 
 
@@ -278,6 +483,7 @@ def footage_study(
     fov_deg: float,
     out: Path,
     feedback: Feedback,
+    pilot: dict[str, float | None] | None = None,
 ) -> dict[str, Any]:
     """One footage detector's boundary on the collection into ``out/footage/<detector>``;
     skipped when ``study.json`` there says it finished with these settings and these labels."""
@@ -289,8 +495,21 @@ def footage_study(
         min_ttc_s=plan.min_ttc_s, alert_window_s=plan.alert_window_s, **_executor(s),
     )  # fmt: skip
     row = _row("footage", detector, param, value, folder, plan.clips)
+    if pilot is not None:  # the value confirmed on the pilot clips (outside the study's)
+        share = pilot.get(detector)
+        moved = move(plan, "footage", detector, param, value, share)
+        row |= {"first_seed_failing": share, "deviation": moved[1]}
+        if moved[0] != value:
+            value = moved[0]
+            bs = dataclasses.replace(bs, values=(value,))
+            row["value"] = value
+            feedback.log(f"footage study of {detector}: {moved[1]}")
+    for src, d, why in plan.uninformative:
+        if (src, d) == ("footage", detector):
+            row["cannot_inform"] = why
     digest = hashlib.sha256(labels.read_bytes()).hexdigest()  # rewritten, unchanged, each run
-    key, marker = {"settings": _outcome_key(bs), "labels": digest}, folder / "study.json"
+    key = {"settings": _outcome_key(bs), "labels": digest, **code_key()}
+    marker = folder / "study.json"
     status = _done(marker, key)
     if status is not None:
         feedback.log(f"footage study of {detector}: reused ({status[:60]})")
@@ -324,11 +543,13 @@ def power_study(
         f"+ profiling = {plan.arena_runs()} run(s) of {plan.minutes:g} min; {plan.clips} clips "
         f"x {len(plan.footage_detectors)} detector(s)"
     )
+    set_aside_stale(out, code_key(), feedback)
     rows = [arena_study(s, spec, out, feedback, start) for spec in plan.arena_detectors]
     w, h = plan.clip_size
     clips = LoomingFootageSettings(
-        clips=plan.clips, seconds=plan.clip_seconds, width_px=w, height_px=h
-    )
+        clips=plan.clips, seconds=plan.clip_seconds, width_px=w, height_px=h,
+        collection=plan.collection,
+    )  # fmt: skip
     folder = out / "footage" / "clips"
     labels = folder / "labels.csv"
     row = _row("footage", "looming-footage", "clips", plan.clips, folder, plan.clips)
@@ -341,8 +562,40 @@ def power_study(
         made = looming_footage(clips, folder, feedback)
         _mark(folder / "study.json", key, "rendered")
         rows.append(row | {"status": "rendered", "recomputed": plan.clips - made.reused})
+    pilot = footage_confirmation(plan, clips, out / "footage" / "pilot", feedback)
     for spec in plan.footage_detectors:
-        rows.append(footage_study(s, spec, labels, clips.hfov_deg, out, feedback))
-    studies = pl.DataFrame(rows)
+        rows.append(footage_study(s, spec, labels, clips.hfov_deg, out, feedback, pilot))
+    studies = pl.DataFrame(rows, infer_schema_length=None)
     primary, paths, answer = write_answer(studies, out, quick=s.quick, plan=plan)
+    if s.publish_findings:
+        paths += publish(out, Path(s.publish_findings), studies, feedback)
     return PowerStudyResult(studies, primary, paths, answer, s.quick)
+
+
+def footage_confirmation(
+    plan: StudyPlan, clips: LoomingFootageSettings, folder: Path, feedback: Feedback
+) -> dict[str, float | None] | None:
+    """The amended plan's confirmation of each footage detector's value: its failing share on
+    ``plan.pilot_clips`` clips of the collection drawn from ``plan.pilot_seed`` (not the
+    study's clips), by detector; None where the plan confirms nothing. Kept in
+    ``folder/pilot.json`` with what it ran with (and the code), and reused."""
+    if not plan.confirm or not plan.pilot_clips:
+        return None
+    specs = tuple(f"{d}:{p}={v:g}" for d, p, v in plan.footage_detectors)
+    settings = dataclasses.replace(clips, seed=plan.pilot_seed, clips=plan.pilot_clips)
+    key = {"settings": dataclasses.asdict(settings), "detectors": specs, **code_key()}
+    marker = folder / "pilot.json"
+    if marker.exists() and (done := json.loads(marker.read_text())).get("key") == key:
+        feedback.log(f"footage pilot: {plan.pilot_clips} clips of seed {plan.pilot_seed} reused")
+        return done["shares"]
+    feedback.log(
+        f"footage pilot: each footage detector's value on {plan.pilot_clips} clips of seed "
+        f"{plan.pilot_seed} (outside the study's clips)"
+    )
+    table = footage_pilot(folder, plan.pilot_clips, specs, feedback, settings)
+    by_spec = dict(zip(table["detector"], table["failure_share"], strict=True))
+    detectors = [d for d, _, _ in plan.footage_detectors]
+    shares = {d: by_spec.get(sp) for d, sp in zip(detectors, specs, strict=True)}
+    folder.mkdir(parents=True, exist_ok=True)
+    _mark_json(marker, {"key": key, "shares": shares})
+    return shares
