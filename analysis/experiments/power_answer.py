@@ -624,7 +624,7 @@ def result_section(folder: Path) -> str:
             f"{(r.get('verdict') or '')[:100]} |"
         )
     quick = " (a QUICK run: not findings)" if made.get("quick") else ""
-    lines += ["", f"Generated from `{folder.as_posix()}`, made by commit "
+    lines += ["", f"Generated from `docs/findings/{folder.name}/`, made by commit "
               f"{made['commit'][:12]} (vdc {made['vdc']}){quick}."]  # fmt: skip
     return "\n".join(lines)
 

@@ -361,9 +361,9 @@ def arena_study(
         if not (first / "recordings").exists():
             os.symlink(Path("..") / ".." / "recordings", first / "recordings", True)
         check = dataclasses.replace(bs, seeds=1)
-        share = _first_seed_share(check, first, feedback, start)
+        share, checked = _first_seed_share(check, first, feedback)
         moved = move(plan, "arena", detector, param, value, share)
-        row |= {"first_seed_failing": share, "deviation": moved[1]}
+        row |= {"first_seed_failing": share, "deviation": moved[1], "recomputed": checked}
         if moved[0] != value:
             value = moved[0]
             bs = dataclasses.replace(bs, values=(value,))
@@ -374,31 +374,40 @@ def arena_study(
     if status is not None and _all_finished(bs, folder):  # its tables are these runs' already
         feedback.log(f"arena study of {detector}: every run finished and analysed: reused")
         return row | {"status": status}
+    checked = row["recomputed"]  # the confirmation's runs
     try:
         res = boundary(bs, folder, feedback)
     except UserError as e:  # no evidence: recorded as the study's outcome, the others go on
         _mark(marker, key, f"no evidence: {e}")
-        return row | {"status": f"no evidence: {e}"} | _recounted(folder, start)
+        again = _recounted(folder, start)["recomputed"]
+        return row | {"status": f"no evidence: {e}", "recomputed": max(again, checked)}
     _mark(marker, key, "ran")
     profiles = pl.read_parquet(folder / "boundary_profiles.parquet")
     fresh = int((~res.runs["reused"]).sum()) + int((~profiles["reused"]).sum())
-    return row | {"status": "ran", "recomputed": fresh}
+    return row | {"status": "ran", "recomputed": fresh + checked}
 
 
 def _first_seed_share(
-    bs: BoundarySettings, folder: Path, feedback: Feedback, start: float
-) -> float | None:
-    """The share of the arena conditions failing on their first seed (a condition fails when
-    its success share is below the campaign's target, as the answer counts it); None where
-    the first seed holds no evidence."""
+    bs: BoundarySettings, folder: Path, feedback: Feedback
+) -> tuple[float | None, int]:
+    """(the share of the arena conditions failing on their first seed, the runs this call
+    recorded for it): a condition fails when its success share is below the campaign's
+    target, as the answer counts it; None where the first seed holds no evidence."""
     marker, key = folder / "study.json", {"settings": _outcome_key(bs), **code_key()}
-    if _done(marker, key) is None or not (folder / "boundary_runs.parquet").exists():
+    fresh = 0
+    status = _done(marker, key)
+    if status is not None and status.startswith("no evidence"):
+        return None, 0
+    if status is None or not (folder / "boundary_runs.parquet").exists():
+        start = time.time()
         try:
-            boundary(bs, folder, feedback)
+            res = boundary(bs, folder, feedback)
         except UserError as e:
             _mark(marker, key, f"no evidence: {e}")
-            return None
+            return None, _recounted(folder, start)["recomputed"]
         _mark(marker, key, "ran")
+        profiles = pl.read_parquet(folder / "boundary_profiles.parquet")
+        fresh = int((~res.runs["reused"]).sum()) + int((~profiles["reused"]).sum())
     runs = pl.read_parquet(folder / "boundary_runs.parquet")
     events = pl.col("avoidances") + pl.col("crashes")
     success = (
@@ -407,8 +416,8 @@ def _first_seed_share(
         .agg((pl.col("avoidances") / events).mean().alias("success"))
     )
     if not success.height:
-        return None
-    return float((success["success"] < bs.target).mean())
+        return None, fresh
+    return float((success["success"] < bs.target).mean()), fresh
 
 
 def move(
@@ -418,12 +427,13 @@ def move(
     the units in failure moves one step (``plan.steps``), once; (the value, what was done, in
     words: the study's ``deviation``)."""
     if share is None:
-        return value, f"{param} {value:g} not confirmed: no evidence in the confirmation"
+        return value, f"{param} {value:g} kept unconfirmed: no evidence in the confirmation"
     steps = {(src, d): (lo, hi) for src, d, lo, hi in plan.steps}
     where = f"{100 * share:.0f} % failing in the confirmation"
-    if MOVE_BELOW <= share <= MOVE_ABOVE or (source, detector) not in steps:
-        kept = "inside" if MOVE_BELOW <= share <= MOVE_ABOVE else "outside (no step named)"
-        return value, f"{param} {value:g} kept: {where}, {kept} 20-60 %"
+    if MOVE_BELOW <= share <= MOVE_ABOVE:
+        return value, ""  # confirmed: no deviation
+    if (source, detector) not in steps:
+        return value, f"{param} {value:g} kept: {where}, outside 20-60 %, and no step named"
     fewer, more = steps[(source, detector)]
     new = fewer if share < MOVE_BELOW else more
     return new, f"{param} moved {value:g} -> {new:g}: {where}, outside 20-60 %"
