@@ -1,7 +1,19 @@
-"""``vdc-analyse power-study``: the pre-registered plan of docs/findings/power_plan.md, run from
-nothing.
+"""``vdc-analyse power-study``: the pre-registered plan run from nothing: by default as amended
+on 2026-12-07 (:data:`AMENDED`, docs/findings/power_plan_amendment.md), with ``--plan 2026-11``
+as first fixed (:data:`FULL`, docs/findings/power_plan.md).
 
-One command runs exactly the plan (:data:`FULL`) and writes its answer:
+The amended plan confirms each detector's value before its study (the arena: on the first
+seed of every condition, ``OUT/arena/<detector>/first-seed``; footage: on a pilot of clips drawn
+from another seed than the study's, ``OUT/footage/pilot``) and moves it one step where 20-60 %
+do not fail (:func:`move`), recording the move in the studies table (``planned_value``,
+``value``, ``first_seed_failing``, ``deviation``); a study it names as unable to inform
+(``cannot_inform``) runs for the record and is left out of the verdicts. Every resume key holds
+vdc's version and a hash of the code that scores and measures (:func:`code_key`): where it
+changed, the earlier studies are set aside (renamed, kept) and computed again
+(:func:`set_aside_stale`). ``--publish-findings DIR`` copies the answer with the commit that
+made it (:func:`analysis.experiments.power_answer.publish`).
+
+One command runs exactly the plan and writes its answer:
 
 1. **the arena**: for each arena detector at its planned value, the boundary campaign of
    ``vdc-analyse boundary`` over the plan's scenes and drawn wall TFs, with every complexity
@@ -176,7 +188,8 @@ QUICK = dataclasses.replace(
 
 @dataclasses.dataclass(frozen=True)
 class PowerStudySettings(ExecutorSettings):
-    """``vdc-analyse power-study``: the plan of docs/findings/power_plan.md, or its quick
+    """``vdc-analyse power-study``: the amended plan (docs/findings/power_plan_amendment.md)
+    or the first (``plan_version="2026-11"``, docs/findings/power_plan.md), or its quick
     version."""
 
     quick: bool = option(
@@ -193,7 +206,7 @@ class PowerStudySettings(ExecutorSettings):
     )
     publish_findings: str = option(
         "",
-        "when every study has finished, copy the answer's tables and answer.md into this "
+        "at the end of the run, copy the answer's tables and answer.md into this "
         "folder (e.g. docs/findings/power-2026-12) with the commit of the code that made them",
         metavar="DIR",
     )
