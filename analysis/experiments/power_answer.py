@@ -71,6 +71,25 @@ def discordant_share(x: np.ndarray, fail: np.ndarray, group: np.ndarray | None =
     return float(((d < 0) + 0.5 * (d == 0)).mean())
 
 
+def icc_oneway(values: np.ndarray, groups: np.ndarray) -> float:
+    """The share of ``values``' variance its ``groups`` (scenes) set: ICC(1) of a one-way
+    ANOVA (Donner & Klar 2000, with n0 for unequal groups); NaN with fewer than 2 groups or
+    nothing within them. It may come out below 0 by chance (reported as it is)."""
+    x, g = np.asarray(values, float), np.asarray(groups)
+    ok = np.isfinite(x)
+    x, g = x[ok], g[ok]
+    names, idx, n_g = np.unique(g, return_inverse=True, return_counts=True)
+    k, n = len(names), len(x)
+    if k < 2 or n - k < 1:
+        return math.nan
+    means = np.bincount(idx, x) / n_g
+    msb = float((n_g * (means - x.mean()) ** 2).sum() / (k - 1))
+    msw = float(((x - means[idx]) ** 2).sum() / (n - k))
+    n0 = (n - (n_g**2).sum() / n) / (k - 1)
+    denom = msb + (n0 - 1) * msw
+    return math.nan if denom <= 0 else (msb - msw) / denom
+
+
 def arena_units(folder: Path) -> pl.DataFrame:
     """One row per condition of an arena study: scene, failure (1 − the mean of its seeds'
     success shares, as the predictors take it), ``failing`` (its success below the study's
@@ -262,8 +281,11 @@ def in_words(r: dict[str, Any]) -> str:
         return f"{who}: undetermined"
     stat = "ρ with the failure rate" if r["source"] == "arena" else "clip AUROC"
     counted = "conditions" if r["source"] == "arena" else "clips"
+    icc = r.get("icc_failure")
+    icc = "" if icc is None or math.isnan(icc) else f", the failure's ICC over scenes {icc:.2f}"
     est = (
         f"over {units_phrase(r, counted)}{f' ({share})' if (share := share_phrase(r)) else ''}"
+        f"{icc}"
         f"; the AVDM's {stat} is "
         f"{_fmt(r['avdm_estimate'], r['avdm_ci_low'], r['avdm_ci_high'])}, TI's "
         f"{_fmt(r['ti_estimate'], r['ti_ci_low'], r['ti_ci_high'])}; the difference "
@@ -400,6 +422,9 @@ def write_answer(
             if st["source"] == "arena"
             else footage_units(folder, labels if labels is not None else pl.DataFrame())
         )
+        # how much of the failure its scene sets: the design effect the power assumed
+        prim_rows[-1]["icc_failure"] = icc_oneway(units["failure"].to_numpy(),
+                                                  units["scene"].to_numpy())  # fmt: skip
         scene_tables[f"{st['source']}: {st['detector']}"] = per_scene(units).with_columns(
             pl.lit(st["source"]).alias("source"), pl.lit(st["detector"]).alias("detector")
         )
