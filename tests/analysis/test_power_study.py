@@ -274,7 +274,7 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
 def test_the_docs_result_section_is_regenerated_from_published_tables(quick, tmp_path) -> None:
     """--publish-findings's copy of the answer, and a doc's generated section rebuilt from it:
     equal when the doc was written from these tables, different once a table changes."""
-    from analysis.experiments.power_answer import (
+    from analysis.experiments.power_findings import (
         BEGIN,
         END,
         PENDING,
@@ -307,7 +307,7 @@ def test_the_docs_result_section_is_regenerated_from_published_tables(quick, tmp
 def test_the_readme_and_the_findings_index_show_the_committed_answer() -> None:
     """The README's and the findings index's result section are the committed tables' (or,
     until the amended run is committed, say it is pending: no number is invented)."""
-    from analysis.experiments.power_answer import FINDINGS, PENDING, result_section, section_in
+    from analysis.experiments.power_findings import FINDINGS, PENDING, result_section, section_in
 
     root = Path(__file__).resolve().parents[2]
     want = result_section(root / FINDINGS)
