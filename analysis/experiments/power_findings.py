@@ -35,8 +35,9 @@ def publish(out: Path, dest: Path, studies: pl.DataFrame, feedback: Any = None) 
     uncommitted changes), vdc's version, the plan and whether it was a quick run."""
     import shutil
     import subprocess
+    from importlib.metadata import version  # vdc.__version__ (the facade: not imported here)
 
-    from vdc import __version__
+    __version__ = version("visual-dynamic-complexity")
 
     dest.mkdir(parents=True, exist_ok=True)
     written = []

@@ -18,34 +18,34 @@ from vdc.executors import ExecutorSettings, Feedback
 # avdm), the clips' rendering, the complexity measures, footage mode's judging, the
 # predictors' statistics and verdicts, and this plan. A study is reused only with the same
 # vdc version and the same source of these (code_key); else it is set aside and recomputed.
-CODE_MODULES = (
-    "avdm", "capture", "analysis.boundary", "analysis.complexity", "analysis.predictors",
-    "analysis.experiments.boundary_campaign", "analysis.experiments.captures",
-    "analysis.experiments.predictor_runs", "analysis.experiments.looming_footage",
-    "analysis.experiments.power", "analysis.experiments.power_pilot",
-    "analysis.experiments.power_study", "analysis.experiments.power_answer",
-    "analysis.experiments.power_resume",
+# Files and folders of the source, relative to the folder that holds the packages (read as
+# files, never imported: hashing a module is no dependency on it).
+CODE_PATHS = (
+    "avdm", "capture", "analysis/boundary", "analysis/complexity", "analysis/predictors",
+    "analysis/experiments/boundary_campaign.py", "analysis/experiments/captures.py",
+    "analysis/experiments/predictor_runs.py", "analysis/experiments/looming_footage.py",
+    "analysis/experiments/power.py", "analysis/experiments/power_pilot.py",
+    "analysis/experiments/power_study.py", "analysis/experiments/power_answer.py",
+    "analysis/experiments/power_resume.py",
 )  # fmt: skip
+SOURCE_ROOT = Path(__file__).resolve().parents[2]  # holds analysis/, avdm/, capture/
 
 
-def code_key(modules: tuple[str, ...] = CODE_MODULES) -> dict[str, str]:
-    """``{vdc, code}``: the package version and the SHA-256 of the source of ``modules``
-    (a package: every ``.py`` under it), by relative path and content."""
-    import importlib.util
-
-    from vdc import __version__
+def code_key(paths: tuple[str, ...] = CODE_PATHS, root: Path = SOURCE_ROOT) -> dict[str, str]:
+    """``{vdc, code}``: the package version and the SHA-256 of the source at ``paths`` under
+    ``root`` (a folder: every ``.py`` under it), by relative path and content."""
+    from importlib.metadata import version  # vdc.__version__ (the facade: not imported here)
 
     digest = hashlib.sha256()
-    for name in modules:
-        spec = importlib.util.find_spec(name)
-        if spec is None or spec.origin is None:
-            raise ValueError(f"no module {name!r} to hash")
-        origin = Path(spec.origin)
-        files = sorted(origin.parent.rglob("*.py")) if origin.name == "__init__.py" else [origin]
+    for rel in paths:
+        where = root / rel
+        if not where.exists():
+            raise ValueError(f"no source at {where} to hash")
+        files = sorted(where.rglob("*.py")) if where.is_dir() else [where]
         for f in files:
-            digest.update(f"{name}/{f.relative_to(origin.parent)}\0".encode())
+            digest.update(f"{f.relative_to(root).as_posix()}\0".encode())
             digest.update(f.read_bytes())
-    return {"vdc": __version__, "code": digest.hexdigest()}
+    return {"vdc": version("visual-dynamic-complexity"), "code": digest.hexdigest()}
 
 
 def set_aside_stale(out: Path, key: dict[str, str], feedback: Feedback) -> list[Path]:

@@ -6,6 +6,7 @@ checked against Kendall's tau."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -204,7 +205,21 @@ def test_changed_code_sets_the_studies_aside_and_says_so(tmp_path: Path) -> None
     assert set_aside_stale(tmp_path, key, log) == []  # the same code: kept
     assert (tmp_path / "arena").is_dir()
     # a scorer's source changed: its hash differs
-    changed = code_key((*("analysis.experiments.power",), "tests.analysis.test_power_study"))
+    # a scorer's source changed: a copy of the sources with one scoring line edited
+    from analysis.experiments.power_resume import CODE_PATHS, SOURCE_ROOT
+
+    copy = tmp_path / "src"
+    for rel in CODE_PATHS:
+        src = SOURCE_ROOT / rel
+        if src.is_dir():
+            shutil.copytree(src, copy / rel, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            (copy / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(src, copy / rel)
+    assert code_key(root=copy) == key  # the same sources: the same key
+    judge = copy / "analysis" / "boundary" / "footage.py"
+    judge.write_text(judge.read_text().replace("min_ttc_s", "min_ttc_s ", 1))
+    changed = code_key(root=copy)
     assert changed["code"] != key["code"]
     moved = set_aside_stale(tmp_path, changed, log)
     assert [m.name for m in moved] == [f"arena.stale-{key['code'][:8]}"]
