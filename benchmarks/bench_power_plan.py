@@ -2,7 +2,8 @@
 takes:
 an estimate on 2 local cores and on a Dask cluster of N workers, from measured per-unit times.
 
-Run: ``python benchmarks/bench_power_plan.py [--minutes 0.25] [--workers 8,32]``. Measures, in
+Run: ``python benchmarks/bench_power_plan.py [--plan 2026-12] [--minutes 0.25] [--workers 8,32]``
+(``--plan``: the amended plan, the default, or the first, 2026-11). Measures, in
 this process, after one warm-up run (compile caches, calibrations):
 
 * one closed-loop arena run of each arena detector and one profiling run with every
@@ -39,7 +40,7 @@ from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.experiments.boundary_campaign import grid_items, record_and_measure
 from analysis.experiments.captures import profiling_items
 from analysis.experiments.looming_footage import LoomingFootageSettings, looming_footage
-from analysis.experiments.power_study import FULL
+from analysis.experiments.power_study import PLANS
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
 
@@ -66,8 +67,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=0.25, help="measured run length")
     ap.add_argument("--workers", default="8,32", help="Dask cluster sizes, comma-separated")
+    ap.add_argument("--plan", default="2026-12", choices=tuple(PLANS), help="the plan's version")
     args = ap.parse_args()
-    plan = FULL
+    plan = PLANS[args.plan]
     scale = plan.minutes / args.minutes
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
@@ -129,7 +131,17 @@ def main() -> None:
         total += plan.clips * t["render"]  # rendered in the command's own process
         total += stage(plan.clips, t["complexity"])  # measured once, shared by the detectors
         total += sum(stage(plan.clips, t[f"judged {d}"] + t[f"predictors {d}"]) for d in det_s)
+        if plan.confirm:  # the footage pilot: its clips rendered, each detector judging them
+            total += plan.pilot_clips * (t["render"] + sum(t[f"judged {d}"] for d in det_s))
         return total
+
+    def moved(workers: int, secs: list[float]) -> float:
+        """The worst case of the confirmation: every arena value moved, its first seed run
+        again at the new value (unmoved, the first seed is the study's own, reused)."""
+        t = dict(zip(names, secs, strict=True))
+        if not plan.confirm:
+            return 0.0
+        return sum(math.ceil(plan.conditions() / workers) * t[d] * scale for d in unit)
 
     print("estimate of the full plan (not a measurement; see the docstring), from the wall "
           "times at this load / from the CPU times (cores to itself):")  # fmt: skip
@@ -137,7 +149,9 @@ def main() -> None:
         (f"Dask cluster of {n} workers", n) for n in (int(w) for w in args.workers.split(","))
     ]
     for label, n in sizes:
-        print(f"  {label}: {estimate(n, walls) / 3600:.1f} h / {estimate(n, cpus) / 3600:.1f} h")
+        print(f"  {label}: {estimate(n, walls) / 3600:.1f} h / {estimate(n, cpus) / 3600:.1f} h"
+              + (f"; every arena value moved: + {moved(n, walls) / 3600:.1f} h / "
+                 f"{moved(n, cpus) / 3600:.1f} h" if plan.confirm else ""))  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@
   ``-c<contrast>`` set its period (its spatial frequency: 1 / period cycles per metre of wall)
   and its Michelson contrast, e.g. ``grating-p0.05-c0.3``;
 * ``natural``: seeded 1/f clutter (``-c<contrast>`` too);
-* ``photo-<name>``: one of the photographs scikit-image ships in its package
+* ``photo-<name>``: one of the photographs scikit-image (or matplotlib) ships in its package
   (``PHOTOS``), shown on the walls as a natural scene, e.g. ``photo-astronaut``; ``-c`` too.
 
 A scene's name is its folder and condition name (``<scene>-tf<TF>``), so it is kept short and
@@ -31,7 +31,23 @@ PHOTOS = {
     "gravel": "gravel.png",
     "rocket": "rocket.jpg",
     "page": "page.png",
+    # the amended plan's (docs/findings/power_plan_amendment.md): every real photograph the
+    # installed packages ship, short names (a scene name is a folder name)
+    "hubble": "hubble_deep_field.jpg",
+    "retina": "retina.jpg",
+    "cell": "cell.png",
+    "microaneurysms": "microaneurysms.png",
+    "motorcycle": "motorcycle_left.png",
+    "text": "text.png",
+    "clock": "clock_motion.png",
+    "chelsea": "chelsea.png",
+    "coins": "coins.png",
+    "moon": "moon.png",
+    "ihc": "ihc.png",
+    "hopper": "grace_hopper.jpg",  # matplotlib's sample_data
+    "minduka": "Minduka_Present_Blue_Pack.png",  # matplotlib's sample_data
 }
+MATPLOTLIB_PHOTOS = ("hopper", "minduka")
 _NAME = re.compile(
     r"^(?P<kind>grating|natural|photo-(?P<photo>[a-z]+))"
     r"(?:-p(?P<period>\d+(?:\.\d+)?))?(?:-c(?P<contrast>\d+(?:\.\d+)?))?$"
@@ -74,7 +90,12 @@ def photo_path(photo: str) -> Path:
         raise UserError(
             "photo-* arena scenes show scikit-image's photographs: pip install scikit-image"
         ) from None
-    path = Path(skimage.data.__file__).parent / PHOTOS[photo]
+    folder = Path(skimage.data.__file__).parent
+    if photo in MATPLOTLIB_PHOTOS:
+        import matplotlib
+
+        folder = Path(matplotlib.get_data_path()) / "sample_data"
+    path = folder / PHOTOS[photo]
     if not path.is_file():
         raise UserError(f"scikit-image's photograph {PHOTOS[photo]} is not installed at {path}")
     return path

@@ -53,6 +53,25 @@ from vdc.settings import AT_LEAST_0, AT_LEAST_1, FRACTION, MAX_SIDE_PX, POSITIVE
 # photographs scikit-image ships in its package (no download): busy and plain, indoor and out
 BACKGROUNDS = ("astronaut", "camera", "brick", "grass", "gravel", "coffee", "rocket", "page")
 OBJECTS = ("chelsea", "coins", "horse", "moon", "immunohistochemistry")
+# The amended plan's collection (docs/findings/power_plan_amendment.md): 21 photographs as the
+# scenes, each a real photograph a PyPI package ships as a file (scikit-image's data folder,
+# matplotlib's sample_data; nothing downloaded). Left out: chessboard, color, logo, phantom
+# (drawn, not photographed), horse (a silhouette), motorcycle_right (the left one's stereo
+# twin: the same scene), lfw_subset (25 px faces). File per name (photo_file: in which package).
+PHOTOS_2026_12 = {
+    "astronaut": "astronaut.png", "camera": "camera.png", "brick": "brick.png",
+    "grass": "grass.png", "gravel": "gravel.png", "coffee": "coffee.png",
+    "rocket": "rocket.jpg", "page": "page.png", "hubble_deep_field": "hubble_deep_field.jpg",
+    "retina": "retina.jpg", "cell": "cell.png", "microaneurysms": "microaneurysms.png",
+    "motorcycle_left": "motorcycle_left.png", "text": "text.png",
+    "clock_motion": "clock_motion.png", "chelsea": "chelsea.png", "coins": "coins.png",
+    "moon": "moon.png", "ihc": "ihc.png", "grace_hopper": "grace_hopper.jpg",
+    "Minduka_Present_Blue_Pack": "Minduka_Present_Blue_Pack.png",
+}  # fmt: skip
+MATPLOTLIB_PHOTOS = ("grace_hopper", "Minduka_Present_Blue_Pack")
+# the looming objects of the amended collection: never the clip's own background
+OBJECTS_2026_12 = ("chelsea", "coins", "horse", "moon", "ihc")
+COLLECTIONS = ("2026-11", "2026-12")
 # the object enters the scene this long before it would reach the camera (s): the frames
 # before are the scene alone, what its complexity is measured on
 ENTER_S = (1.5, 3.0)
@@ -84,6 +103,12 @@ class LoomingFootageSettings(Settings):
         0.1, "lowest light level (1 = daylight)", range=between(0, 1, lo_open=True)
     )
     noise_max: float = option(8.0, "highest sensor noise, grey levels (SD)", range=AT_LEAST_0)
+    collection: str = option(
+        "2026-11",
+        "the photographs: 2026-11 (8 of scikit-image's, each clip's drawn) or 2026-12 (the "
+        "amended plan's 21, clip k over photograph k mod 21, the object never its background)",
+        choices=COLLECTIONS,
+    )
 
     def __post_init__(self) -> None:
         if self.rv_min_s > self.rv_max_s:
@@ -120,9 +145,17 @@ def draw_conditions(settings: LoomingFootageSettings, k: int) -> dict[str, float
     s = settings
     rng = np.random.default_rng([s.seed, k])
     miss = rng.random() < s.near_miss_share
+    if s.collection == "2026-11":
+        background = BACKGROUNDS[int(rng.integers(len(BACKGROUNDS)))]
+        obj = OBJECTS[int(rng.integers(len(OBJECTS)))]
+    else:  # every photograph the same number of clips; the rest of the draws as before
+        names = tuple(PHOTOS_2026_12)
+        background = names[k % len(names)]
+        others = tuple(o for o in OBJECTS_2026_12 if o != background)
+        obj = others[int(rng.integers(len(others)))]
     return {
-        "background": BACKGROUNDS[int(rng.integers(len(BACKGROUNDS)))],
-        "object": OBJECTS[int(rng.integers(len(OBJECTS)))],
+        "background": background,
+        "object": obj,
         "rotation_dps": float(rng.uniform(-s.rotation_max_dps, s.rotation_max_dps)),
         "rv_s": float(math.exp(rng.uniform(math.log(s.rv_min_s), math.log(s.rv_max_s)))),
         "miss_radii": float(rng.uniform(3.0, 8.0)) if miss else 0.0,
@@ -135,12 +168,30 @@ def draw_conditions(settings: LoomingFootageSettings, k: int) -> dict[str, float
 
 def _photo(name: str) -> np.ndarray:
     try:
-        from skimage import data  # lazy: optional extra (test: scikit-image)
+        from skimage import data, io  # lazy: optional extra (test: scikit-image)
     except ImportError:
         raise ValueError(
             "looming-footage renders over scikit-image's photographs: pip install scikit-image"
         ) from None
-    return getattr(data, name)()
+    if hasattr(data, name):  # scikit-image's own loader (the 2026-11 collection's, as before)
+        return getattr(data, name)()
+    return io.imread(photo_file(name))
+
+
+def photo_file(name: str) -> Path:
+    """The file of one of the amended collection's photographs (a package's own file)."""
+    if name in MATPLOTLIB_PHOTOS:
+        import matplotlib
+
+        folder = Path(matplotlib.get_data_path()) / "sample_data"
+    else:
+        from skimage import data
+
+        folder = Path(data.__file__).parent
+    path = folder / PHOTOS_2026_12[name]
+    if not path.is_file():
+        raise UserError(f"photograph {name!r} is not installed at {path}")
+    return path
 
 
 def encode_h264(path: Path, frames: np.ndarray, fps: float) -> None:

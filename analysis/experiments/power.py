@@ -146,3 +146,42 @@ def footage_outcome(
     # the window is not used where the onset is given
     row = judge_clip(frames, alert, fps, collision_frame, math.inf, min_ttc_s, onset)
     return OUTCOME_OF_FAILURE[row["failure"]]
+
+
+# --- clustered scenes (the amended plan, docs/findings/power_plan_amendment.md) -----------
+#
+# Units that share a scene are not independent: n units in scenes of m each carry the
+# information of n / DE independent ones, DE = 1 + (m - 1) ICC (Kish 1965; Donner & Klar
+# 2000, ch. 5), ICC the share of a unit's variance that its scene sets. So G scenes of m
+# units are worth at most G m / (1 + (m - 1) ICC) < G / ICC independent units, however many
+# units each scene has: past that, only more scenes add power.
+
+
+def design_effect(per_scene: float, icc: float) -> float:
+    """Kish's design effect of ``per_scene`` units per scene at intra-scene correlation
+    ``icc``."""
+    if per_scene < 1 or not 0 <= icc <= 1:
+        raise ValueError(f"need per_scene >= 1 and icc in [0, 1], got {per_scene}, {icc}")
+    return 1 + (per_scene - 1) * icc
+
+
+def effective_units(scenes: int, per_scene: int, icc: float) -> float:
+    """The independent units ``scenes`` scenes of ``per_scene`` units each are worth."""
+    return scenes * per_scene / design_effect(per_scene, icc)
+
+
+def scenes_for(independent: int, per_scene: int, icc: float, min_scenes: int = 20) -> int:
+    """Scenes of ``per_scene`` units each that carry ``independent`` independent units at
+    ``icc`` (at least ``min_scenes``, the floor of a clustered test's validity)."""
+    return max(min_scenes, math.ceil(independent * design_effect(per_scene, icc) / per_scene))
+
+
+def per_scene_for(independent: int, scenes: int, icc: float) -> int | None:
+    """Units per scene that make ``scenes`` scenes carry ``independent`` independent units at
+    ``icc``; None where no number can (``independent`` >= scenes / icc)."""
+    if independent <= scenes:
+        return 1
+    if icc > 0 and independent * icc >= scenes:
+        return None
+    # G m / (1 + (m - 1) icc) >= n  <=>  m (G - n icc) >= n (1 - icc)
+    return math.ceil(independent * (1 - icc) / (scenes - independent * icc))

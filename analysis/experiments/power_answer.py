@@ -70,6 +70,25 @@ def discordant_share(x: np.ndarray, fail: np.ndarray, group: np.ndarray | None =
     return float(((d < 0) + 0.5 * (d == 0)).mean())
 
 
+def icc_oneway(values: np.ndarray, groups: np.ndarray) -> float:
+    """The share of ``values``' variance its ``groups`` (scenes) set: ICC(1) of a one-way
+    ANOVA (Donner & Klar 2000, with n0 for unequal groups); NaN with fewer than 2 groups or
+    nothing within them. It may come out below 0 by chance (reported as it is)."""
+    x, g = np.asarray(values, float), np.asarray(groups)
+    ok = np.isfinite(x)
+    x, g = x[ok], g[ok]
+    names, idx, n_g = np.unique(g, return_inverse=True, return_counts=True)
+    k, n = len(names), len(x)
+    if k < 2 or n - k < 1:
+        return math.nan
+    means = np.bincount(idx, x) / n_g
+    msb = float((n_g * (means - x.mean()) ** 2).sum() / (k - 1))
+    msw = float(((x - means[idx]) ** 2).sum() / (n - k))
+    n0 = (n - (n_g**2).sum() / n) / (k - 1)
+    denom = msb + (n0 - 1) * msw
+    return math.nan if denom <= 0 else (msb - msw) / denom
+
+
 def arena_units(folder: Path) -> pl.DataFrame:
     """One row per condition of an arena study: scene, failure (1 − the mean of its seeds'
     success shares, as the predictors take it), ``failing`` (its success below the study's
@@ -203,7 +222,17 @@ def _p(v: Any) -> str:
 
 def primary_row(study: dict[str, Any], table: pl.DataFrame | None) -> dict[str, Any]:
     """The primary comparison of one study (``table``: its predictors.parquet; None: it holds
-    no evidence), with the AVDM's and TI's own statistic."""
+    no evidence), with the AVDM's and TI's own statistic; a study named in advance as unable
+    to inform (``cannot_inform``) keeps its numbers and gets that as its verdict."""
+    row = _primary_row(study, table)
+    row["deviation"] = study.get("deviation") or ""
+    row["planned_value"] = study.get("planned_value", study["value"])
+    if study.get("cannot_inform"):
+        row["verdict"] = study["cannot_inform"]
+    return row
+
+
+def _primary_row(study: dict[str, Any], table: pl.DataFrame | None) -> dict[str, Any]:
     row = {k: study[k] for k in ("source", "detector", "param", "value", "status")}
     prim = None if table is None else table.filter(pl.col("role") == "primary")
     if prim is None or prim.height == 0:
@@ -241,14 +270,21 @@ def in_words(r: dict[str, Any]) -> str:
     """One study's primary comparison as a clause, with its unit and n."""
     who = f"{r['source']}, {r['detector']} ({r['param']} {r['value']:g})"
     v = r.get("verdict") or ""
+    if r.get("deviation"):
+        who += f" [{r['deviation']}]"
+    if v.startswith("cannot inform"):
+        return f"{who}: {v}; left out of the verdicts"
     if v.startswith("no evidence"):
         return f"{who}: {v.split(';')[0]}"
     if r.get("statistic") is None:
         return f"{who}: undetermined"
     stat = "ρ with the failure rate" if r["source"] == "arena" else "clip AUROC"
     counted = "conditions" if r["source"] == "arena" else "clips"
+    icc = r.get("icc_failure")
+    icc = "" if icc is None or math.isnan(icc) else f", the failure's ICC over scenes {icc:.2f}"
     est = (
         f"over {units_phrase(r, counted)}{f' ({share})' if (share := share_phrase(r)) else ''}"
+        f"{icc}"
         f"; the AVDM's {stat} is "
         f"{_fmt(r['avdm_estimate'], r['avdm_ci_low'], r['avdm_ci_high'])}, TI's "
         f"{_fmt(r['ti_estimate'], r['ti_ci_low'], r['ti_ci_high'])}; the difference "
@@ -302,6 +338,7 @@ def first_paragraph(primary: pl.DataFrame) -> str:
     decided = [r for r in judged if r.get("verdict") in ("better", "worse")]
     kept = [r for r in decided if (r.get("p_holm_across") or 1.0) < ALPHA]
     few = [r for r in rows if "too few to judge" in (r.get("verdict") or "")]
+    mute = [r for r in rows if (r.get("verdict") or "").startswith("cannot inform")]
     parts = []
     if judged:
         names = ", ".join(f"{r['source']} {r['detector']}" for r in kept) or "none"
@@ -324,21 +361,33 @@ def first_paragraph(primary: pl.DataFrame) -> str:
         parts.append(
             f"{len(few)} of the {len(rows)} studies cannot be judged ({names}): too few "
             "scenes, or units in a class, each says which below ("
-            f"{MIN_CONDITIONS} arena scenes, or {MIN_SCENES} footage scenes with "
+            f"{MIN_SCENES} arena scenes and {MIN_CONDITIONS} conditions, or {MIN_SCENES} "
+            "footage scenes with "
             f"{MIN_FAILURES} failing and as many correct clips, are needed)"
         )
-    unjudged = len(rows) - len(judged) - len(few)
+    if mute:
+        names = ", ".join(f"{r['source']} {r['detector']}" for r in mute)
+        parts.append(
+            f"{len(mute)} named before the runs as unable to inform ({names}) and left out"
+        )
+    unjudged = len(rows) - len(judged) - len(few) - len(mute)
     if unjudged:
         parts.append(f"{unjudged} without evidence")
     gist = "; ".join(parts) if parts else "no study"
+    sure = (
+        " How sure: each verdict is a two-sided test at 5 % over scenes (intervals clustered on "
+        "them), and only those that survive Holm's correction over the judged studies are "
+        "counted here."
+    )
     cannot = (
         " What these runs cannot tell: which measure predicts better where a study has too "
         "few scenes; whether other scenes, detector values or settings would change this; "
-        "the per-scene reading below is exploratory."
+        "a difference smaller than the plan's powered gap; the per-scene reading below is "
+        "exploratory."
     )
     return (
-        "**Does the AVDM predict where collision detectors fail better than P.910 TI?** "
-        f"Across the plan's {len(rows)} studies: {gist}.{cannot} "
+        "**Does the AVDM predict where collision detectors fail better than P.910 TI, over "
+        f"scenes?** Across the plan's {len(rows)} studies: {gist}.{sure}{cannot} "
         + "; ".join(in_words(r) for r in rows)
         + "."
     )
@@ -372,6 +421,9 @@ def write_answer(
             if st["source"] == "arena"
             else footage_units(folder, labels if labels is not None else pl.DataFrame())
         )
+        # how much of the failure its scene sets: the design effect the power assumed
+        prim_rows[-1]["icc_failure"] = icc_oneway(units["failure"].to_numpy(),
+                                                  units["scene"].to_numpy())  # fmt: skip
         scene_tables[f"{st['source']}: {st['detector']}"] = per_scene(units).with_columns(
             pl.lit(st["source"]).alias("source"), pl.lit(st["detector"]).alias("detector")
         )
@@ -418,29 +470,31 @@ def answer_markdown(
     lines = [QUICK_BANNER + "\n"] if quick else []
     lines += [first_paragraph(primary) + "\n", "## The primary comparison\n"]
     lines += [
-        "The AVDM against P.910 TI, named before the runs (docs/findings/power_plan.md): arena, "
-        "the "
+        "The AVDM against P.910 TI, named before the runs (docs/findings/power_plan.md and "
+        "its amendment): arena, the "
         "difference of their Spearman ρ with a condition's failure rate (Steiger's test, Zou's "
         "interval); footage, of their clip AUROCs (DeLong). 95 % intervals over the scenes "
         "(clustered; t on scenes − 1 degrees of freedom); judged at 5 % alone, and only on at "
-        f"least {MIN_CONDITIONS} arena scenes, or {MIN_SCENES} footage scenes with "
+        f"least {MIN_SCENES} arena scenes and {MIN_CONDITIONS} conditions, or {MIN_SCENES} "
+        "footage scenes with "
         f"{MIN_FAILURES} failing and as many correct clips; a verdict stands in the first "
         "paragraph only after Holm's correction over the judged studies. Failing: the share "
         f"beside the plan's target of {100 * FAILURE_TARGET[0]:.0f}-"
         f"{100 * FAILURE_TARGET[1]:.0f} %.\n",
-        "| source | detector | units | n | failing | correct | failing share (target "
-        f"{100 * FAILURE_TARGET[0]:.0f}-{100 * FAILURE_TARGET[1]:.0f} %) | AVDM | TI | AVDM − TI "
-        "| p | Holm p over the studies | verdict |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| source | detector | deviation from the plan | units | n | failing | correct | "
+        f"failing share (target {100 * FAILURE_TARGET[0]:.0f}-{100 * FAILURE_TARGET[1]:.0f} %)"
+        " | AVDM | TI | AVDM − TI | p | Holm p over the studies | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in primary.iter_rows(named=True):
+        dev = r.get("deviation") or "none"
         if r.get("statistic") is None:
-            lines.append(f"| {r['source']} | {r['detector']} |" + " — |" * 10
+            lines.append(f"| {r['source']} | {r['detector']} | {dev} |" + " — |" * 10
                          + f" {(r.get('verdict') or '')[:120]} |")  # fmt: skip
             continue
         across = r.get("p_holm_across")
         lines.append(
-            f"| {r['source']} | {r['detector']} ({r['param']} {r['value']:g}) | "
+            f"| {r['source']} | {r['detector']} ({r['param']} {r['value']:g}) | {dev} | "
             f"{r['n_units']} {r['unit']}s | {r['n']} | {r['n_failing']} | {r['n_correct']} | "
             f"{share_phrase(r)} | "
             f"{_fmt(r['avdm_estimate'], r['avdm_ci_low'], r['avdm_ci_high'])} | "
@@ -483,13 +537,27 @@ def answer_markdown(
         f"The plan: {plan.conditions()} arena conditions ({len(plan.scenes)} scenes × "
         f"{plan.tf_draws} TFs from {plan.tf_range} Hz) × {plan.seeds} seed(s) of "
         f"{plan.minutes:g}-min runs, {plan.arena_runs()} runs with the profiling; "
-        f"{plan.clips} clips of {plan.clip_seconds:g} s.\n",
-        "| source | detector | units | computed by this call | status | folder |",
-        "|---|---|---|---|---|---|",
+        f"{plan.clips} clips of {plan.clip_seconds:g} s. Version "
+        f"{getattr(plan, 'name', '2026-11')} of the plan"
+        + (
+            " (docs/findings/power_plan_amendment.md)"
+            if getattr(plan, "name", "") == "2026-12"
+            else " (docs/findings/power_plan.md)"
+        )
+        + ".\n",
+        "| source | detector | units | failing in the confirmation | deviation from the plan "
+        "| computed by this call | status | folder |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in studies.iter_rows(named=True):
-        lines.append(f"| {r['source']} | {r['detector']} | {r['units']} | {r['recomputed']} | "
-                     f"{r['status'][:100]} | `{Path(r['folder']).name}` |")  # fmt: skip
-    cmd = "vdc-analyse power-study" + (" --quick" if quick else "")
+        conf = r.get("first_seed_failing")
+        conf = "—" if conf is None else f"{100 * conf:.0f} %"
+        dev = r.get("deviation") or "none"
+        lines.append(f"| {r['source']} | {r['detector']} | {r['units']} | {conf} | {dev} | "
+                     f"{r['recomputed']} | {r['status'][:100]} | "
+                     f"`{Path(r['folder']).name}` |")  # fmt: skip
+    cmd = f"vdc-analyse power-study --plan {getattr(plan, 'name', '2026-11')}" + (
+        " --quick" if quick else ""
+    )
     lines += ["", f"Re-run (finished runs are reused): `{cmd} --out <this folder>`.\n"]
     return "\n".join(lines)

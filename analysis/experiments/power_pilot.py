@@ -9,6 +9,7 @@ early alert, false alarm, correct rejection).
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -27,17 +28,32 @@ PILOT_DETECTORS = (
 )
 
 
+# The study's clips are those of seed 0 (clip k of (0, k)); a pilot of the amended plan
+# draws its clips from another seed, so no value is tuned on a clip the study scores
+# (docs/findings/power_plan_amendment.md). The 2026-11 pilot used the study's own first 12.
+STUDY_SEED = 0
+PILOT_SEED = 1
+
+
 def footage_pilot(
     out: str | Path,
     clips: int = 40,
     detectors: tuple[str, ...] = PILOT_DETECTORS,
     feedback: Feedback = QUIET,
+    settings: LoomingFootageSettings | None = None,
 ) -> pl.DataFrame:
-    """Render ``clips`` clips into ``out``/clips, run each detector, score each clip; writes
-    ``out``/pilot_clips.parquet (one row per clip and detector) and returns per detector the
-    outcome counts and the failure share (miss + early alert + false alarm over clips)."""
+    """Render ``clips`` clips into ``out``/clips (``settings``: the collection's, whose seed
+    must not be the study's; default: the 2026-11 pilot's, the study's own first clips), run
+    each detector, score each clip; writes ``out``/pilot_clips.parquet (one row per clip and
+    detector) and returns per detector the outcome counts and the failure share (miss +
+    early alert + false alarm over clips)."""
     out = Path(out)
-    made = looming_footage(LoomingFootageSettings(clips=clips), out / "clips", feedback)
+    if settings is None:
+        settings = LoomingFootageSettings(clips=clips)
+    elif settings.seed == STUDY_SEED:
+        raise ValueError(f"a pilot's clips must not be the study's (seed {STUDY_SEED})")
+    settings = dataclasses.replace(settings, clips=clips)
+    made = looming_footage(settings, out / "clips", feedback)
     fov = made.labels["hfov_deg"][0]
     rows = []
     for spec in detectors:

@@ -1,7 +1,19 @@
-"""``vdc-analyse power-study``: the pre-registered plan of docs/findings/power_plan.md, run from
-nothing.
+"""``vdc-analyse power-study``: the pre-registered plan run from nothing: by default as amended
+on 2026-12-07 (:data:`AMENDED`, docs/findings/power_plan_amendment.md), with ``--plan 2026-11``
+as first fixed (:data:`FULL`, docs/findings/power_plan.md).
 
-One command runs exactly the plan (:data:`FULL`) and writes its answer:
+The amended plan confirms each detector's value before its study (the arena: on the first
+seed of every condition, ``OUT/arena/<detector>/first-seed``; footage: on a pilot of clips drawn
+from another seed than the study's, ``OUT/footage/pilot``) and moves it one step where 20-60 %
+do not fail (:func:`move`), recording the move in the studies table (``planned_value``,
+``value``, ``first_seed_failing``, ``deviation``); a study it names as unable to inform
+(``cannot_inform``) runs for the record and is left out of the verdicts. Every resume key holds
+vdc's version and a hash of the code that scores and measures (:func:`code_key`): where it
+changed, the earlier studies are set aside (renamed, kept) and computed again
+(:func:`set_aside_stale`). ``--publish-findings DIR`` copies the answer with the commit that
+made it (:func:`analysis.experiments.power_findings.publish`).
+
+One command runs exactly the plan and writes its answer:
 
 1. **the arena**: for each arena detector at its planned value, the boundary campaign of
    ``vdc-analyse boundary`` over the plan's scenes and drawn wall TFs, with every complexity
@@ -46,10 +58,21 @@ from typing import Any
 import polars as pl
 
 from analysis.boundary.command import BoundarySettings
+from analysis.boundary.scenes import PHOTOS
 from analysis.experiments.boundary_campaign import boundary, finished_row, grid_items
 from analysis.experiments.captures import profiling_items
 from analysis.experiments.looming_footage import LoomingFootageSettings, looming_footage
 from analysis.experiments.power_answer import write_answer
+from analysis.experiments.power_findings import publish
+from analysis.experiments.power_pilot import footage_pilot
+from analysis.experiments.power_resume import (
+    _done,
+    _mark,
+    _mark_json,
+    _outcome_key,
+    code_key,
+    set_aside_stale,
+)
 from analysis.experiments.predictor_runs import EVERY
 from vdc.cli_support import option
 from vdc.errors import UserError
@@ -73,6 +96,20 @@ class StudyPlan:
     clip_seconds: float
     clip_size: tuple[int, int]  # (width, height) px of the rendered clips
     footage_detectors: tuple[tuple[str, str, float], ...]
+    name: str = "2026-11"  # the plan's version: docs/findings/power_plan.md (2026-11) or its
+    # amendment (2026-12, docs/findings/power_plan_amendment.md)
+    collection: str = "2026-11"  # looming-footage --collection: the footage's photographs
+    # the amendment: each value confirmed on the first seed of every arena condition, and on a
+    # pilot of ``pilot_clips`` clips of the collection's seed ``pilot_seed`` (outside the
+    # study's clips), and moved one step (``steps``: detector -> (value when fewer than
+    # MOVE_BELOW fail, value when more than MOVE_ABOVE fail)) when outside 20-60 %
+    confirm: bool = False
+    pilot_clips: int = 0
+    pilot_seed: int = 1
+    steps: tuple[tuple[str, str, float, float], ...] = ()  # (source, detector, fewer, more)
+    # studies that cannot inform by construction, named before the runs: run for the record,
+    # left out of the verdicts and of Holm's correction over the studies
+    uninformative: tuple[tuple[str, str, str], ...] = ()  # (source, detector, why)
     min_ttc_s: float = 0.5  # a later first alert is a miss (docs/findings/power_plan.md)
     # an alert earlier than this before contact is early: the object enters 1.5-3 s before
     # contact (analysis.experiments.looming_footage.ENTER_S), so one earlier than 3 s comes
@@ -106,6 +143,44 @@ FULL = StudyPlan(
         ("flow-ttc", "tau_alert_s", 1.0),
     ),
 )
+# docs/findings/power_plan_amendment.md (2026-12-07): 23 scenes (21 package photographs and
+# the two procedural generators, one scene each) x 3 TFs, 483 clips over 21 photographs.
+PHOTO_SCENES = tuple(f"photo-{p}" for p in PHOTOS)
+LGMD_FOOTAGE_CANNOT_INFORM = (
+    "cannot inform by construction: LGMD+ misses almost every collision clip and rejects "
+    "every near miss, so its failures are the collision clips, and whether a clip collides "
+    "is drawn independently of its scene: no measure of the scene can predict it"
+)
+AMENDED = dataclasses.replace(
+    FULL,
+    name="2026-12",
+    scenes=("grating", "natural", *PHOTO_SCENES),
+    tf_draws=3,
+    clips=483,  # 23 per photograph
+    collection="2026-12",
+    confirm=True,
+    pilot_clips=40,
+    steps=(
+        ("arena", "lgmd-plus-arena", 8.0, 20.0),  # the plan's 12 -> 20 when too many fail
+        ("arena", "flow-ttc", 0.4, 0.8),  # the plan's 0.6 -> 0.4 / 0.8
+        ("footage", "examples.looming:Looming", 0.04, 0.01),
+        ("footage", "flow-ttc", 0.7, 1.5),  # too many failing: misses, so alert earlier
+    ),
+    uninformative=(("footage", "lgmd-plus", LGMD_FOOTAGE_CANNOT_INFORM),),
+)
+MOVE_BELOW, MOVE_ABOVE = 0.20, 0.60  # the plan's band for the first-seed confirmation
+QUICK_AMENDED = dataclasses.replace(
+    AMENDED,
+    scenes=("natural", "photo-grass", "photo-hopper"),
+    tf_draws=1,
+    seeds=1,
+    minutes=0.25,
+    clips=4,
+    clip_seconds=4.0,
+    clip_size=(96, 72),
+    pilot_clips=2,
+)
+PLANS = {"2026-11": FULL, "2026-12": AMENDED}
 QUICK = dataclasses.replace(
     FULL,
     scenes=("grating", "natural", "photo-grass"),
@@ -122,7 +197,8 @@ QUICK = dataclasses.replace(
 
 @dataclasses.dataclass(frozen=True)
 class PowerStudySettings(ExecutorSettings):
-    """``vdc-analyse power-study``: the plan of docs/findings/power_plan.md, or its quick
+    """``vdc-analyse power-study``: the amended plan (docs/findings/power_plan_amendment.md)
+    or the first (``plan_version="2026-11"``, docs/findings/power_plan.md), or its quick
     version."""
 
     quick: bool = option(
@@ -130,9 +206,24 @@ class PowerStudySettings(ExecutorSettings):
         "the reduced version (3 conditions, 1 seed of 15-s runs, 4 clips): checks every step "
         "in about a minute; its verdicts are not findings",
     )
+    plan_version: str = option(
+        "2026-12",
+        "which plan: 2026-12, the amended one (docs/findings/power_plan_amendment.md), or "
+        "2026-11, the first (docs/findings/power_plan.md)",
+        "--plan",
+        choices=tuple(PLANS),
+    )
+    publish_findings: str = option(
+        "",
+        "at the end of the run, copy the answer's tables and answer.md into this "
+        "folder (e.g. docs/findings/power-2026-12) with the commit of the code that made them",
+        metavar="DIR",
+    )
 
     def plan(self) -> StudyPlan:
-        return QUICK if self.quick else FULL
+        if self.quick:
+            return QUICK_AMENDED if self.plan_version == "2026-12" else QUICK
+        return PLANS[self.plan_version]
 
 
 @dataclasses.dataclass
@@ -156,28 +247,6 @@ class PowerStudyResult(WroteFiles):
         first = self.answer.split("\n\n")[1 if self.quick else 0]
         head = ["QUICK RUN: its verdicts are not findings"] if self.quick else []
         return [*head, first.replace("**", ""), f"wrote {self.paths[-1]} and beside it"]
-
-
-def _done(marker: Path, key: dict[str, Any]) -> str | None:
-    """The status a finished step wrote into ``marker`` (``study.json``) when it ran with this
-    ``key`` (what its outcome depends on), else None."""
-    if not marker.exists():
-        return None
-    done = json.loads(marker.read_text())
-    return done["status"] if done.get("key") == json.loads(json.dumps(key)) else None
-
-
-def _mark(marker: Path, key: dict[str, Any], status: str) -> None:
-    marker.parent.mkdir(parents=True, exist_ok=True)
-    tmp = marker.with_suffix(".partial")
-    tmp.write_text(json.dumps({"key": key, "status": status}))
-    tmp.replace(marker)
-
-
-def _outcome_key(settings: Any) -> dict[str, Any]:
-    """A step's settings without where it runs (the executor fields change no outcome)."""
-    executor = {f.name for f in dataclasses.fields(ExecutorSettings)}
-    return {k: v for k, v in dataclasses.asdict(settings).items() if k not in executor}
 
 
 def _slug(spec: str) -> str:
@@ -212,20 +281,88 @@ def arena_study(
         no_fit=True, **_executor(s),
     )  # fmt: skip
     row = _row("arena", detector, param, value, folder, plan.conditions() * plan.seeds)
-    key, marker = _outcome_key(bs), folder / "study.json"
+    if plan.confirm:  # the first seed of every condition, in its own folder, before the rest
+        first = folder / "first-seed"
+        first.mkdir(parents=True, exist_ok=True)
+        if not (first / "recordings").exists():
+            os.symlink(Path("..") / ".." / "recordings", first / "recordings", True)
+        check = dataclasses.replace(bs, seeds=1)
+        share, checked = _first_seed_share(check, first, feedback)
+        moved = move(plan, "arena", detector, param, value, share)
+        row |= {"first_seed_failing": share, "deviation": moved[1], "recomputed": checked}
+        if moved[0] != value:
+            value = moved[0]
+            bs = dataclasses.replace(bs, values=(value,))
+            row["value"] = value
+            feedback.log(f"arena study of {detector}: {moved[1]}")
+    key, marker = {"settings": _outcome_key(bs), **code_key()}, folder / "study.json"
     status = _done(marker, key)
     if status is not None and _all_finished(bs, folder):  # its tables are these runs' already
         feedback.log(f"arena study of {detector}: every run finished and analysed: reused")
         return row | {"status": status}
+    checked = row["recomputed"]  # the confirmation's runs
     try:
         res = boundary(bs, folder, feedback)
     except UserError as e:  # no evidence: recorded as the study's outcome, the others go on
         _mark(marker, key, f"no evidence: {e}")
-        return row | {"status": f"no evidence: {e}"} | _recounted(folder, start)
+        again = _recounted(folder, start)["recomputed"]
+        return row | {"status": f"no evidence: {e}", "recomputed": max(again, checked)}
     _mark(marker, key, "ran")
     profiles = pl.read_parquet(folder / "boundary_profiles.parquet")
     fresh = int((~res.runs["reused"]).sum()) + int((~profiles["reused"]).sum())
-    return row | {"status": "ran", "recomputed": fresh}
+    return row | {"status": "ran", "recomputed": fresh + checked}
+
+
+def _first_seed_share(
+    bs: BoundarySettings, folder: Path, feedback: Feedback
+) -> tuple[float | None, int]:
+    """(the share of the arena conditions failing on their first seed, the runs this call
+    recorded for it): a condition fails when its success share is below the campaign's
+    target, as the answer counts it; None where the first seed holds no evidence."""
+    marker, key = folder / "study.json", {"settings": _outcome_key(bs), **code_key()}
+    fresh = 0
+    status = _done(marker, key)
+    if status is not None and status.startswith("no evidence"):
+        return None, 0
+    if status is None or not (folder / "boundary_runs.parquet").exists():
+        start = time.time()
+        try:
+            res = boundary(bs, folder, feedback)
+        except UserError as e:
+            _mark(marker, key, f"no evidence: {e}")
+            return None, _recounted(folder, start)["recomputed"]
+        _mark(marker, key, "ran")
+        profiles = pl.read_parquet(folder / "boundary_profiles.parquet")
+        fresh = int((~res.runs["reused"]).sum()) + int((~profiles["reused"]).sum())
+    runs = pl.read_parquet(folder / "boundary_runs.parquet")
+    events = pl.col("avoidances") + pl.col("crashes")
+    success = (
+        runs.filter(events > 0)
+        .group_by("condition")
+        .agg((pl.col("avoidances") / events).mean().alias("success"))
+    )
+    if not success.height:
+        return None, fresh
+    return float((success["success"] < bs.target).mean()), fresh
+
+
+def move(
+    plan: StudyPlan, source: str, detector: str, param: str, value: float, share: float | None
+) -> tuple[float, str]:
+    """The plan's rule: a value whose confirmation puts fewer than 20 % or more than 60 % of
+    the units in failure moves one step (``plan.steps``), once; (the value, what was done, in
+    words: the study's ``deviation``)."""
+    if share is None:
+        return value, f"{param} {value:g} kept unconfirmed: no evidence in the confirmation"
+    steps = {(src, d): (lo, hi) for src, d, lo, hi in plan.steps}
+    where = f"{100 * share:.0f} % failing in the confirmation"
+    if MOVE_BELOW <= share <= MOVE_ABOVE:
+        return value, ""  # confirmed: no deviation
+    if (source, detector) not in steps:
+        return value, f"{param} {value:g} kept: {where}, outside 20-60 %, and no step named"
+    fewer, more = steps[(source, detector)]
+    new = fewer if share < MOVE_BELOW else more
+    return new, f"{param} moved {value:g} -> {new:g}: {where}, outside 20-60 %"
 
 
 def _all_finished(bs: BoundarySettings, folder: Path) -> bool:
@@ -248,11 +385,15 @@ def _row(source: str, detector: str, param: str, value: float, folder: Path, uni
         "source": source,
         "detector": detector,
         "param": param,
+        "planned_value": value,  # the plan's; ``value`` the one run (moved by the rule)
         "value": value,
         "folder": str(folder),
         "units": units,
         "status": "",
         "recomputed": 0,
+        "first_seed_failing": None,  # the confirmation's failing share (arena: first seed)
+        "deviation": "",  # what differs from the plan, in words ("" none)
+        "cannot_inform": "",  # named in advance: why the study cannot inform ("" it can)
     }
 
 
@@ -278,6 +419,7 @@ def footage_study(
     fov_deg: float,
     out: Path,
     feedback: Feedback,
+    pilot: dict[str, float | None] | None = None,
 ) -> dict[str, Any]:
     """One footage detector's boundary on the collection into ``out/footage/<detector>``;
     skipped when ``study.json`` there says it finished with these settings and these labels."""
@@ -289,8 +431,21 @@ def footage_study(
         min_ttc_s=plan.min_ttc_s, alert_window_s=plan.alert_window_s, **_executor(s),
     )  # fmt: skip
     row = _row("footage", detector, param, value, folder, plan.clips)
+    if pilot is not None:  # the value confirmed on the pilot clips (outside the study's)
+        share = pilot.get(detector)
+        moved = move(plan, "footage", detector, param, value, share)
+        row |= {"first_seed_failing": share, "deviation": moved[1]}
+        if moved[0] != value:
+            value = moved[0]
+            bs = dataclasses.replace(bs, values=(value,))
+            row["value"] = value
+            feedback.log(f"footage study of {detector}: {moved[1]}")
+    for src, d, why in plan.uninformative:
+        if (src, d) == ("footage", detector):
+            row["cannot_inform"] = why
     digest = hashlib.sha256(labels.read_bytes()).hexdigest()  # rewritten, unchanged, each run
-    key, marker = {"settings": _outcome_key(bs), "labels": digest}, folder / "study.json"
+    key = {"settings": _outcome_key(bs), "labels": digest, **code_key()}
+    marker = folder / "study.json"
     status = _done(marker, key)
     if status is not None:
         feedback.log(f"footage study of {detector}: reused ({status[:60]})")
@@ -324,11 +479,13 @@ def power_study(
         f"+ profiling = {plan.arena_runs()} run(s) of {plan.minutes:g} min; {plan.clips} clips "
         f"x {len(plan.footage_detectors)} detector(s)"
     )
+    set_aside_stale(out, code_key(), feedback)
     rows = [arena_study(s, spec, out, feedback, start) for spec in plan.arena_detectors]
     w, h = plan.clip_size
     clips = LoomingFootageSettings(
-        clips=plan.clips, seconds=plan.clip_seconds, width_px=w, height_px=h
-    )
+        clips=plan.clips, seconds=plan.clip_seconds, width_px=w, height_px=h,
+        collection=plan.collection,
+    )  # fmt: skip
     folder = out / "footage" / "clips"
     labels = folder / "labels.csv"
     row = _row("footage", "looming-footage", "clips", plan.clips, folder, plan.clips)
@@ -341,8 +498,40 @@ def power_study(
         made = looming_footage(clips, folder, feedback)
         _mark(folder / "study.json", key, "rendered")
         rows.append(row | {"status": "rendered", "recomputed": plan.clips - made.reused})
+    pilot = footage_confirmation(plan, clips, out / "footage" / "pilot", feedback)
     for spec in plan.footage_detectors:
-        rows.append(footage_study(s, spec, labels, clips.hfov_deg, out, feedback))
-    studies = pl.DataFrame(rows)
+        rows.append(footage_study(s, spec, labels, clips.hfov_deg, out, feedback, pilot))
+    studies = pl.DataFrame(rows, infer_schema_length=None)
     primary, paths, answer = write_answer(studies, out, quick=s.quick, plan=plan)
+    if s.publish_findings:
+        paths += publish(out, Path(s.publish_findings), studies, feedback)
     return PowerStudyResult(studies, primary, paths, answer, s.quick)
+
+
+def footage_confirmation(
+    plan: StudyPlan, clips: LoomingFootageSettings, folder: Path, feedback: Feedback
+) -> dict[str, float | None] | None:
+    """The amended plan's confirmation of each footage detector's value: its failing share on
+    ``plan.pilot_clips`` clips of the collection drawn from ``plan.pilot_seed`` (not the
+    study's clips), by detector; None where the plan confirms nothing. Kept in
+    ``folder/pilot.json`` with what it ran with (and the code), and reused."""
+    if not plan.confirm or not plan.pilot_clips:
+        return None
+    specs = tuple(f"{d}:{p}={v:g}" for d, p, v in plan.footage_detectors)
+    settings = dataclasses.replace(clips, seed=plan.pilot_seed, clips=plan.pilot_clips)
+    key = {"settings": dataclasses.asdict(settings), "detectors": specs, **code_key()}
+    marker = folder / "pilot.json"
+    if marker.exists() and (done := json.loads(marker.read_text())).get("key") == key:
+        feedback.log(f"footage pilot: {plan.pilot_clips} clips of seed {plan.pilot_seed} reused")
+        return done["shares"]
+    feedback.log(
+        f"footage pilot: each footage detector's value on {plan.pilot_clips} clips of seed "
+        f"{plan.pilot_seed} (outside the study's clips)"
+    )
+    table = footage_pilot(folder, plan.pilot_clips, specs, feedback, settings)
+    by_spec = dict(zip(table["detector"], table["failure_share"], strict=True))
+    detectors = [d for d, _, _ in plan.footage_detectors]
+    shares = {d: by_spec.get(sp) for d, sp in zip(detectors, specs, strict=True)}
+    folder.mkdir(parents=True, exist_ok=True)
+    _mark_json(marker, {"key": key, "shares": shares})
+    return shares

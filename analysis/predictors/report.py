@@ -66,7 +66,8 @@ STATS = {
 CHANCE = {"rho_failure": 0.0}  # the rest: AUROC-like, chance 0.5
 EMPTY = (
     "no statistic could be computed: the arena needs at least 3 conditions with runs whose "
-    "success varies (4 for an interval on ρ; {conds} scenes to compare two measures); footage "
+    "success varies (4 for an interval on ρ; {conds} conditions over {scenes} scenes to "
+    "compare two measures); footage "
     "needs clips the detector gets wrong and clips it gets right ({fails} of each, over "
     "{scenes} scenes, to compare)"
 )
@@ -232,7 +233,8 @@ def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
         "(`predictors.parquet`: each row names its `unit`, `n_units`, its n and its failing "
         "and correct units). The one comparison named in advance is the paper's AVDM against "
         "P.910 TI; every other is Holm-corrected. No comparison is judged on fewer than "
-        f"{MIN_CONDITIONS} scenes (arena) or {MIN_SCENES} scenes and {MIN_FAILURES} failing "
+        f"{MIN_SCENES} scenes and {MIN_CONDITIONS} conditions (arena) or {MIN_SCENES} scenes "
+        f"and {MIN_FAILURES} failing "
         "and as many correct clips (footage): 80 % power for the effects in question, and "
         "enough scenes for an interval over them to hold (docs/method/boundary.md). A measure is "
         "better only when it predicts the failures beyond chance itself.\n",

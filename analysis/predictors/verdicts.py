@@ -3,8 +3,9 @@
 
 * :class:`Units`: the scenes where the conditions or clips share them (at least two named),
   else the conditions or clips, taken as independent (:func:`table_note` says so in one line);
-* :func:`judge`: no verdict below the power thresholds (:data:`MIN_CONDITIONS` scenes in the
-  arena; :data:`MIN_SCENES` scenes and :data:`MIN_FAILURES` units of each class on footage),
+* :func:`judge`: no verdict below the power thresholds (:data:`MIN_CONDITIONS` conditions in
+  the arena, over :data:`MIN_SCENES` scenes where they share them; :data:`MIN_SCENES` scenes
+  and :data:`MIN_FAILURES` units of each class on footage),
   the primary comparison at 5 %, the rest Holm-corrected; "better" or "worse" only where the
   winner predicts failure beyond chance itself; "both against the expected sign" where both
   measures are inverted (less inverted is not better).
@@ -33,6 +34,12 @@ from analysis.stats import ALPHA
 # (Hanley & McNeil; 94 at 0.3), and, clips that share scenes, at least MIN_SCENES scenes: with
 # fewer clusters even a clustered test over-rejects (8 scenes: 9-12 % at a nominal 5 %;
 # Cameron & Miller 2015 put reliable inference at 20-50 clusters, with t on G - 1 df).
+# In the arena, conditions clustered on scenes need MIN_SCENES scenes (the clustered test's
+# validity, as on footage) and MIN_CONDITIONS conditions (docs/findings/
+# power_plan_amendment.md): the scenes carry G m / (1 + (m - 1) ICC) independent units
+# (analysis.experiments.power.design_effect), at least G, so 24 scenes were enough at any ICC;
+# the amended plan's 23 scenes of 3 TFs carry the 37 its comparison needs up to ICC 0.43,
+# and its answer reports the ICC it met.
 MIN_CONDITIONS = 24
 MIN_SCENES = 20
 MIN_FAILURES = 46
@@ -101,11 +108,13 @@ def too_few(r: dict[str, Any], mode: str) -> str | None:
     """Why a comparison row gets no verdict for lack of units, or None: fewer independent units
     than :data:`MIN_CONDITIONS` (arena) or :data:`MIN_SCENES` (footage), or, on footage, a
     smaller class than :data:`MIN_FAILURES` (named as the smaller class)."""
-    need = MIN_CONDITIONS if mode == "arena" else MIN_SCENES
     unit = r["unit"]
+    need = MIN_CONDITIONS if mode == "arena" and unit != "scene" else MIN_SCENES
     short: list[tuple[str, str]] = []  # (what there is, what is needed)
     if r["n_units"] < need:
         short.append((f"{r['n_units']} {unit}{'s' if r['n_units'] != 1 else ''}", f"{need}"))
+    elif mode == "arena" and unit == "scene" and (r["n"] or 0) < MIN_CONDITIONS:
+        short.append((f"{r['n']} conditions", f"{MIN_CONDITIONS} conditions"))
     if mode == "footage":
         fail, ok = r["n_failing"] or 0, r["n_correct"] or 0
         smaller, k = ("failing", fail) if fail <= ok else ("correct", ok)

@@ -111,3 +111,31 @@ def test_bad_settings_are_one_line() -> None:
     ):
         with pytest.raises(ValueError, match=needle):
             LoomingFootageSettings(**kw)
+
+
+def test_the_amended_collection_has_21_photographs_none_its_own_object() -> None:
+    """The 2026-12 collection (docs/findings/power_plan_amendment.md): clip k over photograph
+    k mod 21, each a package's own photograph file; the looming object is never the clip's
+    background; the other draws are the 2026-11 collection's (same generator, same order)."""
+    from analysis.experiments.looming_footage import (
+        PHOTOS_2026_12,
+        LoomingFootageSettings,
+        _photo,
+        draw_conditions,
+    )
+
+    s = LoomingFootageSettings(collection="2026-12", clips=42)
+    old = LoomingFootageSettings(clips=42)
+    drawn = [draw_conditions(s, k) for k in range(42)]
+    assert len(PHOTOS_2026_12) == 21
+    counts: dict[str, int] = {}
+    for k, c in enumerate(drawn):
+        counts[str(c["background"])] = counts.get(str(c["background"]), 0) + 1
+        assert c["object"] != c["background"]
+        assert c["rotation_dps"] == draw_conditions(old, k)["rotation_dps"]
+    assert counts == {name: 2 for name in PHOTOS_2026_12}
+    for name in PHOTOS_2026_12:  # every one loads from the installed packages
+        img = _photo(name)
+        assert min(img.shape[:2]) >= 100 and img.std() > 5, (
+            name
+        )  # a picture, not a blank (the retina crop: 9.9)

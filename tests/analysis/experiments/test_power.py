@@ -122,3 +122,37 @@ def test_footage_outcomes_score_the_failure_modes_apart() -> None:
     assert footage_outcome(at(100), fps, None, onset) == "false alarm"
     assert footage_outcome(alert, fps, None, onset) == "correct rejection"
     assert footage_outcome(at(100), fps, None, None) == "early alert"  # nothing ever in view
+
+
+def test_the_design_effect_of_scenes_against_a_simulated_mean() -> None:
+    """Units in scenes of m with a scene effect of variance ICC (total 1): the variance of the
+    mean of G m units is DE / (G m), DE = 1 + (m - 1) ICC (Kish), checked on 4000 simulated
+    samples (the variance ratio's SE is about 2.2 %; 0.08 is 3.5 SE)."""
+    from analysis.experiments.power import design_effect
+
+    rng = np.random.default_rng(11)
+    g, m, icc = 20, 6, 0.3
+    scene = rng.normal(0, math.sqrt(icc), (4000, g, 1))
+    units = scene + rng.normal(0, math.sqrt(1 - icc), (4000, g, m))
+    ratio = units.mean(axis=(1, 2)).var() * g * m
+    assert ratio == pytest.approx(design_effect(m, icc), rel=0.08)
+    assert design_effect(1, 0.9) == 1.0 and design_effect(m, 0.0) == 1.0
+
+
+def test_scenes_and_units_per_scene_for_the_amended_plan() -> None:
+    """The amended plan's sizes (docs/findings/power_plan_amendment.md): arena, the 37
+    independent conditions of rho 0.71 against 0.31 (measures correlated 0.5) from 23 scenes
+    of 3 TFs hold up to ICC 0.43; footage, 229 independent clips from 21 photographs need 23
+    clips each at ICC 0.05 (483 clips) and cannot be had at ICC 0.1 (21 / 0.1 = 210 < 229)."""
+    from analysis.experiments.power import effective_units, per_scene_for, scenes_for
+
+    arena = conditions_for_correlation_difference(0.71, 0.31, 0.5)
+    assert arena == 37
+    assert effective_units(23, 3, 0.43) >= arena > effective_units(23, 3, 0.45)
+    assert scenes_for(arena, 3, 0.5) == 25 and scenes_for(24, 3, 0.3) == 20  # the floor
+    clips = clips_for_auroc_difference(0.75, 0.66, 0.6, 0.4)[0]
+    assert clips == 229
+    m = per_scene_for(clips, 21, 0.05)
+    assert m == 23 and effective_units(21, m, 0.05) >= clips > effective_units(21, m - 1, 0.05)
+    assert per_scene_for(clips, 21, 0.1) is None
+    assert per_scene_for(10, 21, 0.5) == 1

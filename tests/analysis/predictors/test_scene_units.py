@@ -234,3 +234,21 @@ def test_the_cluster_jackknife_is_the_auroc_of_each_cluster_left_out() -> None:
     np.testing.assert_allclose(jackknife_cov(x, pos, cl), (k - 1) / k * d.T @ d, atol=1e-15)
     assert np.all(np.diag(jackknife_cov(x, pos, cl)) > 0)
     assert np.isfinite(delong_cov(x, pos, cl)[1]).all()
+
+
+def test_arena_conditions_over_scenes_need_20_scenes_and_24_conditions() -> None:
+    """The amended rule (docs/findings/power_plan_amendment.md): clustered on scenes, the
+    arena needs 20 scenes and 24 conditions; taken as independent, 24 conditions."""
+    from analysis.predictors.verdicts import too_few
+
+    def row(unit: str, n_units: int, n: int) -> dict:
+        return {"unit": unit, "n_units": n_units, "n": n, "counted": "conditions"}
+
+    assert too_few(row("scene", 23, 69), "arena") is None  # the amended plan's grid
+    assert too_few(row("scene", 19, 57), "arena") == "19 scenes: too few to judge (20 needed)"
+    assert too_few(row("scene", 20, 20), "arena") == (
+        "20 conditions: too few to judge (24 conditions needed)"
+    )
+    assert too_few(row("condition", 23, 23), "arena") == (
+        "23 conditions: too few to judge (24 needed)"
+    )
