@@ -91,7 +91,7 @@ LONGEST_FIRST = (
     "tests/test_guide_boundary.py",
     "tests/test_guide_video.py",
     "tests/analysis/catalog/test_catalog.py",
-    "tests/vdc/test_dask.py",
+    "tests/analysis/test_dask.py",
     "tests/analysis/boundary/test_footage.py",
     "tests/analysis/boundary/test_boundary.py",
     "tests/capture/test_serial_link.py",

@@ -51,6 +51,12 @@ FAILURE_TARGET = (0.30, 0.50)
 FAILING = ("miss", "early", "false_alarm")  # a clip's failure modes (boundary footage mode)
 
 
+
+def _cell(text: str) -> str:
+    """A whole sentence in one Markdown table cell: never cut mid-word (a cell was cut at 100
+    characters: "there is no evidence to pla"), its pipes and line breaks escaped."""
+    return " ".join(str(text).split()).replace("|", "\\|")
+
 def discordant_share(x: np.ndarray, fail: np.ndarray, group: np.ndarray | None = None) -> float:
     """Over the pairs of units whose failure differs (``group`` given: only pairs in different
     groups), the share the measure ``x`` (N,) orders against the failure ``fail`` (N,) (a
@@ -490,7 +496,7 @@ def answer_markdown(
         dev = r.get("deviation") or "none"
         if r.get("statistic") is None:
             lines.append(f"| {r['source']} | {r['detector']} | {dev} |" + " — |" * 10
-                         + f" {(r.get('verdict') or '')[:120]} |")  # fmt: skip
+                         + f" {_cell(r.get('verdict') or '')} |")  # fmt: skip
             continue
         across = r.get("p_holm_across")
         lines.append(
@@ -554,7 +560,7 @@ def answer_markdown(
         conf = "—" if conf is None else f"{100 * conf:.0f} %"
         dev = r.get("deviation") or "none"
         lines.append(f"| {r['source']} | {r['detector']} | {r['units']} | {conf} | {dev} | "
-                     f"{r['recomputed']} | {r['status'][:100]} | "
+                     f"{r['recomputed']} | {_cell(r['status'])} | "
                      f"`{Path(r['folder']).name}` |")  # fmt: skip
     cmd = f"vdc-analyse power-study --plan {getattr(plan, 'name', '2026-11')}" + (
         " --quick" if quick else ""

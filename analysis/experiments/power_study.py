@@ -246,7 +246,9 @@ class PowerStudyResult(WroteFiles):
         """What the command line prints: the answer's first paragraph, then the files."""
         first = self.answer.split("\n\n")[1 if self.quick else 0]
         head = ["QUICK RUN: its verdicts are not findings"] if self.quick else []
-        return [*head, first.replace("**", ""), f"wrote {self.paths[-1]} and beside it"]
+        more = len(self.paths) - 1  # the line was cut at "and beside it"
+        return [*head, first.replace("**", ""),
+                f"wrote {self.paths[-1]} and {more} more files beside it."]  # fmt: skip
 
 
 def _slug(spec: str) -> str:
@@ -448,7 +450,7 @@ def footage_study(
     marker = folder / "study.json"
     status = _done(marker, key)
     if status is not None:
-        feedback.log(f"footage study of {detector}: reused ({status[:60]})")
+        feedback.log(f"footage study of {detector}: reused ({status}).")
         return row | {"status": status}
     for other in (out / "footage").iterdir():  # clips measured by an earlier detector
         _link_parts(other / "complexity" / "parts", folder / "complexity" / "parts")

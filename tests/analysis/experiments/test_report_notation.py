@@ -14,12 +14,18 @@ from analysis.experiments.claims import Claim, profiling_claims
 from analysis.experiments.plan import ReproduceSettings
 from tests.analysis.experiments.test_claims import _summary
 
+KEY = re.compile(r"<p class='key'><b>(?:Notation|More notation)\.</b> (.*?)\.</p>", re.S)
+
 
 def _key(page: str) -> dict[str, str]:
-    """The Notation section's rows of a report.html: symbol -> meaning."""
-    section = page.split("<h2>Notation</h2>", 1)[1].split("<h2>", 1)[0]
-    rows = re.findall(r"<tr><td>(.*?)</td><td>(.*?)</td></tr>", section)
-    return {html.unescape(s): html.unescape(m) for s, m in rows[1:]}  # rows[0]: the header
+    """The notation keys of a report.html (a short one above the claims, the rest before the
+    methods: the first screen is for the claims): symbol -> meaning."""
+    rows = [
+        row
+        for k in KEY.findall(page)
+        for row in re.findall(r"<b>(.*?)</b>: (.*?)(?:; (?=<b>)|$)", k)
+    ]
+    return {html.unescape(s): html.unescape(m) for s, m in rows}
 
 
 def test_report_html_has_a_key_to_its_notation(tmp_path: Path, monkeypatch) -> None:
@@ -41,8 +47,9 @@ def test_report_html_has_a_key_to_its_notation(tmp_path: Path, monkeypatch) -> N
         assert symbol in key, (symbol, sorted(key))
     assert "deg/s" in key["ω̂"] and "px" in key["λ̂"] and "360°" in key["upc"]
     # only what the page uses: every symbol keyed occurs outside the key
-    before, after = page.split("<h2>Notation</h2>", 1)
-    rest = html.unescape(before + after.split("<h2>", 1)[1])
+    assert len(KEY.findall(page)) >= 1  # the first key is above the claims
+    assert page.index("<b>Notation.</b>") < page.index("<h2>Claims</h2>")
+    rest = html.unescape(KEY.sub("", page))
     for symbol in key:
         assert symbol in rest or (symbol == "p" and "p =" in rest), symbol
     md = (tmp_path / "report.md").read_text(encoding="utf-8")
