@@ -17,6 +17,7 @@ import re
 import zlib
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 
 from vdc.errors import UserError
@@ -92,8 +93,6 @@ def photo_path(photo: str) -> Path:
         ) from None
     folder = Path(skimage.data.__file__).parent
     if photo in MATPLOTLIB_PHOTOS:
-        import matplotlib
-
         folder = Path(matplotlib.get_data_path()) / "sample_data"
     path = folder / PHOTOS[photo]
     if not path.is_file():

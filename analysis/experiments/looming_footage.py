@@ -41,6 +41,7 @@ from fractions import Fraction
 from pathlib import Path
 
 import av
+import matplotlib
 import numpy as np
 import polars as pl
 
@@ -68,7 +69,7 @@ PHOTOS_2026_12 = {
     "moon": "moon.png", "ihc": "ihc.png", "grace_hopper": "grace_hopper.jpg",
     "Minduka_Present_Blue_Pack": "Minduka_Present_Blue_Pack.png",
 }  # fmt: skip
-MATPLOTLIB_PHOTOS = ("grace_hopper", "Minduka_Present_Blue_Pack")
+MATPLOTLIB_PHOTO_FILES = ("grace_hopper", "Minduka_Present_Blue_Pack")
 # the looming objects of the amended collection: never the clip's own background
 OBJECTS_2026_12 = ("chelsea", "coins", "horse", "moon", "ihc")
 COLLECTIONS = ("2026-11", "2026-12")
@@ -180,12 +181,10 @@ def _photo(name: str) -> np.ndarray:
 
 def photo_file(name: str) -> Path:
     """The file of one of the amended collection's photographs (a package's own file)."""
-    if name in MATPLOTLIB_PHOTOS:
-        import matplotlib
-
+    if name in MATPLOTLIB_PHOTO_FILES:
         folder = Path(matplotlib.get_data_path()) / "sample_data"
     else:
-        from skimage import data
+        from skimage import data  # lazy: optional extra (test: scikit-image)
 
         folder = Path(data.__file__).parent
     path = folder / PHOTOS_2026_12[name]

@@ -51,11 +51,11 @@ FAILURE_TARGET = (0.30, 0.50)
 FAILING = ("miss", "early", "false_alarm")  # a clip's failure modes (boundary footage mode)
 
 
-
 def _cell(text: str) -> str:
     """A whole sentence in one Markdown table cell: never cut mid-word (a cell was cut at 100
     characters: "there is no evidence to pla"), its pipes and line breaks escaped."""
     return " ".join(str(text).split()).replace("|", "\\|")
+
 
 def discordant_share(x: np.ndarray, fail: np.ndarray, group: np.ndarray | None = None) -> float:
     """Over the pairs of units whose failure differs (``group`` given: only pairs in different

@@ -12,10 +12,14 @@ docs' result section generated from it (docs/findings/power_plan_amendment.md).
 from __future__ import annotations
 
 import json
+import shutil
+import subprocess
+from importlib.metadata import version  # vdc.__version__ (the facade: not imported here)
 from pathlib import Path
 from typing import Any
 
 import polars as pl
+import pyarrow.parquet as pq
 
 from analysis.experiments.power_answer import _fmt, _p, first_paragraph, share_phrase
 
@@ -33,10 +37,6 @@ def publish(out: Path, dest: Path, studies: pl.DataFrame, feedback: Any = None) 
     """Copy a finished study's answer (:data:`PUBLISHED`) from ``out`` into ``dest`` with
     ``made_by.json``: the commit of the code that made it (and whether its tree had
     uncommitted changes), vdc's version, the plan and whether it was a quick run."""
-    import shutil
-    import subprocess
-    from importlib.metadata import version  # vdc.__version__ (the facade: not imported here)
-
     __version__ = version("visual-dynamic-complexity")
 
     dest.mkdir(parents=True, exist_ok=True)
@@ -73,8 +73,6 @@ def publish(out: Path, dest: Path, studies: pl.DataFrame, feedback: Any = None) 
 
 
 def _quick(out: Path) -> bool:
-    import pyarrow.parquet as pq
-
     kv = pq.read_schema(out / "primary.parquet").metadata or {}
     return bool(json.loads(kv.get(b"vdc.quick", b"false")))
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+from importlib.metadata import version  # vdc.__version__ (the facade: not imported here)
 from pathlib import Path
 from typing import Any
 
@@ -34,8 +35,6 @@ SOURCE_ROOT = Path(__file__).resolve().parents[2]  # holds analysis/, avdm/, cap
 def code_key(paths: tuple[str, ...] = CODE_PATHS, root: Path = SOURCE_ROOT) -> dict[str, str]:
     """``{vdc, code}``: the package version and the SHA-256 of the source at ``paths`` under
     ``root`` (a folder: every ``.py`` under it), by relative path and content."""
-    from importlib.metadata import version  # vdc.__version__ (the facade: not imported here)
-
     digest = hashlib.sha256()
     for rel in paths:
         where = root / rel

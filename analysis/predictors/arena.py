@@ -21,6 +21,7 @@ from analysis.predictors.inference import (
     rho_interval,
     rho_p_clustered,
     spearman_masked,
+    spearman_rows,
 )
 from analysis.predictors.statistics import (
     AVDMS,
@@ -30,7 +31,6 @@ from analysis.predictors.statistics import (
     _table,
     finite_spearman,
     measures_present,
-    spearman_rows,
 )
 from analysis.predictors.verdicts import Units, units_of
 

@@ -298,18 +298,27 @@ def cluster_draws(cluster: np.ndarray, rng: np.random.Generator, boots: int) -> 
     return members[drawn].reshape(boots, -1)
 
 
+def spearman_rows(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Spearman ρ of each row pair of x, y (B, N) (finite): (B,); NaN where a row is constant
+    or N < 3."""
+
+    if x.shape[1] < 3:
+        return np.full(len(x), math.nan)
+    rx = scipy_stats().rankdata(x, axis=1)
+    ry = scipy_stats().rankdata(y, axis=1)
+    rx -= rx.mean(1, keepdims=True)
+    ry -= ry.mean(1, keepdims=True)
+    den = np.sqrt((rx**2).sum(1) * (ry**2).sum(1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, (rx * ry).sum(1) / np.where(den > 0, den, 1.0), math.nan)
+
+
 def spearman_masked(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Spearman ρ of each row pair of x, y (B, L), NaN entries left out of both: (B,); NaN
     where a row holds fewer than 3 pairs or is constant."""
     ok = np.isfinite(x) & np.isfinite(y)
     if ok.all() and x.shape[1] >= 3:  # nothing left out (clusters of one size): plain ranks
-        rx = scipy_stats().rankdata(x, axis=1)
-        ry = scipy_stats().rankdata(y, axis=1)
-        rx -= rx.mean(1, keepdims=True)
-        ry -= ry.mean(1, keepdims=True)
-        den = np.sqrt((rx**2).sum(1) * (ry**2).sum(1))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(den > 0, (rx * ry).sum(1) / np.where(den > 0, den, 1.0), math.nan)
+        return spearman_rows(x, y)
     x, y = np.where(ok, x, np.nan), np.where(ok, y, np.nan)
     rx = scipy_stats().rankdata(x, axis=1, nan_policy="omit")
     ry = scipy_stats().rankdata(y, axis=1, nan_policy="omit")

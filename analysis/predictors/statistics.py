@@ -76,6 +76,7 @@ from analysis.predictors.inference import (
     auroc_interval,
     cluster_mean,
     newcombe_interval,
+    spearman_rows,
 )
 from analysis.predictors.verdicts import Units, judge, units_of
 from analysis.stats import scipy_special, scipy_stats
@@ -171,21 +172,6 @@ def finite_spearman(x: np.ndarray, y: np.ndarray) -> float:
     x, y = np.asarray(x, float), np.asarray(y, float)
     ok = np.isfinite(x) & np.isfinite(y)
     return float(spearman_rows(x[None, ok], y[None, ok])[0])
-
-
-def spearman_rows(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Spearman ρ of each row pair of x, y (B, N) (finite): (B,); NaN where a row is constant
-    or N < 3."""
-
-    if x.shape[1] < 3:
-        return np.full(len(x), math.nan)
-    rx = scipy_stats().rankdata(x, axis=1)
-    ry = scipy_stats().rankdata(y, axis=1)
-    rx -= rx.mean(1, keepdims=True)
-    ry -= ry.mean(1, keepdims=True)
-    den = np.sqrt((rx**2).sum(1) * (ry**2).sum(1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(den > 0, (rx * ry).sum(1) / np.where(den > 0, den, 1.0), math.nan)
 
 
 def fit_logistic(X: np.ndarray, y: np.ndarray, ridge: float = RIDGE) -> np.ndarray:

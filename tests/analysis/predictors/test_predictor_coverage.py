@@ -17,8 +17,9 @@ from analysis.predictors.inference import (
     newcombe_interval,
     permutation_p,
     rho_interval,
+    spearman_rows,
 )
-from analysis.predictors.statistics import auroc_columns, spearman_rows
+from analysis.predictors.statistics import auroc_columns
 
 REPEATS = 400
 BAR = 0.92
