@@ -231,9 +231,12 @@ def measure_video(
             )
     model_metrics = tuple(m for m in MODEL_METRICS if m in metrics)
     threads = usable_threads()
-    # on more than one core each frame's measuring spreads over them (vdc.frame_batches) and
-    # FFmpeg decodes on one thread of its own: its frame threads would cost more CPU
-    decoder_threads = 1 if threads > 1 else None
+    # FFmpeg's own threads, as every other entry point reads the file: on a damaged stream the
+    # decoder's thread count changes which frames come out (a cut last GOP gave 12 frames lost
+    # after the last against 10 with one thread), and the commands must count alike
+    # (tests/analysis/complexity/test_lost_frames.py); one decoding thread is for the opt-in
+    # measuring on threads (vdc.frame_batches), which is not used here
+    decoder_threads = None
     reader = open_reader(source, settings.fps, decoder_threads)
     batches = None
     try:
