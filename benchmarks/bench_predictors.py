@@ -36,7 +36,7 @@ def time_grid(s, no_predictors: bool) -> float:
     """Seconds of one ``boundary`` run of ``s`` from scratch (a fresh folder, nothing reused)."""
     import dataclasses
 
-    from analysis.experiments.boundary_campaign import boundary
+    from analysis.experiments.collision.boundary_campaign import boundary
 
     folder = Path(tempfile.mkdtemp(prefix="bench-predictors-"))
     try:
@@ -62,7 +62,7 @@ def main() -> None:
 
     make_model("avdm-natural", **camera_model_context(99, 72, 33.0, 70.0))  # calibrated once
     if args.existing:
-        from analysis.experiments.predictor_runs import predictors_for_folder
+        from analysis.experiments.collision.predictor_runs import predictors_for_folder
 
         folder = Path(args.existing)
         for cache in folder.glob("recordings/profile/**/*.measures.json"):

@@ -173,8 +173,8 @@ def test_scipy_stats_loads_only_where_a_statistic_is_computed() -> None:
     code = (
         "import sys, importlib; "
         "[importlib.import_module(m) for m in ('analysis.cli', 'analysis.complexity.command', "
-        "'analysis.dataset.command', 'analysis.experiments.boundary_campaign', 'capture.cli', "
-        "'analysis.predictors.inference', 'analysis.boundary.fit')]; "
+        "'analysis.dataset.command', 'analysis.experiments.collision.boundary_campaign', "
+        "'capture.cli', 'analysis.predictors.inference', 'analysis.boundary.fit')]; "
         "assert 'scipy.stats' not in sys.modules, 'scipy.stats loaded at import'; "
         "assert 'scipy.special' not in sys.modules, 'scipy.special loaded at import'; "
         "import scipy.stats; from analysis.boundary import fit; "
@@ -349,14 +349,18 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 def package_of_module(module: str) -> str:
     """The package ``module`` counts in for the rule that packages form no circle: each
-    sub-package of analysis is one (``analysis.recordings``, ``analysis.complexity``, ...); a
-    module directly in analysis/ (a command that stands alone, or a shared helper such as
-    ``analysis.stats``) counts alone; vdc, avdm and capture are one each; the facade and the
-    command line, which may import every layer, count apart from the package they sit in."""
+    sub-package of analysis is one (``analysis.recordings``, ``analysis.complexity``, ...), and
+    so is each of the experiments' (``analysis.experiments.paper``, ``.collision``, ``.power``);
+    a module directly in analysis/ or analysis/experiments/ (a command that stands alone, or a
+    shared helper such as ``analysis.stats`` or ``analysis.experiments.captures``) counts alone;
+    vdc, avdm and capture are one each; the facade and the command line, which may import every
+    layer, count apart from the package they sit in."""
     layer = layer_of(module)
     if layer in ("facade", "analysis.cli"):
         return layer
     parts = module.split(".")
+    if parts[:2] == ["analysis", "experiments"]:
+        return ".".join(parts[:3])
     return ".".join(parts[:2]) if parts[0] == "analysis" and len(parts) > 1 else parts[0]
 
 
@@ -475,8 +479,13 @@ _CLEAN = {
     "analysis.recordings.reader": "import json\n",
     "analysis.recordings.views": "from analysis.recordings.reader import json\n",
     "analysis.complexity.command": "from analysis.recordings.reader import json\n",
-    "analysis.experiments.plan": "from capture.sim import json\n",
-    "analysis.cli": "def cmd():\n    from analysis.experiments.plan import json\n    return json\n",
+    "analysis.experiments.paper.plan": "from capture.sim import json\n",
+    "analysis.experiments.collision.runs": "from capture.sim import json\n",
+    "analysis.experiments.collision.footage": "import json\n",
+    "analysis.experiments.power.study": "from analysis.experiments.collision.runs import json\n",
+    "analysis.cli": (
+        "def cmd():\n    from analysis.experiments.paper.plan import json\n    return json\n"
+    ),
 }
 
 
@@ -485,7 +494,7 @@ VIOLATIONS = {
     "layers": [
         ("capture.run", "import vdc.catalog"),  # capture reaching analysis through the facade
         ("vdc.recording", "from vdc import _API"),  # the base importing the facade
-        ("analysis.profile", "from analysis.experiments.plan import json"),
+        ("analysis.profile", "from analysis.experiments.paper.plan import json"),
         ("analysis.profile", "import capture.sim"),
         ("avdm.base", "from vdc.recording import json"),
         ("vdc.recording", "import importlib; importlib.import_module('capture.sim')"),
@@ -498,6 +507,8 @@ VIOLATIONS = {
         ("analysis.recordings.views", "def f():\n    import analysis.complexity.command"),
         ("analysis.recordings.views", "from ..complexity.command import json"),
         ("analysis.recordings.views", "def f():\n    from ..complexity import command"),
+        # the experiments' packages count apart: collision -> power -> collision
+        ("analysis.experiments.collision.footage", "from ..power.study import json"),
     ],
     "avdm": [
         ("avdm.base", "import rerun as rr"),
@@ -538,7 +549,7 @@ def test_stated_reasons_and_allowed_edges_pass_the_rules() -> None:
     lazy = "def f():\n    import rerun_cli  # lazy: optional extra\n    return rerun_cli\n"
     sources = {**_CLEAN, "analysis.catalog.build": _CLEAN["analysis.catalog.build"] + lazy}
     graph = import_graph(sources)
-    assert "analysis.experiments.plan" in graph["analysis.cli"]
+    assert "analysis.experiments.paper.plan" in graph["analysis.cli"]
     assert not layer_violations(graph) and not unreasoned_imports(sources)
     assert not avdm_violations(sources) and "read_text" in sources["avdm.policy"]
     # a relative import inside one package, or down into another, closes no circle; and the
@@ -760,7 +771,7 @@ def misplaced_tests(paths: list[str], packages: dict[str, set[str]]) -> list[str
     """The rule of docs/development.md: a test file under tests/analysis/ whose name starts
     with a package's name (or its singular: ``test_predictor_coverage``) sits in that package's
     folder; a file left in tests/analysis/ itself (a stand-alone module's test, or one of several
-    commands) is not named after a module of a package (``test_power*``: experiments/power.py);
+    commands) is not named after a module of a package (``test_footage``: boundary/footage.py);
     and every folder under tests/analysis/ is a package's."""
     bad = []
     for path in paths:

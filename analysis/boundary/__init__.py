@@ -5,7 +5,7 @@ the boundary per scene, the result) → ``fit`` (the fitted success curve, its c
 interval) → ``plot`` and ``report_tables`` (the figure and the report). ``footage`` is the
 labelled-footage mode, ``footage_predictors`` its per-frame predictor tables. The arena campaign
 itself records simulated runs, so it lives with the experiments:
-``analysis.experiments.boundary_campaign.boundary`` (``vdc.boundary``).
+``analysis.experiments.collision.boundary_campaign.boundary`` (``vdc.boundary``).
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ as ``policy.csv``.
 
 This module holds the settings, the measurements and statistics, the boundary,
 the figure and the report; the campaign that records the arena's runs is
-:mod:`analysis.experiments.boundary_campaign` (the command's entry, :func:`boundary`), the
+:mod:`analysis.experiments.collision.boundary_campaign` (the command's entry, :func:`boundary`), the
 footage mode :mod:`analysis.boundary.footage`.
 """
 
@@ -208,7 +208,7 @@ class BoundarySettings(ExecutorSettings):
     design: str = option(
         "grid",
         "arena: grid = every --tf x seed; adaptive = batches of runs along --tf-range placed "
-        "where the boundary is most uncertain (analysis.experiments.adaptive)",
+        "where the boundary is most uncertain (analysis.experiments.collision.adaptive)",
         choices=DESIGNS,
     )
     budget: int = option(

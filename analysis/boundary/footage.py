@@ -280,7 +280,7 @@ def share_row(name: str, flags: pl.Series) -> dict[str, float]:
 
 
 def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> BoundaryResult:
-    """Footage mode of :func:`analysis.experiments.boundary_campaign.boundary`."""
+    """Footage mode of :func:`analysis.experiments.collision.boundary_campaign.boundary`."""
 
     if s.fov_deg is None:
         raise UserError("footage mode needs --fov-deg (the camera's horizontal field of view)")

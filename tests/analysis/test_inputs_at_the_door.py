@@ -17,7 +17,7 @@ import pytest
 from analysis.boundary.command import OWN_COLUMNS, BoundarySettings
 from analysis.boundary.labels import clip_length, read_labels
 from analysis.complexity.command import ComplexitySettings, complexity
-from analysis.experiments.boundary_campaign import boundary
+from analysis.experiments.collision.boundary_campaign import boundary
 from analysis.recordings.recompute import TablesSettings, tables
 from avdm.base import FRAME_TABLE_COLUMNS
 from capture.config import CameraConfig

@@ -18,9 +18,9 @@ continuous TF range (``--tf-range LO:HI``), in batches, where the boundary is st
    boundary is placed beyond or below the range at 95 %, or at ``--budget`` runs.
 
 Runs are recorded and measured on the executors exactly as the grid's
-(``analysis.experiments.boundary_campaign.run_grid``: finished runs reused). The placement draws
-from a generator seeded by ``--seed`` and reused runs give the same rows, so a re-run places the
-same runs and records only what is missing. Each run is its own condition
+(``analysis.experiments.collision.boundary_campaign.run_grid``: finished runs reused). The
+placement draws from a generator seeded by ``--seed`` and reused runs give the same rows, so a
+re-run places the same runs and records only what is missing. Each run is its own condition
 (``<scene>-tf<TF>``) with its own seed (``--seed`` + its index among the value's runs).
 
 :func:`design_runs` is the loop alone, with the runs made by a function it is given: the
@@ -414,8 +414,8 @@ def adaptive_boundary(
     s: BoundarySettings, out: Path, run_grid: Callable[..., pl.DataFrame], feedback: Feedback
 ) -> BoundaryResult:
     """Arena mode with ``--design adaptive``, recording with the grid's ``run_grid``
-    (:func:`analysis.experiments.boundary_campaign.run_grid`, passed in by the command's entry,
-    which imports this module): the profile, the batches, the fits; writes the
+    (:func:`analysis.experiments.collision.boundary_campaign.run_grid`, passed in by the
+    command's entry, which imports this module): the profile, the batches, the fits; writes the
     same files as the grid (``boundary.md``, ``boundary.png``, ``boundary_runs.parquet``: one
     row per run the design placed, ``boundary.parquet`` with the fitted columns,
     ``boundary_profiles.parquet``, ``policy.csv``)."""

@@ -29,7 +29,6 @@ from analysis.boundary.command import (
 from analysis.boundary.fit import grid_fits, with_fit
 from analysis.boundary.footage import footage_boundary
 from analysis.boundary.policy import fit_policy
-from analysis.experiments.adaptive import adaptive_boundary
 from analysis.experiments.captures import (
     RunItem,
     capture_is_done,
@@ -37,7 +36,8 @@ from analysis.experiments.captures import (
     collision_run_item,
     profiling_items,
 )
-from analysis.experiments.predictor_runs import (
+from analysis.experiments.collision.adaptive import adaptive_boundary
+from analysis.experiments.collision.predictor_runs import (
     arena_predictor_tables,
     cached_measures,
     measures_table,
@@ -177,7 +177,7 @@ def run_profiles(
 ) -> tuple[pl.DataFrame, pl.DataFrame | None]:
     """:func:`run_grid` of the profiling runs, and (``measure_every`` > 0) every complexity
     measure of each, taken by the worker that recorded it
-    (:func:`analysis.experiments.predictor_runs.measures_table`; else None)."""
+    (:func:`analysis.experiments.collision.predictor_runs.measures_table`; else None)."""
     rows = _record_all(items, "profile", executor, 0.0, feedback, measure_every)
     got = {r["key"]: r.pop("measures") for r in rows if "measures" in r}
     measures = None

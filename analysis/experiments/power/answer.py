@@ -1,4 +1,4 @@
-"""The answer of ``vdc-analyse power-study`` (:mod:`analysis.experiments.power_study`), from
+"""The answer of ``vdc-analyse power-study`` (:mod:`analysis.experiments.power.study`), from
 the tables its studies wrote.
 
 * ``primary.parquet``: per study (source, detector), the primary comparison named in advance

@@ -14,7 +14,7 @@ import polars as pl
 import scipy.special
 
 from analysis.boundary.command import BoundarySettings
-from analysis.experiments.adaptive import (
+from analysis.experiments.collision.adaptive import (
     DesignSettings,
     DesignSpace,
     ProfileMap,

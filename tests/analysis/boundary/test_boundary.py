@@ -12,8 +12,8 @@ import polars as pl
 import pytest
 
 from analysis.boundary.command import OWN_COLUMNS, BoundarySettings, find_boundary
-from analysis.experiments.adaptation import AdaptationSettings, adaptation
-from analysis.experiments.boundary_campaign import boundary
+from analysis.experiments.collision.adaptation import AdaptationSettings, adaptation
+from analysis.experiments.collision.boundary_campaign import boundary
 from analysis.recordings.reader import Recording
 from avdm.policy import load_policy
 from tests.figures import assert_figure, recording_figures

@@ -13,7 +13,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from analysis.boundary.command import BoundarySettings
-from analysis.experiments.boundary_campaign import boundary
+from analysis.experiments.collision.boundary_campaign import boundary
 from tests.figures import assert_figure, recording_figures
 from tests.footage_clips import COLLISION_FRAME, FPS, write_collection
 from tests.helpers import assert_one_line_error
