@@ -323,7 +323,7 @@ COMMANDS = {
         inputs=_inputs("results/collision-study", None),
     ),
     "boundary": Command(
-        "analysis.boundary.command:BoundarySettings",
+        "analysis.boundary.settings:BoundarySettings",
         _campaign("analysis.experiments.collision.boundary_campaign:boundary", "run"),
         "where a detector breaks as complexity rises (arena grid or labelled footage)",
         "Arena: closed-loop runs over scene x TF x --param values x seeds (finished runs "

@@ -42,7 +42,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from analysis.boundary.command import BoundarySettings
+from analysis.boundary.settings import BoundarySettings
 from analysis.experiments.collision.boundary_campaign import boundary, grid_items
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
@@ -190,8 +190,8 @@ def economy(args: argparse.Namespace) -> None:
 
     import polars as pl
 
-    from analysis.boundary.command import condition_complexity
     from analysis.boundary.fit import grid_fits
+    from analysis.boundary.statistics import condition_complexity
 
     if not args.grid:
         raise SystemExit("--economy needs --grid DIR (a finished default grid)")
@@ -202,7 +202,7 @@ def economy(args: argparse.Namespace) -> None:
     values = (12.0, 45.0)
     runs = runs.filter(pl.col("t_ffi").is_in(values))
     fitted, _ = grid_fits(runs, complexity, "t_ffi", 0.9)
-    from analysis.boundary.command import boundaries, condition_statistics
+    from analysis.boundary.statistics import boundaries, condition_statistics
 
     bracket = boundaries(
         condition_statistics(runs, complexity, ["condition", "t_ffi"]), "t_ffi", 0.9
@@ -251,7 +251,7 @@ def economy_per_scene(args: argparse.Namespace) -> None:
 
     import polars as pl
 
-    from analysis.boundary.command import condition_complexity
+    from analysis.boundary.statistics import condition_complexity
     from analysis.experiments.collision.adaptive import grid_fits_per_scene
 
     if not args.grid:

@@ -33,9 +33,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from analysis.boundary.command import BoundarySettings
 from analysis.boundary.footage import clip_task
 from analysis.boundary.footage_predictors import clip_frames_task
+from analysis.boundary.settings import BoundarySettings
 from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.experiments.captures import profiling_items
 from analysis.experiments.collision.boundary_campaign import grid_items, record_and_measure

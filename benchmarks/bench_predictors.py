@@ -56,7 +56,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
 
-    from analysis.boundary.command import BoundarySettings
+    from analysis.boundary.settings import BoundarySettings
     from avdm.registry import make_model
     from vdc.recording import camera_model_context
 

@@ -78,7 +78,7 @@ _API = {
     "ReproduceSettings": "analysis.experiments.paper.plan",
     "reproduce": "analysis.experiments.paper.reproduce",
     # where a detector breaks, and a learnt policy tested where it was not learnt
-    "BoundarySettings": "analysis.boundary.command",
+    "BoundarySettings": "analysis.boundary.settings",
     "boundary": "analysis.experiments.collision.boundary_campaign",
     "AdaptationSettings": "analysis.experiments.collision.adaptation",
     "adaptation": "analysis.experiments.collision.adaptation",

@@ -5,7 +5,7 @@
 
 from analysis.experiments.collision.adaptation import AdaptationSettings as AdaptationSettings
 from analysis.batch import BatchSettings as BatchSettings
-from analysis.boundary.command import BoundarySettings as BoundarySettings
+from analysis.boundary.settings import BoundarySettings as BoundarySettings
 from analysis.experiments.paper.calibrate import CalibrateSettings as CalibrateSettings
 from capture.campaign import CampaignSettings as CampaignSettings
 from capture.run import CaptureOptions as CaptureOptions

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from analysis.batch import BatchSettings, batch
-from analysis.boundary.command import BoundarySettings
+from analysis.boundary.settings import BoundarySettings
 from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.experiments.collision.boundary_campaign import boundary
 from analysis.recordings.recompute import TablesSettings, tables

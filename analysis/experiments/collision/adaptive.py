@@ -40,15 +40,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary.command import (
-    BoundaryResult,
-    BoundarySettings,
-    boundaries,
-    condition_name,
-    condition_statistics,
-    published,
-    write_arena_outputs,
-)
+from analysis.boundary.command import BoundaryResult, published, write_arena_outputs
 from analysis.boundary.fit import (
     CrossingFit,
     dps_to_tf,
@@ -59,6 +51,8 @@ from analysis.boundary.fit import (
 )
 from analysis.boundary.policy import fit_policy
 from analysis.boundary.scenes import scene_fields
+from analysis.boundary.settings import BoundarySettings, condition_name
+from analysis.boundary.statistics import boundaries, condition_statistics
 from analysis.experiments.captures import RunItem, collision_run_item
 from analysis.stats import condition_share_bounds
 from capture.sim import SimSettings
@@ -496,7 +490,7 @@ def _per_scene_outputs(
 
 
 def campaign_conditions(runs: pl.DataFrame, by: str) -> pl.DataFrame:
-    """Per-condition statistics (:func:`analysis.boundary.command.condition_statistics`) of an
+    """Per-condition statistics (:func:`analysis.boundary.statistics.condition_statistics`) of an
     adaptive campaign's runs, each condition at its own interpolated complexity."""
     complexity = runs.select(
         "condition",
@@ -516,8 +510,8 @@ def per_scene_bounds(
     design: str = "adaptive",
 ) -> pl.DataFrame:
     """``boundary.parquet`` per (value, scene): the bracket of that scene's conditions
-    (:func:`analysis.boundary.command.boundaries`), the fitted columns of ``fits[(value, scene)]``
-    (TF through ``to_tf(scene, deg/s)``), the ``design``."""
+    (:func:`analysis.boundary.statistics.boundaries`), the fitted columns of
+    ``fits[(value, scene)]`` (TF through ``to_tf(scene, deg/s)``), the ``design``."""
     parts = []
     for v, sc in fits:
         mine = conditions.filter((pl.col(by) == v) & pl.col("condition").str.starts_with(f"{sc}-"))

@@ -57,8 +57,8 @@ from typing import Any
 
 import polars as pl
 
-from analysis.boundary.command import BoundarySettings
 from analysis.boundary.scenes import PHOTOS
+from analysis.boundary.settings import BoundarySettings
 from analysis.experiments.captures import profiling_items
 from analysis.experiments.collision.boundary_campaign import boundary, finished_row, grid_items
 from analysis.experiments.collision.looming_footage import LoomingFootageSettings, looming_footage

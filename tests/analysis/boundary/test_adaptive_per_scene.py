@@ -13,7 +13,7 @@ import numpy as np
 import polars as pl
 import scipy.special
 
-from analysis.boundary.command import BoundarySettings
+from analysis.boundary.settings import BoundarySettings
 from analysis.experiments.collision.adaptive import (
     DesignSettings,
     DesignSpace,

@@ -11,7 +11,8 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.boundary.command import OWN_COLUMNS, BoundarySettings, find_boundary
+from analysis.boundary.settings import OWN_COLUMNS, BoundarySettings
+from analysis.boundary.statistics import find_boundary
 from analysis.experiments.collision.adaptation import AdaptationSettings, adaptation
 from analysis.experiments.collision.boundary_campaign import boundary
 from analysis.recordings.reader import Recording

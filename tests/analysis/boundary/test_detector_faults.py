@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.boundary.command import BoundarySettings
 from analysis.boundary.fit_text import describe_boundary
 from analysis.boundary.report_tables import interval
+from analysis.boundary.settings import BoundarySettings
 from analysis.experiments.captures import run_captures
 from analysis.experiments.collision.boundary_campaign import boundary
 from avdm.registry import check_detector
