@@ -754,11 +754,19 @@ def test_the_api_stub_is_current() -> None:
 
 # -- the tests mirror the packages ----------------------------------------------------------
 def analysis_packages() -> dict[str, set[str]]:
-    """Each command package of analysis/ (a folder with ``__init__.py``) and its modules."""
-    return {
-        d.name: {p.stem for p in d.glob("*.py") if p.stem != "__init__"}
-        for d in sorted((ROOT / "analysis").iterdir())
+    """Each command package of analysis/ (a folder with ``__init__.py``) and its modules, and
+    each package of analysis/experiments/ (``experiments/paper``, ...) and its modules."""
+    folders = [
+        d
+        for top in (ROOT / "analysis", ROOT / "analysis" / "experiments")
+        for d in sorted(top.iterdir())
         if (d / "__init__.py").is_file()
+    ]
+    return {
+        d.relative_to(ROOT / "analysis").as_posix(): {
+            p.stem for p in d.glob("*.py") if p.stem != "__init__"
+        }
+        for d in folders
     }
 
 
@@ -772,26 +780,47 @@ def misplaced_tests(paths: list[str], packages: dict[str, set[str]]) -> list[str
     with a package's name (or its singular: ``test_predictor_coverage``) sits in that package's
     folder; a file left in tests/analysis/ itself (a stand-alone module's test, or one of several
     commands) is not named after a module of a package (``test_footage``: boundary/footage.py);
-    and every folder under tests/analysis/ is a package's."""
+    and every folder under tests/analysis/ is a package's. The packages of analysis/experiments/
+    (``experiments/power``, ...) are folders of tests/analysis/experiments/: a test there named
+    after one of them or one of its modules sits in its folder, the longest name deciding
+    (``test_collision_study``: ``paper/collision_study.py``, not the package ``collision``)."""
+    top = {p: mods for p, mods in packages.items() if "/" not in p}
+    subs = {p: mods for p, mods in packages.items() if p.startswith("experiments/")}
+    # the modules a flat test may not be named after: a package's, its sub-packages' included
+    deep = {
+        p: set().union(mods, *(m for q, m in subs.items() if q.startswith(p + "/")))
+        for p, mods in top.items()
+    }
     bad = []
     for path in paths:
         parts = path.split("/")
         if parts[:2] != ["tests", "analysis"] or not parts[-1].startswith("test_"):
             continue
         stem = parts[-1].removeprefix("test_").removesuffix(".py")
-        folder = parts[2] if len(parts) == 4 else None
-        if len(parts) > 4 or (folder is not None and folder not in packages):
-            bad.append(f"{path}: tests/analysis/<package>/ is one level, named after a package")
+        folder = "/".join(parts[2:-1]) or None
+        if folder is not None and folder not in packages:
+            bad.append(f"{path}: tests/analysis/<package>/ is named after a package")
             continue
-        owners = [p for p in packages if _named_after(stem, p) or _named_after(stem, p[:-1])]
-        if owners and folder not in owners:
+        top_folder = folder.split("/")[0] if folder else None
+        owners = [p for p in top if _named_after(stem, p) or _named_after(stem, p[:-1])]
+        if owners and top_folder not in owners:
             bad.append(f"{path}: belongs in tests/analysis/{owners[0]}/")
         elif folder is None and not owners:
             modules = sorted(
-                p for p, mods in packages.items() if any(_named_after(stem, m) for m in mods)
+                p for p, mods in deep.items() if any(_named_after(stem, m) for m in mods)
             )
             if modules:
                 bad.append(f"{path}: named after a module of {' or '.join(modules)}: move it there")
+        elif top_folder == "experiments":
+            names = [
+                (name, sub)
+                for sub, mods in subs.items()
+                for name in (sub.rpartition("/")[2], sub.rpartition("/")[2][:-1], *mods)
+                if _named_after(stem, name)
+            ]
+            best = max(names, key=lambda n: len(n[0]), default=None)
+            if best is not None and folder != best[1]:
+                bad.append(f"{path}: belongs in tests/analysis/{best[1]}/")
     return bad
 
 
@@ -803,13 +832,24 @@ def test_the_analysis_tests_sit_in_their_packages_folders() -> None:
 
 
 def test_a_misplaced_analysis_test_is_found() -> None:
-    packages = {"dataset": {"measure", "window"}, "predictors": {"held_out"}}
+    packages = {
+        "dataset": {"measure", "window"},
+        "predictors": {"held_out"},
+        "experiments": {"captures"},
+        "experiments/paper": {"claims", "collision_study"},
+        "experiments/power": {"study"},
+    }
     good = [
         "tests/analysis/dataset/test_dataset_faults.py",
         "tests/analysis/dataset/test_lag_interval.py",  # named after nothing: any folder
         "tests/analysis/predictors/test_predictor_coverage.py",
         "tests/analysis/test_batch.py",  # a stand-alone module's test stays flat
         "tests/analysis/test_measurement_log.py",  # "measure" is not a prefix of "measurement"
+        "tests/analysis/experiments/test_captures.py",
+        "tests/analysis/experiments/paper/test_claims.py",
+        "tests/analysis/experiments/paper/test_collision_study.py",
+        "tests/analysis/experiments/power/test_power_study.py",
+        "tests/analysis/experiments/power/test_study_resume.py",
     ]
     assert not misplaced_tests(good, packages)
     for path in (
@@ -820,6 +860,12 @@ def test_a_misplaced_analysis_test_is_found() -> None:
         "tests/analysis/test_held_out_folds.py",
         "tests/analysis/stats/test_stats.py",  # a folder that is no package
         "tests/analysis/dataset/more/test_x.py",
+        "tests/analysis/test_captures.py",  # flat, named after experiments/captures.py
+        "tests/analysis/experiments/test_claims.py",  # beside its package's folder
+        "tests/analysis/experiments/test_power_study.py",
+        "tests/analysis/experiments/power/test_claims.py",  # another package's folder
+        "tests/analysis/experiments/paper/test_power.py",
+        "tests/analysis/experiments/other/test_x.py",
     ):
         assert misplaced_tests([*good, path], packages), path
 

@@ -12,7 +12,7 @@ import pytest
 from analysis.experiments.paper import report
 from analysis.experiments.paper.claims import Claim, profiling_claims
 from analysis.experiments.paper.plan import ReproduceSettings
-from tests.analysis.experiments.test_claims import _summary
+from tests.analysis.experiments.paper.test_claims import _summary
 
 KEY = re.compile(r"<p class='key'><b>(?:Notation|More notation)\.</b> (.*?)\.</p>", re.S)
 

@@ -324,7 +324,7 @@ def test_the_readme_and_the_findings_index_show_the_committed_answer() -> None:
     until the amended run is committed, say it is pending: no number is invented)."""
     from analysis.experiments.power.findings import FINDINGS, PENDING, result_section, section_in
 
-    root = Path(__file__).resolve().parents[3]  # tests/analysis/experiments/ to the root
+    root = Path(__file__).resolve().parents[4]  # tests/analysis/experiments/power/ to the root
     want = result_section(root / FINDINGS)
     if not (root / FINDINGS / "primary.parquet").exists():
         assert want == PENDING
