@@ -31,7 +31,7 @@ def _notice(msg: str) -> None:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from analysis.experiments.sweep import SweepSettings, sweep
+    from analysis.experiments.paper.sweep import SweepSettings, sweep
     from avdm.registry import canonical_name
 
     settings = settings_from_args(SweepSettings, args)
@@ -43,17 +43,18 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from analysis.experiments.calibrate import MIN_CALIBRATION_R2, CalibrateSettings, calibrate
+    from analysis.experiments.paper import calibrate as fit
 
-    s = settings_from_args(CalibrateSettings, args)
+    s = settings_from_args(fit.CalibrateSettings, args)
     with progress_bar(s.n_cells(), "calibrate") as bar:
-        res = calibrate(s, args.out, progress=bar.update)
+        res = fit.calibrate(s, args.out, progress=bar.update)
     print("\n".join(res.report(s)))
     if not res.usable:
         say(
             f"{PROG} calibrate: error: the fit is poor (R^2 {res.fit.r2:.2f} < "
-            f"{MIN_CALIBRATION_R2}): not offered for use: over this geometry's narrow valid band "
-            "the law explains too little of the response (try a larger --size or a higher --fps)"
+            f"{fit.MIN_CALIBRATION_R2}): not offered for use: over this geometry's narrow "
+            "valid band the law explains too little of the response (try a larger --size or "
+            "a higher --fps)"
         )
         return 1
     return 0
@@ -89,7 +90,7 @@ def cmd_collision(args: argparse.Namespace) -> int:
 
 
 def cmd_collision_study(args: argparse.Namespace) -> int:
-    from analysis.experiments.collision_study import CollisionStudySettings, collision_study
+    from analysis.experiments.paper.collision_study import CollisionStudySettings, collision_study
 
     out = Path(args.out)
     res = collision_study(
@@ -160,8 +161,8 @@ def cmd_catalog(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from analysis.experiments.plan import ReproduceSettings
-    from analysis.experiments.reproduce import reproduce
+    from analysis.experiments.paper.plan import ReproduceSettings
+    from analysis.experiments.paper.reproduce import reproduce
 
     plan = ReproduceSettings.make(args.quick, **flag_values(ReproduceSettings, args))
     with progress_bar(None, "reproduce", "run") as bar:
@@ -243,7 +244,7 @@ def _summarise_inputs(p: argparse.ArgumentParser) -> None:
 # the sub-commands: each one's flags are its settings dataclass's fields (vdc.cli_support)
 COMMANDS = {
     "sweep": Command(
-        "analysis.experiments.sweep:SweepSettings",
+        "analysis.experiments.paper.sweep:SweepSettings",
         cmd_sweep,
         "response to drifting gratings over SF and TF (paper Fig. 3)",
         "Reproduce paper Fig. 3: the AVDM's response to drifting sine gratings at 100x100 px "
@@ -255,7 +256,7 @@ COMMANDS = {
         models=True,
     ),
     "calibrate": Command(
-        "analysis.experiments.calibrate:CalibrateSettings",
+        "analysis.experiments.paper.calibrate:CalibrateSettings",
         cmd_calibrate,
         "least-squares fit of the AVDM decoding constants (a, b)",
         "Fit omega = a * lambda^b * (1+C)/(2C) * sqrt(Rbar) against the true angular velocity "
@@ -311,7 +312,7 @@ COMMANDS = {
         inputs=_inputs("results/collision", "collision-mode .rrd files"),
     ),
     "collision-study": Command(
-        "analysis.experiments.collision_study:CollisionStudySettings",
+        "analysis.experiments.paper.collision_study:CollisionStudySettings",
         cmd_collision_study,
         "record and analyse the three-phase collision protocol (+ adaptive detector)",
         "Run the paper's protocol in simulation: TF 0, TF 3 Hz, and TF 3 Hz with the adjusted "
@@ -322,8 +323,8 @@ COMMANDS = {
         inputs=_inputs("results/collision-study", None),
     ),
     "boundary": Command(
-        "analysis.boundary.command:BoundarySettings",
-        _campaign("analysis.experiments.boundary_campaign:boundary", "run"),
+        "analysis.boundary.settings:BoundarySettings",
+        _campaign("analysis.experiments.collision.boundary_campaign:boundary", "run"),
         "where a detector breaks as complexity rises (arena grid or labelled footage)",
         "Arena: closed-loop runs over scene x TF x --param values x seeds (finished runs "
         "reused), each condition profiled with the AVDM; per condition, success, avoidances, "
@@ -336,8 +337,8 @@ COMMANDS = {
         inputs=_inputs("results/boundary", None),
     ),
     "looming-footage": Command(
-        "analysis.experiments.looming_footage:LoomingFootageSettings",
-        _campaign("analysis.experiments.looming_footage:looming_footage", "clip"),
+        "analysis.experiments.collision.looming_footage:LoomingFootageSettings",
+        _campaign("analysis.experiments.collision.looming_footage:looming_footage", "clip"),
         "render a labelled collection of looming clips over real photographs",
         "Render --clips H.264 clips of an object approaching over scikit-image's photographs "
         "(camera yaw, contrast, light, noise; collisions and near misses) and labels.csv with "
@@ -345,15 +346,15 @@ COMMANDS = {
         inputs=_inputs("footage/looming", None),
     ),
     "power-study": Command(
-        "analysis.experiments.power_study:PowerStudySettings",
-        _campaign("analysis.experiments.power_study:power_study", "run"),
+        "analysis.experiments.power.study:PowerStudySettings",
+        _campaign("analysis.experiments.power.study:power_study", "run"),
         "re-run the pre-registered plan (docs/findings/power_plan.md) anew and write its answer",
         "The plan's studies, resumed, then answer.md; --quick: a minute, not findings.",
         inputs=_inputs("results/power-study", None),
     ),
     "adaptation": Command(
-        "analysis.experiments.adaptation:AdaptationSettings",
-        _campaign("analysis.experiments.adaptation:adaptation", "run"),
+        "analysis.experiments.collision.adaptation:AdaptationSettings",
+        _campaign("analysis.experiments.collision.adaptation:adaptation", "run"),
         "test a learnt policy on held-out conditions against the hand-made controllers",
         "Closed-loop runs on held-out wall TFs, scenes and a TF schedule changing mid-run, "
         "with the detector as is, the paper's hand threshold (--hand), vdc's adaptive rule "
@@ -425,7 +426,7 @@ COMMANDS = {
         inputs=_catalog_inputs,
     ),
     "reproduce": Command(
-        "analysis.experiments.plan:ReproduceSettings",
+        "analysis.experiments.paper.plan:ReproduceSettings",
         cmd_reproduce,
         "reproduce the paper end to end and write a claim-by-claim report",
         "Run the SF-TF sweep, the open-loop approach, closed-loop profiling (grating TF 0, 1, "

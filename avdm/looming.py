@@ -1,6 +1,6 @@
 """Looming at a known time to contact, rendered over a photograph: the truth the flow
 time-to-contact detector (:mod:`avdm.flow_ttc`) is tested against and the frames the footage
-generator (``analysis.experiments.looming_footage``) encodes.
+generator (``analysis.experiments.collision.looming_footage``) encodes.
 
 Geometry (a pinhole camera of horizontal field of view ``hfov_deg`` on a ``(H, W)`` raster,
 focal length ``f = (W / 2) / tan(hfov / 2)`` px):

@@ -42,8 +42,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from analysis.boundary.command import BoundarySettings
-from analysis.experiments.boundary_campaign import boundary, grid_items
+from analysis.boundary.settings import BoundarySettings
+from analysis.experiments.collision.boundary_campaign import boundary, grid_items
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
 
@@ -140,7 +140,12 @@ def coverage(repeats: int = 20, spread: float = 0.3, slope: float = 0.5) -> None
     import numpy as np
     import scipy.special
 
-    from analysis.experiments.adaptive import DesignSettings, DesignSpace, ProfileMap, design_runs
+    from analysis.experiments.collision.adaptive import (
+        DesignSettings,
+        DesignSpace,
+        ProfileMap,
+        design_runs,
+    )
 
     s = BoundarySettings(design="adaptive")
     profile = ProfileMap({k: (np.array(a), np.array(b)) for k, (a, b) in PROFILE.items()})
@@ -185,8 +190,8 @@ def economy(args: argparse.Namespace) -> None:
 
     import polars as pl
 
-    from analysis.boundary.command import condition_complexity
     from analysis.boundary.fit import grid_fits
+    from analysis.boundary.statistics import condition_complexity
 
     if not args.grid:
         raise SystemExit("--economy needs --grid DIR (a finished default grid)")
@@ -197,7 +202,7 @@ def economy(args: argparse.Namespace) -> None:
     values = (12.0, 45.0)
     runs = runs.filter(pl.col("t_ffi").is_in(values))
     fitted, _ = grid_fits(runs, complexity, "t_ffi", 0.9)
-    from analysis.boundary.command import boundaries, condition_statistics
+    from analysis.boundary.statistics import boundaries, condition_statistics
 
     bracket = boundaries(
         condition_statistics(runs, complexity, ["condition", "t_ffi"]), "t_ffi", 0.9
@@ -240,13 +245,14 @@ def economy(args: argparse.Namespace) -> None:
 
 def economy_per_scene(args: argparse.Namespace) -> None:
     """``--economy --per-scene``: the per-scene design's campaign against the grid's per-scene
-    fit (:func:`analysis.experiments.adaptive.grid_fits_per_scene`), judged per (T_ffi, scene)."""
+    fit (:func:`analysis.experiments.collision.adaptive.grid_fits_per_scene`), judged per
+    (T_ffi, scene)."""
     import math
 
     import polars as pl
 
-    from analysis.boundary.command import condition_complexity
-    from analysis.experiments.adaptive import grid_fits_per_scene
+    from analysis.boundary.statistics import condition_complexity
+    from analysis.experiments.collision.adaptive import grid_fits_per_scene
 
     if not args.grid:
         raise SystemExit("--economy needs --grid DIR (a finished default grid)")

@@ -27,7 +27,7 @@ import numpy as np
 import polars as pl
 from scipy.stats import spearmanr
 
-from analysis.boundary.command import WARMUP_FRAMES
+from analysis.boundary.statistics import WARMUP_FRAMES
 from analysis.complexity.meter import DIS_PRESETS
 from analysis.recordings.loading import load_recording
 from vdc.frame_metrics import NativeMeter

@@ -33,14 +33,14 @@ import tempfile
 import time
 from pathlib import Path
 
-from analysis.boundary.command import BoundarySettings
 from analysis.boundary.footage import clip_task
 from analysis.boundary.footage_predictors import clip_frames_task
+from analysis.boundary.settings import BoundarySettings
 from analysis.complexity.command import ComplexitySettings, complexity
-from analysis.experiments.boundary_campaign import grid_items, record_and_measure
 from analysis.experiments.captures import profiling_items
-from analysis.experiments.looming_footage import LoomingFootageSettings, looming_footage
-from analysis.experiments.power_study import PLANS
+from analysis.experiments.collision.boundary_campaign import grid_items, record_and_measure
+from analysis.experiments.collision.looming_footage import LoomingFootageSettings, looming_footage
+from analysis.experiments.power.study import PLANS
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
 

@@ -36,7 +36,7 @@ def time_grid(s, no_predictors: bool) -> float:
     """Seconds of one ``boundary`` run of ``s`` from scratch (a fresh folder, nothing reused)."""
     import dataclasses
 
-    from analysis.experiments.boundary_campaign import boundary
+    from analysis.experiments.collision.boundary_campaign import boundary
 
     folder = Path(tempfile.mkdtemp(prefix="bench-predictors-"))
     try:
@@ -56,13 +56,13 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
 
-    from analysis.boundary.command import BoundarySettings
+    from analysis.boundary.settings import BoundarySettings
     from avdm.registry import make_model
     from vdc.recording import camera_model_context
 
     make_model("avdm-natural", **camera_model_context(99, 72, 33.0, 70.0))  # calibrated once
     if args.existing:
-        from analysis.experiments.predictor_runs import predictors_for_folder
+        from analysis.experiments.collision.predictor_runs import predictors_for_folder
 
         folder = Path(args.existing)
         for cache in folder.glob("recordings/profile/**/*.measures.json"):

@@ -71,7 +71,10 @@ def test_looming_footage_prints_a_line_at_least_every_10_s_with_its_count(tmp_pa
 
 def test_a_library_call_prints_when_asked_and_is_quiet_by_default(tmp_path, capfd) -> None:
     import vdc
-    from analysis.experiments.looming_footage import LoomingFootageSettings, looming_footage
+    from analysis.experiments.collision.looming_footage import (
+        LoomingFootageSettings,
+        looming_footage,
+    )
 
     settings = LoomingFootageSettings(clips=4)
     looming_footage(settings, tmp_path / "quiet")

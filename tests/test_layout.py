@@ -173,8 +173,8 @@ def test_scipy_stats_loads_only_where_a_statistic_is_computed() -> None:
     code = (
         "import sys, importlib; "
         "[importlib.import_module(m) for m in ('analysis.cli', 'analysis.complexity.command', "
-        "'analysis.dataset.command', 'analysis.experiments.boundary_campaign', 'capture.cli', "
-        "'analysis.predictors.inference', 'analysis.boundary.fit')]; "
+        "'analysis.dataset.command', 'analysis.experiments.collision.boundary_campaign', "
+        "'capture.cli', 'analysis.predictors.inference', 'analysis.boundary.fit')]; "
         "assert 'scipy.stats' not in sys.modules, 'scipy.stats loaded at import'; "
         "assert 'scipy.special' not in sys.modules, 'scipy.special loaded at import'; "
         "import scipy.stats; from analysis.boundary import fit; "
@@ -349,14 +349,18 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 def package_of_module(module: str) -> str:
     """The package ``module`` counts in for the rule that packages form no circle: each
-    sub-package of analysis is one (``analysis.recordings``, ``analysis.complexity``, ...); a
-    module directly in analysis/ (a command that stands alone, or a shared helper such as
-    ``analysis.stats``) counts alone; vdc, avdm and capture are one each; the facade and the
-    command line, which may import every layer, count apart from the package they sit in."""
+    sub-package of analysis is one (``analysis.recordings``, ``analysis.complexity``, ...), and
+    so is each of the experiments' (``analysis.experiments.paper``, ``.collision``, ``.power``);
+    a module directly in analysis/ or analysis/experiments/ (a command that stands alone, or a
+    shared helper such as ``analysis.stats`` or ``analysis.experiments.captures``) counts alone;
+    vdc, avdm and capture are one each; the facade and the command line, which may import every
+    layer, count apart from the package they sit in."""
     layer = layer_of(module)
     if layer in ("facade", "analysis.cli"):
         return layer
     parts = module.split(".")
+    if parts[:2] == ["analysis", "experiments"]:
+        return ".".join(parts[:3])
     return ".".join(parts[:2]) if parts[0] == "analysis" and len(parts) > 1 else parts[0]
 
 
@@ -475,8 +479,13 @@ _CLEAN = {
     "analysis.recordings.reader": "import json\n",
     "analysis.recordings.views": "from analysis.recordings.reader import json\n",
     "analysis.complexity.command": "from analysis.recordings.reader import json\n",
-    "analysis.experiments.plan": "from capture.sim import json\n",
-    "analysis.cli": "def cmd():\n    from analysis.experiments.plan import json\n    return json\n",
+    "analysis.experiments.paper.plan": "from capture.sim import json\n",
+    "analysis.experiments.collision.runs": "from capture.sim import json\n",
+    "analysis.experiments.collision.footage": "import json\n",
+    "analysis.experiments.power.study": "from analysis.experiments.collision.runs import json\n",
+    "analysis.cli": (
+        "def cmd():\n    from analysis.experiments.paper.plan import json\n    return json\n"
+    ),
 }
 
 
@@ -485,7 +494,7 @@ VIOLATIONS = {
     "layers": [
         ("capture.run", "import vdc.catalog"),  # capture reaching analysis through the facade
         ("vdc.recording", "from vdc import _API"),  # the base importing the facade
-        ("analysis.profile", "from analysis.experiments.plan import json"),
+        ("analysis.profile", "from analysis.experiments.paper.plan import json"),
         ("analysis.profile", "import capture.sim"),
         ("avdm.base", "from vdc.recording import json"),
         ("vdc.recording", "import importlib; importlib.import_module('capture.sim')"),
@@ -498,6 +507,8 @@ VIOLATIONS = {
         ("analysis.recordings.views", "def f():\n    import analysis.complexity.command"),
         ("analysis.recordings.views", "from ..complexity.command import json"),
         ("analysis.recordings.views", "def f():\n    from ..complexity import command"),
+        # the experiments' packages count apart: collision -> power -> collision
+        ("analysis.experiments.collision.footage", "from ..power.study import json"),
     ],
     "avdm": [
         ("avdm.base", "import rerun as rr"),
@@ -538,7 +549,7 @@ def test_stated_reasons_and_allowed_edges_pass_the_rules() -> None:
     lazy = "def f():\n    import rerun_cli  # lazy: optional extra\n    return rerun_cli\n"
     sources = {**_CLEAN, "analysis.catalog.build": _CLEAN["analysis.catalog.build"] + lazy}
     graph = import_graph(sources)
-    assert "analysis.experiments.plan" in graph["analysis.cli"]
+    assert "analysis.experiments.paper.plan" in graph["analysis.cli"]
     assert not layer_violations(graph) and not unreasoned_imports(sources)
     assert not avdm_violations(sources) and "read_text" in sources["avdm.policy"]
     # a relative import inside one package, or down into another, closes no circle; and the
@@ -743,11 +754,19 @@ def test_the_api_stub_is_current() -> None:
 
 # -- the tests mirror the packages ----------------------------------------------------------
 def analysis_packages() -> dict[str, set[str]]:
-    """Each command package of analysis/ (a folder with ``__init__.py``) and its modules."""
-    return {
-        d.name: {p.stem for p in d.glob("*.py") if p.stem != "__init__"}
-        for d in sorted((ROOT / "analysis").iterdir())
+    """Each command package of analysis/ (a folder with ``__init__.py``) and its modules, and
+    each package of analysis/experiments/ (``experiments/paper``, ...) and its modules."""
+    folders = [
+        d
+        for top in (ROOT / "analysis", ROOT / "analysis" / "experiments")
+        for d in sorted(top.iterdir())
         if (d / "__init__.py").is_file()
+    ]
+    return {
+        d.relative_to(ROOT / "analysis").as_posix(): {
+            p.stem for p in d.glob("*.py") if p.stem != "__init__"
+        }
+        for d in folders
     }
 
 
@@ -760,27 +779,48 @@ def misplaced_tests(paths: list[str], packages: dict[str, set[str]]) -> list[str
     """The rule of docs/development.md: a test file under tests/analysis/ whose name starts
     with a package's name (or its singular: ``test_predictor_coverage``) sits in that package's
     folder; a file left in tests/analysis/ itself (a stand-alone module's test, or one of several
-    commands) is not named after a module of a package (``test_power*``: experiments/power.py);
-    and every folder under tests/analysis/ is a package's."""
+    commands) is not named after a module of a package (``test_footage``: boundary/footage.py);
+    and every folder under tests/analysis/ is a package's. The packages of analysis/experiments/
+    (``experiments/power``, ...) are folders of tests/analysis/experiments/: a test there named
+    after one of them or one of its modules sits in its folder, the longest name deciding
+    (``test_collision_study``: ``paper/collision_study.py``, not the package ``collision``)."""
+    top = {p: mods for p, mods in packages.items() if "/" not in p}
+    subs = {p: mods for p, mods in packages.items() if p.startswith("experiments/")}
+    # the modules a flat test may not be named after: a package's, its sub-packages' included
+    deep = {
+        p: set().union(mods, *(m for q, m in subs.items() if q.startswith(p + "/")))
+        for p, mods in top.items()
+    }
     bad = []
     for path in paths:
         parts = path.split("/")
         if parts[:2] != ["tests", "analysis"] or not parts[-1].startswith("test_"):
             continue
         stem = parts[-1].removeprefix("test_").removesuffix(".py")
-        folder = parts[2] if len(parts) == 4 else None
-        if len(parts) > 4 or (folder is not None and folder not in packages):
-            bad.append(f"{path}: tests/analysis/<package>/ is one level, named after a package")
+        folder = "/".join(parts[2:-1]) or None
+        if folder is not None and folder not in packages:
+            bad.append(f"{path}: tests/analysis/<package>/ is named after a package")
             continue
-        owners = [p for p in packages if _named_after(stem, p) or _named_after(stem, p[:-1])]
-        if owners and folder not in owners:
+        top_folder = folder.split("/")[0] if folder else None
+        owners = [p for p in top if _named_after(stem, p) or _named_after(stem, p[:-1])]
+        if owners and top_folder not in owners:
             bad.append(f"{path}: belongs in tests/analysis/{owners[0]}/")
         elif folder is None and not owners:
             modules = sorted(
-                p for p, mods in packages.items() if any(_named_after(stem, m) for m in mods)
+                p for p, mods in deep.items() if any(_named_after(stem, m) for m in mods)
             )
             if modules:
                 bad.append(f"{path}: named after a module of {' or '.join(modules)}: move it there")
+        elif top_folder == "experiments":
+            names = [
+                (name, sub)
+                for sub, mods in subs.items()
+                for name in (sub.rpartition("/")[2], sub.rpartition("/")[2][:-1], *mods)
+                if _named_after(stem, name)
+            ]
+            best = max(names, key=lambda n: len(n[0]), default=None)
+            if best is not None and folder != best[1]:
+                bad.append(f"{path}: belongs in tests/analysis/{best[1]}/")
     return bad
 
 
@@ -792,13 +832,24 @@ def test_the_analysis_tests_sit_in_their_packages_folders() -> None:
 
 
 def test_a_misplaced_analysis_test_is_found() -> None:
-    packages = {"dataset": {"measure", "window"}, "predictors": {"held_out"}}
+    packages = {
+        "dataset": {"measure", "window"},
+        "predictors": {"held_out"},
+        "experiments": {"captures"},
+        "experiments/paper": {"claims", "collision_study"},
+        "experiments/power": {"study"},
+    }
     good = [
         "tests/analysis/dataset/test_dataset_faults.py",
         "tests/analysis/dataset/test_lag_interval.py",  # named after nothing: any folder
         "tests/analysis/predictors/test_predictor_coverage.py",
         "tests/analysis/test_batch.py",  # a stand-alone module's test stays flat
         "tests/analysis/test_measurement_log.py",  # "measure" is not a prefix of "measurement"
+        "tests/analysis/experiments/test_captures.py",
+        "tests/analysis/experiments/paper/test_claims.py",
+        "tests/analysis/experiments/paper/test_collision_study.py",
+        "tests/analysis/experiments/power/test_power_study.py",
+        "tests/analysis/experiments/power/test_study_resume.py",
     ]
     assert not misplaced_tests(good, packages)
     for path in (
@@ -809,6 +860,12 @@ def test_a_misplaced_analysis_test_is_found() -> None:
         "tests/analysis/test_held_out_folds.py",
         "tests/analysis/stats/test_stats.py",  # a folder that is no package
         "tests/analysis/dataset/more/test_x.py",
+        "tests/analysis/test_captures.py",  # flat, named after experiments/captures.py
+        "tests/analysis/experiments/test_claims.py",  # beside its package's folder
+        "tests/analysis/experiments/test_power_study.py",
+        "tests/analysis/experiments/power/test_claims.py",  # another package's folder
+        "tests/analysis/experiments/paper/test_power.py",
+        "tests/analysis/experiments/other/test_x.py",
     ):
         assert misplaced_tests([*good, path], packages), path
 

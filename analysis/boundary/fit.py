@@ -448,7 +448,7 @@ def fit_columns(fit: CrossingFit, to_tf: Any = None) -> dict[str, Any]:
 
 
 def with_fit(bounds: pl.DataFrame, fitted: pl.DataFrame, by: str, design: str) -> pl.DataFrame:
-    """The bracketing boundaries (:func:`analysis.boundary.command.boundaries`: ``where``,
+    """The bracketing boundaries (:func:`analysis.boundary.statistics.boundaries`: ``where``,
     ``boundary_low_dps``, ``boundary_high_dps``; its interpolated point renamed
     ``bracket_dps``) with the fitted columns (:func:`fit_columns`) beside them, and the
     ``design``."""

@@ -45,21 +45,15 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary.command import (
-    WARMUP_FRAMES,
-    BoundaryResult,
-    BoundarySettings,
-    boundaries,
-    number_list,
-    published,
-    with_override,
-)
+from analysis.boundary.command import BoundaryResult, published
 from analysis.boundary.fit import fit_columns, fit_crossing, with_fit
 from analysis.boundary.fit_text import describe_boundary, fit_section
 from analysis.boundary.footage_predictors import footage_predictor_tables, scene_end
 from analysis.boundary.labels import read_labels
 from analysis.boundary.plot import plot_boundary
 from analysis.boundary.report_tables import interval, markdown_table
+from analysis.boundary.settings import BoundarySettings, number_list, with_override
+from analysis.boundary.statistics import WARMUP_FRAMES, boundaries
 from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.complexity.meter import METRICS
 from analysis.stats import mean_ci, share_ci
@@ -280,7 +274,7 @@ def share_row(name: str, flags: pl.Series) -> dict[str, float]:
 
 
 def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> BoundaryResult:
-    """Footage mode of :func:`analysis.experiments.boundary_campaign.boundary`."""
+    """Footage mode of :func:`analysis.experiments.collision.boundary_campaign.boundary`."""
 
     if s.fov_deg is None:
         raise UserError("footage mode needs --fov-deg (the camera's horizontal field of view)")

@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary.command import WARMUP_FRAMES, number_list, with_override
+from analysis.boundary.settings import number_list, with_override
+from analysis.boundary.statistics import WARMUP_FRAMES
 from analysis.complexity.command import ComplexitySettings
 from analysis.complexity.meter import METRICS
 from analysis.predictors.report import write_predictors

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import polars as pl
 
-from analysis.boundary.command import run_statistics
+from analysis.boundary.statistics import run_statistics
 from avdm.policy import Policy
 
 

@@ -14,8 +14,8 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from analysis.boundary.command import condition_name, with_override
 from analysis.boundary.scenes import scene_fields
+from analysis.boundary.settings import condition_name, with_override
 from analysis.recordings.reader import Recording, RecordingError
 from avdm.registry import check_detector
 from capture.run import REPLACE_OUTPUT

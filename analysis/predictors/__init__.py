@@ -5,7 +5,7 @@ arena table, ``verdicts`` the units and the verdicts' rules) → ``report`` (the
 and page: ``PredictorResult``). Per frame on labelled footage, footage mode computes them:
 ``analysis.boundary.footage_predictors`` (``footage_predictor_tables``).
 The measures of an arena grid's profiling runs are taken while they are recorded:
-``analysis.experiments.predictor_runs.predictors`` (``vdc.predictors``).
+``analysis.experiments.collision.predictor_runs.predictors`` (``vdc.predictors``).
 """
 
 from __future__ import annotations

@@ -37,7 +37,7 @@ from analysis.stats import ALPHA
 # In the arena, conditions clustered on scenes need MIN_SCENES scenes (the clustered test's
 # validity, as on footage) and MIN_CONDITIONS conditions (docs/findings/
 # power_plan_amendment.md): the scenes carry G m / (1 + (m - 1) ICC) independent units
-# (analysis.experiments.power.design_effect), at least G, so 24 scenes were enough at any ICC;
+# (analysis.experiments.power.sizes.design_effect), at least G, so 24 scenes were enough at any ICC;
 # the amended plan's 23 scenes of 3 TFs carry the 37 its comparison needs up to ICC 0.43,
 # and its answer reports the ICC it met.
 MIN_CONDITIONS = 24

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from analysis.batch import BatchSettings, batch
-from analysis.boundary.command import BoundarySettings
+from analysis.boundary.settings import BoundarySettings
 from analysis.complexity.command import ComplexitySettings, complexity
-from analysis.experiments.boundary_campaign import boundary
+from analysis.experiments.collision.boundary_campaign import boundary
 from analysis.recordings.recompute import TablesSettings, tables
 from capture.sim import SimSettings, record_sim
 from tests.helpers import ROOT, assert_one_line_error, module_on_path, write_video

@@ -14,10 +14,10 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from analysis.boundary.command import OWN_COLUMNS, BoundarySettings
 from analysis.boundary.labels import clip_length, read_labels
+from analysis.boundary.settings import OWN_COLUMNS, BoundarySettings
 from analysis.complexity.command import ComplexitySettings, complexity
-from analysis.experiments.boundary_campaign import boundary
+from analysis.experiments.collision.boundary_campaign import boundary
 from analysis.recordings.recompute import TablesSettings, tables
 from avdm.base import FRAME_TABLE_COLUMNS
 from capture.config import CameraConfig

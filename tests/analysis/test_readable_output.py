@@ -96,8 +96,8 @@ def test_sizes_are_written_width_by_height() -> None:
 
 
 def test_a_quick_reports_verdicts_are_provisional_and_the_full_ones_not() -> None:
-    from analysis.experiments.plan import ReproduceSettings
-    from analysis.experiments.report import provisional_note
+    from analysis.experiments.paper.plan import ReproduceSettings
+    from analysis.experiments.paper.report import provisional_note
 
     quick = provisional_note(ReproduceSettings.make(True))
     assert quick.startswith("Provisional: these verdicts come from a quick run")
@@ -106,8 +106,8 @@ def test_a_quick_reports_verdicts_are_provisional_and_the_full_ones_not() -> Non
 
 
 def test_a_claims_row_gives_its_deciding_numbers_and_marks_the_excluded() -> None:
-    from analysis.experiments.claims import EXCLUDED, Claim, Quantity
-    from analysis.experiments.report import claim_numbers
+    from analysis.experiments.paper.claims import EXCLUDED, Claim, Quantity
+    from analysis.experiments.paper.report import claim_numbers
 
     nan = math.nan
     c = Claim("c", "p", "m", "holds", quantities=[

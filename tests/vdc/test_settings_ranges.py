@@ -17,7 +17,7 @@ from collections.abc import Iterator
 import pytest
 
 import vdc
-from analysis.experiments.looming_footage import LoomingFootageSettings
+from analysis.experiments.collision.looming_footage import LoomingFootageSettings
 from tests.helpers import assert_one_line_error
 from tests.in_process import run_in_process
 from vdc.cli_support import _parser_type, parse_size

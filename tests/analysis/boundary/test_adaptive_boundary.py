@@ -15,8 +15,8 @@ import scipy.special
 
 from analysis.boundary.fit import dps_to_tf, fit_columns, fit_crossing, tf_to_dps
 from analysis.boundary.fit_text import describe_fit
-from analysis.experiments.adaptation import AdaptationSettings
-from analysis.experiments.adaptive import (
+from analysis.experiments.collision.adaptation import AdaptationSettings
+from analysis.experiments.collision.adaptive import (
     DesignSettings,
     DesignSpace,
     ProfileMap,

@@ -13,8 +13,8 @@ import numpy as np
 import polars as pl
 import scipy.special
 
-from analysis.boundary.command import BoundarySettings
-from analysis.experiments.adaptive import (
+from analysis.boundary.settings import BoundarySettings
+from analysis.experiments.collision.adaptive import (
     DesignSettings,
     DesignSpace,
     ProfileMap,

@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from analysis.boundary.command import BoundarySettings
 from analysis.boundary.scenes import scene_fields
+from analysis.boundary.settings import BoundarySettings
 from analysis.experiments.captures import collision_run_item
 
 SCENES = "grating,grating-p0.05,grating-p0.2-c0.3,natural-c0.5,photo-astronaut,photo-grass"

@@ -11,9 +11,10 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.boundary.command import OWN_COLUMNS, BoundarySettings, find_boundary
-from analysis.experiments.adaptation import AdaptationSettings, adaptation
-from analysis.experiments.boundary_campaign import boundary
+from analysis.boundary.settings import OWN_COLUMNS, BoundarySettings
+from analysis.boundary.statistics import find_boundary
+from analysis.experiments.collision.adaptation import AdaptationSettings, adaptation
+from analysis.experiments.collision.boundary_campaign import boundary
 from analysis.recordings.reader import Recording
 from avdm.policy import load_policy
 from tests.figures import assert_figure, recording_figures

@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.boundary.command import BoundarySettings
 from analysis.boundary.fit_text import describe_boundary
 from analysis.boundary.report_tables import interval
-from analysis.experiments.boundary_campaign import boundary
+from analysis.boundary.settings import BoundarySettings
 from analysis.experiments.captures import run_captures
+from analysis.experiments.collision.boundary_campaign import boundary
 from avdm.registry import check_detector
 from capture.sim import SimSettings
 from tests.helpers import ROOT, assert_one_line_error, module_on_path, write_video

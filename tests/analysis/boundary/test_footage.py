@@ -12,8 +12,8 @@ import polars as pl
 import pyarrow.parquet as pq
 import pytest
 
-from analysis.boundary.command import BoundarySettings
-from analysis.experiments.boundary_campaign import boundary
+from analysis.boundary.settings import BoundarySettings
+from analysis.experiments.collision.boundary_campaign import boundary
 from tests.figures import assert_figure, recording_figures
 from tests.footage_clips import COLLISION_FRAME, FPS, write_collection
 from tests.helpers import assert_one_line_error

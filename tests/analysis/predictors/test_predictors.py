@@ -304,7 +304,7 @@ def test_codec_frames_are_ffmpegs_grey_to_yuv420p(shape) -> None:
     faster path measures the same stream."""
     import av
 
-    from analysis.experiments.predictor_runs import yuv420_planes
+    from analysis.experiments.collision.predictor_runs import yuv420_planes
 
     frames = np.random.default_rng(1).integers(0, 256, shape, dtype=np.uint8)
     frames[0, 0, :2] = (0, 255)  # both ends of the range

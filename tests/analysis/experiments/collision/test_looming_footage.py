@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from analysis.boundary.labels import read_labels
-from analysis.experiments.looming_footage import (
+from analysis.experiments.collision.looming_footage import (
     LoomingFootageSettings,
     draw_conditions,
     looming_footage,
@@ -117,7 +117,7 @@ def test_the_amended_collection_has_21_photographs_none_its_own_object() -> None
     """The 2026-12 collection (docs/findings/power_plan_amendment.md): clip k over photograph
     k mod 21, each a package's own photograph file; the looming object is never the clip's
     background; the other draws are the 2026-11 collection's (same generator, same order)."""
-    from analysis.experiments.looming_footage import (
+    from analysis.experiments.collision.looming_footage import (
         PHOTOS_2026_12,
         LoomingFootageSettings,
         _photo,

@@ -21,7 +21,7 @@ from typing import Any
 import polars as pl
 import pyarrow.parquet as pq
 
-from analysis.experiments.power_answer import _fmt, _p, first_paragraph, share_phrase
+from analysis.experiments.power.answer import _fmt, _p, first_paragraph, share_phrase
 
 PUBLISHED = ("answer.md", "primary.parquet", "secondaries.parquet", "per_scene.parquet",
              "studies.parquet")  # fmt: skip
@@ -46,7 +46,7 @@ def publish(out: Path, dest: Path, studies: pl.DataFrame, feedback: Any = None) 
         shutil.copyfile(out / name, tmp)
         tmp.replace(dest / name)
         written.append(dest / name)
-    repo = Path(__file__).resolve().parents[2]
+    repo = Path(__file__).resolve().parents[3]
 
     def git(*args: str) -> str:
         try:

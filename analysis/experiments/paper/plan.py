@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, ClassVar
 
-from analysis.experiments.collision_study import SEEDS_HELP, seed_list
+from analysis.experiments.paper.collision_study import SEEDS_HELP, seed_list
 from vdc.cli_support import option
 from vdc.executors import ExecutorSettings
 from vdc.settings import AT_LEAST_0, AT_LEAST_1, POSITIVE

@@ -14,8 +14,8 @@ from typing import Any
 import polars as pl
 
 from analysis.collision import PAPER, PHASE_STATISTICS
-from analysis.experiments.claims import EXCLUDED, RISE_TEST, Claim, Quantity, claims_frame
-from analysis.experiments.plan import ReproduceSettings
+from analysis.experiments.paper.claims import EXCLUDED, RISE_TEST, Claim, Quantity, claims_frame
+from analysis.experiments.paper.plan import ReproduceSettings
 from vdc.parquet_io import read_metadata
 
 

@@ -34,17 +34,12 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.boundary.command import (
-    condition_complexity,
-    condition_name,
-    condition_statistics,
-    name_list,
-    number_list,
-)
 from analysis.boundary.report_tables import interval, markdown_table
-from analysis.experiments.adaptive import in_fitted_range
-from analysis.experiments.boundary_campaign import run_grid
+from analysis.boundary.settings import condition_name, name_list, number_list
+from analysis.boundary.statistics import condition_complexity, condition_statistics
 from analysis.experiments.captures import RunItem, check_detectors
+from analysis.experiments.collision.adaptive import in_fitted_range
+from analysis.experiments.collision.boundary_campaign import run_grid
 from analysis.stats import mean_ci
 from avdm.policy import load_policy
 from avdm.registry import add_overrides, parse_model_spec

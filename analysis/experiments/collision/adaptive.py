@@ -18,9 +18,9 @@ continuous TF range (``--tf-range LO:HI``), in batches, where the boundary is st
    boundary is placed beyond or below the range at 95 %, or at ``--budget`` runs.
 
 Runs are recorded and measured on the executors exactly as the grid's
-(``analysis.experiments.boundary_campaign.run_grid``: finished runs reused). The placement draws
-from a generator seeded by ``--seed`` and reused runs give the same rows, so a re-run places the
-same runs and records only what is missing. Each run is its own condition
+(``analysis.experiments.collision.boundary_campaign.run_grid``: finished runs reused). The
+placement draws from a generator seeded by ``--seed`` and reused runs give the same rows, so a
+re-run places the same runs and records only what is missing. Each run is its own condition
 (``<scene>-tf<TF>``) with its own seed (``--seed`` + its index among the value's runs).
 
 :func:`design_runs` is the loop alone, with the runs made by a function it is given: the
@@ -40,15 +40,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.boundary.command import (
-    BoundaryResult,
-    BoundarySettings,
-    boundaries,
-    condition_name,
-    condition_statistics,
-    published,
-    write_arena_outputs,
-)
+from analysis.boundary.command import BoundaryResult, published, write_arena_outputs
 from analysis.boundary.fit import (
     CrossingFit,
     dps_to_tf,
@@ -59,6 +51,8 @@ from analysis.boundary.fit import (
 )
 from analysis.boundary.policy import fit_policy
 from analysis.boundary.scenes import scene_fields
+from analysis.boundary.settings import BoundarySettings, condition_name
+from analysis.boundary.statistics import boundaries, condition_statistics
 from analysis.experiments.captures import RunItem, collision_run_item
 from analysis.stats import condition_share_bounds
 from capture.sim import SimSettings
@@ -414,8 +408,8 @@ def adaptive_boundary(
     s: BoundarySettings, out: Path, run_grid: Callable[..., pl.DataFrame], feedback: Feedback
 ) -> BoundaryResult:
     """Arena mode with ``--design adaptive``, recording with the grid's ``run_grid``
-    (:func:`analysis.experiments.boundary_campaign.run_grid`, passed in by the command's entry,
-    which imports this module): the profile, the batches, the fits; writes the
+    (:func:`analysis.experiments.collision.boundary_campaign.run_grid`, passed in by the
+    command's entry, which imports this module): the profile, the batches, the fits; writes the
     same files as the grid (``boundary.md``, ``boundary.png``, ``boundary_runs.parquet``: one
     row per run the design placed, ``boundary.parquet`` with the fitted columns,
     ``boundary_profiles.parquet``, ``policy.csv``)."""
@@ -496,7 +490,7 @@ def _per_scene_outputs(
 
 
 def campaign_conditions(runs: pl.DataFrame, by: str) -> pl.DataFrame:
-    """Per-condition statistics (:func:`analysis.boundary.command.condition_statistics`) of an
+    """Per-condition statistics (:func:`analysis.boundary.statistics.condition_statistics`) of an
     adaptive campaign's runs, each condition at its own interpolated complexity."""
     complexity = runs.select(
         "condition",
@@ -516,8 +510,8 @@ def per_scene_bounds(
     design: str = "adaptive",
 ) -> pl.DataFrame:
     """``boundary.parquet`` per (value, scene): the bracket of that scene's conditions
-    (:func:`analysis.boundary.command.boundaries`), the fitted columns of ``fits[(value, scene)]``
-    (TF through ``to_tf(scene, deg/s)``), the ``design``."""
+    (:func:`analysis.boundary.statistics.boundaries`), the fitted columns of
+    ``fits[(value, scene)]`` (TF through ``to_tf(scene, deg/s)``), the ``design``."""
     parts = []
     for v, sc in fits:
         mine = conditions.filter((pl.col(by) == v) & pl.col("condition").str.starts_with(f"{sc}-"))

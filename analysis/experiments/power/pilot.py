@@ -3,7 +3,7 @@ that the plan's parameter values put 30-50 % of clips in failure (docs/findings/
 
 Each detector runs on every clip as ``vdc-analyse boundary --labels`` runs it (the working
 raster at the robot camera's pitch, the clip's true frame rate); each clip is scored by
-:func:`analysis.experiments.power.footage_outcome` (hit, miss with less than 0.5 s to contact,
+:func:`analysis.experiments.power.sizes.footage_outcome` (hit, miss with less than 0.5 s to contact,
 early alert, false alarm, correct rejection).
 """
 
@@ -16,8 +16,8 @@ import numpy as np
 import polars as pl
 
 from analysis.boundary.footage import detector_alerts
-from analysis.experiments.looming_footage import LoomingFootageSettings, looming_footage
-from analysis.experiments.power import footage_outcome
+from analysis.experiments.collision.looming_footage import LoomingFootageSettings, looming_footage
+from analysis.experiments.power.sizes import footage_outcome
 from vdc.executors import QUIET, Feedback
 
 # the three detectors of the plan, each at a value of its sensitivity parameter

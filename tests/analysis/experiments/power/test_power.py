@@ -1,4 +1,4 @@
-"""The plan's sample sizes (analysis.experiments.power), checked by simulation: at the n they
+"""The plan's sample sizes (analysis.experiments.power.sizes), checked by simulation: at the n they
 give, the test they stand for rejects about ``power`` of the time."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm, rankdata
 
-from analysis.experiments.power import (
+from analysis.experiments.power.sizes import (
     auroc_difference_power,
     clips_for_auroc_difference,
     conditions_for_correlation_difference,
@@ -103,7 +103,7 @@ def test_bad_inputs_are_refused() -> None:
 
 
 def test_footage_outcomes_score_the_failure_modes_apart() -> None:
-    from analysis.experiments.power import footage_outcome
+    from analysis.experiments.power.sizes import footage_outcome
 
     fps, onset, contact = 25.0, 50, 149
     alert = np.zeros(150)
@@ -128,7 +128,7 @@ def test_the_design_effect_of_scenes_against_a_simulated_mean() -> None:
     """Units in scenes of m with a scene effect of variance ICC (total 1): the variance of the
     mean of G m units is DE / (G m), DE = 1 + (m - 1) ICC (Kish), checked on 4000 simulated
     samples (the variance ratio's SE is about 2.2 %; 0.08 is 3.5 SE)."""
-    from analysis.experiments.power import design_effect
+    from analysis.experiments.power.sizes import design_effect
 
     rng = np.random.default_rng(11)
     g, m, icc = 20, 6, 0.3
@@ -144,7 +144,7 @@ def test_scenes_and_units_per_scene_for_the_amended_plan() -> None:
     independent conditions of rho 0.71 against 0.31 (measures correlated 0.5) from 23 scenes
     of 3 TFs hold up to ICC 0.43; footage, 229 independent clips from 21 photographs need 23
     clips each at ICC 0.05 (483 clips) and cannot be had at ICC 0.1 (21 / 0.1 = 210 < 229)."""
-    from analysis.experiments.power import effective_units, per_scene_for, scenes_for
+    from analysis.experiments.power.sizes import effective_units, per_scene_for, scenes_for
 
     arena = conditions_for_correlation_difference(0.71, 0.31, 0.5)
     assert arena == 37

@@ -31,9 +31,9 @@ from analysis.collision import (
     CollisionSettings,
     collision,
 )
-from analysis.experiments.approach import ApproachConfig, plot_approach, run_approach
 from analysis.experiments.captures import CaptureItem, run_captures
-from analysis.experiments.claims import (
+from analysis.experiments.paper.approach import ApproachConfig, plot_approach, run_approach
+from analysis.experiments.paper.claims import (
     CALIBRATED,
     PROFILE_CONDITIONS,
     PROFILE_MODELS,
@@ -41,13 +41,19 @@ from analysis.experiments.claims import (
     claims_frame,
     evaluate_claims,
 )
-from analysis.experiments.collision_study import phase_items, study_phases
-from analysis.experiments.figures import plot_fig6_seeds
-from analysis.experiments.plan import ReproduceSettings
-from analysis.experiments.report import (
+from analysis.experiments.paper.collision_study import phase_items, study_phases
+from analysis.experiments.paper.figures import plot_fig6_seeds
+from analysis.experiments.paper.plan import ReproduceSettings
+from analysis.experiments.paper.report import (
     write_report,
 )
-from analysis.experiments.sweep import SweepConfig, monotonicity, paper_cells, plot_paper, run_sweep
+from analysis.experiments.paper.sweep import (
+    SweepConfig,
+    monotonicity,
+    paper_cells,
+    plot_paper,
+    run_sweep,
+)
 from analysis.profile import plot_overview, plot_segment
 from analysis.recordings.reader import Recording
 from analysis.recordings.recompute import SummarySettings, build_tables, summary_rows

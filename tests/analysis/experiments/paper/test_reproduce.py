@@ -9,7 +9,7 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from analysis.experiments.claims import evaluate_claims
+from analysis.experiments.paper.claims import evaluate_claims
 from tests.figures import assert_figure, figure_env, saved_figures
 from tests.in_process import run_in_process
 

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from analysis.experiments import report
-from analysis.experiments.claims import Claim, profiling_claims
-from analysis.experiments.plan import ReproduceSettings
-from tests.analysis.experiments.test_claims import _summary
+from analysis.experiments.paper import report
+from analysis.experiments.paper.claims import Claim, profiling_claims
+from analysis.experiments.paper.plan import ReproduceSettings
+from tests.analysis.experiments.paper.test_claims import _summary
 
 KEY = re.compile(r"<p class='key'><b>(?:Notation|More notation)\.</b> (.*?)\.</p>", re.S)
 

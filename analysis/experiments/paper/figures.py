@@ -9,7 +9,7 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.experiments.claims import (
+from analysis.experiments.paper.claims import (
     CALIBRATED,
     RELEASED,
     bounds_of,

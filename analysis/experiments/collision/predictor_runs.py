@@ -37,7 +37,8 @@ import cv2
 import numpy as np
 import polars as pl
 
-from analysis.boundary.command import WARMUP_FRAMES, BoundarySettings
+from analysis.boundary.settings import BoundarySettings
+from analysis.boundary.statistics import WARMUP_FRAMES
 from analysis.complexity.meter import DIS_PRESETS
 from analysis.experiments.captures import profiling_items
 from analysis.predictors.arena import arena_predictors

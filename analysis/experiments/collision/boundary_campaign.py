@@ -1,8 +1,7 @@
 """The arena campaign of ``vdc-analyse boundary`` (see :mod:`analysis.boundary.command`):
-closed-loop
-runs over the grid and the profiling runs, recorded on the executors and reused when finished,
-each measured once; and :func:`boundary`, the command's entry, which sends a labelled collection
-to footage mode (:mod:`analysis.boundary.footage`) instead."""
+closed-loop runs over the grid and the profiling runs, recorded on the executors and reused when
+finished, each measured once; and :func:`boundary`, the command's entry, which sends a labelled
+collection to footage mode (:mod:`analysis.boundary.footage`) instead."""
 
 from __future__ import annotations
 
@@ -14,22 +13,19 @@ from typing import Any
 
 import polars as pl
 
-from analysis.boundary.command import (
-    ROW_VERSION,
-    WARMUP_FRAMES,
-    BoundaryResult,
-    BoundarySettings,
-    boundaries,
-    condition_complexity,
-    condition_statistics,
-    published,
-    run_row,
-    write_arena_outputs,
-)
+from analysis.boundary.command import BoundaryResult, published, write_arena_outputs
 from analysis.boundary.fit import grid_fits, with_fit
 from analysis.boundary.footage import footage_boundary
 from analysis.boundary.policy import fit_policy
-from analysis.experiments.adaptive import adaptive_boundary
+from analysis.boundary.settings import BoundarySettings
+from analysis.boundary.statistics import (
+    ROW_VERSION,
+    WARMUP_FRAMES,
+    boundaries,
+    condition_complexity,
+    condition_statistics,
+    run_row,
+)
 from analysis.experiments.captures import (
     RunItem,
     capture_is_done,
@@ -37,7 +33,8 @@ from analysis.experiments.captures import (
     collision_run_item,
     profiling_items,
 )
-from analysis.experiments.predictor_runs import (
+from analysis.experiments.collision.adaptive import adaptive_boundary
+from analysis.experiments.collision.predictor_runs import (
     arena_predictor_tables,
     cached_measures,
     measures_table,
@@ -177,7 +174,7 @@ def run_profiles(
 ) -> tuple[pl.DataFrame, pl.DataFrame | None]:
     """:func:`run_grid` of the profiling runs, and (``measure_every`` > 0) every complexity
     measure of each, taken by the worker that recorded it
-    (:func:`analysis.experiments.predictor_runs.measures_table`; else None)."""
+    (:func:`analysis.experiments.collision.predictor_runs.measures_table`; else None)."""
     rows = _record_all(items, "profile", executor, 0.0, feedback, measure_every)
     got = {r["key"]: r.pop("measures") for r in rows if "measures" in r}
     measures = None

@@ -1,4 +1,4 @@
-"""The answer of ``vdc-analyse power-study`` (:mod:`analysis.experiments.power_study`), from
+"""The answer of ``vdc-analyse power-study`` (:mod:`analysis.experiments.power.study`), from
 the tables its studies wrote.
 
 * ``primary.parquet``: per study (source, detector), the primary comparison named in advance
@@ -30,7 +30,7 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from analysis.boundary.command import WARMUP_FRAMES
+from analysis.boundary.statistics import WARMUP_FRAMES
 from analysis.predictors.inference import holm
 from analysis.predictors.report import label, settings_meta, units_phrase
 from analysis.predictors.statistics import HEADLINE, MEASURES

@@ -11,7 +11,7 @@ do not fail (:func:`move`), recording the move in the studies table (``planned_v
 vdc's version and a hash of the code that scores and measures (:func:`code_key`): where it
 changed, the earlier studies are set aside (renamed, kept) and computed again
 (:func:`set_aside_stale`). ``--publish-findings DIR`` copies the answer with the commit that
-made it (:func:`analysis.experiments.power_findings.publish`).
+made it (:func:`analysis.experiments.power.findings.publish`).
 
 One command runs exactly the plan and writes its answer:
 
@@ -24,7 +24,7 @@ One command runs exactly the plan and writes its answer:
    looming-footage``) into ``OUT/footage/clips``, then footage mode of ``boundary`` for each
    footage detector: ``OUT/footage/<detector>/``; the clips' complexity is measured once and
    its finished parts linked into the next detector's folder;
-3. **the answer** (:mod:`analysis.experiments.power_answer`): ``primary.parquet`` (the AVDM
+3. **the answer** (:mod:`analysis.experiments.power.answer`): ``primary.parquet`` (the AVDM
    against P.910 TI per detector and source, with interval, p and verdict),
    ``secondaries.parquet`` (every other comparison, Holm-corrected within its study),
    ``per_scene.parquet`` and ``per_scene.png`` (where each measure fails to rank the
@@ -57,15 +57,16 @@ from typing import Any
 
 import polars as pl
 
-from analysis.boundary.command import BoundarySettings
 from analysis.boundary.scenes import PHOTOS
-from analysis.experiments.boundary_campaign import boundary, finished_row, grid_items
+from analysis.boundary.settings import BoundarySettings
 from analysis.experiments.captures import profiling_items
-from analysis.experiments.looming_footage import LoomingFootageSettings, looming_footage
-from analysis.experiments.power_answer import write_answer
-from analysis.experiments.power_findings import publish
-from analysis.experiments.power_pilot import footage_pilot
-from analysis.experiments.power_resume import (
+from analysis.experiments.collision.boundary_campaign import boundary, finished_row, grid_items
+from analysis.experiments.collision.looming_footage import LoomingFootageSettings, looming_footage
+from analysis.experiments.collision.predictor_runs import EVERY
+from analysis.experiments.power.answer import write_answer
+from analysis.experiments.power.findings import publish
+from analysis.experiments.power.pilot import footage_pilot
+from analysis.experiments.power.resume import (
     _done,
     _mark,
     _mark_json,
@@ -73,7 +74,6 @@ from analysis.experiments.power_resume import (
     code_key,
     set_aside_stale,
 )
-from analysis.experiments.predictor_runs import EVERY
 from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback, one_pool
@@ -112,8 +112,8 @@ class StudyPlan:
     uninformative: tuple[tuple[str, str, str], ...] = ()  # (source, detector, why)
     min_ttc_s: float = 0.5  # a later first alert is a miss (docs/findings/power_plan.md)
     # an alert earlier than this before contact is early: the object enters 1.5-3 s before
-    # contact (analysis.experiments.looming_footage.ENTER_S), so one earlier than 3 s comes
-    # before any hazard is in view
+    # contact (analysis.experiments.collision.looming_footage.ENTER_S), so one earlier than 3 s
+    # comes before any hazard is in view
     alert_window_s: float = 3.0
 
     def conditions(self) -> int:

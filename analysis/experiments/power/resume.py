@@ -23,13 +23,15 @@ from vdc.executors import ExecutorSettings, Feedback
 # files, never imported: hashing a module is no dependency on it).
 CODE_PATHS = (
     "avdm", "capture", "analysis/boundary", "analysis/complexity", "analysis/predictors",
-    "analysis/experiments/boundary_campaign.py", "analysis/experiments/captures.py",
-    "analysis/experiments/predictor_runs.py", "analysis/experiments/looming_footage.py",
-    "analysis/experiments/power.py", "analysis/experiments/power_pilot.py",
-    "analysis/experiments/power_study.py", "analysis/experiments/power_answer.py",
-    "analysis/experiments/power_resume.py",
+    "analysis/experiments/captures.py",
+    "analysis/experiments/collision/boundary_campaign.py",
+    "analysis/experiments/collision/predictor_runs.py",
+    "analysis/experiments/collision/looming_footage.py",
+    "analysis/experiments/power/sizes.py", "analysis/experiments/power/pilot.py",
+    "analysis/experiments/power/study.py", "analysis/experiments/power/answer.py",
+    "analysis/experiments/power/resume.py",
 )  # fmt: skip
-SOURCE_ROOT = Path(__file__).resolve().parents[2]  # holds analysis/, avdm/, capture/
+SOURCE_ROOT = Path(__file__).resolve().parents[3]  # holds analysis/, avdm/, capture/
 
 
 def code_key(paths: tuple[str, ...] = CODE_PATHS, root: Path = SOURCE_ROOT) -> dict[str, str]:

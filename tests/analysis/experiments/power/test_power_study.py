@@ -15,8 +15,8 @@ import pyarrow.parquet as pq
 import pytest
 import scipy.stats
 
-from analysis.experiments.power_answer import discordant_share, footage_units
-from analysis.experiments.power_study import (
+from analysis.experiments.power.answer import discordant_share, footage_units
+from analysis.experiments.power.study import (
     AMENDED,
     FULL,
     QUICK_AMENDED,
@@ -152,7 +152,7 @@ def test_the_amended_plan_is_the_documented_one() -> None:
 
 
 def test_the_confirmation_moves_a_value_one_step_outside_20_60() -> None:
-    from analysis.experiments.power_study import move
+    from analysis.experiments.power.study import move
 
     assert move(AMENDED, "arena", "flow-ttc", "tau_alert_s", 0.6, 0.38) == (0.6, "")
     assert move(AMENDED, "arena", "flow-ttc", "tau_alert_s", 0.6, 0.1)[0] == 0.4
@@ -168,8 +168,8 @@ def test_the_confirmation_moves_a_value_one_step_outside_20_60() -> None:
 
 
 def test_a_pilot_refuses_the_studys_own_clips(tmp_path: Path) -> None:
-    from analysis.experiments.looming_footage import LoomingFootageSettings
-    from analysis.experiments.power_pilot import footage_pilot
+    from analysis.experiments.collision.looming_footage import LoomingFootageSettings
+    from analysis.experiments.power.pilot import footage_pilot
 
     with pytest.raises(ValueError, match="must not be the study's"):
         footage_pilot(tmp_path, 2, settings=LoomingFootageSettings(seed=0))
@@ -177,7 +177,7 @@ def test_a_pilot_refuses_the_studys_own_clips(tmp_path: Path) -> None:
 
 def test_the_resume_key_holds_the_code(quick) -> None:
     out, _, _ = quick
-    from analysis.experiments.power_study import code_key
+    from analysis.experiments.power.study import code_key
 
     key = code_key()
     assert json.loads((out / "code.json").read_text()) == key
@@ -191,7 +191,7 @@ def test_the_resume_key_holds_the_code(quick) -> None:
 def test_changed_code_sets_the_studies_aside_and_says_so(tmp_path: Path) -> None:
     """A resumed study is reused only with the code that scored it: another code hash sets
     the studies aside (kept, renamed) so that everything is computed again, and says so."""
-    from analysis.experiments.power_study import code_key, set_aside_stale
+    from analysis.experiments.power.study import code_key, set_aside_stale
     from vdc.executors import Feedback
 
     lines: list[str] = []
@@ -206,7 +206,7 @@ def test_changed_code_sets_the_studies_aside_and_says_so(tmp_path: Path) -> None
     assert (tmp_path / "arena").is_dir()
     # a scorer's source changed: its hash differs
     # a scorer's source changed: a copy of the sources with one scoring line edited
-    from analysis.experiments.power_resume import CODE_PATHS, SOURCE_ROOT
+    from analysis.experiments.power.resume import CODE_PATHS, SOURCE_ROOT
 
     copy = tmp_path / "src"
     for rel in CODE_PATHS:
@@ -253,7 +253,7 @@ def test_the_discordant_share_is_kendalls_tau_rescaled() -> None:
 def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
     """The plan judges each study's primary comparison alone at 5 %; the answer also says which
     verdicts survive Holm over the judged studies (the plan's own run: 4 verdicts, 1 stands)."""
-    from analysis.experiments.power_answer import first_paragraph, with_holm_across
+    from analysis.experiments.power.answer import first_paragraph, with_holm_across
 
     base = {"param": "v", "value": 1.0, "statistic": "s", "n": 48, "n_failing": 20,
             "n_correct": 28, "n_units": 48, "unit": "condition", "status": "ran",
@@ -289,7 +289,7 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
 def test_the_docs_result_section_is_regenerated_from_published_tables(quick, tmp_path) -> None:
     """--publish-findings's copy of the answer, and a doc's generated section rebuilt from it:
     equal when the doc was written from these tables, different once a table changes."""
-    from analysis.experiments.power_findings import (
+    from analysis.experiments.power.findings import (
         BEGIN,
         END,
         PENDING,
@@ -322,9 +322,9 @@ def test_the_docs_result_section_is_regenerated_from_published_tables(quick, tmp
 def test_the_readme_and_the_findings_index_show_the_committed_answer() -> None:
     """The README's and the findings index's result section are the committed tables' (or,
     until the amended run is committed, say it is pending: no number is invented)."""
-    from analysis.experiments.power_findings import FINDINGS, PENDING, result_section, section_in
+    from analysis.experiments.power.findings import FINDINGS, PENDING, result_section, section_in
 
-    root = Path(__file__).resolve().parents[3]  # tests/analysis/experiments/ to the root
+    root = Path(__file__).resolve().parents[4]  # tests/analysis/experiments/power/ to the root
     want = result_section(root / FINDINGS)
     if not (root / FINDINGS / "primary.parquet").exists():
         assert want == PENDING
@@ -336,7 +336,7 @@ def test_the_failures_icc_over_scenes_recovers_a_known_truth() -> None:
     """ICC(1) of a one-way ANOVA on 40 scenes of 3 units with a scene effect of variance 0.3
     (total 1): its mean over 400 simulated studies is within 0.03 of 0.3 (the mean's SE is
     about 0.006; 0.03 leaves room for the estimator's small bias at 40 groups)."""
-    from analysis.experiments.power_answer import icc_oneway
+    from analysis.experiments.power.answer import icc_oneway
 
     rng = np.random.default_rng(5)
     groups = np.repeat(np.arange(40), 3)

@@ -8,7 +8,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from analysis.experiments.claims import (
+from analysis.experiments.paper.claims import (
     CALIBRATED,
     PROFILE_CONDITIONS,
     RELEASED,
@@ -16,7 +16,7 @@ from analysis.experiments.claims import (
     collision_claims,
     profiling_claims,
 )
-from analysis.experiments.report import fig6_table_markdown
+from analysis.experiments.paper.report import fig6_table_markdown
 from analysis.stats import (
     FAILS,
     HOLDS,
@@ -227,7 +227,7 @@ def test_collision_claims_from_constructed_runs() -> None:
 def test_claims_carry_their_numbers_in_long_form() -> None:
     """claims.parquet rows: one per claim, condition and quantity, with the mean across seeds
     and its interval as numbers (here checked against the constructed runs themselves)."""
-    from analysis.experiments.claims import claims_frame
+    from analysis.experiments.paper.claims import claims_frame
 
     runs = _collision({"tf0": (229, 2), "tf3": (100, 80), "tf3-adjusted": (233, 3)})
     table = claims_frame(collision_claims(runs))
