@@ -143,6 +143,23 @@ def test_every_package_face_comes_from_the_one_lazy_loader() -> None:
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
+def test_nothing_turns_on_pyavs_python_log_callback() -> None:
+    """av.logging.set_level(<a level>) makes FFmpeg's decoder threads call into Python for
+    every log line, which needs the GIL; a container freed by the garbage collector (or
+    closed) holds the GIL while avcodec_free_context waits for those threads: a deadlock. A
+    test that set PANIC for the rest of its worker hung the power study's test in the next
+    file until CI's limit. PyAV's default (None) drops FFmpeg's logs without Python."""
+    call = re.compile(r"av\.logging\.set_level\((?!None\))")
+    bad = [
+        f"{p.relative_to(ROOT)}:{i}"
+        for folder in (*PACKAGES, "tests", "benchmarks", "docs")
+        for p in sorted((ROOT / folder).rglob("*.py"))
+        for i, line in enumerate(p.read_text().splitlines(), 1)
+        if call.search(line) and p.name != "test_layout.py"
+    ]
+    assert not bad, bad
+
+
 def test_no_file_holds_a_merge_conflict_marker() -> None:
     """A merge resolved by hand once left both sides of a conflict in docs/architecture.md for
     several rounds; a line that starts a conflict block is never meant to be committed."""

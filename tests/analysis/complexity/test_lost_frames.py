@@ -75,15 +75,6 @@ def measured(path: Path) -> dict:
     return measure_video(str(path), ComplexitySettings(metrics=PIXEL_METRICS), "t").info
 
 
-@pytest.fixture(autouse=True)
-def quiet_ffmpeg():
-    """The damage makes FFmpeg log; vdc counts it."""
-    level = av.logging.get_level()
-    av.logging.set_level(av.logging.PANIC)
-    yield
-    av.logging.set_level(level)
-
-
 @pytest.mark.parametrize(
     ("suffix", "first_pts", "states"),
     [
