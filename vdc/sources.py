@@ -130,7 +130,11 @@ def open_video(path: str, decoder_threads: int | None = None) -> tuple[Any, Any]
         container.close()
         raise UserError(f"{path!r} holds no video stream")
     stream = container.streams.video[0]
-    single = os.environ.get("VDC_WORKER_THREADS") == "1" or decoder_threads == 1
+    # PyAV's Python log callback (the user's av.logging.set_level with a level) makes FFmpeg's
+    # frame threads wait for the GIL to log, while a container being freed holds it and waits
+    # for them: a deadlock. With it on, FFmpeg decodes on the calling thread alone.
+    python_logging = av.logging.get_level() is not None
+    single = os.environ.get("VDC_WORKER_THREADS") == "1" or decoder_threads == 1 or python_logging
     stream.thread_type, stream.codec_context.thread_count = ("NONE", 1) if single else ("AUTO", 0)
     return container, stream
 
