@@ -14,7 +14,7 @@ rounds:
   frame's codes looked up and the difference summed), the MAFD, the Sobel magnitude, and the
   Sobel without its square root (what the square root costs);
 * how far the kernel's SI and TI (float32 since issue 62: the table, the Sobel, its square
-  root and each row's sums; the frame's sums in float64) fall from siti-tools' own float64
+  root and each column's sums over 64 rows; then float64) fall from siti-tools' own float64
   arithmetic on the same frames (its ``SiTiCalculator.si``/``ti`` on the looked-up values).
 
 A share of 0.80 of the decoder's pace leaves the kernel a quarter of decoding's time; the
@@ -59,11 +59,12 @@ def lookup_frame(y, lut, rows):  # pragma: no cover - compiled
 
 
 @numba.njit(**OPTS)
-def ti_frame(y, prev, lut, rows, sums):  # pragma: no cover - compiled
+def ti_frame(y, prev, lut, rows, cols):  # pragma: no cover - compiled
     for i in range(y.shape[0]):
         sk._map_row(y[i], lut, rows[0])
     for i in range(y.shape[0]):
-        sk._diff_row32(rows[0], prev[i], lut, y.shape[1], sums)
+        sk._map_row(prev[i], lut, rows[3])
+        sk._diff_cols(rows[0], rows[3], y.shape[1], cols[2], cols[3])
 
 
 @numba.njit(**OPTS)
@@ -74,33 +75,29 @@ def mafd_frame(y, prev):  # pragma: no cover - compiled
     return s
 
 
-@numba.njit(**OPTS)
-def _sobel_no_sqrt(r0, r1, r2, w, sums):  # pragma: no cover - compiled
-    """:func:`vdc.frame_metrics._sobel_row32` summing m² in place of m (no square root)."""
-    s = F32(0)
-    ss = F32(0)
+@numba.njit(error_model="numpy", nogil=True)
+def _sobel_no_sqrt(r0, r1, r2, w, cs, css):  # pragma: no cover - compiled
+    """:func:`vdc.siti_kernel._sobel_cols32` summing m² in place of m (no square root)."""
     two = F32(2)
     for j in range(1, w - 1):
         gx = (r0[j + 1] + two * r1[j + 1] + r2[j + 1]) - (r0[j - 1] + two * r1[j - 1] + r2[j - 1])
         gy = (r2[j - 1] + two * r2[j] + r2[j + 1]) - (r0[j - 1] + two * r0[j] + r0[j + 1])
         x = gx * gx + gy * gy
-        s += x
-        ss += x * x
-    sums[0] += s
-    sums[1] += ss
+        cs[j] += x
+        css[j] += x * x
 
 
 @numba.njit(**OPTS)
-def sobel_frame(rows, h, sums, root):  # pragma: no cover - compiled
-    """The Sobel pass over ``h`` rows (three looked-up rows in turn: the arithmetic and the
-    square root without the lookups)."""
+def sobel_frame(rows, h, cols, root):  # pragma: no cover - compiled
+    """The Sobel pass over ``h`` rows (three looked-up rows in turn: the arithmetic, the
+    square root and the column sums without the lookups)."""
     w = rows.shape[1]
     for i in range(2, h):
         a, b, c = rows[(i - 2) % 3], rows[(i - 1) % 3], rows[i % 3]
         if root:
-            sk._sobel_row32(a, b, c, w, sums)
+            sk._sobel_cols32(a, b, c, w, cols[0], cols[1])
         else:
-            _sobel_no_sqrt(a, b, c, w, sums)
+            _sobel_no_sqrt(a, b, c, w, cols[0], cols[1])
 
 
 def planes(path: Path) -> list[np.ndarray]:
@@ -141,18 +138,18 @@ def one_size(label: str, folder: Path, rounds: int) -> None:
     luma = planes(short)
     prev, y = luma[FRAMES // 2 - 1], luma[FRAMES // 2]
     lut, legacy = fm.p910_table(8, "limited"), fm._every_code(fm.legacy_lut(8, "limited"))
-    rows = sk._aligned_rows32(3, w)
-    rows[:, :w] = lut[y[:3]]
-    sums = np.zeros(2)
+    rows = sk._aligned_rows32(4, w)[:, :w]
+    rows[:3] = lut[y[:3]]
+    cols = sk._aligned_rows32(4, w)[:, :w]  # column sums (a block's: never flushed here)
     cases = {
         "decoding": lambda: decode(clip),
         "decoding_short": lambda: decode(short),
         "kernel": lambda: sk.chosen_sums(y, prev, lut, legacy, True, True, False, True),
         "lookup": lambda: lookup_frame(y, lut, rows),
-        "ti": lambda: ti_frame(y, prev, lut, rows, sums),
+        "ti": lambda: ti_frame(y, prev, lut, rows, cols),
         "mafd": lambda: mafd_frame(y, prev),
-        "sobel": lambda: sobel_frame(rows, h, sums, True),
-        "sobel_no_sqrt": lambda: sobel_frame(rows, h, sums, False),
+        "sobel": lambda: sobel_frame(rows, h, cols, True),
+        "sobel_no_sqrt": lambda: sobel_frame(rows, h, cols, False),
     }
     t = {k: v * 1e3 for k, v in least(cases, rounds).items()}
     # marginal: what a frame costs beyond the first (a key frame) and opening the file

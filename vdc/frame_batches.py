@@ -68,10 +68,10 @@ class FrameBatcher:
     repeats); ``size`` None: no working raster (``images`` then (N, 0, 0)). ``threads`` > 1:
     decoding, the native metrics and the resize run as a pipeline of threads
     (``vdc.pipeline``), with the same results bit for bit; call :meth:`close` (or read to the
-    end) to stop them. ``measure_on_threads`` also measures several frames at once
-    (:meth:`_on_threads`): opt-in, since one end-to-end test saw its TI differ from the
-    arrays' path in 1 of 4 runs under load (a race not yet found), where its own bit-for-bit
-    test held.
+    end) to stop them. ``measure_on_threads`` (the default) measures several frames at once
+    (:meth:`_on_threads`: one thread decodes, with FFmpeg's own decoder threads as the
+    reader set them, so a damaged stream yields the same frames); False: one thread per
+    stage (decode, measure, resize).
 
     ``color_range`` (``auto``, ``limited``, ``full``) decides the range of the SI/TI variants
     (``vdc.frame_metrics.decide_ranges``). In an untagged stream the P.910 variant is limited
@@ -93,7 +93,7 @@ class FrameBatcher:
         max_repeats: int = 3,
         metrics: tuple[str, ...] | None = None,
         threads: int = 1,
-        measure_on_threads: bool = False,
+        measure_on_threads: bool = True,
         jpeg_quality: int = 75,
         color_range: str = "auto",
         reopen: Callable[[], Reader] | None = None,

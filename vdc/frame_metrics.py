@@ -180,7 +180,8 @@ def _every_code(lut: np.ndarray) -> np.ndarray:
 def p910_table(bit_depth: int, color_range: str) -> np.ndarray:
     """:func:`p910_lut` over every code the frames' type holds (:func:`_every_code`), in
     float32: the P.910 kernel computes in 32-bit floats (the table, the Sobel, its square
-    root and each row's sums; the frame's sums in float64). That keeps SI and TI within
+    root and each column's sums over a block of rows; then float64: ``vdc.siti_kernel``).
+    That keeps SI and TI within
     about 1e-8 relative of siti-tools' float64 values on real clips (the tests hold them to
     the 3 decimals siti-tools prints), at about half the float64 kernel's cost."""
     return _every_code(p910_lut(bit_depth, color_range)).astype(np.float32)

@@ -113,8 +113,9 @@ def open_video(path: str, decoder_threads: int | None = None) -> tuple[Any, Any]
     it. A decoded frame's plane views the frame's reference-counted buffer, which FFmpeg's
     pools hand out again only when no frame references it: a reader sets ``planes_persist``.
     ``decoder_threads`` 1: FFmpeg decodes on the calling thread alone, as in a pool worker
-    (a caller that spreads each frame's measuring over the cores: FFmpeg's frame threads
-    cost 20-30 % more CPU per frame than one thread, measured on 720p H.264)."""
+    (its frame threads cost 20-30 % more CPU per frame, measured on 720p H.264; but the
+    thread count changes which frames a damaged stream yields, so vdc's commands all read
+    files with the same setting)."""
     import av  # lazy: start-up
 
     p = Path(path)

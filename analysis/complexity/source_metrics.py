@@ -231,11 +231,11 @@ def measure_video(
             )
     model_metrics = tuple(m for m in MODEL_METRICS if m in metrics)
     threads = usable_threads()
-    # FFmpeg's own threads, as every other entry point reads the file: on a damaged stream the
-    # decoder's thread count changes which frames come out (a cut last GOP gave 12 frames lost
-    # after the last against 10 with one thread), and the commands must count alike
-    # (tests/analysis/complexity/test_lost_frames.py); one decoding thread is for the opt-in
-    # measuring on threads (vdc.frame_batches), which is not used here
+    # FFmpeg's own threads, as every other entry point reads the file, also while the frames
+    # are measured on the other cores (vdc.frame_batches): on a damaged stream the decoder's
+    # thread count changes which frames come out (a cut last GOP gave 12 frames lost after
+    # the last against 10 with one thread), and the commands must count alike
+    # (tests/analysis/complexity/test_lost_frames.py)
     decoder_threads = None
     reader = open_reader(source, settings.fps, decoder_threads)
     batches = None

@@ -4,7 +4,9 @@ same values as all of them; the pipeline hands on its errors and stops its threa
 
 from __future__ import annotations
 
+import random
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -135,14 +137,18 @@ def test_reading_again_gives_the_full_range_values_of_a_second_pass(tmp_path, fi
     assert len(reopened) == (1 if first_out else 0)
 
 
-@pytest.mark.parametrize("reopen", [False, True])
-def test_frames_measured_on_several_threads_give_the_plain_loops_bits(tmp_path, reopen) -> None:
+@pytest.mark.parametrize(("reopen", "jitter"), [(False, False), (True, False), (True, True)])
+def test_frames_measured_on_several_threads_give_the_plain_loops_bits(
+    tmp_path, reopen, jitter
+) -> None:
     """An untagged clip whose luma leaves 16..235 at frame 5 (so the P.910 range changes
     while later frames are being measured on other threads): the batcher that measures each
     frame on 3 threads (``threads=3``: decoding in its own thread, the frames' metrics and
     resize side by side, finished in order) gives the plain loop's native metrics, images,
     full-range corrections and ranges, bit for bit; with every metric and without ``reopen``
-    (a camera's full-range values beside each frame) or with it (a file read again)."""
+    (a camera's full-range values beside each frame) or with it (a file read again).
+    ``jitter``: each frame's measuring waits 0-3 ms first (seeded), so frames finish out of
+    order, the decoder runs ahead and the range changes while several are in flight."""
     from tests.vdc.test_color_range import encode_luma
     from vdc.frame_batches import FrameBatcher
     from vdc.sources import open_reader
@@ -154,6 +160,14 @@ def test_frames_measured_on_several_threads_give_the_plain_loops_bits(tmp_path, 
         again = (lambda: open_reader(str(path))) if reopen else None
         b = FrameBatcher(reader, (62, 99), 25.0, batch_frames=4, threads=threads,
                          measure_on_threads=True, reopen=again)  # fmt: skip
+        if jitter:
+            measure, rng = b.meter.measure, random.Random(threads)
+
+            def late(*args, measure=measure, rng=rng):
+                time.sleep(rng.choice((0.0, 0.001, 0.003)))
+                return measure(*args)
+
+            b.meter.measure = late
         batches = list(iter(b.next_batch, None))
         got[threads] = (
             np.concatenate([fb.native_metrics for fb in batches]),
@@ -171,8 +185,6 @@ def test_frames_measured_on_several_threads_give_the_plain_loops_bits(tmp_path, 
 
 
 def test_ordered_map_keeps_order_hands_on_errors_and_stops() -> None:
-    import time
-
     from vdc.pipeline import ordered_map
 
     before = threading.active_count()

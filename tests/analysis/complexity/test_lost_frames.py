@@ -129,6 +129,40 @@ def test_frames_lost_at_the_start_and_at_the_end_are_counted_once(tmp_path, suff
             assert info["missing_s"] == pytest.approx(GOP / FPS if first else 0.0, abs=1e-6)
 
 
+def test_a_damaged_clip_measured_on_threads_counts_as_on_one(tmp_path):
+    """A clip damaged at both ends read as ``complexity`` reads it on several cores (each
+    frame measured on 3 threads while one decodes ahead, with FFmpeg's own decoder threads)
+    and on one thread: the same frames, times, drops, metrics and end counts. Decoding ahead
+    on one FFmpeg thread had counted 12 frames lost after the last against 10."""
+    from vdc.frame_batches import FrameBatcher
+    from vdc.sources import open_reader
+
+    clean = write_clip(tmp_path / "clean.mp4")
+    bad = zero_packets(clean, tmp_path / "bad.mp4", first=True, last_gop=True)
+    seen = {}
+    for threads in (1, 3):
+        reader = open_reader(str(bad))
+        b = FrameBatcher(reader, None, FPS, batch_frames=8, metrics=("si_p910", "ti_p910"),
+                         threads=threads)  # fmt: skip
+        batches = list(iter(b.next_batch, None))
+        seen[threads] = (
+            np.concatenate([fb.t_s for fb in batches]),
+            np.concatenate([fb.dropped_before for fb in batches]),
+            np.concatenate([fb.native_metrics for fb in batches]),
+            b.end_fields(),
+        )
+        b.close()
+        reader.close()
+    for a, b in zip(seen[3][:3], seen[1][:3], strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert seen[3][3] == seen[1][3]
+    frames = len(seen[1][0])
+    assert frames + seen[1][3]["dropped_frames"] == N and seen[1][3]["lost_after_last"] >= GOP
+    info = measured(bad)  # the Python API, on every core the machine gives it
+    assert (info["frames"], info["dropped_frames"]) == (frames, seen[1][3]["dropped_frames"])
+    assert info["lost_after_last"] == seen[1][3]["lost_after_last"]
+
+
 def zero_first_cluster(src: Path, dst: Path) -> Path:
     """A Matroska file with its whole first Cluster (its ID, timestamp and blocks: the first
     key frame's group) set to zero in the file's bytes: FFmpeg then reads the stream as
