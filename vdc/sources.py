@@ -115,7 +115,8 @@ def open_video(path: str, decoder_threads: int | None = None) -> tuple[Any, Any]
     ``decoder_threads`` 1: FFmpeg decodes on the calling thread alone, as in a pool worker
     (its frame threads cost 20-30 % more CPU per frame, measured on 720p H.264; but the
     thread count changes which frames a damaged stream yields, so vdc's commands all read
-    files with the same setting)."""
+    files with the same setting). With PyAV's Python log callback on, every file decodes on
+    one thread (see below), and a damaged stream may yield other frames than with it off."""
     import av  # lazy: start-up
 
     p = Path(path)
