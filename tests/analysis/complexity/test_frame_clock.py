@@ -15,9 +15,6 @@ import numpy as np
 import pytest
 
 from tests.analysis.complexity.test_lost_frames import measured, zero_packets
-from tests.analysis.complexity.test_lost_frames import (
-    quiet_ffmpeg as quiet_ffmpeg,  # autouse here too
-)
 
 N, FPS = 60, 25
 
