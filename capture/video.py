@@ -41,6 +41,7 @@ from vdc.blueprints import video_blueprint
 from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher, RateLookahead
+from vdc.heartbeat import Count
 from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 from vdc.settings import API_ONLY, AT_LEAST_0, AT_LEAST_1, RANGE, Settings, between
@@ -201,7 +202,13 @@ class VideoSource(DeviceContext):
         assert self._batches is not None
         if self._ahead is None:
             live = self.info["kind"] == "camera"
-            self._ahead = RateLookahead(self._batches, self.settings.max_repeats, live)
+            # the read-ahead decodes the clip (the whole of it where it fits), most of a
+            # file's time: its frames counted on the command's heartbeat line (vdc.heartbeat)
+            total = None if live else self.info.get("container_frames")
+            with Count(total, f"decoding {self.settings.source}", "frame") as decoded:
+                self._ahead = RateLookahead(
+                    self._batches, self.settings.max_repeats, live, progress=decoded.update
+                )
         return self._ahead.rate
 
     def final_rate(self) -> Any:

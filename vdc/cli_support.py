@@ -437,8 +437,8 @@ def run_command_line(
         and heartbeat.current() is None
         and not heartbeat.waits(words)
     )
-    beat = heartbeat.Heartbeat(where) if fresh else contextlib.nullcontext()
     try:
+        beat = heartbeat.Heartbeat(where) if fresh else contextlib.nullcontext()
         # a model built for a new camera fits its calibration first: say so, not a silent minute
         notes = CalibrationNotes(quiet=quiet)
         with beat, ctrl_c_ends_the_run(f"{prog}: interrupted"), fit_progress(notes):

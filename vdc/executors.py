@@ -38,7 +38,7 @@ from typing import Any
 
 from vdc.cli_support import option
 from vdc.errors import UserError
-from vdc.heartbeat import EVERY_S, Heartbeat
+from vdc.heartbeat import Heartbeat
 from vdc.pool_workers import (
     WorkerPool,
     _die_with_parent,
@@ -150,14 +150,15 @@ class Feedback:
         what: str = "vdc", unit: str = "run", every_s: float | None = None
     ) -> Iterator[Feedback]:
         """Inside the block, a Feedback that prints on stderr: each line logged, and when
-        nothing was printed for a few seconds a line with the time so far, what is running
+        nothing was printed for ``every_s`` seconds (default: ``VDC_PROGRESS_EVERY_S`` if
+        set, else 4) a line with the time so far, what is running
         and how many ``unit``s of how many are done, with an estimate of the time left
         (:class:`vdc.heartbeat.Heartbeat`)::
 
             with vdc.Feedback.printing("boundary") as feedback:
                 vdc.boundary(settings, "results/boundary", feedback)
         """
-        with Heartbeat(what, every_s or EVERY_S) as hb:
+        with Heartbeat(what, every_s) as hb:
             count = hb.counter(what, unit)
             yield Feedback(hb.log, count.update, count.expect)
 

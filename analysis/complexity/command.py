@@ -568,6 +568,8 @@ def complexity(
         "native frames where the source has them, else the camera's raster (column raster)",
     }
     per_clip = settings.rrd or len(tasks) == 1
+    if log is not None:  # seconds of figures and pages: said, so the heartbeat names them
+        log(f"writing the tables, figures and page of {len(parts)} clip(s) into {out}.")
     with table_set(out) as stage:  # published whole: never a mix of two runs
         paths.append(write_parquet(table, stage / "complexity.parquet", meta))
         paths.append(write_parquet(clips, stage / "clips.parquet", meta))

@@ -60,6 +60,7 @@ from avdm.true_time import model_rate
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher, RateLookahead
 from vdc.frame_metrics import decide_ranges
+from vdc.heartbeat import Count
 from vdc.parquet_io import write_parquet
 from vdc.pipeline import usable_threads
 from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context, working_size
@@ -113,6 +114,17 @@ class SourceMeasurement:
     info: dict[str, Any]  # source, kind, codec, width/height, fps, duration, repeats, drops
 
 
+def _counted(count: Count, progress: Callable[[int], None] | None) -> Callable[[int], None]:
+    """One callback for the frames done: the caller's ``progress`` and the command's count."""
+
+    def done(n: int) -> None:
+        count.update(n)
+        if progress is not None:
+            progress(n)
+
+    return done
+
+
 def measure_recording(
     loaded: LoadedRecording,
     settings: MeasureSettings,
@@ -140,6 +152,9 @@ def measure_recording(
         fps, deg_per_px, settings, ctx, camera_baselines=native is None, rate=rate
     )
     rows = []
+    # the frames counted, of how many, on the command's heartbeat line (vdc.heartbeat)
+    count = Count(loaded.frames.height, "measuring", "frame")
+    progress = _counted(count, progress)
     for chunk in loaded.rec.iter_frames():
         sel = pl.DataFrame({"frame": chunk.frame.astype(np.int64)}).join(
             timing, on="frame", how="left", maintain_order="left"
@@ -151,8 +166,8 @@ def measure_recording(
         rows.append(
             pl.DataFrame({"frame": chunk.frame.astype(np.int64), "t_s": t, "repeat": flags, **res})
         )
-        if progress is not None:
-            progress(len(chunk.frame))
+        progress(len(chunk.frame))
+    count.close()
     df = pl.concat(rows)
     if native is not None:
         df = df.join(native, on="frame", how="left", maintain_order="left")
@@ -239,6 +254,10 @@ def measure_video(
     decoder_threads = None
     reader = open_reader(source, settings.fps, decoder_threads)
     batches = None
+    # the frames counted, of those the container states, on the command's heartbeat line
+    # (vdc.heartbeat): an estimate of what is left however long the clip
+    count = Count(reader.info.get("container_frames"), "measuring", "frame")
+    progress = _counted(count, progress)
     try:
         info = reader.info
         fps = settings.fps or info["nominal_fps"]
@@ -282,7 +301,7 @@ def measure_video(
                     {"frame": fb.frame, "t_s": fb.t_s, "repeat": fb.repeat, **res, **values}
                 )
             )
-            if progress is not None and stream is batches:  # else the lookahead counts
+            if stream is batches:  # else the lookahead counts
                 progress(len(fb.frame))
         if isinstance(stream, RateLookahead) and meter is not None:
             meter.rate = stream.final_rate()  # the same rate; a note where it broke later
@@ -313,6 +332,7 @@ def measure_video(
         }
         return SourceMeasurement(table, meta)
     finally:
+        count.close()
         if batches is not None:
             batches.close()
         reader.close()
