@@ -124,12 +124,14 @@ def cmd_complexity(args: argparse.Namespace) -> int:
     # walked once, its skip notes said here: complexity() then takes the files themselves
     sources = expand_sources(args.sources, _notice)
     n = len(sources)
-    # one clip's frames are counted where it is measured, of those its container states
-    # (analysis.complexity.source_metrics); a collection's clips here
-    with progress_bar(n, "measuring", "clip", quiet=n == 1) as clips:
+    with (
+        progress_bar(None, "measuring", "frame") as frames,
+        progress_bar(n, "measuring", "clip", quiet=n == 1) as clips,
+    ):
         res = complexity(
-            sources, settings, args.out, clip_progress=clips.update, notice=_notice, log=say
-        )
+            sources, settings, args.out, progress=frames.update,
+            clip_progress=clips.update, notice=_notice, log=say,
+        )  # fmt: skip
     print("\n".join(res.report()))
     for source, error in res.failures:
         print(f"FAILED {source}: {error}", file=sys.stderr)

@@ -118,7 +118,7 @@ class VideoSource(DeviceContext):
         self.info = self.reader.info
         fps = settings.fps or self.info["nominal_fps"]
         if not (math.isfinite(fps) and fps > 0):
-            raise UserError(f"{settings.source!r} states no frame rate: pass --fps")
+            raise UserError(f"{settings.source!r} states no frame rate: pass --fps.")
         self.fps = float(fps)
         self._batches: FrameBatcher | None = None
         self._ahead: RateLookahead | None = None
@@ -344,7 +344,7 @@ def record_video(
     if settings.kind == "file" and path.exists() and src.exists() and src.samefile(path):
         raise UserError(
             f"the output {str(path)!r} is the source video: writing it would destroy the input; "
-            "choose another --out"
+            "choose another --out."
         )
     device = VideoSource(settings)  # opens the source: bad input fails here
     claim = claim_output(path, options.force)  # exclusive from here; bad folders fail here
@@ -412,7 +412,7 @@ def record_video(
             options.log(
                 f"recording {rid}: {settings.source} ({info['codec']}, {info['src_width_px']}x"
                 f"{info['src_height_px']}, {device.fps:.6g} fps) as {w}x{h} px luma at "
-                f"{deg_per_px:.4g} deg/px, model {model.name}"
+                f"{deg_per_px:.4g} deg/px, model {model.name}."
             )
         total = info["n_frames_header"] or None
         result = run_capture(device, model, recorder, total_frames=total, progress=options.progress)

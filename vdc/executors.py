@@ -100,14 +100,14 @@ class ExecutorSettings(Settings):
         if self.scheduler and self.executor == "local":
             object.__setattr__(self, "executor", "dask")  # a scheduler means Dask
         if self.executor not in EXECUTORS:
-            raise UserError(f"--executor must be one of {', '.join(EXECUTORS)}")
+            raise UserError(f"--executor must be one of {', '.join(EXECUTORS)}.")
         if self.scheduler and not self.scheduler.startswith(("tcp://", "tls://", "inproc://")):
             path = Path(self.scheduler).expanduser()
             # Client(scheduler_file=...) neither expands ~ nor times out on a missing file
             if not path.is_file():
                 raise UserError(
                     f"--scheduler {self.scheduler!r} is neither tcp://HOST:PORT, tls://HOST:PORT "
-                    "nor an existing scheduler file"
+                    "nor an existing scheduler file."
                 )
 
     def executor_settings(self) -> ExecutorSettings:
@@ -172,7 +172,7 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
         from distributed import Client, LocalCluster, WorkerPlugin  # lazy: optional extra
     except ImportError:
         raise UserError(
-            '--executor dask needs the optional extra: pip install -e ".[dask]"'
+            '--executor dask needs the optional extra: pip install -e ".[dask]".'
         ) from None
     if settings.scheduler:
         s = settings.scheduler
@@ -383,7 +383,7 @@ def check_shared_paths(client: Any, paths: Sequence[str | Path]) -> None:
         if blind:
             raise UserError(
                 f"{len(blind)} of {len(seen)} Dask worker(s) cannot see {path} (e.g. {blind[0]}): "
-                "recordings and --out must be on a filesystem shared by every worker"
+                "recordings and --out must be on a filesystem shared by every worker."
             )
 
 
@@ -478,7 +478,7 @@ def run_tasks(
             if client is not None:
                 check_shared_paths(client, shared_paths)
                 if log is not None and settings.scheduler is None:
-                    log(f"local Dask cluster on 127.0.0.1, dashboard {client.dashboard_link}")
+                    log(f"local Dask cluster on 127.0.0.1, dashboard {client.dashboard_link}.")
             pending = {ex.submit(fn, *args): key for key, args in todo}
             broken: list[str] = []
             for fut in cf.as_completed(list(pending)):
@@ -497,7 +497,7 @@ def run_tasks(
         by_key = dict(todo)
         todo = [(k, by_key[k]) for k in broken] if broken and not restarted else []
         if todo and log is not None:
-            log(f"a worker process died: {len(todo)} unfinished task(s) go to a fresh pool")
+            log(f"a worker process died: {len(todo)} unfinished task(s) go to a fresh pool.")
         if broken and restarted:
             for k in broken:
                 outcomes[k] = TaskOutcome(k, None, "a worker process died twice running it")

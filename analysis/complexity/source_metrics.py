@@ -136,7 +136,7 @@ def measure_recording(
     cam = loaded.props.get("camera", {})
     path = loaded.rec.path
     if not ctx or "width_px" not in cam:
-        raise UserError(f"{str(path)!r} does not record its camera (fps, width, FOV)")
+        raise UserError(f"{str(path)!r} does not record its camera (fps, width, FOV).")
     # the container's rate (the camera's), from which the models' rate is decided again on
     # the whole recording's repeat flags (a video capture decided it on the same flags)
     fps, deg_per_px = float(cam.get("fps", ctx["fps"])), float(ctx["deg_per_px"])
@@ -242,7 +242,7 @@ def measure_video(
         if not metrics:
             raise UserError(
                 f"{source!r} is a video: give --fov-deg (the camera's horizontal field of view) "
-                "for the AVDM and the flow in deg/s, or ask for pixel metrics (--metrics)"
+                "for the AVDM and the flow in deg/s, or ask for pixel metrics (--metrics)."
             )
     model_metrics = tuple(m for m in MODEL_METRICS if m in metrics)
     threads = usable_threads()
@@ -262,7 +262,7 @@ def measure_video(
         info = reader.info
         fps = settings.fps or info["nominal_fps"]
         if not (math.isfinite(fps) and fps > 0):
-            raise UserError(f"{source!r} states no frame rate: pass --fps")
+            raise UserError(f"{source!r} states no frame rate: pass --fps.")
         size = ctx = meter = None
         if model_metrics:
             fov = settings.fov_deg or float(settings.width or 0) * ROBOT_DEG_PER_PX
@@ -444,13 +444,3 @@ def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
 def metrics_present(df: pl.DataFrame, suffix: str = "") -> list[str]:
     """The metrics (:data:`METRICS` order) a table has columns for (``m + suffix``)."""
     return [m for m in METRICS if m + suffix in df.columns]
-
-
-def normalised(df: pl.DataFrame) -> dict[str, np.ndarray]:
-    """Each metric divided by its 99th percentile (so all share one axis)."""
-    out = {}
-    for m in metrics_present(df):
-        v = df[m].cast(pl.Float64).fill_null(np.nan).to_numpy()
-        top = np.nanpercentile(v, 99) if np.isfinite(v).any() else np.nan
-        out[m] = v / top if top and np.isfinite(top) and top > 0 else v * np.nan
-    return out

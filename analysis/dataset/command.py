@@ -171,22 +171,22 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             listed = f"{ds.listed[0]}-{ds.listed[-1]}" if ds.listed else "none"
             raise UserError(
                 f"--episodes: {', '.join(map(str, absent)) or 'none given'}: not an episode of "
-                f"{root} (its episodes: {len(ds.listed)}, indices {listed})"
+                f"{root} (its episodes: {len(ds.listed)}, indices {listed})."
             )
     unknown = [c for c in settings.moving_camera_list() if c not in ds.cameras]
     if unknown:
         raise UserError(f"--moving-cameras: {unknown[0]!r} is not a camera of {root} (its "
-                        f"cameras: {', '.join(ds.cameras)})")  # fmt: skip
+                        f"cameras: {', '.join(ds.cameras)}).")  # fmt: skip
     videos = [v for v in ds.videos if wanted is None or v.episode in wanted]
     notes = [n for n in [no_fov_note(settings)] if n]
     for n in notes:
         feedback.log(n)
     feedback.log(
         f"{root}: LeRobot {ds.version}, {len(set(v.episode for v in videos))} episode(s), "
-        f"{len(ds.cameras)} camera(s), {_rates_said(ds)}"
+        f"{len(ds.cameras)} camera(s), {_rates_said(ds)}."
     )
     if out.exists() and not out.is_dir():  # as vdc.parquet_io.table_set says it
-        raise UserError(f"--out {str(out)!r} is a file, not a folder; give a folder")
+        raise UserError(f"--out {str(out)!r} is a file, not a folder; give a folder.")
     out.mkdir(parents=True, exist_ok=True)  # each episode's result is kept there as it ends
     clear_partials(out)
     by_key = {f"{v.episode}:{v.camera}": v for v in videos}
@@ -201,7 +201,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         if kept is not None:
             results[key] = kept
     if results:
-        feedback.log(f"{len(results)} camera stream(s) read back from an earlier run's results")
+        feedback.log(f"{len(results)} camera stream(s) read back from an earlier run's results.")
     tasks = [
         (k, (v, settings, ds.rate(v.camera), out, ds.data_rate(v.camera)))
         for k, v in by_key.items()
@@ -216,7 +216,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         n_done[0] += 1
         now = time.monotonic()
         if now - n_done[1] >= PROGRESS_EVERY_S or n_done[0] == len(tasks):
-            feedback.log(f"{n_done[0]} of {len(tasks)} camera stream(s) measured")
+            feedback.log(f"{n_done[0]} of {len(tasks)} camera stream(s) measured.")
             n_done[1] = now
         if outcome.error is None:
             results[outcome.key] = outcome.result
@@ -232,7 +232,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         feedback.log(
             f"measuring {len(tasks)} camera stream(s) of "
             f"{len({by_key[k].episode for k, _ in tasks})} episode(s); a count every "
-            f"{PROGRESS_EVERY_S:g} s"
+            f"{PROGRESS_EVERY_S:g} s."
         )
     if tasks:  # the task lives in resume: a worker imports the measuring, not this command
         run_tasks(measured, tasks, settings.executor_settings(), done,
@@ -345,7 +345,7 @@ def _recordings(
     order = {c: i for i, c in enumerate(ds.cameras)}
     paths = []
     episodes = sorted(eps["episode_index"].unique().to_list())
-    feedback.log(f"writing {len(episodes)} episode recording(s) into {EPISODE_RECORDINGS}/")
+    feedback.log(f"writing {len(episodes)} episode recording(s) into {EPISODE_RECORDINGS}/.")
     # the frames split once by episode and camera: a filter per episode reads the whole
     # table each time (a dataset's hundreds of episodes: quadratic)
     parts = frames.partition_by("episode_index", "camera", as_dict=True)

@@ -58,8 +58,8 @@ def test_the_predictors_title_fits_a_one_panel_figure(tmp_path: Path) -> None:
 
 def test_one_clips_page_shows_that_clip_over_time_in_units(tmp_path: Path) -> None:
     from analysis.complexity.command import ComplexitySettings, complexity
-    from analysis.complexity.figures import UNITS
     from tests.helpers import write_pan
+    from vdc.recording import COMPLEXITY_UNITS as UNITS
 
     # the robot camera's field of view (its raster, 99x72, once resampled): a calibration vdc
     # ships, no fit to wait for (libx264 wants even sides)
