@@ -84,7 +84,7 @@ class DatasetResult(WroteFiles):
     def report(self) -> list[str]:
         """Lines for people: what was profiled, what was flagged, what was written."""
         eps = self.episodes
-        lines: list[str] = [f"camera {c}" for c in self.cameras]
+        lines: list[str] = [f"camera {c}." for c in self.cameras]
         if eps is not None:
             n_eps = eps["episode_index"].n_unique()
             flagged = eps.filter(pl.col("flag_count") > 0)
@@ -93,7 +93,7 @@ class DatasetResult(WroteFiles):
                 by_ep.setdefault(r["episode_index"], []).append(f"{r['camera']}: {r['flags']}")
             lines.append(
                 f"{n_eps} episode(s), {eps.height} camera stream(s) profiled; "
-                f"{len(by_ep)} episode(s) flagged"
+                f"{len(by_ep)} episode(s) flagged" + (":" if by_ep else ".")  # the list follows
             )
             shown = list(by_ep.items())
             if len(shown) > LIST_MAX:  # a long list: the worst, the rest in the files
@@ -103,15 +103,15 @@ class DatasetResult(WroteFiles):
             if len(shown) < len(by_ep):
                 lines.append(
                     f"  ... and {len(by_ep) - len(shown)} more episode(s) flagged "
-                    f"({FLAGGED_FILE}, dataset.html)"
+                    f"({FLAGGED_FILE}, dataset.html)."
                 )
-            lines.append(f"  {n_eps - len(by_ep)} episode(s) clean")
+            lines.append(f"  {n_eps - len(by_ep)} episode(s) clean.")
         if self.failed:
-            lines.append(f"--fail-on: episode(s) {', '.join(map(str, self.failed))} flagged")
+            lines.append(f"--fail-on: episode(s) {', '.join(map(str, self.failed))} flagged.")
         # the dataset's own problems (its metadata disagreeing): they bear on every episode
         lines += [f"dataset problem: {p}" for p in self.dataset_problems]
         if self.problems:
-            lines.append(f"{len(self.problems)} problem(s): exit 2 (problems.parquet)")
+            lines.append(f"{len(self.problems)} problem(s): exit 2 (problems.parquet).")
         rrds = [p for p in self.paths if p.suffix == ".rrd"]
         tables = [str(p) for p in self.paths if p.suffix != ".rrd"]
         if rrds:  # one folder of recordings, not a name per episode
@@ -155,7 +155,7 @@ def no_fov_note(settings: DatasetSettings) -> str | None:
         return None
     return (
         f"no --fov-deg: {', '.join(left)} and the shifts in degrees left out (they need the "
-        "cameras' horizontal field of view); the other measures are taken"
+        "cameras' horizontal field of view); the other measures are taken."
     )
 
 

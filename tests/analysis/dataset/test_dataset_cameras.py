@@ -96,7 +96,7 @@ def test_the_flagged_episodes_are_listed_for_lerobots_own_tool(panning) -> None:
     lines = res.report()
     assert any(listing["lerobot_edit_dataset"] in line for line in lines)
     # the episodes' list ends with the clean count; the run counted the streams as it went
-    assert "  5 episode(s) clean" in lines
+    assert "  5 episode(s) clean." in lines
     assert "6 of 6 camera stream(s) measured." in said
 
 
