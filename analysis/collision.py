@@ -296,7 +296,7 @@ def write_collision_rrd(
         for kind, color in (("avoidance", (40, 140, 255)), ("crash", (255, 50, 50))):
             x, y = _xy(ev, kind)
             rec.log(
-                f"{base}/{kind}s.",
+                f"{base}/{kind}s",
                 rr.Points3D(np.column_stack([x, y, np.zeros_like(x)]), radii=0.008, colors=[color]),
                 static=True,
             )
@@ -305,7 +305,7 @@ def write_collision_rrd(
         )
         top = occ.max() if occ.size and occ.max() > 0 else 1.0
         rgb = (matplotlib.colormaps["viridis"](occ / top)[:, :, :3] * 255).astype(np.uint8)
-        rec.log(f"{base}/occupancy.", rr.Image(np.ascontiguousarray(rgb[::-1])), static=True)
+        rec.log(f"{base}/occupancy", rr.Image(np.ascontiguousarray(rgb[::-1])), static=True)
     rec.flush()
     rec.disconnect()
     return path

@@ -147,7 +147,7 @@ class Recorder:
         self.write_error: str | None = None  # why the capture stopped writing, for the user
         self._raw_reserved = 0  # raw bytes of the batches reserved so far
         self._writer_failed = False  # the SDK's file writer died (cannot flush again)
-        self.rec.log("/.", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self.rec.log(POSE, rr.SeriesLines(names=list(POSE_NAMES)), static=True)
 
     @property
@@ -280,7 +280,7 @@ class Recorder:
         base = f"{root}/{entity_name(model_name)}"
         for o in outputs:
             self.rec.log(
-                f"{base}/{o.name}.", rr.SeriesLines(names=[f"{o.name} [{o.unit}]"]), static=True
+                f"{base}/{o.name}", rr.SeriesLines(names=[f"{o.name} [{o.unit}]"]), static=True
             )
 
     # -- per frame data, in columns ------------------------------------------------------

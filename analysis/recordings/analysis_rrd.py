@@ -61,7 +61,7 @@ def open_tabbed_rrd(path: Path, recording_id: str, tabs: list[Any]) -> rr.Record
     shows ``tabs`` (blueprint containers, one a tab). Flush and disconnect it when done."""
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
     rec.save(str(path), default_blueprint=rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=True))
-    rec.log("/.", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     return rec
 
 
@@ -97,7 +97,7 @@ def write_profile_rrd(
         )
         radii = (0.002 + 0.02 * np.clip(seg.response / ref, 0, 1)).astype(np.float32)
         rec.log(
-            f"{base}/circles.",
+            f"{base}/circles",
             rr.Points3D(
                 np.column_stack([seg.x_m, seg.y_m, z]),
                 radii=radii,
@@ -108,7 +108,7 @@ def write_profile_rrd(
         hx, hy = seg.half_extent
         edges, counts = histogram_over(seg.response, s)
         rec.log(
-            f"{base}/histogram.",
+            f"{base}/histogram",
             rr.BarChart(counts.astype(np.float64), abscissa=edges[:-1].astype(np.float64)),
             static=True,
         )
@@ -119,7 +119,7 @@ def write_profile_rrd(
         vmax = float(np.nanmax(mean)) if np.isfinite(mean).any() else 1.0
         rgb = _colours(np.nan_to_num(mean, nan=0.0).ravel(), vmax, "magma").reshape(*mean.shape, 3)
         rgb[~np.isfinite(mean)] = 40
-        rec.log(f"{base}/heatmap.", rr.Image(np.ascontiguousarray(rgb[::-1])), static=True)
+        rec.log(f"{base}/heatmap", rr.Image(np.ascontiguousarray(rgb[::-1])), static=True)
     rec.flush()
     rec.disconnect()
     return path
