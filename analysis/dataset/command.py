@@ -176,7 +176,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
     unknown = [c for c in settings.moving_camera_list() if c not in ds.cameras]
     if unknown:
         raise UserError(f"--moving-cameras: {unknown[0]!r} is not a camera of {root} (its "
-                        f"cameras: {', '.join(ds.cameras)}).")  # fmt: skip
+                        f"cameras: {', '.join(ds.cameras)})")  # fmt: skip
     videos = [v for v in ds.videos if wanted is None or v.episode in wanted]
     notes = [n for n in [no_fov_note(settings)] if n]
     for n in notes:

@@ -105,7 +105,7 @@ def read_info(root: Path) -> dict[str, Any]:
     path = root / "meta" / "info.json"
     if root.exists() and not root.is_dir():
         raise UserError(f"{root} is a file, not a folder: give the LeRobot dataset's folder (the "
-                        "one holding meta/info.json).")  # fmt: skip
+                        "one holding meta/info.json)")  # fmt: skip
     if not root.is_dir():
         raise UserError(f"{root}: no such folder (give a LeRobot dataset folder).")
     if not path.is_file():
