@@ -172,7 +172,7 @@ def _dask_client(settings: ExecutorSettings, n_tasks: int) -> tuple[Any, Any]:
         from distributed import Client, LocalCluster, WorkerPlugin  # lazy: optional extra
     except ImportError:
         raise UserError(
-            '--executor dask needs the optional extra: pip install -e ".[dask]".'
+            '--executor dask needs the optional extra: pip install -e ".[dask]"'
         ) from None
     if settings.scheduler:
         s = settings.scheduler

@@ -89,7 +89,7 @@ def photo_path(photo: str) -> Path:
         import skimage.data  # lazy: optional extra (test: scikit-image)
     except ImportError:
         raise UserError(
-            "photo-* arena scenes show scikit-image's photographs: pip install scikit-image."
+            "photo-* arena scenes show scikit-image's photographs: pip install scikit-image"
         ) from None
     folder = Path(skimage.data.__file__).parent
     if photo in MATPLOTLIB_PHOTOS:

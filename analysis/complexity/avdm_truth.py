@@ -62,7 +62,7 @@ def photograph(name: str) -> np.ndarray:
         from skimage import data  # lazy: optional extra
     except ImportError:  # pragma: no cover - the test extra installs it
         raise UserError(
-            "the validation photographs need scikit-image: pip install scikit-image."
+            "the validation photographs need scikit-image: pip install scikit-image"
         ) from None
     img = getattr(data, name)()
     if img.ndim == 3:  # BT.601 luma, as a video decoder's gray conversion gives
