@@ -75,9 +75,9 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
         i_s, n_s = text.split("/")
         i, n = int(i_s), int(n_s)
     except ValueError:
-        raise UserError(f"--shard {text!r}: expected I/N, e.g. 0/4") from None
+        raise UserError(f"--shard {text!r}: expected I/N, e.g. 0/4.") from None
     if not (n >= 1 and 0 <= i < n):
-        raise UserError(f"--shard {text!r}: need 0 <= I < N")
+        raise UserError(f"--shard {text!r}: need 0 <= I < N.")
     return i, n
 
 
@@ -102,7 +102,7 @@ class BatchSettings(SummarySettings):
         super().__post_init__()
         object.__setattr__(self, "models", tuple(self.models or ()))
         if not self.models:
-            raise UserError("give at least one --model")
+            raise UserError("give at least one --model.")
         for spec in self.models:
             parse_model_spec(spec)
         self.executor_settings()
@@ -241,7 +241,7 @@ def batch(
         break
     say(
         f"{len(tasks)} tasks{f' (shard {shard[0]}/{shard[1]})' if shard else ''}: "
-        f"{skipped} already done, {len(todo)} to run on {settings.executor_settings().where()}"
+        f"{skipped} already done, {len(todo)} to run on {settings.executor_settings().where()}."
     )
     s = dataclasses.asdict(settings.summary_settings())
 
@@ -283,17 +283,17 @@ def summarise_batch(out: str | Path) -> tuple[dict[str, pl.DataFrame], list[Path
     ``out/parts`` into ``out/{frames,model_outputs,events,summary}.parquet``, as ``tables``
     writes them."""
     if out is None:  # its input is that folder: None names nothing to summarise
-        raise UserError("summarise reads the folder a batch wrote: give it as out")
+        raise UserError("summarise reads the folder a batch wrote: give it as out.")
     out = Path(out)
     done = sorted((out / PARTS).glob("recording_id=*/model=*/summary.parquet"))
     if not done:
-        raise UserError(f"{str(out)!r} has no finished batch parts (run vdc-analyse batch)")
+        raise UserError(f"{str(out)!r} has no finished batch parts (run vdc-analyse batch).")
     for p in done:
         for part in (p, p.parent / "model_outputs.parquet", *p.parent.parent.glob("*.parquet")):
             if not readable_part(part):
                 raise UserError(
                     f"the batch part {str(part)!r} is damaged or missing: run the same "
-                    "vdc-analyse batch again to recompute it"
+                    "vdc-analyse batch again to recompute it."
                 )
     recs = sorted({p.parent.parent for p in done})
     meta: dict[str, Any] = {"arena_half_extent_m": {}, "params": {}, "recordings": []}

@@ -63,7 +63,7 @@ def require_collision_recording(loaded: LoadedRecording) -> None:
     if run.get("behaviour") != "collision" or "detector" not in loaded.props:
         raise UserError(
             f"{str(loaded.rec.path)!r} is not a collision-mode recording (record one with "
-            "`vdc-capture sim --behaviour collision`): it has no avoidance/crash events to study"
+            "`vdc-capture sim --behaviour collision`): it has no avoidance/crash events to study."
         )
 
 

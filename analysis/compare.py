@@ -156,7 +156,7 @@ class CompareSettings(TablesSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         if len(self.models) < 2:
-            raise UserError("compare needs at least two --model variants")
+            raise UserError("compare needs at least two --model variants.")
         names = [canonical_name(m) for m in self.models]
         if len(set(names)) != len(names):
             raise UserError(f"the same variant is given twice: {', '.join(names)}")

@@ -46,7 +46,7 @@ def show(
         return viewer
     path = Path(target)
     if not path.is_file():
-        raise UserError(f"{str(path)!r}: no such recording")
+        raise UserError(f"{str(path)!r}: no such recording.")
 
     rec = rr.RecordingStream(APP_ID, recording_id=Recording(path).recording_id)
     rr.log_file_from_path(path, recording=rec)

@@ -339,10 +339,10 @@ class Avdm(FrameStream):
         if p.texture_row >= h:
             raise ParameterError(
                 f"frames have {h} rows but avdm texture_row={p.texture_row}: "
-                f"use frames with more rows or set texture_row below {h}"
+                f"use frames with more rows or set texture_row below {h}."
             )
         if w <= p.sd:
-            raise ParameterError(f"frames of width {w} px are too narrow for sd={p.sd}")
+            raise ParameterError(f"frames of width {w} px are too narrow for sd={p.sd}.")
         self._hist = np.zeros((p.photoreceptor_lag, h * w), dtype=np.float32)
         self._qhist = np.zeros((p.delay + 1, 2, h * w), dtype=np.float32)
         valid = np.ones((h, w), dtype=np.float32)

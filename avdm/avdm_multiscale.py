@@ -118,7 +118,7 @@ class AvdmMultiScaleParams(Params):
         if not (0 < self.v_low < self.v_high <= 4.0):
             raise ParameterError(
                 f"avdm-natural parameters v_low={self.v_low}, v_high={self.v_high}: "
-                "need 0 < v_low < v_high <= 4"
+                "need 0 < v_low < v_high <= 4."
             )
         if self.a is not None and not (math.isfinite(self.a) and self.a > 0):
             raise bad("a", "must be a positive number")
@@ -393,7 +393,7 @@ class AvdmMultiScale(FrameStream):
             raise ParameterError(
                 f"frames of {w}x{h} px (WxH) but this avdm-natural is calibrated for "
                 f"{p.width_px}x{p.height_px}: build it for the frames' raster, e.g. "
-                "make_model(spec, **vdc.recording.camera_model_context(W, H, fps, fov))"
+                "make_model(spec, **vdc.recording.camera_model_context(W, H, fps, fov))."
             )
         self._geo = scale_geometry(p, h, w)
         total = int(self._geo[-1, 2] + self._geo[-1, 0] * self._geo[-1, 1])

@@ -35,7 +35,7 @@ def primary_output_name(names: Sequence[str]) -> str:
     """The one rule for a model's primary output, given its output names in order."""
     names = list(names)
     if not names:
-        raise ParameterError("a model with no outputs has no primary output")
+        raise ParameterError("a model with no outputs has no primary output.")
     return PRIMARY_OUTPUT if PRIMARY_OUTPUT in names else names[0]
 
 
@@ -98,7 +98,7 @@ def require_alert(model: Model) -> None:
     if "alert" not in {o.name for o in model.outputs}:
         raise ParameterError(
             f"detector {model.name!r} has no 'alert' output (1 = collision ahead): give its "
-            "model an output named alert"
+            "model an output named alert."
         )
 
 
@@ -127,19 +127,21 @@ def check_frames(frames: np.ndarray, *, min_h: int = 1, min_w: int = 2) -> np.nd
     """
     arr = np.asarray(frames)
     if arr.ndim != 3:
-        raise ParameterError(f"frames must have shape (T, H, W), got an array of shape {arr.shape}")
+        raise ParameterError(
+            f"frames must have shape (T, H, W), got an array of shape {arr.shape}."
+        )
     t, h, w = arr.shape
     if t == 0 or h == 0 or w == 0:
-        raise ParameterError(f"frames must not be empty, got shape {arr.shape}")
+        raise ParameterError(f"frames must not be empty, got shape {arr.shape}.")
     if h < min_h or w < min_w:
         raise ParameterError(
-            f"frames of {w}x{h} px (WxH) are too small: need at least {min_w}x{min_h}"
+            f"frames of {w}x{h} px (WxH) are too small: need at least {min_w}x{min_h}."
         )
     if arr.dtype == np.uint8:
         return np.ascontiguousarray(arr)
     if arr.dtype in (np.float32, np.float64):
         if not np.isfinite(arr).all():
-            raise ParameterError("frames contain NaN or infinite values")
+            raise ParameterError("frames contain NaN or infinite values.")
         return np.ascontiguousarray(arr)
     if (
         arr.dtype == np.bool_
@@ -147,9 +149,9 @@ def check_frames(frames: np.ndarray, *, min_h: int = 1, min_w: int = 2) -> np.nd
         or np.issubdtype(arr.dtype, np.floating)
     ):
         raise ParameterError(
-            f"frames must be uint8 (0-255) or float32/float64 (0-1), got dtype {arr.dtype}"
+            f"frames must be uint8 (0-255) or float32/float64 (0-1), got dtype {arr.dtype}."
         )
-    raise ParameterError(f"frames must be numeric images, got dtype {arr.dtype}")
+    raise ParameterError(f"frames must be numeric images, got dtype {arr.dtype}.")
 
 
 class FrameStream:
@@ -187,12 +189,12 @@ class FrameStream:
         elif (h, w) != self._shape:
             raise ParameterError(
                 f"frame shape changed from {self._shape[1]}x{self._shape[0]} to {w}x{h} px (WxH); "
-                "call reset() first"
+                "call reset() first."
             )
         elif (frames.dtype == np.uint8) != (self._dtype == np.uint8):
             raise ParameterError(
                 f"frame dtype changed from {self._dtype} to {frames.dtype} (intensity scale "
-                "would change); call reset() first"
+                "would change); call reset() first."
             )
         return self._kernel(frames)
 
@@ -208,7 +210,7 @@ class FrameStream:
         arr = np.asarray(frame)
         if arr.ndim != 2:
             raise ParameterError(
-                f"a frame must have shape (H, W), got an array of shape {arr.shape}"
+                f"a frame must have shape (H, W), got an array of shape {arr.shape}."
             )
         row = self._advance(check_frames(arr[None], min_h=1, min_w=self.min_width))[0]
         return {n: float(row[c]) for c, n in enumerate(self.output_names)}

@@ -68,7 +68,7 @@ def valid_periods_px(width: int) -> np.ndarray:
     """Log-spaced spatial periods (px) inside the valid band for an image ``width`` px wide."""
     hi = width / MIN_PERIODS_ACROSS
     if hi < MIN_PERIOD_PX:
-        raise ParameterError(f"images {width} px wide are too narrow to calibrate (need >= 8 px)")
+        raise ParameterError(f"images {width} px wide are too narrow to calibrate (need >= 8 px).")
     return np.geomspace(MIN_PERIOD_PX, hi, 8)
 
 
@@ -158,7 +158,7 @@ def fit_decoding(
     if len(used) < 3:
         raise ParameterError(
             f"only {len(used)} grating cells are in the valid band (responsive, no aliasing); "
-            "widen the grid or check the model parameters"
+            "widen the grid or check the model parameters."
         )
     x = np.log([c.lambda_px for c in used])
     y = np.log([c.omega_true_dps for c in used]) - np.log([c.gain_term for c in used])
@@ -279,7 +279,7 @@ def fit_multiscale(
         used = [p for p in pans if p.omega_dps > 0]
         if len(used) < 3:
             raise ParameterError(
-                f"only {len(used)} clutter pans gave a reading; check the model parameters"
+                f"only {len(used)} clutter pans gave a reading; check the model parameters."
             )
         x = np.log([p.omega_dps for p in used])
         y = np.log([p.omega_true_dps for p in used])

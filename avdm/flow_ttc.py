@@ -157,7 +157,7 @@ class FlowTtc:
         arr = np.asarray(frame)
         if arr.ndim != 2:
             raise ParameterError(
-                f"a frame must have shape (H, W), got an array of shape {arr.shape}"
+                f"a frame must have shape (H, W), got an array of shape {arr.shape}."
             )
         arr = check_frames(arr[None], min_h=3, min_w=3)[0]
         is_u8 = arr.dtype == np.uint8
@@ -167,10 +167,10 @@ class FlowTtc:
         if prev is not None and prev.shape != cur.shape:
             raise ParameterError(
                 f"frame shape changed from {prev.shape[1]}x{prev.shape[0]} to "
-                f"{cur.shape[1]}x{cur.shape[0]} px (WxH); call reset() first"
+                f"{cur.shape[1]}x{cur.shape[0]} px (WxH); call reset() first."
             )
         if prev is not None and is_u8 != self._is_u8:
-            raise ParameterError("frame dtype changed between uint8 and float; call reset() first")
+            raise ParameterError("frame dtype changed between uint8 and float; call reset() first.")
         self._prev, self._is_u8 = cur, is_u8
         if prev is None:  # no motion before the first frame
             return {"tau_s": p.tau_max_s, "divergence_hz": 0.0, "alert": 0.0}

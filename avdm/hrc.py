@@ -291,7 +291,7 @@ class Hrc(FrameStream):
         if None in (params.r_peak, params.v_peak_dps, params.knee, params.change_max):
             raise ParameterError(
                 "hrc needs its response curve (r_peak, v_peak_dps, knee, change_max): build "
-                "it with avdm.registry.make_model (which measures it) or pass all four"
+                "it with avdm.registry.make_model (which measures it) or pass all four."
             )
         self.name = name
         self.params = params
@@ -304,7 +304,7 @@ class Hrc(FrameStream):
         if len(self._cols) < 2:
             raise ParameterError(
                 f"frames {w} px wide hold fewer than 2 ommatidia {s} px apart: the hrc needs "
-                f"a wider frame or a smaller spacing_deg (now {p.spacing_deg})"
+                f"a wider frame or a smaller spacing_deg (now {p.spacing_deg})."
             )
         ny, nx = len(self._rows), len(self._cols)
         self._wts = acceptance_weights(p)

@@ -96,7 +96,7 @@ def fit_curve(speeds: np.ndarray, resp: np.ndarray, change: np.ndarray) -> dict[
 
     i_peak = int(np.argmax(resp))
     if resp[i_peak] <= 0:
-        raise ParameterError("the hrc gave no positive response on the calibration clutter")
+        raise ParameterError("the hrc gave no positive response on the calibration clutter.")
     use = (speeds <= 2.0 * speeds[i_peak]) & (resp > 0)
     v, y = speeds[use], np.log(resp[use])
 

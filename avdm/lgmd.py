@@ -315,10 +315,10 @@ class _LgmdBase:
         if name not in self.live_params:
             raise ParameterError(
                 f"{self.name}: parameter {name!r} cannot change while it runs (these can: "
-                f"{', '.join(self.live_params)})"
+                f"{', '.join(self.live_params)})."
             )
         if not (math.isfinite(value) and value > 0):
-            raise ParameterError(f"{name} must be a positive number, got {value}")
+            raise ParameterError(f"{name} must be a positive number, got {value}.")
         self._cfg[self.live_params[name]] = float(value)
 
     def _allocate(self, h: int, w: int) -> None:
@@ -337,10 +337,10 @@ class _LgmdBase:
         elif (h, w) != self._shape:
             raise ParameterError(
                 f"frame shape changed from {self._shape[1]}x{self._shape[0]} to {w}x{h} px (WxH); "
-                "call reset() first"
+                "call reset() first."
             )
         elif is_u8 != self._is_u8:
-            raise ParameterError("frame dtype changed between uint8 and float; call reset() first")
+            raise ParameterError("frame dtype changed between uint8 and float; call reset() first.")
         out = np.empty((frames.shape[0], _N_OUT))
         self._kernel(frames, is_u8, out)
         return out
@@ -358,7 +358,7 @@ class _LgmdBase:
         arr = np.asarray(frame)
         if arr.ndim != 2:
             raise ParameterError(
-                f"a frame must have shape (H, W), got an array of shape {arr.shape}"
+                f"a frame must have shape (H, W), got an array of shape {arr.shape}."
             )
         row = self._advance(check_frames(arr[None], min_h=3, min_w=3))[0]
         return {n: float(row[c]) for c, n in enumerate(LGMD_OUTPUT_NAMES)}
@@ -471,7 +471,7 @@ class LgmdColias(_LgmdBase):
         if h <= 2 * b or w <= 2 * b:
             raise ParameterError(
                 f"frames of {w}x{h} px (WxH) leave nothing inside the "
-                f"lgmd-colias border={b}: use larger frames or a smaller border"
+                f"lgmd-colias border={b}: use larger frames or a smaller border."
             )
         return super()._advance(frames)
 

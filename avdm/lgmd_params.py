@@ -136,7 +136,7 @@ class LgmdPlusParams(Params):
             integers=(("n_ts", 1, 1000),),
         )
         if not 0 <= self.dc < 1:
-            raise ParameterError(f"lgmd parameter dc={self.dc!r}: must be below 1")
+            raise ParameterError(f"lgmd parameter dc={self.dc!r}: must be below 1.")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -121,7 +121,7 @@ def _import_module(module: str, ref: str) -> Any:
     except _Missing:
         raise ParameterError(
             f"model plug-in {ref!r}: no module named {module!r} (install its package, or run "
-            "from the folder that holds it, or add that folder to PYTHONPATH)"
+            "from the folder that holds it, or add that folder to PYTHONPATH)."
         ) from None
     except Exception as exc:  # the user's module: say what broke, in one line
         raise ParameterError(
@@ -134,16 +134,17 @@ def load_factory(ref: str) -> Callable[..., Any]:
     """The callable named by ``module:attribute`` (ValueError in one line if it is not there)."""
     m = _REF_RE.match(ref)
     if m is None:
-        raise ParameterError(f"model plug-in {ref!r} is not of the form package.module:factory")
+        raise ParameterError(f"model plug-in {ref!r} is not of the form package.module:factory.")
     obj: Any = _import_module(m.group("module"), ref)
     for part in m.group("factory").split("."):
         if not hasattr(obj, part):
             raise ParameterError(
-                f"model plug-in {ref!r}: module {m.group('module')!r} has no {m.group('factory')!r}"
+                f"model plug-in {ref!r}: module {m.group('module')!r} has no "
+                f"{m.group('factory')!r}."
             )
         obj = getattr(obj, part)
     if not callable(obj):
-        raise ParameterError(f"model plug-in {ref!r}: {m.group('factory')!r} is not callable")
+        raise ParameterError(f"model plug-in {ref!r}: {m.group('factory')!r} is not callable.")
     return obj
 
 
@@ -205,15 +206,15 @@ def _outputs(raw: Any, ref: str) -> tuple[Output, ...]:
             elif isinstance(o, tuple | list) and len(o) in (2, 3):
                 items.append(Output(str(o[0]), str(o[1]), str(o[2]) if len(o) == 3 else ""))
             else:
-                raise ParameterError(f"model plug-in {ref!r}: output {o!r} is not (name, unit)")
+                raise ParameterError(f"model plug-in {ref!r}: output {o!r} is not (name, unit).")
     if not items:
-        raise ParameterError(f"model plug-in {ref!r}: its model declares no outputs")
+        raise ParameterError(f"model plug-in {ref!r}: its model declares no outputs.")
     taken = [o.name for o in items if o.name in FRAME_TABLE_COLUMNS]
     if taken:
         raise ParameterError(
             f"model plug-in {ref!r}: its output {taken[0]!r} has the name of vdc's own column "
             f"{taken[0]!r} of the per-frame tables ({', '.join(FRAME_TABLE_COLUMNS)} are "
-            "taken): rename the output"
+            "taken): rename the output."
         )
     return tuple(items)
 
@@ -223,7 +224,7 @@ class PluginModel:
 
     def __init__(self, inner: Any, name: str, params: Mapping[str, Any], ref: str) -> None:
         if not callable(getattr(inner, "step", None)):
-            raise ParameterError(f"model plug-in {ref!r}: the factory's result has no step(frame)")
+            raise ParameterError(f"model plug-in {ref!r}: the factory's result has no step(frame).")
         self.inner = inner
         self.name = name
         self.params = PluginParams(params)
@@ -239,7 +240,7 @@ class PluginModel:
         arr = np.asarray(frame)
         if arr.ndim != 2:
             raise ParameterError(
-                f"a frame must have shape (H, W), got an array of shape {arr.shape}"
+                f"a frame must have shape (H, W), got an array of shape {arr.shape}."
             )
         try:
             out = self.inner.step(check_frames(arr[None])[0])
@@ -249,7 +250,7 @@ class PluginModel:
         if missing:
             raise ParameterError(
                 f"model plug-in {self._ref!r}: step() returned no {', '.join(missing)} "
-                f"(it declares outputs {', '.join(self._names)})"
+                f"(it declares outputs {', '.join(self._names)})."
             )
         return {n: float(out[n]) for n in self._names}
 
@@ -278,7 +279,7 @@ class PluginModel:
         else:
             raise ParameterError(
                 f"model plug-in {self._ref!r} has no parameter {name!r} to change while it runs "
-                "(give its model that attribute or a set_param(name, value) method)"
+                "(give its model that attribute or a set_param(name, value) method)."
             )
 
 

@@ -64,15 +64,15 @@ class Policy:
     def __post_init__(self) -> None:
         x, y = np.asarray(self.complexity_dps, float), np.asarray(self.values, float)
         if len(x) == 0 or len(x) != len(y):
-            raise ParameterError("a policy needs at least one row of complexity and value")
+            raise ParameterError("a policy needs at least one row of complexity and value.")
         if not (np.isfinite(x).all() and np.isfinite(y).all()):
-            raise ParameterError("a policy's complexities and values must be finite numbers")
+            raise ParameterError("a policy's complexities and values must be finite numbers.")
         if len(x) > 1 and not (np.diff(x) > 0).all():
-            raise ParameterError("a policy's complexity_dps must increase from row to row")
+            raise ParameterError("a policy's complexity_dps must increase from row to row.")
         if self.statistic not in STATISTICS:
-            raise ParameterError(f"a policy's statistic must be one of {', '.join(STATISTICS)}")
+            raise ParameterError(f"a policy's statistic must be one of {', '.join(STATISTICS)}.")
         if not (math.isfinite(self.window_s) and self.window_s > 0):
-            raise ParameterError(f"a policy's window_s must be > 0 s, got {self.window_s}")
+            raise ParameterError(f"a policy's window_s must be > 0 s, got {self.window_s}.")
 
     def value(self, complexity_dps: float) -> float:
         """The parameter at this complexity (deg/s)."""
@@ -122,7 +122,7 @@ def load_policy(path: str | Path) -> Policy:
                 meta[key.strip()] = value.strip()
     where = f"policy file {str(path)!r}"
     if "param" not in meta:
-        raise ParameterError(f"{where} has no '# param: NAME' line (is it a vdc policy?)")
+        raise ParameterError(f"{where} has no '# param: NAME' line (is it a vdc policy?).")
     body = "\n".join(ln for ln in lines if not ln.startswith("#"))
     try:
         df = pl.read_csv(body.encode(), infer_schema_length=None)
@@ -131,7 +131,7 @@ def load_policy(path: str | Path) -> Policy:
     param = meta["param"]
     missing = [c for c in (COMPLEXITY_COLUMN, param) if c not in df.columns]
     if missing:
-        raise ParameterError(f"{where} has no column {', '.join(missing)}")
+        raise ParameterError(f"{where} has no column {', '.join(missing)}.")
     try:
         df = df.with_columns(pl.col(COMPLEXITY_COLUMN, param).cast(pl.Float64)).sort(
             COMPLEXITY_COLUMN
@@ -158,16 +158,16 @@ class PolicyModel:
         self, inner: Any, policy: Policy, profiler: Any, context: Mapping[str, Any]
     ) -> None:
         if "fps" not in context:
-            raise ParameterError("a policy needs the camera's frame rate (fps) to size its window")
+            raise ParameterError("a policy needs the camera's frame rate (fps) to size its window.")
         if not callable(getattr(inner, "set_param", None)):
-            raise ParameterError(f"{inner.name}: its parameters cannot change while it runs")
+            raise ParameterError(f"{inner.name}: its parameters cannot change while it runs.")
         self.inner = inner
         self.policy = policy
         self.name = inner.name
         self.params = inner.params
         self.profiler = profiler  # policy.profile_model, built for the same camera
         if "omega_dps" not in {o.name for o in self.profiler.outputs}:
-            raise ParameterError(f"policy profile model {policy.profile_model!r} has no omega_dps")
+            raise ParameterError(f"policy profile model {policy.profile_model!r} has no omega_dps.")
         self.outputs = (
             *inner.outputs,
             Output("policy_value", "", f"{policy.param} set by the policy"),

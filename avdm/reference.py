@@ -93,7 +93,7 @@ class AvdmReference:
 
     def __init__(self, params: AvdmParams, name: str = "avdm-reference") -> None:
         if params.a is None or params.b is None:
-            raise ParameterError("AvdmReference needs a and b (see avdm.registry.make_params)")
+            raise ParameterError("AvdmReference needs a and b (see avdm.registry.make_params).")
         self.name = name
         self.params = params
         self.reset()
@@ -114,7 +114,7 @@ class AvdmReference:
         frame = check_frames(np.asarray(frame)[None])[0]
         h, w = frame.shape
         if p.texture_row >= h:
-            raise ParameterError(f"frames have {h} rows but texture_row={p.texture_row}")
+            raise ParameterError(f"frames have {h} rows but texture_row={p.texture_row}.")
         intensity = to_intensity(frame)
         if not self._intensities:  # history before the first frame = the first frame
             self._intensities.extend([intensity] * p.photoreceptor_lag)

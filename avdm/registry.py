@@ -154,24 +154,24 @@ _FALSE = {"0", "false", "no", "off"}
 def _parse_value(key: str, raw: str, typ: type) -> Any:
     raw = raw.strip()
     if raw == "":
-        raise ParameterError(f"model override {key}= has no value")
+        raise ParameterError(f"model override {key}= has no value.")
     if typ is bool:
         low = raw.lower()
         if low in _TRUE:
             return True
         if low in _FALSE:
             return False
-        raise ParameterError(f"model override {key}={raw!r}: expected true or false")
+        raise ParameterError(f"model override {key}={raw!r}: expected true or false.")
     if typ is int:
         try:
             return int(raw)
         except ValueError:
-            raise ParameterError(f"model override {key}={raw!r}: expected an integer") from None
+            raise ParameterError(f"model override {key}={raw!r}: expected an integer.") from None
     if typ is float:
         try:
             return float(raw)
         except ValueError:
-            raise ParameterError(f"model override {key}={raw!r}: expected a number") from None
+            raise ParameterError(f"model override {key}={raw!r}: expected a number.") from None
     return raw
 
 
@@ -183,7 +183,7 @@ POLICY_KEY = "policy"
 def _split_spec(spec: str) -> tuple[str, str | None, str | None]:
     """``(name, plug-in reference or None, override text or None)`` of a spec."""
     if not isinstance(spec, str) or not spec.strip():
-        raise ParameterError("empty model spec: expected a name such as 'avdm' or 'avdm:beta=0.5'")
+        raise ParameterError("empty model spec: expected a name such as 'avdm' or 'avdm:beta=0.5'.")
     text = spec.strip()
     parts = text.split(":", 2)
     named = parts[0] in VARIANTS or parts[0] in entry_point_models()
@@ -194,7 +194,7 @@ def _split_spec(spec: str) -> tuple[str, str | None, str | None]:
     if m is None:
         raise ParameterError(
             f"malformed model spec {spec!r}: expected name, name:key=value,... or "
-            "package.module:factory[:key=value,...]"
+            "package.module:factory[:key=value,...]."
         )
     name = m.group("name")
     if name in VARIANTS:
@@ -205,7 +205,7 @@ def _split_spec(spec: str) -> tuple[str, str | None, str | None]:
     known = sorted(VARIANTS) + sorted(installed)
     raise ParameterError(
         f"unknown model {name!r}: known models are {', '.join(known)} (or a plug-in, "
-        "package.module:factory)"
+        "package.module:factory)."
     )
 
 
@@ -228,11 +228,11 @@ def parse_model_spec(spec: str) -> tuple[str, dict[str, Any]]:
     overrides: dict[str, Any] = {}
     if over is not None:
         if not over.strip():
-            raise ParameterError(f"model spec {spec!r} has ':' but no key=value overrides")
+            raise ParameterError(f"model spec {spec!r} has ':' but no key=value overrides.")
         for item in over.split(","):
             if "=" not in item:
                 raise ParameterError(
-                    f"model override {item.strip()!r} in {spec!r} is not key=value"
+                    f"model override {item.strip()!r} in {spec!r} is not key=value."
                 )
             key, raw = (s.strip() for s in item.split("=", 1))
             if key == POLICY_KEY:
@@ -241,7 +241,7 @@ def parse_model_spec(spec: str) -> tuple[str, dict[str, Any]]:
             if key not in types and not open_kw:
                 raise ParameterError(
                     f"unknown parameter {key!r} for model {name!r}: "
-                    f"known parameters are {', '.join(types) or '(none)'}"
+                    f"known parameters are {', '.join(types) or '(none)'}."
                 )
             overrides[key] = _parse_value(key, raw, types.get(key, float))
     return name, overrides
@@ -346,7 +346,7 @@ def require_angular_velocity(spec: str, what: str) -> None:
         avdms = sorted(n for n, v in VARIANTS.items() if v.kind in ANGULAR_VELOCITY_KINDS)
         raise ParameterError(
             f"{what} needs a model's angular velocity (omega_dps); {name} is a collision "
-            f"detector without one: give an angular-velocity model ({', '.join(avdms)})"
+            f"detector without one: give an angular-velocity model ({', '.join(avdms)})."
         )
 
 
@@ -389,7 +389,7 @@ def check_detector(
     if lacking and not alert:
         raise ParameterError(
             f"model {model.name!r}: step() on a {w}x{h} frame (WxH) returned no "
-            f"{', '.join(lacking)} (it declares {', '.join(names)})"
+            f"{', '.join(lacking)} (it declares {', '.join(names)})."
         )
     if not alert:
         return model
@@ -400,6 +400,6 @@ def check_detector(
     if not finite:
         raise ParameterError(
             f"detector {model.name!r} returned alert={value!r} on a {w}x{h} frame (WxH): it "
-            "must be a finite number (1 = collision ahead, 0 = not) or a bool"
+            "must be a finite number (1 = collision ahead, 0 = not) or a bool."
         )
     return model

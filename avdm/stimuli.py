@@ -30,7 +30,7 @@ WAVEFORMS = ("sine", "square")
 def period_px_from_sf(sf_upc: float, width: int) -> float:
     """Spatial period in px of ``sf_upc`` cycles across an image ``width`` px wide."""
     if not sf_upc > 0:
-        raise ParameterError(f"spatial frequency must be > 0 upc, got {sf_upc}")
+        raise ParameterError(f"spatial frequency must be > 0 upc, got {sf_upc}.")
     return width / sf_upc
 
 
@@ -41,34 +41,38 @@ def omega_true_dps(sf_upc: float, tf_hz: float) -> float:
 
 def _n_frames(fps: float, duration_s: float | None, n_frames: int | None) -> int:
     if not (math.isfinite(fps) and fps > 0):
-        raise ParameterError(f"fps must be a positive number, got {fps}")
+        raise ParameterError(f"fps must be a positive number, got {fps}.")
     if n_frames is None:
         if duration_s is None or not (math.isfinite(duration_s) and duration_s > 0):
-            raise ParameterError(f"duration must be a positive number of seconds, got {duration_s}")
+            raise ParameterError(
+                f"duration must be a positive number of seconds, got {duration_s}."
+            )
         n_frames = round(duration_s * fps)
     if n_frames < 1:
-        raise ParameterError(f"a stimulus needs at least one frame, got {n_frames}")
+        raise ParameterError(f"a stimulus needs at least one frame, got {n_frames}.")
     return int(n_frames)
 
 
 def _check_size(size: tuple[int, int]) -> tuple[int, int]:
     h, w = (int(s) for s in size)
     if h < 1 or w < 2:
-        raise ParameterError(f"stimulus size must be at least 1x2 px (HxW), got {size}")
+        raise ParameterError(
+            f"a stimulus must be at least 2x1 px (W x H), got {w}x{h} px (size {size}, H, W)."
+        )
     return h, w
 
 
 def _levels(contrast: float, normalisation: str) -> tuple[float, float]:
     """(mean, amplitude) of intensities for Michelson ``contrast`` under ``normalisation``."""
     if not (math.isfinite(contrast) and 0.0 <= contrast <= 1.0):
-        raise ParameterError(f"contrast must be between 0 and 1, got {contrast}")
+        raise ParameterError(f"contrast must be between 0 and 1, got {contrast}.")
     if normalisation == "peak":
         mean = 1.0 / (1.0 + contrast)
     elif normalisation == "mean":
         mean = 0.5
     else:
         raise ParameterError(
-            f"normalisation must be one of {NORMALISATIONS}, got {normalisation!r}"
+            f"normalisation must be one of {NORMALISATIONS}, got {normalisation!r}."
         )
     return mean, mean * contrast
 
@@ -80,7 +84,7 @@ def _finish(intensity: np.ndarray, dtype: type | np.dtype) -> np.ndarray:
         return np.rint(intensity * 255.0).astype(np.uint8)
     if dt in (np.float32, np.float64):
         return intensity.astype(dt)
-    raise ParameterError(f"dtype must be uint8, float32 or float64, got {dt}")
+    raise ParameterError(f"dtype must be uint8, float32 or float64, got {dt}.")
 
 
 def grating(
@@ -111,16 +115,16 @@ def grating(
     h, w = _check_size(size)
     t = _n_frames(fps, duration_s, n_frames)
     if (sf_upc is None) == (period_px is None):
-        raise ParameterError("give exactly one of sf_upc and period_px")
+        raise ParameterError("give exactly one of sf_upc and period_px.")
     period = period_px_from_sf(sf_upc, w) if sf_upc is not None else float(period_px)  # type: ignore[arg-type]
     if not (math.isfinite(period) and period > 0):
-        raise ParameterError(f"spatial period must be a positive number of px, got {period}")
+        raise ParameterError(f"spatial period must be a positive number of px, got {period}.")
     if not (math.isfinite(tf_hz) and tf_hz >= 0):
-        raise ParameterError(f"temporal frequency must be >= 0 Hz, got {tf_hz}")
+        raise ParameterError(f"temporal frequency must be >= 0 Hz, got {tf_hz}.")
     if direction not in (1, -1):
-        raise ParameterError(f"direction must be 1 or -1, got {direction}")
+        raise ParameterError(f"direction must be 1 or -1, got {direction}.")
     if waveform not in WAVEFORMS:
-        raise ParameterError(f"waveform must be one of {WAVEFORMS}, got {waveform!r}")
+        raise ParameterError(f"waveform must be one of {WAVEFORMS}, got {waveform!r}.")
     mean, amp = _levels(contrast, normalisation)
     # phase in cycles; computed per frame and column only (rows are identical)
     cols = np.arange(w, dtype=np.float64) / period
@@ -141,7 +145,7 @@ def clutter_image(size: tuple[int, int], *, seed: int = 0, exponent: float = 1.0
     """
     h, w = _check_size(size)
     if not (math.isfinite(exponent) and exponent >= 0):
-        raise ParameterError(f"spectral exponent must be >= 0, got {exponent}")
+        raise ParameterError(f"spectral exponent must be >= 0, got {exponent}.")
     rng = np.random.default_rng(seed)
     fy = np.fft.fftfreq(h)[:, None]
     fx = np.fft.rfftfreq(w)[None, :]
@@ -160,7 +164,9 @@ def resize_image(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Resample a 2-D image to ``size`` (H, W) by area averaging (down) / linear (up), float64."""
     img = np.asarray(image, dtype=np.float64)
     if img.ndim != 2 or img.shape[0] < 1 or img.shape[1] < 2:
-        raise ParameterError(f"an image must be 2-D with at least 1x2 px, got shape {img.shape}")
+        raise ParameterError(
+            f"an image must be 2-D with at least 2x1 px (W x H), got shape {img.shape} (H, W)."
+        )
     h, w = _check_size(size)
 
     return _area_matrix(img.shape[0], h) @ img @ _area_matrix(img.shape[1], w).T
@@ -198,17 +204,17 @@ def drifting_image(
     """
     img = np.asarray(image, dtype=np.float64)
     if img.ndim != 2:
-        raise ParameterError(f"an image must be 2-D (grayscale), got shape {img.shape}")
+        raise ParameterError(f"an image must be 2-D (grayscale), got shape {img.shape}.")
     if not np.isfinite(img).all():
-        raise ParameterError("the image contains NaN or infinite values")
+        raise ParameterError("the image contains NaN or infinite values.")
     if size is not None:
         img = resize_image(img, size)
     h, w = _check_size(img.shape)
     t = _n_frames(fps, duration_s, n_frames)
     if not math.isfinite(speed_px_s):
-        raise ParameterError(f"drift speed must be finite, got {speed_px_s}")
+        raise ParameterError(f"drift speed must be finite, got {speed_px_s}.")
     if direction not in (1, -1):
-        raise ParameterError(f"direction must be 1 or -1, got {direction}")
+        raise ParameterError(f"direction must be 1 or -1, got {direction}.")
     lo, hi = img.min(), img.max()
     z = 2.0 * (img - lo) / (hi - lo) - 1.0 if hi > lo else np.zeros_like(img)
     mean, amp = _levels(contrast, normalisation)
@@ -248,7 +254,7 @@ def natural_scene(
     period would have.
     """
     if not (math.isfinite(nominal_period_px) and nominal_period_px > 0):
-        raise ParameterError(f"nominal period must be > 0 px, got {nominal_period_px}")
+        raise ParameterError(f"nominal period must be > 0 px, got {nominal_period_px}.")
     base = clutter_image(size, seed=seed, exponent=exponent) if image is None else image
     return drifting_image(
         base,
@@ -289,13 +295,13 @@ def panned_image(
     float64 to keep them unrounded (divided by 255)."""
     img = np.asarray(image, dtype=np.float64)
     if img.ndim != 2:
-        raise ParameterError(f"an image must be 2-D (grayscale), got shape {img.shape}")
+        raise ParameterError(f"an image must be 2-D (grayscale), got shape {img.shape}.")
     h, w = _check_size(size)
     n = _n_frames(fps, None, n_frames)
     if direction not in (1, -1):
-        raise ParameterError(f"direction must be 1 or -1, got {direction}")
+        raise ParameterError(f"direction must be 1 or -1, got {direction}.")
     if not (0 < fov_deg < image_deg):
-        raise ParameterError(f"the camera's field of view ({fov_deg}°) must be under {image_deg}°")
+        raise ParameterError(f"the camera's field of view ({fov_deg}°) must be under {image_deg}°.")
     src_h, src_w = img.shape
     src_dpp = image_deg / src_w
     win_w = max(2, round(fov_deg / src_dpp))
@@ -303,7 +309,7 @@ def panned_image(
     if win_h > src_h:
         raise ParameterError(
             f"the image is {src_h} px high but the camera's window needs {win_h} rows: "
-            "use a wider field of view in the image or a taller image"
+            "use a wider field of view in the image or a taller image."
         )
     r0 = (src_h - win_h) // 2
     rows, cols = _area_matrix(win_h, h), _area_matrix(win_w, w).T

@@ -62,7 +62,7 @@ def _convert(field: str, kind: str, text: str) -> Any:
                 return text.lower() in _TRUE
             raise UserError(text)
     except ValueError:
-        raise UserError(f"grid item {field}: {text!r} is not a {base}") from None
+        raise UserError(f"grid item {field}: {text!r} is not a {base}.") from None
     return text
 
 
@@ -93,7 +93,7 @@ def _values(field: str, kind: str, text: str) -> list[Any]:
     if m and kind.startswith("int"):
         lo, hi = int(m[1]), int(m[2])
         if hi < lo:
-            raise UserError(f"grid item {field}={text}: the range runs backwards")
+            raise UserError(f"grid item {field}={text}: the range runs backwards.")
         return list(range(lo, hi + 1))
     # a TF schedule holds commas itself: give several schedules separated by ';'
     if field == "tf_schedule":
@@ -104,7 +104,7 @@ def _values(field: str, kind: str, text: str) -> list[Any]:
         parts = text.split(",")
     values = [_convert(field, kind, v) for v in parts if v.strip()]
     if not values:
-        raise UserError(f"grid item {field}= has no value")
+        raise UserError(f"grid item {field}= has no value.")
     return values
 
 
@@ -121,13 +121,13 @@ def parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
         if field not in types:
             raise UserError(
                 f"grid item {item!r}: {field!r} is not a vdc-capture sim setting "
-                f"(one of {', '.join(types)})"
+                f"(one of {', '.join(types)})."
             )
         if field in grid:
-            raise UserError(f"grid item {field} is given twice")
+            raise UserError(f"grid item {field} is given twice.")
         grid[field] = _values(field, types[field], text)
     if not grid:
-        raise UserError("the grid is empty: give items such as tf_hz=0,1,3 seed=1..3")
+        raise UserError("the grid is empty: give items such as tf_hz=0,1,3 seed=1..3.")
     return grid
 
 
@@ -160,7 +160,7 @@ class CampaignSettings(ExecutorSettings):
         if n_runs > MAX_RUNS:
             raise UserError(
                 f"the grid makes {n_runs:,} runs, more than {MAX_RUNS:,}: give fewer values "
-                "(or several sweeps)"
+                "(or several sweeps)."
             )
         for field in _MODEL_FIELDS:  # unknown variants or overrides fail before any run
             for spec in grid.get(field, []):
@@ -248,7 +248,7 @@ def campaign(
     todo = [r for r in runs if settings.force or not run_path(out, r[0]).exists()]
     feedback.log(
         f"{len(runs)} runs: {len(runs) - len(todo)} already done, {len(todo)} to record on "
-        f"{settings.where()}"
+        f"{settings.where()}."
     )
     (out / RECORDINGS).mkdir(parents=True, exist_ok=True)
     feedback.expect(len(todo))

@@ -39,7 +39,7 @@ def _report_write_error(rec: RecordResult) -> None:
     if rec.write_error or rec.plugin_error:
         say(
             f"{PROG}: error: {rec.plugin_error or rec.write_error}; stopped at once: {rec.path} "
-            f"is a readable recording of the first {rec.frames} frames"
+            f"is a readable recording of the first {rec.frames} frames."
         )
 
 
@@ -93,7 +93,7 @@ def cmd_robot(args: argparse.Namespace) -> int:
     if res.link_error:
         say(
             f"{PROG}: error: {res.link_error}; stopped: {rec.path} is a readable recording of "
-            f"the {rec.frames} frames before it, with a link_error event"
+            f"the {rec.frames} frames before it, with a link_error event."
         )
     print(
         f"wrote {rec.path}: {rec.frames} frames, link: "
@@ -117,17 +117,17 @@ def cmd_video(args: argparse.Namespace) -> int:
         say(
             f"{PROG} video: note: frames lost inside the source ({res.lost} problem(s), "
             f"first: {res.first_loss}); each is a decode_error event in the recording, the "
-            f"frames they cost counted once among the {res.dropped} dropped"
+            f"frames they cost counted once among the {res.dropped} dropped."
         )
     if res.decode_error:
         say(
             f"{PROG} video: note: decoding stopped after {rec.frames} frames "
-            f"({res.decode_error}); the recording keeps every frame before it"
+            f"({res.decode_error}); the recording keeps every frame before it."
         )
     if rec.complete and res.info.get("kind") == "file" and res.container_frames is None:
         say(
             f"{PROG} video: note: the container states no frame count (nor a duration at a "
-            "constant rate): frames lost after the last one read are unknown, not counted"
+            "constant rate): frames lost after the last one read are unknown, not counted."
         )
     cal = res.calibration
     print(

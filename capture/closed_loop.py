@@ -176,9 +176,9 @@ class ClosedLoopRobot(SimulatedRobot):
 
     def __init__(self, config: SimConfig, batch_size: int = 1000) -> None:
         if config.behaviour != "collision":
-            raise UserError("ClosedLoopRobot needs behaviour='collision'")
+            raise UserError("ClosedLoopRobot needs behaviour='collision'.")
         if config.arena.ring_enabled:
-            raise UserError("the light ring must be off in collision mode (ring_enabled=False)")
+            raise UserError("the light ring must be off in collision mode (ring_enabled=False).")
         super().__init__(config, batch_size)
         ctx = config.camera.model_context()
         self._detector_spec = config.collision.detector_spec()

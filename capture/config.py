@@ -386,25 +386,25 @@ def parse_schedule(text: str) -> tuple[tuple[float, float], ...]:
     """``"0:30m,3:30m"`` → ``((0.0, 1800.0), (3.0, 1800.0))``: TF Hz and duration (s|m|h,
     seconds without a unit) per segment. Raises ValueError naming the bad segment."""
     if not text or not text.strip():
-        raise UserError("empty TF schedule: expected e.g. 0:30m,3:30m (TF Hz : duration)")
+        raise UserError("empty TF schedule: expected e.g. 0:30m,3:30m (TF Hz : duration).")
     out = []
     for part in text.split(","):
         m = _SEGMENT.match(part)
         if m is None:
             raise UserError(
-                f"TF schedule segment {part.strip()!r} is not TF:DURATION (e.g. 3:30m, 0:90s)"
+                f"TF schedule segment {part.strip()!r} is not TF:DURATION (e.g. 3:30m, 0:90s)."
             )
         try:
             tf = float(m.group(1))
             dur = float(m.group(2)) * _UNIT_S[m.group(3)]
         except ValueError:
             raise UserError(
-                f"TF schedule segment {part.strip()!r} has a non-numeric value"
+                f"TF schedule segment {part.strip()!r} has a non-numeric value."
             ) from None
         if not (math.isfinite(tf) and 0 <= tf <= 100):
-            raise UserError(f"TF {tf:g} Hz in schedule segment {part.strip()!r}: must be 0–100 Hz")
+            raise UserError(f"TF {tf:g} Hz in schedule segment {part.strip()!r}: must be 0–100 Hz.")
         if not (math.isfinite(dur) and dur > 0):
-            raise UserError(f"duration in schedule segment {part.strip()!r} must be > 0")
+            raise UserError(f"duration in schedule segment {part.strip()!r} must be > 0.")
         out.append((tf, dur))
     return tuple(out)
 

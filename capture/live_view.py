@@ -92,11 +92,11 @@ def check_live_url(url: str) -> tuple[str, int]:
     except ValueError:
         port = None
     if parts.scheme not in ("rerun+http", "rerun+https", "rerun") or not parts.hostname or not port:
-        raise UserError(f"--connect {url!r} is not a Rerun viewer address; {form}")
+        raise UserError(f"--connect {url!r} is not a Rerun viewer address; {form}.")
     try:
         rr.GrpcSink(url)  # the SDK's own parse, so what passes here also connects
     except (RuntimeError, ValueError) as exc:
-        raise UserError(f"--connect {url!r}: {exc}; {form}") from None
+        raise UserError(f"--connect {url!r}: {exc}; {form}.") from None
     return parts.hostname, port
 
 

@@ -28,14 +28,14 @@ __all__ = ["OutputClaim", "claim_output", "lock_path", "partial_path"]
 
 def _check_name(path: Path) -> None:
     if path.suffix != ".rrd":
-        raise UserError(f"output {str(path)!r} must end in .rrd")
+        raise UserError(f"output {str(path)!r} must end in .rrd.")
     if path.name.endswith(PARTIAL_SUFFIX):
         raise UserError(
             f"output {str(path)!r} ends in {PARTIAL_SUFFIX}, the name of captures in progress; "
-            "choose another --out"
+            "choose another --out."
         )
     if path.is_dir():
-        raise UserError(f"output {str(path)!r} is a directory; give a file name ending in .rrd")
+        raise UserError(f"output {str(path)!r} is a directory; give a file name ending in .rrd.")
 
 
 class OutputClaim:
@@ -65,7 +65,7 @@ class OutputClaim:
                     except FileExistsError:
                         raise UserError(
                             f"{str(self.path)!r} appeared while recording; the recording is kept "
-                            f"as {str(self.partial)!r}"
+                            f"as {str(self.partial)!r}."
                         ) from None
                     self.partial.unlink()
         finally:
@@ -117,7 +117,7 @@ def claim_output(path: Path, force: bool) -> OutputClaim:
             if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
                 raise UserError(
                     f"another capture is writing {str(path)!r} right now; wait for it or "
-                    "choose another --out"
+                    "choose another --out."
                 ) from None
             raise UserError(f"cannot lock {str(lock)!r}: {exc.strerror}") from None
         try:
@@ -128,7 +128,7 @@ def claim_output(path: Path, force: bool) -> OutputClaim:
             break
         os.close(fd)
     else:  # pragma: no cover - needs 20 lost races in a row
-        raise UserError(f"could not lock {str(lock)!r}; try again")
+        raise UserError(f"could not lock {str(lock)!r}; try again.")
     claim = OutputClaim(path, force, fd)
     try:
         # a probe write: a folder that accepts a lock file but no data (a full disk) fails here
@@ -137,12 +137,12 @@ def claim_output(path: Path, force: bool) -> OutputClaim:
         if not force and path.exists():
             raise UserError(
                 f"{str(path)!r} already exists (same configuration recorded before?): "
-                "pass --force to record it again, or choose --out"
+                "pass --force to record it again, or choose --out."
             )
         if not force and claim.partial.exists():
             raise UserError(
                 f"{str(claim.partial)!r} holds a capture that was cut short (killed?); analyse it "
-                "as it is, rename or remove it, or pass --force to replace it"
+                "as it is, rename or remove it, or pass --force to replace it."
             )
     except OSError as exc:
         claim.release()

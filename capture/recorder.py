@@ -209,7 +209,7 @@ class Recorder:
         if unknown:
             raise UserError(
                 f"property section(s) {', '.join(map(repr, unknown))} are not in the recording "
-                f"contract; allowed: {', '.join(PROPERTY_SECTIONS)} (vdc.recording)"
+                f"contract; allowed: {', '.join(PROPERTY_SECTIONS)} (vdc.recording)."
             )
         text_names: set[str] = set()
         for name, values in sections.items():
@@ -441,7 +441,7 @@ class Recorder:
         if kind not in EVENT_KINDS:
             raise UserError(
                 f"event kind {kind!r} is not in the recording contract; allowed: "
-                f"{', '.join(EVENT_KINDS)} (vdc.recording)"
+                f"{', '.join(EVENT_KINDS)} (vdc.recording)."
             )
         if len(frame) == 0:
             return

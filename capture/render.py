@@ -229,7 +229,7 @@ class CameraRenderer:
         self._texture = None
         if wall.scene == "natural":
             if texture is None:
-                raise UserError("a natural-scene wall needs its texture")
+                raise UserError("a natural-scene wall needs its texture.")
             z = np.asarray(texture, dtype=np.float64)
             self._texture = np.ascontiguousarray(mean * (1.0 + wall.contrast * z), np.float32)
 

@@ -570,11 +570,11 @@ def record_robot(
         if settings.save_calibration:
             h = device.calibrate_tracker()
             if h is None:
-                raise UserError("no overhead frame yet to calibrate from")
+                raise UserError("no overhead frame yet to calibrate from.")
             save_calibration(h, Path(settings.save_calibration))
         if options.log is not None:
             options.log(
-                f"recording {rid} from {settings.port} (camera {settings.camera}) -> {path}"
+                f"recording {rid} from {settings.port} (camera {settings.camera}) -> {path}."
             )
         result = run_capture(device, None, recorder, total_frames=None, progress=options.progress)
     finally:

@@ -28,12 +28,12 @@ def accepted_model(a: Announcement, asked: str) -> Model:
     robot_outputs = [f"{n} [{u}]" for n, u in a.outputs]
     problem = a.problem()
     if problem is not None:
-        raise UserError(f"the robot announces {problem}: its firmware sends a broken camera")
+        raise UserError(f"the robot announces {problem}: its firmware sends a broken camera.")
     # by parameters, not spelling: a robot running avdm:beta=0.25 runs avdm (beta 0.25)
     if not same_model(a.model, want, **a.model_context()):
         raise UserError(
             f"the robot runs {a.model} (outputs {', '.join(robot_outputs) or 'none'}), not "
-            f"--model {asked}: give --model {a.model}, or load {want} on the robot"
+            f"--model {asked}: give --model {a.model}, or load {want} on the robot."
         )
     try:
         host = make_model(want, **a.model_context())
@@ -44,7 +44,7 @@ def accepted_model(a: Announcement, asked: str) -> Model:
         raise UserError(
             f"the robot's {a.model} sends {len(robot_outputs)} outputs "
             f"({', '.join(robot_outputs) or 'none'}) but {want} has {len(host_outputs)} "
-            f"({', '.join(host_outputs)}): the robot's firmware and vdc disagree on the model"
+            f"({', '.join(host_outputs)}): the robot's firmware and vdc disagree on the model."
         )
     return host
 

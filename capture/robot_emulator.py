@@ -65,9 +65,9 @@ class EmulatorConfig:
         for name in ("corrupt_rate", "drop_rate"):
             v = getattr(self, name)
             if not 0.0 <= v < 1.0:
-                raise UserError(f"{name}={v!r} must be in [0, 1)")
+                raise UserError(f"{name}={v!r} must be in [0, 1).")
         if not (isinstance(self.decimation, int) and 1 <= self.decimation <= 1000):
-            raise UserError(f"decimation={self.decimation!r} must be an integer 1-1000")
+            raise UserError(f"decimation={self.decimation!r} must be an integer 1-1000.")
 
 
 class RobotEmulator:
@@ -108,10 +108,10 @@ class RobotEmulator:
             if not os.readlink(link).startswith("/dev/pts/"):
                 raise UserError(
                     f"--link {str(link)!r} is a link to {os.readlink(link)!r}, not to an "
-                    "emulator's terminal; choose another path"
+                    "emulator's terminal; choose another path."
                 )
         elif link.exists():
-            raise UserError(f"--link {str(link)!r} exists and is not a link; choose another path")
+            raise UserError(f"--link {str(link)!r} exists and is not a link; choose another path.")
 
     def open_port(self) -> str:
         self._check_link()
@@ -435,7 +435,7 @@ def emulate_robot(settings: EmulateSettings, announce: Callable[[str], None] | N
         silent=settings.silent,
     )
     if not (settings.width_px <= 255 and settings.height_px <= 255):
-        raise UserError("--width-px and --height-px are at most 255 (a FRAME's u8 fields)")
+        raise UserError("--width-px and --height-px are at most 255 (a FRAME's u8 fields).")
     if settings.model:
         make_model(settings.model)  # an unknown model fails before the port opens
     sim = SimConfig(

@@ -109,7 +109,7 @@ def encode_frame(
     if image is not None:
         img = np.ascontiguousarray(image, dtype=np.uint8)
         if img.shape != (h, w):
-            raise UserError(f"image shape {img.shape} is not {(h, w)}")
+            raise UserError(f"image shape {img.shape} is not {(h, w)}.")
         payload += img.tobytes()
     return encode(TYPE_FRAME, payload)
 
@@ -117,11 +117,11 @@ def encode_frame(
 def decode_frame(payload: bytes) -> FramePacket:
     """Parse a FRAME payload; raises ValueError if its length does not match its header."""
     if len(payload) < _FRAME_HEAD.size:
-        raise UserError("FRAME payload shorter than its header")
+        raise UserError("FRAME payload shorter than its header.")
     index, t_us, flags, w, h, n = _FRAME_HEAD.unpack_from(payload)
     expected = _FRAME_HEAD.size + 4 * n + (w * h if flags & FLAG_IMAGE else 0)
     if len(payload) != expected:
-        raise UserError(f"FRAME payload of {len(payload)} bytes, header says {expected}")
+        raise UserError(f"FRAME payload of {len(payload)} bytes, header says {expected}.")
     outputs = struct.unpack_from(f"<{n}f", payload, _FRAME_HEAD.size)
     image = None
     if flags & FLAG_IMAGE:
@@ -175,17 +175,17 @@ class Announcement:
 def _short_text(text: str, what: str) -> bytes:
     raw = text.encode("utf-8")
     if len(raw) > 255:
-        raise UserError(f"{what} {text!r} is longer than 255 bytes")
+        raise UserError(f"{what} {text!r} is longer than 255 bytes.")
     return bytes([len(raw)]) + raw
 
 
 def encode_announce(a: Announcement) -> bytes:
     """An ANNOUNCE packet carrying ``a``."""
     if len(a.outputs) > 255:
-        raise UserError("more than 255 outputs")
+        raise UserError("more than 255 outputs.")
     spec = a.model.encode("utf-8")
     if len(spec) > 255:
-        raise UserError(f"model spec {a.model!r} is longer than 255 bytes")
+        raise UserError(f"model spec {a.model!r} is longer than 255 bytes.")
     payload = _ANNOUNCE_HEAD.pack(
         ANNOUNCE_VERSION,
         a.fps,
@@ -205,28 +205,28 @@ def encode_announce(a: Announcement) -> bytes:
 def decode_announce(payload: bytes) -> Announcement:
     """Parse an ANNOUNCE payload; ValueError if it is malformed or of another version."""
     if len(payload) < _ANNOUNCE_HEAD.size:
-        raise UserError("ANNOUNCE payload shorter than its header")
+        raise UserError("ANNOUNCE payload shorter than its header.")
     version, fps, w, h, dpp, row, n, s = _ANNOUNCE_HEAD.unpack_from(payload)
     if version != ANNOUNCE_VERSION:
-        raise UserError(f"ANNOUNCE version {version}, this host reads {ANNOUNCE_VERSION}")
+        raise UserError(f"ANNOUNCE version {version}, this host reads {ANNOUNCE_VERSION}.")
     pos = _ANNOUNCE_HEAD.size
 
     def text() -> str:
         nonlocal pos
         if pos >= len(payload) or pos + 1 + payload[pos] > len(payload):
-            raise UserError("ANNOUNCE payload ends inside a text field")
+            raise UserError("ANNOUNCE payload ends inside a text field.")
         k = payload[pos]
         out = payload[pos + 1 : pos + 1 + k].decode("utf-8")
         pos += 1 + k
         return out
 
     if pos + s > len(payload):
-        raise UserError("ANNOUNCE payload ends inside the model spec")
+        raise UserError("ANNOUNCE payload ends inside the model spec.")
     spec = payload[pos : pos + s].decode("utf-8")
     pos += s
     outputs = tuple((text(), text()) for _ in range(n))
     if pos != len(payload):
-        raise UserError(f"ANNOUNCE payload has {len(payload) - pos} bytes after its outputs")
+        raise UserError(f"ANNOUNCE payload has {len(payload) - pos} bytes after its outputs.")
     return Announcement(spec, outputs, float(fps), w, h, float(dpp), row)
 
 

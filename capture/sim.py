@@ -110,7 +110,7 @@ class SimSettings(Settings):
             duration = (self.minutes if self.minutes is not None else 30.0) * 60
             schedule = ((self.tf_hz, duration),)
         if self.image and self.scene != "natural":
-            raise UserError("--image gives a natural scene: use it with --scene natural")
+            raise UserError("--image gives a natural scene: use it with --scene natural.")
         wall = WallConfig(
             scene=self.scene,
             period_m=self.period_m,
@@ -136,7 +136,7 @@ class SimSettings(Settings):
                 ("--phase", bool(self.phase)),
             ):
                 if given:
-                    raise UserError(f"{flag} belongs to --behaviour collision")
+                    raise UserError(f"{flag} belongs to --behaviour collision.")
             col = CollisionConfig()
             model = self.model or "avdm"
         return SimConfig(
@@ -241,7 +241,7 @@ def record_sim(
             options.log(
                 f"recording {run_id}: {config.wall.scene} walls, TF schedule "
                 f"{format_schedule(config.wall.tf_schedule)}, {config.duration_s / 60:g} min "
-                f"({config.n_frames} frames at {config.camera.fps:g} Hz), {what}"
+                f"({config.n_frames} frames at {config.camera.fps:g} Hz), {what}."
             )
         result = run_capture(
             device,

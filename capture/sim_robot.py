@@ -25,14 +25,14 @@ def load_wall_image(path: str, texture_px: tuple[int, int]) -> np.ndarray:
     Raises ValueError if the file is missing or not an image."""
     p = Path(path)
     if not p.is_file():
-        raise UserError(f"wall image {path!r} does not exist")
+        raise UserError(f"wall image {path!r} does not exist.")
     img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
     if img is None:
-        raise UserError(f"wall image {path!r} is not a readable image (PNG, JPEG, ...)")
+        raise UserError(f"wall image {path!r} is not a readable image (PNG, JPEG, ...).")
     small = resize_image(img.astype(np.float64), texture_px)
     lo, hi = small.min(), small.max()
     if hi - lo < 1e-9:
-        raise UserError(f"wall image {path!r} is uniform: it has no pattern to show")
+        raise UserError(f"wall image {path!r} is uniform: it has no pattern to show.")
     return 2.0 * (small - lo) / (hi - lo) - 1.0
 
 

@@ -65,11 +65,11 @@ def calibrate_homography(image: np.ndarray, layout: MarkerLayout) -> np.ndarray:
     found = detect(image)
     missing = [i for i in CORNER_IDS if i not in found]
     if missing:
-        raise UserError(f"overhead calibration: corner marker(s) {missing} not visible")
+        raise UserError(f"overhead calibration: corner marker(s) {missing} not visible.")
     px = np.array([found[i].mean(axis=0) for i in CORNER_IDS], dtype=np.float64)
     h, _ = cv2.findHomography(px, layout.corner_centres(), 0)
     if h is None:
-        raise UserError("overhead calibration: the corner markers give no homography")
+        raise UserError("overhead calibration: the corner markers give no homography.")
     return h
 
 
@@ -84,7 +84,7 @@ def load_calibration(path: Path) -> np.ndarray:
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise UserError(f"cannot read the tracker calibration {str(path)!r}: {exc}") from None
     if h.shape != (3, 3):
-        raise UserError(f"tracker calibration {str(path)!r} is not a 3x3 homography")
+        raise UserError(f"tracker calibration {str(path)!r} is not a 3x3 homography.")
     return h
 
 
@@ -150,8 +150,8 @@ def open_camera(source: str) -> cv2.VideoCapture:
     else:
         is_pattern = "%" in source
         if not is_pattern and not Path(source).exists():
-            raise UserError(f"overhead camera {source!r}: no such file or camera index")
+            raise UserError(f"overhead camera {source!r}: no such file or camera index.")
         cap = cv2.VideoCapture(source, cv2.CAP_IMAGES if is_pattern else cv2.CAP_ANY)
     if not cap.isOpened():
-        raise UserError(f"overhead camera {source!r} cannot be opened")
+        raise UserError(f"overhead camera {source!r} cannot be opened.")
     return cap

@@ -41,6 +41,7 @@ from vdc.blueprints import video_blueprint
 from vdc.cli_support import option
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher, RateLookahead
+from vdc.heartbeat import Count
 from vdc.parquet_io import WroteFiles
 from vdc.recording import FOOTAGE_MODEL, camera_model_context, working_size
 from vdc.settings import API_ONLY, AT_LEAST_0, AT_LEAST_1, RANGE, Settings, between
@@ -117,7 +118,7 @@ class VideoSource(DeviceContext):
         self.info = self.reader.info
         fps = settings.fps or self.info["nominal_fps"]
         if not (math.isfinite(fps) and fps > 0):
-            raise UserError(f"{settings.source!r} states no frame rate: pass --fps")
+            raise UserError(f"{settings.source!r} states no frame rate: pass --fps.")
         self.fps = float(fps)
         self._batches: FrameBatcher | None = None
         self._ahead: RateLookahead | None = None
@@ -201,7 +202,13 @@ class VideoSource(DeviceContext):
         assert self._batches is not None
         if self._ahead is None:
             live = self.info["kind"] == "camera"
-            self._ahead = RateLookahead(self._batches, self.settings.max_repeats, live)
+            # the read-ahead decodes the clip (the whole of it where it fits), most of a
+            # file's time: its frames counted on the command's heartbeat line (vdc.heartbeat)
+            total = None if live else self.info.get("container_frames")
+            with Count(total, f"decoding {self.settings.source}", "frame") as decoded:
+                self._ahead = RateLookahead(
+                    self._batches, self.settings.max_repeats, live, progress=decoded.update
+                )
         return self._ahead.rate
 
     def final_rate(self) -> Any:
@@ -337,7 +344,7 @@ def record_video(
     if settings.kind == "file" and path.exists() and src.exists() and src.samefile(path):
         raise UserError(
             f"the output {str(path)!r} is the source video: writing it would destroy the input; "
-            "choose another --out"
+            "choose another --out."
         )
     device = VideoSource(settings)  # opens the source: bad input fails here
     claim = claim_output(path, options.force)  # exclusive from here; bad folders fail here
@@ -405,7 +412,7 @@ def record_video(
             options.log(
                 f"recording {rid}: {settings.source} ({info['codec']}, {info['src_width_px']}x"
                 f"{info['src_height_px']}, {device.fps:.6g} fps) as {w}x{h} px luma at "
-                f"{deg_per_px:.4g} deg/px, model {model.name}"
+                f"{deg_per_px:.4g} deg/px, model {model.name}."
             )
         total = info["n_frames_header"] or None
         result = run_capture(device, model, recorder, total_frames=total, progress=options.progress)

@@ -14,6 +14,7 @@ from vdc.recording import (
     ARENA,
     CAMERA,
     COMPLEXITY_ROOT,
+    COMPLEXITY_UNITS,
     DATASET_ROOT,
     DESCRIPTION,
     EVENTS,
@@ -112,6 +113,25 @@ def default_blueprint(
     )
 
 
+def complexity_panes() -> rrb.Tabs:
+    """``vdc-analyse complexity``'s series of a clip, once opened beside it: a pane per unit
+    (deg/s, P.910, 8-bit levels, ...), each metric as measured, never rescaled to share one."""
+    by_unit: dict[str, list[str]] = {}
+    for metric, unit in COMPLEXITY_UNITS.items():
+        by_unit.setdefault(unit, []).append(metric)
+    return rrb.Tabs(
+        *[
+            rrb.TimeSeriesView(
+                name=f"{', '.join(metrics)} ({unit})",
+                origin=COMPLEXITY_ROOT,
+                contents=[f"{COMPLEXITY_ROOT}/{m}" for m in metrics],
+            )
+            for unit, metrics in by_unit.items()
+        ],
+        name="vdc-analyse complexity",
+    )
+
+
 def video_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Blueprint:
     """A video recording: the frame, the AVDM trace and the baseline metrics (once
     ``vdc-analyse complexity`` output is opened beside it) on one time axis, frame timing
@@ -132,9 +152,7 @@ def video_blueprint(model_name: str, outputs: Sequence[Output]) -> rrb.Blueprint
                 rrb.TimeSeriesView(
                     name=f"{model_name} {main} ({main_unit})", origin=model_path(model_name, main)
                 ),
-                rrb.TimeSeriesView(
-                    name="baselines, normalised (vdc-analyse complexity)", origin=COMPLEXITY_ROOT
-                ),
+                complexity_panes(),
                 rrb.TimeSeriesView(
                     name="frame timing: repeat, dropped before, dt (s)", origin=FRAME_TIMING
                 ),

@@ -46,7 +46,7 @@ def check_below_nyquist(tf_hz: float, flag: str, fps: float = SIM_CAMERA_FPS) ->
         raise UserError(
             f"{flag} reaches {tf_hz:g} Hz, not below the camera's Nyquist frequency "
             f"{fps / 2:g} Hz (a {fps:g} Hz camera): a faster wall aliases; keep TFs below "
-            f"{fps / 2:g} Hz"
+            f"{fps / 2:g} Hz."
         )
 
 
@@ -91,7 +91,7 @@ class CalibrationNotes:
         if note.stage == "fitting":
             say(
                 f"calibrating {note.model} for this camera ({note.camera()}): "
-                f"{note.total} stimuli, once; the fit is then cached"
+                f"{note.total} stimuli, once; the fit is then cached."
             )
             self.bar = progress_bar(note.total, "calibrating", "stimulus", quiet=self.quiet)
         elif note.stage == "step" and self.bar is not None:
@@ -437,8 +437,8 @@ def run_command_line(
         and heartbeat.current() is None
         and not heartbeat.waits(words)
     )
-    beat = heartbeat.Heartbeat(where) if fresh else contextlib.nullcontext()
     try:
+        beat = heartbeat.Heartbeat(where) if fresh else contextlib.nullcontext()
         # a model built for a new camera fits its calibration first: say so, not a silent minute
         notes = CalibrationNotes(quiet=quiet)
         with beat, ctrl_c_ends_the_run(f"{prog}: interrupted"), fit_progress(notes):
@@ -450,10 +450,10 @@ def run_command_line(
     except OSError as exc:
         fail(where, f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": "))
     except KeyboardInterrupt:
-        say(f"{prog}: interrupted")
+        say(f"{prog}: interrupted.")
         return 130
     except tuple(stopped or ()) as exc:
-        say(f"{where}: error: {exc}{next(t for k, t in stopped.items() if isinstance(exc, k))}")
+        say(f"{where}: error: {exc}{next(t for k, t in stopped.items() if isinstance(exc, k))}.")
         return 1
 
 

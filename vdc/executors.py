@@ -38,7 +38,7 @@ from typing import Any
 
 from vdc.cli_support import option
 from vdc.errors import UserError
-from vdc.heartbeat import EVERY_S, Heartbeat
+from vdc.heartbeat import Heartbeat
 from vdc.pool_workers import (
     WorkerPool,
     _die_with_parent,
@@ -100,14 +100,14 @@ class ExecutorSettings(Settings):
         if self.scheduler and self.executor == "local":
             object.__setattr__(self, "executor", "dask")  # a scheduler means Dask
         if self.executor not in EXECUTORS:
-            raise UserError(f"--executor must be one of {', '.join(EXECUTORS)}")
+            raise UserError(f"--executor must be one of {', '.join(EXECUTORS)}.")
         if self.scheduler and not self.scheduler.startswith(("tcp://", "tls://", "inproc://")):
             path = Path(self.scheduler).expanduser()
             # Client(scheduler_file=...) neither expands ~ nor times out on a missing file
             if not path.is_file():
                 raise UserError(
                     f"--scheduler {self.scheduler!r} is neither tcp://HOST:PORT, tls://HOST:PORT "
-                    "nor an existing scheduler file"
+                    "nor an existing scheduler file."
                 )
 
     def executor_settings(self) -> ExecutorSettings:
@@ -150,14 +150,15 @@ class Feedback:
         what: str = "vdc", unit: str = "run", every_s: float | None = None
     ) -> Iterator[Feedback]:
         """Inside the block, a Feedback that prints on stderr: each line logged, and when
-        nothing was printed for a few seconds a line with the time so far, what is running
+        nothing was printed for ``every_s`` seconds (default: ``VDC_PROGRESS_EVERY_S`` if
+        set, else 4) a line with the time so far, what is running
         and how many ``unit``s of how many are done, with an estimate of the time left
         (:class:`vdc.heartbeat.Heartbeat`)::
 
             with vdc.Feedback.printing("boundary") as feedback:
                 vdc.boundary(settings, "results/boundary", feedback)
         """
-        with Heartbeat(what, every_s or EVERY_S) as hb:
+        with Heartbeat(what, every_s) as hb:
             count = hb.counter(what, unit)
             yield Feedback(hb.log, count.update, count.expect)
 
@@ -382,7 +383,7 @@ def check_shared_paths(client: Any, paths: Sequence[str | Path]) -> None:
         if blind:
             raise UserError(
                 f"{len(blind)} of {len(seen)} Dask worker(s) cannot see {path} (e.g. {blind[0]}): "
-                "recordings and --out must be on a filesystem shared by every worker"
+                "recordings and --out must be on a filesystem shared by every worker."
             )
 
 
@@ -477,7 +478,7 @@ def run_tasks(
             if client is not None:
                 check_shared_paths(client, shared_paths)
                 if log is not None and settings.scheduler is None:
-                    log(f"local Dask cluster on 127.0.0.1, dashboard {client.dashboard_link}")
+                    log(f"local Dask cluster on 127.0.0.1, dashboard {client.dashboard_link}.")
             pending = {ex.submit(fn, *args): key for key, args in todo}
             broken: list[str] = []
             for fut in cf.as_completed(list(pending)):
@@ -496,7 +497,7 @@ def run_tasks(
         by_key = dict(todo)
         todo = [(k, by_key[k]) for k in broken] if broken and not restarted else []
         if todo and log is not None:
-            log(f"a worker process died: {len(todo)} unfinished task(s) go to a fresh pool")
+            log(f"a worker process died: {len(todo)} unfinished task(s) go to a fresh pool.")
         if broken and restarted:
             for k in broken:
                 outcomes[k] = TaskOutcome(k, None, "a worker process died twice running it")

@@ -170,8 +170,8 @@ def expand_recordings(
     if dangling and notice is not None:
         notice(
             f"skipped {len(dangling)} entr{'y' if len(dangling) == 1 else 'ies'}: "
-            f"{len(dangling)} {DANGLING} (first: {dangling[0]})"
+            f"{len(dangling)} {DANGLING} (first: {dangling[0]})."
         )
     if not found:
-        raise UserError(f"no .rrd recordings in {', '.join(map(repr, given))}")
+        raise UserError(f"no .rrd recordings in {', '.join(map(repr, given))}.")
     return found

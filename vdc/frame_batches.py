@@ -304,7 +304,7 @@ def working_camera(
 
     fps = float(info["nominal_fps"])
     if not (math.isfinite(fps) and fps > 0):
-        raise UserError(f"{source!r} states no frame rate")
+        raise UserError(f"{source!r} states no frame rate.")
     h, w = working_size(info["src_height_px"], info["src_width_px"], fov_deg, width)
     return (h, w), fps, camera_model_context(w, h, fps, fov_deg)
 

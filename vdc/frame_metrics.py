@@ -63,7 +63,7 @@ def require_frame_size(reader: Any, source: str) -> None:
         reader.close()
         raise UserError(
             f"{source!r} is {w}x{h} px (WxH): its frames must be at least {MIN_SIDE_PX}x"
-            f"{MIN_SIDE_PX} px (the SI/TI metrics' 3x3 Sobel filter needs an interior pixel)"
+            f"{MIN_SIDE_PX} px (the SI/TI metrics' 3x3 Sobel filter needs an interior pixel)."
         )
 
 
@@ -116,10 +116,10 @@ def decide_ranges(
       range siti-tools then accepts), else limited (siti-tools' default)."""
     if requested not in RANGE_CHOICES:
         raise UserError(
-            f"colour range must be one of {', '.join(RANGE_CHOICES)}, got {requested!r}"
+            f"colour range must be one of {', '.join(RANGE_CHOICES)}, got {requested!r}."
         )
     if tagged not in (None, *RANGES):
-        raise UserError(f"a stream's colour range is limited, full or None, got {tagged!r}")
+        raise UserError(f"a stream's colour range is limited, full or None, got {tagged!r}.")
     if requested != "auto":
         return {
             "color_range_p910": requested,
@@ -227,11 +227,13 @@ class NativeMeter:
 
     def __post_init__(self) -> None:
         if self.bit_depth not in BIT_DEPTHS:
-            raise UserError(f"bit depth must be 8 to 16, got {self.bit_depth}")
+            raise UserError(f"bit depth must be 8 to 16, got {self.bit_depth}.")
         if self.color_range not in RANGES:
-            raise UserError(f"colour range must be limited or full, got {self.color_range!r}")
+            raise UserError(f"colour range must be limited or full, got {self.color_range!r}.")
         if self.p910_range not in (None, "detect", *RANGES):
-            raise UserError(f"P.910 range must be limited, full or detect, got {self.p910_range!r}")
+            raise UserError(
+                f"P.910 range must be limited, full or detect, got {self.p910_range!r}."
+            )
         self._detect = self.p910_range == "detect"
         # the P.910 range in use: while detecting, limited until the luma leaves it
         self.p910_now = "limited" if self._detect else (self.p910_range or self.color_range)
@@ -267,7 +269,7 @@ class NativeMeter:
         source through a meter in full range gives the same bits)."""
         k = self.left_limited_at
         if k is None or len(values) != k:
-            raise UserError(f"expected the full-range values of {k} frames, got {len(values)}")
+            raise UserError(f"expected the full-range values of {k} frames, got {len(values)}.")
         self._full_alt = [(float(a), float(b)) for a, b in values]
 
     def p910_corrections(self) -> np.ndarray:
@@ -304,9 +306,9 @@ class NativeMeter:
         changed after this was called)."""
         want = np.uint8 if self.bit_depth == 8 else np.uint16
         if y.ndim != 2 or y.dtype != want or min(y.shape) < MIN_SIDE_PX:
-            raise UserError(f"expected ({self.bit_depth}-bit) luma (H, W) {want.__name__}")
+            raise UserError(f"expected ({self.bit_depth}-bit) luma (H, W) {want.__name__}.")
         if prev is not None and prev.shape != y.shape:
-            raise UserError(f"the frame size changed from {prev.shape} to {y.shape}")
+            raise UserError(f"the frame size changed from {prev.shape} to {y.shape}.")
         lut = self._p910  # the range in use now (a later frame may change it: finish checks)
         detecting = self._want_p910 and self._detect and self.left_limited_at is None
         s = self._sums(y, prev, lut, detecting)
@@ -428,7 +430,7 @@ def stream_format(frame: Any) -> dict[str, Any]:
         raise UserError(
             f"pixel format {name} ({depth}-bit): vdc reads deep video as planar YUV or grey "
             "(yuv420p10le, gray16le, ...); convert it first, e.g. ffmpeg -i IN -pix_fmt "
-            "yuv444p16le OUT.mkv"
+            "yuv444p16le OUT.mkv."
         )
     planar = bool(deep) or (depth == 8 and name.startswith(_BYTE_PLANE))
     code = int(getattr(frame, "color_range", 0) or 0)  # AVColorRange: 1 MPEG, 2 JPEG
@@ -475,5 +477,5 @@ def full_range_p910(natives: Iterable[np.ndarray], bit_depth: int, frames: int) 
         out[seen] = m["si_p910"], m["ti_p910"]
         seen += 1
     if seen < frames:
-        raise UserError(f"the source gave {seen} frames on a second reading, not {frames}")
+        raise UserError(f"the source gave {seen} frames on a second reading, not {frames}.")
     return out

@@ -22,6 +22,8 @@ import threading
 import time
 from typing import Any, TextIO
 
+from vdc.errors import UserError  # standard library only: nothing heavy
+
 # A line at most 4 s after the last: the promise is one at least every 10 s, and the 6 s
 # left is margin for a loaded machine (the ticker thread waits for a core and for the GIL,
 # which Python hands between threads every 5 ms; at a load of 11 on 2 cores the lines of a
@@ -30,6 +32,24 @@ from typing import Any, TextIO
 EVERY_S = 4.0
 
 ENV = "VDC_PROGRESS"  # "1": heartbeat lines on stderr even when it is not a terminal
+# seconds of silence before a heartbeat line, instead of EVERY_S: the tests shorten it, so
+# that a command of a few seconds shows its beats and counts whatever the machine's load
+EVERY_ENV = "VDC_PROGRESS_EVERY_S"
+
+
+def interval_s() -> float:
+    """The silence before a heartbeat line: ``VDC_PROGRESS_EVERY_S`` (seconds, above 0) if
+    set, else :data:`EVERY_S`."""
+    text = os.environ.get(EVERY_ENV, "").strip()
+    if not text:
+        return EVERY_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise UserError(f"{EVERY_ENV}={text!r} is not a number of seconds above 0.")
+    return value
 
 
 def wanted(stream: TextIO | None = None) -> bool:
@@ -121,8 +141,12 @@ class Heartbeat:
     thread runs inside the block); :meth:`vdc.Feedback.printing` gives a Feedback that
     reports to one."""
 
-    def __init__(self, what: str, every_s: float = EVERY_S, stream: TextIO | None = None) -> None:
-        self.what, self.every_s, self.stream = what, every_s, stream
+    def __init__(
+        self, what: str, every_s: float | None = None, stream: TextIO | None = None
+    ) -> None:
+        # (None: VDC_PROGRESS_EVERY_S or EVERY_S, read when the command starts)
+        self.what, self.stream = what, stream
+        self.every_s = every_s if every_s is not None else interval_s()
         self.t0 = time.monotonic()
         self.last_print = self.t0
         self.stage = "starting"

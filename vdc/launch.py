@@ -9,6 +9,7 @@ import importlib
 import sys
 
 from vdc import heartbeat  # standard library only: nothing heavy
+from vdc.errors import UserError  # standard library only: nothing heavy
 from vdc.no_pandas import arrow_without_pandas  # standard library only: nothing heavy
 from vdc.shadow import shadowed  # standard library only: nothing heavy
 
@@ -27,11 +28,15 @@ def launch(prog: str, module: str) -> int:
     command = f"{prog} {argv[0]}" if argv and not argv[0].startswith("-") else prog
     # the heartbeat starts before the modules load (seconds on a busy machine): never silent
     # from the first second (vdc.cli_support.run_command_line keeps this one)
-    beat = (
-        heartbeat.Heartbeat(command)
-        if heartbeat.wanted() and "--quiet" not in argv and not heartbeat.waits(argv)
-        else contextlib.nullcontext()
-    )
+    try:
+        beat = (
+            heartbeat.Heartbeat(command)
+            if heartbeat.wanted() and "--quiet" not in argv and not heartbeat.waits(argv)
+            else contextlib.nullcontext()
+        )
+    except UserError as exc:  # a bad VDC_PROGRESS_EVERY_S
+        print(f"{command}: error: {exc}", file=sys.stderr)
+        return 2
     try:
         with beat:
             return int(importlib.import_module(module).main() or 0)

@@ -141,7 +141,7 @@ def _check(src: Path, dst: Path, ours: set[str] | None) -> None:
     if ours is not None and dst.name not in ours:
         raise UserError(
             f"{str(dst)!r} is not vdc's (its folder's {OUTPUTS_MANIFEST} does not name it) and "
-            f"vdc would write its own there; move it, or give another --out"
+            f"vdc would write its own there; move it, or give another --out."
         )
     dst_folder = dst.is_dir() and not dst.is_symlink()
     if src.is_dir() and dst_folder:
@@ -150,7 +150,7 @@ def _check(src: Path, dst: Path, ours: set[str] | None) -> None:
     elif dst_folder and any(dst.iterdir()):
         raise UserError(
             f"{str(dst)!r} is a folder with entries where vdc writes a file; move it, "
-            f"or give another --out"
+            f"or give another --out."
         )
 
 
@@ -222,7 +222,7 @@ def table_set(out_dir: Path) -> Iterator[Path]:
     folder is removed, and an ``out_dir`` this call created is removed again if empty."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():  # e.g. an input recording given as --out
-        raise UserError(f"--out {str(out_dir)!r} is a file, not a folder; give a folder")
+        raise UserError(f"--out {str(out_dir)!r} is a file, not a folder; give a folder.")
     created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
     with _locked(out_dir):

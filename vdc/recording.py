@@ -77,6 +77,21 @@ EVENTS = "/events"
 MODEL_ROOT = "/model"
 MODEL_VARIANTS_ROOT = "/model_variants"
 COMPLEXITY_ROOT = "/complexity"  # baselines written by `vdc-analyse complexity` (same id)
+# the unit of each metric `vdc-analyse complexity` writes, as docs/guides/video.md's table of
+# columns gives it: its figure's axes, its recording's series and the viewer's panes, by unit
+COMPLEXITY_UNITS = {
+    "omega_dps": "deg/s",
+    "flow_dps": "deg/s",
+    "si_p910": "P.910 (×255)",
+    "ti_p910": "P.910 (×255)",
+    "si_legacy": "8-bit levels",
+    "ti_legacy": "8-bit levels",
+    "mafd": "8-bit levels",
+    "edge_density": "share of pixels",
+    "zlib_ratio": "compressed / raw",
+    "jpeg_bpp": "bits/pixel",
+    "codec_bpp": "bits/pixel",
+}
 LINK_STATS = "/link/stats"
 # every capture's description of itself: what was recorded, with which model and camera, and
 # the vdc-analyse commands that read it (markdown, static)

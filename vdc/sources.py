@@ -121,16 +121,16 @@ def open_video(path: str, decoder_threads: int | None = None) -> tuple[Any, Any]
 
     p = Path(path)
     if not p.exists():
-        raise UserError(f"video {path!r}: no such file")
+        raise UserError(f"video {path!r}: no such file.")
     if p.stat().st_size == 0:
-        raise UserError(f"video {path!r} is empty")
+        raise UserError(f"video {path!r} is empty.")
     try:
         container = av.open(path)
     except av.FFmpegError as exc:
         raise UserError(f"cannot read {path!r} as a video: {_ffmpeg_reason(exc)}") from None
     if not container.streams.video:
         container.close()
-        raise UserError(f"{path!r} holds no video stream")
+        raise UserError(f"{path!r} holds no video stream.")
     stream = container.streams.video[0]
     # PyAV's Python log callback (the user's av.logging.set_level with a level) makes FFmpeg's
     # frame threads wait for the GIL to log, while a container being freed holds it and waits
@@ -183,7 +183,7 @@ class _PyAvReader(Reader):
         if first is None:
             self.container.close()
             why = f": {self.error}" if self.error else ""
-            raise UserError(f"{path!r} holds no decodable video frame{why}")
+            raise UserError(f"{path!r} holds no decodable video frame{why}.")
         self._first = first
         self.info["src_height_px"], self.info["src_width_px"] = first.luma.shape[:2]
 

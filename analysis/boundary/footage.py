@@ -223,7 +223,7 @@ def clip_complexity(
                 raise UserError(
                     f"clip {row['clip']!r} has no frame before its alert window ({window_s:g} s "
                     "before the collision frame) to measure the scene on: use a longer clip or a "
-                    "shorter --alert-window-s"
+                    "shorter --alert-window-s."
                 )
         # the models' start-up (the AVDM rises from 0, running means fill) is not the scene:
         # its frames are left out where the clip has frames after it
@@ -277,7 +277,7 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
     """Footage mode of :func:`analysis.experiments.collision.boundary_campaign.boundary`."""
 
     if s.fov_deg is None:
-        raise UserError("footage mode needs --fov-deg (the camera's horizontal field of view)")
+        raise UserError("footage mode needs --fov-deg (the camera's horizontal field of view).")
     values = number_list(s.values, "values", minimum=-math.inf)
     specs = {v: with_override(s.detector, s.param, v) for v in values}
     labels = read_labels(s.labels or "")
@@ -291,10 +291,10 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
         raise UserError(
             f"no clip in {s.labels!r} has a collision (collision_frame is empty in all "
             f"{labels.height}): there is no evidence to place a boundary on; label at least one "
-            "clip with the frame of its collision"
+            "clip with the frame of its collision."
         )
     feedback.log(
-        f"footage: {labels.height} clip(s) x {len(values)} value(s) of {s.param}, {s.detector}"
+        f"footage: {labels.height} clip(s) x {len(values)} value(s) of {s.param}, {s.detector}."
     )
     complexity = clip_complexity(
         labels,
@@ -345,7 +345,7 @@ def footage_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Boun
         raise UserError(
             f"{s.detector} never alerted on any of the {labels.height} clip(s) at any value of "
             f"{s.param} ({s.values}): there is no evidence to place a boundary on; try values "
-            "that make it more sensitive"
+            "that make it more sensitive."
         )
     groups = s.groups or max(1, min(5, labels.height // 4))
     stats = group_statistics(clips, s.param, groups)

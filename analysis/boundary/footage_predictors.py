@@ -112,7 +112,7 @@ def scene_column(labels: pl.DataFrame, where: str) -> pl.DataFrame:
     if empty.height:
         raise UserError(
             f"{where}: clip {empty['clip'][0]!r} has no scene: name every clip's scene (the "
-            "photograph, place or session it shares) or none"
+            "photograph, place or session it shares) or none."
         )
     return labels.with_columns(scene.alias("scene"))
 

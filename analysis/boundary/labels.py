@@ -25,7 +25,7 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     there."""
     path = Path(path)
     if not path.is_file():
-        raise UserError(f"labels table {str(path)!r} not found")
+        raise UserError(f"labels table {str(path)!r} not found.")
     try:
         df = (
             pl.read_parquet(path)
@@ -38,10 +38,10 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     if missing:
         raise UserError(
             f"labels table {str(path)!r} has no column {', '.join(missing)} (it needs "
-            f"{', '.join(LABEL_COLUMNS)}; collision_frame empty where nothing collides)"
+            f"{', '.join(LABEL_COLUMNS)}; collision_frame empty where nothing collides)."
         )
     if df.height == 0:
-        raise UserError(f"labels table {str(path)!r} lists no clips")
+        raise UserError(f"labels table {str(path)!r} lists no clips.")
     df = df.with_columns(
         pl.col("clip").cast(pl.Utf8),
         pl.col("label").cast(pl.Utf8),
@@ -52,7 +52,7 @@ def read_labels(path: str | Path) -> pl.DataFrame:
     df = scene_column(df, f"labels table {str(path)!r}")  # optional: what clips share
     if df["clip"].n_unique() != df.height:
         dup = df.filter(pl.col("clip").is_duplicated())["clip"][0]
-        raise UserError(f"labels table {str(path)!r} lists clip {dup!r} twice")
+        raise UserError(f"labels table {str(path)!r} lists clip {dup!r} twice.")
     sources = [
         str((path.parent / c).resolve()) if not Path(c).is_absolute() else c for c in df["clip"]
     ]
@@ -61,7 +61,7 @@ def read_labels(path: str | Path) -> pl.DataFrame:
         more = f" (and {len(unknown) - 3} more)" if len(unknown) > 3 else ""
         raise UserError(
             f"labels table {str(path)!r} names clips that are not there: "
-            f"{', '.join(unknown[:3])}{more} (clips are relative to the table's folder)"
+            f"{', '.join(unknown[:3])}{more} (clips are relative to the table's folder)."
         )
     df = df.with_columns(pl.Series("source", sources))
     _check_frames_inside_clips(df, path)
@@ -89,7 +89,7 @@ def _frame_numbers(df: pl.DataFrame, col: str, path: Path) -> pl.Series:
         if v is None or not (math.isfinite(v) and v % 1 == 0 and 0 <= v <= MAX_FRAME_NUMBER):
             raise UserError(
                 f"labels table {str(path)!r}, row {i + 1}: {col} must be a frame number >= 0 "
-                f"or empty, got {text.strip()!r}"
+                f"or empty, got {text.strip()!r}."
             )
     return values.cast(pl.Int64).alias(col)
 
@@ -127,5 +127,5 @@ def _check_frames_inside_clips(labels: pl.DataFrame, path: Path) -> None:
             if frame >= n:
                 raise UserError(
                     f"labels table {str(path)!r}, row {i + 1}: clip {row['clip']!r} has "
-                    f"{col} {frame}, beyond its {n} frames (0 to {n - 1})"
+                    f"{col} {frame}, beyond its {n} frames (0 to {n - 1})."
                 )

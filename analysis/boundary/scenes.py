@@ -63,16 +63,16 @@ def scene_fields(name: str) -> dict[str, object]:
     or a photograph vdc does not know."""
     m = _NAME.match(name)
     if m is None:
-        raise UserError(f"unknown arena scene {name!r}: expected {HELP}")
+        raise UserError(f"unknown arena scene {name!r}: expected {HELP}.")
     kind = "grating" if m["kind"] == "grating" else "natural"
     if m["period"] is not None and kind != "grating":
-        raise UserError(f"arena scene {name!r}: only a grating has a period (-p)")
+        raise UserError(f"arena scene {name!r}: only a grating has a period (-p).")
     period = float(m["period"]) if m["period"] is not None else 0.1
     contrast = float(m["contrast"]) if m["contrast"] is not None else 1.0
     if not 0.002 <= period <= 10:
-        raise UserError(f"arena scene {name!r}: period {period:g} m is not in 0.002-10 m")
+        raise UserError(f"arena scene {name!r}: period {period:g} m is not in 0.002-10 m.")
     if not 0 < contrast <= 1:
-        raise UserError(f"arena scene {name!r}: contrast {contrast:g} is not in (0, 1]")
+        raise UserError(f"arena scene {name!r}: contrast {contrast:g} is not in (0, 1].")
     image = None
     if m["photo"] is not None:
         image = str(photo_path(m["photo"]))
@@ -83,7 +83,7 @@ def photo_path(photo: str) -> Path:
     """The file of scikit-image's photograph ``photo`` (ValueError when unknown or absent)."""
     if photo not in PHOTOS:
         raise UserError(
-            f"unknown photograph {photo!r} for an arena scene: known are {', '.join(PHOTOS)}"
+            f"unknown photograph {photo!r} for an arena scene: known are {', '.join(PHOTOS)}."
         )
     try:
         import skimage.data  # lazy: optional extra (test: scikit-image)
@@ -96,14 +96,14 @@ def photo_path(photo: str) -> Path:
         folder = Path(matplotlib.get_data_path()) / "sample_data"
     path = folder / PHOTOS[photo]
     if not path.is_file():
-        raise UserError(f"scikit-image's photograph {PHOTOS[photo]} is not installed at {path}")
+        raise UserError(f"scikit-image's photograph {PHOTOS[photo]} is not installed at {path}.")
     return path
 
 
 def check_scenes(names: list[str]) -> list[str]:
     """``names`` when every one is a scene (see :func:`scene_fields`); ValueError otherwise."""
     if not names:
-        raise UserError(f"--scenes is empty: expected some of {HELP}")
+        raise UserError(f"--scenes is empty: expected some of {HELP}.")
     if len(set(names)) != len(names):
         raise UserError(f"--scenes repeats a scene: {', '.join(names)}")
     for n in names:

@@ -119,7 +119,7 @@ class CatalogSettings(Settings):
             if not 0 <= value <= MAX_PORT:
                 raise UserError(
                     f"CatalogSettings.{name}: a port is 1 to {MAX_PORT} (0: a free one), "
-                    f"got {value}"
+                    f"got {value}."
                 )
 
     def where_dict(self) -> dict[str, str]:
@@ -128,7 +128,7 @@ class CatalogSettings(Settings):
         for item in self.where:
             key, sep, value = item.partition("=")
             if not sep or not key:
-                raise UserError(f"--where {item!r}: expected KEY=VALUE, e.g. seed=1")
+                raise UserError(f"--where {item!r}: expected KEY=VALUE, e.g. seed=1.")
             out[key.strip()] = value.strip()
         return out
 
@@ -182,7 +182,7 @@ def repair(path: Path, out: Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     good, count = complete_prefix(path)
     if count == 0:
-        raise UserError("could not be repaired: no complete message")
+        raise UserError("could not be repaired: no complete message.")
     prefix = out.with_name(out.name + f".prefix-{os.getpid()}")
     tmp = out.with_name(out.name + f".tmp-{os.getpid()}")
     try:
@@ -343,7 +343,7 @@ def _register(path: Path, rec: Any, cache: Path, say: Callable[[str], None]) -> 
     if registered != path:
         say(
             f"{path} has no footer (the capture was cut short): registered a repaired copy of "
-            "its complete messages (marked repaired)"
+            "its complete messages (marked repaired)."
         )
     return CatalogSegment(rid, registered, path, summary)
 
@@ -366,7 +366,7 @@ def scan(
     cache = _cache(Path(folders[0]))
     for folder in map(Path, folders):
         if not folder.is_dir():
-            raise UserError(f"{str(folder)!r} is not a folder")
+            raise UserError(f"{str(folder)!r} is not a folder.")
         for path in sorted(folder.rglob("*.rrd")):
             if cache in path.parents:
                 continue

@@ -51,7 +51,7 @@ def select_segments(table: pl.DataFrame, where: dict[str, Any] | None) -> list[s
     for key, value in (where or {}).items():
         if key not in rows.columns:
             raise UserError(
-                f"--where {key}: no such property (known: {', '.join(sorted(table.columns[2:]))})"
+                f"--where {key}: no such property (known: {', '.join(sorted(table.columns[2:]))})."
             )
         rows = rows.filter(pl.col(key).cast(pl.String) == str(value))
     return rows["recording_id"].to_list()
@@ -176,15 +176,17 @@ def _select(
     urls = [s for s in sources if is_catalog_url(s)]
     if urls:
         if len(sources) != 1:
-            raise UserError("give either folders or one catalog URL (rerun+http://HOST:PORT)")
+            raise UserError("give either folders or one catalog URL (rerun+http://HOST:PORT).")
         if layers:
-            raise UserError("from a catalog URL every layer's variants are read: leave out --layer")
+            raise UserError(
+                "from a catalog URL every layer's variants are read: leave out --layer."
+            )
         with _remote_dataset(str(urls[0]), settings) as (ds, _name):
             with _server_answers(str(urls[0])):
                 seg = pl.from_arrow(ds.segment_table().to_arrow_table())
             ids = select_segments(_summary_columns(seg), where)
             if not ids:
-                raise UserError(f"no segment matches {where}")
+                raise UserError(f"no segment matches {where}.")
             props = _properties_from_segment_table(seg)
             names = {
                 rid: {_property_key(k): v for k, v in p.get("model_variants", {}).items()}
@@ -195,11 +197,11 @@ def _select(
     with open_catalog(sources, settings, notice) as cat:
         ids = select_segments(segment_table(cat), where)
         if not ids:
-            raise UserError(f"no segment matches {where}")
+            raise UserError(f"no segment matches {where}.")
         chosen = [BASE, *(layers if layers is not None else [n for n in cat.found.layers])]
         unknown = [n for n in chosen if n != BASE and n not in cat.found.layers]
         if unknown:
-            raise UserError(f"no layer {unknown[0]!r} (layers: {', '.join(cat.found.layers)})")
+            raise UserError(f"no layer {unknown[0]!r} (layers: {', '.join(cat.found.layers)}).")
         names: dict[str, dict[str, str]] = {}
         for layer in chosen[1:]:
             for rid, path in cat.found.layers.get(layer, []):

@@ -68,7 +68,7 @@ def open_catalog(
         _require_free_port(settings.host, settings.port, "--port")
     found = scan(folders, notice)
     if not found.segments:
-        raise UserError(f"no vdc recording found under {', '.join(map(str, folders))}")
+        raise UserError(f"no vdc recording found under {', '.join(map(str, folders))}.")
     name = dataset_name(folders, settings)
     with rr.server.Server(host=settings.host, port=settings.port or None) as srv:
         client = srv.client()
@@ -93,7 +93,7 @@ def serve(
     address (None without ``settings.web``). Every process started is ended on the way out."""
 
     if any(is_catalog_url(f) for f in folders):
-        raise UserError("serve registers folders; a catalog URL is served already (query it)")
+        raise UserError("serve registers folders; a catalog URL is served already (query it).")
 
     def end(signum: int, _frame: Any) -> None:
         raise KeyboardInterrupt
@@ -112,7 +112,7 @@ def serve(
             while stop is None or not stop():
                 time.sleep(0.2)
                 if web is not None and web.poll() is not None:
-                    raise UserError("the web viewer ended unexpectedly")
+                    raise UserError("the web viewer ended unexpectedly.")
     except KeyboardInterrupt:
         pass
     finally:
@@ -135,7 +135,7 @@ def _require_free_port(host: str, port: int, flag: str) -> None:
         except OSError as exc:
             raise UserError(
                 f"{flag} {port}: the port is taken on {host} ({exc.strerror or exc}); choose "
-                "another, or 0 for a free one"
+                "another, or 0 for a free one."
             ) from None
 
 

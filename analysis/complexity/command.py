@@ -202,10 +202,10 @@ def complexity_of_frames(
     settings = settings or ComplexitySettings()
     frames = np.asarray(frames)
     if frames.ndim != 3 or frames.dtype != np.uint8 or len(frames) == 0:
-        raise UserError(f"frames must be a non-empty (T, H, W) uint8 array, got {frames.shape}")
+        raise UserError(f"frames must be a non-empty (T, H, W) uint8 array, got {frames.shape}.")
     native = frames if native is None else np.asarray(native)
     if native.shape[0] != frames.shape[0]:
-        raise UserError("native must hold one image per frame")
+        raise UserError("native must hold one image per frame.")
     metrics = settings.metric_names()
     h, w = working_size(frames.shape[1], frames.shape[2], fov_deg, width)
     t = np.arange(len(frames)) / fps if t_s is None else np.asarray(t_s, np.float64)
@@ -496,7 +496,7 @@ def complexity(
     mine = tasks if shard is None else tasks[shard[0] :: shard[1]]
     todo = [t for t in mine if settings.force or not readable_part(part_path(out, t["key"]))]
     if len(mine) > len(todo):
-        say(f"{len(mine) - len(todo)} of {len(mine)} source(s) already measured in {out}")
+        say(f"{len(mine) - len(todo)} of {len(mine)} source(s) already measured in {out}.")
     if settings.executor == "local" and len(todo) == 1:
         outcomes = _run_inline(todo, settings, out, progress, single=len(tasks) == 1)
         if clip_progress is not None:
@@ -531,12 +531,12 @@ def complexity(
         )
     pending = len(tasks) - len(parts) - len(failures)
     if pending > 0:
-        say(f"{pending} source(s) of other shards are not measured yet")
+        say(f"{pending} source(s) of other shards are not measured yet.")
     table = pl.concat(parts, how="diagonal_relaxed")
     for info in infos:  # a file cut short (or that stops decoding) is not a whole clip
         if info.get("cut_note") or info.get("decode_error"):
             why = info.get("cut_note") or f"decoding stopped ({info['decode_error']})"
-            say(f"{info['source']}: {why}; its row covers {info['frames']} frames")
+            say(f"{info['source']}: {why}; its row covers {info['frames']} frames.")
     for info in infos:  # the models' rate, where it is not the container's or is in doubt
         if info.get("model_fps_note"):
             say(f"{info['source']}: {info['model_fps_note']}")
@@ -549,7 +549,7 @@ def complexity(
         say(
             f"{len(uncounted)} file(s) whose container states no frame count (nor a duration "
             f"at a constant rate), first {uncounted[0]}: frames lost after their last frame are "
-            "unknown, not counted (container_frames and lost_after_last null)"
+            "unknown, not counted (container_frames and lost_after_last null)."
         )
     rows = [clip_row(p, i) for p, i in zip(parts, infos, strict=True)]
     clips = pl.DataFrame(rows, infer_schema_length=None)  # sources may differ in metrics
@@ -568,6 +568,8 @@ def complexity(
         "native frames where the source has them, else the camera's raster (column raster)",
     }
     per_clip = settings.rrd or len(tasks) == 1
+    if log is not None:  # seconds of figures and pages: said, so the heartbeat names them
+        log(f"writing the tables, figures and page of {len(parts)} clip(s) into {out}.")
     with table_set(out) as stage:  # published whole: never a mix of two runs
         paths.append(write_parquet(table, stage / "complexity.parquet", meta))
         paths.append(write_parquet(clips, stage / "clips.parquet", meta))

@@ -17,6 +17,7 @@ from matplotlib.figure import Figure
 from analysis.complexity.meter import METRICS
 from analysis.complexity.source_metrics import metrics_present
 from analysis.profile import correlation_panel, save_figure
+from vdc.recording import COMPLEXITY_UNITS
 
 _LABELS = {
     "omega_dps": "AVDM ω̂ (deg/s)",
@@ -129,22 +130,6 @@ raster. Per-frame values: complexity.parquet; every statistic: clips.parquet.</p
     return path
 
 
-# each metric's unit, as docs/guides/video.md's table of columns gives it
-UNITS = {
-    "omega_dps": "deg/s",
-    "flow_dps": "deg/s",
-    "si_p910": "P.910 (×255)",
-    "ti_p910": "P.910 (×255)",
-    "si_legacy": "8-bit levels",
-    "ti_legacy": "8-bit levels",
-    "mafd": "8-bit levels",
-    "edge_density": "share of pixels",
-    "zlib_ratio": "compressed / raw",
-    "jpeg_bpp": "bits/pixel",
-    "codec_bpp": "bits/pixel",
-}
-
-
 def plot_complexity(df: pl.DataFrame, corr: pl.DataFrame, path: Path) -> Path:
     """One source over time: a panel per metric in its own unit (on a shared time axis), and
     the Spearman correlations of every pair over frames."""
@@ -158,7 +143,7 @@ def plot_complexity(df: pl.DataFrame, corr: pl.DataFrame, path: Path) -> Path:
         first = first or ax
         v = df[m].cast(pl.Float64).fill_null(np.nan).to_numpy()
         ax.plot(t, v, lw=1.2 if m == "omega_dps" else 0.9, color=f"C{k % 10}")
-        ax.set_ylabel(f"{m}\n({UNITS.get(m, '')})", fontsize=7)
+        ax.set_ylabel(f"{m}\n({COMPLEXITY_UNITS.get(m, '')})", fontsize=7)
         ax.tick_params(labelsize=7)
         if np.isfinite(v).any() and np.nanmin(v) >= 0:
             ax.set_ylim(bottom=0)  # every metric is ≥ 0: no axis below its range

@@ -85,7 +85,7 @@ def parse_metrics(text: str | tuple[str, ...] | list[str]) -> tuple[str, ...]:
     if unknown or not names:
         raise UserError(
             f"--metrics: {'unknown ' + ', '.join(unknown) if unknown else 'no metric named'}; "
-            f"choose from {', '.join(METRICS)} (or all)"
+            f"choose from {', '.join(METRICS)} (or all)."
         )
     return tuple(m for m in METRICS if m in names)
 

@@ -60,6 +60,7 @@ from avdm.true_time import model_rate
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher, RateLookahead
 from vdc.frame_metrics import decide_ranges
+from vdc.heartbeat import Count
 from vdc.parquet_io import write_parquet
 from vdc.pipeline import usable_threads
 from vdc.recording import NATIVE_METRICS, ROBOT_DEG_PER_PX, camera_model_context, working_size
@@ -113,6 +114,17 @@ class SourceMeasurement:
     info: dict[str, Any]  # source, kind, codec, width/height, fps, duration, repeats, drops
 
 
+def _counted(count: Count, progress: Callable[[int], None] | None) -> Callable[[int], None]:
+    """One callback for the frames done: the caller's ``progress`` and the command's count."""
+
+    def done(n: int) -> None:
+        count.update(n)
+        if progress is not None:
+            progress(n)
+
+    return done
+
+
 def measure_recording(
     loaded: LoadedRecording,
     settings: MeasureSettings,
@@ -124,7 +136,7 @@ def measure_recording(
     cam = loaded.props.get("camera", {})
     path = loaded.rec.path
     if not ctx or "width_px" not in cam:
-        raise UserError(f"{str(path)!r} does not record its camera (fps, width, FOV)")
+        raise UserError(f"{str(path)!r} does not record its camera (fps, width, FOV).")
     # the container's rate (the camera's), from which the models' rate is decided again on
     # the whole recording's repeat flags (a video capture decided it on the same flags)
     fps, deg_per_px = float(cam.get("fps", ctx["fps"])), float(ctx["deg_per_px"])
@@ -140,6 +152,9 @@ def measure_recording(
         fps, deg_per_px, settings, ctx, camera_baselines=native is None, rate=rate
     )
     rows = []
+    # the frames counted, of how many, on the command's heartbeat line (vdc.heartbeat)
+    count = Count(loaded.frames.height, "measuring", "frame")
+    progress = _counted(count, progress)
     for chunk in loaded.rec.iter_frames():
         sel = pl.DataFrame({"frame": chunk.frame.astype(np.int64)}).join(
             timing, on="frame", how="left", maintain_order="left"
@@ -151,8 +166,8 @@ def measure_recording(
         rows.append(
             pl.DataFrame({"frame": chunk.frame.astype(np.int64), "t_s": t, "repeat": flags, **res})
         )
-        if progress is not None:
-            progress(len(chunk.frame))
+        progress(len(chunk.frame))
+    count.close()
     df = pl.concat(rows)
     if native is not None:
         df = df.join(native, on="frame", how="left", maintain_order="left")
@@ -227,7 +242,7 @@ def measure_video(
         if not metrics:
             raise UserError(
                 f"{source!r} is a video: give --fov-deg (the camera's horizontal field of view) "
-                "for the AVDM and the flow in deg/s, or ask for pixel metrics (--metrics)"
+                "for the AVDM and the flow in deg/s, or ask for pixel metrics (--metrics)."
             )
     model_metrics = tuple(m for m in MODEL_METRICS if m in metrics)
     threads = usable_threads()
@@ -239,11 +254,15 @@ def measure_video(
     decoder_threads = None
     reader = open_reader(source, settings.fps, decoder_threads)
     batches = None
+    # the frames counted, of those the container states, on the command's heartbeat line
+    # (vdc.heartbeat): an estimate of what is left however long the clip
+    count = Count(reader.info.get("container_frames"), "measuring", "frame")
+    progress = _counted(count, progress)
     try:
         info = reader.info
         fps = settings.fps or info["nominal_fps"]
         if not (math.isfinite(fps) and fps > 0):
-            raise UserError(f"{source!r} states no frame rate: pass --fps")
+            raise UserError(f"{source!r} states no frame rate: pass --fps.")
         size = ctx = meter = None
         if model_metrics:
             fov = settings.fov_deg or float(settings.width or 0) * ROBOT_DEG_PER_PX
@@ -282,7 +301,7 @@ def measure_video(
                     {"frame": fb.frame, "t_s": fb.t_s, "repeat": fb.repeat, **res, **values}
                 )
             )
-            if progress is not None and stream is batches:  # else the lookahead counts
+            if stream is batches:  # else the lookahead counts
                 progress(len(fb.frame))
         if isinstance(stream, RateLookahead) and meter is not None:
             meter.rate = stream.final_rate()  # the same rate; a note where it broke later
@@ -313,6 +332,7 @@ def measure_video(
         }
         return SourceMeasurement(table, meta)
     finally:
+        count.close()
         if batches is not None:
             batches.close()
         reader.close()
@@ -424,13 +444,3 @@ def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
 def metrics_present(df: pl.DataFrame, suffix: str = "") -> list[str]:
     """The metrics (:data:`METRICS` order) a table has columns for (``m + suffix``)."""
     return [m for m in METRICS if m + suffix in df.columns]
-
-
-def normalised(df: pl.DataFrame) -> dict[str, np.ndarray]:
-    """Each metric divided by its 99th percentile (so all share one axis)."""
-    out = {}
-    for m in metrics_present(df):
-        v = df[m].cast(pl.Float64).fill_null(np.nan).to_numpy()
-        top = np.nanpercentile(v, 99) if np.isfinite(v).any() else np.nan
-        out[m] = v / top if top and np.isfinite(top) and top > 0 else v * np.nan
-    return out

@@ -84,7 +84,7 @@ class DatasetResult(WroteFiles):
     def report(self) -> list[str]:
         """Lines for people: what was profiled, what was flagged, what was written."""
         eps = self.episodes
-        lines: list[str] = [f"camera {c}" for c in self.cameras]
+        lines: list[str] = [f"camera {c}." for c in self.cameras]
         if eps is not None:
             n_eps = eps["episode_index"].n_unique()
             flagged = eps.filter(pl.col("flag_count") > 0)
@@ -93,7 +93,7 @@ class DatasetResult(WroteFiles):
                 by_ep.setdefault(r["episode_index"], []).append(f"{r['camera']}: {r['flags']}")
             lines.append(
                 f"{n_eps} episode(s), {eps.height} camera stream(s) profiled; "
-                f"{len(by_ep)} episode(s) flagged"
+                f"{len(by_ep)} episode(s) flagged" + (":" if by_ep else ".")  # the list follows
             )
             shown = list(by_ep.items())
             if len(shown) > LIST_MAX:  # a long list: the worst, the rest in the files
@@ -103,15 +103,15 @@ class DatasetResult(WroteFiles):
             if len(shown) < len(by_ep):
                 lines.append(
                     f"  ... and {len(by_ep) - len(shown)} more episode(s) flagged "
-                    f"({FLAGGED_FILE}, dataset.html)"
+                    f"({FLAGGED_FILE}, dataset.html)."
                 )
-            lines.append(f"  {n_eps - len(by_ep)} episode(s) clean")
+            lines.append(f"  {n_eps - len(by_ep)} episode(s) clean.")
         if self.failed:
-            lines.append(f"--fail-on: episode(s) {', '.join(map(str, self.failed))} flagged")
+            lines.append(f"--fail-on: episode(s) {', '.join(map(str, self.failed))} flagged.")
         # the dataset's own problems (its metadata disagreeing): they bear on every episode
         lines += [f"dataset problem: {p}" for p in self.dataset_problems]
         if self.problems:
-            lines.append(f"{len(self.problems)} problem(s): exit 2 (problems.parquet)")
+            lines.append(f"{len(self.problems)} problem(s): exit 2 (problems.parquet).")
         rrds = [p for p in self.paths if p.suffix == ".rrd"]
         tables = [str(p) for p in self.paths if p.suffix != ".rrd"]
         if rrds:  # one folder of recordings, not a name per episode
@@ -155,7 +155,7 @@ def no_fov_note(settings: DatasetSettings) -> str | None:
         return None
     return (
         f"no --fov-deg: {', '.join(left)} and the shifts in degrees left out (they need the "
-        "cameras' horizontal field of view); the other measures are taken"
+        "cameras' horizontal field of view); the other measures are taken."
     )
 
 
@@ -171,7 +171,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             listed = f"{ds.listed[0]}-{ds.listed[-1]}" if ds.listed else "none"
             raise UserError(
                 f"--episodes: {', '.join(map(str, absent)) or 'none given'}: not an episode of "
-                f"{root} (its episodes: {len(ds.listed)}, indices {listed})"
+                f"{root} (its episodes: {len(ds.listed)}, indices {listed})."
             )
     unknown = [c for c in settings.moving_camera_list() if c not in ds.cameras]
     if unknown:
@@ -183,10 +183,10 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         feedback.log(n)
     feedback.log(
         f"{root}: LeRobot {ds.version}, {len(set(v.episode for v in videos))} episode(s), "
-        f"{len(ds.cameras)} camera(s), {_rates_said(ds)}"
+        f"{len(ds.cameras)} camera(s), {_rates_said(ds)}."
     )
     if out.exists() and not out.is_dir():  # as vdc.parquet_io.table_set says it
-        raise UserError(f"--out {str(out)!r} is a file, not a folder; give a folder")
+        raise UserError(f"--out {str(out)!r} is a file, not a folder; give a folder.")
     out.mkdir(parents=True, exist_ok=True)  # each episode's result is kept there as it ends
     clear_partials(out)
     by_key = {f"{v.episode}:{v.camera}": v for v in videos}
@@ -201,7 +201,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         if kept is not None:
             results[key] = kept
     if results:
-        feedback.log(f"{len(results)} camera stream(s) read back from an earlier run's results")
+        feedback.log(f"{len(results)} camera stream(s) read back from an earlier run's results.")
     tasks = [
         (k, (v, settings, ds.rate(v.camera), out, ds.data_rate(v.camera)))
         for k, v in by_key.items()
@@ -216,7 +216,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         n_done[0] += 1
         now = time.monotonic()
         if now - n_done[1] >= PROGRESS_EVERY_S or n_done[0] == len(tasks):
-            feedback.log(f"{n_done[0]} of {len(tasks)} camera stream(s) measured")
+            feedback.log(f"{n_done[0]} of {len(tasks)} camera stream(s) measured.")
             n_done[1] = now
         if outcome.error is None:
             results[outcome.key] = outcome.result
@@ -232,7 +232,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         feedback.log(
             f"measuring {len(tasks)} camera stream(s) of "
             f"{len({by_key[k].episode for k, _ in tasks})} episode(s); a count every "
-            f"{PROGRESS_EVERY_S:g} s"
+            f"{PROGRESS_EVERY_S:g} s."
         )
     if tasks:  # the task lives in resume: a worker imports the measuring, not this command
         run_tasks(measured, tasks, settings.executor_settings(), done,
@@ -345,7 +345,7 @@ def _recordings(
     order = {c: i for i, c in enumerate(ds.cameras)}
     paths = []
     episodes = sorted(eps["episode_index"].unique().to_list())
-    feedback.log(f"writing {len(episodes)} episode recording(s) into {EPISODE_RECORDINGS}/")
+    feedback.log(f"writing {len(episodes)} episode recording(s) into {EPISODE_RECORDINGS}/.")
     # the frames split once by episode and camera: a filter per episode reads the whole
     # table each time (a dataset's hundreds of episodes: quadratic)
     parts = frames.partition_by("episode_index", "camera", as_dict=True)

@@ -107,17 +107,17 @@ def read_info(root: Path) -> dict[str, Any]:
         raise UserError(f"{root} is a file, not a folder: give the LeRobot dataset's folder (the "
                         "one holding meta/info.json)")  # fmt: skip
     if not root.is_dir():
-        raise UserError(f"{root}: no such folder (give a LeRobot dataset folder)")
+        raise UserError(f"{root}: no such folder (give a LeRobot dataset folder).")
     if not path.is_file():
-        raise UserError(f"{path}: no such file: {root} is not a LeRobot dataset")
+        raise UserError(f"{path}: no such file: {root} is not a LeRobot dataset.")
     try:
         info = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UserError(f"{path}: not readable JSON ({exc})") from None
+        raise UserError(f"{path}: not readable JSON ({exc}).") from None
     version = info.get("codebase_version") if isinstance(info, dict) else None
     if version not in VERSIONS:
         raise UserError(
-            f"{path}: codebase_version {version!r} is not one vdc reads ({', '.join(VERSIONS)})"
+            f"{path}: codebase_version {version!r} is not one vdc reads ({', '.join(VERSIONS)})."
         )
     fps = info.get("fps")
     # a bool is an int to Python, and JSON's NaN and Infinity parse as floats: none is a rate
@@ -127,16 +127,16 @@ def read_info(root: Path) -> dict[str, Any]:
     ):  # fmt: skip
         raise UserError(
             f"{path}: fps {json.dumps(fps)} is not a rate (a positive, finite number of frames "
-            "per second)"
+            "per second)."
         )
     feats = info.get("features", {})
     if not isinstance(feats, dict):
         raise UserError(
-            f"{path}: features is a {type(feats).__name__}, not an object of features by name"
+            f"{path}: features is a {type(feats).__name__}, not an object of features by name."
         )
     size = info.get("chunks_size", CHUNKS_SIZE)
     if size is not None and (not isinstance(size, int) or isinstance(size, bool) or size <= 0):
-        raise UserError(f"{path}: chunks_size {json.dumps(size)} is not a positive integer")
+        raise UserError(f"{path}: chunks_size {json.dumps(size)} is not a positive integer.")
     for field, keys in _TEMPLATE_KEYS[version == "v3.0"].items():
         _check_template(path, field, info.get(field), keys)
     return info
@@ -156,16 +156,16 @@ def _check_template(path: Path, field: str, tpl: Any, keys: tuple[str, ...]) -> 
     if tpl is None:
         return
     if not isinstance(tpl, str):
-        raise UserError(f"{path}: {field} is a {type(tpl).__name__}, not a path template")
+        raise UserError(f"{path}: {field} is a {type(tpl).__name__}, not a path template.")
     try:
         tpl.format(**{k: 0 for k in keys})
     except KeyError as exc:
         raise UserError(
             f"{path}: {field} {tpl!r} names {{{exc.args[0]}}}, which vdc cannot fill (it "
-            f"knows {', '.join(keys)})"
+            f"knows {', '.join(keys)})."
         ) from None
     except (IndexError, ValueError) as exc:
-        raise UserError(f"{path}: {field} {tpl!r} is not a path template ({exc})") from None
+        raise UserError(f"{path}: {field} {tpl!r} is not a path template ({exc}).") from None
 
 
 def _cameras(info: dict[str, Any]) -> list[str]:
@@ -200,10 +200,10 @@ def open_dataset(root: str | Path) -> Dataset:
     )
     videos, listed = _no_duplicates(listing, problems)
     if not videos and not problems:
-        raise UserError(f"{root}: the dataset lists no episodes with a camera")
+        raise UserError(f"{root}: the dataset lists no episodes with a camera.")
     if not listed and problems:  # not one episode could be listed: nothing to profile
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
-        raise UserError(f"{problems[0].line()}{more}: no episode can be read")
+        raise UserError(f"{problems[0].line()}{more}: no episode can be read.")
     ds = Dataset(root, info, version, float(info["fps"]), cams, videos, problems, listed)
     ds.rates = _rates(ds)
     return ds
@@ -245,7 +245,7 @@ _Listing = tuple[int, str, str, "list[EpisodeVideo] | str"]
 def _v3_videos(root: Path, info: dict, cams: list[str], problems: list[Problem]) -> list:
     files = sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))
     if not files:
-        raise UserError(f"{root / 'meta' / 'episodes'}: no episode index (chunk-*/file-*.parquet)")
+        raise UserError(f"{root / 'meta' / 'episodes'}: no episode index (chunk-*/file-*.parquet).")
     data_tpl = info.get("data_path") or (
         "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
     )
@@ -302,7 +302,7 @@ def _v3_videos(root: Path, info: dict, cams: list[str], problems: list[Problem])
 def _v2_videos(root: Path, info: dict, cams: list[str], problems: list[Problem]) -> list:
     path = root / "meta" / "episodes.jsonl"
     if not path.is_file():
-        raise UserError(f"{path}: no such file (the episode index of a v2 dataset)")
+        raise UserError(f"{path}: no such file (the episode index of a v2 dataset).")
     size = int(info.get("chunks_size") or CHUNKS_SIZE)
     data_tpl = info.get("data_path") or (
         "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet"
@@ -313,7 +313,7 @@ def _v2_videos(root: Path, info: dict, cams: list[str], problems: list[Problem])
     try:
         lines = path.read_bytes().splitlines()
     except OSError as exc:
-        raise UserError(f"{path}: not readable ({exc.strerror})") from None
+        raise UserError(f"{path}: not readable ({exc.strerror}).") from None
     out: list[_Listing] = []
     for k, raw in enumerate(lines):
         if not raw.strip():
@@ -527,11 +527,11 @@ def read_episode_data(path: str, episode: int) -> EpisodeData:
         want = cols + [c for c in ("observation.state", "action") if c in schema.names]
         table = pq.read_table(path, columns=want, filters=[("episode_index", "=", episode)])
     except FileNotFoundError:
-        raise UserError(f"{path}: no such file") from None
+        raise UserError(f"{path}: no such file.") from None
     except (OSError, pa.ArrowException) as exc:
-        raise UserError(f"{path}: not a readable Parquet file ({exc})") from None
+        raise UserError(f"{path}: not a readable Parquet file ({exc}).") from None
     if table.num_rows == 0:
-        raise UserError(f"{path}: no rows of episode {episode}")
+        raise UserError(f"{path}: no rows of episode {episode}.")
     order = np.argsort(table["frame_index"].to_numpy())
     ts = table["timestamp"].to_numpy().astype(np.float64)[order]
     state = _vectors(table["observation.state"])[order] if "observation.state" in want else None

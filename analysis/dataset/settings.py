@@ -83,7 +83,7 @@ class DatasetSettings(Settings):
         unknown = [f for f in self.fail_names() if f not in FLAGS]
         if unknown:
             raise UserError(
-                f"--fail-on: unknown flag {unknown[0]!r}; choose from {', '.join(FLAGS)} or all"
+                f"--fail-on: unknown flag {unknown[0]!r}; choose from {', '.join(FLAGS)} or all."
             )
         self.episode_list()
         self.flag_thresholds()
@@ -97,7 +97,7 @@ class DatasetSettings(Settings):
             if name not in FLAGS or not eq:
                 raise UserError(
                     f"--thresholds: give FLAG=VALUE or FLAG=off, got {item!r} (the flags: "
-                    f"{', '.join(FLAGS)})"
+                    f"{', '.join(FLAGS)})."
                 )
             if value.lower() == "off":
                 out[name] = None
@@ -126,7 +126,7 @@ class DatasetSettings(Settings):
             return [int(e) for e in self.episodes.split(",") if e.strip()]
         except ValueError:
             raise UserError(
-                f"--episodes: give comma-separated indices, got {self.episodes!r}"
+                f"--episodes: give comma-separated indices, got {self.episodes!r}."
             ) from None
 
     def executor_settings(self) -> ExecutorSettings:

@@ -126,7 +126,7 @@ def _photo(name: str) -> np.ndarray:
         buf = np.frombuffer(f.read(), np.uint8)
     img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise UserError(f"matplotlib's sample photograph {name} cannot be read")
+        raise UserError(f"matplotlib's sample photograph {name} cannot be read.")
     return cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
 
 
@@ -418,12 +418,12 @@ def write_dataset(
     episode (more strokes: more evidence of a lag). ``camera_shapes``, ``camera_fps``: a
     camera's own (height, width) and rate (its video's and ``video.fps``), where not given."""
     if version not in ("v3.0", "v2.1"):
-        raise UserError(f"version must be v3.0 or v2.1, got {version!r}")
+        raise UserError(f"version must be v3.0 or v2.1, got {version!r}.")
     if codec not in CODECS:
-        raise UserError(f"codec must be one of {', '.join(CODECS)}, got {codec!r}")
+        raise UserError(f"codec must be one of {', '.join(CODECS)}, got {codec!r}.")
     root = Path(root)
     if root.exists() and (not root.is_dir() or any(root.iterdir())):
-        raise UserError(f"{root} exists and is not an empty folder: give a new folder")
+        raise UserError(f"{root} exists and is not an empty folder: give a new folder.")
     # written into a hidden folder beside it, renamed when whole: a failed or killed write
     # leaves no half dataset under the name (a leftover hidden folder is removed on failure)
     part = root.with_name(f".{root.name}.partial-{os.getpid()}")
@@ -476,7 +476,7 @@ def _write(root: Path, episodes: int, version: str, codec: str, fps: float,
     }  # fmt: skip
     for cam in image_cameras:
         if cam not in per_cam:
-            raise UserError(f"image camera {cam!r} is not one of the cameras {cameras}")
+            raise UserError(f"image camera {cam!r} is not one of the cameras {cameras}.")
         for e, frames in enumerate(per_cam.pop(cam)):
             folder = root / "images" / cam / f"episode-{e:06d}"
             folder.mkdir(parents=True, exist_ok=True)

@@ -42,7 +42,7 @@ class WindowReader(Reader):
             self.container.close()
             raise UserError(
                 f"{path}: the episode's window ends at {to_s:.3f} s, past the file's end "
-                f"({end:.3f} s)"
+                f"({end:.3f} s)."
             )
         self.file_end_s = end
         self.info = {
@@ -60,7 +60,7 @@ class WindowReader(Reader):
         except StopIteration:
             self.container.close()
             raise UserError(
-                f"{path}: no frame in the episode's window {from_s:.3f}-{to_s} s"
+                f"{path}: no frame in the episode's window {from_s:.3f}-{to_s} s."
             ) from None
 
     def _decode(self) -> Iterator[SourceFrame]:

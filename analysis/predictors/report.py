@@ -337,7 +337,7 @@ def settings_meta(folder: Path) -> dict[str, Any]:
             raw = kv.get(b"vdc.settings")
             if raw:
                 return json.loads(raw)
-    raise UserError(f"{str(folder)!r} holds no boundary tables (boundary_runs.parquet)")
+    raise UserError(f"{str(folder)!r} holds no boundary tables (boundary_runs.parquet).")
 
 
 Log = Callable[[str], None]

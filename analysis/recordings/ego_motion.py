@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from vdc.errors import UserError
 
 YAW_WINDOW_S = 0.3
@@ -84,7 +85,7 @@ def turning_flags(
     ``hold_frames`` frames (the model's memory of the turn)."""
     w = np.asarray(omega_dps, dtype=np.float64)
     if not (math.isfinite(threshold_dps) and threshold_dps > 0):
-        raise UserError(f"turn_threshold_dps must be > 0, got {threshold_dps}")
+        raise UserError(f"turn_threshold_dps must be > 0, got {threshold_dps}.")
     rotating = np.abs(np.nan_to_num(w, nan=0.0)) > threshold_dps
     held = rotating.copy()
     last = -(10**9)

@@ -40,12 +40,11 @@ from avdm.registry import canonical_name, check_detector, make_model, parse_mode
 from avdm.true_time import TrueTimeModel
 from vdc.arena_geometry import distance_to_wall_along
 from vdc.cli_support import option
-from vdc.settings import API_ONLY, Settings
 from vdc.errors import UserError
 from vdc.executors import TasksFailed
 from vdc.folders import expand_recordings, path_list
 from vdc.parquet_io import WroteFiles, table_set, write_parquet
-from vdc.settings import AT_LEAST_0, POSITIVE, RANGE
+from vdc.settings import API_ONLY, AT_LEAST_0, POSITIVE, RANGE, Settings
 
 
 @dataclasses.dataclass(frozen=True)
@@ -233,7 +232,7 @@ def primary_output(outputs_df: pl.DataFrame) -> str:
         if c not in NON_OUTPUT_COLUMNS and outputs_df[c].null_count() < outputs_df.height
     ]
     if not cols:
-        raise UserError("no model output columns")
+        raise UserError("no model output columns.")
     return primary_output_name(cols)
 
 
@@ -302,7 +301,7 @@ def frames_in_statistics(
     ``motion`` overrides the settings: "all", "straight" or "turning" frames."""
     motion = motion or s.motion
     if motion not in MOTIONS:
-        raise UserError(f"motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
+        raise UserError(f"motion must be one of {', '.join(MOTIONS)}, got {motion!r}.")
     df = df.filter(pl.col("frame") >= s.warmup_frames)
     if motion == "all":
         return df

@@ -16,9 +16,8 @@ import polars as pl
 from analysis.recordings.recompute import SummarySettings, TablesSettings, summary_statistics
 from analysis.stats import Estimate, mean_ci
 from vdc.cli_support import option
-from vdc.settings import API_ONLY
 from vdc.errors import UserError
-from vdc.settings import AT_LEAST_1, POSITIVE, RANGE, between
+from vdc.settings import API_ONLY, AT_LEAST_1, POSITIVE, RANGE, between
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,7 +37,7 @@ class ProfileSettings(TablesSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.by not in ("recording", "condition"):
-            raise UserError(f"--by must be recording or condition, got {self.by!r}")
+            raise UserError(f"--by must be recording or condition, got {self.by!r}.")
 
 
 @dataclasses.dataclass

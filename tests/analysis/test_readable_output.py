@@ -8,6 +8,7 @@ import base64
 import math
 from pathlib import Path
 
+import numpy as np
 import polars as pl
 
 from tests.figures import recording_figures
@@ -58,8 +59,8 @@ def test_the_predictors_title_fits_a_one_panel_figure(tmp_path: Path) -> None:
 
 def test_one_clips_page_shows_that_clip_over_time_in_units(tmp_path: Path) -> None:
     from analysis.complexity.command import ComplexitySettings, complexity
-    from analysis.complexity.figures import UNITS
     from tests.helpers import write_pan
+    from vdc.recording import COMPLEXITY_UNITS as UNITS
 
     # the robot camera's field of view (its raster, 99x72, once resampled): a calibration vdc
     # ships, no fit to wait for (libx264 wants even sides)
@@ -84,6 +85,41 @@ def test_one_clips_page_shows_that_clip_over_time_in_units(tmp_path: Path) -> No
         assert ax["ylim"][0] >= 0 and ax["xlim"][0] >= 0
     assert not any("normalised" in a["title"] or "percentile" in a["ylabel"] for a in fig["axes"])
     assert fig["clipped"] == []
+    # its recording too: each metric as measured (it was divided by its 99th percentile, with
+    # no unit), its series named with its unit, on the clip's frames
+    import rerun as rr
+
+    from analysis.recordings.reader import Recording
+
+    rrd = tmp_path / "out" / f"complexity_{rid}.rrd"
+    signals = Recording(rrd).signals()
+    store = rr.chunk.RrdReader(str(rrd)).store()
+    for m in metrics:
+        frame, _t, values = signals[f"/complexity/{m}"]
+        assert frame.tolist() == res.table["frame"].to_list()
+        measured = res.table[m].cast(pl.Float64).fill_null(math.nan).to_numpy()
+        assert np.array_equal(values[:, 0], measured, equal_nan=True), m
+        (names,) = [
+            ch.to_record_batch().column("SeriesLines:names").to_pylist()[0]
+            for ch in store.stream().filter(content=f"/complexity/{m}")
+            if "SeriesLines:names" in ch.to_record_batch().schema.names
+        ]
+        assert names == [f"{m} ({UNITS[m]})"]
+
+
+def test_the_viewer_gives_each_unit_a_pane() -> None:
+    """A video's blueprint shows the complexity series a pane per unit: deg/s beside P.910 or
+    bits/pixel on one axis would flatten all but the largest."""
+    from vdc.blueprints import complexity_panes
+    from vdc.recording import COMPLEXITY_UNITS as UNITS
+
+    panes = complexity_panes().contents
+    shown = [str(c) for pane in panes for c in pane.contents]  # type: ignore[union-attr]
+    assert len(panes) == len(set(UNITS.values()))
+    for pane in panes:
+        units = {UNITS[str(c).rsplit("/", 1)[-1]] for c in pane.contents}  # type: ignore[union-attr]
+        assert len(units) == 1 and pane.name.endswith(f"({units.pop()})")
+    assert sorted(shown) == sorted(f"/complexity/{m}" for m in UNITS)
 
 
 def test_sizes_are_written_width_by_height() -> None:

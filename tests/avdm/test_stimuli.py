@@ -136,3 +136,13 @@ def test_user_image_is_resized_and_drifted() -> None:
         drifting_image(np.full((4, 4), np.nan))
     with pytest.raises(ValueError, match="2-D"):
         drifting_image(np.zeros((4, 4, 3)))
+
+
+def test_a_size_too_small_is_said_width_by_height() -> None:
+    """Sizes are written W x H everywhere: the stimulus's check said "1x2 px (HxW)"."""
+    from avdm.errors import ParameterError
+    from avdm.stimuli import grating
+
+    with pytest.raises(ParameterError) as err:
+        grating(size=(5, 1), period_px=4.0, n_frames=2)  # 5 high, 1 wide
+    assert "at least 2x1 px (W x H), got 1x5 px" in str(err.value), err.value

@@ -444,7 +444,7 @@ def test_a_new_cameras_calibration_says_what_it_fits_and_that_it_is_cached(
     # written W x H as every size vdc prints
     assert len(start) == 1 and re.fullmatch(
         r"calibrating avdm-natural for this camera \(25 Hz, 0\.7\d* deg/px, 57x43 px\): "
-        r"60 stimuli, once; the fit is then cached",
+        r"60 stimuli, once; the fit is then cached\.",
         start[0],
     ), start
     (done,) = [ln for ln in lines if ln.startswith("calibrated avdm-natural for")]

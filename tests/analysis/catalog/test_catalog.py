@@ -339,7 +339,7 @@ def test_query_says_it_repaired_a_recording_without_footer(campaign) -> None:
     repaired = [n for n in notes if "has no footer" in n]
     assert repaired == [
         f"{campaign['root'] / 'recordings' / 'cut.rrd'} has no footer (the capture was cut "
-        "short): registered a repaired copy of its complete messages (marked repaired)"
+        "short): registered a repaired copy of its complete messages (marked repaired)."
     ]
 
 

@@ -96,8 +96,8 @@ def test_the_flagged_episodes_are_listed_for_lerobots_own_tool(panning) -> None:
     lines = res.report()
     assert any(listing["lerobot_edit_dataset"] in line for line in lines)
     # the episodes' list ends with the clean count; the run counted the streams as it went
-    assert "  5 episode(s) clean" in lines
-    assert "6 of 6 camera stream(s) measured" in said
+    assert "  5 episode(s) clean." in lines
+    assert "6 of 6 camera stream(s) measured." in said
 
 
 def test_a_file_given_as_the_dataset_is_said_to_be_a_file(panning) -> None:
