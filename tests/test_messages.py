@@ -22,8 +22,6 @@ COMMANDS = ("pip install ", "vdc-analyse ", "vdc-capture ", "python -m ", "rerun
 # Modules left to branches that move or rewrap their messages as this check lands (issue 60):
 # once those are merged, drop the entry and run this file with --fix (the test then holds them)
 PENDING = {
-    "analysis/experiments": "moved into packages by the experiments-pkgs branch",
-    "analysis/boundary/command.py": "split into settings, statistics, report by experiments-pkgs",
     "analysis/complexity/command.py": "split into modules by the room-to-grow branch",
     "analysis/dataset/synthetic.py": "split into modules by the room-to-grow branch",
     "vdc/sources.py": "split into modules by the room-to-grow branch",

@@ -78,7 +78,7 @@ def number_list(text: Any, name: str, *, minimum: float = 0.0) -> list[float]:
     try:
         values = [float(v) for v in _items(text)]
     except ValueError:
-        raise UserError(f"--{name} must be numbers separated by commas, got {text!r}") from None
+        raise UserError(f"--{name} must be numbers separated by commas, got {text!r}.") from None
     if not values or not all(math.isfinite(v) and v >= minimum for v in values):
         raise UserError(f"--{name} must be numbers >= {minimum:g}, comma-separated: {text!r}")
     if len(set(values)) != len(values):
@@ -90,7 +90,7 @@ def name_list(text: Any, name: str, allowed: Sequence[str]) -> list[str]:
     values = _items(text)
     bad = [v for v in values if v not in allowed]
     if not values or bad:
-        raise UserError(f"--{name} must be some of {', '.join(allowed)}, got {text!r}")
+        raise UserError(f"--{name} must be some of {', '.join(allowed)}, got {text!r}.")
     return values
 
 
@@ -216,19 +216,19 @@ class BoundarySettings(ExecutorSettings):
             raise UserError(
                 f"--param {self.param}: vdc's tables have a column {self.param!r} of their own, "
                 "beside which the swept parameter is written; sweep a parameter of another "
-                "name (rename it in the plug-in)"
+                "name (rename it in the plug-in)."
             )
         if self.design == "adaptive" and (self.complexity != "profile" or self.labels):
-            raise UserError("--design adaptive is for the arena with --complexity profile")
+            raise UserError("--design adaptive is for the arena with --complexity profile.")
         if self.per_scene and self.design != "adaptive":
-            raise UserError("--per-scene is for --design adaptive")
+            raise UserError("--per-scene is for --design adaptive.")
         if self.labels is None:
             check_below_nyquist(self.tf_bounds()[1], f"--tf-range {self.tf_range}")
             self.grid_values()
             check_below_nyquist(max(number_list(self.tf, "tf")), "--tf")
             self.scene_list()
             if self.per_scene and self.budget < 2 * len(self.scene_list()):
-                raise UserError("--per-scene needs --budget of at least 2 runs per scene")
+                raise UserError("--per-scene needs --budget of at least 2 runs per scene.")
 
             CollisionSettings(false_alarm_m=self.false_alarm_m)
 
@@ -247,7 +247,9 @@ class BoundarySettings(ExecutorSettings):
         except ValueError:
             bounds = (math.nan, math.nan)
         if not (0 <= bounds[0] < bounds[1] < math.inf):
-            raise UserError(f"--tf-range must be LO:HI Hz with 0 <= LO < HI, got {self.tf_range!r}")
+            raise UserError(
+                f"--tf-range must be LO:HI Hz with 0 <= LO < HI, got {self.tf_range!r}."
+            )
         return bounds
 
     def scene_list(self) -> list[str]:

@@ -90,7 +90,7 @@ def run_captures(
         out.parent.mkdir(parents=True, exist_ok=True)
         paths[key] = out
         if capture_is_done(out, run_id):
-            log(f"  {key}: reusing {out}")
+            log(f"  {key}: reusing {out}.")
         else:
             todo.append((key, (key, settings, str(out))))
     if not todo:
@@ -105,7 +105,7 @@ def run_captures(
         feedback.progress(1)
         if outcome.error is None:
             secs = outcome.result["seconds"] if outcome.result else float("nan")
-            log(f"  [{finished}/{len(todo)}] {outcome.key} recorded in {secs:.0f} s")
+            log(f"  [{finished}/{len(todo)}] {outcome.key} recorded in {secs:.0f} s.")
         else:
             log(f"  [{finished}/{len(todo)}] {outcome.key} FAILED: {outcome.error}")
 

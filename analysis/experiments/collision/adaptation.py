@@ -90,7 +90,7 @@ class AdaptationSettings(ExecutorSettings):
         super().__post_init__()
 
         if not self.policy:
-            raise UserError("give the policy to test: --policy FILE (from vdc-analyse boundary)")
+            raise UserError("give the policy to test: --policy FILE (from vdc-analyse boundary).")
         load_policy(self.policy)  # a bad policy file fails before anything runs
         parse_model_spec(self.policy_spec())
         parse_model_spec(self.hand_spec())
@@ -123,7 +123,7 @@ class AdaptationSettings(ExecutorSettings):
                 )
             )
         if not out:
-            raise UserError("no held-out condition: give --tf and --scenes or --schedule")
+            raise UserError("no held-out condition: give --tf and --scenes or --schedule.")
         return out
 
 
@@ -240,7 +240,7 @@ def adaptation(
     items = adaptation_items(s, out / "recordings")
 
     check_detectors(it.settings.to_config() for it in items)  # one line before any run
-    feedback.log(f"adaptation: {len(s.conditions())} held-out condition(s), {len(items)} run(s)")
+    feedback.log(f"adaptation: {len(s.conditions())} held-out condition(s), {len(items)} run(s).")
     runs = run_grid(items, "collision", s, s.false_alarm_m, feedback)
     complexity = condition_complexity(runs, "online_dps")
     conditions = condition_statistics(runs, complexity, ["condition", "controller"])

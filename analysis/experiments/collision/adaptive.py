@@ -219,7 +219,7 @@ def design_runs(
             f = fits[v]
             log(
                 f"  value {v:g}, batch {round_no}: {len(g)} run(s), boundary {f.boundary:.1f} "
-                f"deg/s, 95 % [{f.low:.1f}, {f.high:.1f}] ({f.state})"
+                f"deg/s, 95 % [{f.low:.1f}, {f.high:.1f}] ({f.state})."
             )
             if not _settled(f, precision_dps) and len(g) < budget:
                 still.append(v)
@@ -367,6 +367,7 @@ def design_runs_per_scene(
                     if math.isfinite(cuts[key])
                     else ""
                 )
+                + "."
             )
             if not _settled(f, precision_dps) and len(g) < cap(key[0]):
                 still.append(key)
@@ -419,7 +420,7 @@ def adaptive_boundary(
     feedback.log(
         f"adaptive boundary of {s.detector} over {s.param} = {values}: up to {s.budget} run(s) "
         f"per value along wall TF {s.tf_range} Hz ({', '.join(scenes)}), plus "
-        f"{len(prof_items)} profiling run(s)"
+        f"{len(prof_items)} profiling run(s)."
     )
     profiles = run_grid(prof_items, "profile", s, s.false_alarm_m, feedback)
     pmap = ProfileMap.from_runs(profiles)

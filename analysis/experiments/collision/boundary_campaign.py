@@ -209,7 +209,7 @@ def require_evidence(
     if not runs.height or int(runs["avoidances"].sum() + runs["crashes"].sum()) == 0:
         raise UserError(
             f"no run had an avoidance or a crash ({runs.height} run(s)): there is no evidence "
-            f"to place a boundary on; {_shortest_run(s, sim)}"
+            f"to place a boundary on; {_shortest_run(s, sim)}."
         )
     if complexity is not None:
         bad = complexity.filter(~pl.col("complexity_dps").is_finite())["condition"].to_list()
@@ -217,7 +217,7 @@ def require_evidence(
             raise UserError(
                 f"the complexity of {', '.join(bad)} could not be measured (no frame after "
                 f"the warm-up): there is no evidence to place a boundary on; "
-                f"{_shortest_run(s, sim)}"
+                f"{_shortest_run(s, sim)}."
             )
 
 
@@ -265,7 +265,8 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
         f"boundary of {s.detector} over {s.param} = {list(s.grid_values())}: {len(s.conditions())} "
         f"condition(s) x {len(s.grid_values())} value(s) x {s.seeds} seed(s) of "
         f"{s.minutes:g} min = {len(items)} run(s)"
-        + (f", plus {len(prof)} profiling run(s)." if prof else ".")
+        + (f", plus {len(prof)} profiling run(s)" if prof else "")
+        + "."
     )
     # one line per stage on the log (a pipe has no bar): nothing silent between plan and results
     stages = 3 if prof else 2

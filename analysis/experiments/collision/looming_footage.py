@@ -113,11 +113,11 @@ class LoomingFootageSettings(Settings):
 
     def __post_init__(self) -> None:
         if self.rv_min_s > self.rv_max_s:
-            raise UserError("--rv-min-s must not exceed --rv-max-s")
+            raise UserError("--rv-min-s must not exceed --rv-max-s.")
         if self.seconds < ENTER_S[1] + 1:
             raise UserError(
                 f"--seconds {self.seconds:g} is too short: at least {ENTER_S[1] + 1:g} s (the "
-                f"scene alone for 1 s before the object enters up to {ENTER_S[1]:g} s ahead)"
+                f"scene alone for 1 s before the object enters up to {ENTER_S[1]:g} s ahead)."
             )
 
     @property
@@ -189,7 +189,7 @@ def photo_file(name: str) -> Path:
         folder = Path(data.__file__).parent
     path = folder / PHOTOS_2026_12[name]
     if not path.is_file():
-        raise UserError(f"photograph {name!r} is not installed at {path}")
+        raise UserError(f"photograph {name!r} is not installed at {path}.")
     return path
 
 

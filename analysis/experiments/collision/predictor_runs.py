@@ -112,7 +112,7 @@ def measure_run(path: str | Path, every: int = EVERY, warmup: int | None = None)
     loaded = load_recording(path)
     ctx = loaded.camera_context()
     if not ctx:
-        raise UserError(f"{str(path)!r} does not record its camera")
+        raise UserError(f"{str(path)!r} does not record its camera.")
     fps, deg_per_px = float(ctx["fps"]), float(ctx["deg_per_px"])
     timing = loaded.frames.select("frame", "t_s", "repeat", "turning")
     natural = TrueTimeModel(make_model("avdm-natural", **ctx))
@@ -251,7 +251,7 @@ def predictors_for_folder(
     meta = settings_meta(folder)
     if meta.get("labels"):
         raise UserError(
-            f"{str(folder)!r} is a footage boundary: its predictors are written by the run"
+            f"{str(folder)!r} is a footage boundary: its predictors are written by the run."
         )
     fields = {f.name for f in dataclasses.fields(BoundarySettings)}
     s = BoundarySettings(**{k: tuple(v) if isinstance(v, list) else v
@@ -264,7 +264,7 @@ def predictors_for_folder(
     if missing:
         raise UserError(
             f"{len(missing)} profiling run(s) are missing (e.g. {missing[0]}): the predictors "
-            "need the grid's profiling runs (--complexity profile)"
+            "need the grid's profiling runs (--complexity profile)."
         )
     measures = arena_measures(items, s, log or (lambda _m: None), s.measure_every)
     md_path = folder / "boundary.md"
@@ -316,7 +316,7 @@ def predictors(source: str | Path | Any) -> Any:
     else:
         folder = Path(source)
     if not folder.is_dir():
-        raise UserError(f"{str(folder)!r} is not a boundary output folder")
+        raise UserError(f"{str(folder)!r} is not a boundary output folder.")
     pred = folder / "predictors.parquet"
     if not pred.exists():
         return predictors_for_folder(folder)

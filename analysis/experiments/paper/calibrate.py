@@ -153,7 +153,7 @@ class CalibrateSettings(Settings):
             raise UserError(
                 f"calibrate fits the grating-calibrated AVDM (avdm and its variants); "
                 f"{self.model.split(':')[0]} is fitted on clutter automatically for each camera "
-                "on first use (avdm.calibration.fit_multiscale)"
+                "on first use (avdm.calibration.fit_multiscale)."
             )
         return params
 

@@ -159,7 +159,7 @@ def collision_study(
     say(
         f"collision study: {len(phases)} phases x {settings.seeds} seed(s) of "
         f"{settings.minutes:g} min, detector {settings.detector}, adjusted threshold "
-        f"{settings.adjusted or '(none)'}"
+        f"{settings.adjusted or '(none)'}."
     )
     seeds = seed_list(settings.seed, settings.seeds)
     recs = run_phases(phases, settings.minutes, seeds, out / "recordings", settings, say)

@@ -68,16 +68,16 @@ def check_cells(cells: Sequence[tuple[float, float]], config: SweepConfig) -> No
     w = config.size[1]
     for sf, tf in cells:
         if not (math.isfinite(sf) and sf > 0):
-            raise UserError(f"spatial frequency must be > 0 upc, got {sf:g}")
+            raise UserError(f"spatial frequency must be > 0 upc, got {sf:g}.")
         if sf > w / 2:
             raise UserError(
-                f"SF {sf:g} upc is above the spatial Nyquist limit of {w / 2:g} upc at {w} px wide"
+                f"SF {sf:g} upc is above the spatial Nyquist limit of {w / 2:g} upc at {w} px wide."
             )
         if not (math.isfinite(tf) and tf > 0):
-            raise UserError(f"temporal frequency must be > 0 Hz, got {tf:g}")
+            raise UserError(f"temporal frequency must be > 0 Hz, got {tf:g}.")
         if tf > config.fps / 2:
             raise UserError(
-                f"TF {tf:g} Hz is above the temporal Nyquist limit of {config.fps / 2:g} Hz"
+                f"TF {tf:g} Hz is above the temporal Nyquist limit of {config.fps / 2:g} Hz."
             )
 
 
@@ -106,7 +106,7 @@ def run_sweep(
     if n_frames <= warm:
         raise UserError(
             f"duration {config.duration_s:g} s gives {n_frames} frames: need more than the "
-            f"{warm}-frame warm-up"
+            f"{warm}-frame warm-up."
         )
     rows = []
     for sf, tf in cells:
@@ -328,11 +328,11 @@ class SweepSettings(Settings):
 
     def __post_init__(self) -> None:
         if self.waveform not in WAVEFORMS:
-            raise UserError(f"waveform must be sine or square, got {self.waveform!r}")
+            raise UserError(f"waveform must be sine or square, got {self.waveform!r}.")
         if not self.grid and (self.size[1] < 100 or self.fps < 300):
             raise UserError(
                 "the paper layout needs SF up to 50 upc and TF up to 150 Hz: use --size of at "
-                "least 100 px wide and --fps of at least 300, or give --sf and --tf lists"
+                "least 100 px wide and --fps of at least 300, or give --sf and --tf lists."
             )
         check_cells(self.cells(), self.stimulus)
         make_params(self.model)  # an unknown model fails before any cell runs

@@ -68,7 +68,7 @@ def publish(out: Path, dest: Path, studies: pl.DataFrame, feedback: Any = None) 
     tmp.replace(dest / "made_by.json")
     written.append(dest / "made_by.json")
     if feedback is not None:
-        feedback.log(f"published the answer into {dest} (commit {meta['commit'][:12]})")
+        feedback.log(f"published the answer into {dest} (commit {meta['commit'][:12]}).")
     return written
 
 

@@ -57,7 +57,7 @@ def footage_pilot(
     fov = made.labels["hfov_deg"][0]
     rows = []
     for spec in detectors:
-        feedback.log(f"pilot: {spec} on {clips} clips")
+        feedback.log(f"pilot: {spec} on {clips} clips.")
         for row in made.labels.iter_rows(named=True):
             frames, alert, fps = detector_alerts(str(out / "clips" / row["clip"]), spec, fov)
             by_frame = np.zeros(int(frames.max()) + 1)  # by the source's frame numbers

@@ -62,7 +62,7 @@ def set_aside_stale(out: Path, key: dict[str, str], feedback: Feedback) -> list[
             feedback.log(
                 f"the code that scores and measures changed since the last run (vdc "
                 f"{old.get('vdc')}, code {str(old.get('code'))[:12]} -> vdc {key['vdc']}, "
-                f"code {key['code'][:12]}): every study is computed again"
+                f"code {key['code'][:12]}): every study is computed again."
             )
             for name in ("arena", "footage"):
                 if (out / name).exists():
@@ -71,10 +71,10 @@ def set_aside_stale(out: Path, key: dict[str, str], feedback: Feedback) -> list[
                     while dst.exists():
                         dst, n = out / f"{name}.stale-{str(old.get('code'))[:8]}-{n}", n + 1
                     (out / name).rename(dst)
-                    feedback.log(f"  {out / name} set aside as {dst.name}")
+                    feedback.log(f"  {out / name} set aside as {dst.name}.")
                     moved.append(dst)
     elif any((out / n).exists() for n in ("arena", "footage")):  # before code.json existed
-        feedback.log("no code.json: the studies here predate the code key and are recomputed")
+        feedback.log("no code.json: the studies here predate the code key and are recomputed.")
         for name in ("arena", "footage"):
             if (out / name).exists():
                 dst = out / f"{name}.stale-unknown"

@@ -300,7 +300,7 @@ def arena_study(
     key, marker = {"settings": _outcome_key(bs), **code_key()}, folder / "study.json"
     status = _done(marker, key)
     if status is not None and _all_finished(bs, folder):  # its tables are these runs' already
-        feedback.log(f"arena study of {detector}: every run finished and analysed: reused")
+        feedback.log(f"arena study of {detector}: every run finished and analysed: reused.")
         return row | {"status": status}
     checked = row["recomputed"]  # the confirmation's runs
     try:
@@ -479,7 +479,7 @@ def power_study(
         f"power study{' (QUICK: not findings)' if s.quick else ''}: {plan.conditions()} arena "
         f"conditions x {plan.seeds} seed(s) x {len(plan.arena_detectors)} detector(s) "
         f"+ profiling = {plan.arena_runs()} run(s) of {plan.minutes:g} min; {plan.clips} clips "
-        f"x {len(plan.footage_detectors)} detector(s)"
+        f"x {len(plan.footage_detectors)} detector(s)."
     )
     set_aside_stale(out, code_key(), feedback)
     rows = [arena_study(s, spec, out, feedback, start) for spec in plan.arena_detectors]
@@ -494,7 +494,7 @@ def power_study(
     # the generator renders every clip again to label it: a finished collection is kept whole
     key = dataclasses.asdict(clips)
     if _done(folder / "study.json", key) and labels.exists():
-        feedback.log(f"looming-footage: the {plan.clips} clips in {folder} reused")
+        feedback.log(f"looming-footage: the {plan.clips} clips in {folder} reused.")
         rows.append(row | {"status": "rendered"})
     else:
         made = looming_footage(clips, folder, feedback)
@@ -524,11 +524,11 @@ def footage_confirmation(
     key = {"settings": dataclasses.asdict(settings), "detectors": specs, **code_key()}
     marker = folder / "pilot.json"
     if marker.exists() and (done := json.loads(marker.read_text())).get("key") == key:
-        feedback.log(f"footage pilot: {plan.pilot_clips} clips of seed {plan.pilot_seed} reused")
+        feedback.log(f"footage pilot: {plan.pilot_clips} clips of seed {plan.pilot_seed} reused.")
         return done["shares"]
     feedback.log(
         f"footage pilot: each footage detector's value on {plan.pilot_clips} clips of seed "
-        f"{plan.pilot_seed} (outside the study's clips)"
+        f"{plan.pilot_seed} (outside the study's clips)."
     )
     table = footage_pilot(folder, plan.pilot_clips, specs, feedback, settings)
     by_spec = dict(zip(table["detector"], table["failure_share"], strict=True))
