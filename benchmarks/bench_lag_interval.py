@@ -4,7 +4,7 @@
 
 Simulated arm strokes and a camera that sees them late (``analysis.dataset.synthetic.
 lag_signals``: 3 % of its frames lost), at several frame rates, episode lengths, noise levels
-and delays; each episode's 95 % interval (``analysis.dataset.measure.lag_of``) either holds the
+and delays; each episode's 95 % interval (``analysis.dataset.lag.lag_of``) either holds the
 true delay or not. Printed: the coverage with its binomial 95 % interval, the median width, and
 the estimate's bias and spread. The same episodes also get the moving-block bootstrap interval
 the jackknife replaced (200 resamples of 1.5-s blocks of the aligned frames, percentile),
@@ -19,7 +19,7 @@ import math
 import numpy as np
 from scipy.stats import binomtest
 
-from analysis.dataset.measure import lag_of, lag_peaks
+from analysis.dataset.lag import lag_of, lag_peaks
 from analysis.dataset.synthetic import lag_signals
 
 CASES = [  # (fps, seconds, noise share of the peak speed, delay ms)

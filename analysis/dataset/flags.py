@@ -12,7 +12,8 @@ from typing import Any, NamedTuple
 import numpy as np
 import polars as pl
 
-from analysis.dataset.measure import MOTION_SPAN_FRAMES, lag_of, phase_shift
+from analysis.dataset.lag import lag_of
+from analysis.dataset.measure import MOTION_SPAN_FRAMES, phase_shift
 
 # flag, the column it shows, the column of its evidence, its threshold, the threshold's unit
 # (what it means: _MEANINGS): an episode is flagged when its evidence >= the threshold. The
@@ -332,7 +333,7 @@ def camera_lags(
 ) -> dict[tuple[int, str], dict[str, Any]]:
     """Each episode's cameras checked against each other for lag: the delay of each camera's
     image motion behind the episode's first camera's (``order``: the dataset's cameras; ms,
-    positive: this camera late), as :func:`analysis.dataset.measure.lag_of` reads the image's
+    positive: this camera late), as :func:`analysis.dataset.lag.lag_of` reads the image's
     against the state's, on the first camera's frame times (the other's motion interpolated
     there: the cameras' rates and sizes may differ; a mean difference per pixel and frame
     interval does not depend on either). Keyed by (episode, camera) for every camera but the
