@@ -63,7 +63,7 @@ def ti_frame(y, prev, lut, rows, sums):  # pragma: no cover - compiled
     for i in range(y.shape[0]):
         sk._map_row(y[i], lut, rows[0])
     for i in range(y.shape[0]):
-        sk._diff_row32(rows[0], prev[i], lut, y.shape[1], sums)
+        sk._diff_row(rows[0], prev[i], lut, y.shape[1], sums, F32(0))
 
 
 @numba.njit(**OPTS)
