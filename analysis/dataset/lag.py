@@ -1,5 +1,6 @@
 """The delay of a camera's image behind the robot's state (``lag_ms``), with its 95 % interval:
-the two motions cross-correlated on the data's frame grid (:func:`lag_of`). Its constants are
+the two motions cross-correlated on the data's frame grid (:func:`lag_of`); and the same
+delay between an episode's cameras (:func:`camera_lags`). Its constants are
 the search's reach and the interval's blocks, measured on known delays."""
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ import math
 from typing import Any
 
 import numpy as np
+import polars as pl
 
 from analysis.stats import scipy_stats
 
@@ -79,8 +81,13 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> dict:
     unknown (a frozen or lost frame), left out of every sum. ``lag_note`` says why there is no
     value."""
 
-    none = {"lag_ms": None, "lag_low_ms": None, "lag_high_ms": None, "lag_r": None,
-            "lag_peak_ms": None}  # fmt: skip
+    none = {
+        "lag_ms": None,
+        "lag_low_ms": None,
+        "lag_high_ms": None,
+        "lag_r": None,
+        "lag_peak_ms": None,
+    }
     if len(speed_state) < LAG_MIN_S * fps:
         return none | {"lag_note": f"not measurable: shorter than {LAG_MIN_S:g} s"}
     if np.nanstd(speed_state) == 0 or np.nanstd(motion) == 0:
@@ -103,8 +110,70 @@ def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> dict:
     low, high = max(lag - half, -reach), min(lag + half, reach)
     if high - low >= LAG_CANNOT_TELL_SHARE * 2 * reach:
         # the interval is the search itself: the peak is one of many the data allow
-        return none | {"lag_low_ms": low, "lag_high_ms": high, "lag_r": r, "lag_peak_ms": lag,
-                       "lag_note": f"cannot tell: the interval [{low:.0f}, {high:.0f}] ms "
-                       f"fills the search (peak at {lag:.0f} ms, r {r:.2f})"}  # fmt: skip
-    return {"lag_ms": lag, "lag_low_ms": low, "lag_high_ms": high, "lag_r": r,
-            "lag_peak_ms": lag, "lag_note": None}  # fmt: skip
+        return none | {
+            "lag_low_ms": low,
+            "lag_high_ms": high,
+            "lag_r": r,
+            "lag_peak_ms": lag,
+            "lag_note": f"cannot tell: the interval [{low:.0f}, {high:.0f}] ms "
+            f"fills the search (peak at {lag:.0f} ms, r {r:.2f})",
+        }
+    return {
+        "lag_ms": lag,
+        "lag_low_ms": low,
+        "lag_high_ms": high,
+        "lag_r": r,
+        "lag_peak_ms": lag,
+        "lag_note": None,
+    }
+
+
+def camera_lags(
+    frames: pl.DataFrame, order: tuple[str, ...] = ()
+) -> dict[tuple[int, str], dict[str, Any]]:
+    """Each episode's cameras checked against each other for lag: the delay of each camera's
+    image motion behind the episode's first camera's (``order``: the dataset's cameras; ms,
+    positive: this camera late), as :func:`analysis.dataset.lag.lag_of` reads the image's
+    against the state's, on the first camera's frame times (the other's motion interpolated
+    there: the cameras' rates and sizes may differ; a mean difference per pixel and frame
+    interval does not depend on either). Keyed by (episode, camera) for every camera but the
+    first: ``lag_camera_ms`` (None where it cannot tell), ``lag_camera_low_ms``,
+    ``lag_camera_high_ms``, ``lag_camera_note``, ``lag_camera_ref`` (the first camera)."""
+    rank = {c: i for i, c in enumerate(order)}
+    parts = frames.sort("frame").partition_by("episode_index", "camera", as_dict=True)
+    by_ep: dict[int, list[str]] = {}
+    for e, cam in parts:
+        by_ep.setdefault(e, []).append(cam)
+
+    def motion(fr: pl.DataFrame) -> tuple[np.ndarray, np.ndarray, float]:
+        t = fr["t_s"].to_numpy().astype(np.float64)
+        dt = fr["dt_s"].to_numpy().astype(np.float64)
+        fps = 1.0 / float(np.nanmedian(dt)) if np.isfinite(dt).any() else math.nan
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rate = fr["mafd"].to_numpy().astype(np.float64) / (dt * fps)
+        rate[fr["frozen"].to_numpy()] = np.nan  # a frozen frame says nothing of the motion
+        # each change at its interval's middle: the cameras' intervals differ with their rates
+        return t - 0.5 / fps, rate, fps
+
+    out: dict[tuple[int, str], dict[str, Any]] = {}
+    for e, cams in by_ep.items():
+        if len(cams) < 2:
+            continue
+        cams.sort(key=lambda c: (rank.get(c, len(rank)), c))
+        t0, x, fps = motion(parts[(e, cams[0])])
+        for cam in cams[1:]:
+            t1, y, _ = motion(parts[(e, cam)])
+            ok = np.isfinite(y)
+            if len(t0) < 3 or ok.sum() < 3 or not math.isfinite(fps):
+                continue
+            # the other camera's motion where the first's frames are (NaN outside its times)
+            yy = np.interp(t0, t1[ok], y[ok], left=np.nan, right=np.nan)
+            lag = lag_of(x[1:], yy[1:], fps)
+            out[(e, cam)] = {
+                "lag_camera_ms": lag["lag_ms"],
+                "lag_camera_low_ms": lag["lag_low_ms"],
+                "lag_camera_high_ms": lag["lag_high_ms"],
+                "lag_camera_note": lag["lag_note"],
+                "lag_camera_ref": cams[0],
+            }
+    return out

@@ -104,8 +104,11 @@ def _small(grey: np.ndarray) -> np.ndarray:
     """The frame at most :data:`MOTION_MAX_WIDTH` px wide, float32, for its motion."""
     h, w = grey.shape
     if w > MOTION_MAX_WIDTH:
-        grey = cv2.resize(grey, (MOTION_MAX_WIDTH, max(1, round(h * MOTION_MAX_WIDTH / w))),
-                          interpolation=cv2.INTER_AREA)  # fmt: skip
+        grey = cv2.resize(
+            grey,
+            (MOTION_MAX_WIDTH, max(1, round(h * MOTION_MAX_WIDTH / w))),
+            interpolation=cv2.INTER_AREA,
+        )
     return grey.astype(np.float32)
 
 
@@ -113,8 +116,9 @@ def _view(grey: np.ndarray) -> np.ndarray:
     """A view for the shift, at most :data:`VIEW_MAX_WIDTH` px wide (float32)."""
     h, w = grey.shape
     if w > VIEW_MAX_WIDTH:
-        grey = cv2.resize(grey, (VIEW_MAX_WIDTH, round(h * VIEW_MAX_WIDTH / w)),
-                          interpolation=cv2.INTER_AREA)  # fmt: skip
+        grey = cv2.resize(
+            grey, (VIEW_MAX_WIDTH, round(h * VIEW_MAX_WIDTH / w)), interpolation=cv2.INTER_AREA
+        )
     return grey.astype(np.float32)
 
 
@@ -306,8 +310,9 @@ def measure_episode(
                 motions.append(spectra_shift(kept[-1], spec, small.shape) if kept else nan)
                 spans.append(
                     spectra_shift(kept[0], spec, small.shape)
-                    if len(kept) == MOTION_SPAN_FRAMES else nan
-                )  # fmt: skip
+                    if len(kept) == MOTION_SPAN_FRAMES
+                    else nan
+                )
                 small_last[2] = [*kept, spec][-MOTION_SPAN_FRAMES:]
                 last[:] = [fr.luma, last[0]]
                 yield fr
@@ -318,18 +323,29 @@ def measure_episode(
         # again in full range (the same values), where without it SI/TI are computed in both
         # ranges on every frame (measured at 480x640: 1.29 against 0.70 ms per frame)
         batcher = FrameBatcher(
-            reader, size, fps, metrics=settings.native_metrics(),
-            repeat_tol=settings.repeat_tol, max_repeats=settings.max_repeats, reopen=opened,
-        )  # fmt: skip
+            reader,
+            size,
+            fps,
+            metrics=settings.native_metrics(),
+            repeat_tol=settings.repeat_tol,
+            max_repeats=settings.max_repeats,
+            reopen=opened,
+        )
         meter = None
         if size is not None:
             ctx = camera_model_context(size[1], size[0], fps, settings.fov_deg)
-            meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx,
-                                    metrics=settings.model_metrics())  # fmt: skip
+            meter = ComplexityMeter(
+                fps, float(ctx["deg_per_px"]), settings, ctx, metrics=settings.model_metrics()
+            )
         parts = []
         while (b := batcher.next_batch()) is not None:
-            cols = {"frame": b.frame, "t_s": b.t_s, "dt_s": b.dt_s, "repeat": b.repeat,
-                    "dropped_before": b.dropped_before}  # fmt: skip
+            cols = {
+                "frame": b.frame,
+                "t_s": b.t_s,
+                "dt_s": b.dt_s,
+                "repeat": b.repeat,
+                "dropped_before": b.dropped_before,
+            }
             for m in settings.native_metrics():
                 cols[m] = b.native_metrics[:, NATIVE_METRICS.index(m)]
             if meter is not None:
@@ -348,26 +364,35 @@ def measure_episode(
     st = np.asarray(stats, dtype=np.float64).reshape(-1, 4)
     ch = np.asarray(change, dtype=np.float64).reshape(-1, 2)
     frames = frames.with_columns(
-        pl.Series("sharpness", st[:, 0]), pl.Series("mean_grey", st[:, 1]),
+        pl.Series("sharpness", st[:, 0]),
+        pl.Series("mean_grey", st[:, 1]),
         pl.Series("change_max", ch[:, 0]),
         pl.Series("change2_max", ch[:, 1]),
         pl.Series("underexposed", st[:, 2] >= CLIPPED_SHARE),
         pl.Series("overexposed", st[:, 3] >= CLIPPED_SHARE),
-    )  # fmt: skip
+    )
     # the view's motion in source px (the small frame's scaled back)
     scale = w / min(w, MOTION_MAX_WIDTH)
     vm = np.asarray(motions, dtype=np.float64).reshape(-1, 2) * scale
     vk = np.asarray(spans, dtype=np.float64).reshape(-1, 2) * scale
     frames = frames.with_columns(
-        pl.Series("view_dx_px", vm[:, 0]), pl.Series("view_dy_px", vm[:, 1]),
-        pl.Series("view_span_dx_px", vk[:, 0]), pl.Series("view_span_dy_px", vk[:, 1]),
-    )  # fmt: skip
+        pl.Series("view_dx_px", vm[:, 0]),
+        pl.Series("view_dy_px", vm[:, 1]),
+        pl.Series("view_span_dx_px", vk[:, 0]),
+        pl.Series("view_span_dy_px", vk[:, 1]),
+    )
     problems: list[str] = []
-    row, extra, pose_delta = episode_measures(video, data, frames, (fps, data_fps or fps),
-                                              batcher, problems)  # fmt: skip
+    row, extra, pose_delta = episode_measures(
+        video, data, frames, (fps, data_fps or fps), batcher, problems
+    )
     frames = frames.with_columns(*extra)
-    return {"row": row, "frames": frames, "views": first_last, "problems": problems,
-            "pose_delta": pose_delta}  # fmt: skip
+    return {
+        "row": row,
+        "frames": frames,
+        "views": first_last,
+        "problems": problems,
+        "pose_delta": pose_delta,
+    }
 
 
 def clock_rows(ts: np.ndarray) -> int:
@@ -475,23 +500,40 @@ def episode_measures(
     tail_gap = (video.to_s - video.from_s) - t_v[-1] - 1 / fps if video.to_s is not None else 0
     dropped = batcher.dropped_total + frames_missing_in(max(tail_gap, 0.0), fps)
     row = {
-        "episode_index": video.episode, "camera": video.camera, "video_path": video.path,
-        "from_s": video.from_s, "to_s": video.to_s, "frames_decoded": len(t_v),
-        "length": length, "data_timestamps": len(data.timestamp),
+        "episode_index": video.episode,
+        "camera": video.camera,
+        "video_path": video.path,
+        "from_s": video.from_s,
+        "to_s": video.to_s,
+        "frames_decoded": len(t_v),
+        "length": length,
+        "data_timestamps": len(data.timestamp),
         "drift_start_ms": (t_v[0] - ts[0]) * 1000 if len(ts) else None,
         "drift_end_ms": (t_v[-1] - last_ts) * 1000 if len(ts) and not clock_cut else None,
         "fps": float(fps),
-        "dropped": int(dropped), "repeated": int(batcher.repeats_total),
+        "dropped": int(dropped),
+        "repeated": int(batcher.repeats_total),
         "idle_head_s": float(min(head_img, head_state)),
         "idle_tail_s": float(min(tail_img, tail_state)),
         "underexposed_share": float(frames["underexposed"].mean()),
         "overexposed_share": float(frames["overexposed"].mean()),
         "sharpness_median": float(frames["sharpness"].median()),
         **lag,
-    }  # fmt: skip
+    }
     for m in frames.columns:
-        if m in ("si_p910", "ti_p910", "mafd", "codec_bpp", "si_legacy", "ti_legacy",
-                 "edge_density", "jpeg_bpp", "omega_dps", "flow_dps", "zlib_ratio"):  # fmt: skip
+        if m in (
+            "si_p910",
+            "ti_p910",
+            "mafd",
+            "codec_bpp",
+            "si_legacy",
+            "ti_legacy",
+            "edge_density",
+            "jpeg_bpp",
+            "omega_dps",
+            "flow_dps",
+            "zlib_ratio",
+        ):
             v = frames[m].fill_nan(None).mean()
             row[f"{m}_mean"] = None if v is None else float(v)
     pose_delta = None
@@ -499,6 +541,9 @@ def episode_measures(
         at = np.asarray(pose, dtype=np.float64)[idx]
         at[~on_clock] = np.nan  # frames past a broken clock have no pose
         pose_delta = np.vstack([at[:1], np.diff(at, axis=0)]).astype(np.float32)
-    extra = [pl.Series("still", still), pl.Series("state_moving", state_moving),
-             pl.Series("frozen", frozen_frame)]  # fmt: skip
+    extra = [
+        pl.Series("still", still),
+        pl.Series("state_moving", state_moving),
+        pl.Series("frozen", frozen_frame),
+    ]
     return row, extra, pose_delta
