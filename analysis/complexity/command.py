@@ -47,6 +47,7 @@ from analysis.complexity.meter import (
 from analysis.complexity.plan import expand_sources, plan_sources, without_fov
 from analysis.complexity.settings import ComplexitySettings
 from analysis.complexity.source_metrics import (
+    CLIP_FORMAT_COLUMNS,
     complexity_task,
     largest_first,
     metrics_present,
@@ -110,9 +111,12 @@ def complexity_of_frames(
     leaves = any(leaves_limited(f, 8) for f in native) if color_range is None else None
     ranges = decide_ranges(color_range, settings.color_range, leaves)
     nm = NativeMeter(
-        8, str(ranges["color_range_legacy"]), settings.jpeg_quality, native_names,
+        8,
+        str(ranges["color_range_legacy"]),
+        settings.jpeg_quality,
+        native_names,
         p910_range=str(ranges["color_range_p910"]),
-    )  # fmt: skip
+    )
     rows = np.stack([nm.row(f) for f in native])
     mafd = rows[:, NATIVE_METRICS.index("mafd")]
     repeat = repeats_of(mafd, 0, settings.repeat_tol, settings.max_repeats)
@@ -139,14 +143,20 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
         **{
             k: info.get(k)
             for k in (
-                "source", "kind", "codec", "width_px", "height_px", "fps", "duration_s",
-                "frames", "repeated_frames", "dropped_frames", "container_frames",
-                "lost_after_last", "header_duration_s", "missing_s", "model_fps",
-                "model_fps_reason", *RANGE_COLUMNS,
+                "source",
+                "kind",
+                *CLIP_FORMAT_COLUMNS,
+                "container_frames",
+                "lost_after_last",
+                "header_duration_s",
+                "missing_s",
+                "model_fps",
+                "model_fps_reason",
+                *RANGE_COLUMNS,
             )
         },
         "raster": table["raster"][0],
-    }  # fmt: skip
+    }
     for m in metrics_present(table):
         v = table[m].drop_nulls().cast(pl.Float64)
         row[f"{m}_mean"] = float(v.mean()) if v.len() else None
@@ -240,8 +250,15 @@ def complexity(
 
     if out is None:
         with tempfile.TemporaryDirectory(prefix="vdc-complexity-") as tmp:
-            res = complexity(sources, settings, tmp, progress=progress,
-                             clip_progress=clip_progress, notice=notice, log=log)  # fmt: skip
+            res = complexity(
+                sources,
+                settings,
+                tmp,
+                progress=progress,
+                clip_progress=clip_progress,
+                notice=notice,
+                log=log,
+            )
         res.paths = []  # nothing written remains
         return res
     out = Path(out)
@@ -274,14 +291,20 @@ def complexity(
                 clip_progress(1)
 
         args = [
-            (t["source"], (t["source"], t["recording_id"], t["key"], dataclasses.asdict(settings),
-                           str(out)))
+            (
+                t["source"],
+                (t["source"], t["recording_id"], t["key"], dataclasses.asdict(settings), str(out)),
+            )
             for t in largest_first(list(by_source.values()))
-        ]  # fmt: skip
+        ]
         outcomes = run_tasks(
-            complexity_task, args, settings.executor_settings(), on_done=done, log=log,
+            complexity_task,
+            args,
+            settings.executor_settings(),
+            on_done=done,
+            log=log,
             shared_paths=[listed[0], out],
-        )  # fmt: skip
+        )
     failures = [(o.key, o.error or "") for o in outcomes if o.error]
     parts, infos = [], []
     for t in tasks:
