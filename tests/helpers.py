@@ -126,9 +126,13 @@ def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.P
 
     argv = ["-m", "capture", "sim", "--tf-hz", "3", "--minutes", "60", "--out", str(out)]
     proc = spawn(
-        [sys.executable, *argv, "--quiet"], cwd=ROOT, stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )  # fmt: skip
+        [sys.executable, *argv, "--quiet"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     part = partial_path(out)
     assert_file_grows(proc, part, min_bytes)
     return proc
@@ -197,8 +201,11 @@ def kill_a_worker_mid_batch(
     exit status, stdout, stderr and the killed pid."""
     proc = spawn(
         [sys.executable, "-m", "analysis", "batch", *args, "--out", str(out)],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.time() + 120
     killed = None
     while time.time() < deadline and proc.poll() is None:

@@ -38,9 +38,22 @@ from vdc.stream_counts import frames_missing_in
 # frames held back to reorder a codec's output when it does not state its delay
 REORDER_DEPTH_UNKNOWN = 16
 VIDEO_SUFFIXES = (
-    ".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".ts", ".mts", ".y4m",
-    ".wmv", ".flv", ".3gp", ".ogv",
-)  # fmt: skip
+    ".mp4",
+    ".mov",
+    ".m4v",
+    ".mkv",
+    ".avi",
+    ".webm",
+    ".mpg",
+    ".mpeg",
+    ".ts",
+    ".mts",
+    ".y4m",
+    ".wmv",
+    ".flv",
+    ".3gp",
+    ".ogv",
+)
 
 
 def open_video(path: str, decoder_threads: int | None = None) -> tuple[Any, Any]:

@@ -152,8 +152,15 @@ def test_frames_measured_on_several_threads_give_the_plain_loops_bits(tmp_path, 
     for threads in (1, 3):
         reader = open_reader(str(path))
         again = (lambda: open_reader(str(path))) if reopen else None
-        b = FrameBatcher(reader, (62, 99), 25.0, batch_frames=4, threads=threads,
-                         measure_on_threads=True, reopen=again)  # fmt: skip
+        b = FrameBatcher(
+            reader,
+            (62, 99),
+            25.0,
+            batch_frames=4,
+            threads=threads,
+            measure_on_threads=True,
+            reopen=again,
+        )
         batches = list(iter(b.next_batch, None))
         got[threads] = (
             np.concatenate([fb.native_metrics for fb in batches]),

@@ -88,8 +88,10 @@ def test_a_null_measure_over_conditions_covers_0(conditions) -> None:
         lo, hi = rho_interval(rho, conditions, spearman_rows(mb, 1 - sb))
         cover += lo <= 0 <= hi
         reject += p <= 0.05
-    print(f"null rho over {conditions} conditions: coverage {cover / repeats:.3f}, "
-          f"permutation rejections {reject / repeats:.3f}")  # fmt: skip
+    print(
+        f"null rho over {conditions} conditions: coverage {cover / repeats:.3f}, "
+        f"permutation rejections {reject / repeats:.3f}"
+    )
     assert cover / repeats >= BAR
     # a level-5 % test: 200 repeats, binomial sd 1.5 points; 9 % is 2.7 sd above 5 %
     assert reject / repeats <= 0.09
