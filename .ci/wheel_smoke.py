@@ -41,8 +41,18 @@ def main() -> None:
             run(script, sub, "--help")
     run("vdc-capture", "sim", "--minutes", "0.3", "--out", "smoke.rrd", "--quiet")
     run("vdc-analyse", "tables", "smoke.rrd", "--out", "tables")
-    run("vdc-analyse", "sweep", "--sf-upc", "1,2", "--tf-hz", "3", "--duration-s",
-        "0.5", "--out", "sweep")  # fmt: skip
+    run(
+        "vdc-analyse",
+        "sweep",
+        "--sf-upc",
+        "1,2",
+        "--tf-hz",
+        "3",
+        "--duration-s",
+        "0.5",
+        "--out",
+        "sweep",
+    )
     for f in ("smoke.rrd", "tables/summary.parquet", "sweep/sweep.parquet"):
         if not Path(f).exists():
             sys.exit(f"FAILED: {f} was not written")

@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
+from vdc.cli_inputs import catalog_inputs, inputs, reproduce_inputs, summarise_inputs, sweep_inputs
+from vdc.cli_runners import campaign_runner, over_recordings
 from vdc.cli_support import (
     Command,
     command_line,
     command_of,
     flag_values,
-    load_settings_class,
     progress_bar,
     reference_markdown,
     run_command_line,
@@ -60,23 +60,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _over_recordings(entry: str, inputs: str = "recordings") -> Callable[[argparse.Namespace], int]:
-    """A sub-command that runs ``module:function(recordings, settings, out, progress=,
-    notice=)`` (``inputs``: the argument that holds the recordings, or the one) with a progress
-    bar over frames and prints the result's ``report()`` lines."""
-
-    def run(args: argparse.Namespace) -> int:
-        module, name = entry.split(":")
-        fn = getattr(importlib.import_module(module), name)
-        settings = settings_from_args(load_settings_class(args.settings_target), args)
-        with progress_bar(None, name, "frame") as bar:
-            res = fn(getattr(args, inputs), settings, args.out, progress=bar.update, notice=_notice)
-        print("\n".join(res.report()))
-        return 0
-
-    return run
-
-
 def cmd_collision(args: argparse.Namespace) -> int:
     from analysis.collision import CollisionSettings, collision
 
@@ -101,23 +84,6 @@ def cmd_collision_study(args: argparse.Namespace) -> int:
     return 0
 
 
-def _campaign(entry: str, unit: str, *inputs: str) -> Callable[[argparse.Namespace], int]:
-    """A sub-command that runs ``module:function(*inputs, settings, out, feedback)`` with a progress
-    bar over its ``unit``s, prints ``report()`` and exits with ``exit_status`` (default 0)."""
-
-    def run(args: argparse.Namespace) -> int:
-        module, name = entry.split(":")
-        fn = getattr(importlib.import_module(module), name)
-        with progress_bar(None, name, unit) as bar:
-            settings = settings_from_args(load_settings_class(args.settings_target), args)
-            feedback = Feedback(say, bar.update, bar.expect)
-            res = fn(*map(args.__getattribute__, inputs), settings, args.out, feedback)
-        print("\n".join(res.report()))
-        return getattr(res, "exit_status", 0)
-
-    return run
-
-
 def cmd_complexity(args: argparse.Namespace) -> int:
     from analysis.complexity.command import ComplexitySettings, complexity, expand_sources
 
@@ -129,10 +95,8 @@ def cmd_complexity(args: argparse.Namespace) -> int:
         progress_bar(None, "measuring", "frame") as frames,
         progress_bar(n, "measuring", "clip", quiet=n == 1) as clips,
     ):
-        res = complexity(
-            sources, settings, args.out, progress=frames.update,
-            clip_progress=clips.update, notice=_notice, log=say,
-        )  # fmt: skip
+        bars = {"progress": frames.update, "clip_progress": clips.update}
+        res = complexity(sources, settings, args.out, **bars, notice=_notice, log=say)
     print("\n".join(res.report()))
     for source, error in res.failures:
         print(f"FAILED {source}: {error}", file=sys.stderr)
@@ -151,8 +115,8 @@ def cmd_catalog(args: argparse.Namespace) -> int:
         return 0
 
     def ready(cat, web: str | None) -> None:
-        print(f"dataset {cat.name}: {len(cat.found.segments)} segment(s), layers: base, "
-              + ", ".join(cat.found.layers))  # fmt: skip
+        layers = ", ".join(cat.found.layers)
+        print(f"dataset {cat.name}: {len(cat.found.segments)} segment(s), layers: base, {layers}")
         print(f"open it: rerun {dataset_url(cat)}" + (f"\nweb viewer: {web}" if web else ""))
         print("serving until Ctrl-C", flush=True)
 
@@ -199,48 +163,6 @@ def cmd_summarise(args: argparse.Namespace) -> int:
     return 0
 
 
-def _inputs(
-    out: str,
-    recordings: str | None = ".rrd recordings",
-    one: bool = False,
-    dest: str = "recordings",
-):
-    """The arguments that are not settings: the recordings (or one) and --out."""
-
-    def add(p: argparse.ArgumentParser) -> None:
-        if recordings and one:
-            p.add_argument("recording", metavar="REC", help=recordings)
-        elif recordings:
-            p.add_argument(dest, nargs="+", metavar="REC", help=recordings)
-        p.add_argument("--out", default=out, help="output folder (default: %(default)s)")
-
-    return add
-
-
-def _sweep_inputs(p: argparse.ArgumentParser) -> None:
-    _inputs("results/sweep", None)(p)
-    # the older spelling of --waveform square
-    p.add_argument("--square", dest="waveform", action="store_const", const="square",
-                   help="square-wave instead of sine gratings")  # fmt: skip
-
-
-def _reproduce_inputs(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--quick", action="store_true", help="the quick preset: 3-min runs, 3 seeds")
-    _inputs("results/reproduce", None)(p)
-
-
-def _catalog_inputs(p: argparse.ArgumentParser) -> None:
-    p.add_argument("action", choices=("serve", "query"), help="serve the folders, or query them")
-    p.add_argument("folders", nargs="+", metavar="FOLDER", help="folders of recordings and "
-                   "outputs; query also takes a catalog's URL, rerun+http://HOST:PORT")  # fmt: skip
-    p.add_argument("--out", default="results/catalog-query",
-                   help="query: output folder (default: %(default)s)")  # fmt: skip
-
-
-def _summarise_inputs(p: argparse.ArgumentParser) -> None:
-    p.add_argument("out", metavar="OUT", help="the batch's --out folder")
-
-
 # the sub-commands: each one's flags are its settings dataclass's fields (vdc.cli_support)
 COMMANDS = {
     "sweep": Command(
@@ -252,7 +174,7 @@ COMMANDS = {
         "--sf and/or --tf lists to sweep a full grid instead. Writes sweep.parquet, "
         "monotonicity.parquet and sweep.png into --out and prints the Spearman rho along "
         "every row and column.",
-        inputs=_sweep_inputs,
+        inputs=sweep_inputs,
         models=True,
     ),
     "calibrate": Command(
@@ -263,32 +185,32 @@ COMMANDS = {
         "of drifting gratings in the valid band (>= 2 periods across, >= 4 px per period, TF "
         "<= fps/4, responsive). Prints the fit and writes calibration.json and calibration.png "
         "into --out.",
-        inputs=_inputs("results/calibration", None),
+        inputs=inputs("results/calibration", None),
     ),
     "tables": Command(
         "analysis.recordings.recompute:TablesSettings",
-        _over_recordings("analysis.recordings.recompute:tables"),
+        over_recordings("analysis.recordings.recompute:tables", _notice),
         "recordings -> frames, model_outputs, events, summary Parquet tables",
         "Read recordings and write frames.parquet, model_outputs.parquet, events.parquet and "
         "summary.parquet into --out. Without --model the online model's logged outputs are "
         "used; each --model (repeatable) is recomputed from the raw frames instead.",
-        inputs=_inputs("results/tables", ".rrd recordings or folders of them"),
+        inputs=inputs("results/tables", ".rrd recordings or folders of them"),
         models=True,
     ),
     "profile": Command(
         "analysis.recordings.segments:ProfileSettings",
-        _over_recordings("analysis.profile:profile"),
+        over_recordings("analysis.profile:profile", _notice),
         "3D circle profiles, 'AVDM > 100' histograms and heat maps (paper Figs. 6-7)",
         "For every recording segment (one wall TF) or condition: a 3D circle profile (x, y "
         "against time, circle size proportional to the response), the histogram of responses "
         "over the threshold, and a heat map of the mean response per arena cell. Writes PNGs, "
         "profiles.png (overview), profile_summary.parquet and profiles.rrd (open it with "
         "`rerun`).",
-        inputs=_inputs("results/profile"),
+        inputs=inputs("results/profile"),
     ),
     "compare": Command(
         "analysis.compare:CompareSettings",
-        _over_recordings("analysis.compare:compare", "recording"),
+        over_recordings("analysis.compare:compare", _notice, "recording"),
         "run model variants on the same recorded frames and compare them",
         "Recompute every --model variant on the recording's raw frames; write per-variant "
         "statistics and pairwise correlations (Parquet), compare.png, and variants.rrd with "
@@ -296,7 +218,7 @@ COMMANDS = {
         "`rerun REC OUT/variants.rrd`.",
         "example:\n  vdc-analyse compare rec.rrd --model avdm --model avdm-on "
         "--model avdm:beta=0.5 --out results/compare",
-        inputs=_inputs("results/compare", "one .rrd recording", one=True),
+        inputs=inputs("results/compare", "one .rrd recording", one=True),
         models=True,
     ),
     "collision": Command(
@@ -309,7 +231,7 @@ COMMANDS = {
         "at each avoidance, and density maps of the trajectory, avoidance and crash positions. "
         "Writes collision_summary.parquet, collision_events.parquet, a PNG per recording, "
         "collision_study.png and collision.rrd.",
-        inputs=_inputs("results/collision", "collision-mode .rrd files"),
+        inputs=inputs("results/collision", "collision-mode .rrd files"),
     ),
     "collision-study": Command(
         "analysis.experiments.paper.collision_study:CollisionStudySettings",
@@ -320,11 +242,11 @@ COMMANDS = {
         "TF 3 and TF 0 (beyond the paper). Phases run in parallel processes and finished ones "
         "are reused. Writes the recordings, the collision analysis and collision_study.md "
         "with the paper's numbers beside ours.",
-        inputs=_inputs("results/collision-study", None),
+        inputs=inputs("results/collision-study", None),
     ),
     "boundary": Command(
         "analysis.boundary.settings:BoundarySettings",
-        _campaign("analysis.experiments.collision.boundary_campaign:boundary", "run"),
+        campaign_runner("analysis.experiments.collision.boundary_campaign:boundary", "run"),
         "where a detector breaks as complexity rises (arena grid or labelled footage)",
         "Arena: closed-loop runs over scene x TF x --param values x seeds (finished runs "
         "reused), each condition profiled with the AVDM; per condition, success, avoidances, "
@@ -334,33 +256,33 @@ COMMANDS = {
         "of the first alert per clip and per group of clips of similar complexity.",
         "example:\n  vdc-analyse boundary --labels clips/labels.csv --fov-deg 60 "
         "--detector examples.looming:Looming --param threshold --values 0.05,0.15",
-        inputs=_inputs("results/boundary", None),
+        inputs=inputs("results/boundary", None),
     ),
     "looming-footage": Command(
         "analysis.experiments.collision.looming_footage:LoomingFootageSettings",
-        _campaign("analysis.experiments.collision.looming_footage:looming_footage", "clip"),
+        campaign_runner("analysis.experiments.collision.looming_footage:looming_footage", "clip"),
         "render a labelled collection of looming clips over real photographs",
         "Render --clips H.264 clips of an object approaching over scikit-image's photographs "
         "(camera yaw, contrast, light, noise; collisions and near misses) and labels.csv with "
         "collision_frame, hazard_onset_frame (docs/guides/boundary.md). Clips written are reused.",
-        inputs=_inputs("footage/looming", None),
+        inputs=inputs("footage/looming", None),
     ),
     "power-study": Command(
         "analysis.experiments.power.study:PowerStudySettings",
-        _campaign("analysis.experiments.power.study:power_study", "run"),
+        campaign_runner("analysis.experiments.power.study:power_study", "run"),
         "re-run the pre-registered plan (docs/findings/power_plan.md) anew and write its answer",
         "The plan's studies, resumed, then answer.md; --quick: a minute, not findings.",
-        inputs=_inputs("results/power-study", None),
+        inputs=inputs("results/power-study", None),
     ),
     "adaptation": Command(
         "analysis.experiments.collision.adaptation:AdaptationSettings",
-        _campaign("analysis.experiments.collision.adaptation:adaptation", "run"),
+        campaign_runner("analysis.experiments.collision.adaptation:adaptation", "run"),
         "test a learnt policy on held-out conditions against the hand-made controllers",
         "Closed-loop runs on held-out wall TFs, scenes and a TF schedule changing mid-run, "
         "with the detector as is, the paper's hand threshold (--hand), vdc's adaptive rule "
         "and the policy (--policy, running online); the same seeds for all; the policy's "
         "paired differences against each, and a verdict computed from them.",
-        inputs=_inputs("results/adaptation", None),
+        inputs=inputs("results/adaptation", None),
     ),
     "batch": Command(
         "analysis.batch:BatchSettings",
@@ -372,7 +294,7 @@ COMMANDS = {
         "(--force recomputes). At the end the parts are concatenated into the same frames, "
         "model_outputs, events and summary tables `tables` writes. A failing task is listed "
         "and does not stop the others (exit status 1).",
-        inputs=_inputs("results/batch", ".rrd recordings or folders of them"),
+        inputs=inputs("results/batch", ".rrd recordings or folders of them"),
         models=True,
     ),
     "summarise": Command(
@@ -381,7 +303,7 @@ COMMANDS = {
         "concatenate a batch's finished parts into the four tables",
         "After sharded batch runs: OUT/parts/... -> "
         "OUT/{frames,model_outputs,events,summary}.parquet, as `tables` writes them.",
-        inputs=_summarise_inputs,
+        inputs=summarise_inputs,
     ),
     "complexity": Command(
         "analysis.complexity.command:ComplexitySettings",
@@ -400,16 +322,16 @@ COMMANDS = {
         "  vdc-analyse complexity recordings/clip.rrd\n"
         "  vdc-analyse complexity footage/ --fov-deg 70 --jobs 2 --out results/footage\n"
         "  vdc-analyse complexity 'shots/%05d.png' --fps 25 --fov-deg 90",
-        inputs=_inputs(
+        inputs=inputs(
             "results/complexity", "recordings, videos, image patterns or folders", dest="sources"
         ),
     ),
     "dataset": Command(
         "analysis.dataset.settings:DatasetSettings",
-        _campaign("analysis.dataset.command:dataset", "camera", "recording"),
+        campaign_runner("analysis.dataset.command:dataset", "camera", "recording"),
         "profile a LeRobot dataset episode by episode, its camera faults flagged",
         "Each camera of each episode of a LeRobot dataset (v3.0, v2.1): docs/guides/dataset.md.",
-        inputs=_inputs("results/dataset", "a LeRobot dataset folder", one=True),
+        inputs=inputs("results/dataset", "a LeRobot dataset folder", one=True),
     ),
     "catalog": Command(
         "analysis.catalog.build:CatalogSettings",
@@ -423,7 +345,7 @@ COMMANDS = {
         "examples:\n"
         "  vdc-analyse catalog serve results/reproduce --web\n"
         "  vdc-analyse catalog query results/campaign --where scene=natural --out results/q",
-        inputs=_catalog_inputs,
+        inputs=catalog_inputs,
     ),
     "reproduce": Command(
         "analysis.experiments.paper.plan:ReproduceSettings",
@@ -437,7 +359,7 @@ COMMANDS = {
         "is reported with means, 95 % intervals and a trend test across them, and holds only "
         "if it holds at that confidence. Runs already recorded with the same configuration "
         "are reused.",
-        inputs=_reproduce_inputs,
+        inputs=reproduce_inputs,
     ),
 }
 

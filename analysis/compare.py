@@ -139,8 +139,16 @@ def compare_figure(
 
     ax_c = fig.add_subplot(grid[1, 1])
     pairs = ((r["model_a"], r["model_b"], r["pearson"]) for r in corr.iter_rows(named=True))
-    correlation_panel(fig, ax_c, names, pairs, "Pearson correlation over frames", digits=3,
-                      fontsize=8, cmap="coolwarm")  # fmt: skip
+    correlation_panel(
+        fig,
+        ax_c,
+        names,
+        pairs,
+        "Pearson correlation over frames",
+        digits=3,
+        fontsize=8,
+        cmap="coolwarm",
+    )
     fig.suptitle(title)
     return fig
 
@@ -180,8 +188,10 @@ class CompareResult(WroteFiles):
         to view them beside ``source`` (default: the recording compared)."""
         n_frames = self.outputs[next(iter(self.outputs))].height
         files, t = self.files, self.settings.threshold_dps
-        lines = [f"{len(self.outputs)} variants on {n_frames} frames -> {files.compare}, "
-                 f"{files.variants}"]  # fmt: skip
+        lines = [
+            f"{len(self.outputs)} variants on {n_frames} frames -> {files.compare}, "
+            f"{files.variants}"
+        ]
         lines += [
             f"  {r['model']:<22} mean {r['mean']:8.2f}  p95 {r['p95']:8.2f}  > {t:g}: "
             f"{100 * r['frac_over_threshold']:5.1f} %  near wall / centre "

@@ -133,8 +133,9 @@ def correlation_panel(
     for i in range(n):
         for j in range(n):
             if np.isfinite(mat[i, j]):
-                ax.text(j, i, f"{mat[i, j]:.{digits}f}", ha="center", va="center",
-                        fontsize=fontsize)  # fmt: skip
+                ax.text(
+                    j, i, f"{mat[i, j]:.{digits}f}", ha="center", va="center", fontsize=fontsize
+                )
     ax.set_xticks(range(n), names, rotation=40, ha="right", fontsize=fontsize + 1)
     ax.set_yticks(range(n), names, fontsize=fontsize + 1)
     ax.set_title(title)
@@ -263,8 +264,15 @@ def plot_overview(segs: Sequence[ProfileSegment], s: ProfileSettings, path: Path
         ax_b.errorbar(x[ok], mid[ok], yerr=yerr, fmt="none", ecolor="k", capsize=3)
     for k, (e, top) in enumerate(zip(est, np.where(ok, hi, mid), strict=True)):
         # n above the interval (or the bar), clear of both
-        ax_b.annotate(f"n = {e.n}", (k, top), xytext=(0, 3), textcoords="offset points",
-                      ha="center", va="bottom", fontsize=7)  # fmt: skip
+        ax_b.annotate(
+            f"n = {e.n}",
+            (k, top),
+            xytext=(0, 3),
+            textcoords="offset points",
+            ha="center",
+            va="bottom",
+            fontsize=7,
+        )
     ax_b.set_xticks(range(len(segs)), labels, fontsize=7)
     unit = units_label(segs)
     over = f"% of frames with response > {s.threshold_dps:g}"

@@ -92,24 +92,21 @@ class AvdmParams(Params):
         def bad(name: str, why: str) -> ValueError:
             return ValueError(f"avdm parameter {name}={getattr(self, name)!r}: {why}")
 
-        for name in ("fps", "deg_per_px"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise bad(name, "must be a positive number")
+        self.check_ranges("avdm", positive=("fps", "deg_per_px"))
         if not (math.isfinite(self.beta) and 0.0 <= self.beta <= 1.0):
             raise bad("beta", "must be between 0 and 1")
         if not (math.isfinite(self.theta_e) and self.theta_e >= 0):
             raise bad("theta_e", "must be >= 0")
-        for name, lo, hi in (
-            ("tw", 1, 10_000),
-            ("delay", 1, 1_000),
-            ("sd", 1, 1_000),
-            ("photoreceptor_lag", 1, 1_000),
-            ("texture_row", 0, 100_000),
-        ):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and lo <= v <= hi):
-                raise bad(name, f"must be an integer from {lo} to {hi}")
+        self.check_ranges(
+            "avdm",
+            integers=(
+                ("tw", 1, 10_000),
+                ("delay", 1, 1_000),
+                ("sd", 1, 1_000),
+                ("photoreceptor_lag", 1, 1_000),
+                ("texture_row", 0, 100_000),
+            ),
+        )
         for name in ("photoreceptor_sign", "direction"):
             if getattr(self, name) not in (1, -1):
                 raise bad(name, "must be 1 or -1")

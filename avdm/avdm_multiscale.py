@@ -103,18 +103,16 @@ class AvdmMultiScaleParams(Params):
         def bad(name: str, why: str) -> ValueError:
             return ValueError(f"avdm-natural parameter {name}={getattr(self, name)!r}: {why}")
 
-        for name in ("fps", "deg_per_px", "max_dps", "min_texture", "min_texture_ratio"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise bad(name, "must be a positive number")
-        if not (isinstance(self.width_px, int) and 4 <= self.width_px <= 100_000):
-            raise bad("width_px", "must be an integer from 4 to 100000")
-        if not (isinstance(self.height_px, int) and 1 <= self.height_px <= 100_000):
-            raise bad("height_px", "must be an integer from 1 to 100000")
-        if not (isinstance(self.tw, int) and 1 <= self.tw <= 10_000):
-            raise bad("tw", "must be an integer from 1 to 10000")
-        if not (isinstance(self.min_width_px, int) and 4 <= self.min_width_px <= 100_000):
-            raise bad("min_width_px", "must be an integer from 4 to 100000")
+        self.check_ranges(
+            "avdm-natural",
+            positive=("fps", "deg_per_px", "max_dps", "min_texture", "min_texture_ratio"),
+            integers=(
+                ("width_px", 4, 100_000),
+                ("height_px", 1, 100_000),
+                ("tw", 1, 10_000),
+                ("min_width_px", 4, 100_000),
+            ),
+        )
         if not (0 < self.v_low < self.v_high <= 4.0):
             raise ParameterError(
                 f"avdm-natural parameters v_low={self.v_low}, v_high={self.v_high}: "

@@ -13,6 +13,7 @@ A model is built from a frozen params dataclass and keeps its own state:
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
@@ -71,6 +72,26 @@ class Params:
             else:
                 out[f.name] = str
         return out
+
+    def check_ranges(
+        self,
+        model: str,
+        positive: Sequence[str] = (),
+        integers: Sequence[tuple[str, int, int]] = (),
+    ) -> None:
+        """Raise ParameterError naming the first field out of its range: each of ``positive`` a
+        finite number > 0, each ``(name, lo, hi)`` of ``integers`` a whole number from lo to
+        hi; ``model`` names the model in the message."""
+        for name in positive:
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ParameterError(f"{model} parameter {name}={v!r}: must be a positive number")
+        for name, lo, hi in integers:
+            v = getattr(self, name)
+            if not (isinstance(v, int) and lo <= v <= hi):
+                raise ParameterError(
+                    f"{model} parameter {name}={v!r}: must be an integer from {lo} to {hi}"
+                )
 
     def replace(self, **changes: Any) -> Params:
         """A copy with ``changes`` applied (and validated)."""

@@ -27,7 +27,6 @@ be processed in chunks.
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import ClassVar
 
 import cv2
@@ -59,22 +58,17 @@ class FlowTtcParams(Params):
     iterations: int = 3  # Farnebäck: iterations per level
 
     def __post_init__(self) -> None:
-        for name in ("fps", "tau_alert_s", "min_texture", "tau_max_s"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ParameterError(f"flow-ttc parameter {name}={v!r}: must be a positive number")
-        for name, lo, hi in (
-            ("n_confirm", 1, 100),
-            ("cells", 1, 16),
-            ("levels", 1, 8),
-            ("winsize", 3, 99),
-            ("iterations", 1, 20),
-        ):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and lo <= v <= hi):
-                raise ParameterError(
-                    f"flow-ttc parameter {name}={v!r}: must be an integer {lo}-{hi}"
-                )
+        self.check_ranges(
+            "flow-ttc",
+            positive=("fps", "tau_alert_s", "min_texture", "tau_max_s"),
+            integers=(
+                ("n_confirm", 1, 100),
+                ("cells", 1, 16),
+                ("levels", 1, 8),
+                ("winsize", 3, 99),
+                ("iterations", 1, 20),
+            ),
+        )
         if self.tau_alert_s >= self.tau_max_s:
             raise ParameterError(
                 f"flow-ttc parameter tau_alert_s={self.tau_alert_s!r}: must be below "
@@ -110,9 +104,21 @@ def region_divergence(
     u = flow[..., 0].astype(np.float64)
     v = flow[..., 1].astype(np.float64)
     terms = np.stack(
-        [wt, wt * x, wt * y, wt * x * x, wt * x * y, wt * y * y,
-         wt * u, wt * x * u, wt * y * u, wt * v, wt * x * v, wt * y * v]
-    )  # fmt: skip
+        [
+            wt,
+            wt * x,
+            wt * y,
+            wt * x * x,
+            wt * x * y,
+            wt * y * y,
+            wt * u,
+            wt * x * u,
+            wt * y * u,
+            wt * v,
+            wt * x * v,
+            wt * y * v,
+        ]
+    )
     sums = np.add.reduceat(np.add.reduceat(terms, ys[:-1], axis=1), xs[:-1], axis=2)
     out = np.full((cells, cells), np.nan)
     for i in range(cells):

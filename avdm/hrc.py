@@ -116,16 +116,13 @@ class HrcParams(Params):
         def bad(name: str, why: str) -> ValueError:
             return ValueError(f"hrc parameter {name}={getattr(self, name)!r}: {why}")
 
-        for name in ("fps", "deg_per_px", "spacing_deg", "acceptance_ratio", "tau_ms"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise bad(name, "must be a positive number")
+        self.check_ranges(
+            "hrc", positive=("fps", "deg_per_px", "spacing_deg", "acceptance_ratio", "tau_ms")
+        )
         if not (math.isfinite(self.noise_floor) and self.noise_floor >= 0):
             raise bad("noise_floor", "must be >= 0")
-        for name, lo, hi in (("surround", 1, 50), ("norm_radius", 1, 50), ("tw", 1, 10_000)):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and lo <= v <= hi):
-                raise bad(name, f"must be an integer from {lo} to {hi}")
+        ranges = (("surround", 1, 50), ("norm_radius", 1, 50), ("tw", 1, 10_000))
+        self.check_ranges("hrc", integers=ranges)
         if not (0 < self.valid_fraction <= 1):
             raise bad("valid_fraction", "must be in (0, 1]")
         for name in ("r_peak", "v_peak_dps", "knee", "change_max"):
@@ -182,8 +179,26 @@ def _box_mean(src, dst, radius):
 
 
 @kernel(nogil=True)
-def _hrc_kernel(frames, cfg, icfg, rows, cols, wts, tmp, lum, sur, con, var, nrm, dly, prv,
-                rbuf, cbuf, counter, out):  # fmt: skip
+def _hrc_kernel(
+    frames,
+    cfg,
+    icfg,
+    rows,
+    cols,
+    wts,
+    tmp,
+    lum,
+    sur,
+    con,
+    var,
+    nrm,
+    dly,
+    prv,
+    rbuf,
+    cbuf,
+    counter,
+    out,
+):
     """Advance the HRC over ``frames`` (T, H, W); write (T, 6) outputs.
 
     cfg (f64): scale, beta, sigma0² (intensity²), r_peak, v_peak_dps, knee, valid_fraction,

@@ -50,27 +50,22 @@ def bias_matrix(h: int, w: int, std_w: float, w_min: float) -> np.ndarray:
 
 
 def _check_params(
-    obj: object,
+    obj: Params,
     positive: tuple[str, ...],
     non_negative: tuple[str, ...],
     integers: tuple[tuple[str, int, int], ...],
 ) -> None:
-    """Raise ValueError naming the first field out of its range (shared by both detectors)."""
-    for name in positive:
-        v = getattr(obj, name)
-        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-            raise ParameterError(f"lgmd parameter {name}={v!r}: must be a positive number")
-    fps = obj.fps
+    """Raise ParameterError naming the first field out of its range (shared by both
+    detectors)."""
+    obj.check_ranges("lgmd", positive=positive)
+    fps = obj.fps  # type: ignore[attr-defined]
     if frame_interval_ms(fps) < 1:
         raise ParameterError(f"lgmd parameter fps={fps!r}: must be at most 1000")
     for name in non_negative:
         v = getattr(obj, name)
         if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
             raise ParameterError(f"lgmd parameter {name}={v!r}: must be a number >= 0")
-    for name, lo, hi in integers:
-        v = getattr(obj, name)
-        if not (isinstance(v, int) and lo <= v <= hi):
-            raise ParameterError(f"lgmd parameter {name}={v!r}: must be an integer {lo}-{hi}")
+    obj.check_ranges("lgmd", integers=integers)
 
 
 @dataclasses.dataclass(frozen=True)

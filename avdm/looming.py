@@ -94,8 +94,10 @@ def render_looming(
     frame (it enters it, e.g. from behind a corner). Returns :class:`Looming`."""
     h, w = size
     if h < 4 or w < 4 or n_frames < 1 or not (fps > 0 and rv_s > 0 and 0 < hfov_deg < 180):
-        raise ParameterError("render_looming needs a raster of at least 4x4, frames, fps > 0, "
-                         "rv_s > 0 and 0 < hfov_deg < 180")  # fmt: skip
+        raise ParameterError(
+            "render_looming needs a raster of at least 4x4, frames, fps > 0, "
+            "rv_s > 0 and 0 < hfov_deg < 180"
+        )
     f = focal_px(w, hfov_deg)
     deg_per_px = hfov_deg / w  # of the background cylinder
     shift_px = rotation_dps / fps / deg_per_px

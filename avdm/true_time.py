@@ -172,10 +172,12 @@ def model_rate(
     )
     if share >= CADENCE_SHARE and min(quarters) >= QUARTER_SHARE:
         rate = ModelRate(
-            fps / k, k, "regular cadence",
+            fps / k,
+            k,
+            "regular cadence",
             f"the models run at {fps / k:.6g} fps, the rate of new frames, not the container's "
             f"{fps:.6g}: {what} across the stream ({share:.0%} of {len(gaps)} gaps keep it)",
-        )  # fmt: skip
+        )
         if decided_on is not None and decided_on < len(repeat):
             rest = np.diff(np.flatnonzero(~repeat[decided_on:]))
             if len(rest) >= MIN_GAPS and _cadence_share(rest, k).mean() < QUARTER_SHARE:

@@ -105,8 +105,11 @@ def footage(seconds: float) -> None:
             str(write_pan(folder / f"clip{i}.mp4", 1280, 720, round(seconds * 25), step_px=7))
             for i in range(4)
         ]
-        print(f"4 clips of {seconds:g} s (720p25 H.264), default metrics; load "
-              f"{os.getloadavg()[0]:.1f}", flush=True)  # fmt: skip
+        print(
+            f"4 clips of {seconds:g} s (720p25 H.264), default metrics; load "
+            f"{os.getloadavg()[0]:.1f}",
+            flush=True,
+        )
         rows = []
         for executor in ("local", "dask"):
             walls = {}
@@ -115,11 +118,25 @@ def footage(seconds: float) -> None:
                 s = ComplexitySettings(fov_deg=70.0, executor=executor, jobs=jobs, force=True)
                 complexity(clips[:2], s, folder / "warm")  # fork server, calibration cached
                 lib = timed(lambda s=s: complexity(clips, s, folder / "lib"))
-                cmd = [sys.executable, "-m", "analysis", "complexity", *clips, "--fov-deg", "70",
-                       "--executor", executor, "--jobs", str(jobs), "--force",
-                       "--out", str(folder / "cli")]  # fmt: skip
-                cli = timed(lambda cmd=cmd: subprocess.run(cmd, env=env, check=True,
-                                                           capture_output=True))  # fmt: skip
+                cmd = [
+                    sys.executable,
+                    "-m",
+                    "analysis",
+                    "complexity",
+                    *clips,
+                    "--fov-deg",
+                    "70",
+                    "--executor",
+                    executor,
+                    "--jobs",
+                    str(jobs),
+                    "--force",
+                    "--out",
+                    str(folder / "cli"),
+                ]
+                cli = timed(
+                    lambda cmd=cmd: subprocess.run(cmd, env=env, check=True, capture_output=True)
+                )
                 walls[jobs] = lib, cli
                 rows.append((executor, jobs, lib, cli))
             os.sched_setaffinity(0, set(cores))

@@ -132,8 +132,10 @@ def scaling(args: argparse.Namespace) -> None:
 
 
 # the default grid's measured profile (docs/findings/boundary.md): wall TF (Hz) -> deg/s per scene
-PROFILE = {"grating": ([0.0, 1.0, 3.0], [6.7, 12.0, 28.5]),
-           "natural": ([0.0, 1.0, 3.0], [10.9, 13.0, 18.5])}  # fmt: skip
+PROFILE = {
+    "grating": ([0.0, 1.0, 3.0], [6.7, 12.0, 28.5]),
+    "natural": ([0.0, 1.0, 3.0], [10.9, 13.0, 18.5]),
+}
 
 
 def coverage(repeats: int = 20, spread: float = 0.3, slope: float = 0.5) -> None:
@@ -165,9 +167,10 @@ def coverage(repeats: int = 20, spread: float = 0.3, slope: float = 0.5) -> None
             return out
 
         rows, fits = design_runs(
-            DesignSpace([1.0], ["grating", "natural"], profile, s.tf_bounds()), run_batch,
+            DesignSpace([1.0], ["grating", "natural"], profile, s.tf_bounds()),
+            run_batch,
             dataclasses.replace(DesignSettings.of(s), batch=2, seed=r),
-        )  # fmt: skip
+        )
         f = fits[1.0]
         hit = f.low <= truth <= f.high
         covered += hit

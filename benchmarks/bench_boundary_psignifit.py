@@ -53,9 +53,14 @@ def psignifit_interval(x: np.ndarray, k: np.ndarray, n: np.ndarray) -> tuple[flo
     data = np.column_stack([x, n - k, n]).astype(float)  # failures: the curve rises
     with warnings.catch_warnings():  # thresh_PC != 0.5: a note on its default prior
         warnings.simplefilter("ignore", UserWarning)
-        res = psignifit.psignifit(data, sigmoid="logistic", experiment_type="yes/no",
-                                  fixed_parameters={"lambda": 0.0, "gamma": 0.0},
-                                  thresh_PC=1 - TARGET, verbose=False)  # fmt: skip
+        res = psignifit.psignifit(
+            data,
+            sigmoid="logistic",
+            experiment_type="yes/no",
+            fixed_parameters={"lambda": 0.0, "gamma": 0.0},
+            thresh_PC=1 - TARGET,
+            verbose=False,
+        )
     lo, hi = res.confidence_intervals["threshold"]["0.95"]
     return float(lo), float(hi)
 
@@ -78,9 +83,10 @@ def main() -> None:
         population = population_boundary(math.hypot(*effects.values()))
         rng = np.random.default_rng(7)
         got: dict[str, list[tuple[float, float, float]]] = {
-            "vdc fit_crossing": [], "psignifit, a block per run": [],
+            "vdc fit_crossing": [],
+            "psignifit, a block per run": [],
             "psignifit, a block per condition": [],
-        }  # fmt: skip
+        }
         for _ in range(args.repeats):
             x, k, n, condition, scene = campaign(rng, **effects)
             t = time.perf_counter()
@@ -88,16 +94,18 @@ def main() -> None:
             got["vdc fit_crossing"].append((f.low, f.high, time.perf_counter() - t))
             t = time.perf_counter()
             if "run" in args.blocks.split(","):
-                got["psignifit, a block per run"].append((*psignifit_interval(x, k, n),
-                                                          time.perf_counter() - t))  # fmt: skip
+                got["psignifit, a block per run"].append(
+                    (*psignifit_interval(x, k, n), time.perf_counter() - t)
+                )
             xc = np.unique(x)
             kc = np.array([k[x == c].sum() for c in xc])
             nc = np.array([n[x == c].sum() for c in xc])
             t = time.perf_counter()
             if "condition" not in args.blocks.split(","):
                 continue
-            got["psignifit, a block per condition"].append((*psignifit_interval(xc, kc, nc),
-                                                            time.perf_counter() - t))  # fmt: skip
+            got["psignifit, a block per condition"].append(
+                (*psignifit_interval(xc, kc, nc), time.perf_counter() - t)
+            )
         for name, rows in got.items():
             if not rows:
                 continue
@@ -105,10 +113,12 @@ def main() -> None:
             ok = np.isfinite(a[:, 0]) & np.isfinite(a[:, 1])
             cover = np.mean((a[ok, 0] <= population) & (population <= a[ok, 1]))
             median = np.mean((a[ok, 0] <= TRUTH) & (TRUTH <= a[ok, 1]))
-            print(f"{truth:14s} {name:34s} coverage {cover:.3f} of {ok.sum()} bounded "
-                  f"(median scene's {median:.3f}), median width "
-                  f"{np.median(a[ok, 1] - a[ok, 0]):.2f} deg/s, {np.median(a[:, 2]):.2f} s per fit",
-                  flush=True)  # fmt: skip
+            print(
+                f"{truth:14s} {name:34s} coverage {cover:.3f} of {ok.sum()} bounded "
+                f"(median scene's {median:.3f}), median width "
+                f"{np.median(a[ok, 1] - a[ok, 0]):.2f} deg/s, {np.median(a[:, 2]):.2f} s per fit",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -135,10 +135,17 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "ds480"
-        print(f"writing {args.episodes} episodes x {args.seconds:g} s of 480x640 AV1 at 30 fps ...",
-              flush=True)  # fmt: skip
-        write_dataset(root, episodes=args.episodes, shape=(480, 640),
-                      seconds=(args.seconds, args.seconds), faults=Faults())  # fmt: skip
+        print(
+            f"writing {args.episodes} episodes x {args.seconds:g} s of 480x640 AV1 at 30 fps ...",
+            flush=True,
+        )
+        write_dataset(
+            root,
+            episodes=args.episodes,
+            shape=(480, 640),
+            seconds=(args.seconds, args.seconds),
+            faults=Faults(),
+        )
         video_s = args.episodes * args.seconds
         half = ",".join(str(e) for e in range(args.episodes // 2))
         # the AVDM's calibration for this raster: fitted once and cached (vdc.calibration_store),
@@ -154,16 +161,22 @@ def main() -> None:
                 runs.setdefault(kind, []).append((wall, cpu))
                 if kind == "half":
                     half_frames = int(res.episodes["frames_decoded"].sum())
-            print(f"run {r + 1}: " + ", ".join(f"{k} {v[-1][0]:.2f} s" for k, v in runs.items()),
-                  flush=True)  # fmt: skip
+            print(
+                f"run {r + 1}: " + ", ".join(f"{k} {v[-1][0]:.2f} s" for k, v in runs.items()),
+                flush=True,
+            )
         best = {k: min(v) for k, v in runs.items()}
         dec_s, dec_cpu = best["decode"]
-        print(f"\n{frames} frames, {video_s:g} s of video per camera (1 camera); the least of "
-              f"{args.runs} runs, load average {os.getloadavg()[0]:.1f} at the end")  # fmt: skip
+        print(
+            f"\n{frames} frames, {video_s:g} s of video per camera (1 camera); the least of "
+            f"{args.runs} runs, load average {os.getloadavg()[0]:.1f} at the end"
+        )
         print(f"decoding alone, 1 core      : {dec_s:6.2f} s  {video_s / dec_s:6.1f}x real time "
               f"({dec_cpu * 1000 / frames:.2f} ms CPU per frame)")  # fmt: skip
-        for kind, what in (("default", "default metrics (fov 70)"),
-                           ("pixel", "pixel metrics (no fov) ")):  # fmt: skip
+        for kind, what in (
+            ("default", "default metrics (fov 70)"),
+            ("pixel", "pixel metrics (no fov) "),
+        ):
             wall, cpu = best[kind]
             print(f"dataset, {what}, 2 workers: {wall:6.2f} s  {video_s / wall:6.1f}x real "
                   f"time per camera ({cpu:.1f} CPU s, {cpu * 1000 / frames:.2f} ms per frame; "
@@ -181,9 +194,11 @@ def main() -> None:
         # the episodes' recordings reference the video (its packets), never decoded frames
         rec_b = sum(p.stat().st_size for p in (Path(tmp) / "out" / "recordings").glob("*.rrd"))
         vid_b = sum(p.stat().st_size for p in (root / "videos").rglob("*.mp4"))
-        print(f"episode recordings: {rec_b / 1e6:.1f} MB for {vid_b / 1e6:.1f} MB of video "
-              f"({rec_b / vid_b:.2f}x; the decoded RGB frames: {frames * 480 * 640 * 3 / 1e6:.0f} "
-              "MB)")  # fmt: skip
+        print(
+            f"episode recordings: {rec_b / 1e6:.1f} MB for {vid_b / 1e6:.1f} MB of video "
+            f"({rec_b / vid_b:.2f}x; the decoded RGB frames: {frames * 480 * 640 * 3 / 1e6:.0f} "
+            "MB)"
+        )
         g_s, found = graders(root)
         print(f"graders' approach (metadata + first frames): {g_s:.3f} s")
         # what each approach finds on the test dataset (96x128, one fault per episode)

@@ -4,7 +4,7 @@
 
 Simulated arm strokes and a camera that sees them late (``analysis.dataset.synthetic.
 lag_signals``: 3 % of its frames lost), at several frame rates, episode lengths, noise levels
-and delays; each episode's 95 % interval (``analysis.dataset.measure.lag_of``) either holds the
+and delays; each episode's 95 % interval (``analysis.dataset.lag.lag_of``) either holds the
 true delay or not. Printed: the coverage with its binomial 95 % interval, the median width, and
 the estimate's bias and spread. The same episodes also get the moving-block bootstrap interval
 the jackknife replaced (200 resamples of 1.5-s blocks of the aligned frames, percentile),
@@ -19,7 +19,7 @@ import math
 import numpy as np
 from scipy.stats import binomtest
 
-from analysis.dataset.measure import lag_of, lag_peaks
+from analysis.dataset.lag import lag_of, lag_peaks
 from analysis.dataset.synthetic import lag_signals
 
 CASES = [  # (fps, seconds, noise share of the peak speed, delay ms)
@@ -51,11 +51,17 @@ def bootstrap_interval(state: np.ndarray, camera: np.ndarray, fps: float, seed: 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=300)
-    ap.add_argument("--bootstrap", type=int, default=40, help="episodes per case for the "
-                    "replaced bootstrap interval (200 lag_of calls each)")  # fmt: skip
+    ap.add_argument(
+        "--bootstrap",
+        type=int,
+        default=40,
+        help="episodes per case for the replaced bootstrap interval (200 lag_of calls each)",
+    )
     args = ap.parse_args()
-    print(f"{'fps':>4} {'s':>4} {'noise':>5} {'lag ms':>6} | {'jackknife':>24} {'width ms':>8} "
-          f"{'bias':>6} {'sd':>5} | {'bootstrap':>9}")  # fmt: skip
+    print(
+        f"{'fps':>4} {'s':>4} {'noise':>5} {'lag ms':>6} | {'jackknife':>24} {'width ms':>8} "
+        f"{'bias':>6} {'sd':>5} | {'bootstrap':>9}"
+    )
     for fps, seconds, noise, lag_ms in CASES:
         rng = np.random.default_rng(1)
         hit, widths, errs, boot_hit, boot_n = [], [], [], 0, 0
@@ -74,9 +80,11 @@ def main() -> None:
                 boot_n += 1
         k, n = int(np.sum(hit)), len(hit)
         ci = binomtest(k, n).proportion_ci()
-        print(f"{fps:4.0f} {seconds:4.0f} {noise:5.2f} {lag_ms:6d} | {k / n:6.3f} of {n:3d} "
-              f"[{ci.low:.3f}, {ci.high:.3f}] {np.median(widths):8.0f} {np.mean(errs):+6.1f} "
-              f"{np.std(errs):5.1f} | {boot_hit / max(boot_n, 1):5.2f} of {boot_n}")  # fmt: skip
+        print(
+            f"{fps:4.0f} {seconds:4.0f} {noise:5.2f} {lag_ms:6d} | {k / n:6.3f} of {n:3d} "
+            f"[{ci.low:.3f}, {ci.high:.3f}] {np.median(widths):8.0f} {np.mean(errs):+6.1f} "
+            f"{np.std(errs):5.1f} | {boot_hit / max(boot_n, 1):5.2f} of {boot_n}"
+        )
 
 
 if __name__ == "__main__":

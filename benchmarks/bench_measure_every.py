@@ -75,13 +75,21 @@ def main() -> None:
     ap.add_argument("--every", default="2,4,8,16", help="the N to compare with every pair")
     args = ap.parse_args()
     ns = [int(n) for n in args.every.split(",")]
-    paths = [p for c in sorted(args.runs.iterdir()) if c.is_dir()
-             for p in sorted(c.glob("seed*.rrd"))[: args.seeds]]  # fmt: skip
+    paths = [
+        p
+        for c in sorted(args.runs.iterdir())
+        if c.is_dir()
+        for p in sorted(c.glob("seed*.rrd"))[: args.seeds]
+    ]
     rows = []
     for k, path in enumerate(paths, 1):
         fr, flow, ti, per_pair = every_pair(path)
-        row = {"condition": path.parent.name, "run": str(path), "pairs": len(fr),
-               "cpu_per_pair_s": per_pair}  # fmt: skip
+        row = {
+            "condition": path.parent.name,
+            "run": str(path),
+            "pairs": len(fr),
+            "cpu_per_pair_s": per_pair,
+        }
         for name, v in (("flow_dps", flow), ("ti_p910", ti)):
             row[f"{name}@1"] = v.mean()
             sd = v.std(ddof=1)
@@ -97,18 +105,24 @@ def main() -> None:
     df = pl.DataFrame(rows)
     by = df.drop("run").group_by("condition").mean()
     pair_ms = df["cpu_per_pair_s"].mean() * 1e3
-    print(f"{len(df)} runs of {by.height} conditions, {df['pairs'].median():.0f} straight pairs "
-          f"a run (median); every pair costs {pair_ms:.2f} ms of CPU")  # fmt: skip
-    print(f"{'N':>3} {'measure':>9} | {'|diff| % of mean':>22} | {'|diff| in sampling sd':>22} "
-          f"| {'rho of conditions':>17} | CPU s/run")  # fmt: skip
+    print(
+        f"{len(df)} runs of {by.height} conditions, {df['pairs'].median():.0f} straight pairs "
+        f"a run (median); every pair costs {pair_ms:.2f} ms of CPU"
+    )
+    print(
+        f"{'N':>3} {'measure':>9} | {'|diff| % of mean':>22} | {'|diff| in sampling sd':>22} "
+        f"| {'rho of conditions':>17} | CPU s/run"
+    )
     for n in ns:
         for name in ("flow_dps", "ti_p910"):
             pct, z = df[f"{name}@{n}_pct"], df[f"{name}@{n}_z"]
             rho = spearmanr(by[f"{name}@{n}"], by[f"{name}@1"]).statistic
             cpu = (df["pairs"] / n * df["cpu_per_pair_s"]).median()
-            print(f"{n:3d} {name:>9} | median {pct.median():5.2f}, max {pct.max():6.2f} | "
-                  f"median {z.median():5.2f}, max {z.max():6.2f} | {rho:17.4f} "
-                  f"| {cpu:6.2f}")  # fmt: skip
+            print(
+                f"{n:3d} {name:>9} | median {pct.median():5.2f}, max {pct.max():6.2f} | "
+                f"median {z.median():5.2f}, max {z.max():6.2f} | {rho:17.4f} "
+                f"| {cpu:6.2f}"
+            )
     print(
         f"  1 (every pair)                                                              "
         f"| {(df['pairs'] * df['cpu_per_pair_s']).median():6.2f}"

@@ -56,8 +56,15 @@ def timed(fn, *args) -> float:
 
 
 def arena_unit(tmp: Path, detector: str, param: str, value: float, minutes: float) -> float:
-    s = BoundarySettings(detector=detector, param=param, values=(value,), scenes=("natural",),
-                         tf=(1.0,), seeds=1, minutes=minutes)  # fmt: skip
+    s = BoundarySettings(
+        detector=detector,
+        param=param,
+        values=(value,),
+        scenes=("natural",),
+        tf=(1.0,),
+        seeds=1,
+        minutes=minutes,
+    )
     it = grid_items(s, tmp / detector)[0]
     it.path.parent.mkdir(parents=True, exist_ok=True)
     return timed(record_and_measure, it.key, it.settings, str(it.path), "collision", 0.3)
@@ -73,20 +80,23 @@ def main() -> None:
     scale = plan.minutes / args.minutes
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
-        warm = BoundarySettings(scenes=("natural",), tf=(1.0,), values=(12.0,), seeds=1,
-                                minutes=0.05)  # fmt: skip
+        warm = BoundarySettings(
+            scenes=("natural",), tf=(1.0,), values=(12.0,), seeds=1, minutes=0.05
+        )
         one = grid_items(warm, tmp / "warm")[0]
         record_sim(one.settings, one.path)  # warm-up: compile caches, calibrations
-        ref = BoundarySettings(scenes=("natural",), tf=(1.0,), values=(12.0,), seeds=1,
-                               minutes=args.minutes)  # fmt: skip
+        ref = BoundarySettings(
+            scenes=("natural",), tf=(1.0,), values=(12.0,), seeds=1, minutes=args.minutes
+        )
         r = grid_items(ref, tmp / "ref")[0]
         reference = timed(record_sim, r.settings, r.path, REPLACE_OUTPUT)
 
         unit = {d: arena_unit(tmp, d, p, v, args.minutes) for d, p, v in plan.arena_detectors}
         prof = profiling_items(ref, tmp / "prof")[0]
         prof.path.parent.mkdir(parents=True, exist_ok=True)
-        profile_s = timed(record_and_measure, prof.key, prof.settings, str(prof.path),
-                          "profile", 0.0, 8)  # fmt: skip
+        profile_s = timed(
+            record_and_measure, prof.key, prof.settings, str(prof.path), "profile", 0.0, 8
+        )
 
         w, h = plan.clip_size
         cs = LoomingFootageSettings(clips=1, seconds=plan.clip_seconds, width_px=w, height_px=h)
@@ -109,13 +119,17 @@ def main() -> None:
     k = names.index("complexity")
     cpus = [*CPU[:k], complexity_s, *CPU[k + 1 :]]
     runs = plan.conditions() * plan.seeds
-    print(f"plan: {plan.conditions()} conditions x {plan.seeds} seeds x "
-          f"{len(plan.arena_detectors)} arena detectors + {runs} profiling runs = "
-          f"{plan.arena_runs()} runs of {plan.minutes:g} min; {plan.clips} clips x "
-          f"{len(plan.footage_detectors)} footage detectors")  # fmt: skip
+    print(
+        f"plan: {plan.conditions()} conditions x {plan.seeds} seeds x "
+        f"{len(plan.arena_detectors)} arena detectors + {runs} profiling runs = "
+        f"{plan.arena_runs()} runs of {plan.minutes:g} min; {plan.clips} clips x "
+        f"{len(plan.footage_detectors)} footage detectors"
+    )
     print(f"load average while measuring: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    print(f"reference: one arena run (lgmd-plus-arena, {args.minutes:g} min) recorded alone "
-          f"with record_sim: {reference:.1f} s ({cpus[0]:.1f} s of CPU)")  # fmt: skip
+    print(
+        f"reference: one arena run (lgmd-plus-arena, {args.minutes:g} min) recorded alone "
+        f"with record_sim: {reference:.1f} s ({cpus[0]:.1f} s of CPU)"
+    )
     for name, w, c in zip(names[1:], walls[1:], cpus[1:], strict=True):
         per = f" per {args.minutes:g}-min run" if name in unit or name == "profile" else ""
         print(f"  {name}: {w:.2f} s ({c:.2f} s of CPU){per}")
@@ -143,8 +157,10 @@ def main() -> None:
             return 0.0
         return sum(math.ceil(plan.conditions() / workers) * t[d] * scale for d in unit)
 
-    print("estimate of the full plan (not a measurement; see the docstring), from the wall "
-          "times at this load / from the CPU times (cores to itself):")  # fmt: skip
+    print(
+        "estimate of the full plan (not a measurement; see the docstring), from the wall "
+        "times at this load / from the CPU times (cores to itself):"
+    )
     sizes = [("2 local cores", 2)] + [
         (f"Dask cluster of {n} workers", n) for n in (int(w) for w in args.workers.split(","))
     ]

@@ -95,8 +95,10 @@ def main() -> None:
     share = (b - a) / a
     verdict = "meets" if share <= TARGET else "misses"
     print(f"grid's own time (--no-predictors): {a:.1f} s; with predictors: {b:.1f} s")
-    print(f"predictors add {b - a:.1f} s = {share:.0%} of the grid's own time "
-          f"(target <= {TARGET:.0%}: {verdict} it)")  # fmt: skip
+    print(
+        f"predictors add {b - a:.1f} s = {share:.0%} of the grid's own time "
+        f"(target <= {TARGET:.0%}: {verdict} it)"
+    )
 
 
 if __name__ == "__main__":

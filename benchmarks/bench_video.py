@@ -255,8 +255,9 @@ def run_command(clip: Path, out: Path) -> tuple[float, float, float]:
     cmd = [sys.executable, "-m", "analysis", "complexity", str(clip), "--fov-deg", str(FOV)]
     t0 = time.perf_counter()
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([*cmd, "--out", str(out), "--force"], cwd=ROOT, env=env,
-                            stdout=subprocess.DEVNULL)  # fmt: skip
+    proc = subprocess.Popen(
+        [*cmd, "--out", str(out), "--force"], cwd=ROOT, env=env, stdout=subprocess.DEVNULL
+    )
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
     if os.waitstatus_to_exitcode(status) != 0:
@@ -292,8 +293,11 @@ def throughput(folder: Path, sizes: list[str], lengths_s: list[float]) -> None:
         run_command(base, folder / "t-warm")  # the AVDM's calibration for this raster
         for length in lengths_s:
             times = max(1, round(length / 10.0))
-            clip = base if times == 1 else repeat_clip(base, folder / f"t-{size}-{length:g}.mp4",
-                                                       times)  # fmt: skip
+            clip = (
+                base
+                if times == 1
+                else repeat_clip(base, folder / f"t-{size}-{length:g}.mp4", times)
+            )
             wall, cpu, peak = run_command(clip, folder / "t-out")
             n = times * 10 * FPS
             label = f"{length / 60:g} min" if length >= 60 else f"{length:g} s"
@@ -315,13 +319,16 @@ def main() -> None:
     ap.add_argument("--sizes", default="720p,1080p", help="720p, 1080p (comma-separated)")
     ap.add_argument("--sititools-frames", type=int, default=50)
     ap.add_argument(
-        "--no-references", action="store_true",
+        "--no-references",
+        action="store_true",
         help="leave out FFmpeg's siti filter and siti-tools (minutes at 1080p)",
-    )  # fmt: skip
+    )
     ap.add_argument(
-        "--cores", type=int, default=1,
+        "--cores",
+        type=int,
+        default=1,
         help="cores vdc's configurations run on (decoding alone: one core, always)",
-    )  # fmt: skip
+    )
     ap.add_argument("--long", action="store_true", help="also the 10-min 1080p memory check")
     ap.add_argument(
         "--table", action="store_true", help="instead: the throughput table (docs/guides/video.md)"

@@ -273,6 +273,11 @@ def campaign(
         meta = {"grid": list(settings.grid)}
         paths.append(write_parquet(table, out / "runs.parquet", meta))
     return CampaignResult(
-        table, len(runs), len(runs) - len(todo), outcomes, failures, paths,
+        table,
+        len(runs),
+        len(runs) - len(todo),
+        outcomes,
+        failures,
+        paths,
         time.perf_counter() - t0,
-    )  # fmt: skip
+    )

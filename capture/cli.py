@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from capture.serial_link import LinkLost
+from vdc.cli_inputs import campaign_inputs, output_options
 from vdc.cli_support import (
     Command,
     command_line,
@@ -156,29 +157,6 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     return 1 if res.failures else 0
 
 
-def add_output_options(p: argparse.ArgumentParser, default: str) -> None:
-    """--out, --force, --spawn / --connect and --quiet: the same on every capture command."""
-    p.add_argument("--out", help=f"output .rrd (default: {default})")
-    p.add_argument("--force", action="store_true", help="overwrite an existing output file")
-    live = p.add_mutually_exclusive_group()
-    live.add_argument(
-        "--spawn",
-        action="store_true",
-        help="also stream to a new Rerun viewer (listening on 127.0.0.1)",
-    )
-    live.add_argument(
-        "--connect",
-        metavar="URL",
-        help="also stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
-    )
-    p.add_argument("--quiet", action="store_true", help="no progress lines (no heartbeat)")
-
-
-def _campaign_inputs(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", default="results/campaign", help="output folder (default: %(default)s)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines (no heartbeat)")
-
-
 # the sub-commands: each one's flags are its settings dataclass's fields (vdc.cli_support)
 COMMANDS = {
     "sim": Command(
@@ -194,7 +172,7 @@ COMMANDS = {
         "  vdc-capture sim --tf-hz 3 --minutes 30 --seed 1\n"
         "  vdc-capture sim --tf-schedule 0:30m,3:30m --out recordings/two-phase.rrd\n"
         "  vdc-capture sim --scene natural --tf-hz 3 --minutes 5 --spawn",
-        inputs=lambda p: add_output_options(p, "recordings/<run id>.rrd"),
+        inputs=output_options("recordings/<run id>.rrd"),
         models=True,
     ),
     "emulate-robot": Command(
@@ -213,7 +191,7 @@ COMMANDS = {
         "an overhead camera with ArUco markers (ids 0-3 at the arena corners, 10 on the "
         "robot), join them on capture_time, and write the recording contract's entities. "
         "Ctrl-C or SIGTERM stops cleanly.",
-        inputs=lambda p: add_output_options(p, "recordings/robot-<time>.rrd"),
+        inputs=output_options("recordings/robot-<time>.rrd"),
     ),
     "video": Command(
         "capture.video:VideoSettings",
@@ -229,7 +207,7 @@ COMMANDS = {
         "  vdc-capture video clip.mp4 --fov-deg 66 --out recordings/clip.rrd\n"
         "  vdc-capture video 'frames/%05d.png' --fps 25 --fov-deg 90\n"
         "  vdc-capture video 0 --fov-deg 60 --spawn       # a webcam, live",
-        inputs=lambda p: add_output_options(p, "recordings/video-<name>-<hash>.rrd"),
+        inputs=output_options("recordings/video-<name>-<hash>.rrd"),
     ),
     "campaign": Command(
         "capture.campaign:CampaignSettings",
@@ -249,7 +227,7 @@ COMMANDS = {
         "--scheduler tcp://head:8786\n"
         "  vdc-analyse batch results/campaign/recordings/*.rrd --model avdm --model "
         "avdm:beta=0.5",
-        inputs=_campaign_inputs,
+        inputs=campaign_inputs,
         models=True,
     ),
 }

@@ -21,7 +21,7 @@ import numpy as np
 from avdm.base import Model
 from avdm.errors import PluginError
 from avdm.true_time import TrueTimeModel
-from capture.device import Batch, CaptureDevice
+from capture.device import Batch, CaptureDevice, Event
 from capture.live_view import spawn_viewer
 from capture.output import OutputClaim
 from capture.recorder import Recorder, RecordingWriteError
@@ -160,18 +160,20 @@ def batch_bytes(batch: Batch) -> int:
     return int(batch.images.nbytes + overhead + 512 * len(batch) + (64 << 10))
 
 
-def _log_events_between_frames(
-    recorder: Recorder, batch: Batch, prev_t_s: float | None
+def _log_events(
+    recorder: Recorder,
+    events: list[Event],
+    at: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray | None]],
 ) -> dict[str, int]:
-    """Events of a batch without frames (e.g. the robot's link failing before its next frame):
-    logged at the frame they name, at the time of the last frame logged (0 before any)."""
+    """Each kind's events logged at the frames they name, at the times ``at(frames)`` gives
+    (seconds, and capture times or None); returns the number logged per kind."""
     counts: dict[str, int] = {}
-    for kind in sorted({e.kind for e in batch.events}):
-        evs = [e for e in batch.events if e.kind == kind]
+    for kind in sorted({e.kind for e in events}):
+        evs = [e for e in events if e.kind == kind]
         frames = np.array([e.frame for e in evs], dtype=np.int64)
         xy = np.array([[e.x_m, e.y_m] for e in evs])
-        t = np.full(len(evs), 0.0 if prev_t_s is None else prev_t_s)
-        recorder.log_events(kind, frames, t, xy, [e.text for e in evs], None)
+        t, c = at(frames)
+        recorder.log_events(kind, frames, t, xy, [e.text for e in evs], c)
         counts[kind] = len(evs)
     return counts
 
@@ -186,7 +188,10 @@ def log_batch(
     the robot already ran it on board; returns the number of events logged per kind.
     ``prev_t_s``: the time of the frame before the batch (for the first frame's interval)."""
     if len(batch) == 0:
-        return _log_events_between_frames(recorder, batch, prev_t_s)
+        # events without frames (the robot's link failing before its next frame): at the
+        # frame they name, at the time of the last frame logged (0 before any)
+        t_last = 0.0 if prev_t_s is None else prev_t_s
+        return _log_events(recorder, batch.events, lambda f: (np.full(len(f), t_last), None))
     cap = batch.capture_time_ns
 
     def at(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -230,14 +235,7 @@ def log_batch(
             batch.link_stats,
             None if cap is None else int(cap[-1]),
         )
-    counts: dict[str, int] = {}
-    for kind in sorted({e.kind for e in batch.events}):
-        evs = [e for e in batch.events if e.kind == kind]
-        frames = np.array([e.frame for e in evs], dtype=np.int64)
-        xy = np.array([[e.x_m, e.y_m] for e in evs])
-        t, c = at(frames)
-        recorder.log_events(kind, frames, t, xy, [e.text for e in evs], c)
-        counts[kind] = len(evs)
+    counts = _log_events(recorder, batch.events, at)
     if batch.overhead:
         idx = np.array([f for f, _ in batch.overhead], dtype=np.int64)
         recorder.log_overhead(

@@ -170,9 +170,13 @@ class VideoSource(DeviceContext):
         if self._batches is None:
             s = self.settings
             self._batches = FrameBatcher(
-                self.reader, self.working_size(), self.fps, batch_frames=s.batch_frames,
-                repeat_tol=s.repeat_tol, max_repeats=s.max_repeats,
-            )  # fmt: skip
+                self.reader,
+                self.working_size(),
+                self.fps,
+                batch_frames=s.batch_frames,
+                repeat_tol=s.repeat_tol,
+                max_repeats=s.max_repeats,
+            )
 
     @property
     def dropped_total(self) -> int:

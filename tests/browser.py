@@ -42,15 +42,26 @@ def screenshot(
     profile = tempfile.mkdtemp(prefix="vdc-chromium-")
     proc = subprocess.Popen(
         [
-            CHROMIUM, "--headless=new", "--no-sandbox", "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader", "--no-first-run", "--disable-background-networking",
-            "--disable-component-update", "--disable-sync", f"--user-data-dir={profile}",
-            f"--window-size={size}", f"--remote-debugging-port={port}",
+            CHROMIUM,
+            "--headless=new",
+            "--no-sandbox",
+            "--use-angle=swiftshader",
+            "--enable-unsafe-swiftshader",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            f"--user-data-dir={profile}",
+            f"--window-size={size}",
+            f"--remote-debugging-port={port}",
             f"--remote-allow-origins=http://127.0.0.1:{port}",
-            "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1", "about:blank",
+            "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
+            "about:blank",
         ],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-    )  # fmt: skip
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 30
         while True:

@@ -110,6 +110,35 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> N
         assert needle in lines[0], (needle, lines[0])
 
 
+def start_emulator(link: Path, report: Path, *extra: str) -> subprocess.Popen:
+    """``vdc-capture emulate-robot`` behind the pseudo-terminal link ``link``, its report to
+    ``report``; returns once the link is there (fails if the emulator ends first, or after
+    30 s)."""
+    proc = spawn(
+        [
+            sys.executable,
+            "-m",
+            "capture",
+            "emulate-robot",
+            "--link",
+            str(link),
+            "--report",
+            str(report),
+            *extra,
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    deadline = time.time() + 30
+    while time.time() < deadline and not link.is_symlink() and proc.poll() is None:
+        time.sleep(0.05)
+    assert link.is_symlink(), proc.stderr.read() if proc.poll() is not None else "no port"
+    return proc
+
+
 def make_sim_recording(out: Path, minutes: float = 0.05, **settings) -> Path:
     """A short simulated run (``capture.sim.SimSettings`` fields as keywords: ``tf_hz``,
     ``seed``, ``behaviour``, ``model``...) recorded to ``out`` in this process; its path."""
@@ -126,9 +155,13 @@ def start_long_capture(out: Path, *, min_bytes: int = 2_000_000) -> subprocess.P
 
     argv = ["-m", "capture", "sim", "--tf-hz", "3", "--minutes", "60", "--out", str(out)]
     proc = spawn(
-        [sys.executable, *argv, "--quiet"], cwd=ROOT, stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )  # fmt: skip
+        [sys.executable, *argv, "--quiet"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     part = partial_path(out)
     assert_file_grows(proc, part, min_bytes)
     return proc
@@ -197,8 +230,11 @@ def kill_a_worker_mid_batch(
     exit status, stdout, stderr and the killed pid."""
     proc = spawn(
         [sys.executable, "-m", "analysis", "batch", *args, "--out", str(out)],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.time() + 120
     killed = None
     while time.time() < deadline and proc.poll() is None:

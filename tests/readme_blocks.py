@@ -247,8 +247,9 @@ def run_block(block: Block, skipped_line: tuple[str, str] | None, clone_root: Pa
         script = clone_root / f"block_{block.file.replace('/', '_')}_{block.line}.py"
         script.write_text(text)
         cmd = [sys.executable, script.name]  # a plain script, as a user would save it
-    proc = subprocess.run(cmd, cwd=clone_root, env=_env(), capture_output=True, text=True,
-                          timeout=900)  # fmt: skip
+    proc = subprocess.run(
+        cmd, cwd=clone_root, env=_env(), capture_output=True, text=True, timeout=900
+    )
     assert proc.returncode == 0, (
         f"{block.name}:\n{text}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
     )

@@ -147,8 +147,11 @@ def resolves(name: str) -> bool:
 
 
 def test_every_dotted_name_in_the_docs_imports() -> None:
-    names = {(page.relative_to(ROOT).as_posix(), n) for page in PAGES for n in dotted_names(
-        page.read_text())}  # fmt: skip
+    names = {
+        (page.relative_to(ROOT).as_posix(), n)
+        for page in PAGES
+        for n in dotted_names(page.read_text())
+    }
     assert len(names) > 50  # the scan sees them
     assert not [f"{page}: `{name}`" for page, name in sorted(names) if not resolves(name)]
 

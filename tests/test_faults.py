@@ -408,9 +408,14 @@ def test_analysis_temporaries_never_outlive_a_full_disk(tmp_path: Path) -> None:
     def tables(limit_bytes: int, *args: str) -> subprocess.CompletedProcess:
         """``vdc-analyse tables ARGS`` with its temporaries in ``tmp``, files capped."""
         return subprocess.run(
-            [PY, "-m", "analysis", "tables", *args], cwd=ROOT, env=env, capture_output=True,
-            text=True, timeout=120, preexec_fn=_limit_file_size(limit_bytes),
-        )  # fmt: skip
+            [PY, "-m", "analysis", "tables", *args],
+            cwd=ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            preexec_fn=_limit_file_size(limit_bytes),
+        )
 
     # the repair copy does not fit under the limit: one line naming the folder, nothing left
     res = tables(200_000, str(cut), "--out", str(tmp_path / "t"))

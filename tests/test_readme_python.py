@@ -36,18 +36,24 @@ def test_the_notebook_example_runs_and_gives_its_tables_and_figures(tmp_path: Pa
     assert len(blocks) == 2
     record = tmp_path / "figures.jsonl"
     proc = subprocess.run(
-        [sys.executable, "-c", blocks[0]], cwd=tmp_path, capture_output=True, text=True,
-        timeout=300, env=figure_env(record),
-    )  # fmt: skip
+        [sys.executable, "-c", blocks[0]],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=figure_env(record),
+    )
     assert proc.returncode == 0, proc.stderr
     assert "1320 frames" in proc.stdout  # 40 s at 33 Hz
     assert (tmp_path / "recordings" / "nb.rrd").exists()
     figures = saved_figures(record)
     assert_figure(tmp_path / "profile_tf3.png", figures, title="responses > ", labels=("frames",))
     assert_figure(
-        tmp_path / "results" / "nb-compare" / "compare.png", figures, title="distributions",
+        tmp_path / "results" / "nb-compare" / "compare.png",
+        figures,
+        title="distributions",
         labels=("density",),
-    )  # fmt: skip
+    )
     folder = tmp_path / "results" / "nb-compare"
     written = {p.name for p in folder.iterdir() if not p.name.startswith(".")}
     assert (folder / ".vdc-outputs.json").exists()  # the manifest: what vdc wrote there

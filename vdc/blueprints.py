@@ -217,10 +217,12 @@ def dataset_blueprint(
 FLAG_CONTEXT_FRAMES = 15
 # the measure panes of a dataset episode: (title, per-frame columns of frames.parquet)
 DATASET_PANES = (
-    ("motion: TI, mean frame difference (levels), deg/s", ("ti_p910", "mafd", "omega_dps",
-                                                           "flow_dps")),
+    (
+        "motion: TI, mean frame difference (levels), deg/s",
+        ("ti_p910", "mafd", "omega_dps", "flow_dps"),
+    ),
     ("change from the frame before (grey levels)", ("change_max", "change2_max")),
     ("spatial information and mean grey (levels)", ("si_p910", "mean_grey")),
     ("sharpness (Laplacian variance)", ("sharpness",)),
     ("timing and stillness (0/1, frames)", ("repeat", "dropped_before", "frozen", "still")),
-)  # fmt: skip
+)

@@ -105,9 +105,13 @@ class FrameBatcher:
         ranges = decide_ranges(self._tag, color_range)
         native = NATIVE_METRICS if metrics is None else (*metrics, "mafd")
         self.meter = NativeMeter(
-            reader.info["bit_depth"], ranges["color_range_legacy"], jpeg_quality, tuple(native),
-            p910_range=ranges["color_range_p910"] or "detect", full_alternative=reopen is None,
-        )  # fmt: skip
+            reader.info["bit_depth"],
+            ranges["color_range_legacy"],
+            jpeg_quality,
+            tuple(native),
+            p910_range=ranges["color_range_p910"] or "detect",
+            full_alternative=reopen is None,
+        )
         self._reopen = reopen
         self.meter.copy_previous = not reader.planes_persist
         reader.grey = size is not None  # no working raster: no grey conversion (0.3 ms at 720p)

@@ -77,9 +77,11 @@ RANGE_CHOICES = ("auto", *RANGES)  # --color-range
 RANGE_SOURCES = ("tagged", "detected", "assumed", "user")
 # clips.parquet: the colour range each SI/TI variant read and how it was decided
 RANGE_COLUMNS = (
-    "color_range_p910", "color_range_p910_source", "color_range_legacy",
+    "color_range_p910",
+    "color_range_p910_source",
+    "color_range_legacy",
     "color_range_legacy_source",
-)  # fmt: skip
+)
 
 # P.910 (2022) display model and PQ, as siti-tools' defaults (BT.1886, SDR)
 GAMMA, L_MAX, L_MIN = 2.4, 300.0, 0.1
@@ -332,9 +334,15 @@ class NativeMeter:
     def _sums(self, y: np.ndarray, prev: np.ndarray | None, lut: np.ndarray, scan: bool):
         have = prev is not None
         return chosen_sums(
-            y, prev if have else y, lut, self._legacy, have, self._want_p910,
-            self._want_legacy, scan,
-        )  # fmt: skip
+            y,
+            prev if have else y,
+            lut,
+            self._legacy,
+            have,
+            self._want_p910,
+            self._want_legacy,
+            scan,
+        )
 
     def _full_sums(self, y: np.ndarray, prev: np.ndarray | None) -> tuple[float, float]:
         """(si, ti) of P.910 in full range (ti NaN without a previous frame)."""

@@ -164,10 +164,20 @@ def fit_crossing(
     if x.size == 0 or np.ptp(x) == 0:  # nothing, or one complexity: no slope to fit
         flat = np.full(curve_x.shape, float(k.sum() / n.sum()) if n.size else math.nan)
         return CrossingFit(
-            UNDETERMINED_STATE, math.nan, -math.inf, math.inf, (lo, hi), 1.0, int(x.size),
-            t_grid, np.full(N_T, 1.0 / N_T), curve_x, flat, np.zeros_like(flat),
+            UNDETERMINED_STATE,
+            math.nan,
+            -math.inf,
+            math.inf,
+            (lo, hi),
+            1.0,
+            int(x.size),
+            t_grid,
+            np.full(N_T, 1.0 / N_T),
+            curve_x,
+            flat,
+            np.zeros_like(flat),
             np.ones_like(flat),
-        )  # fmt: skip
+        )
     u = (x - lo) / span
     tu = (t_grid - lo) / span
     floors = FLOORS[FLOORS < target - 0.05]
@@ -200,8 +210,9 @@ def fit_crossing(
     n_scenes = 0 if sc is None else int(np.unique(sc).size)
     phi_s = math.nan
     if n_scenes >= 2:  # the scene is the unit: its jackknife scale, F(1, scenes - 1)
-        phi_s = scene_dispersion(u, k, n, target, floor_of[best[1]], _refined_slope(ll, best),
-                                 tu[best[0]], sc)  # fmt: skip
+        phi_s = scene_dispersion(
+            u, k, n, target, floor_of[best[1]], _refined_slope(ll, best), tu[best[0]], sc
+        )
         cut_s = float(scipy_stats().f.ppf(0.95, 1, n_scenes - 1))
         # never below the conditions' scale (a floor: see scene_dispersion), and the wider
         # of the two intervals
@@ -238,9 +249,23 @@ def fit_crossing(
     if not band:
         band_low, band_high = curve_p.copy(), curve_p.copy()
     return CrossingFit(
-        state, boundary, low, high, (lo, hi), phi_conditions, int(x.size), t_grid, weights,
-        curve_x, curve_p, band_low, band_high, unit, n_units, phi_s,
-    )  # fmt: skip
+        state,
+        boundary,
+        low,
+        high,
+        (lo, hi),
+        phi_conditions,
+        int(x.size),
+        t_grid,
+        weights,
+        curve_x,
+        curve_p,
+        band_low,
+        band_high,
+        unit,
+        n_units,
+        phi_s,
+    )
 
 
 def dispersion(k: np.ndarray, n: np.ndarray, p: np.ndarray, cond: np.ndarray) -> tuple[float, int]:
@@ -430,8 +455,10 @@ def fit_columns(fit: CrossingFit, to_tf: Any = None) -> dict[str, Any]:
         "boundary_dps_high": speeds[2],
     }
     names = ("boundary_tf_hz", "boundary_tf_low", "boundary_tf_high")
-    tf = [float(to_tf(v)) if to_tf is not None and not math.isnan(v) else math.nan
-          for v in (fit.boundary, fit.low, fit.high)]  # fmt: skip
+    tf = [
+        float(to_tf(v)) if to_tf is not None and not math.isnan(v) else math.nan
+        for v in (fit.boundary, fit.low, fit.high)
+    ]
     # a wall TF is a drift speed, never below 0 Hz: the profile's line extrapolated past its
     # lowest TF gave "wall TF < -0.05 Hz". An interval wholly below 0 Hz lies below the
     # scene's complexity at rest: no TF of this scene is the boundary (NaN, not a number that

@@ -230,8 +230,14 @@ def clip_complexity(
         startup = WARMUP_FRAMES if (frames["frame"] >= WARMUP_FRAMES).any() else 0
         frames = frames.filter(pl.col("frame") >= startup)
         means = {m: frames[m].cast(pl.Float64).mean() for m in METRICS}
-        rows.append({"source": row["source"], **means, "complexity_frames": frames.height,
-                     "startup_frames_left_out": startup})  # fmt: skip
+        rows.append(
+            {
+                "source": row["source"],
+                **means,
+                "complexity_frames": frames.height,
+                "startup_frames_left_out": startup,
+            }
+        )
     return pl.DataFrame(rows)
 
 

@@ -158,9 +158,13 @@ def footage_predictor_tables(
         for v in values:
             alert = np.asarray(res[f"{v:g}"], float)
             positive, keep = frame_classes(
-                table["frame"].to_numpy(), alert, cf, wf, WARMUP_FRAMES,
+                table["frame"].to_numpy(),
+                alert,
+                cf,
+                wf,
+                WARMUP_FRAMES,
                 hazard_onset_frame=row.get("hazard_onset_frame"),
-            )  # fmt: skip
+            )
             frames.append(
                 table.with_columns(
                     pl.lit(row["clip"]).alias("clip"),

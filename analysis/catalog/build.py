@@ -105,13 +105,16 @@ class CatalogSettings(Settings):
     web: bool = option(False, "also serve the web viewer, on the same host")
     web_port: int = option(0, "the web viewer's port (0: a free one)", type=port_number)
     where: tuple[str, ...] = option(
-        (), "query: only segments whose summary property KEY equals VALUE (repeatable)",
+        (),
+        "query: only segments whose summary property KEY equals VALUE (repeatable)",
         metavar="KEY=VALUE",
-    )  # fmt: skip
+    )
     layers: tuple[str, ...] = option(
-        (), "query: the layers whose variants to include (repeatable; default: all)",
-        flag="--layer", metavar="LAYER",
-    )  # fmt: skip
+        (),
+        "query: the layers whose variants to include (repeatable; default: all)",
+        flag="--layer",
+        metavar="LAYER",
+    )
 
     def __post_init__(self) -> None:
         for name in ("port", "web_port"):

@@ -298,8 +298,9 @@ def _measures_of(
     for cam in sorted(cams):
         df = signals_table(sig, f"{DATASET_ROOT}/{cam}/measures/")
         if df is not None:
-            out.append(df.select(pl.lit(rid).alias("recording_id"), pl.lit(cam).alias("camera"),
-                                 pl.all()))  # fmt: skip
+            out.append(
+                df.select(pl.lit(rid).alias("recording_id"), pl.lit(cam).alias("camera"), pl.all())
+            )
     return out
 
 

@@ -154,8 +154,15 @@ def _web_viewer(url: str, settings: CatalogSettings) -> tuple[subprocess.Popen, 
     if settings.web_port:
         _require_free_port(settings.host, settings.web_port, "--web-port")
     port = settings.web_port or _free_port(settings.host)
-    cmd = [_rerun_binary(), "--serve-web", "--bind", settings.host, "--web-viewer-port",
-           str(port), url]  # fmt: skip
+    cmd = [
+        _rerun_binary(),
+        "--serve-web",
+        "--bind",
+        settings.host,
+        "--web-viewer-port",
+        str(port),
+        url,
+    ]
     if shutil.which("setpriv"):
         cmd = ["setpriv", "--pdeathsig", "SIGTERM", "--", *cmd]
     log = tempfile.TemporaryFile()  # its messages, read only if it fails to start

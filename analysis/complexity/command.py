@@ -26,7 +26,6 @@ the
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import math
 import tempfile
 from collections.abc import Callable, Sequence
@@ -36,141 +35,38 @@ from typing import Any
 import numpy as np
 import polars as pl
 
-from analysis.batch import PARTS, parse_shard, readable_part
+from analysis.batch import parse_shard, readable_part
 from analysis.complexity import figures
-from analysis.complexity.complexity_rrd import OUTPUT_MARKER, write_complexity_rrd
+from analysis.complexity.complexity_rrd import write_complexity_rrd
 from analysis.complexity.meter import (
-    ANGULAR_METRICS,
-    DEFAULT_METRICS,
-    DIS_PRESETS,
-    METRICS,
     MODEL_METRICS,
     RASTERS,
     ComplexityMeter,
     flags_of,
-    fov_free,
-    parse_metrics,
 )
+from analysis.complexity.plan import expand_sources, plan_sources, without_fov
+from analysis.complexity.settings import ComplexitySettings
 from analysis.complexity.source_metrics import (
+    CLIP_FORMAT_COLUMNS,
     complexity_task,
     largest_first,
-    measured_settings,
     metrics_present,
     part_path,
     rank_correlations,
 )
-from analysis.recordings.reader import Recording, RecordingError
-from analysis.recordings.recompute import DistinctRecordings
-from avdm.registry import require_angular_velocity
 from avdm.true_time import model_rate, repeats_of
-from vdc.cli_support import option
 from vdc.errors import UserError
-from vdc.executors import ExecutorSettings, TaskOutcome, executor_field, run_tasks
-from vdc.folders import not_found, path_list, remove_output, scan_folder
+from vdc.executors import TaskOutcome, run_tasks
+from vdc.folders import remove_output
 from vdc.frame_metrics import (
-    RANGE_CHOICES,
     RANGE_COLUMNS,
     NativeMeter,
     decide_ranges,
     leaves_limited,
 )
 from vdc.parquet_io import WroteFiles, read_metadata, table_set, write_parquet
-from vdc.recording import FOOTAGE_MODEL, NATIVE_METRICS, camera_model_context, working_size
+from vdc.recording import NATIVE_METRICS, camera_model_context, working_size
 from vdc.resize import area_resize
-from vdc.settings import API_ONLY, AT_LEAST_0, RANGE, Settings, between
-from vdc.source_names import unique_source_names
-from vdc.sources import VIDEO_SUFFIXES
-
-
-@dataclasses.dataclass(frozen=True)
-class ComplexitySettings(Settings):
-    """``vdc-analyse complexity``: the AVDM variant, the baselines' few free choices, how
-    video sources are read (as ``vdc-capture video`` reads them), and where the sources run."""
-
-    metrics: str = option(
-        ",".join(DEFAULT_METRICS),
-        "the metrics to compute: comma-separated column names ("
-        + ", ".join(METRICS)
-        + ") or all; the default set is chosen for need and speed (docs/guides/video.md)",
-    )
-    model: str = option(
-        FOOTAGE_MODEL,
-        "the AVDM variant (default: {default}, valid 1-300 deg/s on real footage; avdm is the "
-        "paper's, valid up to about 1 px of motion per frame)",
-    )
-    flow_preset: str = option(  # "medium" keeps the finest scale on small frames
-        "medium", "DIS optic-flow preset", choices=tuple(DIS_PRESETS)
-    )
-    jpeg_quality: int = option(75, "JPEG quality, 1-100", range=between(1, 100))
-    zlib_level: int = dataclasses.field(  # zlib_ratio's compression level
-        default=6, metadata={**API_ONLY, RANGE: between(0, 9)}
-    )
-    fov_deg: float | None = option(
-        None,
-        "video sources: the camera's horizontal field of view, degrees (needed for the AVDM "
-        "and the flow in deg/s; without it a video gives the other metrics)",
-        range=between(1, 360),
-    )
-    fps: float | None = option(
-        None,
-        "image sequences: frame rate, Hz (videos state their own)",
-        range=between(0, 10_000, lo_open=True),
-    )
-    width: int | None = option(
-        None,
-        "video sources: working width, px (default: fov / (70/99 deg), the robot's pitch)",
-        range=between(8, 4096),
-    )
-    repeat_tol: float = option(
-        0.5,
-        "video sources: a frame whose mean |difference| from the previous native frame is at "
-        "most this (8-bit levels) repeats it",
-        range=AT_LEAST_0,
-    )
-    max_repeats: int = option(
-        3, "longer still stretches are a still scene, not repeats", range=AT_LEAST_0
-    )
-    color_range: str = option(
-        "auto",
-        "video sources: the luma's colour range for SI/TI; auto: the stream's tag, else as "
-        "each reference tool reads it (P.910: full if the luma leaves 16-235, as siti-tools; "
-        "legacy: limited, as FFmpeg's siti)",
-        choices=RANGE_CHOICES,
-    )
-    rrd: bool = option(
-        False,
-        "per clip, also a figure of its metrics over time and an .rrd that opens beside the "
-        "source (always for a single source)",
-    )
-    executor: str = executor_field("executor")
-    jobs: int = executor_field("jobs")
-    scheduler: str | None = executor_field("scheduler")
-    shard: str | None = option(
-        None, "I/N: measure only sources I, I+N, ... (0-based; default in a SLURM array: its own)"
-    )
-    force: bool = option(False, "measure finished sources again")
-
-    def __post_init__(self) -> None:
-        require_angular_velocity(self.model, "complexity")
-        parse_metrics(self.metrics)
-        if self.flow_preset not in DIS_PRESETS:
-            raise UserError(f"--flow-preset must be one of {', '.join(DIS_PRESETS)}")
-        if self.color_range not in RANGE_CHOICES:
-            choices = ", ".join(RANGE_CHOICES)
-            raise UserError(f"--color-range must be one of {choices}, got {self.color_range!r}")
-        self.executor_settings()
-        parse_shard(self.shard)
-
-    def metric_names(self) -> tuple[str, ...]:
-        """``metrics`` as column names, in the tables' order."""
-        return parse_metrics(self.metrics)
-
-    def executor_settings(self) -> ExecutorSettings:
-        return ExecutorSettings(self.executor, self.jobs, self.scheduler)
-
-    def measured(self) -> dict[str, Any]:
-        """The settings a source's numbers depend on (not where or which it runs)."""
-        return measured_settings(dataclasses.asdict(self))
 
 
 def complexity_of_frames(
@@ -215,9 +111,12 @@ def complexity_of_frames(
     leaves = any(leaves_limited(f, 8) for f in native) if color_range is None else None
     ranges = decide_ranges(color_range, settings.color_range, leaves)
     nm = NativeMeter(
-        8, str(ranges["color_range_legacy"]), settings.jpeg_quality, native_names,
+        8,
+        str(ranges["color_range_legacy"]),
+        settings.jpeg_quality,
+        native_names,
         p910_range=str(ranges["color_range_p910"]),
-    )  # fmt: skip
+    )
     rows = np.stack([nm.row(f) for f in native])
     mafd = rows[:, NATIVE_METRICS.index("mafd")]
     repeat = repeats_of(mafd, 0, settings.repeat_tol, settings.max_repeats)
@@ -235,136 +134,6 @@ def complexity_of_frames(
     return df.with_columns(*flags)
 
 
-def expand_sources(
-    items: Sequence[str | Path], notice: Callable[[str], None] | None = None
-) -> list[str]:
-    """Recordings, video files, image-sequence patterns and folders → the sources, in order:
-    a folder gives the recordings and videos in it and below, sorted, less what vdc wrote
-    itself, unfinished captures and dangling links (``vdc.folders.scan_folder``), which
-    ``notice`` hears about in one line per folder. A folder without any source, a missing
-    file or a pattern that matches nothing raises ValueError, as does an empty list."""
-    sources: list[str] = []
-    if not path_list(items):
-        raise UserError("complexity was given no sources: name a recording, video or folder")
-    for item in path_list(items):
-        p = Path(item)
-        if p.is_dir():
-            scan = scan_folder(p, (*VIDEO_SUFFIXES, ".rrd"), skip_dirs=(PARTS,))
-            note = scan.note(item)
-            if note and notice is not None:
-                notice(note)
-            if not scan.found:
-                raise UserError(
-                    f"folder {item!r} holds no videos ({', '.join(VIDEO_SUFFIXES[:5])}, ...) "
-                    f"or .rrd recordings{f' ({note})' if note else ''}"
-                )
-            sources += map(str, scan.found)
-        elif p.is_file():
-            sources.append(item)
-        elif "%" in item:
-            folder = p.parent if str(p.parent) else Path(".")
-            head = p.name.split("%")[0]
-            if not folder.is_dir() or not any(
-                f.name.startswith(head) for f in folder.iterdir() if f.is_file()
-            ):
-                raise UserError(f"image sequence {item!r} matches no files")
-            sources.append(item)
-        else:
-            raise UserError(not_found(item))
-    return sources
-
-
-def without_fov(sources: Sequence[str], settings: ComplexitySettings) -> str | None:
-    """What a run without ``--fov-deg`` leaves out, as one note (None: nothing). A video's
-    angular metrics need its camera's field of view (a recording states its own); the others
-    are measured. Only angular metrics asked of videos alone raise ValueError."""
-    videos = [s for s in sources if not s.endswith(".rrd")]
-    if settings.fov_deg is not None or not videos:
-        return None
-    chosen = settings.metric_names()
-    kept = fov_free(chosen, settings.width)
-    left = [m for m in chosen if m not in kept]
-    if not left:
-        return None
-    if not kept and len(videos) == len(sources):
-        raise UserError(
-            f"{', '.join(left)} need the camera's field of view: give --fov-deg (the horizontal "
-            "field of view, degrees) or ask for pixel metrics (--metrics)"
-        )
-    why = "deg/s" if set(left) <= set(ANGULAR_METRICS) else "deg/s, or the model raster"
-    return (
-        f"no --fov-deg: {', '.join(left)} left out for the {len(videos)} video source(s) "
-        f"(they need the camera's horizontal field of view for {why}); "
-        f"{', '.join(kept) or 'nothing else'} measured"
-    )
-
-
-def _stamp(source: str) -> tuple:
-    """What identifies a source's content: its path and, for files, size and mtime."""
-    p = Path(source)
-    if p.is_file():
-        st = p.stat()
-        return (str(p.resolve()), st.st_size, st.st_mtime_ns)
-    return (source,)
-
-
-def plan_sources(
-    sources: Sequence[str],
-    settings: ComplexitySettings,
-    notice: Callable[[str], None] | None = None,
-) -> list[dict[str, str]]:
-    """One task per source: its recording id (a recording's own, checked distinct; a video's
-    from its file name, the parent folder added where two share a name) and its part's key
-    (the name and a hash of the content and the settings, so a changed file or setting is
-    measured again). A recording vdc derived from another (its ``vdc_output`` property: a
-    ``complexity_<id>.rrd`` copied away from its folder's manifest) is not a source: left
-    out, and ``notice`` hears how many."""
-
-    opened: dict[str, Any] = {}
-    for s in sources:
-        if s.endswith(".rrd"):
-            try:
-                opened[s] = Recording(s)
-            except (RecordingError, OSError):  # fails as its own task: never sinks the others
-                opened[s] = None
-    derived = [s for s, rec in opened.items() if rec is not None and is_vdc_output(rec)]
-    if derived:
-        if notice is not None:
-            notice(
-                f"skipped {len(derived)} recording(s) vdc derived from others (first: "
-                f"{derived[0]}): outputs, not sources"
-            )
-        if len(derived) == len(sources):
-            raise UserError(
-                f"{derived[0]!r} is an output of vdc-analyse complexity, not a source; give "
-                "the recording or video it measured"
-            )
-        sources = [s for s in sources if s not in derived]
-    names = unique_source_names(sources)
-    distinct = DistinctRecordings()  # two files of one recording would mix their rows
-    tasks = []
-    for src, name in zip(sources, names, strict=True):
-        digest = hashlib.sha1(repr((_stamp(src), settings.measured())).encode()).hexdigest()
-        if src.endswith(".rrd") and opened[src] is not None:
-            rid = opened[src].recording_id
-            distinct.add(rid, src)
-        elif src.endswith(".rrd"):
-            rid = f"unreadable-{name}"  # its task fails with the reason, in failures.parquet
-        else:
-            rid = f"video-{name}"
-        tasks.append({"source": src, "recording_id": rid, "key": f"{name}-{digest[:8]}"})
-    keys = [t["key"] for t in tasks]
-    if len(set(keys)) != len(keys):  # the same name and content twice
-        raise UserError("two sources are the same file; give each once")
-    return tasks
-
-
-def is_vdc_output(rec: Any) -> bool:
-    """Whether a recording (``analysis.recordings.reader.Recording``) is one vdc derived from
-    another (it carries the ``vdc_output`` property :func:`write_complexity_rrd` sets)."""
-    return OUTPUT_MARKER in rec.properties()
-
-
 def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
     """A clip's row of ``clips.parquet``: what the source is, then each metric's mean, max and
     95th percentile over its frames (where defined), and ``omega_valid_share``: the share of
@@ -374,14 +143,20 @@ def clip_row(table: pl.DataFrame, info: dict[str, Any]) -> dict[str, Any]:
         **{
             k: info.get(k)
             for k in (
-                "source", "kind", "codec", "width_px", "height_px", "fps", "duration_s",
-                "frames", "repeated_frames", "dropped_frames", "container_frames",
-                "lost_after_last", "header_duration_s", "missing_s", "model_fps",
-                "model_fps_reason", *RANGE_COLUMNS,
+                "source",
+                "kind",
+                *CLIP_FORMAT_COLUMNS,
+                "container_frames",
+                "lost_after_last",
+                "header_duration_s",
+                "missing_s",
+                "model_fps",
+                "model_fps_reason",
+                *RANGE_COLUMNS,
             )
         },
         "raster": table["raster"][0],
-    }  # fmt: skip
+    }
     for m in metrics_present(table):
         v = table[m].drop_nulls().cast(pl.Float64)
         row[f"{m}_mean"] = float(v.mean()) if v.len() else None
@@ -475,8 +250,15 @@ def complexity(
 
     if out is None:
         with tempfile.TemporaryDirectory(prefix="vdc-complexity-") as tmp:
-            res = complexity(sources, settings, tmp, progress=progress,
-                             clip_progress=clip_progress, notice=notice, log=log)  # fmt: skip
+            res = complexity(
+                sources,
+                settings,
+                tmp,
+                progress=progress,
+                clip_progress=clip_progress,
+                notice=notice,
+                log=log,
+            )
         res.paths = []  # nothing written remains
         return res
     out = Path(out)
@@ -509,14 +291,20 @@ def complexity(
                 clip_progress(1)
 
         args = [
-            (t["source"], (t["source"], t["recording_id"], t["key"], dataclasses.asdict(settings),
-                           str(out)))
+            (
+                t["source"],
+                (t["source"], t["recording_id"], t["key"], dataclasses.asdict(settings), str(out)),
+            )
             for t in largest_first(list(by_source.values()))
-        ]  # fmt: skip
+        ]
         outcomes = run_tasks(
-            complexity_task, args, settings.executor_settings(), on_done=done, log=log,
+            complexity_task,
+            args,
+            settings.executor_settings(),
+            on_done=done,
+            log=log,
             shared_paths=[listed[0], out],
-        )  # fmt: skip
+        )
     failures = [(o.key, o.error or "") for o in outcomes if o.error]
     parts, infos = [], []
     for t in tasks:

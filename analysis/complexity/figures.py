@@ -15,7 +15,7 @@ import polars as pl
 from matplotlib.figure import Figure
 
 from analysis.complexity.meter import METRICS
-from analysis.complexity.source_metrics import metrics_present
+from analysis.complexity.source_metrics import CLIP_FORMAT_COLUMNS, metrics_present
 from analysis.profile import correlation_panel, save_figure
 from vdc.recording import COMPLEXITY_UNITS
 
@@ -84,11 +84,19 @@ def write_summary_html(
     """A self-contained page: ``figure`` (the collection's, or one clip's over time), then the
     clip table (means and maxima)."""
     cols = [
-        "recording_id", "codec", "width_px", "height_px", "fps", "duration_s", "frames",
-        "repeated_frames", "dropped_frames", "raster", "omega_dps_mean", "omega_dps_max",
-        "si_p910_mean", "si_p910_max", "ti_p910_mean", "ti_p910_max", "flow_dps_mean",
-        "jpeg_bpp_mean", "codec_bpp_mean",
-    ]  # fmt: skip
+        "recording_id",
+        *CLIP_FORMAT_COLUMNS,
+        "raster",
+        "omega_dps_mean",
+        "omega_dps_max",
+        "si_p910_mean",
+        "si_p910_max",
+        "ti_p910_mean",
+        "ti_p910_max",
+        "flow_dps_mean",
+        "jpeg_bpp_mean",
+        "codec_bpp_mean",
+    ]
 
     cols = [c for c in cols if c in clips.columns]
 

@@ -71,6 +71,20 @@ if TYPE_CHECKING:
     from analysis.recordings.loading import LoadedRecording
 
 
+# what a clip is, as clips.parquet and the collection's page both show it: its format and
+# its frames (each lost frame once: vdc.stream_counts)
+CLIP_FORMAT_COLUMNS = (
+    "codec",
+    "width_px",
+    "height_px",
+    "fps",
+    "duration_s",
+    "frames",
+    "repeated_frames",
+    "dropped_frames",
+)
+
+
 def _frame_table(
     parts: list[pl.DataFrame],
     raster: str,
@@ -270,15 +284,22 @@ def measure_video(
             ctx = camera_model_context(size[1], size[0], fps, fov)
         native = tuple(m for m in NATIVE_METRICS if m in metrics)
         batches = FrameBatcher(
-            reader, size, fps, batch_frames=128, repeat_tol=settings.repeat_tol,
-            max_repeats=settings.max_repeats, metrics=native, threads=threads,
-            jpeg_quality=settings.jpeg_quality, color_range=settings.color_range,
+            reader,
+            size,
+            fps,
+            batch_frames=128,
+            repeat_tol=settings.repeat_tol,
+            max_repeats=settings.max_repeats,
+            metrics=native,
+            threads=threads,
+            jpeg_quality=settings.jpeg_quality,
+            color_range=settings.color_range,
             # a file or image sequence can be read again (a camera cannot): no second SI/TI
             # pass for the range decision (vdc.frame_batches)
             reopen=None
             if info["kind"] == "camera"
             else lambda: open_reader(source, settings.fps, decoder_threads),
-        )  # fmt: skip
+        )
         stream: FrameBatcher | RateLookahead = batches
         if ctx is not None:
             rate = None
@@ -435,10 +456,15 @@ def rank_correlations(df: pl.DataFrame, recording_id: str) -> pl.DataFrame:
             rows.append(
                 {"recording_id": recording_id, "metric_a": a, "metric_b": b, "spearman": rho}
             )
-    return pl.DataFrame(rows, schema={
-        "recording_id": pl.String, "metric_a": pl.String, "metric_b": pl.String,
-        "spearman": pl.Float64,
-    })  # fmt: skip
+    return pl.DataFrame(
+        rows,
+        schema={
+            "recording_id": pl.String,
+            "metric_a": pl.String,
+            "metric_b": pl.String,
+            "spearman": pl.Float64,
+        },
+    )
 
 
 def metrics_present(df: pl.DataFrame, suffix: str = "") -> list[str]:

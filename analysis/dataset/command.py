@@ -51,12 +51,23 @@ def delete_command(root: Path, episodes: list[int]) -> str:
     root = root.resolve()
     repo = f"{root.parent.name}/{root.name}"
     indices = "[" + ", ".join(map(str, episodes)) + "]"
-    return " ".join([
-        "lerobot-edit-dataset", "--repo_id", shlex.quote(repo), "--root", shlex.quote(str(root)),
-        "--new_repo_id", shlex.quote(f"{repo}_clean"),
-        "--new_root", shlex.quote(str(root.with_name(f"{root.name}_clean"))),
-        "--operation.type", "delete_episodes", "--operation.episode_indices", shlex.quote(indices),
-    ])  # fmt: skip
+    return " ".join(
+        [
+            "lerobot-edit-dataset",
+            "--repo_id",
+            shlex.quote(repo),
+            "--root",
+            shlex.quote(str(root)),
+            "--new_repo_id",
+            shlex.quote(f"{repo}_clean"),
+            "--new_root",
+            shlex.quote(str(root.with_name(f"{root.name}_clean"))),
+            "--operation.type",
+            "delete_episodes",
+            "--operation.episode_indices",
+            shlex.quote(indices),
+        ]
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,8 +186,10 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             )
     unknown = [c for c in settings.moving_camera_list() if c not in ds.cameras]
     if unknown:
-        raise UserError(f"--moving-cameras: {unknown[0]!r} is not a camera of {root} (its "
-                        f"cameras: {', '.join(ds.cameras)})")  # fmt: skip
+        raise UserError(
+            f"--moving-cameras: {unknown[0]!r} is not a camera of {root} (its "
+            f"cameras: {', '.join(ds.cameras)})"
+        )
     videos = [v for v in ds.videos if wanted is None or v.episode in wanted]
     notes = [n for n in [no_fov_note(settings)] if n]
     for n in notes:
@@ -235,8 +248,14 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
             f"{PROGRESS_EVERY_S:g} s."
         )
     if tasks:  # the task lives in resume: a worker imports the measuring, not this command
-        run_tasks(measured, tasks, settings.executor_settings(), done,
-                  feedback.log, shared_paths=(root, out))  # fmt: skip
+        run_tasks(
+            measured,
+            tasks,
+            settings.executor_settings(),
+            done,
+            feedback.log,
+            shared_paths=(root, out),
+        )
     drop_stale(out, [result_path(out, v, settings, *rates(v)) for v in videos])
     for k in sorted(results, key=_order):  # what the measuring found wrong with the data
         v = by_key[k]
@@ -254,36 +273,60 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
         for k in sorted(results, key=_order)
     ]
     views = {(r["row"]["episode_index"], r["row"]["camera"]): r["views"] for r in results.values()}
-    pose_deltas = {(r["row"]["episode_index"], r["row"]["camera"]): r.get("pose_delta")
-                   for r in results.values()}  # fmt: skip
+    pose_deltas = {
+        (r["row"]["episode_index"], r["row"]["camera"]): r.get("pose_delta")
+        for r in results.values()
+    }
     widths = {cam: _width(ds.info, cam) for cam in ds.cameras}
-    meta = {"command": "dataset", "dataset": str(root), "version": ds.version,
-            "settings": dataclasses.asdict(settings)}  # fmt: skip
+    meta = {
+        "command": "dataset",
+        "dataset": str(root),
+        "version": ds.version,
+        "settings": dataclasses.asdict(settings),
+    }
     problem_table = pl.DataFrame(
-        {"file": [p.file for p in problems], "episode_index": [p.episode for p in problems],
-         "message": [p.message for p in problems]},
+        {
+            "file": [p.file for p in problems],
+            "episode_index": [p.episode for p in problems],
+            "message": [p.message for p in problems],
+        },
         schema={"file": pl.String, "episode_index": pl.Int64, "message": pl.String},
-    )  # fmt: skip
+    )
     eps = None
     motions: dict[str, dict[str, Any]] = {}
     if rows:
         eps, frame_table, motions = finish(
-            rows, pl.concat(frames, how="diagonal_relaxed"), views, widths, settings.fov_deg,
-            pose_deltas, settings.moving_camera_list(), settings.flag_thresholds(),
+            rows,
+            pl.concat(frames, how="diagonal_relaxed"),
+            views,
+            widths,
+            settings.fov_deg,
+            pose_deltas,
+            settings.moving_camera_list(),
+            settings.flag_thresholds(),
             tuple(ds.cameras),
-        )  # fmt: skip
+        )
         eps = severity(eps, settings.flag_thresholds())
     try:
         with table_set(out) as stage:
-            tables = {"episodes": eps, "frames": frame_table if rows else None,
-                      "problems": problem_table}  # fmt: skip
+            tables = {
+                "episodes": eps,
+                "frames": frame_table if rows else None,
+                "problems": problem_table,
+            }
             paths = write_tables(stage, tables, meta)
             if eps is not None:
                 flagged, command = _flagged(root, eps, settings)
-                listing = {"dataset": str(root), "episode_indices": flagged,
-                           "flags": {str(r["episode_index"]): r["flags"]
-                                     for r in eps.iter_rows(named=True) if r["flags"]},
-                           "lerobot_edit_dataset": command}  # fmt: skip
+                listing = {
+                    "dataset": str(root),
+                    "episode_indices": flagged,
+                    "flags": {
+                        str(r["episode_index"]): r["flags"]
+                        for r in eps.iter_rows(named=True)
+                        if r["flags"]
+                    },
+                    "lerobot_edit_dataset": command,
+                }
                 (stage / FLAGGED_FILE).write_text(json.dumps(listing, indent=2) + "\n")
                 paths.append(stage / FLAGGED_FILE)
             if settings.page and eps is not None:
@@ -312,21 +355,29 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
                 failed.append(int(r["episode_index"]))
     reused = sum(bool(r.get("reused")) for r in results.values())
     return DatasetResult(
-        paths, eps, [p.line() for p in problems], sorted(set(failed)), notes, reused,
+        paths,
+        eps,
+        [p.line() for p in problems],
+        sorted(set(failed)),
+        notes,
+        reused,
         [p.line() for p in problems if p.episode is None],
         [m["evidence"] for m in motions.values()],
         *(_flagged(root, eps, settings) if eps is not None else ([], None)),
-    )  # fmt: skip
+    )
 
 
 def _flagged(root: Path, eps: pl.DataFrame, settings: DatasetSettings) -> tuple:
     """(the flagged episodes: those with a flag of ``fail_on`` where it names any, else with
     any flag; the command deleting them, or None)."""
     fail = set(settings.fail_names())
-    out = sorted({
-        int(r["episode_index"]) for r in eps.iter_rows(named=True)
-        if (fail & set(filter(None, r["flags"].split(","))) if fail else r["flags"])
-    })  # fmt: skip
+    out = sorted(
+        {
+            int(r["episode_index"])
+            for r in eps.iter_rows(named=True)
+            if (fail & set(filter(None, r["flags"].split(","))) if fail else r["flags"])
+        }
+    )
     return out, delete_command(root, out) if out else None
 
 
@@ -350,11 +401,19 @@ def _recordings(
     # table each time (a dataset's hundreds of episodes: quadratic)
     parts = frames.partition_by("episode_index", "camera", as_dict=True)
     for e in episodes:
-        rows = sorted(eps.filter(pl.col("episode_index") == e).iter_rows(named=True),
-                      key=lambda r: order.get(r["camera"], len(order)))  # fmt: skip
+        rows = sorted(
+            eps.filter(pl.col("episode_index") == e).iter_rows(named=True),
+            key=lambda r: order.get(r["camera"], len(order)),
+        )
         per_cam = {r["camera"]: parts[(e, r["camera"])].sort("frame") for r in rows}
-        worst = next((r for r in eps.iter_rows(named=True)
-                      if r["episode_index"] == e and r["flag_count"] > 0), None)  # fmt: skip
+        worst = next(
+            (
+                r
+                for r in eps.iter_rows(named=True)
+                if r["episode_index"] == e and r["flag_count"] > 0
+            ),
+            None,
+        )
         first = None
         if worst is not None:
             flag, frame = flagged[(e, worst["camera"])]

@@ -205,19 +205,35 @@ def write_episode(
     try:
         main = rows[0]
         flags = ",".join(sorted({f for r in rows for f in r["flags"].split(",") if f}))
-        rec.send_property("run", rr.AnyValues(
-            source="dataset", dataset=str(root), version=version, episode_index=episode,
-            recording_id=rid,
-        ))  # fmt: skip
-        rec.send_property("video", rr.AnyValues(
-            path=main["video_path"], camera=main["camera"], from_s=main["from_s"],
-            to_s=main["to_s"] if main["to_s"] is not None else float("nan"),
-        ))  # fmt: skip
-        rec.send_property("episode", rr.AnyValues(
-            episode_index=episode, cameras=",".join(cameras), flags=flags,
-            flag_count=len([f for f in flags.split(",") if f]),
-            flagged_frame=flagged[2] if flagged else -1,
-        ))  # fmt: skip
+        rec.send_property(
+            "run",
+            rr.AnyValues(
+                source="dataset",
+                dataset=str(root),
+                version=version,
+                episode_index=episode,
+                recording_id=rid,
+            ),
+        )
+        rec.send_property(
+            "video",
+            rr.AnyValues(
+                path=main["video_path"],
+                camera=main["camera"],
+                from_s=main["from_s"],
+                to_s=main["to_s"] if main["to_s"] is not None else float("nan"),
+            ),
+        )
+        rec.send_property(
+            "episode",
+            rr.AnyValues(
+                episode_index=episode,
+                cameras=",".join(cameras),
+                flags=flags,
+                flag_count=len([f for f in flags.split(",") if f]),
+                flagged_frame=flagged[2] if flagged else -1,
+            ),
+        )
         for k, r in enumerate(rows):
             cam, fr = r["camera"], frames[r["camera"]]
             frame, t = fr["frame"].to_numpy(), fr["t_s"].to_numpy()
@@ -229,16 +245,22 @@ def write_episode(
                 if m not in fr.columns:
                     continue
                 vals = fr[m].cast(pl.Float64).fill_null(float("nan")).to_numpy()
-                rec.send_columns(dataset_measure_path(cam, m), indexes=_index(frame, t),
-                                 columns=rr.Scalars.columns(scalars=vals))  # fmt: skip
+                rec.send_columns(
+                    dataset_measure_path(cam, m),
+                    indexes=_index(frame, t),
+                    columns=rr.Scalars.columns(scalars=vals),
+                )
             if k == 0:  # the main camera's timing: the recording's frames for catalog query
                 timing = np.c_[
                     fr["repeat"].cast(pl.Float64).to_numpy(),
                     fr["dropped_before"].cast(pl.Float64).to_numpy(),
                     fr["dt_s"].cast(pl.Float64).fill_null(float("nan")).to_numpy(),
                 ]
-                rec.send_columns(FRAME_TIMING, indexes=_index(frame, t),
-                                 columns=rr.Scalars.columns(scalars=timing))  # fmt: skip
+                rec.send_columns(
+                    FRAME_TIMING,
+                    indexes=_index(frame, t),
+                    columns=rr.Scalars.columns(scalars=timing),
+                )
         if flagged:
             flag, cam, f = flagged
             fr = frames[cam]
@@ -246,9 +268,13 @@ def write_episode(
             at = _index(np.array([f]), np.array([t_f]))
             text = rr.TextLog.columns(text=[f"{flag} ({cam})"], level=["WARN"])
             rec.send_columns(event_path("dataset_flag"), indexes=at, columns=text)
-        rec.log(DESCRIPTION, rr.TextDocument(_description(rid, root, episode, rows, flagged,
-                                                          notes), media_type="text/markdown"),
-                static=True)  # fmt: skip
+        rec.log(
+            DESCRIPTION,
+            rr.TextDocument(
+                _description(rid, root, episode, rows, flagged, notes), media_type="text/markdown"
+            ),
+            static=True,
+        )
         rec.flush()
         rec.disconnect()
         tmp.replace(path)
@@ -265,8 +291,9 @@ def _log_video(rec: Any, vpath: str, r: dict, frame: np.ndarray, t: np.ndarray) 
     except ReorderedFrames:
         data, ns = window_asset(r["video_path"], r["from_s"], r["to_s"], t)
         rec.log(vpath, rr.AssetVideo(contents=data, media_type="video/mp4"), static=True)
-        rec.send_columns(vpath, indexes=_index(frame, t),
-                         columns=rr.VideoFrameReference.columns_nanos(ns))  # fmt: skip
+        rec.send_columns(
+            vpath, indexes=_index(frame, t), columns=rr.VideoFrameReference.columns_nanos(ns)
+        )
         return
     rec.log(vpath, rr.VideoStream(codec=v.codec), static=True)
     columns = rr.VideoStream.columns(sample=v.samples, is_keyframe=v.key)
@@ -274,11 +301,17 @@ def _log_video(rec: Any, vpath: str, r: dict, frame: np.ndarray, t: np.ndarray) 
 
 
 def _description(rid, root, episode, rows, flagged, notes) -> str:
-    lines = [f"# {rid}", "", f"Episode {episode} of the LeRobot dataset `{root}`, profiled by "
-             "`vdc-analyse dataset`.", ""]  # fmt: skip
+    lines = [
+        f"# {rid}",
+        "",
+        f"Episode {episode} of the LeRobot dataset `{root}`, profiled by `vdc-analyse dataset`.",
+        "",
+    ]
     for r in rows:
-        lines.append(f"* **{r['camera']}**: {r['frames_decoded']} frames decoded of "
-                     f"{r['length']} stated; flags: {r['flags'] or 'none'}")  # fmt: skip
+        lines.append(
+            f"* **{r['camera']}**: {r['frames_decoded']} frames decoded of "
+            f"{r['length']} stated; flags: {r['flags'] or 'none'}"
+        )
     if flagged:
         lines += ["", f"Opened at frame {flagged[2]}, where `{flagged[0]}` shows best."]
     lines += [f"* {n}" for n in notes]

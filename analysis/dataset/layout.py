@@ -14,7 +14,7 @@ read as image sequences. What cannot be read is a :class:`Problem` naming the fi
 episode; the other episodes are still listed. The metadata is a claim: a field of info.json
 that cannot be used raises UserError naming it; an episode listed twice, or whose length or
 window is not one, is a problem; and info.json's ``fps`` is held against each camera's own
-frame times and the data's timestamps (:func:`agreed_rate`), a disagreement being a problem
+frame times and the data's timestamps (``analysis.dataset.rates``), a disagreement being a problem
 of the dataset.
 """
 
@@ -26,11 +26,11 @@ import math
 from pathlib import Path
 from typing import Any
 
-import av
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from analysis.dataset.rates import agreed_rate, data_rate, own_rate, stream_rate
 from vdc.errors import UserError
 
 VERSIONS = ("v3.0", "v2.1", "v2.0")
@@ -104,8 +104,10 @@ def read_info(root: Path) -> dict[str, Any]:
     ``codebase_version``, raises UserError naming it."""
     path = root / "meta" / "info.json"
     if root.exists() and not root.is_dir():
-        raise UserError(f"{root} is a file, not a folder: give the LeRobot dataset's folder (the "
-                        "one holding meta/info.json)")  # fmt: skip
+        raise UserError(
+            f"{root} is a file, not a folder: give the LeRobot dataset's folder (the "
+            "one holding meta/info.json)"
+        )
     if not root.is_dir():
         raise UserError(f"{root}: no such folder (give a LeRobot dataset folder).")
     if not path.is_file():
@@ -122,9 +124,11 @@ def read_info(root: Path) -> dict[str, Any]:
     fps = info.get("fps")
     # a bool is an int to Python, and JSON's NaN and Infinity parse as floats: none is a rate
     if (
-        not isinstance(fps, (int, float)) or isinstance(fps, bool)
-        or not math.isfinite(fps) or fps <= 0
-    ):  # fmt: skip
+        not isinstance(fps, (int, float))
+        or isinstance(fps, bool)
+        or not math.isfinite(fps)
+        or fps <= 0
+    ):
         raise UserError(
             f"{path}: fps {json.dumps(fps)} is not a rate (a positive, finite number of frames "
             "per second)."
@@ -144,11 +148,15 @@ def read_info(root: Path) -> dict[str, Any]:
 
 # the fields each path template of info.json may name (v3.0, v2.x)
 _TEMPLATE_KEYS = {
-    True: {"data_path": ("chunk_index", "file_index"),
-           "video_path": ("video_key", "chunk_index", "file_index")},
-    False: {"data_path": ("episode_chunk", "episode_index"),
-            "video_path": ("episode_chunk", "video_key", "episode_index")},
-}  # fmt: skip
+    True: {
+        "data_path": ("chunk_index", "file_index"),
+        "video_path": ("video_key", "chunk_index", "file_index"),
+    },
+    False: {
+        "data_path": ("episode_chunk", "episode_index"),
+        "video_path": ("episode_chunk", "video_key", "episode_index"),
+    },
+}
 
 
 def _check_template(path: Path, field: str, tpl: Any, keys: tuple[str, ...]) -> None:
@@ -266,9 +274,14 @@ def _v3_videos(root: Path, info: dict, cams: list[str], problems: list[Problem])
             e = _count(r.get("episode_index"))
             where = f"row {k}"
             if e is None or e < 0:
-                problems.append(Problem(
-                    str(f), None, f"row {k}: episode_index {r.get('episode_index')!r} is not "
-                    "an episode index"))  # fmt: skip
+                problems.append(
+                    Problem(
+                        str(f),
+                        None,
+                        f"row {k}: episode_index {r.get('episode_index')!r} is not "
+                        "an episode index",
+                    )
+                )
                 continue
             n = _count(r.get("length"))
             if n is None or n < 0:
@@ -283,8 +296,11 @@ def _v3_videos(root: Path, info: dict, cams: list[str], problems: list[Problem])
             videos: list[EpisodeVideo] = []
             for cam in cams:
                 if feats[cam].get("dtype") == "image":
-                    videos.append(EpisodeVideo(e, cam, _image_pattern(root, cam, e), 0.0, None,
-                                               n, str(data), "images"))  # fmt: skip
+                    videos.append(
+                        EpisodeVideo(
+                            e, cam, _image_pattern(root, cam, e), 0.0, None, n, str(data), "images"
+                        )
+                    )
                     continue
                 idx = [_count(r.get(f"videos/{cam}/{k}")) for k in ("chunk_index", "file_index")]
                 window = _window(r, cam)
@@ -326,23 +342,29 @@ def _v2_videos(root: Path, info: dict, cams: list[str], problems: list[Problem])
         e = _count(r.get("episode_index")) if isinstance(r, dict) else None
         if e is None or e < 0:
             got = r.get("episode_index") if isinstance(r, dict) else r
-            problems.append(Problem(str(path), None, f"line {k + 1}: episode_index {got!r} is "
-                                    "not an episode index"))  # fmt: skip
+            problems.append(
+                Problem(
+                    str(path), None, f"line {k + 1}: episode_index {got!r} is not an episode index"
+                )
+            )
             continue
         n = _count(r.get("length"))
         if n is None or n < 0:
-            out.append((e, str(path), f"line {k + 1}",
-                        f"length {r.get('length')!r} is not a frame count"))  # fmt: skip
+            out.append(
+                (e, str(path), f"line {k + 1}", f"length {r.get('length')!r} is not a frame count")
+            )
             continue
         data = root / data_tpl.format(episode_chunk=e // size, episode_index=e)
         videos = []
         for cam in cams:
             if info["features"][cam].get("dtype") == "image":
-                videos.append(EpisodeVideo(e, cam, _image_pattern(root, cam, e), 0.0, None, n,
-                                           str(data), "images"))  # fmt: skip
+                videos.append(
+                    EpisodeVideo(
+                        e, cam, _image_pattern(root, cam, e), 0.0, None, n, str(data), "images"
+                    )
+                )
                 continue
-            video = root / video_tpl.format(episode_chunk=e // size, video_key=cam,
-                                            episode_index=e)  # fmt: skip
+            video = root / video_tpl.format(episode_chunk=e // size, video_key=cam, episode_index=e)
             videos.append(EpisodeVideo(e, cam, str(video), 0.0, None, n, str(data)))
         out.append((e, str(path), f"line {k + 1}", videos))
     return out
@@ -366,102 +388,27 @@ def _no_duplicates(
                 problems.append(Problem(file, e, f"{where}: {got}"))
         if len(entries) > 1:
             files = {f for f, _, _ in entries}
-            wheres = ", ".join(w if len(files) == 1 else f"{Path(f).name} {w}"
-                               for f, w, _ in entries)  # fmt: skip
+            wheres = ", ".join(
+                w if len(files) == 1 else f"{Path(f).name} {w}" for f, w, _ in entries
+            )
             same = all(got == entries[0][2] for _, _, got in entries)
-            problems.append(Problem(entries[0][0], e, f"listed {len(entries)} times ({wheres}): "
-                + ("the same each time, measured once" if same
-                   else "the listings differ, so the episode is not measured")))  # fmt: skip
+            problems.append(
+                Problem(
+                    entries[0][0],
+                    e,
+                    f"listed {len(entries)} times ({wheres}): "
+                    + (
+                        "the same each time, measured once"
+                        if same
+                        else "the listings differ, so the episode is not measured"
+                    ),
+                )
+            )
             if not same:
                 continue
         if isinstance(entries[0][2], list):
             videos.extend(entries[0][2])
     return videos, sorted(by_episode)
-
-
-# two rates agree within this share of the larger: NTSC's 30000/1001 against 30 is 0.1 %, a
-# median frame interval on a 90 kHz clock or from float32 timestamps is exact to 0.01 %, and
-# a stated rate off by a factor (15 or 60 for 30) is 50 % or more; past 2 % the stated rate
-# would miscount a frame every 50
-RATE_TOL = 0.02
-RATE_SAMPLE = 600  # frame intervals enough for a rate's median (the first ones of a file)
-
-
-def _median_rate(intervals: np.ndarray) -> float | None:
-    """1 / the median of the positive, finite ``intervals`` (s), or None without any;
-    rounded to a thousandth (a 90 kHz clock resolves a 30-fps interval to 0.01 fps, float32
-    timestamps to about 0.001: finer digits are the clock's rounding, not the rate)."""
-    ok = intervals[np.isfinite(intervals) & (intervals > 0)]
-    return round(float(1.0 / np.median(ok)), 3) if len(ok) else None
-
-
-def stream_rate(path: str) -> float | None:
-    """The video's own rate (frames/s): 1 / the median interval between its first frames'
-    presentation times (packets demuxed, none decoded), or None where it cannot be read."""
-    try:
-        with av.open(path) as c:
-            s = c.streams.video[0]
-            # read while the file is open: the stream belongs to the container, freed at close
-            base = float(s.time_base or 0)
-            pts = []
-            for packet in c.demux(s):
-                if packet.pts is not None:
-                    pts.append(packet.pts)
-                if len(pts) > RATE_SAMPLE:
-                    break
-    except (OSError, av.FFmpegError, IndexError):
-        return None  # the episode's own problem, said when it is measured
-    times = np.sort(np.asarray(pts, np.float64)) * base
-    return _median_rate(np.diff(times))
-
-
-def data_rate(paths: list[str]) -> float | None:
-    """The data's rate (frames/s): 1 / the median interval between consecutive timestamps of
-    an episode (in frame order), over the first of ``paths`` that can be read."""
-    for path in paths:
-        try:
-            t = pq.read_table(path, columns=["episode_index", "frame_index", "timestamp"])
-        except (OSError, pa.ArrowException):
-            continue  # the episode's own problem, said when it is measured
-        e = t["episode_index"].to_numpy().astype(np.int64)
-        f = t["frame_index"].to_numpy().astype(np.int64)
-        ts = t["timestamp"].to_numpy().astype(np.float64)
-        order = np.lexsort((f, e))
-        e, ts = e[order], ts[order]
-        same = e[1:] == e[:-1]
-        rate = _median_rate(np.diff(ts)[same])
-        if rate is not None:
-            return rate
-    return None
-
-
-def agreed_rate(evidence: list[tuple[str, float | None]]) -> tuple[float, bool]:
-    """(the rate to measure at, whether all the evidence agrees) from ``evidence``: (what
-    says it, its rate or None), the stated rate first, then the measured ones. The rate is
-    the one that agrees with the most others (within :data:`RATE_TOL`): the stated one where
-    it is among them, else the first measured one that is; where none agree, the first
-    measured (what the frames' own times say)."""
-    known = [(name, r) for name, r in evidence if r is not None]
-
-    def agree(a: float, b: float) -> bool:
-        return abs(a - b) <= RATE_TOL * max(a, b)
-
-    votes = [sum(agree(r, q) for _, q in known) for _, r in known]
-    if all(v == len(known) for v in votes):
-        return known[0][1], True
-    best = max(votes)
-    if best == 1 and len(known) > 1:  # nothing agrees: the measured evidence, not the claim
-        return known[1][1], False
-    return next(r for (_, r), v in zip(known, votes, strict=True) if v == best), False
-
-
-def _own_rate(info: dict[str, Any], cam: str) -> float | None:
-    """``video.fps`` in info.json's features for ``cam`` (LeRobot's per-camera video info),
-    or None where it is not a rate."""
-    feat = info.get("features", {}).get(cam)
-    own = (feat.get("info") or {}).get("video.fps") if isinstance(feat, dict) else None
-    ok = isinstance(own, (int, float)) and not isinstance(own, bool) and math.isfinite(own)
-    return float(own) if ok and own > 0 else None
 
 
 def _rates(ds: Dataset) -> dict[str, float]:
@@ -480,18 +427,29 @@ def _rates(ds: Dataset) -> dict[str, float]:
         if first is None:
             continue
         stream = stream_rate(first.path) if first.kind == "video" else None
-        own = _own_rate(ds.info, cam)
-        stream_said = (f"the video's frames {stream:.4g} fps (their median interval in "
-                       f"{Path(first.path).name})" if stream else "", stream)  # fmt: skip
+        own = own_rate(ds.info, cam)
+        stream_said = (
+            f"the video's frames {stream:.4g} fps (their median interval in "
+            f"{Path(first.path).name})"
+            if stream
+            else "",
+            stream,
+        )
         if own is not None and data_said and not agreed_rate([("", ds.fps), ("", own)])[1]:
             evidence = [(f"info.json's {cam} video.fps {own:g}", own), stream_said]
             ds.data_rates[cam] = ds.fps
         else:
             evidence = [
-                (f"info.json's fps {ds.fps:g}", ds.fps), stream_said,
-                (f"the data's timestamp {data:.4g} fps (its median interval in "
-                 f"{Path(first.data_path).name})" if data else "", data),
-            ]  # fmt: skip
+                (f"info.json's fps {ds.fps:g}", ds.fps),
+                stream_said,
+                (
+                    f"the data's timestamp {data:.4g} fps (its median interval in "
+                    f"{Path(first.data_path).name})"
+                    if data
+                    else "",
+                    data,
+                ),
+            ]
         rates[cam], agreed = agreed_rate(evidence)
         if not agreed:
             said = "; ".join(name for name, r in evidence if r is not None)

@@ -14,9 +14,9 @@ import numpy as np
 import polars as pl
 
 from analysis.complexity.meter import ComplexityMeter
+from analysis.dataset.lag import lag_of
 from analysis.dataset.layout import EpisodeVideo, read_episode_data
 from analysis.dataset.window import WindowReader
-from analysis.stats import scipy_stats
 from avdm.jit import kernel
 from vdc.errors import UserError
 from vdc.frame_batches import FrameBatcher
@@ -33,30 +33,11 @@ STATE_MOVING_SHARE = 0.02
 # frozen: the image still while the state moves at least this share of its peak speed (a
 # motion the camera must show: slower, an object may move less than a block's noise)
 FROZEN_STATE_SHARE = 0.25
-# lag: the camera's motion against the state's, cross-correlated over at most this (s) either
-# way; measurable only where the peak correlation reaches LAG_MIN_R (below it the motions do
-# not match well enough for a peak to mean a delay)
-LAG_SEARCH_S, LAG_MIN_R = 0.4, 0.5
-# and only in episodes of at least LAG_MIN_S (2.9 s): the search leaves out LAG_SEARCH_S at
-# either end, and what is left (2.1 s) must hold strokes enough for a peak
-LAG_MIN_S = 2 * LAG_SEARCH_S + 2.1
-SMOOTH_FRAMES = 3
-# an interval covering at least this share of the search (2 × LAG_SEARCH_S) says nothing
-# of the delay: "cannot tell", no lag reported and none flagged
-LAG_CANNOT_TELL_SHARE = 0.9
 # idle: the image moves from the first run of at least this many frames that each differ
 # from the frames before (STILL_LEVELS): a key frame coded again changes an unchanged view
 # by up to 12 levels in a block with H.264 at CRF 30 (the v2.1 example), once, between
 # copies that change nothing, while a motion changes frame after frame
 IDLE_RUN_FRAMES = 3
-# the interval: a delete-one-block jackknife over contiguous blocks of at least LAG_BLOCK_S,
-# with Student's t on blocks - 1 degrees of freedom. Measured on known delays
-# (benchmarks/bench_lag_interval.py: arm strokes, codec-like noise, lost frames, 3-30 s at
-# 15-60 fps) it covers 93-97 %, where the moving-block bootstrap it replaced (1.5-s blocks)
-# covered 57-92 %. Blocks of 0.75 s: 1.5-s ones left a 3-s episode 2 blocks, whose t on one
-# degree of freedom made its interval 170 ms wide against 64 ms, covering no more often;
-# 0.5-s ones covered 92 % on long low-noise episodes (neighbouring blocks' noise correlates)
-LAG_BLOCK_S = 0.75
 # a frame shows nothing new (still) when no block of BLOCK_PX px changed by more than
 # STILL_LEVELS on average: an unchanged image coded again as a key frame (LeRobot's encoders
 # make every second frame one) changes its blocks by up to 8.2 levels with H.264 at CRF 30 on
@@ -123,8 +104,11 @@ def _small(grey: np.ndarray) -> np.ndarray:
     """The frame at most :data:`MOTION_MAX_WIDTH` px wide, float32, for its motion."""
     h, w = grey.shape
     if w > MOTION_MAX_WIDTH:
-        grey = cv2.resize(grey, (MOTION_MAX_WIDTH, max(1, round(h * MOTION_MAX_WIDTH / w))),
-                          interpolation=cv2.INTER_AREA)  # fmt: skip
+        grey = cv2.resize(
+            grey,
+            (MOTION_MAX_WIDTH, max(1, round(h * MOTION_MAX_WIDTH / w))),
+            interpolation=cv2.INTER_AREA,
+        )
     return grey.astype(np.float32)
 
 
@@ -132,8 +116,9 @@ def _view(grey: np.ndarray) -> np.ndarray:
     """A view for the shift, at most :data:`VIEW_MAX_WIDTH` px wide (float32)."""
     h, w = grey.shape
     if w > VIEW_MAX_WIDTH:
-        grey = cv2.resize(grey, (VIEW_MAX_WIDTH, round(h * VIEW_MAX_WIDTH / w)),
-                          interpolation=cv2.INTER_AREA)  # fmt: skip
+        grey = cv2.resize(
+            grey, (VIEW_MAX_WIDTH, round(h * VIEW_MAX_WIDTH / w)), interpolation=cv2.INTER_AREA
+        )
     return grey.astype(np.float32)
 
 
@@ -281,83 +266,6 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return out
 
 
-def lag_peaks(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> tuple[Any, int]:
-    """``(peak, m)``: ``peak(idx)`` gives (delay ms, correlation) at the peak of the two
-    signals' cross-correlation over the aligned frames ``idx`` (int array into ``range(m)``);
-    every delay's pairs (x[i], y[i + k]) share the same frames i, so leaving frames out (or
-    resampling them) never changes the delay between the signals. Inputs as :func:`lag_of`'s,
-    smoothed here; m = 0 where the episode is too short for the search."""
-    # the same three-frame box on both (it delays neither against the other): a stream with
-    # a key frame every 2 frames alternates its noise from frame to frame, which the box
-    # averages away (clean episodes' lags: within 60 ms unsmoothed, 13 ms smoothed)
-    box = np.ones(SMOOTH_FRAMES) / SMOOTH_FRAMES
-    x = np.convolve(speed_state, box, "same")
-    y = np.convolve(motion, box, "same")
-    k_max = max(1, round(LAG_SEARCH_S * fps))
-    i = np.arange(k_max, len(x) - k_max)
-    ks = np.arange(-k_max, k_max + 1)
-    xs = np.broadcast_to(x[i], (len(ks), len(i)))
-    ys = y[i[None, :] + ks[:, None]] if len(i) else np.zeros((len(ks), 0))
-    w0 = (np.isfinite(xs) & np.isfinite(ys)).astype(np.float64)
-    xs, ys = np.nan_to_num(xs), np.nan_to_num(ys)
-
-    def peak(idx: np.ndarray) -> tuple[float, float]:
-        w, a, b = w0[:, idx], xs[:, idx], ys[:, idx]
-        n = np.maximum(w.sum(axis=1, keepdims=True), 1)
-        a = (a - (w * a).sum(axis=1, keepdims=True) / n) * w
-        b = (b - (w * b).sum(axis=1, keepdims=True) / n) * w
-        den = np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
-        r = np.where(den > 0, (a * b).sum(axis=1) / np.where(den > 0, den, 1), -1.0)
-        j = int(np.argmax(r))
-        off = 0.0
-        if 0 < j < len(r) - 1:  # the parabola's vertex through the peak and its neighbours
-            curve = r[j - 1] - 2 * r[j] + r[j + 1]
-            off = 0.5 * (r[j - 1] - r[j + 1]) / curve if curve < 0 else 0.0
-        return (ks[j] + off) / fps * 1000, float(r[j])
-
-    return peak, len(i)
-
-
-def lag_of(speed_state: np.ndarray, motion: np.ndarray, fps: float) -> dict:
-    """The delay of the image's motion behind the state's (ms; positive: the camera late):
-    the peak of their cross-correlation on the data's frame grid, refined by a parabola
-    through its neighbours (:func:`lag_peaks`), and a 95 % interval from a delete-one-block
-    jackknife over the frames (:data:`LAG_BLOCK_S`), kept within the search
-    (±:data:`LAG_SEARCH_S`). Both (N,) float64, per frame interval; NaN where a signal is
-    unknown (a frozen or lost frame), left out of every sum. ``lag_note`` says why there is no
-    value."""
-
-    none = {"lag_ms": None, "lag_low_ms": None, "lag_high_ms": None, "lag_r": None,
-            "lag_peak_ms": None}  # fmt: skip
-    if len(speed_state) < LAG_MIN_S * fps:
-        return none | {"lag_note": f"not measurable: shorter than {LAG_MIN_S:g} s"}
-    if np.nanstd(speed_state) == 0 or np.nanstd(motion) == 0:
-        return none | {"lag_note": "not measurable: nothing moves"}
-    peak, m = lag_peaks(speed_state, motion, fps)
-    lag, r = peak(np.arange(m))
-    if r < LAG_MIN_R:
-        return none | {
-            "lag_r": r,
-            "lag_peak_ms": lag,
-            "lag_note": f"not measurable: motions match poorly (r {r:.2f})",
-        }
-    # contiguous blocks, each left out in turn: neighbouring frames' noise stays together
-    blocks = max(2, m // max(2, round(LAG_BLOCK_S * fps)))
-    edges = np.linspace(0, m, blocks + 1).round().astype(int)
-    left_out = np.array([peak(np.r_[0 : edges[g], edges[g + 1] : m])[0] for g in range(blocks)])
-    se = math.sqrt((blocks - 1) / blocks * ((left_out - left_out.mean()) ** 2).sum())
-    half = float(scipy_stats().t.ppf(0.975, blocks - 1)) * se
-    reach = LAG_SEARCH_S * 1000  # no delay beyond the search can be read: the interval ends there
-    low, high = max(lag - half, -reach), min(lag + half, reach)
-    if high - low >= LAG_CANNOT_TELL_SHARE * 2 * reach:
-        # the interval is the search itself: the peak is one of many the data allow
-        return none | {"lag_low_ms": low, "lag_high_ms": high, "lag_r": r, "lag_peak_ms": lag,
-                       "lag_note": f"cannot tell: the interval [{low:.0f}, {high:.0f}] ms "
-                       f"fills the search (peak at {lag:.0f} ms, r {r:.2f})"}  # fmt: skip
-    return {"lag_ms": lag, "lag_low_ms": low, "lag_high_ms": high, "lag_r": r,
-            "lag_peak_ms": lag, "lag_note": None}  # fmt: skip
-
-
 def measure_episode(
     video: EpisodeVideo, settings: Any, fps: float, data_fps: float | None = None
 ) -> dict[str, Any]:
@@ -402,8 +310,9 @@ def measure_episode(
                 motions.append(spectra_shift(kept[-1], spec, small.shape) if kept else nan)
                 spans.append(
                     spectra_shift(kept[0], spec, small.shape)
-                    if len(kept) == MOTION_SPAN_FRAMES else nan
-                )  # fmt: skip
+                    if len(kept) == MOTION_SPAN_FRAMES
+                    else nan
+                )
                 small_last[2] = [*kept, spec][-MOTION_SPAN_FRAMES:]
                 last[:] = [fr.luma, last[0]]
                 yield fr
@@ -414,18 +323,29 @@ def measure_episode(
         # again in full range (the same values), where without it SI/TI are computed in both
         # ranges on every frame (measured at 480x640: 1.29 against 0.70 ms per frame)
         batcher = FrameBatcher(
-            reader, size, fps, metrics=settings.native_metrics(),
-            repeat_tol=settings.repeat_tol, max_repeats=settings.max_repeats, reopen=opened,
-        )  # fmt: skip
+            reader,
+            size,
+            fps,
+            metrics=settings.native_metrics(),
+            repeat_tol=settings.repeat_tol,
+            max_repeats=settings.max_repeats,
+            reopen=opened,
+        )
         meter = None
         if size is not None:
             ctx = camera_model_context(size[1], size[0], fps, settings.fov_deg)
-            meter = ComplexityMeter(fps, float(ctx["deg_per_px"]), settings, ctx,
-                                    metrics=settings.model_metrics())  # fmt: skip
+            meter = ComplexityMeter(
+                fps, float(ctx["deg_per_px"]), settings, ctx, metrics=settings.model_metrics()
+            )
         parts = []
         while (b := batcher.next_batch()) is not None:
-            cols = {"frame": b.frame, "t_s": b.t_s, "dt_s": b.dt_s, "repeat": b.repeat,
-                    "dropped_before": b.dropped_before}  # fmt: skip
+            cols = {
+                "frame": b.frame,
+                "t_s": b.t_s,
+                "dt_s": b.dt_s,
+                "repeat": b.repeat,
+                "dropped_before": b.dropped_before,
+            }
             for m in settings.native_metrics():
                 cols[m] = b.native_metrics[:, NATIVE_METRICS.index(m)]
             if meter is not None:
@@ -444,26 +364,35 @@ def measure_episode(
     st = np.asarray(stats, dtype=np.float64).reshape(-1, 4)
     ch = np.asarray(change, dtype=np.float64).reshape(-1, 2)
     frames = frames.with_columns(
-        pl.Series("sharpness", st[:, 0]), pl.Series("mean_grey", st[:, 1]),
+        pl.Series("sharpness", st[:, 0]),
+        pl.Series("mean_grey", st[:, 1]),
         pl.Series("change_max", ch[:, 0]),
         pl.Series("change2_max", ch[:, 1]),
         pl.Series("underexposed", st[:, 2] >= CLIPPED_SHARE),
         pl.Series("overexposed", st[:, 3] >= CLIPPED_SHARE),
-    )  # fmt: skip
+    )
     # the view's motion in source px (the small frame's scaled back)
     scale = w / min(w, MOTION_MAX_WIDTH)
     vm = np.asarray(motions, dtype=np.float64).reshape(-1, 2) * scale
     vk = np.asarray(spans, dtype=np.float64).reshape(-1, 2) * scale
     frames = frames.with_columns(
-        pl.Series("view_dx_px", vm[:, 0]), pl.Series("view_dy_px", vm[:, 1]),
-        pl.Series("view_span_dx_px", vk[:, 0]), pl.Series("view_span_dy_px", vk[:, 1]),
-    )  # fmt: skip
+        pl.Series("view_dx_px", vm[:, 0]),
+        pl.Series("view_dy_px", vm[:, 1]),
+        pl.Series("view_span_dx_px", vk[:, 0]),
+        pl.Series("view_span_dy_px", vk[:, 1]),
+    )
     problems: list[str] = []
-    row, extra, pose_delta = episode_measures(video, data, frames, (fps, data_fps or fps),
-                                              batcher, problems)  # fmt: skip
+    row, extra, pose_delta = episode_measures(
+        video, data, frames, (fps, data_fps or fps), batcher, problems
+    )
     frames = frames.with_columns(*extra)
-    return {"row": row, "frames": frames, "views": first_last, "problems": problems,
-            "pose_delta": pose_delta}  # fmt: skip
+    return {
+        "row": row,
+        "frames": frames,
+        "views": first_last,
+        "problems": problems,
+        "pose_delta": pose_delta,
+    }
 
 
 def clock_rows(ts: np.ndarray) -> int:
@@ -571,23 +500,40 @@ def episode_measures(
     tail_gap = (video.to_s - video.from_s) - t_v[-1] - 1 / fps if video.to_s is not None else 0
     dropped = batcher.dropped_total + frames_missing_in(max(tail_gap, 0.0), fps)
     row = {
-        "episode_index": video.episode, "camera": video.camera, "video_path": video.path,
-        "from_s": video.from_s, "to_s": video.to_s, "frames_decoded": len(t_v),
-        "length": length, "data_timestamps": len(data.timestamp),
+        "episode_index": video.episode,
+        "camera": video.camera,
+        "video_path": video.path,
+        "from_s": video.from_s,
+        "to_s": video.to_s,
+        "frames_decoded": len(t_v),
+        "length": length,
+        "data_timestamps": len(data.timestamp),
         "drift_start_ms": (t_v[0] - ts[0]) * 1000 if len(ts) else None,
         "drift_end_ms": (t_v[-1] - last_ts) * 1000 if len(ts) and not clock_cut else None,
         "fps": float(fps),
-        "dropped": int(dropped), "repeated": int(batcher.repeats_total),
+        "dropped": int(dropped),
+        "repeated": int(batcher.repeats_total),
         "idle_head_s": float(min(head_img, head_state)),
         "idle_tail_s": float(min(tail_img, tail_state)),
         "underexposed_share": float(frames["underexposed"].mean()),
         "overexposed_share": float(frames["overexposed"].mean()),
         "sharpness_median": float(frames["sharpness"].median()),
         **lag,
-    }  # fmt: skip
+    }
     for m in frames.columns:
-        if m in ("si_p910", "ti_p910", "mafd", "codec_bpp", "si_legacy", "ti_legacy",
-                 "edge_density", "jpeg_bpp", "omega_dps", "flow_dps", "zlib_ratio"):  # fmt: skip
+        if m in (
+            "si_p910",
+            "ti_p910",
+            "mafd",
+            "codec_bpp",
+            "si_legacy",
+            "ti_legacy",
+            "edge_density",
+            "jpeg_bpp",
+            "omega_dps",
+            "flow_dps",
+            "zlib_ratio",
+        ):
             v = frames[m].fill_nan(None).mean()
             row[f"{m}_mean"] = None if v is None else float(v)
     pose_delta = None
@@ -595,6 +541,9 @@ def episode_measures(
         at = np.asarray(pose, dtype=np.float64)[idx]
         at[~on_clock] = np.nan  # frames past a broken clock have no pose
         pose_delta = np.vstack([at[:1], np.diff(at, axis=0)]).astype(np.float32)
-    extra = [pl.Series("still", still), pl.Series("state_moving", state_moving),
-             pl.Series("frozen", frozen_frame)]  # fmt: skip
+    extra = [
+        pl.Series("still", still),
+        pl.Series("state_moving", state_moving),
+        pl.Series("frozen", frozen_frame),
+    ]
     return row, extra, pose_delta

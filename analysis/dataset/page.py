@@ -25,16 +25,25 @@ THUMB_WIDTH = 128  # px
 # the episodes' table: (column, header with its unit, decimals; None: text). The page fits a
 # 1,280-px window: the measures a flag reads, rounded to what they can tell
 EPISODE_COLUMNS = (
-    ("episode_index", "episode", 0), ("camera", "camera", None), ("flags", "flags", None),
-    ("frames_decoded", "frames", 0), ("dropped", "dropped, frames", 0),
-    ("drift_end_ms", "drift at end, ms", 1), ("frozen_longest_s", "frozen run, s", 2),
-    ("idle_head_s", "idle head, s", 2), ("idle_tail_s", "idle tail, s", 2),
-    ("lag_ms", "lag, ms [95 % interval]", 0), ("shift_px", "shift, px", 1),
-    ("shift_within_px", "shift within, px", 1), ("shift_frame", "at frame", 0),
-    ("blurred_share", "blurred, share", 2), ("underexposed_share", "dark, share", 2),
-    ("overexposed_share", "bright, share", 2), ("ti_p910_mean", "TI (P.910), mean", 1),
+    ("episode_index", "episode", 0),
+    ("camera", "camera", None),
+    ("flags", "flags", None),
+    ("frames_decoded", "frames", 0),
+    ("dropped", "dropped, frames", 0),
+    ("drift_end_ms", "drift at end, ms", 1),
+    ("frozen_longest_s", "frozen run, s", 2),
+    ("idle_head_s", "idle head, s", 2),
+    ("idle_tail_s", "idle tail, s", 2),
+    ("lag_ms", "lag, ms [95 % interval]", 0),
+    ("shift_px", "shift, px", 1),
+    ("shift_within_px", "shift within, px", 1),
+    ("shift_frame", "at frame", 0),
+    ("blurred_share", "blurred, share", 2),
+    ("underexposed_share", "dark, share", 2),
+    ("overexposed_share", "bright, share", 2),
+    ("ti_p910_mean", "TI (P.910), mean", 1),
     ("omega_dps_mean", "ω, deg/s", 1),
-)  # fmt: skip
+)
 
 
 def number(v: Any, decimals: int) -> str:
@@ -63,12 +72,16 @@ def _cell(r: dict[str, Any], col: str, decimals: int | None) -> str:
 
 # the figure: one panel per measure, episodes along x, flagged episodes in red
 PANELS = (
-    ("drift_end_ms", "drift at the end, ms"), ("dropped", "dropped frames"),
-    ("frozen_longest_s", "longest frozen run, s"), ("idle_head_s", "idle head, s"),
-    ("lag_ms", "lag behind the state, ms"), ("shift_px", "camera shift, px"),
-    ("blurred_share", "share of frames blurred"), ("overexposed_share", "share over-exposed"),
+    ("drift_end_ms", "drift at the end, ms"),
+    ("dropped", "dropped frames"),
+    ("frozen_longest_s", "longest frozen run, s"),
+    ("idle_head_s", "idle head, s"),
+    ("lag_ms", "lag behind the state, ms"),
+    ("shift_px", "camera shift, px"),
+    ("blurred_share", "share of frames blurred"),
+    ("overexposed_share", "share over-exposed"),
     ("ti_p910_mean", "TI (P.910), mean"),
-)  # fmt: skip
+)
 
 
 def _png(img: np.ndarray) -> str:
@@ -131,8 +144,14 @@ def plot_measures(eps: pl.DataFrame, path: Path) -> Path:
         if col == "lag_ms" and "lag_low_ms" in e.columns:
             lo = e["lag_low_ms"].cast(pl.Float64).fill_null(np.nan).to_numpy()
             hi = e["lag_high_ms"].cast(pl.Float64).fill_null(np.nan).to_numpy()
-            ax.errorbar(x, np.nan_to_num(v), yerr=[np.nan_to_num(v - lo), np.nan_to_num(hi - v)],
-                        fmt="none", ecolor="k", lw=0.8)  # fmt: skip
+            ax.errorbar(
+                x,
+                np.nan_to_num(v),
+                yerr=[np.nan_to_num(v - lo), np.nan_to_num(hi - v)],
+                fmt="none",
+                ecolor="k",
+                lw=0.8,
+            )
         if key in by_col:
             thr, name = by_col[key]
             ax.axhline(thr, ls="--", color="k", lw=0.8, label=f"{name} threshold")

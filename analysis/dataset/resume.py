@@ -59,8 +59,9 @@ def result_path(
     key = json.dumps(
         [RESULT_VERSION, measured, dataclasses.asdict(video), fps, data_stat, video_stat]
         + ([data_fps] if data_fps not in (None, fps) else []),
-        sort_keys=True, default=str,
-    )  # fmt: skip
+        sort_keys=True,
+        default=str,
+    )
     digest = hashlib.sha1(key.encode()).hexdigest()[:16]
     cam = re.sub(r"[^A-Za-z0-9_.-]", "_", video.camera)
     return out / RESULTS / f"episode_{video.episode:06d}.{cam}.{digest}.pkl"

@@ -107,8 +107,9 @@ class DatasetSettings(Settings):
             except ValueError:
                 v = math.nan
             if not math.isfinite(v) or v < 0:
-                raise UserError(f"--thresholds: {name}'s threshold must be a number >= 0 or "
-                                f"off, got {value!r}")  # fmt: skip
+                raise UserError(
+                    f"--thresholds: {name}'s threshold must be a number >= 0 or off, got {value!r}"
+                )
             out[name] = v
         return out
 

@@ -52,20 +52,16 @@ import math
 import os
 import shutil
 import sys
-import threading
-import time
-from collections.abc import Sequence
-from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
-import av
 import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 from matplotlib import cbook
 
+from analysis.dataset.synthetic_video import encode_file
 from vdc.errors import UserError
 
 # (libx264-bframes: H.264 with two B-frames between references and a key frame every 12, a
@@ -73,8 +69,6 @@ from vdc.errors import UserError
 CODECS = {"libsvtav1": "av1", "libx264": "h264", "libx264-bframes": "h264"}
 STATE_DIM = 6
 MARGIN_PX = 24  # the canvas around the view that a bumped camera can move into
-STALL_S = 60.0  # an encoder with no frame done for this long is taken as deadlocked
-TIME_BASE = Fraction(1, 90000)  # the video stream's clock: fine enough for any drift or lag
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,15 +128,19 @@ def _scene(height: int, width: int, pan_px: int = 0) -> tuple[np.ndarray, np.nda
     """(canvas RGB uint8 of the view plus a margin, ``pan_px`` more either side, object RGB
     uint8): real photographs that come with matplotlib (a portrait; a blue gift box on a
     dark table, the object the robot moves)."""
-    bg = cv2.resize(_photo("grace_hopper.jpg"), (width + 2 * (MARGIN_PX + pan_px),
-                    height + 2 * MARGIN_PX), interpolation=cv2.INTER_AREA)  # fmt: skip
+    bg = cv2.resize(
+        _photo("grace_hopper.jpg"),
+        (width + 2 * (MARGIN_PX + pan_px), height + 2 * MARGIN_PX),
+        interpolation=cv2.INTER_AREA,
+    )
     side = max(8, height // 4)
     box = _photo("Minduka_Present_Blue_Pack.png").astype(np.float32)
     alpha = box[..., 3:] / 255.0
     table = np.float32([40, 32, 28])  # dark brown: the box stands out of the portrait
     obj = box[..., :3] * alpha + table * (1 - alpha)
-    obj = cv2.resize(np.clip(obj, 0, 255).astype(np.uint8), (side, side),
-                     interpolation=cv2.INTER_AREA)  # fmt: skip
+    obj = cv2.resize(
+        np.clip(obj, 0, 255).astype(np.uint8), (side, side), interpolation=cv2.INTER_AREA
+    )
     return bg, obj
 
 
@@ -170,8 +168,9 @@ def state_at(state: np.ndarray, fps: float, t: float) -> np.ndarray:
     return state[i] * (1 - a) + state[j] * a
 
 
-def render(bg: np.ndarray, obj: np.ndarray, s: np.ndarray, shape: tuple[int, int],
-           shift_px: float = 0) -> np.ndarray:  # fmt: skip
+def render(
+    bg: np.ndarray, obj: np.ndarray, s: np.ndarray, shape: tuple[int, int], shift_px: float = 0
+) -> np.ndarray:
     """The camera's (H, W, 3) uint8 view of the scene with the object at state ``s`` (px:
     joint 0 horizontal from the left quarter, joint 1 vertical), the camera moved right by
     ``shift_px`` (a camera that pans: a fraction of a px too). Sub-pixel positions are
@@ -244,103 +243,6 @@ def _episode_frames(
     return state, frames
 
 
-class _Encoder:
-    """One MP4 (one video stream) written frame by frame at given times."""
-
-    def __init__(self, path: Path, codec: str, fps: float, shape: tuple[int, int]) -> None:
-        # SVT-AV1 prints its configuration on stderr for every file unless told: errors only
-        os.environ.setdefault("SVT_LOG", "1")
-
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.container = av.open(str(path), "w")
-        opts = {"g": "2", "crf": "30"}
-        if codec == "libx264":
-            opts |= {"bf": "0", "preset": "veryfast"}
-        elif codec == "libx264-bframes":
-            opts |= {"bf": "2", "g": "12", "preset": "veryfast"}
-        else:
-            opts |= {"preset": "12"}  # libsvtav1's fastest: the tests' CPU
-        s = self.container.add_stream(codec.removesuffix("-bframes"), rate=round(fps), options=opts)
-        s.width, s.height, s.pix_fmt = shape[1], shape[0], "yuv420p"
-        s.codec_context.time_base = TIME_BASE
-        s.time_base = TIME_BASE
-        self.stream = s
-        self.last_pts = -1
-
-    def add(self, t_s: float, rgb: np.ndarray) -> None:
-
-        frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
-        pts = max(round(t_s / TIME_BASE), self.last_pts + 1)
-        frame.pts, frame.time_base = pts, TIME_BASE
-        self.last_pts = pts
-        for p in self.stream.encode(frame):
-            self.container.mux(p)
-
-    def close(self) -> None:
-        for p in self.stream.encode(None):
-            self.container.mux(p)
-        self.container.close()
-
-
-def encode_file(
-    path: Path,
-    codec: str,
-    fps: float,
-    shape: tuple[int, int],
-    frames: Sequence[tuple[float, np.ndarray]],
-    stall_s: float = STALL_S,
-) -> None:
-    """Encode ``frames`` ((t_s, (H, W, 3) uint8 RGB) pairs) into the MP4 at ``path``.
-
-    SVT-AV1 (the library in PyAV's wheels) can deadlock inside ``svt_av1_enc_send_picture``:
-    every thread waits and no CPU is used, for ever (seen once in the suite, in this function;
-    a known SVT-AV1 fault). The file is therefore encoded in a thread watched for progress; one
-    that finishes no frame for ``stall_s`` is abandoned (PyAV releases the GIL while it
-    encodes) and the file is encoded again into a fresh file that then takes the name, so
-    the abandoned writer can never touch it. Three stalls in a row end in UserError."""
-    for attempt in range(3):
-        fresh = path.with_name(f".{path.stem}.attempt{attempt}{path.suffix}")
-        last_progress = [time.monotonic()]
-        failed: list[BaseException] = []
-        done = threading.Event()
-
-        def work(
-            out: Path = fresh,
-            progress: list[float] = last_progress,
-            errors: list[BaseException] = failed,
-            finished: threading.Event = done,
-        ) -> None:
-            try:
-                enc = _Encoder(out, codec, fps, shape)
-                for t, img in frames:
-                    enc.add(t, img)
-                    progress[0] = time.monotonic()
-                enc.close()
-            except BaseException as exc:  # handed to the waiting thread
-                errors.append(exc)
-            finally:
-                finished.set()
-
-        threading.Thread(target=work, daemon=True, name=f"encode {path.name}").start()
-        while not done.wait(0.5):
-            if time.monotonic() - last_progress[0] > stall_s:
-                break
-        if done.is_set():
-            if failed:
-                fresh.unlink(missing_ok=True)
-                raise failed[0]
-            fresh.replace(path)
-            return
-        print(
-            f"warning: the {codec} encoder made no progress for {stall_s:g} s on {path.name} "
-            "(an SVT-AV1 deadlock); encoding it again",
-            file=sys.stderr,
-        )
-    raise UserError(
-        f"the {codec} encoder deadlocked three times on {path}; write it with libx264 instead"
-    )
-
-
 def _features(
     cameras: tuple[str, ...],
     shapes: dict[str, tuple],
@@ -350,19 +252,26 @@ def _features(
 ) -> dict:
     def video_info(shape: tuple, fps: float) -> dict:
         return {
-            "video.height": shape[0], "video.width": shape[1], "video.codec": CODECS[codec],
-            "video.pix_fmt": "yuv420p", "video.is_depth_map": False, "video.fps": fps,
-            "video.channels": 3, "has_audio": False,
-        }  # fmt: skip
+            "video.height": shape[0],
+            "video.width": shape[1],
+            "video.codec": CODECS[codec],
+            "video.pix_fmt": "yuv420p",
+            "video.is_depth_map": False,
+            "video.fps": fps,
+            "video.channels": 3,
+            "has_audio": False,
+        }
 
     names = [f"joint_{j}" for j in range(STATE_DIM)]
     feats: dict[str, Any] = {
-        cam: {"dtype": "image" if cam in images else "video",
-              "shape": [shapes[cam][0], shapes[cam][1], 3],
-              "names": ["height", "width", "channels"]}
+        cam: {
+            "dtype": "image" if cam in images else "video",
+            "shape": [shapes[cam][0], shapes[cam][1], 3],
+            "names": ["height", "width", "channels"],
+        }
         | ({} if cam in images else {"info": video_info(shapes[cam], rates[cam])})
         for cam in cameras
-    }  # fmt: skip
+    }
     feats |= {
         "observation.state": {"dtype": "float32", "shape": [STATE_DIM], "names": names},
         "action": {"dtype": "float32", "shape": [STATE_DIM], "names": names},
@@ -379,15 +288,17 @@ def _data_table(e: int, state: np.ndarray, fps: float, first_index: int) -> pa.T
     n = len(state)
     action = np.vstack([state[1:], state[-1:]])  # the next pose: the action leads the state
     vec = pa.list_(pa.float32(), STATE_DIM)
-    return pa.table({
-        "observation.state": pa.array(list(state.astype(np.float32)), type=vec),
-        "action": pa.array(list(action.astype(np.float32)), type=vec),
-        "timestamp": pa.array((np.arange(n) / fps).astype(np.float32)),
-        "frame_index": pa.array(np.arange(n, dtype=np.int64)),
-        "episode_index": pa.array(np.full(n, e, dtype=np.int64)),
-        "index": pa.array(np.arange(first_index, first_index + n, dtype=np.int64)),
-        "task_index": pa.array(np.zeros(n, dtype=np.int64)),
-    })  # fmt: skip
+    return pa.table(
+        {
+            "observation.state": pa.array(list(state.astype(np.float32)), type=vec),
+            "action": pa.array(list(action.astype(np.float32)), type=vec),
+            "timestamp": pa.array((np.arange(n) / fps).astype(np.float32)),
+            "frame_index": pa.array(np.arange(n, dtype=np.int64)),
+            "episode_index": pa.array(np.full(n, e, dtype=np.int64)),
+            "index": pa.array(np.arange(first_index, first_index + n, dtype=np.int64)),
+            "task_index": pa.array(np.zeros(n, dtype=np.int64)),
+        }
+    )
 
 
 def write_dataset(
@@ -429,9 +340,23 @@ def write_dataset(
     part = root.with_name(f".{root.name}.partial-{os.getpid()}")
     shutil.rmtree(part, ignore_errors=True)
     try:
-        truth = _write(part, episodes, version, codec, fps, shape, seconds, faults, cameras,
-                       seed, image_cameras, pan_px_per_unit, strokes, camera_fps or {},
-                       camera_shapes)  # fmt: skip
+        truth = _write(
+            part,
+            episodes,
+            version,
+            codec,
+            fps,
+            shape,
+            seconds,
+            faults,
+            cameras,
+            seed,
+            image_cameras,
+            pan_px_per_unit,
+            strokes,
+            camera_fps or {},
+            camera_shapes,
+        )
         if root.exists():
             root.rmdir()  # empty: checked above
         part.rename(root)
@@ -441,19 +366,30 @@ def write_dataset(
     return truth
 
 
-def _write(root: Path, episodes: int, version: str, codec: str, fps: float,
-           shape: tuple[int, int], seconds: tuple[float, float], faults: Faults,
-           cameras: tuple[str, ...], seed: int, image_cameras: tuple[str, ...],
-           pan_px_per_unit: float, strokes: int, camera_fps: dict[str, float],
-           camera_shapes: dict[str, tuple[int, int]] | None) -> dict[str, Any]:  # fmt: skip
+def _write(
+    root: Path,
+    episodes: int,
+    version: str,
+    codec: str,
+    fps: float,
+    shape: tuple[int, int],
+    seconds: tuple[float, float],
+    faults: Faults,
+    cameras: tuple[str, ...],
+    seed: int,
+    image_cameras: tuple[str, ...],
+    pan_px_per_unit: float,
+    strokes: int,
+    camera_fps: dict[str, float],
+    camera_shapes: dict[str, tuple[int, int]] | None,
+) -> dict[str, Any]:
     """:func:`write_dataset` into ``root`` (a new folder)."""
     (root / "meta").mkdir(parents=True, exist_ok=True)
     knock_px = faults.knock[2] if faults.knock is not None else 0
     pan_px = math.ceil(abs(pan_px_per_unit) * 0.66 * shape[1]) + abs(knock_px)
     shapes = {cam: tuple((camera_shapes or {}).get(cam, shape)) for cam in cameras}
     rates = {cam: float(camera_fps.get(cam, fps)) for cam in cameras}
-    scenes = {cam: _scene(*shapes[cam], pan_px if c == 0 else 0)
-              for c, cam in enumerate(cameras)}  # fmt: skip
+    scenes = {cam: _scene(*shapes[cam], pan_px if c == 0 else 0) for c, cam in enumerate(cameras)}
     span = np.linspace(seconds[0], seconds[1], episodes) if episodes > 1 else [seconds[0]]
     lengths = [round(float(s) * fps) for s in span]
     per_cam: dict[str, list] = {cam: [] for cam in cameras}  # [(state, frames)] per episode
@@ -464,16 +400,22 @@ def _write(root: Path, episodes: int, version: str, codec: str, fps: float,
             sc = scenes[cam]
             sc = sc if c == 0 else (np.roll(sc[0], 5 * c, axis=1), sc[1])
             pan = pan_px_per_unit if c == 0 else 0.0
-            state, frames = _episode_frames(e, n, fps, shapes[cam], f, sc, seed, pan, strokes,
-                                            shape[1], rates[cam])  # fmt: skip
+            state, frames = _episode_frames(
+                e, n, fps, shapes[cam], f, sc, seed, pan, strokes, shape[1], rates[cam]
+            )
             per_cam[cam].append(frames)
         states.append(state)
     info: dict[str, Any] = {
-        "codebase_version": version, "robot_type": "synthetic_arm",
-        "total_episodes": episodes, "total_frames": int(sum(lengths)), "total_tasks": 1,
-        "chunks_size": 1000, "fps": fps, "splits": {"train": f"0:{episodes}"},
+        "codebase_version": version,
+        "robot_type": "synthetic_arm",
+        "total_episodes": episodes,
+        "total_frames": int(sum(lengths)),
+        "total_tasks": 1,
+        "chunks_size": 1000,
+        "fps": fps,
+        "splits": {"train": f"0:{episodes}"},
         "features": _features(cameras, shapes, codec, rates, image_cameras),
-    }  # fmt: skip
+    }
     for cam in image_cameras:
         if cam not in per_cam:
             raise UserError(f"image camera {cam!r} is not one of the cameras {cameras}.")
@@ -486,17 +428,25 @@ def _write(root: Path, episodes: int, version: str, codec: str, fps: float,
         _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes, rates)
     else:
         _write_v21(root, info, lengths, states, per_cam, codec, fps, shapes, rates)
-    return {"lengths": lengths, "faults": faults, "fps": fps, "cameras": cameras,
-            "version": version, "codec": codec, "shape": shape,
-            "image_cameras": image_cameras}  # fmt: skip
+    return {
+        "lengths": lengths,
+        "faults": faults,
+        "fps": fps,
+        "cameras": cameras,
+        "version": version,
+        "codec": codec,
+        "shape": shape,
+        "image_cameras": image_cameras,
+    }
 
 
 def _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes, rates) -> None:
     info |= {
-        "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
+        "data_files_size_in_mb": 100,
+        "video_files_size_in_mb": 200,
         "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
         "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
-    }  # fmt: skip
+    }
     (root / "meta" / "info.json").write_text(json.dumps(info, indent=2))
     tasks = pa.table({"task_index": [0], "__index_level_0__": ["move the cup"]})
     pq.write_table(tasks, root / "meta" / "tasks.parquet")
@@ -519,11 +469,13 @@ def _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes, rates) -
         windows[cam] = win
     cols: dict[str, list] = {
         "episode_index": list(range(len(lengths))),
-        "tasks": [["move the cup"]] * len(lengths), "length": lengths,
-        "data/chunk_index": [0] * len(lengths), "data/file_index": [0] * len(lengths),
+        "tasks": [["move the cup"]] * len(lengths),
+        "length": lengths,
+        "data/chunk_index": [0] * len(lengths),
+        "data/file_index": [0] * len(lengths),
         "dataset_from_index": list(np.cumsum([0, *lengths[:-1]]).tolist()),
         "dataset_to_index": list(np.cumsum(lengths).tolist()),
-    }  # fmt: skip
+    }
     for cam, win in windows.items():
         cols[f"videos/{cam}/chunk_index"] = [0] * len(lengths)
         cols[f"videos/{cam}/file_index"] = [0] * len(lengths)
@@ -538,14 +490,17 @@ def _write_v3(root, info, lengths, states, per_cam, codec, fps, shapes, rates) -
 
 def _write_v21(root, info, lengths, states, per_cam, codec, fps, shapes, rates) -> None:
     info |= {
-        "total_chunks": 1, "total_videos": len(lengths) * len(per_cam),
+        "total_chunks": 1,
+        "total_videos": len(lengths) * len(per_cam),
         "data_path": "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet",
         "video_path": "videos/chunk-{episode_chunk:03d}/{video_key}/"
         "episode_{episode_index:06d}.mp4",
-    }  # fmt: skip
+    }
     (root / "meta" / "info.json").write_text(json.dumps(info, indent=2))
-    lines = [json.dumps({"episode_index": e, "tasks": ["move the cup"], "length": n})
-             for e, n in enumerate(lengths)]  # fmt: skip
+    lines = [
+        json.dumps({"episode_index": e, "tasks": ["move the cup"], "length": n})
+        for e, n in enumerate(lengths)
+    ]
     (root / "meta" / "episodes.jsonl").write_text("\n".join(lines) + "\n")
     (root / "meta" / "tasks.jsonl").write_text('{"task_index": 0, "task": "move the cup"}\n')
     (root / "data" / "chunk-000").mkdir(parents=True, exist_ok=True)
@@ -565,13 +520,18 @@ if __name__ == "__main__":  # python -m analysis.dataset.synthetic OUT [v3.0|v2.
     if not args:
         sys.exit("usage: python -m analysis.dataset.synthetic OUT [v3.0|v2.1] [libsvtav1|libx264]")
     try:
-        truth = write_dataset(args[0], version=args[1] if len(args) > 1 else "v3.0",
-                              codec=args[2] if len(args) > 2 else "libsvtav1")  # fmt: skip
+        truth = write_dataset(
+            args[0],
+            version=args[1] if len(args) > 1 else "v3.0",
+            codec=args[2] if len(args) > 2 else "libsvtav1",
+        )
     except UserError as exc:  # one line, exit 2, as vdc's commands say it
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(2)
-    print(f"wrote {len(truth['lengths'])} episodes ({truth['version']}, {truth['codec']}) "
-          f"to {args[0]}")  # fmt: skip
+    print(
+        f"wrote {len(truth['lengths'])} episodes ({truth['version']}, {truth['codec']}) "
+        f"to {args[0]}"
+    )
 
 
 def lag_signals(

@@ -46,11 +46,17 @@ class WindowReader(Reader):
             )
         self.file_end_s = end
         self.info = {
-            "kind": "file", "codec": s.codec_context.name, "nominal_fps": fps,
-            "src_width_px": s.codec_context.width, "src_height_px": s.codec_context.height,
-            "n_frames_header": 0, "rotation_deg": 0, "duration_s": None, "first_frame_s": 0.0,
+            "kind": "file",
+            "codec": s.codec_context.name,
+            "nominal_fps": fps,
+            "src_width_px": s.codec_context.width,
+            "src_height_px": s.codec_context.height,
+            "n_frames_header": 0,
+            "rotation_deg": 0,
+            "duration_s": None,
+            "first_frame_s": 0.0,
             "container_frames": None,
-        }  # fmt: skip
+        }
         self.times_s: list[float] = []
         self.first_grey: Any = None
         self.last_grey: Any = None

@@ -68,8 +68,10 @@ def arena_predictors(
     rng = np.random.default_rng(seed)
     rows: list[dict[str, Any]] = []
     conds = [c for c in measures["condition"].unique(maintain_order=True)]
-    mtab = {c: measures.filter(pl.col("condition") == c).select(names).to_numpy().astype(float)
-            for c in conds}  # fmt: skip
+    mtab = {
+        c: measures.filter(pl.col("condition") == c).select(names).to_numpy().astype(float)
+        for c in conds
+    }
     scene_of = (
         dict(measures.select("condition", "scene").unique("condition").iter_rows())
         if "scene" in measures.columns
@@ -102,10 +104,24 @@ def arena_predictors(
             # and a perfect predictor would score 0.5
             enough = min(int(fails[ok].sum()), int((~fails[ok]).sum())) >= 2
             loco = loco_threshold(x, fails) if enough else math.nan
-            loco_ci = (loco_interval(x, fails, rng, cluster=units.cluster) if enough
-                       else (math.nan, math.nan))  # fmt: skip
-            rows.append(_row(name, value, "loco_balanced_accuracy", loco, *loco_ci,
-                             int(ok.sum()), units, units.n_units(ok), *counts))  # fmt: skip
+            loco_ci = (
+                loco_interval(x, fails, rng, cluster=units.cluster)
+                if enough
+                else (math.nan, math.nan)
+            )
+            rows.append(
+                _row(
+                    name,
+                    value,
+                    "loco_balanced_accuracy",
+                    loco,
+                    *loco_ci,
+                    int(ok.sum()),
+                    units,
+                    units.n_units(ok),
+                    *counts,
+                )
+            )
         unit_table = pl.DataFrame(meas0, schema=names, orient="row")
         rows += _combined_rows(unit_table, 1 - succ0, value, units, counts)
     return _table(rows, "arena")
@@ -162,8 +178,11 @@ def rho_rows(
         rho[name] = r
         ci[name] = rho_interval(r, int(ok.sum()), boot, k_cl and k_units)
         boots[name] = boot
-        rows.append(_row(name, value, "rho_failure", r, *ci[name], int(ok.sum()), units,
-                         k_units, *counts, p))  # fmt: skip
+        rows.append(
+            _row(
+                name, value, "rho_failure", r, *ci[name], int(ok.sum()), units, k_units, *counts, p
+            )
+        )
     for ref in AVDMS:
         if ref not in rho:
             continue
@@ -173,9 +192,24 @@ def rho_rows(
             r12 = finite_spearman(meas[:, names.index(ref)], meas[:, j])
             b1, b2 = boots[ref], boots[name]
             pair = (b1, b2) if k_cl and b1 is not None and b2 is not None else None
-            d, lo, hi, p = rho_difference(rho[ref], ci[ref], rho[name], ci[name], r12, m, pair,
-                                          k_cl)  # fmt: skip
+            d, lo, hi, p = rho_difference(
+                rho[ref], ci[ref], rho[name], ci[name], r12, m, pair, k_cl
+            )
             stat = f"paired_rho_failure_vs_{ref}"
-            rows.append(_row(name, value, stat, d, lo, hi, m, units, units.n_units(), *counts,
-                             p, _role(ref, name, stat)))  # fmt: skip
+            rows.append(
+                _row(
+                    name,
+                    value,
+                    stat,
+                    d,
+                    lo,
+                    hi,
+                    m,
+                    units,
+                    units.n_units(),
+                    *counts,
+                    p,
+                    _role(ref, name, stat),
+                )
+            )
     return rows

@@ -132,8 +132,9 @@ def loco_bootstrap(
         hi_x = np.concatenate([np.broadcast_to(x, (n_boot, n)), np.full((n_boot, 1), np.inf)], 1)
         lo_x = np.where(below >= 0, x[np.maximum(below, 0)], -np.inf)
         with np.errstate(invalid="ignore"):
-            t = np.where(np.isinf(lo_x), hi_x - 1.0,
-                         np.where(np.isinf(hi_x), lo_x + 1.0, (lo_x + hi_x) / 2))  # fmt: skip
+            t = np.where(
+                np.isinf(lo_x), hi_x - 1.0, np.where(np.isinf(hi_x), lo_x + 1.0, (lo_x + hi_x) / 2)
+            )
         # a threshold fails the units above it: tied values fall on one side together
         ba = np.take_along_axis(ba, np.searchsorted(x, t, side="right"), 1)
         ba = np.where(canonical & np.isfinite(ba), ba, -1.0)

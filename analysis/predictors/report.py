@@ -90,8 +90,7 @@ def plot_predictors(table: pl.DataFrame, path: Path, title: str) -> Path:
     axes = np.atleast_1d(fig.subplots(1, max(1, len(stats))))
     if not stats:  # never a blank figure: the reason, in the panel
         ax = axes[0]
-        ax.text(0.5, 0.5, fill(_empty(), 60),
-                ha="center", va="center", transform=ax.transAxes)  # fmt: skip
+        ax.text(0.5, 0.5, fill(_empty(), 60), ha="center", va="center", transform=ax.transAxes)
         ax.set_axis_off()
         ax.set_title("no estimate")
     for ax, stat in zip(axes, stats, strict=False):
@@ -108,9 +107,16 @@ def plot_predictors(table: pl.DataFrame, path: Path, title: str) -> Path:
                 y = order.index(r["measure"]) + (k - (len(values) - 1) / 2) * 0.15
                 lo = r["ci_low"] if r["ci_low"] is not None else r["estimate"]
                 hi = r["ci_high"] if r["ci_high"] is not None else r["estimate"]
-                ax.errorbar(r["estimate"], y, xerr=[[r["estimate"] - lo], [hi - r["estimate"]]],
-                            fmt="o", color=f"C{k % 10}", ms=4, capsize=2,
-                            label=f"{v:g}" if r["measure"] == order[-1] else None)  # fmt: skip
+                ax.errorbar(
+                    r["estimate"],
+                    y,
+                    xerr=[[r["estimate"] - lo], [hi - r["estimate"]]],
+                    fmt="o",
+                    color=f"C{k % 10}",
+                    ms=4,
+                    capsize=2,
+                    label=f"{v:g}" if r["measure"] == order[-1] else None,
+                )
         ax.set_yticks(range(len(order)), [label(m) for m in order], fontsize=7)
         ax.axvline(CHANCE.get(stat, 0.5), color="k", lw=0.8, ls=":")
         # an empty panel says why rather than showing nothing
@@ -199,8 +205,9 @@ def predictor_headline(table: pl.DataFrame, param: str, mode: str) -> str:
     )
     cannot = []
     if prim.filter(pl.col("verdict").str.contains("too few to judge")).height:
-        cannot.append("which measure predicts better, from fewer scenes or failures than a "
-                      "verdict needs")  # fmt: skip
+        cannot.append(
+            "which measure predicts better, from fewer scenes or failures than a verdict needs"
+        )
     note = table_note(table)
     if note:
         cannot.append(f"whether it holds over scenes: the {counted} were taken as independent")
@@ -222,8 +229,11 @@ def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
     every measure's statistic, then each comparison with its units, n, p, Holm's p and whether
     it survives."""
     note = table_note(table)
-    over = "scenes (conditions' wall scenes; clips' `scene`)" if note is None else (
-        "conditions (seeds resampled within them)" if mode == "arena" else "clips")  # fmt: skip
+    over = (
+        "scenes (conditions' wall scenes; clips' `scene`)"
+        if note is None
+        else ("conditions (seeds resampled within them)" if mode == "arena" else "clips")
+    )
     lines = [
         "## Which measure predicts where it breaks\n",
         predictor_headline(table, param, mode) + "\n",
@@ -271,8 +281,11 @@ def predictors_report(table: pl.DataFrame, param: str, mode: str) -> str:
             ref = r["statistic"].rsplit("_vs_", 1)[-1]
             head = r["statistic"].removeprefix("paired_").rsplit("_vs_", 1)[0]
             stat = STATS.get(head, head).split(" (")[0]
-            who = f"{label(ref)} vs {label(r['measure'])}" if r["statistic"].startswith(
-                "paired_") else f"{label(r['measure'])} vs SI + TI"  # fmt: skip
+            who = (
+                f"{label(ref)} vs {label(r['measure'])}"
+                if r["statistic"].startswith("paired_")
+                else f"{label(r['measure'])} vs SI + TI"
+            )
             if r["role"] == "primary":
                 who = f"**{who} (primary)**"
             surv = "—" if r["survives"] is None else "yes" if r["survives"] else "no"

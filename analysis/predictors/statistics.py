@@ -216,10 +216,22 @@ def cv_logistic_losses(
     return losses
 
 
-def _row(measure: str, value: float, statistic: str, est: float, lo: float, hi: float, n: int,
-         units: Units, n_units: int, n_failing: int | None = None,
-         n_correct: int | None = None, p: float = math.nan, role: str | None = None,
-         counted: str | None = None) -> dict[str, Any]:  # fmt: skip
+def _row(
+    measure: str,
+    value: float,
+    statistic: str,
+    est: float,
+    lo: float,
+    hi: float,
+    n: int,
+    units: Units,
+    n_units: int,
+    n_failing: int | None = None,
+    n_correct: int | None = None,
+    p: float = math.nan,
+    role: str | None = None,
+    counted: str | None = None,
+) -> dict[str, Any]:
     return {
         "measure": measure,
         "value": float(value),
@@ -246,10 +258,18 @@ def _role(ref: str, measure: str, statistic: str) -> str:
     return "primary" if primary else "secondary"
 
 
-def _mean_row(measure: str, value: float, statistic: str, d: np.ndarray, units: Units,
-              cluster: np.ndarray | None, counts: tuple[int, int], role: str | None = None,
-              bounds: tuple[float, float] | None = None,
-              counted: str | None = None) -> dict[str, Any]:  # fmt: skip
+def _mean_row(
+    measure: str,
+    value: float,
+    statistic: str,
+    d: np.ndarray,
+    units: Units,
+    cluster: np.ndarray | None,
+    counts: tuple[int, int],
+    role: str | None = None,
+    bounds: tuple[float, float] | None = None,
+    counted: str | None = None,
+) -> dict[str, Any]:
     """A mean of per-unit values ``d`` with its interval and two-sided p
     (:func:`~analysis.predictors.inference.cluster_mean`, clustered on ``cluster``)."""
     d = np.asarray(d, float)
@@ -257,8 +277,9 @@ def _mean_row(measure: str, value: float, statistic: str, d: np.ndarray, units: 
     est, lo, hi, p, k = cluster_mean(d, cluster)
     if bounds is not None and math.isfinite(lo):
         lo, hi = max(lo, bounds[0]), min(hi, bounds[1])
-    return _row(measure, value, statistic, est, lo, hi, int(ok.sum()), units, k, *counts, p,
-                role, counted)  # fmt: skip
+    return _row(
+        measure, value, statistic, est, lo, hi, int(ok.sum()), units, k, *counts, p, role, counted
+    )
 
 
 def _combined_rows(
@@ -289,8 +310,9 @@ def _combined_rows(
         rows[-1]["p_value"] = math.nan  # a loss is not tested against 0
         if base is not None and name != "+".join(BASELINE):
             stat = f"cv_logloss_gain_vs_{'+'.join(BASELINE)}"
-            rows.append(_mean_row(name, value, stat, base - loss, units, units.cluster, counts,
-                                  "secondary"))  # fmt: skip
+            rows.append(
+                _mean_row(name, value, stat, base - loss, units, units.cluster, counts, "secondary")
+            )
     return rows
 
 
@@ -366,8 +388,9 @@ def footage_predictors(
                 if sel.any():
                     cl = None if units.cluster is None else units.cluster[sel]
                     right = np.isin(kind[sel], ("hit", "quiet"))  # the correct clips in the pool
-                    rows += _auroc_rows(names, X[sel], kind[sel] == mode, value, stat, units, cl,
-                                        correct=right)  # fmt: skip
+                    rows += _auroc_rows(
+                        names, X[sel], kind[sel] == mode, value, stat, units, cl, correct=right
+                    )
         f = frames.filter((pl.col(param) == value) & pl.col("keep"))
         names_f = [m for m in names if m in f.columns]
         if f.height:
@@ -381,20 +404,33 @@ def footage_predictors(
             else:  # on their clip
                 frame_units = Units("clip", clip, "frames", len(clip))
                 frame_cl = clip
-            rows += _auroc_rows(names_f, fx, pos, value, "frame_auroc_pooled", frame_units,
-                                frame_cl)  # fmt: skip
+            rows += _auroc_rows(
+                names_f, fx, pos, value, "frame_auroc_pooled", frame_units, frame_cl
+            )
             scene_of = None
             if units.cluster is not None:
                 scene_of = dict(zip(g["clip"].to_list(), units.cluster.tolist(), strict=True))
             rows += _within_clip_rows(names_f, fx, pos, clip, value, units, scene_of)
-        rows += _combined_rows(g.select(names), wrong.astype(float), value, units,
-                               (int(wrong.sum()), int((~wrong).sum())))  # fmt: skip
+        rows += _combined_rows(
+            g.select(names),
+            wrong.astype(float),
+            value,
+            units,
+            (int(wrong.sum()), int((~wrong).sum())),
+        )
     return _table(rows, "footage")
 
 
-def _auroc_rows(names: list[str], X: np.ndarray, pos: np.ndarray, value: float, stat: str,
-                units: Units, cluster: np.ndarray | None,
-                correct: np.ndarray | None = None) -> list[dict[str, Any]]:  # fmt: skip
+def _auroc_rows(
+    names: list[str],
+    X: np.ndarray,
+    pos: np.ndarray,
+    value: float,
+    stat: str,
+    units: Units,
+    cluster: np.ndarray | None,
+    correct: np.ndarray | None = None,
+) -> list[dict[str, Any]]:
     """Each measure's AUROC (X (N, M), pos (N,)) with its interval, and (for the headline
     and the frame statistics) each AVDM against the others, paired on the same units.
     ``cluster`` (N,): each unit's cluster (None: units independent); ``correct`` (N,): the
@@ -416,14 +452,33 @@ def _auroc_rows(names: list[str], X: np.ndarray, pos: np.ndarray, value: float, 
         ok = np.isfinite(X[:, i]) & np.isfinite(X[:, j])
         d, lo, hi, p = auroc_difference(X[:, i], X[:, j], pos, cluster)
         st = f"paired_{stat}_vs_{ref}"
-        rows.append(_row(name, value, st, d, lo, hi, int(ok.sum()), units, *counts(ok), p,
-                         _role(ref, name, st)))  # fmt: skip
+        rows.append(
+            _row(
+                name,
+                value,
+                st,
+                d,
+                lo,
+                hi,
+                int(ok.sum()),
+                units,
+                *counts(ok),
+                p,
+                _role(ref, name, st),
+            )
+        )
     return rows
 
 
-def _within_clip_rows(names: list[str], fx: np.ndarray, pos: np.ndarray, clip: np.ndarray,
-                      value: float, units: Units,
-                      scene_of: dict[str, str] | None) -> list[dict[str, Any]]:  # fmt: skip
+def _within_clip_rows(
+    names: list[str],
+    fx: np.ndarray,
+    pos: np.ndarray,
+    clip: np.ndarray,
+    value: float,
+    units: Units,
+    scene_of: dict[str, str] | None,
+) -> list[dict[str, Any]]:
     """The mean over clips (with both kinds of frame) of each clip's own frame AUROC, with its
     interval over the clips' scenes (cluster-robust, t on scenes − 1 degrees of freedom) or
     the clips; each AVDM against the others by the same mean of their per-clip differences.
@@ -445,8 +500,7 @@ def _within_clip_rows(names: list[str], fx: np.ndarray, pos: np.ndarray, clip: n
     counts = (fail_frames, quiet_frames)
     for j, name in enumerate(names):
         v = per_clip[:, j]
-        r = _mean_row(name, value, stat, v, units, cl, counts, bounds=(0.0, 1.0),
-                      counted="frames")  # fmt: skip
+        r = _mean_row(name, value, stat, v, units, cl, counts, bounds=(0.0, 1.0), counted="frames")
         r["p_value"] = math.nan
         # clips that all score alike give an interval of no width: at least Newcombe's for
         # one pair per clip, the least information the clips could hold
@@ -460,8 +514,9 @@ def _within_clip_rows(names: list[str], fx: np.ndarray, pos: np.ndarray, clip: n
     for ref, i, j, name in _avdm_pairs(names):
         d = per_clip[:, i] - per_clip[:, j]
         st = f"paired_{stat}_vs_{ref}"
-        rows.append(_mean_row(name, value, st, d, units, cl, counts, _role(ref, name, st),
-                              counted="frames"))  # fmt: skip
+        rows.append(
+            _mean_row(name, value, st, d, units, cl, counts, _role(ref, name, st), counted="frames")
+        )
     return rows
 
 

@@ -115,9 +115,12 @@ def test_compare_runs_variants_on_identical_frames(recordings, tmp_path: Path) -
     assert corr.height == 3 and (corr["pearson"].abs() <= 1).all()
     assert corr.filter(pl.col("model_b") == "avdm-on")["pearson"][0] > 0.9
     assert_figure(
-        out / "compare.png", saved_figures(record), title="the busiest minute",
-        labels=("time (s)", "density (per deg/s)", "response (deg/s)"), min_axes=3,
-    )  # fmt: skip
+        out / "compare.png",
+        saved_figures(record),
+        title="the busiest minute",
+        labels=("time (s)", "density (per deg/s)", "response (deg/s)"),
+        min_axes=3,
+    )
     # the variants file opens alongside the source: same recording id, /model_variants/...
     source = Recording(rec)
     (entry,) = rr.chunk.RrdReader(str(out / "variants.rrd")).recordings()

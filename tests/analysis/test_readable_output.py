@@ -19,17 +19,30 @@ def test_the_boundary_figures_speed_axes_start_at_zero(tmp_path: Path) -> None:
     Student's t interval on few seeds can) drew the axis to -5 deg/s; complexity is a speed."""
     from analysis.boundary.plot import plot_boundary
 
-    conditions = pl.DataFrame({
-        "t_ffi": [12.0, 12.0], "condition": ["grating-tf0", "grating-tf3"],
-        "complexity_dps": [2.0, 30.0], "complexity_low": [-5.0, 25.0],
-        "complexity_high": [9.0, 35.0], "success_rate": [0.98, 0.5], "success_low": [0.9, 0.4],
-        "success_high": [1.0, 0.6], "avoidances_per_30min": [500.0, 300.0],
-        "avoidances_per_30min_low": [400.0, 200.0], "avoidances_per_30min_high": [600.0, 400.0],
-    })  # fmt: skip
-    bounds = pl.DataFrame({
-        "t_ffi": [12.0], "where": ["within"], "boundary_dps": [10.0],
-        "boundary_low_dps": [-4.0], "boundary_high_dps": [20.0],
-    })  # fmt: skip
+    conditions = pl.DataFrame(
+        {
+            "t_ffi": [12.0, 12.0],
+            "condition": ["grating-tf0", "grating-tf3"],
+            "complexity_dps": [2.0, 30.0],
+            "complexity_low": [-5.0, 25.0],
+            "complexity_high": [9.0, 35.0],
+            "success_rate": [0.98, 0.5],
+            "success_low": [0.9, 0.4],
+            "success_high": [1.0, 0.6],
+            "avoidances_per_30min": [500.0, 300.0],
+            "avoidances_per_30min_low": [400.0, 200.0],
+            "avoidances_per_30min_high": [600.0, 400.0],
+        }
+    )
+    bounds = pl.DataFrame(
+        {
+            "t_ffi": [12.0],
+            "where": ["within"],
+            "boundary_dps": [10.0],
+            "boundary_low_dps": [-4.0],
+            "boundary_high_dps": [20.0],
+        }
+    )
     with recording_figures() as saved:
         plot_boundary(conditions, bounds, "t_ffi", 0.9, tmp_path / "b.png", "test boundary")
     (fig,) = saved
@@ -45,10 +58,16 @@ def test_the_predictors_title_fits_a_one_panel_figure(tmp_path: Path) -> None:
     from analysis.predictors.report import STATS, plot_predictors
 
     stat = next(iter(STATS))
-    table = pl.DataFrame({
-        "measure": ["avdm", "ti_p910"], "statistic": [stat, stat], "value": [0.1, 0.1],
-        "estimate": [0.6, 0.7], "ci_low": [0.5, 0.6], "ci_high": [0.7, 0.8],
-    })  # fmt: skip
+    table = pl.DataFrame(
+        {
+            "measure": ["avdm", "ti_p910"],
+            "statistic": [stat, stat],
+            "value": [0.1, 0.1],
+            "estimate": [0.6, 0.7],
+            "ci_low": [0.5, 0.6],
+            "ci_high": [0.7, 0.8],
+        }
+    )
     title = "examples.looming:Looming: which measure predicts failure (arena, 30 profiling runs)"
     with recording_figures() as saved:
         plot_predictors(table, tmp_path / "p.png", title)
@@ -146,12 +165,22 @@ def test_a_claims_row_gives_its_deciding_numbers_and_marks_the_excluded() -> Non
     from analysis.experiments.paper.report import claim_numbers
 
     nan = math.nan
-    c = Claim("c", "p", "m", "holds", quantities=[
-        Quantity("sf_upc=10", "spearman_rho_vs_tf", 0.8294, nan, nan, 1, "ρ > 0.5"),
-        Quantity("sf_upc=50", "spearman_rho_vs_tf", 0.7127, nan, nan, 1, EXCLUDED),
-        Quantity("TF 3 Hz", "mean · avdm · straight", 27.76, 23.75, 31.77, 3, "rise with TF: x"),
-        Quantity("TF 3 Hz", "mean · avdm · all", 35.4, 27.8, 43.0, 3, "rise with TF (supporting)"),
-    ])  # fmt: skip
+    c = Claim(
+        "c",
+        "p",
+        "m",
+        "holds",
+        quantities=[
+            Quantity("sf_upc=10", "spearman_rho_vs_tf", 0.8294, nan, nan, 1, "ρ > 0.5"),
+            Quantity("sf_upc=50", "spearman_rho_vs_tf", 0.7127, nan, nan, 1, EXCLUDED),
+            Quantity(
+                "TF 3 Hz", "mean · avdm · straight", 27.76, 23.75, 31.77, 3, "rise with TF: x"
+            ),
+            Quantity(
+                "TF 3 Hz", "mean · avdm · all", 35.4, 27.8, 43.0, 3, "rise with TF (supporting)"
+            ),
+        ],
+    )
     text = claim_numbers(c)
     assert "ρ along TF: SF 10 upc: 0.829, SF 50 upc: excluded" in text
     assert "mean ω̂ driving straight (deg/s): TF 3 Hz: 27.8 [23.8, 31.8]" in text

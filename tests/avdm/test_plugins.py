@@ -48,8 +48,7 @@ def test_a_plugin_runs_in_chunks_as_it_steps_bit_for_bit() -> None:
 
 def test_a_plugin_can_build_vdcs_own_models_with_the_camera_it_is_given() -> None:
     spec = "tests.toy_detector:BlindAbove:blind_above_dps=5,profile_model=avdm"
-    toy = make_model(spec, fps=33.0,
-                     deg_per_px=70 / 99, width_px=99, height_px=72)  # fmt: skip
+    toy = make_model(spec, fps=33.0, deg_per_px=70 / 99, width_px=99, height_px=72)
     out = toy.run(frames(60))
     blind = out["busy_dps"] > 5  # its AVDM saw the drift: blind from then on
     assert blind[-1] and out["alert"][blind].sum() == 0
@@ -96,8 +95,9 @@ def test_an_installed_entry_point_is_a_model_name(tmp_path: Path) -> None:
         "print('looming' in describe_models())\n"
     )
     env = {"PYTHONPATH": f"{tmp_path}:{ROOT}", "PATH": "/usr/bin:/bin"}
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          cwd=ROOT, env=env, timeout=120)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, env=env, timeout=120
+    )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split() == ["looming:threshold=0.3", "0.3", "True"]
     assert "module:factory" in describe_models()  # the help says how to bring your own
@@ -117,7 +117,13 @@ def test_a_plugin_in_the_current_folder_loads_without_changing_sys_path(tmp_path
         "assert sys.path == before, sys.path; print(m.name)"
     )
     env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}
-    proc = subprocess.run([sys.executable, "-P", "-c", code], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-P", "-c", code],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "beside_data_det:make"

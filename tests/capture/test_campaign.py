@@ -72,8 +72,11 @@ def test_a_collision_grid_records_every_run_once_and_resumes(tmp_path: Path) -> 
     runs = pl.read_parquet(out / "runs.parquet")
     assert runs.height == 4 and runs["complete"].all()
     assert set(zip(runs["threshold"], runs["tf_hz"], strict=True)) == {
-        (20.0, 0.0), (20.0, 3.0), (60.0, 0.0), (60.0, 3.0)
-    }  # fmt: skip
+        (20.0, 0.0),
+        (20.0, 3.0),
+        (60.0, 0.0),
+        (60.0, 3.0),
+    }
     # the settings every run shares are columns too: each row rebuilds its run's settings
     assert (runs["behaviour"] == "collision").all() and (runs["minutes"] == 0.1).all()
     assert (runs["scene"] == SimSettings().scene).all()  # a default nobody gave, stated

@@ -55,8 +55,14 @@ def test_a_simulated_run_describes_its_model_and_itself(tmp_path: Path) -> None:
     assert props["model_context"] == CameraConfig().model_context()
     text = rec.description()
     assert text is not None and text.startswith(f"# vdc recording `{rec.recording_id}`")
-    for needle in ("simulated Colias-IV", "`avdm:beta=0.5`", "`omega_dps` [deg/s]",
-                   "99 x 72 px at 33 Hz", "texture row 36", "vdc-analyse tables REC"):  # fmt: skip
+    for needle in (
+        "simulated Colias-IV",
+        "`avdm:beta=0.5`",
+        "`omega_dps` [deg/s]",
+        "99 x 72 px at 33 Hz",
+        "texture row 36",
+        "vdc-analyse tables REC",
+    ):
         assert needle in text, needle
 
 
@@ -82,8 +88,10 @@ def test_the_simulated_device_describes_itself_in_its_recording(
     assert props["run"]["source"] == "simulation" and props["wall"]["tf_schedule_text"] == "3:1.2s"
     assert len(rec.read_frames().frame) == 40
     text = rec.description() or ""
-    what = (f"a simulated Colias-IV in the 1.4 x 0.8 m arena ({behaviour}), grating walls, TF "
-            "schedule 3:1.2s, 0.02 min (40 frames), seed 7")  # fmt: skip
+    what = (
+        f"a simulated Colias-IV in the 1.4 x 0.8 m arena ({behaviour}), grating walls, TF "
+        "schedule 3:1.2s, 0.02 min (40 frames), seed 7"
+    )
     if behaviour == "collision":
         detector = settings.to_config().collision.detector_spec()
         what += f"; closed loop with the collision detector {detector}"

@@ -11,7 +11,6 @@ import os
 import pty
 import re
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -43,19 +42,24 @@ from capture.serial_protocol import (
     encode_frame,
 )
 from capture.tracker import save_calibration
-from tests.helpers import ROOT, assert_one_line_error, run_cli, spawn
+from tests.helpers import assert_one_line_error, run_cli, start_emulator
 
 AVDM_OUTPUTS = tuple((o.name, o.unit) for o in make_model("avdm").outputs)
 
 
 def test_announce_round_trip_and_malformed_payloads() -> None:
-    a = Announcement("lgmd-plus:t_sr=80", (("spike_rate_hz", "1/s"), ("ffi", "")), 20.0, 80, 60,
-                     0.75, 30)  # fmt: skip
+    a = Announcement(
+        "lgmd-plus:t_sr=80", (("spike_rate_hz", "1/s"), ("ffi", "")), 20.0, 80, 60, 0.75, 30
+    )
     ((ptype, payload),) = list(PacketParser().feed(encode_announce(a)))
     assert ptype == TYPE_ANNOUNCE and decode_announce(payload) == a
     assert a.model_context() == {
-        "fps": 20.0, "deg_per_px": 0.75, "texture_row": 30, "width_px": 80, "height_px": 60,
-    }  # fmt: skip
+        "fps": 20.0,
+        "deg_per_px": 0.75,
+        "texture_row": 30,
+        "width_px": 80,
+        "height_px": 60,
+    }
     for bad in (payload[:-1], payload + b"\0", b"\x02" + payload[1:], payload[:10]):
         with pytest.raises(ValueError):
             decode_announce(bad)
@@ -71,25 +75,43 @@ def overhead_frames(folder: Path, n: int = 3) -> Path:
     return folder / "%05d.png"
 
 
+def camera_section(fps: float, width_px: int, height_px: int, announced: bool) -> dict:
+    """A recording's ``camera`` property section as expected: every camera here has the
+    robot's pitch (70/99 deg a px), so its field of view is 70 deg whatever its width (rel
+    1e-12: the pitch times the width in floating point)."""
+    return {
+        "fps": fps,
+        "width_px": width_px,
+        "height_px": height_px,
+        "hfov_deg": pytest.approx(70.0, rel=1e-12),
+        "announced": announced,
+    }
+
+
 def emulator(link: Path, report: Path, *extra: str) -> subprocess.Popen:
-    proc = spawn(
-        [sys.executable, "-m", "capture", "emulate-robot", "--link", str(link),
-         "--report", str(report), "--wait", "60", *extra],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    deadline = time.monotonic() + 30
-    while time.monotonic() < deadline and not link.is_symlink() and proc.poll() is None:
-        time.sleep(0.05)
-    assert link.is_symlink(), proc.communicate()[1] if proc.poll() is not None else "no port"
-    return proc
+    """The emulator waiting up to 60 s for the host's START."""
+    return start_emulator(link, report, "--wait", "60", *extra)
 
 
-def capture(link: Path, camera: Path, out: Path, model: str) -> subprocess.CompletedProcess:
+def capture(link: Path | str, camera: Path, out: Path, model: str) -> subprocess.CompletedProcess:
     return run_cli(
-        "capture", "robot", "--port", str(link), "--camera", str(camera), "--camera-fps", "50",
-        "--calibration", str(camera.parent / "calibration.json"), "--model", model,
-        "--out", str(out), "--quiet", timeout=120,
-    )  # fmt: skip
+        "capture",
+        "robot",
+        "--port",
+        str(link),
+        "--camera",
+        str(camera),
+        "--camera-fps",
+        "50",
+        "--calibration",
+        str(camera.parent / "calibration.json"),
+        "--model",
+        model,
+        "--out",
+        str(out),
+        "--quiet",
+        timeout=120,
+    )
 
 
 def test_a_robot_running_another_model_is_refused_before_any_file(tmp_path: Path) -> None:
@@ -188,8 +210,21 @@ def test_a_silent_robot_is_recorded_as_unverified(tmp_path: Path) -> None:
 def test_the_robots_announced_camera_and_asked_model_are_recorded(tmp_path: Path) -> None:
     link, report, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
     # a camera unlike the host's defaults (99 x 72 px, 33 Hz, 70 deg): the robot's must win
-    emu = emulator(link, report, "--minutes", "0.05", "--fast", "--fps", "20", "--width-px",
-                   "80", "--height-px", "60", "--hfov-deg", "60")  # fmt: skip
+    emu = emulator(
+        link,
+        report,
+        "--minutes",
+        "0.05",
+        "--fast",
+        "--fps",
+        "20",
+        "--width-px",
+        "80",
+        "--height-px",
+        "60",
+        "--hfov-deg",
+        "60",
+    )
     proc = capture(link, overhead_frames(tmp_path / "overhead"), out, "avdm:beta=0.5")
     emu.communicate(timeout=60)
     assert proc.returncode == 0, proc.stderr
@@ -200,16 +235,22 @@ def test_the_robots_announced_camera_and_asked_model_are_recorded(tmp_path: Path
     assert props["model"]["name"] == "avdm:beta=0.5" and props["model"]["verified"] is True
     assert props["model_params"]["beta"] == 0.5
     assert props["model_context"] == {
-        "fps": 20.0, "deg_per_px": 0.75, "texture_row": 30, "width_px": 80, "height_px": 60,
-    }  # fmt: skip
+        "fps": 20.0,
+        "deg_per_px": 0.75,
+        "texture_row": 30,
+        "width_px": 80,
+        "height_px": 60,
+    }
     assert props["model_params"]["texture_row"] == 30 and props["model_params"]["fps"] == 20.0
     assert (props["camera"]["width_px"], props["camera"]["height_px"]) == (80, 60)
     assert props["camera"]["hfov_deg"] == pytest.approx(60.0, rel=1e-12)  # 0.75 x 80
     frames = rec.read_frames()
     assert frames.images.shape[1:] == (60, 80)
     text = rec.description() or ""
-    for needle in ("`avdm:beta=0.5` (run on board; the robot announced it)",
-                   "80 x 60 px at 20 Hz, 0.75 deg/px (60 deg wide), texture row 30"):  # fmt: skip
+    for needle in (
+        "`avdm:beta=0.5` (run on board; the robot announced it)",
+        "80 x 60 px at 20 Hz, 0.75 deg/px (60 deg wide), texture row 30",
+    ):
         assert needle in text, text
     # recomputed from the recorded context, the model gives the floats the robot sent (as f32)
     loaded = load_recording(out)
@@ -237,9 +278,7 @@ def test_a_robot_that_says_nothing_is_given_up_on_after_the_timeout(tmp_path: Pa
         assert device.model_context["width_px"] == 99  # the host's defaults, marked as such
         # and so it describes itself: the defaults, not announced; the wall controller named
         props = device.properties()
-        assert props["camera"] == {"fps": 33.0, "width_px": 99, "height_px": 72,
-                                   "hfov_deg": pytest.approx(70.0, rel=1e-12),  # 70/99 * 99
-                                   "announced": False}  # fmt: skip
+        assert props["camera"] == camera_section(33.0, 99, 72, announced=False)
         assert props["link"]["announce"] == "none (older firmware?)"
         assert "(/dev/ttyWALL wall controller)" in device.description()
         device.disconnect()
@@ -326,8 +365,11 @@ def test_a_robot_that_breaks_its_announcement_at_the_start_is_refused(
     out = tmp_path / "rec.rrd"
 
     def run(config, _camera):
-        settings = RobotSettings(port=config["port"], camera=config["camera"],
-                                 calibration=str(_camera.parent / "calibration.json"))  # fmt: skip
+        settings = RobotSettings(
+            port=config["port"],
+            camera=config["camera"],
+            calibration=str(_camera.parent / "calibration.json"),
+        )
         with pytest.raises(ValueError) as err:
             record_robot(settings, out, warn=lambda _: None)
         return str(err.value)
@@ -370,11 +412,7 @@ def test_a_robot_that_changes_mid_run_ends_the_capture_cleanly(tmp_path: Path, c
     out = tmp_path / "rec.rrd"
 
     def run(config, camera):
-        return run_cli(
-            "capture", "robot", "--port", config["port"], "--camera", str(camera),
-            "--camera-fps", "50", "--calibration", str(camera.parent / "calibration.json"),
-            "--model", "avdm", "--out", str(out), "--quiet", timeout=120,
-        )  # fmt: skip
+        return capture(config["port"], camera, out, "avdm")
 
     proc = with_robot(tmp_path, packets, run)
     assert proc.returncode == 1, proc.stderr
@@ -405,23 +443,33 @@ def test_the_robot_describes_itself_in_its_recording(tmp_path: Path) -> None:
     out = tmp_path / "rec.rrd"
 
     def run(config, camera):
-        settings = RobotSettings(port=config["port"], camera=config["camera"], tf_hz=2.0,
-                                 calibration=str(camera.parent / "calibration.json"))  # fmt: skip
+        settings = RobotSettings(
+            port=config["port"],
+            camera=config["camera"],
+            tf_hz=2.0,
+            calibration=str(camera.parent / "calibration.json"),
+        )
         record_robot(settings, out, warn=lambda _: None)
         return config["port"], config["camera"]
 
     port, camera = with_robot(tmp_path, [encode_announce(SMALL), *frames_of(SMALL, 0, 5)], run)
     rec = Recording(out)
     props = rec.properties()
-    assert props["run"] == {"recording_id": rec.recording_id, "source": "robot", "port": port,
-                            "baud": 3_000_000, "camera": camera, "behaviour": "robot"}  # fmt: skip
-    assert props["camera"] == {"fps": 33.0, "width_px": 20, "height_px": 16,
-                               "hfov_deg": pytest.approx(70.0, rel=1e-12),  # 70/20 * 20
-                               "announced": True}  # fmt: skip
+    assert props["run"] == {
+        "recording_id": rec.recording_id,
+        "source": "robot",
+        "port": port,
+        "baud": 3_000_000,
+        "camera": camera,
+        "behaviour": "robot",
+    }
+    assert props["camera"] == camera_section(33.0, 20, 16, announced=True)
     # the schedule: 2 Hz until the settings' 48 h, in the form the schedule flag takes
     assert props["wall"] == {"scene": "grating", "period_m": 0.1, "tf_schedule_text": "2:172800s"}
     assert props["link"]["announce"] == "received" and props["arena"]["length_m"] > 0
     text = rec.description() or ""
-    for needle in (f"a Colias-IV robot on {port} (no wall controller)",
-                   f"overhead camera {camera}; wall grating, TF schedule 2:172800s"):  # fmt: skip
+    for needle in (
+        f"a Colias-IV robot on {port} (no wall controller)",
+        f"overhead camera {camera}; wall grating, TF schedule 2:172800s",
+    ):
         assert needle in text, text

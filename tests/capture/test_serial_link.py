@@ -38,7 +38,15 @@ from capture.sim_robot import SimulatedRobot
 from capture.tracker import calibrate_homography as tracker_calibrate
 from capture.tracker import load_calibration as tracker_load
 from capture.tracker import robot_pose as tracker_pose
-from tests.helpers import ROOT, assert_file_grows, assert_one_line_error, run_cli, spawn, wait_until
+from tests.helpers import (
+    ROOT,
+    assert_file_grows,
+    assert_one_line_error,
+    run_cli,
+    spawn,
+    start_emulator,
+    wait_until,
+)
 from vdc.recording import partial_path
 
 
@@ -143,32 +151,6 @@ def images_in(path: Path) -> int:
         return len(Recording(path).read_frames().frame)
     except Exception:  # not created yet, or its first chunk is still being written
         return 0
-
-
-def start_emulator(link: Path, report: Path, *extra: str) -> subprocess.Popen:
-    proc = spawn(
-        [
-            sys.executable,
-            "-m",
-            "capture",
-            "emulate-robot",
-            "--link",
-            str(link),
-            "--report",
-            str(report),
-            *extra,
-        ],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    deadline = time.time() + 30
-    while time.time() < deadline and not link.is_symlink():
-        time.sleep(0.05)
-    assert link.is_symlink(), proc.stderr.read() if proc.poll() is not None else "no port"
-    return proc
 
 
 def start_robot_capture(link: Path, frames: Path, out: Path, min_bytes: int) -> subprocess.Popen:
@@ -407,9 +389,16 @@ def test_schedule_file_and_saved_calibration(tmp_path: Path) -> None:
     link, report_path, out = tmp_path / "robot", tmp_path / "report.json", tmp_path / "rec.rrd"
     emu = start_emulator(link, report_path, "--minutes", str(4 / 60))
     proc = capture_robot(
-        link, tmp_path / "overhead" / "%05d.png", out, "--tf-schedule", str(schedule),
-        "--save-calibration", str(tmp_path / "cal.json"), "--quiet", timeout=300,
-    )  # fmt: skip
+        link,
+        tmp_path / "overhead" / "%05d.png",
+        out,
+        "--tf-schedule",
+        str(schedule),
+        "--save-calibration",
+        str(tmp_path / "cal.json"),
+        "--quiet",
+        timeout=300,
+    )
     emu.wait(timeout=120)
     assert proc.returncode == 0, proc.stderr
     _, _, tf = Recording(out).wall_tf()

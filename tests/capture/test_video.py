@@ -220,9 +220,16 @@ def test_complexity_of_a_video_recording_of_the_file_and_of_an_array(clips, tmp_
     res = complexity([rec], ComplexitySettings(metrics="all"), tmp_path / "cx")
     df = pl.read_parquet(tmp_path / "cx" / "complexity.parquet")
     assert df.columns == [
-        "recording_id", "frame", "t_s", "repeat", *METRICS, "omega_valid", "raster",
-        "raster_width_px", "raster_height_px",
-    ]  # fmt: skip
+        "recording_id",
+        "frame",
+        "t_s",
+        "repeat",
+        *METRICS,
+        "omega_valid",
+        "raster",
+        "raster_width_px",
+        "raster_height_px",
+    ]
     assert df.height == 150 and set(df["raster"]) == {"native"}
     assert set(df["raster_width_px"]) == {198}  # the source's width, not the model's 99 px
     assert df["ti_p910"][0] is None and df["ti_p910"][1] is not None  # no TI on frame 0
@@ -244,9 +251,14 @@ def test_complexity_of_a_video_recording_of_the_file_and_of_an_array(clips, tmp_
         grey = np.stack([f.to_ndarray(format="gray") for f in decoded])
         planes = np.stack([luma_plane(f, 8) for f in decoded])
     arr = complexity_of_frames(
-        grey, fps=30.0, fov_deg=FOV, native=planes, color_range=None,  # untagged
-        t_s=df["t_s"].to_numpy(), settings=every,
-    )  # fmt: skip
+        grey,
+        fps=30.0,
+        fov_deg=FOV,
+        native=planes,
+        color_range=None,  # untagged
+        t_s=df["t_s"].to_numpy(),
+        settings=every,
+    )
     for m in METRICS:
         if m != "codec_bpp":  # arrays come without the codec's packets
             assert arr[m].equals(df[m]), m
@@ -281,12 +293,20 @@ def test_profile_and_compare_take_a_video_recording(clips, tmp_path: Path) -> No
     assert summary["near_wall_mean"].is_nan().all()  # no poses: nothing near a wall, not 0
     (png,) = (tmp_path / "p").glob("profile_*_video_avdm-natural.png")
     # no poses: a time series and a histogram, not an arena map
-    assert_figure(png, saved_figures(record), title="response over time", labels=("time (s)",),
-                  min_axes=2)  # fmt: skip
+    assert_figure(
+        png, saved_figures(record), title="response over time", labels=("time (s)",), min_axes=2
+    )
     proc = run_in_process(
-        "analysis", "compare", str(rec), "--model", "avdm", "--model", "avdm-on",
-        "--out", str(tmp_path / "c"),
-    )  # fmt: skip
+        "analysis",
+        "compare",
+        str(rec),
+        "--model",
+        "avdm",
+        "--model",
+        "avdm-on",
+        "--out",
+        str(tmp_path / "c"),
+    )
     assert proc.returncode == 0, proc.stderr
     proc = run_in_process("analysis", "collision", str(rec), "--out", str(tmp_path / "k"))
     assert_one_line_error(proc, "not a collision-mode recording")
@@ -435,8 +455,9 @@ def test_a_new_cameras_calibration_says_what_it_fits_and_that_it_is_cached(
 
     clip = write_pan(tmp_path / "clip.mp4", 64, 48, 30)  # 25 fps, 64x48: a raster of its own
     env = {**os.environ, "VDC_CACHE_DIR": str(tmp_path / "cache")}  # nothing fitted yet
-    first = run_cli("capture", "video", str(clip), "--fov-deg", "40", "--out",
-                    str(tmp_path / "a.rrd"), env=env)  # fmt: skip
+    first = run_cli(
+        "capture", "video", str(clip), "--fov-deg", "40", "--out", str(tmp_path / "a.rrd"), env=env
+    )
     assert first.returncode == 0, first.stderr
     lines = first.stderr.splitlines()
     start = [ln for ln in lines if ln.startswith("calibrating avdm-natural for this camera")]
@@ -457,8 +478,9 @@ def test_a_new_cameras_calibration_says_what_it_fits_and_that_it_is_cached(
     )  # both before the run starts
     props = Recording(tmp_path / "a.rrd").properties()
     assert props["calibration"]["source"] in ("fitted", "cache")
-    again = run_cli("capture", "video", str(clip), "--fov-deg", "40", "--out",
-                    str(tmp_path / "b.rrd"), env=env)  # fmt: skip
+    again = run_cli(
+        "capture", "video", str(clip), "--fov-deg", "40", "--out", str(tmp_path / "b.rrd"), env=env
+    )
     assert again.returncode == 0, again.stderr
     # the clip's path (pytest names tmp_path after this test: "...calibration0") is left out
     assert "calibrat" not in again.stderr.replace(str(tmp_path), ""), again.stderr

@@ -67,9 +67,13 @@ def _run(tmp_path: Path, script: str, *args: str) -> subprocess.CompletedProcess
     path = tmp_path / "script.py"
     path.write_text(script)
     return subprocess.run(
-        [sys.executable, str(path), *args], cwd=tmp_path, env=_env(), capture_output=True,
-        text=True, timeout=300,
-    )  # fmt: skip
+        [sys.executable, str(path), *args],
+        cwd=tmp_path,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 @pytest.mark.parametrize("executor", ["local", pytest.param("dask", marks=pytest.mark.dask)])
@@ -160,12 +164,17 @@ def test_a_plain_script_without_the_main_guard_gets_one_error_before_any_worker(
 
 
 def test_a_library_caller_catches_the_missing_guard_as_a_user_error(tmp_path) -> None:
-    script = UNGUARDED.format(executor="local").replace(
-        "\nout = run_tasks", "\nfrom vdc.errors import UserError\ntry:\n    out = run_tasks"
-    ).replace(
-        "\nprint(\"results\"", "\nexcept UserError as e:\n    print('caught', type(e).__name__, e)"
-        "\n    raise SystemExit(0)\nprint(\"results\""
-    )  # fmt: skip
+    script = (
+        UNGUARDED.format(executor="local")
+        .replace(
+            "\nout = run_tasks", "\nfrom vdc.errors import UserError\ntry:\n    out = run_tasks"
+        )
+        .replace(
+            '\nprint("results"',
+            "\nexcept UserError as e:\n    print('caught', type(e).__name__, e)"
+            '\n    raise SystemExit(0)\nprint("results"',
+        )
+    )
     proc = _run(tmp_path, script)
     assert proc.returncode == 0 and proc.stderr == "", proc.stderr
     assert proc.stdout.startswith("caught MissingMainGuard script.py, line 9: "), proc.stdout

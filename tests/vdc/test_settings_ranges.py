@@ -90,9 +90,18 @@ CASES = [
 def test_every_command_declares_ranges() -> None:
     """The table covers the commands' numeric fields (not one command's alone)."""
     classes = {c.values[0].__name__ for c in CASES}
-    for name in ("DatasetSettings", "ComplexitySettings", "LoomingFootageSettings",
-                 "BoundarySettings", "SimSettings", "VideoSettings", "ExecutorSettings",
-                 "SweepSettings", "SummarySettings", "ProfileSettings"):  # fmt: skip
+    for name in (
+        "DatasetSettings",
+        "ComplexitySettings",
+        "LoomingFootageSettings",
+        "BoundarySettings",
+        "SimSettings",
+        "VideoSettings",
+        "ExecutorSettings",
+        "SweepSettings",
+        "SummarySettings",
+        "ProfileSettings",
+    ):
         assert name in classes, name
     numeric_without = [
         f"{cls.__name__}.{f.name}"

@@ -122,8 +122,12 @@ def test_the_adaptive_loop_places_runs_near_the_boundary_and_stops_at_the_precis
     """The loop alone on a simulated detector (run_batch draws binomial counts): two scenes
     with different profiles, a known boundary of 15 deg/s."""
     rng = np.random.default_rng(3)
-    profile = ProfileMap({"grating": (np.array([0.0, 3.0]), np.array([6.0, 28.0])),
-                          "natural": (np.array([0.0, 3.0]), np.array([11.0, 19.0]))})  # fmt: skip
+    profile = ProfileMap(
+        {
+            "grating": (np.array([0.0, 3.0]), np.array([6.0, 28.0])),
+            "natural": (np.array([0.0, 3.0]), np.array([11.0, 19.0])),
+        }
+    )
 
     def run_batch(placed):
         out = []
@@ -150,16 +154,41 @@ def test_the_adaptive_loop_places_runs_near_the_boundary_and_stops_at_the_precis
 
 def test_a_tiny_adaptive_campaign_end_to_end(tmp_path: Path) -> None:
     out = tmp_path / "adaptive"
-    args = ["analysis.cli", "boundary", "--design", "adaptive", "--budget", "5", "--values",
-            "12", "--scenes", "grating", "--tf-range", "0:3", "--minutes", "0.2", "--jobs",
-            "2", "--out", str(out)]  # fmt: skip
+    args = [
+        "analysis.cli",
+        "boundary",
+        "--design",
+        "adaptive",
+        "--budget",
+        "5",
+        "--values",
+        "12",
+        "--scenes",
+        "grating",
+        "--tf-range",
+        "0:3",
+        "--minutes",
+        "0.2",
+        "--jobs",
+        "2",
+        "--out",
+        str(out),
+    ]
     record = tmp_path / "figures.jsonl"
     proc = run_in_process(*args, env=figure_env(record))
     assert proc.returncode == 0, proc.stderr
     assert "boundary at t_ffi = 12: " in proc.stdout
     bounds = pl.read_parquet(out / "boundary.parquet")
-    for col in ("boundary_dps", "boundary_dps_low", "boundary_dps_high", "boundary_tf_hz",
-                "boundary_tf_low", "boundary_tf_high", "where", "boundary_low_dps"):  # fmt: skip
+    for col in (
+        "boundary_dps",
+        "boundary_dps_low",
+        "boundary_dps_high",
+        "boundary_tf_hz",
+        "boundary_tf_low",
+        "boundary_tf_high",
+        "where",
+        "boundary_low_dps",
+    ):
         assert col in bounds.columns
     row = bounds.row(0, named=True)
     assert row["design"] == "adaptive" and row["fit_runs"] == 5

@@ -28,8 +28,10 @@ from vdc.executors import QUIET
 
 TARGET = 0.9
 # the default grid's measured profile (docs/findings/boundary.md): wall TF (Hz) -> deg/s per scene
-PROFILE = {"grating": ([0.0, 1.0, 3.0], [6.7, 12.0, 28.5]),
-           "natural": ([0.0, 1.0, 3.0], [10.9, 13.0, 18.5])}  # fmt: skip
+PROFILE = {
+    "grating": ([0.0, 1.0, 3.0], [6.7, 12.0, 28.5]),
+    "natural": ([0.0, 1.0, 3.0], [10.9, 13.0, 18.5]),
+}
 TRUTH_DPS = {"grating": 10.0, "natural": 16.0}  # each scene its own crossing
 
 
@@ -59,7 +61,7 @@ def test_each_scene_gets_its_own_runs_and_interval_around_its_own_crossing() -> 
         DesignSpace([45.0], ["grating", "natural"], profile, (0.0, 3.0)),
         lambda placed: simulated(rng, placed, dip=True),
         DesignSettings(target=TARGET, budget=16, precision_dps=0.5, batch=2, seed=1),  # 0.5: many
-    )  # fmt: skip
+    )
     assert set(fits) == {(45.0, "grating"), (45.0, "natural")}
     assert len(rows) <= 16 and len({r["seed"] for r in rows}) == len(rows)
     for scene, truth in TRUTH_DPS.items():
@@ -92,9 +94,10 @@ def test_a_scene_failing_from_its_least_complex_point_is_below_and_stops() -> No
         return [p | (natural if p["scene"] == "natural" else grating) for p in placed]
 
     rows, fits = design_runs_per_scene(
-        DesignSpace([12.0], ["grating", "natural"], profile, (0.0, 3.0)), natural_blind,
+        DesignSpace([12.0], ["grating", "natural"], profile, (0.0, 3.0)),
+        natural_blind,
         DesignSettings(target=TARGET, budget=8, precision_dps=2.0, batch=2, seed=1),
-    )  # fmt: skip
+    )
     assert fits[(12.0, "natural")].state == "below"
     assert fits[(12.0, "natural")].high == PROFILE["natural"][1][0]
     assert sum(r["scene"] == "natural" for r in rows) == 3  # stopped after its first batch
@@ -113,21 +116,37 @@ def fake_run_grid(rng: np.random.Generator):
                 rows.append(cols | {"profile_dps": dps})
                 continue
             (row,) = simulated(rng, [cols])
-            rows.append(row | {"avoidances_per_30min": 3.0 * row["avoidances"],
-                               "crashes_per_30min": 3.0 * row["crashes"],
-                               "false_alarms_per_30min": 0.0, "dtc_median_m": 0.2})  # fmt: skip
+            rows.append(
+                row
+                | {
+                    "avoidances_per_30min": 3.0 * row["avoidances"],
+                    "crashes_per_30min": 3.0 * row["crashes"],
+                    "false_alarms_per_30min": 0.0,
+                    "dtc_median_m": 0.2,
+                }
+            )
         return pl.DataFrame(rows)
 
     return run_grid
 
 
 def test_the_files_have_a_row_per_value_and_scene(tmp_path: Path) -> None:
-    s = BoundarySettings(design="adaptive", per_scene=True, values="12,45", budget=10,
-                         no_fit=True, no_predictors=True)  # fmt: skip
+    s = BoundarySettings(
+        design="adaptive",
+        per_scene=True,
+        values="12,45",
+        budget=10,
+        no_fit=True,
+        no_predictors=True,
+    )
     res = adaptive_boundary(s, tmp_path, fake_run_grid(np.random.default_rng(2)), QUIET)
     bounds = pl.read_parquet(tmp_path / "boundary.parquet")
     assert sorted(zip(bounds["t_ffi"], bounds["scene"], strict=True)) == [
-        (12.0, "grating"), (12.0, "natural"), (45.0, "grating"), (45.0, "natural")]  # fmt: skip
+        (12.0, "grating"),
+        (12.0, "natural"),
+        (45.0, "grating"),
+        (45.0, "natural"),
+    ]
     runs = pl.read_parquet(tmp_path / "boundary_runs.parquet")
     profiles = pl.read_parquet(tmp_path / "boundary_profiles.parquet")
     assert runs.height <= 20
@@ -148,8 +167,10 @@ def test_the_files_have_a_row_per_value_and_scene(tmp_path: Path) -> None:
     assert "**Exploratory**" in md
     for r in bounds.iter_rows(named=True):
         note = f"(exploratory: this scene's {r['fit_runs']} runs alone)"
-        assert any(line.startswith(f"- t_ffi = {r['t_ffi']:g}, {r['scene']}: ")
-                   and line.endswith(note) for line in md.splitlines())  # fmt: skip
+        assert any(
+            line.startswith(f"- t_ffi = {r['t_ffi']:g}, {r['scene']}: ") and line.endswith(note)
+            for line in md.splitlines()
+        )
         assert any(f", {r['scene']}: " in line and note in line for line in res.report())
         assert r["unit"] in ("condition", "run") and r["n_units"] >= 1  # one scene: not "scene"
         assert f"| {r['fit_runs']} | {r['n_units']} {r['unit']}" in md

@@ -54,17 +54,19 @@ def campaign(tmp_path_factory) -> dict[str, Path]:
     other = rr.RecordingStream("another_app", recording_id="theirs")
     other.save(str(rec / "theirs.rrd"))
     other.send_columns(
-        "/x", indexes=[rr.TimeColumn("frame", sequence=np.arange(5))],
+        "/x",
+        indexes=[rr.TimeColumn("frame", sequence=np.arange(5))],
         columns=rr.Scalars.columns(scalars=np.arange(5.0)),
-    )  # fmt: skip
+    )
     other.flush()
     other.disconnect()
     stamped = rr.RecordingStream("vdc", recording_id="stamped")
     stamped.save(str(rec / "stamped.rrd"))
     stamped.send_columns(
-        "/x", indexes=[rr.TimeColumn("frame", timestamp=np.arange(5) * 1e9)],
+        "/x",
+        indexes=[rr.TimeColumn("frame", timestamp=np.arange(5) * 1e9)],
         columns=rr.Scalars.columns(scalars=np.arange(5.0)),
-    )  # fmt: skip
+    )
     stamped.flush()
     stamped.disconnect()
     return {"root": root, **paths}
@@ -143,8 +145,10 @@ def _serve(campaign) -> tuple:
 
     proc = spawn(
         [sys.executable, "-m", "analysis", "catalog", "serve", str(campaign["root"]), "--web"],
-        stdout=-1, stderr=-1, text=True,
-    )  # fmt: skip
+        stdout=-1,
+        stderr=-1,
+        text=True,
+    )
     lines = _wait_for(proc, "serving until Ctrl-C")
     url = urlsplit(next(ln.split()[-1] for ln in lines if ln.startswith("open it: rerun")))
     web = next(ln.split()[-1] for ln in lines if ln.startswith("web viewer:"))
@@ -203,8 +207,10 @@ def test_a_catalog_already_serving_is_queried_by_its_url(campaign, tmp_path: Pat
     by_folder = query([campaign["root"]], where=where)
     proc = spawn(
         [sys.executable, "-m", "analysis", "catalog", "serve", str(campaign["root"])],
-        stdout=-1, stderr=-1, text=True,
-    )  # fmt: skip
+        stdout=-1,
+        stderr=-1,
+        text=True,
+    )
     try:
         lines = _wait_for(proc, "serving until Ctrl-C")
         dataset = next(ln.split()[-1] for ln in lines if ln.startswith("open it: rerun"))
@@ -248,9 +254,15 @@ def test_a_port_outside_the_tcp_range_is_refused_at_the_door(tmp_path, flag, val
 
 def test_a_where_that_names_no_property_is_one_line(campaign, tmp_path: Path) -> None:
     proc = run_cli(
-        "analysis", "catalog", "query", str(campaign["root"]), "--where", "colour=blue",
-        "--out", str(tmp_path / "q"),
-    )  # fmt: skip
+        "analysis",
+        "catalog",
+        "query",
+        str(campaign["root"]),
+        "--where",
+        "colour=blue",
+        "--out",
+        str(tmp_path / "q"),
+    )
     # the notes on the refused files come first; the error is one line, no traceback
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if ": error: " in ln]
@@ -349,8 +361,14 @@ def test_a_web_port_another_process_holds_is_said_before_anything_starts(campaig
         held.listen()
         port = held.getsockname()[1]
         proc = run_cli(
-            "analysis", "catalog", "serve", str(campaign["root"]), "--web",
-            "--web-port", str(port), timeout=120,
-        )  # fmt: skip
+            "analysis",
+            "catalog",
+            "serve",
+            str(campaign["root"]),
+            "--web",
+            "--web-port",
+            str(port),
+            timeout=120,
+        )
     assert_one_line_error(proc, f"--web-port {port}: the port is taken on 127.0.0.1")
     assert "web viewer:" not in proc.stdout  # never announced

@@ -108,8 +108,10 @@ def _serve(folder: Path) -> tuple[subprocess.Popen, int]:
     says it serves. Its process group is ended after the test (tests/conftest.py)."""
     proc = spawn(
         [sys.executable, "-m", "analysis", "catalog", "serve", str(folder)],
-        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-    )  # fmt: skip
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
     lines = []
     for line in proc.stdout:  # ends if the server dies before it serves
         lines.append(line)

@@ -158,8 +158,15 @@ def test_frames_measured_on_several_threads_give_the_plain_loops_bits(
     for threads in (1, 3):
         reader = open_reader(str(path))
         again = (lambda: open_reader(str(path))) if reopen else None
-        b = FrameBatcher(reader, (62, 99), 25.0, batch_frames=4, threads=threads,
-                         measure_on_threads=True, reopen=again)  # fmt: skip
+        b = FrameBatcher(
+            reader,
+            (62, 99),
+            25.0,
+            batch_frames=4,
+            threads=threads,
+            measure_on_threads=True,
+            reopen=again,
+        )
         if jitter:
             measure, rng = b.meter.measure, random.Random(threads)
 

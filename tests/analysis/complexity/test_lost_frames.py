@@ -102,8 +102,9 @@ def test_a_clean_file_that_starts_late_loses_no_frame(tmp_path, suffix, first_pt
 def test_frames_lost_at_the_start_and_at_the_end_are_counted_once(tmp_path, suffix):
     clean = write_clip(tmp_path / f"clean{suffix}")
     for first, last_gop in ((True, False), (False, True), (True, True)):
-        bad = zero_packets(clean, tmp_path / f"bad{int(first)}{int(last_gop)}{suffix}", first,
-                           last_gop)  # fmt: skip
+        bad = zero_packets(
+            clean, tmp_path / f"bad{int(first)}{int(last_gop)}{suffix}", first, last_gop
+        )
         info = measured(bad)
         assert info["container_frames"] == N
         assert info["frames"] < N  # the damage cost frames ...
@@ -191,8 +192,9 @@ def test_an_mkv_whose_first_cluster_is_unreadable_counts_its_lost_start(tmp_path
     assert (info["frames"], info["dropped_frames"], info["container_frames"]) == (50, 50, 100)
     assert info["header_duration_s"] == pytest.approx(4.0)
     assert info["missing_s"] == pytest.approx(2.0, abs=1e-6)  # the lost start, in seconds
-    rec = record_video(VideoSettings(source=str(bad), fov_deg=70.0, model="avdm"),
-                       tmp_path / "bad.rrd")  # fmt: skip
+    rec = record_video(
+        VideoSettings(source=str(bad), fov_deg=70.0, model="avdm"), tmp_path / "bad.rrd"
+    )
     assert (rec.record.frames, rec.dropped, rec.container_frames) == (50, 50, 100)
 
 
@@ -226,13 +228,19 @@ def _three_entry_points(path: Path, out: Path, capsys) -> list[tuple]:
 
     s = vdc.ComplexitySettings(metrics=PIXEL_METRICS)
     api = vdc.complexity([path], s, out / "api").clips.row(0, named=True)
-    assert analyse(["complexity", str(path), "--metrics", PIXEL_METRICS,
-                    "--out", str(out / "cli")]) == 0  # fmt: skip
+    assert (
+        analyse(["complexity", str(path), "--metrics", PIXEL_METRICS, "--out", str(out / "cli")])
+        == 0
+    )
     cli = pl.read_parquet(out / "cli" / "clips.parquet").row(0, named=True)
     capsys.readouterr()
     rrd = out / "clip.rrd"
-    assert capture(["video", str(path), "--fov-deg", "70", "--model", "avdm", "--out", str(rrd),
-                    "--quiet"]) == 0  # fmt: skip
+    assert (
+        capture(
+            ["video", str(path), "--fov-deg", "70", "--model", "avdm", "--out", str(rrd), "--quiet"]
+        )
+        == 0
+    )
     said = capsys.readouterr()
     m = COUNTS.search(said.out)
     assert m, said.out
@@ -295,7 +303,21 @@ def test_a_file_that_states_no_count_is_said_once_not_guessed(tmp_path, capsys):
     said = [n for n in seen if "states no frame count" in n]
     assert len(said) == 1 and "1 file(s)" in said[0] and str(clip) in said[0], seen
     capsys.readouterr()
-    assert capture(["video", str(clip), "--fov-deg", "70", "--model", "avdm",
-                    "--out", str(tmp_path / "clip.rrd"), "--quiet"]) == 0  # fmt: skip
+    assert (
+        capture(
+            [
+                "video",
+                str(clip),
+                "--fov-deg",
+                "70",
+                "--model",
+                "avdm",
+                "--out",
+                str(tmp_path / "clip.rrd"),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     err = capsys.readouterr().err
     assert len([ln for ln in err.splitlines() if "states no frame count" in ln]) == 1, err

@@ -190,9 +190,14 @@ def test_repeats_are_judged_on_native_frames_not_on_the_thumbnail(tmp_path: Path
     fov, width, fps = 64.0, 640, 25.0
     deg_per_px = fov / width
     frames = panned_image(
-        np.tile(photo, (1, 4)), size=(360, width), fov_deg=fov, image_deg=300.0, fps=fps,
-        omega_dps=0.15 * deg_per_px * fps, n_frames=55,
-    )  # fmt: skip
+        np.tile(photo, (1, 4)),
+        size=(360, width),
+        fov_deg=fov,
+        image_deg=300.0,
+        fps=fps,
+        omega_dps=0.15 * deg_per_px * fps,
+        n_frames=55,
+    )
     doubled = sorted((7, 15, 23, 31, 39))
     shown = np.concatenate(
         [np.repeat(f[None], 2 if i in doubled else 1, 0) for i, f in enumerate(frames)]

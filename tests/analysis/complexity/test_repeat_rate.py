@@ -34,9 +34,14 @@ def clips(tmp_path_factory) -> dict[float, Path]:
     d = tmp_path_factory.mktemp("repeats")
     photo = cv2.cvtColor(data.coffee(), cv2.COLOR_RGB2GRAY).astype(np.float64)
     frames = panned_image(
-        np.tile(photo, (1, 4)), size=(288, 396), fov_deg=FOV, image_deg=360.0, fps=FPS,
-        omega_dps=OMEGA_DPS, n_frames=N_NEW,
-    )  # fmt: skip
+        np.tile(photo, (1, 4)),
+        size=(288, 396),
+        fov_deg=FOV,
+        image_deg=360.0,
+        fps=FPS,
+        omega_dps=OMEGA_DPS,
+        n_frames=N_NEW,
+    )
     paths = {}
     for k in (1, 2, 2.5, 3):
         path = d / f"pan_x{k:g}.mp4"
@@ -112,9 +117,10 @@ def test_repeated_frames_at_a_higher_rate_read_the_originals_profile(clips, tmp_
 
     logged: list[str] = []
     rec = record_video(
-        VideoSettings(source=str(clips[3]), fov_deg=FOV), tmp_path / "x3.rrd",
+        VideoSettings(source=str(clips[3]), fov_deg=FOV),
+        tmp_path / "x3.rrd",
         CaptureOptions(progress=False, log=logged.append),
-    )  # fmt: skip
+    )
     assert rec.model_fps == pytest.approx(FPS) and rec.model_fps_reason == "regular cadence"
     assert sum("new frames" in line for line in logged) == 1, logged
     props = Recording(rec.record.path).properties()

@@ -49,9 +49,14 @@ def test_a_slow_pan_is_read_at_the_containers_rate_in_both_directions(
     panorama, tmp_path, omega_dps
 ) -> None:
     pan = panned_image(
-        panorama, size=SIZE, fov_deg=FOV, image_deg=360.0, fps=FPS, omega_dps=omega_dps,
+        panorama,
+        size=SIZE,
+        fov_deg=FOV,
+        image_deg=360.0,
+        fps=FPS,
+        omega_dps=omega_dps,
         n_frames=N,
-    )  # fmt: skip
+    )
     for crf in (23, 30):
         readings = {}
         # the same pan played backwards: the camera turning the other way over the same scene

@@ -169,8 +169,9 @@ def test_a_cut_clip_is_noted_and_its_row_says_how_much_is_missing(tmp_path: Path
     assert len(notes) == 1 and said.group(0) in notes[0], cli.stderr
     # on a folder holding it, through the API: the note and the row
     seen: list[str] = []
-    res = complexity([clips], ComplexitySettings(model=MODEL, fov_deg=FOV), tmp_path / "dir",
-                     notice=seen.append)  # fmt: skip
+    res = complexity(
+        [clips], ComplexitySettings(model=MODEL, fov_deg=FOV), tmp_path / "dir", notice=seen.append
+    )
     assert any(said.group(0) in n for n in seen), seen
     row = pl.read_parquet(tmp_path / "dir" / "clips.parquet").row(0, named=True)
     assert row["missing_s"] == res.clips["missing_s"][0]

@@ -29,12 +29,17 @@ def panning(tmp_path_factory):
     """Six episodes whose camera is on the arm: its view pans 1 px per unit of joint 0 (up to
     80 px over an episode), and a knock of 25 px at frame 60 of the last."""
     root = tmp_path_factory.mktemp("arm") / "ds"
-    write_dataset(root, episodes=6, codec="libx264", pan_px_per_unit=1.0,
-                  faults=Faults(knock=KNOCK))  # fmt: skip
+    write_dataset(
+        root, episodes=6, codec="libx264", pan_px_per_unit=1.0, faults=Faults(knock=KNOCK)
+    )
     out = root.parent / "out"
     said: list[str] = []
-    res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), out,
-                  feedback=Feedback(log=said.append))  # fmt: skip
+    res = dataset(
+        root,
+        DatasetSettings(jobs=2, page=False, recordings=False),
+        out,
+        feedback=Feedback(log=said.append),
+    )
     return root, out, res, said
 
 
@@ -70,9 +75,13 @@ def test_the_user_can_name_the_moving_camera_and_turn_a_flag_off(panning, tmp_pa
     out = tmp_path / "out"
     shutil.copytree(first, out)  # the measures kept, the first run's files left as they were
     # the second run reads the measures back (no setting here changes what is measured)
-    s = DatasetSettings(jobs=1, page=False, recordings=False,
-                        moving_cameras="observation.images.front",
-                        thresholds="moved_within=off,lag=80")  # fmt: skip
+    s = DatasetSettings(
+        jobs=1,
+        page=False,
+        recordings=False,
+        moving_cameras="observation.images.front",
+        thresholds="moved_within=off,lag=80",
+    )
     res = dataset(root, s, out)
     assert res.reused == 6
     rows = _rows(res)
@@ -120,8 +129,7 @@ def example_v21(tmp_path_factory):
     root = tmp_path_factory.mktemp("v21") / "ds"
     faults = Faults(idle_head_s={1: 1.0}, blurred=frozenset({2}))
     write_dataset(root, episodes=5, version="v2.1", codec="libx264", faults=faults)
-    res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False),
-                  root.parent / "out")  # fmt: skip
+    res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), root.parent / "out")
     return res
 
 
@@ -151,10 +159,17 @@ def test_two_cameras_are_checked_against_each_other_for_lag(tmp_path) -> None:
     the flag lands on the front camera, the one behind. The cameras' sizes differ (96 × 128
     and 120 × 160)."""
     root = tmp_path / "ds"
-    write_dataset(root, episodes=3, version="v2.1", codec="libx264", strokes=3,
-                  seconds=(6.0, 6.0), faults=Faults(lag_ms={1: 150.0}),
-                  cameras=("observation.images.front", "observation.images.wrist"),
-                  camera_shapes={"observation.images.wrist": (120, 160)})  # fmt: skip
+    write_dataset(
+        root,
+        episodes=3,
+        version="v2.1",
+        codec="libx264",
+        strokes=3,
+        seconds=(6.0, 6.0),
+        faults=Faults(lag_ms={1: 150.0}),
+        cameras=("observation.images.front", "observation.images.wrist"),
+        camera_shapes={"observation.images.wrist": (120, 160)},
+    )
     res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), tmp_path / "o")
     rows = {(r["episode_index"], r["camera"]): r for r in res.episodes.iter_rows(named=True)}
     wrist = rows[(1, "observation.images.wrist")]
@@ -191,8 +206,14 @@ def test_the_example_is_written_without_scikit_image_and_a_failed_write_leaves_n
     # a write that fails midway (after the frames are drawn) leaves no folder, hidden or not
     bad = tmp_path / "bad"
     with pytest.raises(UserError, match="image camera 'nope'"):
-        write_dataset(bad, episodes=2, codec="libx264", seconds=(1.0, 1.0), faults=Faults(),
-                      image_cameras=("nope",))  # fmt: skip
+        write_dataset(
+            bad,
+            episodes=2,
+            codec="libx264",
+            seconds=(1.0, 1.0),
+            faults=Faults(),
+            image_cameras=("nope",),
+        )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ok"]
     with pytest.raises(UserError, match="not an empty folder"):
         write_dataset(tmp_path / "ok", episodes=1)
@@ -223,8 +244,9 @@ def test_a_fixed_cameras_knock_is_found_at_its_frame_and_after_it(tmp_path) -> N
 
 def test_the_command_line_refuses_a_bad_threshold_and_a_file_in_one_line(panning) -> None:
     root, out, _, _ = panning
-    proc = run_in_process("analysis", "dataset", str(root), "--out", str(out),
-                          "--thresholds", "lag=soon")  # fmt: skip
+    proc = run_in_process(
+        "analysis", "dataset", str(root), "--out", str(out), "--thresholds", "lag=soon"
+    )
     assert_one_line_error(proc, "--thresholds", "lag", "'soon'")
     info = root / "meta" / "info.json"
     proc = run_in_process("analysis", "dataset", str(info), "--out", str(out))
@@ -239,9 +261,16 @@ def test_a_camera_at_half_the_rate_is_measured_in_its_own_frames(tmp_path) -> No
     the data's rows read at its rate: doubled)."""
     slow, fast = "observation.images.wrist", "observation.images.top"
     root = tmp_path / "ds"
-    write_dataset(root, episodes=3, codec="libx264", seconds=(6.0, 6.0), strokes=3,
-                  faults=Faults(dropped={1: (20, 5)}, lag_ms={2: 100.0}),
-                  cameras=(slow, fast), camera_fps={slow: 15.0})  # fmt: skip
+    write_dataset(
+        root,
+        episodes=3,
+        codec="libx264",
+        seconds=(6.0, 6.0),
+        strokes=3,
+        faults=Faults(dropped={1: (20, 5)}, lag_ms={2: 100.0}),
+        cameras=(slow, fast),
+        camera_fps={slow: 15.0},
+    )
     info = json.loads((root / "meta" / "info.json").read_text())
     assert info["fps"] == 30 and info["features"][slow]["info"]["video.fps"] == 15
     res = dataset(root, DatasetSettings(jobs=2, page=False, recordings=False), tmp_path / "o")

@@ -21,9 +21,16 @@ FAULTS = STANDARD_FAULTS
 # 100-ms lag is not flagged: one out-and-back stroke in 3-4 s cannot tell it (its interval
 # fills the search, and a flag needs its interval past the threshold)
 EXPECTED = {
-    1: {"frozen"}, 2: {"dropped"}, 3: {"drift"}, 4: set(), 5: {"idle"}, 6: {"blurred"},
-    7: {"overexposed"}, 10: {"moved"}, 11: {"moved"},
-}  # fmt: skip
+    1: {"frozen"},
+    2: {"dropped"},
+    3: {"drift"},
+    4: set(),
+    5: {"idle"},
+    6: {"blurred"},
+    7: {"overexposed"},
+    10: {"moved"},
+    11: {"moved"},
+}
 
 
 @pytest.fixture(scope="module")

@@ -164,28 +164,28 @@ def test_a_deadlocked_encoder_is_abandoned_and_the_file_encoded_again(
     encoded again and holds every frame; three hangs end in one clear error."""
     import threading
 
-    from analysis.dataset import synthetic
+    from analysis.dataset import synthetic_video
     from vdc.errors import UserError
 
-    real_add, hangs, release = synthetic._Encoder.add, [1], threading.Event()
+    real_add, hangs, release = synthetic_video._Encoder.add, [1], threading.Event()
 
     def add(self, t_s, rgb):
         if hangs[0] > 0 and str(self.container.name).endswith("attempt0.mp4"):
             release.wait()  # blocks as the deadlocked encoder did
         real_add(self, t_s, rgb)
 
-    monkeypatch.setattr(synthetic._Encoder, "add", add)
+    monkeypatch.setattr(synthetic_video._Encoder, "add", add)
     frames = [(k / 30, np.full((48, 64, 3), 8 * k, np.uint8)) for k in range(12)]
     path = tmp_path / "v.mp4"
     try:
-        synthetic.encode_file(path, "libx264", 30.0, (48, 64), frames, stall_s=1.0)
+        synthetic_video.encode_file(path, "libx264", 30.0, (48, 64), frames, stall_s=1.0)
         assert "no progress for 1 s on v.mp4" in capsys.readouterr().err
         with av.open(str(path)) as c:
             assert sum(1 for _ in c.decode(video=0)) == len(frames)
         hangs[0] = 3
-        monkeypatch.setattr(synthetic._Encoder, "add", lambda self, t, rgb: release.wait())
+        monkeypatch.setattr(synthetic_video._Encoder, "add", lambda self, t, rgb: release.wait())
         with pytest.raises(UserError, match="deadlocked three times"):
-            synthetic.encode_file(
+            synthetic_video.encode_file(
                 tmp_path / "w.mp4", "libx264", 30.0, (48, 64), frames, stall_s=0.5
             )
     finally:

@@ -19,7 +19,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from analysis.dataset import DatasetSettings, dataset
-from analysis.dataset.layout import agreed_rate, open_dataset
+from analysis.dataset.layout import open_dataset
+from analysis.dataset.rates import agreed_rate
 from analysis.dataset.synthetic import Faults, write_dataset
 from tests.helpers import ROOT, assert_one_line_error
 from tests.in_process import run_in_process

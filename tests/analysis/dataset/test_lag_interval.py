@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.dataset.measure import LAG_SEARCH_S, lag_of
+from analysis.dataset.lag import LAG_SEARCH_S, lag_of
 from analysis.dataset.synthetic import lag_signals
 
 EPISODES = 200
