@@ -54,7 +54,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             f"{PROG} calibrate: error: the fit is poor (R^2 {res.fit.r2:.2f} < "
             f"{fit.MIN_CALIBRATION_R2}): not offered for use: over this geometry's narrow "
             "valid band the law explains too little of the response (try a larger --size or "
-            "a higher --fps)"
+            "a higher --fps)."
         )
         return 1
     return 0

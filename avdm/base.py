@@ -85,12 +85,12 @@ class Params:
         for name in positive:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ParameterError(f"{model} parameter {name}={v!r}: must be a positive number")
+                raise ParameterError(f"{model} parameter {name}={v!r}: must be a positive number.")
         for name, lo, hi in integers:
             v = getattr(self, name)
             if not (isinstance(v, int) and lo <= v <= hi):
                 raise ParameterError(
-                    f"{model} parameter {name}={v!r}: must be an integer from {lo} to {hi}"
+                    f"{model} parameter {name}={v!r}: must be an integer from {lo} to {hi}."
                 )
 
     def replace(self, **changes: Any) -> Params:

@@ -72,7 +72,7 @@ class FlowTtcParams(Params):
         if self.tau_alert_s >= self.tau_max_s:
             raise ParameterError(
                 f"flow-ttc parameter tau_alert_s={self.tau_alert_s!r}: must be below "
-                f"tau_max_s={self.tau_max_s!r}"
+                f"tau_max_s={self.tau_max_s!r}."
             )
 
 

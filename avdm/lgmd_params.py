@@ -60,11 +60,11 @@ def _check_params(
     obj.check_ranges("lgmd", positive=positive)
     fps = obj.fps  # type: ignore[attr-defined]
     if frame_interval_ms(fps) < 1:
-        raise ParameterError(f"lgmd parameter fps={fps!r}: must be at most 1000")
+        raise ParameterError(f"lgmd parameter fps={fps!r}: must be at most 1000.")
     for name in non_negative:
         v = getattr(obj, name)
         if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-            raise ParameterError(f"lgmd parameter {name}={v!r}: must be a number >= 0")
+            raise ParameterError(f"lgmd parameter {name}={v!r}: must be a number >= 0.")
     obj.check_ranges("lgmd", integers=integers)
 
 

@@ -96,7 +96,7 @@ def render_looming(
     if h < 4 or w < 4 or n_frames < 1 or not (fps > 0 and rv_s > 0 and 0 < hfov_deg < 180):
         raise ParameterError(
             "render_looming needs a raster of at least 4x4, frames, fps > 0, "
-            "rv_s > 0 and 0 < hfov_deg < 180"
+            "rv_s > 0 and 0 < hfov_deg < 180."
         )
     f = focal_px(w, hfov_deg)
     deg_per_px = hfov_deg / w  # of the background cylinder

@@ -19,24 +19,11 @@ ERRORS = {"UserError", "ParameterError", "OutputError"}
 LOG_LINES = {"say", "_notice", "notice", "log", "emit"}
 ENDINGS = (".", ":", "?", "!")
 COMMANDS = ("pip install ", "vdc-analyse ", "vdc-capture ", "python -m ", "rerun ", "lerobot-")
-# Modules left to branches that move or rewrap their messages as this check lands (issue 60):
-# once those are merged, drop the entry and run this file with --fix (the test then holds them)
-PENDING = {
-    "analysis/complexity/command.py": "split into modules by the room-to-grow branch",
-    "analysis/dataset/synthetic.py": "split into modules by the room-to-grow branch",
-    "vdc/sources.py": "split into modules by the room-to-grow branch",
-    "avdm/flow_ttc.py": "its parameter checks rewritten by the room-to-grow branch",
-    "avdm/lgmd_params.py": "its parameter checks rewritten by the room-to-grow branch",
-}
-# (module, the message's last words, each value a "{}"): rewrapped by another branch at the
-# same lines (experiments-pkgs; room-to-grow formats the "fmt: skip" lines)
-PENDING_MESSAGES = {
-    ("analysis/cli.py", "a higher --fps)"),
-    ("analysis/dataset/command.py", "(its cameras: {})"),
-    ("analysis/dataset/layout.py", "one holding meta/info.json)"),
-    ("analysis/dataset/settings.py", "off, got {}"),
-    ("avdm/looming.py", "0 < hfov_deg < 180"),
-}
+# Modules, then messages, left to a branch that moves or rewraps them as this check lands: once
+# it is merged, drop the entry and run this file with --fix (none is left today)
+PENDING: dict[str, str] = {}
+# (module, the message's last words, each value a "{}")
+PENDING_MESSAGES: set[tuple[str, str]] = set()
 
 
 def _parts(node: ast.expr) -> list[tuple[str, object]]:

@@ -23,11 +23,11 @@ class CameraReader(Reader):
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
         self.cap = cv2.VideoCapture(int(source))
         if not self.cap.isOpened():
-            raise UserError(f"camera {source} cannot be opened (no such camera)")
+            raise UserError(f"camera {source} cannot be opened (no such camera).")
         ok, first = self.cap.read()
         if not ok or first is None:
             self.cap.release()
-            raise UserError(f"camera {source} gives no frame")
+            raise UserError(f"camera {source} gives no frame.")
         self.first = first
         cam_fps = self.cap.get(cv2.CAP_PROP_FPS)
         self.fps = fps or (cam_fps if cam_fps and cam_fps > 0 else 30.0)
@@ -83,12 +83,12 @@ class ImageSequenceReader(Reader):
 
     def __init__(self, pattern: str, fps: float | None) -> None:
         if fps is None:
-            raise UserError("an image sequence needs --fps (its frame rate)")
+            raise UserError("an image sequence needs --fps (its frame rate).")
         fields = list(_PATTERN_FIELD.finditer(pattern))
         if len(fields) != 1:
             raise UserError(
                 f"image sequence {pattern!r}: give one number field such as %05d "
-                "(a file with % in its name is read as a video when it exists)"
+                "(a file with % in its name is read as a video when it exists)."
             )
         field = fields[0]
         head, tail = pattern[: field.start()], pattern[field.end() :]
@@ -102,7 +102,7 @@ class ImageSequenceReader(Reader):
                 if m and (not field.group(2) or len(m.group(1)) >= int(field.group(2))):
                     found.setdefault(int(m.group(1)), entry)
         if not found:
-            raise UserError(f"image sequence {pattern!r} cannot be opened (no matching files)")
+            raise UserError(f"image sequence {pattern!r} cannot be opened (no matching files).")
         width = f"{field.group(1)}{field.group(2)}d"
         self.name_of = lambda k: Path(head + format(k, width) + tail).name
         self.paths = found
@@ -114,7 +114,7 @@ class ImageSequenceReader(Reader):
             if first is not None:
                 break
         if first is None:
-            raise UserError(f"image sequence {pattern!r}: no image in it can be read")
+            raise UserError(f"image sequence {pattern!r}: no image in it can be read.")
         self.problems, self.first_problem = 0, None  # counted again when the frames are read
         h, w = first.shape
         # a 16-bit image (PNG, TIFF) is measured at its 16 bits, full range (never as bytes)

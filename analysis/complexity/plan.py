@@ -35,7 +35,7 @@ def expand_sources(
     file or a pattern that matches nothing raises ValueError, as does an empty list."""
     sources: list[str] = []
     if not path_list(items):
-        raise UserError("complexity was given no sources: name a recording, video or folder")
+        raise UserError("complexity was given no sources: name a recording, video or folder.")
     for item in path_list(items):
         p = Path(item)
         if p.is_dir():
@@ -46,7 +46,7 @@ def expand_sources(
             if not scan.found:
                 raise UserError(
                     f"folder {item!r} holds no videos ({', '.join(VIDEO_SUFFIXES[:5])}, ...) "
-                    f"or .rrd recordings{f' ({note})' if note else ''}"
+                    f"or .rrd recordings{f' ({note})' if note else ''}."
                 )
             sources += map(str, scan.found)
         elif p.is_file():
@@ -57,7 +57,7 @@ def expand_sources(
             if not folder.is_dir() or not any(
                 f.name.startswith(head) for f in folder.iterdir() if f.is_file()
             ):
-                raise UserError(f"image sequence {item!r} matches no files")
+                raise UserError(f"image sequence {item!r} matches no files.")
             sources.append(item)
         else:
             raise UserError(not_found(item))
@@ -79,7 +79,7 @@ def without_fov(sources: Sequence[str], settings: ComplexitySettings) -> str | N
     if not kept and len(videos) == len(sources):
         raise UserError(
             f"{', '.join(left)} need the camera's field of view: give --fov-deg (the horizontal "
-            "field of view, degrees) or ask for pixel metrics (--metrics)"
+            "field of view, degrees) or ask for pixel metrics (--metrics)."
         )
     why = "deg/s" if set(left) <= set(ANGULAR_METRICS) else "deg/s, or the model raster"
     return (
@@ -122,12 +122,12 @@ def plan_sources(
         if notice is not None:
             notice(
                 f"skipped {len(derived)} recording(s) vdc derived from others (first: "
-                f"{derived[0]}): outputs, not sources"
+                f"{derived[0]}): outputs, not sources."
             )
         if len(derived) == len(sources):
             raise UserError(
                 f"{derived[0]!r} is an output of vdc-analyse complexity, not a source; give "
-                "the recording or video it measured"
+                "the recording or video it measured."
             )
         sources = [s for s in sources if s not in derived]
     names = unique_source_names(sources)
@@ -145,7 +145,7 @@ def plan_sources(
         tasks.append({"source": src, "recording_id": rid, "key": f"{name}-{digest[:8]}"})
     keys = [t["key"] for t in tasks]
     if len(set(keys)) != len(keys):  # the same name and content twice
-        raise UserError("two sources are the same file; give each once")
+        raise UserError("two sources are the same file; give each once.")
     return tasks
 
 

@@ -100,10 +100,10 @@ class ComplexitySettings(Settings):
         require_angular_velocity(self.model, "complexity")
         parse_metrics(self.metrics)
         if self.flow_preset not in DIS_PRESETS:
-            raise UserError(f"--flow-preset must be one of {', '.join(DIS_PRESETS)}")
+            raise UserError(f"--flow-preset must be one of {', '.join(DIS_PRESETS)}.")
         if self.color_range not in RANGE_CHOICES:
             choices = ", ".join(RANGE_CHOICES)
-            raise UserError(f"--color-range must be one of {choices}, got {self.color_range!r}")
+            raise UserError(f"--color-range must be one of {choices}, got {self.color_range!r}.")
         self.executor_settings()
         parse_shard(self.shard)
 

@@ -188,7 +188,7 @@ def _run(root: Path, settings: DatasetSettings, out: Path, feedback: Feedback) -
     if unknown:
         raise UserError(
             f"--moving-cameras: {unknown[0]!r} is not a camera of {root} (its "
-            f"cameras: {', '.join(ds.cameras)})"
+            f"cameras: {', '.join(ds.cameras)})."
         )
     videos = [v for v in ds.videos if wanted is None or v.episode in wanted]
     notes = [n for n in [no_fov_note(settings)] if n]

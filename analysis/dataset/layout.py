@@ -106,7 +106,7 @@ def read_info(root: Path) -> dict[str, Any]:
     if root.exists() and not root.is_dir():
         raise UserError(
             f"{root} is a file, not a folder: give the LeRobot dataset's folder (the "
-            "one holding meta/info.json)"
+            "one holding meta/info.json)."
         )
     if not root.is_dir():
         raise UserError(f"{root}: no such folder (give a LeRobot dataset folder).")

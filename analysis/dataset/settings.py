@@ -108,7 +108,7 @@ class DatasetSettings(Settings):
                 v = math.nan
             if not math.isfinite(v) or v < 0:
                 raise UserError(
-                    f"--thresholds: {name}'s threshold must be a number >= 0 or off, got {value!r}"
+                    f"--thresholds: {name}'s threshold must be a number >= 0 or off, got {value!r}."
                 )
             out[name] = v
         return out

@@ -113,5 +113,5 @@ def encode_file(
             file=sys.stderr,
         )
     raise UserError(
-        f"the {codec} encoder deadlocked three times on {path}; write it with libx264 instead"
+        f"the {codec} encoder deadlocked three times on {path}; write it with libx264 instead."
     )
