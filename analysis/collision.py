@@ -336,10 +336,12 @@ def collision(
     out: str | Path | None = None,
     *,
     notice: Callable[[str], None] | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> CollisionResult:
     """``vdc-analyse collision`` (Fig. 8): metrics of closed-loop recordings, ordered by
     phase. With ``out``: ``collision_summary.parquet``, ``collision_events.parquet``, a PNG
-    per recording, ``collision_study.png`` and ``collision.rrd``."""
+    per recording, ``collision_study.png`` and ``collision.rrd``. ``progress(1)`` after each
+    recording's metrics."""
 
     items, notes = [], Notices(notice)
     distinct = DistinctRecordings()
@@ -349,6 +351,8 @@ def collision(
         notes.of(loaded)
         row, ev = collision_metrics(loaded, settings)
         items.append((loaded, row, ev))
+        if progress is not None:
+            progress(1)
     items.sort(key=lambda it: (_phase_rank(it[1]["phase"]), it[1]["seed"] or 0, it[0].recording_id))
     summary = pl.DataFrame([row for _, row, _ in items])
     events = pl.concat([ev for _, _, ev in items])

@@ -178,6 +178,14 @@ def test_a_quick_reproduction_counts_its_runs(tmp_path) -> None:
     status, lines = _timed_lines(["-m", "analysis", "reproduce", *args, "--out", str(tmp_path)])
     assert status == 0, lines
     assert_never_silent(lines, "vdc-analyse reproduce", "10", "runs")
+    # the profiling tables count the planned frames (5 runs of 0.3 min at 33 Hz) and the
+    # collision study its recordings (5 phases): each stage's beats say how far it is
+    counted = {
+        (c["total"], c["unit"])
+        for _, text in lines
+        if (m := BEAT.match(text)) and (c := COUNT.search(m["rest"]))
+    }
+    assert {("2970", "frames"), ("5", "recordings")} <= counted, counted
 
 
 def test_looming_footage_counts_its_clips(tmp_path) -> None:

@@ -155,9 +155,14 @@ def reproduce(
     plot_approach(runs, summary, out / "approach" / "approach.png")
 
     log("Stage 4 of 6: profiling tables and figures (Figs. 6-7).")
-    prof_paths = [paths[k] for k, _, _ in profile_items(plan, rec_dir / "profiling")]
+    prof_items = profile_items(plan, rec_dir / "profiling")
+    prof_paths = [paths[k] for k, _, _ in prof_items]
     settings = SummarySettings()
-    with Count(None, "profiling", "frame") as count:
+    # the frames the runs were planned to hold: the heartbeat's total, for its estimate
+    planned = sum(
+        round(c.duration_s * c.camera.fps) for c in (s.to_config() for _, s, _ in prof_items)
+    )
+    with Count(planned, "profiling", "frame") as count:
         tables, tmeta = build_tables(prof_paths, PROFILE_MODELS, settings, count.update)
     tables["summary"] = with_motion_summaries(tables, settings)
     for name, t in tables.items():
@@ -184,7 +189,8 @@ def reproduce(
 
     log("Stage 5 of 6: the collision study (Fig. 8).")
     col_paths = [str(p) for k, p in paths.items() if k.startswith("tf")]  # phase keys
-    collision(col_paths, CollisionSettings(), out / "collision")
+    with Count(len(col_paths), "collision study", "recording") as count:
+        collision(col_paths, CollisionSettings(), out / "collision", progress=count.update)
 
     log("Stage 6 of 6: the claims and the report.")
     claims = evaluate_claims(out)
