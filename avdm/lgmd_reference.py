@@ -19,8 +19,6 @@ from avdm.base import Output, check_frames, run_by_steps
 from avdm.lgmd_params import (
     LGMD_OUTPUT_NAMES,
     LGMD_OUTPUTS,
-    LgmdColiasParams,
-    LgmdPlusParams,
     bias_matrix,
     frame_interval_ms,
     lowpass_alpha,
@@ -92,9 +90,10 @@ class _ReferenceBase:
     layers at 0, and ``run`` as a sequence of steps."""
 
     outputs: ClassVar[tuple[Output, ...]] = LGMD_OUTPUTS
+    default_name: ClassVar[str] = ""  # each reference's own: its registry name + "-reference"
 
-    def __init__(self, params: Any, name: str) -> None:
-        self.name = name
+    def __init__(self, params: Any, name: str | None = None) -> None:
+        self.name = self.default_name if name is None else name
         self.params = params
         self.reset()
 
@@ -122,8 +121,7 @@ class _ReferenceBase:
 class LgmdPlusReference(_ReferenceBase):
     """LGMD+ one frame at a time (float64 NumPy)."""
 
-    def __init__(self, params: LgmdPlusParams, name: str = "lgmd-plus-reference") -> None:
-        super().__init__(params, name)
+    default_name: ClassVar[str] = "lgmd-plus-reference"
 
     def reset(self) -> None:
         super().reset()
@@ -176,8 +174,7 @@ class LgmdPlusReference(_ReferenceBase):
 class LgmdColiasReference(_ReferenceBase):
     """The Colias firmware "LGMD-Plus" port one frame at a time (integer layers as on the MCU)."""
 
-    def __init__(self, params: LgmdColiasParams, name: str = "lgmd-colias-reference") -> None:
-        super().__init__(params, name)
+    default_name: ClassVar[str] = "lgmd-colias-reference"
 
     def reset(self) -> None:
         super().reset()

@@ -5,11 +5,13 @@ clips with nothing colliding; encoded as H.264 files with a labels table."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 import polars as pl
 
+from analysis.boundary.settings import BoundarySettings
 from tests.helpers import write_video
 
 SIZE = (120, 160)  # H, W
@@ -83,3 +85,11 @@ def write_collection(
     path = folder / "labels.csv"
     pl.DataFrame(rows, schema_overrides={"collision_frame": pl.Int64}).write_csv(path)
     return path
+
+
+def looming_boundary_settings(labels: Path, **overrides: Any) -> BoundarySettings:
+    """Footage mode on a collection's ``labels`` with the guides' OpenCV looming detector at
+    threshold 0.05 (a 60° field of view, one job); ``overrides`` replace any of these."""
+    fields = {"labels": str(labels), "fov_deg": 60.0, "detector": "examples.looming:Looming"}
+    fields |= {"param": "threshold", "values": "0.05", "jobs": 1}
+    return BoundarySettings(**(fields | overrides))

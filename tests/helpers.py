@@ -11,9 +11,13 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from fractions import Fraction
 from pathlib import Path
+from typing import Any
 
 import av
 import numpy as np
+import polars as pl
+
+from analysis.dataset.synthetic import Faults, write_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -90,13 +94,20 @@ def run_cli(
     """Run ``python -m <args>`` as a user would, capturing text output; ``env`` replaces the
     environment (e.g. ``tests.figures.figure_env()``)."""
     env = {**(os.environ if env is None else env), "PYTHONUNBUFFERED": "1"}
+    return run_text([sys.executable, "-m", *args], cwd=cwd, timeout=timeout, env=env)
+
+
+def run_text(
+    cmd: Sequence[str | Path],
+    *,
+    cwd: Path | None = None,
+    timeout: float = 300,
+    env: dict[str, str] | None = None,
+) -> subprocess.CompletedProcess:
+    """Run ``cmd`` to its end (at most ``timeout`` s) in ``cwd`` (default: this checkout), its
+    output captured as text; ``env`` replaces the environment (None: this one's)."""
     return subprocess.run(
-        [sys.executable, "-m", *args],
-        capture_output=True,
-        text=True,
-        cwd=cwd or ROOT,
-        env=env,
-        timeout=timeout,
+        cmd, capture_output=True, text=True, cwd=cwd or ROOT, env=env, timeout=timeout
     )
 
 
@@ -379,3 +390,36 @@ def run_behind_a_held_lock(
     finally:  # the lock is released: collect them, whether or not they waited
         outs = [p.communicate(timeout=300)[0] for p in procs]
     return [(p.returncode, out) for p, out in zip(procs, outs, strict=True)]
+
+
+def write_h264_dataset(
+    root: Path, episodes: int, seconds: tuple[float, float], **kw: Any
+) -> dict[str, Any]:
+    """A LeRobot dataset in H.264 (the codec the tests decode fastest), with no fault unless
+    ``faults`` says otherwise; the rest as :func:`analysis.dataset.synthetic.write_dataset`."""
+    kw.setdefault("faults", Faults())
+    return write_dataset(root, episodes=episodes, codec="libx264", seconds=seconds, **kw)
+
+
+def flags(line: str = "", **values: object) -> list[str]:
+    """A command line's flags: ``line`` split at white space (the flags whose values are plain
+    words, as one would type them), then keyword arguments named as the settings' fields name
+    the flags (``fov_deg=60`` → ``--fov-deg 60``; ``True`` → the flag alone, as ``--no-fit``; a
+    list repeats its flag, in order) for the values computed by the test, such as paths."""
+    out = line.split()
+    for name, value in values.items():
+        flag = "--" + name.replace("_", "-")
+        if value is True:
+            out.append(flag)
+            continue
+        for v in value if isinstance(value, list) else [value]:
+            out += [flag, str(v)]
+    return out
+
+
+def no_frames(*measures: str) -> pl.DataFrame:
+    """A footage study's per-frame table without a frame (the clips' statistics alone), with
+    a Float64 column for each of ``measures``."""
+    schema = {"clip": pl.String, "threshold": pl.Float64, "frame": pl.Int64}
+    schema |= {"positive": pl.Boolean, "keep": pl.Boolean}
+    return pl.DataFrame(schema=schema | dict.fromkeys(measures, pl.Float64))

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import ROOT, write_pan
+from tests.helpers import ROOT, flags, write_pan
 
 # The silence before a beat in these tests: short, so that the few seconds each command's
 # counting stage lasts on these inputs hold several beats (the default is 4 s, for people).
@@ -136,17 +136,23 @@ def test_dataset_counts_its_camera_streams(tmp_path) -> None:
     # frames of 240x320 px: the streams after the worker's first take a few beats each
     write_dataset(tmp_path / "ds", episodes=4, codec="libx264", shape=(240, 320))
     status, lines = _timed_lines(
-        ["-m", "analysis", "dataset", str(tmp_path / "ds"), "--out", str(tmp_path / "out"),
-         "--jobs", "1"]
-    )  # fmt: skip
+        [
+            "-m",
+            "analysis",
+            "dataset",
+            str(tmp_path / "ds"),
+            *flags("--jobs 1", out=tmp_path / "out"),
+        ]
+    )
     assert status == 0, lines
     assert_never_silent(lines, "vdc-analyse dataset", "4", "cameras")
 
 
 # the smallest grid that decides something: 2 conditions x 2 seeds of 6 s (TF 3 Hz alerts the
 # detector at once), then as many profiling runs
-BOUNDARY = ["--tf", "0,3", "--scenes", "grating", "--values", "12", "--seeds", "2",
-            "--minutes", "0.1", "--jobs", "1", "--no-predictors"]  # fmt: skip
+BOUNDARY = flags(
+    "--tf 0,3 --scenes grating --values 12 --seeds 2 --minutes 0.1 --jobs 1 --no-predictors"
+)
 
 
 def test_boundary_counts_its_runs(tmp_path) -> None:
@@ -173,8 +179,10 @@ def test_the_library_boundary_counts_its_runs_with_feedback_printing(tmp_path) -
 
 def test_a_quick_reproduction_counts_its_runs(tmp_path) -> None:
     """It was silent for 44.7 s before its first run reported, then for 20-30 s."""
-    args = ["--quick", "--profile-minutes", "0.3", "--collision-minutes", "0.1", "--repeats",
-            "1", "--sweep-duration-s", "0.1", "--seeds", "1", "--jobs", "2"]  # fmt: skip
+    args = flags(
+        "--quick --profile-minutes 0.3 --collision-minutes 0.1 --repeats 1 "
+        "--sweep-duration-s 0.1 --seeds 1 --jobs 2"
+    )
     status, lines = _timed_lines(["-m", "analysis", "reproduce", *args, "--out", str(tmp_path)])
     assert status == 0, lines
     assert_never_silent(lines, "vdc-analyse reproduce", "10", "runs")
@@ -231,8 +239,12 @@ def test_a_bad_interval_is_one_line_and_exit_2() -> None:
     env = {**os.environ, "VDC_PROGRESS": "1", "VDC_PROGRESS_EVERY_S": "soon"}
     proc = subprocess.run(
         [sys.executable, "-m", "analysis", "boundary", "--help"],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
     assert proc.stderr.splitlines() == [
         "vdc-analyse boundary: error: VDC_PROGRESS_EVERY_S='soon' is not a number of seconds "

@@ -287,8 +287,13 @@ def add_settings_flags(parser: argparse.ArgumentParser, cls: type) -> None:
             where.add_argument(*names, dest=f.name, action="store_true", help=kw["help"])
             continue
         if f.default is True:  # on unless told: --page / --no-page
-            where.add_argument(*names, dest=f.name, action=argparse.BooleanOptionalAction,
-                               default=None, help=kw["help"])  # fmt: skip
+            where.add_argument(
+                *names,
+                dest=f.name,
+                action=argparse.BooleanOptionalAction,
+                default=None,
+                help=kw["help"],
+            )
             continue
         if str(f.type).startswith("tuple[str"):
             kw["action"] = "append"  # repeatable: --model A --model B

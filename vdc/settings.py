@@ -205,8 +205,13 @@ def _conform(value: Any, tp: Any) -> Any:
 
 
 def _type_name(tp: Any) -> str:
-    names = {bool: "true or false", int: "an integer", float: "a number", str: "text",
-             type(None): "None"}  # fmt: skip
+    names = {
+        bool: "true or false",
+        int: "an integer",
+        float: "a number",
+        str: "text",
+        type(None): "None",
+    }
     return names.get(tp, getattr(tp, "__name__", None) or str(tp).replace("typing.", ""))
 
 

@@ -144,9 +144,12 @@ def profiling_items(s: Any, folder: Path) -> list[RunItem]:
         cond = condition_name(scene, tf)
         for seed in range(s.seed, s.seed + s.seeds):
             settings = SimSettings(
-                **scene_fields(scene), tf_hz=tf, minutes=s.minutes, seed=seed,
+                **scene_fields(scene),
+                tf_hz=tf,
+                minutes=s.minutes,
+                seed=seed,
                 model=s.profile_model,
-            )  # fmt: skip
+            )
             cols = {"condition": cond, "scene": scene, "tf_hz": tf, "seed": seed}
             path = folder / "profile" / cond / f"seed{seed}.rrd"
             items.append(RunItem(f"profile-{cond}-seed{seed}", settings, path, cols))

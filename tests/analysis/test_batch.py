@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import polars as pl
 
 from analysis.batch import model_slug
-from tests.helpers import ROOT, assert_one_line_error, kill_a_worker_mid_batch
+from tests.helpers import assert_one_line_error, flags, kill_a_worker_mid_batch, run_text
 from tests.in_process import run_in_process
 
 MODELS = ("avdm", "avdm:beta=0.5", "lgmd-plus")
@@ -63,9 +62,12 @@ def test_shards_split_the_tasks_and_summarise_joins_them(recordings, tmp_path: P
     done = []
     for i in range(3):
         proc = run_in_process(
-            "analysis", "batch", *recs, *_models(), "--out", str(out), "--shard", f"{i}/3",
-            "--jobs", "1",
-        )  # fmt: skip
+            "analysis",
+            "batch",
+            *recs,
+            *_models(),
+            *flags("--jobs 1", out=out, shard=f"{i}/3"),
+        )
         assert proc.returncode == 0, proc.stderr
         assert "2 tasks (shard" in proc.stderr and not (out / "summary.parquet").exists()
         done.append(len(list(out.glob("parts/*/model=*/summary.parquet"))))
@@ -82,9 +84,12 @@ def test_a_corrupt_recording_fails_its_own_tasks_only(recordings, tmp_path: Path
     bad.write_bytes(b"not a recording" * 100)
     out = tmp_path / "b"
     proc = run_in_process(
-        "analysis", "batch", str(recordings["tf3_a"]), str(bad), "--model", "avdm",
-        "--model", "lgmd-plus", "--out", str(out),
-    )  # fmt: skip
+        "analysis",
+        "batch",
+        str(recordings["tf3_a"]),
+        str(bad),
+        *flags("--model avdm --model lgmd-plus", out=out),
+    )
     assert proc.returncode == 1
     assert proc.stderr.count(f"FAILED {bad} ") >= 2 and "Traceback" not in proc.stderr
     assert "4 tasks: 0 already done, 2 ran, 2 failed" in proc.stdout
@@ -167,15 +172,13 @@ def test_dask_without_the_extra_says_how_to_install_it(recordings, tmp_path: Pat
         "raise SystemExit(main(sys.argv[1:]))\n"
     )
     args = ["batch", str(recordings["tf3_a"]), "--model", "avdm"]
-    proc = subprocess.run(
-        [sys.executable, "-c", code, *args, "--out", str(tmp_path / "d"), "--executor", "dask"],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
-    )  # fmt: skip
+    proc = run_text(
+        [sys.executable, "-c", code, *args, "--out", str(tmp_path / "d"), "--executor", "dask"]
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
     last = proc.stderr.splitlines()[-1]
     assert last.endswith('needs the optional extra: pip install -e ".[dask]"'), last
-    proc = subprocess.run(
-        [sys.executable, "-c", code, *args, "--out", str(tmp_path / "l"), "--jobs", "1"],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
-    )  # fmt: skip
+    proc = run_text(
+        [sys.executable, "-c", code, *args, "--out", str(tmp_path / "l"), "--jobs", "1"]
+    )
     assert proc.returncode == 0, proc.stderr

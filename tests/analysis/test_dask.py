@@ -15,7 +15,7 @@ import distributed  # the dask extra; the test extra brings it
 import polars as pl
 import pytest
 
-from tests.helpers import ROOT, kill_a_worker_mid_batch, run_cli
+from tests.helpers import ROOT, flags, kill_a_worker_mid_batch, run_cli
 from vdc.executors import ExecutorSettings, open_executor
 
 pytestmark = pytest.mark.dask  # the dask extra's test group: pytest -m dask
@@ -59,17 +59,23 @@ def test_batch_on_an_existing_cluster_by_address_and_by_scheduler_file(
     models = _models(MODELS[:2])
     out = tmp_path / "b"
     by_address = run_cli(
-        "analysis", "batch", *recs, *models, "--out", str(out), "--shard", "0/2",
-        "--scheduler", c.scheduler_address,
-    )  # fmt: skip
+        "analysis",
+        "batch",
+        *recs,
+        *models,
+        *flags("--shard 0/2", out=out, scheduler=c.scheduler_address),
+    )
     assert by_address.returncode == 0, by_address.stderr
     assert f"to run on Dask at {c.scheduler_address}" in by_address.stderr
     sfile = tmp_path / "scheduler.json"  # what `dask scheduler --scheduler-file` writes
     sfile.write_text(json.dumps({"address": c.scheduler_address}))
     by_file = run_cli(
-        "analysis", "batch", *recs, *models, "--out", str(out), "--shard", "1/2",
-        "--scheduler", str(sfile),
-    )  # fmt: skip
+        "analysis",
+        "batch",
+        *recs,
+        *models,
+        *flags("--shard 1/2", out=out, scheduler=sfile),
+    )
     assert by_file.returncode == 0, by_file.stderr
     assert "2 tasks (shard 1/2): 0 already done" in by_file.stderr
     assert run_cli("analysis", "summarise", str(out)).returncode == 0
@@ -92,9 +98,12 @@ def test_a_cluster_vdc_starts_listens_on_loopback_only(recordings, tmp_path: Pat
     # and through the command line: the same tables as the local pool
     rec = str(recordings["tf3_a"])
     proc = run_cli(
-        "analysis", "batch", rec, *_models(MODELS[:2]), "--out", str(tmp_path / "d"),
-        "--executor", "dask", "--jobs", "2",
-    )  # fmt: skip
+        "analysis",
+        "batch",
+        rec,
+        *_models(MODELS[:2]),
+        *flags("--executor dask --jobs 2", out=tmp_path / "d"),
+    )
     assert proc.returncode == 0, proc.stderr
     assert "local Dask cluster on 127.0.0.1, dashboard http://127.0.0.1:" in proc.stderr
     local = run_cli("analysis", "batch", rec, *_models(MODELS[:2]), "--out", str(tmp_path / "l"))
@@ -139,17 +148,22 @@ def test_campaigns_run_on_the_cluster(cluster, tmp_path: Path) -> None:
     c, _client = cluster
     out = tmp_path / "sweep"
     proc = run_cli(
-        "capture", "campaign", "behaviour=collision", "minutes=0.1", "tf_hz=0,3", "--out",
-        str(out), "--scheduler", c.scheduler_address, "--quiet",
-    )  # fmt: skip
+        "capture",
+        "campaign",
+        "behaviour=collision",
+        "minutes=0.1",
+        "tf_hz=0,3",
+        *flags("--quiet", out=out, scheduler=c.scheduler_address),
+    )
     assert proc.returncode == 0, proc.stderr
     assert "2 runs: 0 already done, 2 recorded, 0 failed" in proc.stdout
     runs = pl.read_parquet(out / "runs.parquet")
     assert runs["complete"].all() and runs["tf_hz"].to_list() == [0.0, 3.0]
     study = run_cli(
-        "analysis", "collision-study", "--minutes", "0.1", "--seeds", "1", "--out",
-        str(tmp_path / "cs"), "--scheduler", c.scheduler_address,
-    )  # fmt: skip
+        "analysis",
+        "collision-study",
+        *flags("--minutes 0.1 --seeds 1", out=tmp_path / "cs", scheduler=c.scheduler_address),
+    )
     assert study.returncode == 0, study.stderr
     assert "on Dask at" in study.stderr and "[5/5]" in study.stderr
     summary = pl.read_parquet(tmp_path / "cs" / "collision_summary.parquet")
@@ -209,18 +223,23 @@ def test_a_tls_cluster_takes_dasks_own_configuration(recordings, tmp_path: Path)
     from distributed.security import Security
 
     f = _tls_files(tmp_path)
+    parties = ("scheduler", "worker", "client")
     sec = Security(
         tls_ca_file=str(f["ca"]),
-        tls_scheduler_cert=str(f["cert"]), tls_scheduler_key=str(f["key"]),
-        tls_worker_cert=str(f["cert"]), tls_worker_key=str(f["key"]),
-        tls_client_cert=str(f["cert"]), tls_client_key=str(f["key"]),
         require_encryption=True,
-    )  # fmt: skip
+        # the one certificate and key for the scheduler, the workers and the client
+        **{f"tls_{who}_{part}": str(f[part]) for who in parties for part in ("cert", "key")},
+    )
     rec = str(recordings["tf3_a"])
     with distributed.LocalCluster(
-        n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
-        dashboard_address="127.0.0.1:0", protocol="tls", security=sec,
-    ) as c:  # fmt: skip
+        n_workers=1,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address="127.0.0.1:0",
+        protocol="tls",
+        security=sec,
+    ) as c:
         assert c.scheduler_address.startswith("tls://127.0.0.1:")
         args = ["batch", rec, "--model", "avdm", "--scheduler", c.scheduler_address]
         plain = run_cli("analysis", *args, "--out", str(tmp_path / "no"), timeout=120)
@@ -237,7 +256,11 @@ def test_a_tls_cluster_takes_dasks_own_configuration(recordings, tmp_path: Path)
         }
         proc = subprocess.run(
             [sys.executable, "-m", "analysis", *args, "--out", str(tmp_path / "tls")],
-            capture_output=True, text=True, cwd=ROOT, env={**os.environ, **env}, timeout=300,
-        )  # fmt: skip
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            env={**os.environ, **env},
+            timeout=300,
+        )
         assert proc.returncode == 0, proc.stderr
         assert "1 tasks: 0 already done, 1 ran, 0 failed" in proc.stdout

@@ -21,7 +21,7 @@ from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.experiments.collision.boundary_campaign import boundary
 from analysis.recordings.recompute import TablesSettings, tables
 from capture.sim import SimSettings, record_sim
-from tests.helpers import ROOT, assert_one_line_error, module_on_path, write_video
+from tests.helpers import ROOT, assert_one_line_error, flags, module_on_path, write_video
 from vdc.errors import UserError
 from vdc.parquet_io import table_set
 
@@ -107,10 +107,20 @@ def test_a_model_that_fails_on_a_frame_stops_batch_and_tables_first(
     env = {**os.environ, "PYTHONPATH": f"{plugins}{os.pathsep}{ROOT}"}
     out = tmp_path / "b"
     proc = subprocess.run(
-        [sys.executable, "-m", "analysis", "batch", str(collection / "a.rrd"), "--model", spec,
-         "--jobs", "1", "--out", str(out)],
-        capture_output=True, text=True, cwd=ROOT, env=env, timeout=300,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "analysis",
+            "batch",
+            str(collection / "a.rrd"),
+            *flags("--jobs 1", model=spec, out=out),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=env,
+        timeout=300,
+    )
     assert_one_line_error(proc, "audit_plugins", "IndexError")
     assert not list(out.glob("parts/**/*.parquet"))  # nothing ran
 
@@ -128,15 +138,19 @@ def test_footage_without_evidence_is_one_line(plugins: Path, tmp_path: Path) -> 
     quiet = clips / "quiet.csv"
     quiet.write_text("clip,label,collision_frame\ntiny.mp4,background,\n")
     with pytest.raises(UserError, match=r"no clip in .* has a collision") as err:
-        boundary(BoundarySettings(labels=str(quiet), detector="audit_plugins:Silent", **s),
-                 tmp_path / "q")  # fmt: skip
+        boundary(
+            BoundarySettings(labels=str(quiet), detector="audit_plugins:Silent", **s),
+            tmp_path / "q",
+        )
     assert "nan" not in str(err.value) and not (tmp_path / "q").exists()
     # a detector that never alerts at any value: no boundary either
     labels = clips / "labels.csv"
     labels.write_text("clip,label,collision_frame\ntiny.mp4,collision,29\n")
     with pytest.raises(UserError, match="never alerted on any of the 1 clip") as err:
-        boundary(BoundarySettings(labels=str(labels), detector="audit_plugins:Silent", **s),
-                 tmp_path / "s")  # fmt: skip
+        boundary(
+            BoundarySettings(labels=str(labels), detector="audit_plugins:Silent", **s),
+            tmp_path / "s",
+        )
     assert "nan" not in str(err.value) and not (tmp_path / "s" / "boundary.md").exists()
 
 

@@ -22,9 +22,10 @@ from analysis.recordings.recompute import TablesSettings, tables
 from avdm.base import FRAME_TABLE_COLUMNS
 from capture.config import CameraConfig
 from capture.sim import SimSettings
-from tests.footage_clips import write_collection
+from tests.footage_clips import looming_boundary_settings, write_collection
 from tests.helpers import (
     assert_one_line_error,
+    flags,
     make_sim_recording,
     module_on_path,
     run_cli,
@@ -150,9 +151,15 @@ def test_boundary_refuses_a_collision_beyond_the_clip_before_any_run(
     tiny_clip: Path, tmp_path: Path
 ) -> None:
     res, out = footage_boundary(
-        run_cli, tiny_clip, tmp_path, 5000, "examples.looming:Looming", "threshold", "0.1",
+        run_cli,
+        tiny_clip,
+        tmp_path,
+        5000,
+        "examples.looming:Looming",
+        "threshold",
+        "0.1",
         timeout=300,  # bounds the old behaviour: the whole run
-    )  # fmt: skip
+    )
     assert_one_line_error(res, "collision_frame 5000", "beyond its 30 frames", "tiny.mp4")
     assert not out.exists()
 
@@ -161,23 +168,40 @@ def test_boundary_refuses_a_frame_number_no_integer_holds_in_one_line(
     tiny_clip: Path, tmp_path: Path
 ) -> None:
     res, out = footage_boundary(
-        run_in_process, tiny_clip, tmp_path, "12345678901234567890123",
-        "examples.looming:Looming", "threshold", "0.1",
-    )  # fmt: skip
+        run_in_process,
+        tiny_clip,
+        tmp_path,
+        "12345678901234567890123",
+        "examples.looming:Looming",
+        "threshold",
+        "0.1",
+    )
     assert_one_line_error(res, "labels.csv", "row 1", "collision_frame", "12345678901234567890123")
     assert not out.exists()
 
 
-def footage_boundary(run, clip: Path, tmp_path: Path, collision_frame: int | str, detector: str,
-                     param: str, values: str, **kw):  # fmt: skip
+def footage_boundary(
+    run,
+    clip: Path,
+    tmp_path: Path,
+    collision_frame: int | str,
+    detector: str,
+    param: str,
+    values: str,
+    **kw,
+):
     """``vdc-analyse boundary`` in footage mode on one labelled clip: (result, out folder)."""
     table = tmp_path / "labels.csv"
     table.write_text(f"clip,label,collision_frame\n{clip},collision,{collision_frame}\n")
     out = tmp_path / "b"
     res = run(
-        "analysis", "boundary", "--labels", str(table), "--fov-deg", "60", "--detector",
-        detector, "--param", param, "--values", values, "--out", str(out), **kw,
-    )  # fmt: skip
+        "analysis",
+        "boundary",
+        *flags(
+            "--fov-deg 60", labels=table, detector=detector, param=param, values=values, out=out
+        ),
+        **kw,
+    )
     return res, out
 
 
@@ -265,8 +289,13 @@ def plugins(tmp_path_factory) -> Iterator[Path]:
 @pytest.mark.parametrize("name", ["frame", "t_s", "value", "frames", "hit", "collision_frame"])
 def test_a_swept_parameter_named_as_a_column_is_refused_when_set(plugins, name: str) -> None:
     with pytest.raises(UserError) as err:
-        BoundarySettings(labels="labels.csv", fov_deg=60.0, detector="door_plugins:Dark",
-                         param=name, values="0.3")  # fmt: skip
+        BoundarySettings(
+            labels="labels.csv",
+            fov_deg=60.0,
+            detector="door_plugins:Dark",
+            param=name,
+            values="0.3",
+        )
     message = str(err.value)
     assert f"--param {name}" in message and f"column {name!r}" in message, message
     assert "\n" not in message
@@ -290,9 +319,11 @@ def test_an_output_named_as_a_column_is_refused_before_any_frame(
 ) -> None:
     out = tmp_path / "c.rrd"
     res = run_in_process(
-        "capture", "video", str(tiny_clip), "--fov-deg", "60",
-        "--model", f"door_plugins:{factory}", "--out", str(out),
-    )  # fmt: skip
+        "capture",
+        "video",
+        str(tiny_clip),
+        *flags("--fov-deg 60", model=f"door_plugins:{factory}", out=out),
+    )
     assert_one_line_error(res, f"output {name!r}", f"column {name!r}", "rename the output")
     assert not list(tmp_path.iterdir())
 
@@ -311,8 +342,7 @@ def test_footage_tables_hold_no_column_outside_the_reserved_set(tmp_path: Path) 
     """What the --param check keeps free is every column footage mode writes (arena mode's
     are checked in test_boundary.py): a parameter of any other name cannot collide."""
     labels = write_collection(tmp_path / "clips", drifts=(0.0,), seeds=(1,))
-    s = BoundarySettings(labels=str(labels), fov_deg=60.0, detector="examples.looming:Looming",
-                         param="threshold", values="0.05", jobs=1)  # fmt: skip
+    s = looming_boundary_settings(labels)
     res = boundary(s, tmp_path / "b")
     written = [p for p in res.paths if p.suffix == ".parquet"]
     assert {p.name for p in written} >= {"boundary_clips.parquet", "predictor_frames.parquet"}

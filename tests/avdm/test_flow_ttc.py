@@ -16,14 +16,20 @@ SIZE = (120, 160)  # H, W
 HFOV = 60.0
 
 
+def render(background: np.ndarray, texture: np.ndarray, **kw) -> object:
+    """:func:`render_looming` seen by this file's camera, with 2 grey levels of sensor noise."""
+    return render_looming(
+        background, texture, size=SIZE, fps=FPS, hfov_deg=HFOV, noise_sd=2.0, **kw
+    )
+
+
 def approach(texture: np.ndarray, tau_end_s: float, n: int = 12, **kw) -> object:
     """A photographed surface approached head-on, filling the view: ``n`` frames ending with
     the time to contact ``tau_end_s``."""
     contact = n - 1 + round(tau_end_s * FPS)
     # its image radius 1.3x the half-diagonal (100 px) at the start: it fills the view
     rv_s = 1.3 * 100.0 * (tau_end_s + (n - 1) / FPS) / focal_px(SIZE[1], HFOV)
-    return render_looming(data.grass(), texture, size=SIZE, fps=FPS, hfov_deg=HFOV, n_frames=n,
-                          contact_frame=contact, rv_s=rv_s, noise_sd=2.0, seed=1, **kw)  # fmt: skip
+    return render(data.grass(), texture, n_frames=n, contact_frame=contact, rv_s=rv_s, seed=1, **kw)
 
 
 @pytest.mark.parametrize("photo", ["coffee", "camera", "chelsea"])
@@ -45,11 +51,17 @@ def test_tau_of_an_approached_photograph_is_measured_over_a_range_of_tau(photo: 
 def looming_object(rotation_dps: float = 0.0, miss_radii: float = 0.0, present: bool = True):
     """A photographed disc (the coffee photograph) approaching the camera over the astronaut
     photograph for 4 s (contact at frame 100), R / v = 0.2 s."""
-    return render_looming(
-        data.astronaut(), data.coffee(), size=SIZE, fps=FPS, hfov_deg=HFOV, n_frames=100,
-        contact_frame=100 if present else 10_000, rv_s=0.2, rotation_dps=rotation_dps,
-        miss_radii=miss_radii, noise_sd=2.0, seed=3,
-    )  # fmt: skip
+    contact = 100 if present else 10_000
+    return render(
+        data.astronaut(),
+        data.coffee(),
+        n_frames=100,
+        contact_frame=contact,
+        rv_s=0.2,
+        rotation_dps=rotation_dps,
+        miss_radii=miss_radii,
+        seed=3,
+    )
 
 
 @pytest.mark.parametrize("rotation_dps", [0.0, 20.0])

@@ -19,7 +19,7 @@ from capture.config import (
     SimConfig,
     WallConfig,
 )
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error, flags, run_cli
 from tests.in_process import run_in_process
 
 
@@ -112,9 +112,14 @@ def test_adaptive_mode_lets_t_ffi_follow_the_avdm_mean() -> None:
 def test_collision_recording_has_events_detector_and_controller(tmp_path: Path) -> None:
     out = tmp_path / "col.rrd"
     proc = run_in_process(
-        "capture", "sim", "--behaviour", "collision", "--model", "lgmd-plus-arena",
-        "--tf-hz", "3", "--minutes", "0.5", "--seed", "2", "--out", str(out), "--quiet",
-    )  # fmt: skip
+        "capture",
+        "sim",
+        *flags(
+            "--behaviour collision --model lgmd-plus-arena --tf-hz 3 --minutes 0.5 --seed 2 "
+            "--quiet",
+            out=out,
+        ),
+    )
     assert proc.returncode == 0, proc.stderr
     rec = Recording(out)
     props = rec.properties()
@@ -177,15 +182,9 @@ def test_a_nan_alert_in_the_closed_loop_is_said_not_read_silently(tmp_path: Path
     proc = run_cli(
         "capture",
         "sim",
-        "--behaviour",
-        "collision",
-        "--model",
-        "nan_later_det:NanLater",
-        "--minutes",
-        "0.03",
-        "--out",
-        str(out),
-        "--quiet",
+        *flags(
+            "--behaviour collision --model nan_later_det:NanLater --minutes 0.03 --quiet", out=out
+        ),
         cwd=tmp_path,
     )
     assert proc.returncode == 0, proc.stderr

@@ -18,7 +18,7 @@ import polars as pl
 import pytest
 
 from analysis.recordings.reader import Recording
-from tests.helpers import ROOT, assert_one_line_error, run_cli, write_video
+from tests.helpers import ROOT, assert_one_line_error, flags, run_cli, write_video
 
 LOOMING = "examples.looming:Looming"
 
@@ -31,8 +31,11 @@ def _outputs(folder: Path, model: str) -> pl.DataFrame:
 @pytest.fixture(scope="module")
 def online(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("plugin") / "online.rrd"
-    proc = run_cli("capture", "sim", "--tf-hz", "3", "--minutes", "0.1", "--model", LOOMING,
-                   "--out", str(out), "--quiet")  # fmt: skip
+    proc = run_cli(
+        "capture",
+        "sim",
+        *flags("--tf-hz 3 --minutes 0.1 --quiet", model=LOOMING, out=out),
+    )
     assert proc.returncode == 0, proc.stderr
     return out
 
@@ -53,18 +56,27 @@ def test_online_in_sim_and_recomputed_by_tables_alike(online: Path, tmp_path: Pa
 
 def test_compare_and_batch_recompute_a_plugin(online: Path, tmp_path: Path) -> None:
     spec = f"{LOOMING}:threshold=0.3"
-    proc = run_cli("analysis.cli", "compare", str(online), "--model", "avdm", "--model", spec,
-                   "--out", str(tmp_path / "cmp"))  # fmt: skip
+    proc = run_cli(
+        "analysis.cli",
+        "compare",
+        str(online),
+        *flags(model=["avdm", spec], out=tmp_path / "cmp"),
+    )
     assert proc.returncode == 0, proc.stderr
     stats = pl.read_parquet(tmp_path / "cmp" / "compare_summary.parquet")
     assert set(stats["model"]) == {"avdm", spec}
-    proc = run_cli("analysis.cli", "batch", str(online), "--model", spec, "--model", "avdm",
-                   "--jobs", "2", "--out", str(tmp_path / "batch"))  # fmt: skip
+    proc = run_cli(
+        "analysis.cli",
+        "batch",
+        str(online),
+        *flags("--jobs 2", model=[spec, "avdm"], out=tmp_path / "batch"),
+    )
     assert proc.returncode == 0, proc.stderr
     batch = _outputs(tmp_path / "batch", spec)
     assert batch.height == 198
-    alone = run_cli("analysis.cli", "tables", str(online), "--model", spec, "--out",
-                    str(tmp_path / "alone"))  # fmt: skip
+    alone = run_cli(
+        "analysis.cli", "tables", str(online), "--model", spec, "--out", str(tmp_path / "alone")
+    )
     assert alone.returncode == 0
     np.testing.assert_array_equal(
         batch["alert"].to_numpy(), _outputs(tmp_path / "alone", spec)["alert"].to_numpy()
@@ -74,8 +86,11 @@ def test_compare_and_batch_recompute_a_plugin(online: Path, tmp_path: Path) -> N
 def test_a_plugin_detector_steers_the_robot_in_the_closed_loop(tmp_path: Path) -> None:
     out = tmp_path / "loop.rrd"
     spec = f"{LOOMING}:threshold=0.05"
-    proc = run_cli("capture", "sim", "--behaviour", "collision", "--model", spec, "--minutes",
-                   "1", "--seed", "2", "--out", str(out), "--quiet")  # fmt: skip
+    proc = run_cli(
+        "capture",
+        "sim",
+        *flags("--behaviour collision --minutes 1 --seed 2 --quiet", model=spec, out=out),
+    )
     assert proc.returncode == 0, proc.stderr
     rec = Recording(out)
     assert rec.properties()["detector"]["name"] == spec
@@ -89,8 +104,12 @@ def test_online_in_video_capture(tmp_path: Path) -> None:
     frames = np.clip(rng.normal(128, 40, (30, 72, 96)), 0, 255).astype(np.uint8)
     clip = write_video(tmp_path / "noise.mp4", frames, 25.0)
     out = tmp_path / "clip.rrd"
-    proc = run_cli("capture", "video", str(clip), "--fov-deg", "60", "--model", LOOMING,
-                   "--out", str(out), "--quiet")  # fmt: skip
+    proc = run_cli(
+        "capture",
+        "video",
+        str(clip),
+        *flags("--fov-deg 60 --quiet", model=LOOMING, out=out),
+    )
     assert proc.returncode == 0, proc.stderr
     assert Recording(out).properties()["model"]["name"] == LOOMING
 
@@ -100,11 +119,13 @@ def test_online_in_video_capture(tmp_path: Path) -> None:
     [
         (["capture", "sim", "--model", "nosuch_pkg.mod:make"], "no module named 'nosuch_pkg.mod'"),
         (["capture", "sim", "--model", "tests.toy_detector:broken"], "failed to build"),
-        (["capture", "sim", "--behaviour", "collision", "--model", "tests.toy_detector:NoAlert"],
-         "has no 'alert' output"),
+        (
+            ["capture", "sim", "--behaviour", "collision", "--model", "tests.toy_detector:NoAlert"],
+            "has no 'alert' output",
+        ),
         (["analysis.cli", "tables", "x.rrd", "--model", "examples.looming:Nope"], "has no 'Nope'"),
     ],
-)  # fmt: skip
+)
 def test_a_bad_plugin_is_one_line_and_exit_2(tmp_path: Path, cmd: list[str], needle: str) -> None:
     extra = ["--out", str(tmp_path / "o.rrd")] if cmd[1] == "sim" else []
     proc = run_cli(*cmd, *extra, cwd=ROOT)
@@ -120,11 +141,19 @@ def test_online_on_the_robot_over_its_serial_link(tmp_path: Path) -> None:
     seconds = 4.0
     render_overhead(tmp_path / "overhead", seconds, seed=5)
     link, out = tmp_path / "robot", tmp_path / "robot.rrd"
-    emu = start_emulator(link, tmp_path / "report.json", "--minutes", str(seconds / 60),
-                         "--tf-hz", "3", "--model", LOOMING, "--seed", "5")  # fmt: skip
-    proc = run_cli("capture", "robot", "--port", str(link), "--camera",
-                   str(tmp_path / "overhead" / "%05d.png"), "--model", LOOMING, "--out",
-                   str(out), "--quiet", timeout=120)  # fmt: skip
+    emu = start_emulator(
+        link,
+        tmp_path / "report.json",
+        *flags("--tf-hz 3 --seed 5", minutes=seconds / 60, model=LOOMING),
+    )
+    proc = run_cli(
+        "capture",
+        "robot",
+        *flags(
+            "--quiet", port=link, camera=tmp_path / "overhead" / "%05d.png", model=LOOMING, out=out
+        ),
+        timeout=120,
+    )
     emu.wait(timeout=60)
     robot_said = emu.stdout.read() + emu.stderr.read()
     assert proc.returncode == 0, proc.stderr + "\nemulator: " + robot_said
@@ -162,23 +191,43 @@ def test_a_plain_folder_of_plugins_works_from_the_current_folder(tmp_path: Path)
     assert str(tmp_path) not in env["PYTHONPATH"]
 
     def run(script: str, *args: str) -> subprocess.CompletedProcess:
-        return subprocess.run(_console(script, *args), cwd=tmp_path, env=env, text=True,
-                              capture_output=True, timeout=600)  # fmt: skip
+        return subprocess.run(
+            _console(script, *args),
+            cwd=tmp_path,
+            env=env,
+            text=True,
+            capture_output=True,
+            timeout=600,
+        )
 
-    proc = run("vdc-capture", "sim", "--behaviour", "collision", "--model",
-               f"{spec}:threshold=0.05", "--minutes", "0.05", "--out", "loop.rrd",
-               "--quiet")  # fmt: skip
+    proc = run(
+        "vdc-capture",
+        "sim",
+        *flags(
+            "--behaviour collision --minutes 0.05 --out loop.rrd --quiet",
+            model=f"{spec}:threshold=0.05",
+        ),
+    )
     assert proc.returncode == 0, proc.stderr
     assert Recording(tmp_path / "loop.rrd").properties()["detector"]["name"] == (
         f"{spec}:threshold=0.05"
     )
-    proc = run("vdc-analyse", "boundary", "--detector", spec, "--param", "threshold",
-               "--values", "0.05,0.1", "--tf", "0", "--scenes", "grating", "--seeds", "1",
-               "--minutes", "0.2", "--jobs", "2", "--no-predictors", "--out", "b")  # fmt: skip
+    proc = run(
+        "vdc-analyse",
+        "boundary",
+        *flags(
+            "--param threshold --values 0.05,0.1 --tf 0 --scenes grating --seeds 1 --minutes 0.2 "
+            "--jobs 2 --no-predictors --out b",
+            detector=spec,
+        ),
+    )
     assert proc.returncode == 0, proc.stderr
     conditions = pl.read_parquet(tmp_path / "b" / "boundary_conditions.parquet")
     assert sorted(conditions["threshold"].unique().to_list()) == [0.05, 0.1]
     # a folder of that name without the module asked for is still one line
-    proc = run("vdc-capture", "sim", "--model", "my_detectors.nothere:Looming", "--minutes",
-               "0.05", "--out", "x.rrd")  # fmt: skip
+    proc = run(
+        "vdc-capture",
+        "sim",
+        *flags("--model my_detectors.nothere:Looming --minutes 0.05 --out x.rrd"),
+    )
     assert_one_line_error(proc, "no module named 'my_detectors.nothere'")

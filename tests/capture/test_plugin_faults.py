@@ -20,7 +20,7 @@ import pytest
 
 from analysis.recordings.reader import Recording
 from tests.footage_clips import write_collection
-from tests.helpers import make_sim_recording, run_cli, spawn, wait_until, write_video
+from tests.helpers import flags, make_sim_recording, run_cli, spawn, wait_until, write_video
 
 # raises at the 6th frame (index 5) it is given, from its 3rd build on: in `tables` the 1st
 # build is the check before any run (one step), the 2nd the first recording's, the 3rd the
@@ -64,8 +64,13 @@ def test_video_capture_ends_its_clip_in_one_line_naming_plugin_clip_and_frame(
     # distinct frames (no repeats): the model's 6th frame is the clip's frame 5
     frames = (np.random.default_rng(0).random((30, 48, 64)) * 255).astype(np.uint8)
     write_video(plugin_folder / "clip.mp4", frames, 25.0)
-    proc = run_cli("capture", "video", "clip.mp4", "--fov-deg", "60", "--model", "raiser:Raiser",
-                   "--out", "clip.rrd", "--quiet", cwd=plugin_folder)  # fmt: skip
+    proc = run_cli(
+        "capture",
+        "video",
+        "clip.mp4",
+        *flags("--fov-deg 60 --model raiser:Raiser --out clip.rrd --quiet"),
+        cwd=plugin_folder,
+    )
     assert proc.returncode == 1, (proc.stdout, proc.stderr)
     line = _one_error_line(proc.stderr)
     for needle in ("'raiser:Raiser'", "clip.mp4", "at frame 5", "RuntimeError: my detector broke"):
@@ -83,8 +88,14 @@ def test_tables_keeps_the_other_recordings_and_names_the_failed_one(
     a = make_sim_recording(plugin_folder / "a.rrd", seed=1)
     b = make_sim_recording(plugin_folder / "b.rrd", seed=2)
     out = plugin_folder / "tables"
-    proc = run_cli("analysis.cli", "tables", str(a), str(b), "--model",
-                   "raiser:Raiser:from_build=3", "--out", str(out), cwd=plugin_folder)  # fmt: skip
+    proc = run_cli(
+        "analysis.cli",
+        "tables",
+        str(a),
+        str(b),
+        *flags("--model raiser:Raiser:from_build=3", out=out),
+        cwd=plugin_folder,
+    )
     assert proc.returncode == 1, (proc.stdout, proc.stderr)
     line = _one_error_line(proc.stderr)
     for needle in ("'raiser:Raiser'", "b.rrd", "at frame 5", "my detector broke"):
@@ -139,11 +150,24 @@ def test_ctrl_c_ends_a_footage_boundary_whose_plugin_blocks(tmp_path: Path) -> N
     labels = write_collection(tmp_path / "clips", drifts=(0.0,), seeds=(1,))
     out = tmp_path / "out"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = spawn([sys.executable, "-m", "analysis", "boundary", "--detector", "sleeper:Sleeper",
-                  "--param", "gain", "--values", "1", "--labels", str(labels), "--fov-deg", "60",
-                  "--jobs", "2", "--out", str(out)],
-                 cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                 text=True)  # fmt: skip
+    proc = spawn(
+        [
+            sys.executable,
+            "-m",
+            "analysis",
+            "boundary",
+            *flags(
+                "--detector sleeper:Sleeper --param gain --values 1 --fov-deg 60 --jobs 2",
+                labels=labels,
+                out=out,
+            ),
+        ],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     # the workers block in the plug-in: a hang guard, not a timing
     blocked = wait_until(lambda: list(tmp_path.glob("blocked-*")) or proc.poll() is not None, 240)
     assert blocked and proc.poll() is None, "the plug-in never blocked"

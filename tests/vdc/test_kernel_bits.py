@@ -45,9 +45,13 @@ print(json.dumps(out))
 def measure_in_a_process(clip: Path, cache: Path) -> dict:
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(ROOT)}
     proc = subprocess.run(
-        [sys.executable, "-c", MEASURE, str(clip)], env=env, capture_output=True, text=True,
-        timeout=600, cwd=ROOT,
-    )  # fmt: skip
+        [sys.executable, "-c", MEASURE, str(clip)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=ROOT,
+    )
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout.splitlines()[-1])
 

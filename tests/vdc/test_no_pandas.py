@@ -31,9 +31,13 @@ def _imported(stderr: str) -> set[str]:
 def _run(tmp_path, *args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(
-        [sys.executable, "-X", "importtime", *args], cwd=tmp_path, env=env,
-        capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        [sys.executable, "-X", "importtime", *args],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_a_command_that_logs_to_rerun_loads_no_pandas(tmp_path) -> None:

@@ -18,8 +18,7 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 
-from analysis.dataset.synthetic import Faults, write_dataset
-from tests.helpers import ROOT, assert_one_line_error, make_sim_recording
+from tests.helpers import ROOT, assert_one_line_error, make_sim_recording, write_h264_dataset
 from tests.in_process import run_in_process
 from vdc.folders import OUTPUTS_MANIFEST, expand_recordings
 from vdc.parquet_io import table_set
@@ -82,8 +81,12 @@ def test_tables_into_a_repository_keeps_its_git_notes_and_sub_folders(tmp_path: 
     n = user_entries(res)
     # named like staging folders but not vdc's: one beside res as an older vdc left it (a dead
     # writer's pid; it may hold the user's sub-folders), one inside without vdc's mark
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
-                          capture_output=True, text=True, check=True).stdout.strip()  # fmt: skip
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
     old_style = tmp_path / f".res.staging-{dead}" / "my_sub"
     look_alike = res / ".vdc-staging-1-mine"
     for folder in (old_style, look_alike):
@@ -133,13 +136,19 @@ def test_a_name_the_set_writes_taken_by_a_users_file_is_refused_and_kept(tmp_pat
 
 def test_a_dataset_given_as_its_own_out_keeps_every_entry(tmp_path: Path) -> None:
     root = tmp_path / "ds"
-    write_dataset(root, episodes=2, version="v3.0", codec="libx264", seconds=(1.0, 1.0),
-                  shape=(48, 64), faults=Faults())  # fmt: skip
+    write_h264_dataset(root, 2, (1.0, 1.0), version="v3.0", shape=(48, 64))
     (root / ".gitattributes").write_text("*.mp4 filter=lfs diff=lfs merge=lfs -text\n")
     (root / ".cache" / "huggingface").mkdir(parents=True)
     (root / ".cache" / "huggingface" / "download.lock").write_text("x")
-    vdc_writes = {"episodes.parquet", "frames.parquet", "problems.parquet", "dataset.html",
-                  "recordings", "episode_results", "flagged_episodes.json"}  # fmt: skip
+    vdc_writes = {
+        "episodes.parquet",
+        "frames.parquet",
+        "problems.parquet",
+        "dataset.html",
+        "recordings",
+        "episode_results",
+        "flagged_episodes.json",
+    }
     before = snapshot(root, vdc_writes)
     for _ in range(2):  # the second run reads the dataset beside its own outputs
         proc = run_in_process("analysis", "dataset", str(root), "--out", str(root), "--jobs", "1")
@@ -200,9 +209,12 @@ def test_a_publisher_killed_at_random_moments_never_touches_a_user_entry(tmp_pat
     kills = mid_publish = 0
     while kills < 8 or (mid_publish < 2 and kills < 60):
         proc = subprocess.Popen(  # this tree's vdc: -c puts the working folder first
-            [sys.executable, "-c", WRITER, str(out)], cwd=ROOT,
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )  # fmt: skip
+            [sys.executable, "-c", WRITER, str(out)],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         try:
             assert proc.stdout is not None and proc.stdout.readline(), proc.stderr
             start = time.monotonic()  # a set is there to replace; the next one takes:
@@ -240,7 +252,8 @@ def test_a_batch_without_failures_keeps_a_users_failures_file(tmp_path: Path) ->
     res = tmp_path / "res"
     res.mkdir()
     (res / "failures.parquet").write_text("the user's own list\n")
-    proc = run_in_process("analysis", "batch", str(rec), "--model", "avdm", "--out", str(res),
-                          "--jobs", "1")  # fmt: skip
+    proc = run_in_process(
+        "analysis", "batch", str(rec), "--model", "avdm", "--out", str(res), "--jobs", "1"
+    )
     assert proc.returncode == 0, proc.stderr
     assert (res / "failures.parquet").read_text() == "the user's own list\n"

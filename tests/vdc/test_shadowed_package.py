@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import ROOT, assert_one_line_error
+from tests.helpers import ROOT, assert_one_line_error, run_text
 
 
 def _run_script(
@@ -23,14 +23,7 @@ def _run_script(
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     if pythonpath:  # this checkout, as the suite runs it (the shared venv may point elsewhere)
         env["PYTHONPATH"] = str(ROOT)
-    return subprocess.run(
-        [sys.executable, "script.py"],
-        cwd=folder,
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=120,
-    )
+    return run_text([sys.executable, "script.py"], cwd=folder, env=env, timeout=120)
 
 
 @pytest.mark.parametrize(
@@ -121,15 +114,22 @@ def test_an_editable_install_beats_an_empty_vdc_folder_beside_the_script(tmp_pat
     # so nothing is downloaded; installed without dependencies: `import vdc` loads none of them
     build = "import setuptools.build_meta as b, sys; print(b.build_editable(sys.argv[1]))"
     wheel = subprocess.run(
-        [sys.executable, "-c", build, str(tmp_path / "dist")], cwd=copy, check=True,
-        capture_output=True, text=True, timeout=300,
-    ).stdout.split()[-1]  # fmt: skip
+        [sys.executable, "-c", build, str(tmp_path / "dist")],
+        cwd=copy,
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    ).stdout.split()[-1]
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
     subprocess.run(
         [venv / "bin" / "pip", "install", "-q", "--no-deps", tmp_path / "dist" / wheel],
-        check=True, capture_output=True, timeout=300, env=env,
-    )  # fmt: skip
+        check=True,
+        capture_output=True,
+        timeout=300,
+        env=env,
+    )
     # the dependencies: this environment's, after the project on the new one's path
     purelib = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
     ours, theirs = (
@@ -144,10 +144,7 @@ def test_an_editable_install_beats_an_empty_vdc_folder_beside_the_script(tmp_pat
         "import vdc\nprint(vdc.__file__)\nprint(vdc.record_sim)\n"
         "import capture\nprint(capture.__file__)\n"
     )
-    proc = subprocess.run(
-        [venv / "bin" / "python", "script.py"], cwd=user, capture_output=True, text=True,
-        env=env, timeout=120,
-    )  # fmt: skip
+    proc = run_text([venv / "bin" / "python", "script.py"], cwd=user, env=env, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     file, record_sim, capture_file = proc.stdout.splitlines()
     assert Path(file) == copy / "vdc" / "__init__.py"

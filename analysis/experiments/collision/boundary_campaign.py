@@ -302,10 +302,14 @@ def arena_boundary(s: BoundarySettings, out: Path, feedback: Feedback) -> Bounda
     )
     with table_set(out) as stage:
         paths, md = write_arena_outputs(
-            stage, s,
+            stage,
+            s,
             {"runs": runs, "conditions": conditions, "bounds": bounds, "profiles": profiles},
-            policy, f"{s.detector}: success against complexity", x_label, fits,
-        )  # fmt: skip
+            policy,
+            f"{s.detector}: success against complexity",
+            x_label,
+            fits,
+        )
         if measures is not None:
             table, more, section = arena_predictor_tables(s, runs, measures, stage)
             note = table_note(table)

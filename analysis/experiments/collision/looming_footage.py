@@ -60,15 +60,28 @@ OBJECTS = ("chelsea", "coins", "horse", "moon", "immunohistochemistry")
 # (drawn, not photographed), horse (a silhouette), motorcycle_right (the left one's stereo
 # twin: the same scene), lfw_subset (25 px faces). File per name (photo_file: in which package).
 PHOTOS_2026_12 = {
-    "astronaut": "astronaut.png", "camera": "camera.png", "brick": "brick.png",
-    "grass": "grass.png", "gravel": "gravel.png", "coffee": "coffee.png",
-    "rocket": "rocket.jpg", "page": "page.png", "hubble_deep_field": "hubble_deep_field.jpg",
-    "retina": "retina.jpg", "cell": "cell.png", "microaneurysms": "microaneurysms.png",
-    "motorcycle_left": "motorcycle_left.png", "text": "text.png",
-    "clock_motion": "clock_motion.png", "chelsea": "chelsea.png", "coins": "coins.png",
-    "moon": "moon.png", "ihc": "ihc.png", "grace_hopper": "grace_hopper.jpg",
+    "astronaut": "astronaut.png",
+    "camera": "camera.png",
+    "brick": "brick.png",
+    "grass": "grass.png",
+    "gravel": "gravel.png",
+    "coffee": "coffee.png",
+    "rocket": "rocket.jpg",
+    "page": "page.png",
+    "hubble_deep_field": "hubble_deep_field.jpg",
+    "retina": "retina.jpg",
+    "cell": "cell.png",
+    "microaneurysms": "microaneurysms.png",
+    "motorcycle_left": "motorcycle_left.png",
+    "text": "text.png",
+    "clock_motion": "clock_motion.png",
+    "chelsea": "chelsea.png",
+    "coins": "coins.png",
+    "moon": "moon.png",
+    "ihc": "ihc.png",
+    "grace_hopper": "grace_hopper.jpg",
     "Minduka_Present_Blue_Pack": "Minduka_Present_Blue_Pack.png",
-}  # fmt: skip
+}
 MATPLOTLIB_PHOTO_FILES = ("grace_hopper", "Minduka_Present_Blue_Pack")
 # the looming objects of the amended collection: never the clip's own background
 OBJECTS_2026_12 = ("chelsea", "coins", "horse", "moon", "ihc")
@@ -227,30 +240,41 @@ def looming_footage(
         collision = c["miss_radii"] == 0.0
         name = f"clip{k:04d}-{'collision' if collision else 'near-miss'}.mp4"
         clip = render_looming(
-            _photo(str(c["background"])), _photo(str(c["object"])),
-            size=(s.height_px, s.width_px), fps=s.fps, hfov_deg=s.hfov_deg, n_frames=n,
-            contact_frame=n - 1, rv_s=float(c["rv_s"]), miss_radii=float(c["miss_radii"]),
-            rotation_dps=float(c["rotation_dps"]), contrast=float(c["contrast"]),
-            light=float(c["light"]), noise_sd=float(c["noise_sd"]), seed=s.seed * 100_003 + k,
+            _photo(str(c["background"])),
+            _photo(str(c["object"])),
+            size=(s.height_px, s.width_px),
+            fps=s.fps,
+            hfov_deg=s.hfov_deg,
+            n_frames=n,
+            contact_frame=n - 1,
+            rv_s=float(c["rv_s"]),
+            miss_radii=float(c["miss_radii"]),
+            rotation_dps=float(c["rotation_dps"]),
+            contrast=float(c["contrast"]),
+            light=float(c["light"]),
+            noise_sd=float(c["noise_sd"]),
+            seed=s.seed * 100_003 + k,
             enter_frame=n - 1 - round(float(c["enter_s"]) * s.fps),
-        )  # fmt: skip
+        )
         path = out / name
         if path.is_file():
             reused += 1
         else:
             encode_h264(path, clip.frames, s.fps)
         files.append(path)
-        rows.append({
-            "clip": name,
-            "label": "collision" if collision else "near-miss",
-            "collision_frame": n - 1 if collision else None,
-            "hazard_onset_frame": clip.hazard_onset_frame,
-            # the photograph is what clips share: the predictors' unit (issue 57)
-            "scene": c["background"],
-            **c,
-            "fps": s.fps,
-            "hfov_deg": s.hfov_deg,
-        })  # fmt: skip
+        rows.append(
+            {
+                "clip": name,
+                "label": "collision" if collision else "near-miss",
+                "collision_frame": n - 1 if collision else None,
+                "hazard_onset_frame": clip.hazard_onset_frame,
+                # the photograph is what clips share: the predictors' unit (issue 57)
+                "scene": c["background"],
+                **c,
+                "fps": s.fps,
+                "hfov_deg": s.hfov_deg,
+            }
+        )
         feedback.progress(1)
     labels = pl.DataFrame(
         rows, schema_overrides={"collision_frame": pl.Int64, "hazard_onset_frame": pl.Int64}

@@ -254,8 +254,9 @@ def predictors_for_folder(
             f"{str(folder)!r} is a footage boundary: its predictors are written by the run."
         )
     fields = {f.name for f in dataclasses.fields(BoundarySettings)}
-    s = BoundarySettings(**{k: tuple(v) if isinstance(v, list) else v
-                            for k, v in meta.items() if k in fields})  # fmt: skip
+    s = BoundarySettings(
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in meta.items() if k in fields}
+    )
     if executor is not None:
         s = dataclasses.replace(s, **executor)
     runs = pl.read_parquet(folder / "boundary_runs.parquet")
@@ -321,10 +322,13 @@ def predictors(source: str | Path | Any) -> Any:
     if not pred.exists():
         return predictors_for_folder(folder)
     measures = next(
-        (folder / n for n in ("predictor_measures.parquet", "predictor_frames.parquet")
-         if (folder / n).exists()),
+        (
+            folder / n
+            for n in ("predictor_measures.parquet", "predictor_frames.parquet")
+            if (folder / n).exists()
+        ),
         None,
-    )  # fmt: skip
+    )
     md_path = folder / "boundary.md"
     md = md_path.read_text() if md_path.exists() else ""
     cut = md.find("## Which measure predicts")

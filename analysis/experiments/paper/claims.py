@@ -54,8 +54,15 @@ class Quantity:
     p_value: float = math.nan
 
     @classmethod
-    def of(cls, condition: str, quantity: str, e: Estimate, test: str = "", p: float = math.nan,
-           scale: float = 1.0) -> Quantity:  # fmt: skip
+    def of(
+        cls,
+        condition: str,
+        quantity: str,
+        e: Estimate,
+        test: str = "",
+        p: float = math.nan,
+        scale: float = 1.0,
+    ) -> Quantity:
         return cls(condition, quantity, e.mean * scale, e.low * scale, e.high * scale, e.n, test, p)
 
 
@@ -89,11 +96,21 @@ def claims_frame(claims: Sequence[Claim]) -> pl.DataFrame:
             )
             rows.append({**base, **values})
     schema = {
-        "claim_index": pl.Int64, "claim": pl.String, "paper": pl.String, "measured": pl.String,
-        "verdict": pl.String, "seeds": pl.Int64, "condition": pl.String, "quantity": pl.String,
-        "estimate": pl.Float64, "ci_low": pl.Float64, "ci_high": pl.Float64,
-        "n_seeds": pl.Int64, "test": pl.String, "p_value": pl.Float64,
-    }  # fmt: skip
+        "claim_index": pl.Int64,
+        "claim": pl.String,
+        "paper": pl.String,
+        "measured": pl.String,
+        "verdict": pl.String,
+        "seeds": pl.Int64,
+        "condition": pl.String,
+        "quantity": pl.String,
+        "estimate": pl.Float64,
+        "ci_low": pl.Float64,
+        "ci_high": pl.Float64,
+        "n_seeds": pl.Int64,
+        "test": pl.String,
+        "p_value": pl.Float64,
+    }
     return pl.DataFrame(rows, schema=schema).with_columns(pl.col(pl.Float64).fill_nan(None))
 
 
@@ -229,9 +246,13 @@ RISE_TEST = "rise with TF"  # the test column of rows that a trend test across T
 
 
 def rise_quantities(
-    table: pl.DataFrame, metric: str, name: str, scale: float = 1.0, scene: str = "grating",
+    table: pl.DataFrame,
+    metric: str,
+    name: str,
+    scale: float = 1.0,
+    scene: str = "grating",
     supporting: bool = False,
-) -> tuple[list[Quantity], Trend, list[Estimate]]:  # fmt: skip
+) -> tuple[list[Quantity], Trend, list[Estimate]]:
     """The mean and 95 % interval per wall TF of a :func:`per_seed` table, as quantities
     named ``name``, with the trend test across seeds (``supporting``: a reading shown beside a
     claim that does not decide it)."""

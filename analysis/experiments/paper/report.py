@@ -112,13 +112,14 @@ def segments_markdown(out: Path) -> str:
     col = pl.read_parquet(out / "collision" / "collision_summary.parquet")
     frames = prof.group_by("recording_id").agg(pl.col("n_frames").max())
     rows = (
-        prof.select("recording_id", "scene", "wall_tf_hz").unique()
+        prof.select("recording_id", "scene", "wall_tf_hz")
+        .unique()
         .join(frames, on="recording_id")
         .with_columns(
             condition=pl.col("scene") + " TF " + pl.col("wall_tf_hz").cast(pl.String) + " Hz"
         )
         .select("condition", "recording_id", "n_frames")
-    )  # fmt: skip
+    )
     cols = rows.vstack(
         col.select(
             pl.lit("collision ").add(pl.col("phase")).alias("condition"),
@@ -185,23 +186,37 @@ def numbers_markdown(table: pl.DataFrame) -> str:
 # The report's symbols and terms, each with what it means and its unit. The key lists those
 # the page uses (matched literally), so it explains everything there and nothing that is not.
 NOTATION = (
-    ("ω̂", "the AVDM's estimate of the angular velocity of the image, deg/s (ω, no hat: the true "
-     "one)"),
+    (
+        "ω̂",
+        "the AVDM's estimate of the angular velocity of the image, deg/s (ω, no hat: the true one)",
+    ),
     ("λ̂", "the AVDM's estimate of the texture's spatial period, px"),
-    ("R̄", "the AVDM's mean correlator response, its motion energy; √R̄ is on the [0, 1] "
-     "intensity scale"),
-    ("upc", "units per circle: a grating's cycles across an image standing for 360° (SF 10 upc: "
-     "a 36° period)"),
+    (
+        "R̄",
+        "the AVDM's mean correlator response, its motion energy; √R̄ is on the [0, 1] "
+        "intensity scale",
+    ),
+    (
+        "upc",
+        "units per circle: a grating's cycles across an image standing for 360° (SF 10 upc: "
+        "a 36° period)",
+    ),
     ("SF", "a grating's spatial frequency, upc"),
     ("TF", "temporal frequency, Hz: the cycles passing a point each second (the walls' drift)"),
     ("ρ", "Spearman's rank correlation, from −1 (falls throughout) to +1 (rises throughout)"),
-    ("Page's L", "Page's test for a trend rising across three or more ordered conditions, seeds "
-     "as blocks; p is one-sided"),
+    (
+        "Page's L",
+        "Page's test for a trend rising across three or more ordered conditions, seeds "
+        "as blocks; p is one-sided",
+    ),
     ("sign test", "the trend test for two conditions: how many seeds rise; p is one-sided"),
-    ("95 % interval", "where the mean across seeds lies with 95 % confidence (Student's t, "
-     "clipped to the quantity's range): mean [low, high]"),
+    (
+        "95 % interval",
+        "where the mean across seeds lies with 95 % confidence (Student's t, "
+        "clipped to the quantity's range): mean [low, high]",
+    ),
     ("p", "the chance of a trend at least this strong if there were none; below 0.05 counts"),
-)  # fmt: skip
+)
 
 
 def notation_markdown(text: str, known: str = "") -> list[str]:
@@ -260,9 +275,10 @@ def claim_numbers(c: Claim) -> str:
     collision phases' avoidances (the paper's column gives its own); grouped by quantity."""
     deciding = [q for q in c.quantities if q.test and "(supporting)" not in q.test]
     shown = [
-        q for q in c.quantities
+        q
+        for q in c.quantities
         if q in deciding or not deciding or q.quantity == "avoidances_per_30min"
-    ]  # fmt: skip
+    ]
     groups: dict[str, list[str]] = {}
     for q in shown:
         name = SHORT_NAMES.get(q.quantity, q.quantity.split(" · ")[0].replace("_", " "))

@@ -202,11 +202,25 @@ def plot_paper(df: pl.DataFrame, path: Path, config: SweepConfig, title: str) ->
     # the top row per SF across TF, the bottom per TF across SF: (fixed values, their column,
     # the x column and label, where aliasing starts on x, its label, the panel's title)
     rows = (
-        (PAPER_SF_UPC, "sf_upc", "tf_hz", "TF (Hz)", config.fps / 4, "TF > fps/4 (near aliasing)",
-         lambda sf: f"SF = {sf:g} upc (period {w / sf:g} px)"),
-        (PAPER_TF_HZ, "tf_hz", "sf_upc", "SF (units per circle)", w / 4,
-         "period < 4 px (spatial aliasing)", lambda tf: f"TF = {tf:g} Hz"),
-    )  # fmt: skip
+        (
+            PAPER_SF_UPC,
+            "sf_upc",
+            "tf_hz",
+            "TF (Hz)",
+            config.fps / 4,
+            "TF > fps/4 (near aliasing)",
+            lambda sf: f"SF = {sf:g} upc (period {w / sf:g} px)",
+        ),
+        (
+            PAPER_TF_HZ,
+            "tf_hz",
+            "sf_upc",
+            "SF (units per circle)",
+            w / 4,
+            "period < 4 px (spatial aliasing)",
+            lambda tf: f"TF = {tf:g} Hz",
+        ),
+    )
     for row_axes, (fixed, fixed_col, x_col, x_label, bad_from, band, named) in zip(
         axes, rows, strict=True
     ):

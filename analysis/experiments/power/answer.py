@@ -9,12 +9,13 @@ the tables its studies wrote.
   (:mod:`analysis.predictors.statistics`);
 * ``per_scene.parquet`` / ``per_scene.png`` (exploratory: a post hoc reading, no interval, no
   test; each cell on its scene's few units, ``n``): where each measure fails to rank the
-  conditions (arena) or clips (footage, by background photograph). Per scene, over the pairs
-  of units whose failure differs, the **discordant share**: the share the measure orders against the
-  failure (a higher measure, less failure; ties half). 0: it ranks the scene's units
-  perfectly; 0.5: no better than chance; 1: inverted. The column ``across scenes`` takes the
-  pairs whose units lie in different scenes: a measure may rank within scenes and not across
-  them (the interaction the plan expects), or the reverse;
+  conditions (arena) or clips (footage, by background photograph;
+  :mod:`analysis.experiments.power.units`). Per scene, over the pairs of units whose failure
+  differs, the **discordant share**: the share the measure orders against the failure (a
+  higher measure, less failure; ties half). 0: it ranks the scene's units perfectly; 0.5: no
+  better than chance; 1: inverted. The column ``across scenes`` takes the pairs whose units
+  lie in different scenes: a measure may rank within scenes and not across them (the
+  interaction the plan expects), or the reverse;
 * ``answer.md``: its first paragraph generated from the corrected table: the verdicts that
   stand after Holm's correction over the judged studies, each study's unit and n (scenes,
   conditions or clips, failing and correct), and what the runs cannot tell.
@@ -28,15 +29,39 @@ from typing import Any
 
 import numpy as np
 import polars as pl
-from matplotlib.figure import Figure
 
-from analysis.boundary.statistics import WARMUP_FRAMES
+from analysis.experiments.power.units import (
+    ACROSS,
+    arena_units,
+    discordant_share,
+    footage_units,
+    icc_oneway,
+    per_scene,
+    plot_per_scene,
+)
 from analysis.predictors.inference import holm
-from analysis.predictors.report import label, settings_meta, units_phrase
-from analysis.predictors.statistics import HEADLINE, MEASURES
+from analysis.predictors.report import label, units_phrase
+from analysis.predictors.statistics import HEADLINE
 from analysis.predictors.verdicts import MIN_CONDITIONS, MIN_FAILURES, MIN_SCENES
 from analysis.stats import ALPHA
 from vdc.parquet_io import write_parquet
+
+# the units' names, importable from here as before they had their own module
+__all__ = [
+    "FAILURE_TARGET",
+    "QUICK_BANNER",
+    "answer_markdown",
+    "discordant_share",
+    "first_paragraph",
+    "footage_units",
+    "icc_oneway",
+    "in_words",
+    "primary_row",
+    "scene_sizes",
+    "share_phrase",
+    "with_holm_across",
+    "write_answer",
+]
 
 QUICK_BANNER = (
     "**Quick run (`--quick`): its verdicts are not findings.** This is the reduced version of "
@@ -44,7 +69,6 @@ QUICK_BANNER = (
     "works; far below the plan's power, nothing here answers the question. The plan itself "
     "runs without `--quick` (docs/findings/power_plan.md)."
 )
-ACROSS = "across scenes"
 # the plan's target share of failing conditions (arena) or clips (footage): both classes well
 # populated (docs/findings/power_plan.md)
 FAILURE_TARGET = (0.30, 0.50)
@@ -55,163 +79,6 @@ def _cell(text: str) -> str:
     """A whole sentence in one Markdown table cell: never cut mid-word (a cell was cut at 100
     characters: "there is no evidence to pla"), its pipes and line breaks escaped."""
     return " ".join(str(text).split()).replace("|", "\\|")
-
-
-def discordant_share(x: np.ndarray, fail: np.ndarray, group: np.ndarray | None = None) -> float:
-    """Over the pairs of units whose failure differs (``group`` given: only pairs in different
-    groups), the share the measure ``x`` (N,) orders against the failure ``fail`` (N,) (a
-    higher measure with less failure), ties in ``x`` counting half; NaN without such a pair."""
-    x, fail = np.asarray(x, float), np.asarray(fail, float)
-    ok = np.isfinite(x) & np.isfinite(fail)
-    x, fail = x[ok], fail[ok]
-    dx = np.sign(x[:, None] - x[None, :])
-    df = np.sign(fail[:, None] - fail[None, :])
-    use = np.triu(df != 0, 1)
-    if group is not None:
-        g = np.asarray(group)[ok]
-        use &= g[:, None] != g[None, :]
-    if not use.any():
-        return math.nan
-    d = dx[use] * df[use]
-    return float(((d < 0) + 0.5 * (d == 0)).mean())
-
-
-def icc_oneway(values: np.ndarray, groups: np.ndarray) -> float:
-    """The share of ``values``' variance its ``groups`` (scenes) set: ICC(1) of a one-way
-    ANOVA (Donner & Klar 2000, with n0 for unequal groups); NaN with fewer than 2 groups or
-    nothing within them. It may come out below 0 by chance (reported as it is)."""
-    x, g = np.asarray(values, float), np.asarray(groups)
-    ok = np.isfinite(x)
-    x, g = x[ok], g[ok]
-    names, idx, n_g = np.unique(g, return_inverse=True, return_counts=True)
-    k, n = len(names), len(x)
-    if k < 2 or n - k < 1:
-        return math.nan
-    means = np.bincount(idx, x) / n_g
-    msb = float((n_g * (means - x.mean()) ** 2).sum() / (k - 1))
-    msw = float(((x - means[idx]) ** 2).sum() / (n - k))
-    n0 = (n - (n_g**2).sum() / n) / (k - 1)
-    denom = msb + (n0 - 1) * msw
-    return math.nan if denom <= 0 else (msb - msw) / denom
-
-
-def arena_units(folder: Path) -> pl.DataFrame:
-    """One row per condition of an arena study: scene, failure (1 − the mean of its seeds'
-    success shares, as the predictors take it), ``failing`` (its success below the study's
-    target, as the predictors count it) and each measure's mean over its profiling runs."""
-    target = settings_meta(folder).get("target", 0.9)
-    runs = pl.read_parquet(folder / "boundary_runs.parquet")
-    measures = pl.read_parquet(folder / "predictor_measures.parquet")
-    names = [m for m in MEASURES if m in measures.columns]
-    events = pl.col("avoidances") + pl.col("crashes")
-    fail = (
-        runs.filter(events > 0)
-        .group_by("condition")
-        .agg((1 - (pl.col("avoidances") / events).mean()).alias("failure"))
-    )
-    means = measures.group_by("condition", "scene").agg(pl.col(names).mean())
-    units = means.join(fail, on="condition", how="inner").sort("condition")
-    return units.with_columns((1 - pl.col("failure") < target).alias("failing"))
-
-
-def footage_units(folder: Path, labels: pl.DataFrame) -> pl.DataFrame:
-    """One row per clip of a footage study: its background photograph as the scene, failure
-    (1: the detector got it wrong) and each measure's mean over the scene's frames
-    (``omega_dps`` is avdm-natural there)."""
-    clips = pl.read_parquet(folder / "boundary_clips.parquet").rename({"omega_dps": "avdm_natural"})
-    scene = pl.col("scene") if "scene" in labels.columns else pl.col("background").alias("scene")
-    bg = labels.select("clip", scene, "hazard_onset_frame")
-    clips = clips.join(bg, on="clip", how="left").join(
-        paper_avdm(folder, bg), on="clip", how="left"
-    )
-    names = [m for m in MEASURES if m in clips.columns]
-    return clips.select(
-        "clip",
-        "scene",
-        (~pl.col("correct")).cast(pl.Float64).alias("failure"),
-        (~pl.col("correct")).alias("failing"),
-        *names,
-    )
-
-
-def paper_avdm(folder: Path, onsets: pl.DataFrame) -> pl.DataFrame:
-    """Per clip, the paper's AVDM (``avdm``) as the footage predictors take it: its mean over
-    the frames before the hazard's onset (all of them where the object never comes into view),
-    the model's start-up left out where frames after it remain."""
-    frames = (
-        pl.read_parquet(folder / "predictor_frames.parquet")
-        .select("clip", "frame", "avdm")
-        .unique(["clip", "frame"])
-        .join(onsets.select("clip", "hazard_onset_frame"), on="clip", how="left")
-        .filter(
-            pl.col("hazard_onset_frame").is_null()
-            | (pl.col("frame") < pl.col("hazard_onset_frame"))
-        )
-    )
-    after = (pl.col("frame") >= WARMUP_FRAMES).any().over("clip")
-    kept = frames.filter(~after | (pl.col("frame") >= WARMUP_FRAMES))
-    return kept.group_by("clip").agg(pl.col("avdm").fill_nan(None).mean())
-
-
-def per_scene(units: pl.DataFrame) -> pl.DataFrame:
-    """Per measure and scene (and :data:`ACROSS`), the discordant share (see the module) with
-    the units it is over: ``n``, ``n_failing`` and ``n_correct`` (as the predictors count
-    them). Exploratory: no interval."""
-    names = [m for m in MEASURES if m in units.columns]
-    scenes = units["scene"].unique(maintain_order=True).to_list()
-    rows = []
-    for m in names:
-        for sc in [*scenes, ACROSS]:
-            part = units if sc == ACROSS else units.filter(pl.col("scene") == sc)
-            f = part["failure"].to_numpy()
-            group = part["scene"].to_numpy() if sc == ACROSS else None
-            rows.append({
-                "measure": m,
-                "scene": sc,
-                "n": part.height,
-                "n_failing": int(part["failing"].sum()),
-                "n_correct": int((~part["failing"]).sum()),
-                "discordant_share": discordant_share(part[m].to_numpy(), f, group),
-            })  # fmt: skip
-    return pl.DataFrame(rows)
-
-
-def plot_per_scene(tables: dict[str, pl.DataFrame], path: Path, quick: bool) -> Path:
-    """One heat map per study: measures down, scenes across, the discordant share in each cell
-    (green 0: ranks perfectly; yellow 0.5: chance; red 1: inverted; grey: no pair to rank)."""
-    n = max(1, len(tables))
-    fig = Figure(figsize=(6.2 * min(n, 3), 5.2 * math.ceil(n / 3)), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(math.ceil(n / 3), min(n, 3))).ravel()
-    image = None
-    for ax, (title, t) in zip(axes, tables.items(), strict=False):
-        measures = t["measure"].unique(maintain_order=True).to_list()
-        scenes = t["scene"].unique(maintain_order=True).to_list()
-        grid = np.full((len(measures), len(scenes)), np.nan)
-        for r in t.iter_rows(named=True):
-            grid[measures.index(r["measure"]), scenes.index(r["scene"])] = r["discordant_share"]
-        ax.set_facecolor("0.85")
-        image = ax.imshow(grid, cmap="RdYlGn_r", vmin=0, vmax=1, aspect="auto")
-        for (i, j), v in np.ndenumerate(grid):
-            ax.text(j, i, "–" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", size=7)
-        sizes = dict(zip(t["scene"], t["n"], strict=True))  # the units each column rests on
-        ticks = [f"{sc} (n {sizes[sc]})" for sc in scenes]
-        ax.set_xticks(range(len(scenes)), ticks, rotation=40, ha="right", size=8)
-        ax.set_yticks(range(len(measures)), [label(m) for m in measures], size=8)
-        ax.axvline(len(scenes) - 1.5, color="k", lw=1)  # the across-scenes column apart
-        ax.set_title(title, size=10)
-    for ax in axes[len(tables) :]:
-        ax.set_axis_off()
-    if image is not None:
-        bar = fig.colorbar(image, ax=axes.tolist(), shrink=0.6)
-        bar.set_label("discordant share: 0 ranks the scene's units, 0.5 chance, 1 inverted")
-    head = "QUICK RUN (--quick): not findings. " if quick else ""
-    fig.suptitle(
-        f"{head}Exploratory (post hoc, no interval): where each measure fails to rank the "
-        "conditions (arena) or clips (footage), scene by scene",
-        color="C3" if quick else "k",
-    )
-    fig.savefig(path, dpi=110)
-    return path
 
 
 def _fmt(e: Any, lo: Any, hi: Any, digits: int = 2) -> str:
@@ -248,8 +115,15 @@ def _primary_row(study: dict[str, Any], table: pl.DataFrame | None) -> dict[str,
     own = {r["measure"]: r for r in table.filter(pl.col("statistic") == stat).iter_rows(named=True)}
     fail, ok = p["n_failing"], p["n_correct"]
     share = fail / (fail + ok) if fail is not None and ok is not None and fail + ok else None
-    out = row | {"statistic": stat, "n": p["n"], "n_failing": fail, "n_correct": ok,
-                 "failure_share": share, "unit": p["unit"], "n_units": p["n_units"]}  # fmt: skip
+    out = row | {
+        "statistic": stat,
+        "n": p["n"],
+        "n_failing": fail,
+        "n_correct": ok,
+        "failure_share": share,
+        "unit": p["unit"],
+        "n_units": p["n_units"],
+    }
     for name, m in (("avdm", "avdm"), ("ti", "ti_p910")):
         r = own.get(m, {})
         out |= {f"{name}_{k}": r.get(k) for k in ("estimate", "ci_low", "ci_high")}
@@ -428,8 +302,9 @@ def write_answer(
             else footage_units(folder, labels if labels is not None else pl.DataFrame())
         )
         # how much of the failure its scene sets: the design effect the power assumed
-        prim_rows[-1]["icc_failure"] = icc_oneway(units["failure"].to_numpy(),
-                                                  units["scene"].to_numpy())  # fmt: skip
+        prim_rows[-1]["icc_failure"] = icc_oneway(
+            units["failure"].to_numpy(), units["scene"].to_numpy()
+        )
         scene_tables[f"{st['source']}: {st['detector']}"] = per_scene(units).with_columns(
             pl.lit(st["source"]).alias("source"), pl.lit(st["detector"]).alias("detector")
         )
@@ -495,8 +370,11 @@ def answer_markdown(
     for r in primary.iter_rows(named=True):
         dev = r.get("deviation") or "none"
         if r.get("statistic") is None:
-            lines.append(f"| {r['source']} | {r['detector']} | {dev} |" + " — |" * 10
-                         + f" {_cell(r.get('verdict') or '')} |")  # fmt: skip
+            lines.append(
+                f"| {r['source']} | {r['detector']} | {dev} |"
+                + " — |" * 10
+                + f" {_cell(r.get('verdict') or '')} |"
+            )
             continue
         across = r.get("p_holm_across")
         lines.append(
@@ -519,8 +397,10 @@ def answer_markdown(
             "correction at 5 %" + (":\n" if kept.height else ".\n")
         )
         if kept.height:
-            lines += ["| detector | comparison | measure | AVDM − measure | Holm p |",
-                      "|---|---|---|---|---|"]  # fmt: skip
+            lines += [
+                "| detector | comparison | measure | AVDM − measure | Holm p |",
+                "|---|---|---|---|---|",
+            ]
             for r in kept.sort("p_holm").iter_rows(named=True):
                 lines.append(
                     f"| {r['source']}: {r['detector']} | {r['statistic']} | {label(r['measure'])}"
@@ -559,9 +439,11 @@ def answer_markdown(
         conf = r.get("first_seed_failing")
         conf = "—" if conf is None else f"{100 * conf:.0f} %"
         dev = r.get("deviation") or "none"
-        lines.append(f"| {r['source']} | {r['detector']} | {r['units']} | {conf} | {dev} | "
-                     f"{r['recomputed']} | {_cell(r['status'])} | "
-                     f"`{Path(r['folder']).name}` |")  # fmt: skip
+        lines.append(
+            f"| {r['source']} | {r['detector']} | {r['units']} | {conf} | {dev} | "
+            f"{r['recomputed']} | {_cell(r['status'])} | "
+            f"`{Path(r['folder']).name}` |"
+        )
     cmd = f"vdc-analyse power-study --plan {getattr(plan, 'name', '2026-11')}" + (
         " --quick" if quick else ""
     )

@@ -23,8 +23,13 @@ import pyarrow.parquet as pq
 
 from analysis.experiments.power.answer import _fmt, _p, first_paragraph, share_phrase
 
-PUBLISHED = ("answer.md", "primary.parquet", "secondaries.parquet", "per_scene.parquet",
-             "studies.parquet")  # fmt: skip
+PUBLISHED = (
+    "answer.md",
+    "primary.parquet",
+    "secondaries.parquet",
+    "per_scene.parquet",
+    "studies.parquet",
+)
 BEGIN, END = "<!-- power-study:begin (generated) -->", "<!-- power-study:end -->"
 FINDINGS = Path("docs/findings/power-2026-12")  # where the amended plan's answer is committed
 PENDING = (
@@ -50,8 +55,13 @@ def publish(out: Path, dest: Path, studies: pl.DataFrame, feedback: Any = None) 
 
     def git(*args: str) -> str:
         try:
-            run = subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True,
-                                 timeout=30, check=False)  # fmt: skip
+            run = subprocess.run(
+                ["git", "-C", str(repo), *args],
+                capture_output=True,
+                text=True,
+                timeout=30,
+                check=False,
+            )
         except (OSError, subprocess.SubprocessError):
             return ""
         return run.stdout.strip() if run.returncode == 0 else ""
@@ -101,8 +111,11 @@ def result_section(folder: Path) -> str:
             f"{(r.get('verdict') or '')[:100]} |"
         )
     quick = " (a QUICK run: not findings)" if made.get("quick") else ""
-    lines += ["", f"Generated from `docs/findings/{folder.name}/`, made by commit "
-              f"{made['commit'][:12]} (vdc {made['vdc']}){quick}."]  # fmt: skip
+    lines += [
+        "",
+        f"Generated from `docs/findings/{folder.name}/`, made by commit "
+        f"{made['commit'][:12]} (vdc {made['vdc']}){quick}.",
+    ]
     return "\n".join(lines)
 
 

@@ -65,9 +65,16 @@ def footage_pilot(
             outcome = footage_outcome(
                 by_frame, fps, row["collision_frame"], row["hazard_onset_frame"]
             )
-            rows.append({"detector": spec, "clip": row["clip"], "label": row["label"],
-                         "light": row["light"], "rotation_dps": row["rotation_dps"],
-                         "outcome": outcome})  # fmt: skip
+            rows.append(
+                {
+                    "detector": spec,
+                    "clip": row["clip"],
+                    "label": row["label"],
+                    "light": row["light"],
+                    "rotation_dps": row["rotation_dps"],
+                    "outcome": outcome,
+                }
+            )
     table = pl.DataFrame(rows)
     table.write_parquet(out / "pilot_clips.parquet")
     failing = pl.col("outcome").is_in(["miss", "early alert", "false alarm"])

@@ -22,15 +22,22 @@ from vdc.executors import ExecutorSettings, Feedback
 # Files and folders of the source, relative to the folder that holds the packages (read as
 # files, never imported: hashing a module is no dependency on it).
 CODE_PATHS = (
-    "avdm", "capture", "analysis/boundary", "analysis/complexity", "analysis/predictors",
+    "avdm",
+    "capture",
+    "analysis/boundary",
+    "analysis/complexity",
+    "analysis/predictors",
     "analysis/experiments/captures.py",
     "analysis/experiments/collision/boundary_campaign.py",
     "analysis/experiments/collision/predictor_runs.py",
     "analysis/experiments/collision/looming_footage.py",
-    "analysis/experiments/power/sizes.py", "analysis/experiments/power/pilot.py",
-    "analysis/experiments/power/study.py", "analysis/experiments/power/answer.py",
+    "analysis/experiments/power/sizes.py",
+    "analysis/experiments/power/pilot.py",
+    "analysis/experiments/power/study.py",
+    "analysis/experiments/power/answer.py",
+    "analysis/experiments/power/units.py",
     "analysis/experiments/power/resume.py",
-)  # fmt: skip
+)
 SOURCE_ROOT = Path(__file__).resolve().parents[3]  # holds analysis/, avdm/, capture/
 
 

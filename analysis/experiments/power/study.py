@@ -247,8 +247,11 @@ class PowerStudyResult(WroteFiles):
         first = self.answer.split("\n\n")[1 if self.quick else 0]
         head = ["QUICK RUN: its verdicts are not findings"] if self.quick else []
         more = len(self.paths) - 1  # the line was cut at "and beside it"
-        return [*head, first.replace("**", ""),
-                f"wrote {self.paths[-1]} and {more} more files beside it."]  # fmt: skip
+        return [
+            *head,
+            first.replace("**", ""),
+            f"wrote {self.paths[-1]} and {more} more files beside it.",
+        ]
 
 
 def _slug(spec: str) -> str:
@@ -278,10 +281,17 @@ def arena_study(
     if not link.exists():
         os.symlink(Path("..") / "recordings", link, target_is_directory=True)
     bs = BoundarySettings(
-        detector=detector, param=param, values=(value,), scenes=plan.scenes,
-        tf_draws=plan.tf_draws, tf_range=plan.tf_range, seeds=plan.seeds, minutes=plan.minutes,
-        no_fit=True, **_executor(s),
-    )  # fmt: skip
+        detector=detector,
+        param=param,
+        values=(value,),
+        scenes=plan.scenes,
+        tf_draws=plan.tf_draws,
+        tf_range=plan.tf_range,
+        seeds=plan.seeds,
+        minutes=plan.minutes,
+        no_fit=True,
+        **_executor(s),
+    )
     row = _row("arena", detector, param, value, folder, plan.conditions() * plan.seeds)
     if plan.confirm:  # the first seed of every condition, in its own folder, before the rest
         first = folder / "first-seed"
@@ -429,9 +439,15 @@ def footage_study(
     detector, param, value = spec
     folder = out / "footage" / _slug(detector)
     bs = BoundarySettings(
-        detector=detector, param=param, values=(value,), labels=str(labels), fov_deg=fov_deg,
-        min_ttc_s=plan.min_ttc_s, alert_window_s=plan.alert_window_s, **_executor(s),
-    )  # fmt: skip
+        detector=detector,
+        param=param,
+        values=(value,),
+        labels=str(labels),
+        fov_deg=fov_deg,
+        min_ttc_s=plan.min_ttc_s,
+        alert_window_s=plan.alert_window_s,
+        **_executor(s),
+    )
     row = _row("footage", detector, param, value, folder, plan.clips)
     if pilot is not None:  # the value confirmed on the pilot clips (outside the study's)
         share = pilot.get(detector)
@@ -485,9 +501,12 @@ def power_study(
     rows = [arena_study(s, spec, out, feedback, start) for spec in plan.arena_detectors]
     w, h = plan.clip_size
     clips = LoomingFootageSettings(
-        clips=plan.clips, seconds=plan.clip_seconds, width_px=w, height_px=h,
+        clips=plan.clips,
+        seconds=plan.clip_seconds,
+        width_px=w,
+        height_px=h,
         collection=plan.collection,
-    )  # fmt: skip
+    )
     folder = out / "footage" / "clips"
     labels = folder / "labels.csv"
     row = _row("footage", "looming-footage", "clips", plan.clips, folder, plan.clips)

@@ -17,8 +17,12 @@ SCENES = "grating,grating-p0.05,grating-p0.2-c0.3,natural-c0.5,photo-astronaut,p
 
 
 def test_scene_names_stand_for_their_sim_settings() -> None:
-    assert scene_fields("grating") == {"scene": "grating", "period_m": 0.1, "contrast": 1.0,
-                                       "image": None}  # fmt: skip
+    assert scene_fields("grating") == {
+        "scene": "grating",
+        "period_m": 0.1,
+        "contrast": 1.0,
+        "image": None,
+    }
     g = scene_fields("grating-p0.05-c0.3")
     assert (g["period_m"], g["contrast"]) == (0.05, 0.3)
     photo = scene_fields("photo-astronaut")
@@ -31,12 +35,17 @@ def test_scene_names_stand_for_their_sim_settings() -> None:
     assert img.shape == ref.shape and np.abs(img.astype(int) - ref).mean() < 2
 
 
-@pytest.mark.parametrize(
-    ("name", "needle"),
-    [("photo-nope", "unknown photograph"), ("grating-p0", "period 0 m"),
-     ("natural-p0.1", "only a grating"), ("walls", "unknown arena scene"),
-     ("grating-c1.5", "contrast 1.5")],
-)  # fmt: skip
+# a scene name refused -> what its one line says
+BAD_SCENES = {
+    "photo-nope": "unknown photograph",
+    "grating-p0": "period 0 m",
+    "natural-p0.1": "only a grating",
+    "walls": "unknown arena scene",
+    "grating-c1.5": "contrast 1.5",
+}
+
+
+@pytest.mark.parametrize(("name", "needle"), BAD_SCENES.items())
 def test_bad_scene_names_are_one_line(name: str, needle: str) -> None:
     with pytest.raises(ValueError, match=needle):
         BoundarySettings(scenes=name)
@@ -58,8 +67,16 @@ def test_tfs_are_drawn_per_scene_from_the_range_one_per_stratum() -> None:
 
 
 def test_a_run_of_a_scene_is_configured_with_its_wall(tmp_path: Path) -> None:
-    s = BoundarySettings(scenes=SCENES, tf_draws=2, tf_range="0:4", detector="flow-ttc",
-                         param="tau_alert_s", values="0.5", seeds=1, minutes=0.1)  # fmt: skip
+    s = BoundarySettings(
+        scenes=SCENES,
+        tf_draws=2,
+        tf_range="0:4",
+        detector="flow-ttc",
+        param="tau_alert_s",
+        values="0.5",
+        seeds=1,
+        minutes=0.1,
+    )
     run = collision_run_item(
         s, "grating-p0.2-c0.3", 1.5, 0.5, 1, tmp_path, {"scene": "grating-p0.2-c0.3"}
     )

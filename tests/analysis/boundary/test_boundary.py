@@ -18,7 +18,7 @@ from analysis.experiments.collision.boundary_campaign import boundary
 from analysis.recordings.reader import Recording
 from avdm.policy import load_policy
 from tests.figures import assert_figure, recording_figures
-from tests.helpers import assert_one_line_error, write_video
+from tests.helpers import assert_one_line_error, flags, write_video
 from tests.in_process import run_in_process
 from vdc.executors import Feedback
 
@@ -104,9 +104,14 @@ def test_the_policy_is_tested_on_held_out_conditions_running_online(grid) -> Non
     2 seeds of 1 min), and where the released threshold is blinded (TF 2) it is better."""
     out, _, _ = grid
     s = AdaptationSettings(
-        policy=str(out / "policy.csv"), tf="2", scenes="grating", schedule="0:40s,3:40s",
-        seeds=2, minutes=1.0, jobs=2,
-    )  # fmt: skip
+        policy=str(out / "policy.csv"),
+        tf="2",
+        scenes="grating",
+        schedule="0:40s,3:40s",
+        seeds=2,
+        minutes=1.0,
+        jobs=2,
+    )
     with recording_figures() as figures:
         res = adaptation(s, out / "held-out")
     assert set(res.runs["controller"]) == {"fixed", "hand", "adaptive", "policy"}
@@ -133,9 +138,12 @@ def test_the_policy_is_tested_on_held_out_conditions_running_online(grid) -> Non
     policy = load_policy(out / "policy.csv")
     assert min(policy.values) - 1e-9 <= t_ffi.min() and t_ffi.max() <= max(policy.values) + 1e-9
     assert_figure(
-        out / "held-out" / "adaptation.png", figures, title="held-out conditions",
-        labels=("success (%)", "avoidances per 30 min"), min_axes=2,
-    )  # fmt: skip
+        out / "held-out" / "adaptation.png",
+        figures,
+        title="held-out conditions",
+        labels=("success (%)", "avoidances per 30 min"),
+        min_axes=2,
+    )
 
 
 def test_find_boundary_brackets_the_crossing() -> None:
@@ -151,16 +159,24 @@ def test_find_boundary_brackets_the_crossing() -> None:
     ("args", "needles"),
     [
         (["--detector", "nosuch_pkg.detectors:make"], ["no module named 'nosuch_pkg.detectors'"]),
-        (["--detector", "tests.toy_detector:broken", "--labels", "{labels}", "--fov-deg", "60"],
-         ["failed to build", "RuntimeError"]),
-        (["--detector", "tests.toy_detector:NoAlert", "--param", "gain", "--values", "1",
-          "--labels", "{labels}", "--fov-deg", "60"],
-         ["has no 'alert' output"]),
+        (
+            ["--detector", "tests.toy_detector:broken", "--labels", "{labels}", "--fov-deg", "60"],
+            ["failed to build", "RuntimeError"],
+        ),
+        (
+            [
+                *flags(
+                    "--detector tests.toy_detector:NoAlert --param gain --values 1 --fov-deg 60",
+                    labels="{labels}",
+                ),
+            ],
+            ["has no 'alert' output"],
+        ),
         (["--values", "12,abc"], ["--values"]),
         (["--param", "colour"], ["unknown parameter 'colour'"]),
         (["--measure-every", "0"], ["--measure-every: expected an integer >= 1"]),
     ],
-)  # fmt: skip
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, args: list[str], needles) -> None:
     write_video(tmp_path / "clip.mp4", np.full((5, 48, 64), 128, np.uint8), 25.0)
     labels = tmp_path / "labels.csv"

@@ -6,11 +6,11 @@ a verdict; a resumed grid says how many runs it reused."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
 import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -24,7 +24,7 @@ from analysis.experiments.captures import run_captures
 from analysis.experiments.collision.boundary_campaign import boundary
 from avdm.registry import check_detector
 from capture.sim import SimSettings
-from tests.helpers import ROOT, assert_one_line_error, module_on_path, write_video
+from tests.helpers import ROOT, assert_one_line_error, flags, module_on_path, run_cli, write_video
 from vdc.errors import UserError
 from vdc.executors import ExecutorSettings, Feedback
 
@@ -95,11 +95,7 @@ def plugins(tmp_path_factory) -> Iterator[Path]:
 
 def _cli(plugins: Path, *args: str) -> subprocess.CompletedProcess:
     """``python -m <args>`` with the user's plug-in folder on PYTHONPATH."""
-    env = {**os.environ, "PYTHONPATH": f"{plugins}{os.pathsep}{ROOT}", "PYTHONUNBUFFERED": "1"}
-    return subprocess.run(
-        [sys.executable, "-m", *args], capture_output=True, text=True, cwd=ROOT, env=env,
-        timeout=300,
-    )  # fmt: skip
+    return run_cli(*args, env={**os.environ, "PYTHONPATH": f"{plugins}{os.pathsep}{ROOT}"})
 
 
 @pytest.mark.parametrize(
@@ -123,18 +119,28 @@ def test_check_detector_builds_and_steps_once(plugins, kind: str, needle: str) -
 def test_an_unfit_plugin_stops_the_arena_grid_before_any_run(plugins, kind, tmp_path) -> None:
     out, log = tmp_path / "grid", []
     s = BoundarySettings(
-        detector=f"unfit_detectors:{kind}", param="gain", values="1,2", tf="0,3",
-        scenes="grating", seeds=2, minutes=0.02,
-    )  # fmt: skip
+        detector=f"unfit_detectors:{kind}",
+        param="gain",
+        values="1,2",
+        tf="0,3",
+        scenes="grating",
+        seeds=2,
+        minutes=0.02,
+    )
     with pytest.raises(ValueError, match=re.escape(KINDS[kind])):
         boundary(s, out, Feedback(log=log.append))
     assert log == [] and not out.exists()  # said before a word, nothing ran or was written
     if kind == "OtherKeys":  # from the command line: one line, exit status 2
         proc = _cli(
-            plugins, "analysis", "boundary", "--detector", f"unfit_detectors:{kind}",
-            "--param", "gain", "--values", "1,2", "--tf", "0,3", "--scenes", "grating",
-            "--seeds", "2", "--minutes", "0.02", "--out", str(out),
-        )  # fmt: skip
+            plugins,
+            "analysis",
+            "boundary",
+            *flags(
+                "--param gain --values 1,2 --tf 0,3 --scenes grating --seeds 2 --minutes 0.02",
+                detector=f"unfit_detectors:{kind}",
+                out=out,
+            ),
+        )
         assert_one_line_error(proc, f"unfit_detectors:{kind}", KINDS[kind])
         assert not out.exists()
 
@@ -144,16 +150,26 @@ def test_an_unfit_plugin_stops_footage_mode_and_the_closed_loop(plugins, tmp_pat
     labels = tmp_path / "labels.csv"
     labels.write_text("clip,label,collision_frame\nclip.mp4,background,\n")
     proc = _cli(
-        plugins, "analysis", "boundary", "--detector", "unfit_detectors:OtherKeys",
-        "--param", "gain", "--values", "1", "--labels", str(labels), "--fov-deg", "60",
-        "--out", str(tmp_path / "footage"),
-    )  # fmt: skip
+        plugins,
+        "analysis",
+        "boundary",
+        *flags(
+            "--detector unfit_detectors:OtherKeys --param gain --values 1 --fov-deg 60",
+            labels=labels,
+            out=tmp_path / "footage",
+        ),
+    )
     # stepped on the clips' own working raster
     assert_one_line_error(proc, "step() returned no alert", "frame (WxH)")
     proc = _cli(
-        plugins, "capture", "sim", "--behaviour", "collision", "--model",
-        "unfit_detectors:NoStep", "--minutes", "0.02", "--out", str(tmp_path / "run.rrd"),
-    )  # fmt: skip
+        plugins,
+        "capture",
+        "sim",
+        *flags(
+            "--behaviour collision --model unfit_detectors:NoStep --minutes 0.02",
+            out=tmp_path / "run.rrd",
+        ),
+    )
     assert_one_line_error(proc, "has no step(frame)")
     assert not (tmp_path / "run.rrd").exists()
     # the campaigns' runner (collision-study, reproduce) checks before any process starts
@@ -166,9 +182,15 @@ def test_an_unfit_plugin_stops_footage_mode_and_the_closed_loop(plugins, tmp_pat
 # 2 runs of 0.02 min (40 frames, shorter than the 60-frame warm-up) at TF 0: no avoidance, no
 # crash (seeds 1 and 2 start far from the walls)
 TINY = BoundarySettings(
-    tf="0", scenes="grating", values="12", seeds=2, minutes=0.02, complexity="online",
-    no_fit=True, jobs=1,
-)  # fmt: skip
+    tf="0",
+    scenes="grating",
+    values="12",
+    seeds=2,
+    minutes=0.02,
+    complexity="online",
+    no_fit=True,
+    jobs=1,
+)
 
 
 def test_a_grid_without_evidence_says_so_and_a_resumed_one_counts_its_reuse(tmp_path) -> None:
@@ -181,12 +203,15 @@ def test_a_grid_without_evidence_says_so_and_a_resumed_one_counts_its_reuse(tmp_
     assert not (out / "boundary.md").exists() and not (out / "policy.csv").exists()
     assert not any("reused" in line for line in log)
     # the same grid again, from the command line: its runs are reused, and it says how many
-    proc = subprocess.run(
-        [sys.executable, "-m", "analysis", "boundary", "--tf", "0", "--scenes", "grating",
-         "--values", "12", "--seeds", "2", "--minutes", "0.02", "--complexity", "online",
-         "--no-fit", "--jobs", "1", "--out", str(out)],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
-    )  # fmt: skip
+    proc = run_cli(
+        "analysis",
+        "boundary",
+        *flags(
+            "--tf 0 --scenes grating --values 12 --seeds 2 --minutes 0.02 --complexity online "
+            "--no-fit --jobs 1",
+            out=out,
+        ),
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "reused 2 of 2 collision run(s) that an earlier run finished" in proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if ": error: " in ln]
@@ -197,10 +222,7 @@ def test_a_grid_without_evidence_says_so_and_a_resumed_one_counts_its_reuse(tmp_
 def test_runs_shorter_than_the_warm_up_give_no_complexity_and_no_verdict(tmp_path) -> None:
     # at TF 3 the drift alerts the detector at once (avoidances), but 40 frames end before
     # the warm-up: no condition's complexity is measured
-    s = BoundarySettings(
-        tf="3", scenes="grating", values="30", seeds=1, minutes=0.02, complexity="online",
-        no_fit=True, jobs=1,
-    )  # fmt: skip
+    s = dataclasses.replace(TINY, tf="3", values="30", seeds=1)
     with pytest.raises(UserError, match="the complexity of grating-tf3 could not be measured"):
         boundary(s, tmp_path / "short")
     assert not (tmp_path / "short" / "boundary.md").exists()
@@ -209,18 +231,32 @@ def test_runs_shorter_than_the_warm_up_give_no_complexity_and_no_verdict(tmp_pat
 def test_the_report_never_says_nan() -> None:
     nan = math.nan
     for row in (
-        {"where": "beyond", "boundary_dps": nan, "boundary_low_dps": nan,
-         "boundary_high_dps": math.inf},
-        {"where": "below", "boundary_dps": nan, "boundary_low_dps": -math.inf,
-         "boundary_high_dps": nan},
-        {"where": "within", "boundary_dps": nan, "boundary_low_dps": 3.0,
-         "boundary_high_dps": nan},
-    ):  # fmt: skip
+        {
+            "where": "beyond",
+            "boundary_dps": nan,
+            "boundary_low_dps": nan,
+            "boundary_high_dps": math.inf,
+        },
+        {
+            "where": "below",
+            "boundary_dps": nan,
+            "boundary_low_dps": -math.inf,
+            "boundary_high_dps": nan,
+        },
+        {"where": "within", "boundary_dps": nan, "boundary_low_dps": 3.0, "boundary_high_dps": nan},
+    ):
         phrase = describe_boundary(row)
         assert "nan" not in phrase and phrase.startswith("not placed")
-    assert describe_boundary(
-        {"where": "beyond", "boundary_dps": nan, "boundary_low_dps": 4.3,
-         "boundary_high_dps": math.inf}
-    ) == "beyond the grid (> 4.3 deg/s)"  # fmt: skip
+    assert (
+        describe_boundary(
+            {
+                "where": "beyond",
+                "boundary_dps": nan,
+                "boundary_low_dps": 4.3,
+                "boundary_high_dps": math.inf,
+            }
+        )
+        == "beyond the grid (> 4.3 deg/s)"
+    )
     row = {"success_rate": nan, "success_low": nan, "success_high": nan}
     assert interval(row, "success", 100.0) == "—"

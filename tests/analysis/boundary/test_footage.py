@@ -16,7 +16,7 @@ from analysis.boundary.settings import BoundarySettings
 from analysis.experiments.collision.boundary_campaign import boundary
 from tests.figures import assert_figure, recording_figures
 from tests.footage_clips import COLLISION_FRAME, FPS, write_collection
-from tests.helpers import assert_one_line_error
+from tests.helpers import assert_one_line_error, flags
 from tests.in_process import run_in_process
 from vdc.executors import Feedback
 
@@ -32,9 +32,16 @@ def labels(tmp_path_factory) -> Path:
 def settings(
     labels: Path, detector: str, param: str, values: str, min_ttc_s: float = 0.5
 ) -> BoundarySettings:
-    return BoundarySettings(labels=str(labels), fov_deg=60.0, detector=detector, param=param,
-                            values=values, alert_window_s=WINDOW_S, min_ttc_s=min_ttc_s,
-                            jobs=2)  # fmt: skip
+    return BoundarySettings(
+        labels=str(labels),
+        fov_deg=60.0,
+        detector=detector,
+        param=param,
+        values=values,
+        alert_window_s=WINDOW_S,
+        min_ttc_s=min_ttc_s,
+        jobs=2,
+    )
 
 
 def test_the_toy_detectors_constructed_boundary_is_found(labels: Path, tmp_path: Path) -> None:
@@ -137,18 +144,11 @@ def test_a_bad_labels_table_is_one_line(labels: Path, tmp_path: Path, table: str
     proc = run_in_process(
         "analysis.cli",
         "boundary",
-        "--labels",
-        str(path),
-        "--fov-deg",
-        "60",
-        "--detector",
-        "examples.looming:Looming",
-        "--param",
-        "threshold",
-        "--values",
-        "0.1",
-        "--out",
-        str(tmp_path / "o"),
+        *flags(
+            "--fov-deg 60 --detector examples.looming:Looming --param threshold --values 0.1",
+            labels=path,
+            out=tmp_path / "o",
+        ),
     )
     assert_one_line_error(proc, *needles)
 

@@ -17,6 +17,8 @@ import numpy as np
 import polars as pl
 import pytest
 
+from tests.helpers import flags
+
 N, FPS, GOP = 30, 25, 10
 PIXEL_METRICS = "si_p910,mafd"  # no model needed: cheap, and the counts do not depend on it
 
@@ -143,8 +145,9 @@ def test_a_damaged_clip_measured_on_threads_counts_as_on_one(tmp_path):
     seen = {}
     for threads in (1, 3):
         reader = open_reader(str(bad))
-        b = FrameBatcher(reader, None, FPS, batch_frames=8, metrics=("si_p910", "ti_p910"),
-                         threads=threads)  # fmt: skip
+        b = FrameBatcher(
+            reader, None, FPS, batch_frames=8, metrics=("si_p910", "ti_p910"), threads=threads
+        )
         batches = list(iter(b.next_batch, None))
         seen[threads] = (
             np.concatenate([fb.t_s for fb in batches]),
@@ -308,13 +311,7 @@ def test_a_file_that_states_no_count_is_said_once_not_guessed(tmp_path, capsys):
             [
                 "video",
                 str(clip),
-                "--fov-deg",
-                "70",
-                "--model",
-                "avdm",
-                "--out",
-                str(tmp_path / "clip.rrd"),
-                "--quiet",
+                *flags("--fov-deg 70 --model avdm --quiet", out=tmp_path / "clip.rrd"),
             ]
         )
         == 0

@@ -16,7 +16,7 @@ from analysis.dataset import DatasetSettings, dataset
 from analysis.dataset.flags import FLAGS
 from analysis.dataset.page import number
 from analysis.dataset.synthetic import Faults, write_dataset
-from tests.helpers import assert_one_line_error
+from tests.helpers import assert_one_line_error, write_h264_dataset
 from tests.in_process import run_in_process
 from vdc.errors import UserError
 from vdc.executors import Feedback
@@ -159,13 +159,12 @@ def test_two_cameras_are_checked_against_each_other_for_lag(tmp_path) -> None:
     the flag lands on the front camera, the one behind. The cameras' sizes differ (96 × 128
     and 120 × 160)."""
     root = tmp_path / "ds"
-    write_dataset(
+    write_h264_dataset(
         root,
-        episodes=3,
+        3,
+        (6.0, 6.0),
         version="v2.1",
-        codec="libx264",
         strokes=3,
-        seconds=(6.0, 6.0),
         faults=Faults(lag_ms={1: 150.0}),
         cameras=("observation.images.front", "observation.images.wrist"),
         camera_shapes={"observation.images.wrist": (120, 160)},
@@ -206,14 +205,7 @@ def test_the_example_is_written_without_scikit_image_and_a_failed_write_leaves_n
     # a write that fails midway (after the frames are drawn) leaves no folder, hidden or not
     bad = tmp_path / "bad"
     with pytest.raises(UserError, match="image camera 'nope'"):
-        write_dataset(
-            bad,
-            episodes=2,
-            codec="libx264",
-            seconds=(1.0, 1.0),
-            faults=Faults(),
-            image_cameras=("nope",),
-        )
+        write_h264_dataset(bad, 2, (1.0, 1.0), image_cameras=("nope",))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ok"]
     with pytest.raises(UserError, match="not an empty folder"):
         write_dataset(tmp_path / "ok", episodes=1)
@@ -261,11 +253,10 @@ def test_a_camera_at_half_the_rate_is_measured_in_its_own_frames(tmp_path) -> No
     the data's rows read at its rate: doubled)."""
     slow, fast = "observation.images.wrist", "observation.images.top"
     root = tmp_path / "ds"
-    write_dataset(
+    write_h264_dataset(
         root,
-        episodes=3,
-        codec="libx264",
-        seconds=(6.0, 6.0),
+        3,
+        (6.0, 6.0),
         strokes=3,
         faults=Faults(dropped={1: (20, 5)}, lag_ms={2: 100.0}),
         cameras=(slow, fast),

@@ -16,7 +16,7 @@ import pytest
 from analysis.dataset import DatasetSettings, dataset
 from analysis.dataset.synthetic import Faults, write_dataset
 from analysis.dataset.window import WindowReader
-from tests.helpers import assert_one_line_error
+from tests.helpers import assert_one_line_error, write_h264_dataset
 from tests.in_process import run_in_process
 from vdc.frame_batches import FrameBatcher
 
@@ -28,11 +28,11 @@ FAULTS = Faults(frozen={1: (12, 10)}, dropped={2: (30, 4)})
 def made(tmp_path_factory):
     d = tmp_path_factory.mktemp("layouts")
     v21 = d / "v21"
-    write_dataset(v21, episodes=4, version="v2.1", codec="libx264", seconds=(3.0, 3.3),
-                  faults=FAULTS, cameras=(FRONT, WRIST))  # fmt: skip
+    write_h264_dataset(v21, 4, (3.0, 3.3), version="v2.1", faults=FAULTS, cameras=(FRONT, WRIST))
     v3 = d / "v3"
-    write_dataset(v3, episodes=3, version="v3.0", codec="libx264", seconds=(2.0, 2.0),
-                  faults=Faults())  # fmt: skip
+    write_dataset(
+        v3, episodes=3, version="v3.0", codec="libx264", seconds=(2.0, 2.0), faults=Faults()
+    )
     return {"v21": v21, "v3": v3, "tmp": d}
 
 
@@ -198,9 +198,15 @@ def test_image_features_stored_as_png_frames_are_measured(tmp_path, version: str
     video) are read as image sequences at the dataset's fps: every frame of every episode
     measured, and a frozen run in the PNGs flagged as in a video."""
     root = tmp_path / "png"
-    truth = write_dataset(root, episodes=3, version=version, codec="libx264", seconds=(2.0, 2.2),
-                          faults=Faults(frozen={1: (12, 10)}), cameras=(FRONT, WRIST),
-                          image_cameras=(FRONT,))  # fmt: skip
+    truth = write_h264_dataset(
+        root,
+        3,
+        (2.0, 2.2),
+        version=version,
+        faults=Faults(frozen={1: (12, 10)}),
+        cameras=(FRONT, WRIST),
+        image_cameras=(FRONT,),
+    )
     info = json.loads((root / "meta" / "info.json").read_text())
     assert info["features"][FRONT]["dtype"] == "image" and not (root / "videos" / FRONT).exists()
     assert (

@@ -22,7 +22,7 @@ from analysis.dataset import DatasetSettings, dataset
 from analysis.dataset.layout import open_dataset
 from analysis.dataset.rates import agreed_rate
 from analysis.dataset.synthetic import Faults, write_dataset
-from tests.helpers import ROOT, assert_one_line_error
+from tests.helpers import ROOT, assert_one_line_error, flags, write_h264_dataset
 from tests.in_process import run_in_process
 from vdc.errors import UserError
 
@@ -89,8 +89,13 @@ def test_a_wrong_fps_is_a_dataset_problem_and_the_rate_two_agree_on_is_used(made
     assert all(r["fps"] == FPS for r in rows.values())
     assert res.exit_status == 2
     (line,) = res.dataset_problems
-    for needle in ("meta/info.json", f"fps {stated}", "video's frames 30 fps", "timestamp 30 fps",
-                   "measured at 30 fps"):  # fmt: skip
+    for needle in (
+        "meta/info.json",
+        f"fps {stated}",
+        "video's frames 30 fps",
+        "timestamp 30 fps",
+        "measured at 30 fps",
+    ):
         assert needle in line, (needle, line)
     assert any("dataset problem" in ln and f"fps {stated}" in ln for ln in res.report())
     problems = pl.read_parquet(res.files.problems)
@@ -137,9 +142,7 @@ def test_the_rate_followed_is_the_one_the_evidence_agrees_on() -> None:
     assert agreed_rate([stated, ("video", 30.0), ("data", 30.0)]) == (30.0, True)
 
 
-@pytest.mark.parametrize(
-    "fps", [float("nan"), float("inf"), True, 0, -30, "30", None], ids=repr
-)  # fmt: skip
+@pytest.mark.parametrize("fps", [float("nan"), float("inf"), True, 0, -30, "30", None], ids=repr)
 def test_a_rate_that_is_not_a_rate_is_refused_in_one_line(made, fps) -> None:
     root = _copy(made, "v3", f"bad_fps_{fps!r}")
     _edit_info(root, fps=fps)
@@ -159,14 +162,20 @@ def test_fps_infinity_on_the_command_line_is_one_line(made) -> None:
     "version, fields, needles",
     [
         ("v3", {"features": "observation.images.front"}, ["info.json", "features is a str"]),
-        ("v3", {"video_path": "videos/{camera}/file-{file_index:03d}.mp4"},
-         ["info.json", "video_path", "{camera}"]),
-        ("v21", {"data_path": "data/{episode_index:06d}/{chunk}.parquet"},
-         ["info.json", "data_path", "{chunk}"]),
+        (
+            "v3",
+            {"video_path": "videos/{camera}/file-{file_index:03d}.mp4"},
+            ["info.json", "video_path", "{camera}"],
+        ),
+        (
+            "v21",
+            {"data_path": "data/{episode_index:06d}/{chunk}.parquet"},
+            ["info.json", "data_path", "{chunk}"],
+        ),
         ("v21", {"chunks_size": 0}, ["info.json", "chunks_size 0"]),
     ],
     ids=["features-a-string", "unknown-key-v3", "unknown-key-v2", "chunks-size-0"],
-)  # fmt: skip
+)
 def test_a_malformed_info_json_is_one_line(made, version, fields, needles) -> None:
     root = _copy(made, version, "info_" + "_".join(fields))
     _edit_info(root, **fields)
@@ -276,8 +285,7 @@ def test_a_window_that_is_not_one_is_the_episodes_problem(made, end, value, says
 def lagging(tmp_path_factory):
     """Two 4-s episodes (a lag needs 2.9 s), the camera 100 ms late in episode 1."""
     root = tmp_path_factory.mktemp("lag") / "ds"
-    write_dataset(root, episodes=2, version="v3.0", codec="libx264", seconds=(4.0, 4.0),
-                  faults=Faults(lag_ms={1: 100.0}))  # fmt: skip
+    write_h264_dataset(root, 2, (4.0, 4.0), version="v3.0", faults=Faults(lag_ms={1: 100.0}))
     return root
 
 
@@ -285,8 +293,11 @@ def _break_clock(root, episode: int, row: int, back_s: float) -> None:
     def edit(c) -> None:
         ts = np.asarray(c["timestamp"], np.float64)
         mine = (np.asarray(c["episode_index"]) == episode) & (np.asarray(c["frame_index"]) >= row)
-        c["timestamp"] = (ts - back_s * mine).tolist() if np.isfinite(back_s) else [
-            np.nan if m else t for t, m in zip(ts, mine, strict=True)]  # fmt: skip
+        c["timestamp"] = (
+            (ts - back_s * mine).tolist()
+            if np.isfinite(back_s)
+            else [np.nan if m else t for t, m in zip(ts, mine, strict=True)]
+        )
 
     _edit_table(root / DATA, edit)
 
@@ -346,10 +357,21 @@ def _on_a_small_disk(
     script = (
         f'mount -t tmpfs -o size={size_kb}k tmpfs "$1" && {before or "true"} && shift && exec "$@"'
     )
-    cmd = [sys.executable, "-m", "analysis", "dataset", str(made / "v3"), "--out", str(out),
-           "--jobs", "1", "--fov-deg", "60"]  # fmt: skip
-    return subprocess.run(["unshare", "-rm", "sh", "-c", script, "sh", str(disk), *cmd],
-                          capture_output=True, text=True, cwd=ROOT, timeout=300)  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "analysis",
+        "dataset",
+        str(made / "v3"),
+        *flags("--jobs 1 --fov-deg 60", out=out),
+    ]
+    return subprocess.run(
+        ["unshare", "-rm", "sh", "-c", script, "sh", str(disk), *cmd],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
 
 
 def _the_disk_is_full(proc, out) -> None:

@@ -28,7 +28,7 @@ from analysis.dataset.flags import first_flags
 from analysis.dataset.resume import RESULTS
 from analysis.dataset.synthetic import Faults, write_dataset
 from analysis.recordings.reader import Recording
-from tests.helpers import ROOT
+from tests.helpers import ROOT, flags, write_h264_dataset
 from vdc.blueprints import FLAG_CONTEXT_FRAMES
 from vdc.recording import dataset_measure_path, dataset_video_path, event_path
 
@@ -41,8 +41,9 @@ def profiled(tmp_path_factory):
     d = tmp_path_factory.mktemp("dsout")
     root = d / "arm_v3"
     frozen = Faults(frozen={FROZEN_EPISODE: (12, 10)})
-    truth = write_dataset(root, episodes=3, version="v3.0", codec="libsvtav1",
-                          seconds=(2.0, 2.4), faults=frozen)  # fmt: skip
+    truth = write_dataset(
+        root, episodes=3, version="v3.0", codec="libsvtav1", seconds=(2.0, 2.4), faults=frozen
+    )
     res = dataset(root, DatasetSettings(jobs=2, page=False), d / "out")
     return {"root": root, "out": d / "out", "res": res, "truth": truth, "tmp": d}
 
@@ -104,8 +105,7 @@ def test_h264_episodes_of_two_cameras_are_self_contained_streams(tmp_path: Path)
     frames the file gives, pixel for pixel."""
     root = tmp_path / "v21"
     wrist = "observation.images.wrist"
-    write_dataset(root, episodes=2, version="v2.1", codec="libx264", seconds=(1.0, 1.0),
-                  faults=Faults(), cameras=(CAM, wrist))  # fmt: skip
+    write_h264_dataset(root, 2, (1.0, 1.0), version="v2.1", cameras=(CAM, wrist))
     res = dataset(root, DatasetSettings(jobs=1, page=False), tmp_path / "out")
     for e in range(2):
         path = tmp_path / "out" / "recordings" / f"episode_{e:06d}.rrd"
@@ -145,8 +145,14 @@ def test_b_frame_episodes_reference_their_window_as_an_mp4(tmp_path: Path) -> No
     undecoded and smaller than the file, and each decoded frame's reference shows that very
     frame, pixel for pixel as decoded from the dataset's file."""
     root = tmp_path / "bf"
-    write_dataset(root, episodes=3, version="v3.0", codec="libx264-bframes",
-                  seconds=(1.0, 1.4), faults=Faults())  # fmt: skip
+    write_dataset(
+        root,
+        episodes=3,
+        version="v3.0",
+        codec="libx264-bframes",
+        seconds=(1.0, 1.4),
+        faults=Faults(),
+    )
     res = dataset(root, DatasetSettings(jobs=1, page=False), tmp_path / "out")
     video = root / "videos" / CAM / "chunk-000" / "file-000.mp4"
     with av.open(str(video)) as c:  # the truth: the file decoded, by presentation time
@@ -250,14 +256,22 @@ def test_a_killed_run_resumes_without_measuring_finished_episodes(tmp_path: Path
     # run is frozen the moment 2 are seen, so none finishes between the count and the kill
     n = 20
     root = tmp_path / "arm"
-    write_dataset(root, episodes=n, version="v3.0", codec="libx264", seconds=(1.5, 1.5),
-                  faults=Faults())  # fmt: skip
+    write_dataset(
+        root, episodes=n, version="v3.0", codec="libx264", seconds=(1.5, 1.5), faults=Faults()
+    )
     out = tmp_path / "out"
     results = out / RESULTS
-    cmd = [sys.executable, "-m", "analysis", "dataset", str(root), "--out", str(out),
-           "--jobs", "1", "--no-page"]  # fmt: skip
-    proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "analysis",
+        "dataset",
+        str(root),
+        *flags("--jobs 1 --no-page", out=out),
+    ]
+    proc = subprocess.Popen(
+        cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
     try:
         while proc.poll() is None and len(list(results.glob("*.pkl"))) < 2:
             try:
@@ -283,8 +297,11 @@ def test_a_killed_run_resumes_without_measuring_finished_episodes(tmp_path: Path
         b = pl.read_parquet(tmp_path / "fresh" / f"{name}.parquet")
         assert_frame_equal(a, b)
     # a changed setting is measured afresh, not read back
-    again = dataset(root, DatasetSettings(jobs=1, page=False, recordings=False, episodes="0",
-                                          repeat_tol=0.25), out)  # fmt: skip
+    again = dataset(
+        root,
+        DatasetSettings(jobs=1, page=False, recordings=False, episodes="0", repeat_tol=0.25),
+        out,
+    )
     assert again.reused == 0 and again.episodes.height == 1
     # one result per episode kept: episode 0's older one removed, the others' left as they were
     assert len(list(results.glob("episode_000000.*.pkl"))) == 1

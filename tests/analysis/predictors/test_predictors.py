@@ -20,6 +20,7 @@ from analysis.predictors.statistics import (
     footage_predictors,
 )
 from tests.figures import assert_figure, recording_figures
+from tests.helpers import no_frames
 
 
 def _get(table: pl.DataFrame, measure: str, statistic: str, value: float = 1.0) -> dict:
@@ -84,9 +85,22 @@ def arena() -> pl.DataFrame:
 
 
 def test_a_perfect_measure_gets_rho_1_and_a_shuffled_one_an_interval_around_0(arena) -> None:
-    assert set(arena.columns) >= {"measure", "value", "statistic", "estimate", "ci_low",
-                                  "ci_high", "n", "n_failing", "unit", "p_value", "p_holm",
-                                  "role", "survives", "verdict"}  # fmt: skip
+    assert set(arena.columns) >= {
+        "measure",
+        "value",
+        "statistic",
+        "estimate",
+        "ci_low",
+        "ci_high",
+        "n",
+        "n_failing",
+        "unit",
+        "p_value",
+        "p_holm",
+        "role",
+        "survives",
+        "verdict",
+    }
     assert set(arena["unit"]) == {"condition"}  # every row names its unit
     good = _get(arena, "avdm", "rho_failure")
     assert good["estimate"] == 1.0 and good["ci_low"] > 0.5 and good["n"] == 8
@@ -125,10 +139,26 @@ def test_leave_one_condition_out_refuses_with_one_failing_condition() -> None:
     """One failing condition: held out, it leaves no failure to fit a threshold on, and a
     perfect predictor would score 0.5; the statistic is refused instead."""
     rng = np.random.default_rng(2)
-    runs = [{"condition": f"c{c}", "t_ffi": 1.0, "seed": 0, "avoidances": 100 if c else 10,
-             "crashes": 0 if c else 90} for c in range(6)]  # fmt: skip
-    measures = [{"condition": f"c{c}", "seed": 0, "avdm": -float(c), "ti_p910": rng.normal(),
-                 "si_p910": rng.normal()} for c in range(6)]  # fmt: skip
+    runs = [
+        {
+            "condition": f"c{c}",
+            "t_ffi": 1.0,
+            "seed": 0,
+            "avoidances": 100 if c else 10,
+            "crashes": 0 if c else 90,
+        }
+        for c in range(6)
+    ]
+    measures = [
+        {
+            "condition": f"c{c}",
+            "seed": 0,
+            "avdm": -float(c),
+            "ti_p910": rng.normal(),
+            "si_p910": rng.normal(),
+        }
+        for c in range(6)
+    ]
     t = arena_predictors(pl.DataFrame(runs), pl.DataFrame(measures), "t_ffi", 0.8)
     loco = _get(t, "avdm", "loco_balanced_accuracy")
     assert loco["estimate"] is None and loco["n_failing"] == 1
@@ -213,8 +243,16 @@ def test_the_arena_grid_gains_its_predictors_from_cached_measures(tmp_path) -> N
     afterwards. On every 4th frame pair (--measure-every 4), which the recomputation keeps."""
     import vdc
 
-    s = vdc.BoundarySettings(tf="0,1,3", scenes="grating", values="30", seeds=2, minutes=0.3,
-                             jobs=2, no_fit=True, measure_every=4)  # fmt: skip
+    s = vdc.BoundarySettings(
+        tf="0,1,3",
+        scenes="grating",
+        values="30",
+        seeds=2,
+        minutes=0.3,
+        jobs=2,
+        no_fit=True,
+        measure_every=4,
+    )
     with recording_figures() as saved:
         res = vdc.boundary(s, tmp_path)
     pred = pl.read_parquet(tmp_path / "predictors.parquet")
@@ -263,16 +301,16 @@ def test_footage_keeps_every_measure_per_frame(tmp_path) -> None:
     """The guides' OpenCV looming detector on rendered clips: the per-frame table and the
     clip and frame statistics for every measure."""
     import vdc
-    from tests.footage_clips import write_collection
+    from tests.footage_clips import looming_boundary_settings, write_collection
 
     labels = write_collection(tmp_path / "clips", drifts=(0.0, 4.0), seeds=(1, 2))
     # a clip with the object and one without over the same drifting texture share their
     # background: their scene (4 scenes of 2 clips)
     table = pl.read_csv(labels)
     table.with_columns(pl.col("clip").str.extract(r"-(drift.*)\.mp4$").alias("scene")).write_csv(
-        labels)  # fmt: skip
-    s = vdc.BoundarySettings(labels=str(labels), fov_deg=60.0, detector="examples.looming:Looming",
-                             param="threshold", values="0.05", jobs=1)  # fmt: skip
+        labels
+    )
+    s = looming_boundary_settings(labels)
     vdc.boundary(s, tmp_path / "out")
     res = vdc.predictors(tmp_path / "out")
     clips = pl.read_parquet(tmp_path / "out" / "boundary_clips.parquet")
@@ -353,10 +391,7 @@ def test_failure_modes_with_opposite_signs_are_scored_apart() -> None:
             "si_p910": [level[k] + rng.normal(0, 0.3) for k in kinds],
         }
     )
-    frames = pl.DataFrame(
-        schema={"clip": pl.String, "threshold": pl.Float64, "frame": pl.Int64,
-                "positive": pl.Boolean, "keep": pl.Boolean, "si_p910": pl.Float64}
-    )  # fmt: skip
+    frames = no_frames("si_p910")
     t = footage_predictors(clips, frames, "threshold")
     mixed = _get(t, "si_p910", "clip_auroc")
     assert mixed["ci_low"] < 0.5 < mixed["ci_high"]  # one class: the signs cancel

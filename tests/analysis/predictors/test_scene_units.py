@@ -22,14 +22,12 @@ from analysis.predictors.arena import rho_rows
 from analysis.predictors.report import predictors_report
 from analysis.predictors.statistics import footage_predictors
 from analysis.predictors.verdicts import MIN_SCENES, judge, table_note, units_of
+from tests.helpers import no_frames
 
 REPEATS = 200
 COVERAGE_BAR = 0.93
 FALSE_VERDICT_BAR = 0.07
-NO_FRAMES = pl.DataFrame(
-    schema={"clip": pl.String, "threshold": pl.Float64, "frame": pl.Int64,
-            "positive": pl.Boolean, "keep": pl.Boolean}
-)  # fmt: skip
+NO_FRAMES = no_frames()
 
 
 def _get(table: pl.DataFrame, measure: str, statistic: str) -> dict:
@@ -49,16 +47,20 @@ def _photograph_collection(seed: int = 0) -> pl.DataFrame:
     fails = np.repeat(rng.permutation([True] * 4 + [False] * 4), speeds)
     speed = np.tile(np.linspace(0, 40, speeds), photos)
     si = np.repeat(rng.normal(50, 10, photos), speeds) + rng.normal(0, 0.1, photos * speeds)
-    return pl.DataFrame({
-        "clip": [f"{s}-pan{k}" for s, k in zip(scene, np.tile(range(speeds), photos), strict=True)],
-        "threshold": 1.0,
-        "correct": ~fails,
-        "scene": scene,
-        "avdm": speed * si / 50 + rng.normal(0, 1, photos * speeds),
-        "ti_p910": speed + rng.normal(0, 1, photos * speeds),
-        "si_legacy": si,
-        "si_p910": si + rng.normal(0, 2, photos * speeds),
-    })  # fmt: skip
+    return pl.DataFrame(
+        {
+            "clip": [
+                f"{s}-pan{k}" for s, k in zip(scene, np.tile(range(speeds), photos), strict=True)
+            ],
+            "threshold": 1.0,
+            "correct": ~fails,
+            "scene": scene,
+            "avdm": speed * si / 50 + rng.normal(0, 1, photos * speeds),
+            "ti_p910": speed + rng.normal(0, 1, photos * speeds),
+            "si_legacy": si,
+            "si_p910": si + rng.normal(0, 2, photos * speeds),
+        }
+    )
 
 
 def test_a_photograph_that_decides_failure_gets_no_verdict_and_names_its_scenes() -> None:
@@ -98,10 +100,19 @@ def _footage_null(related: float, rng: np.random.Generator) -> pl.DataFrame:
     s = np.repeat(np.arange(scenes), per)
     u = rng.normal(0, 1, scenes)
     wrong = rng.random(scenes * per) < 1 / (1 + np.exp(0.3 - u[s]))
-    cols = {m: related * u[s] + rng.normal(0, 1, scenes)[s] + rng.normal(0, 1, scenes * per)
-            for m in ("avdm", "ti_p910")}  # fmt: skip
-    return pl.DataFrame({"clip": [f"k{i}" for i in range(scenes * per)], "threshold": 1.0,
-                         "correct": ~wrong, "scene": [f"s{i}" for i in s], **cols})  # fmt: skip
+    cols = {
+        m: related * u[s] + rng.normal(0, 1, scenes)[s] + rng.normal(0, 1, scenes * per)
+        for m in ("avdm", "ti_p910")
+    }
+    return pl.DataFrame(
+        {
+            "clip": [f"k{i}" for i in range(scenes * per)],
+            "threshold": 1.0,
+            "correct": ~wrong,
+            "scene": [f"s{i}" for i in s],
+            **cols,
+        }
+    )
 
 
 @pytest.mark.parametrize("related", [0.0, 1.0])
@@ -142,8 +153,12 @@ def test_arena_null_truths_with_scene_effects_cover_and_rarely_judge(related) ->
     for _ in range(REPEATS):
         u = rng.normal(0, 1, scenes)
         fail = 1 / (1 + np.exp(0.5 - u[s] - rng.normal(0, 0.5, scenes * tfs)))
-        meas = np.column_stack([related * u[s] + rng.normal(0, 1, scenes)[s]
-                                + rng.normal(0, 1, scenes * tfs) for _ in range(2)])  # fmt: skip
+        meas = np.column_stack(
+            [
+                related * u[s] + rng.normal(0, 1, scenes)[s] + rng.normal(0, 1, scenes * tfs)
+                for _ in range(2)
+            ]
+        )
         rows = judge(rho_rows(["avdm", "ti_p910"], meas, fail, units, 1.0, (0, 0), rng), "arena")
         avdm, ti, prim = rows
         assert prim["role"] == "primary" and prim["unit"] == "scene" and prim["n_units"] == 24
@@ -167,17 +182,26 @@ def test_counts_are_failing_and_correct_apart() -> None:
     """A detector that failed 16 of 16 clips: 16 failing and 0 correct (the old n_failures
     took the smaller class and said 0 failures); the gate names the smaller class."""
     rng = np.random.default_rng(1)
-    clips = pl.DataFrame({"clip": [f"k{i}" for i in range(16)], "threshold": 1.0,
-                          "correct": [False] * 16, "avdm": rng.normal(size=16),
-                          "si_p910": rng.normal(size=16),
-                          "ti_p910": rng.normal(size=16)})  # fmt: skip
+    clips = pl.DataFrame(
+        {
+            "clip": [f"k{i}" for i in range(16)],
+            "threshold": 1.0,
+            "correct": [False] * 16,
+            "avdm": rng.normal(size=16),
+            "si_p910": rng.normal(size=16),
+            "ti_p910": rng.normal(size=16),
+        }
+    )
     t = footage_predictors(clips, NO_FRAMES, "threshold")
     loss = _get(t, "avdm", "cv_logloss")
     assert loss["n_failing"] == 16 and loss["n_correct"] == 0
     # and a collection of 60 clips, 12 failing: each class counted as it is
     clips = clips.vstack(clips.with_columns(pl.col("clip") + "b", pl.lit(True).alias("correct")))
-    clips = pl.concat([clips, clips.with_columns(pl.col("clip") + "c", pl.lit(True).alias(
-        "correct"))]).head(60).with_columns((pl.int_range(60) >= 12).alias("correct"))  # fmt: skip
+    clips = (
+        pl.concat([clips, clips.with_columns(pl.col("clip") + "c", pl.lit(True).alias("correct"))])
+        .head(60)
+        .with_columns((pl.int_range(60) >= 12).alias("correct"))
+    )
     t = footage_predictors(clips, NO_FRAMES, "threshold")
     prim = _get(t, "ti_p910", "paired_clip_auroc_vs_avdm")
     assert (prim["n_failing"], prim["n_correct"]) == (12, 48)
@@ -193,8 +217,7 @@ def test_less_inverted_is_not_better() -> None:
     rng = np.random.default_rng(3)
     n = 300
     wrong = np.arange(n) < 150
-    base = pl.DataFrame({"clip": [f"k{i}" for i in range(n)], "threshold": 1.0,
-                         "correct": ~wrong})  # fmt: skip
+    base = pl.DataFrame({"clip": [f"k{i}" for i in range(n)], "threshold": 1.0, "correct": ~wrong})
     inverted = base.with_columns(
         pl.Series("avdm", -0.3 * wrong + rng.normal(0, 1, n)),
         pl.Series("ti_p910", -2.0 * wrong + rng.normal(0, 1, n)),

@@ -50,11 +50,13 @@ def test_collision_study_end_to_end_and_reuse(tmp_path: Path) -> None:
     assert "| tf0 |" in md and "229" in md and "| tf0 | 1 |" in md  # per phase, then per run
     assert (out / "collision.rrd").exists()
     figures = saved_figures(record)
-    assert_figure(out / "collision_study.png", figures, title="events per phase",
-                  labels=("success rate (%)",))  # fmt: skip
+    assert_figure(
+        out / "collision_study.png", figures, title="events per phase", labels=("success rate (%)",)
+    )
     # one run: three arena maps (with their colour bars) under the run's numbers
-    assert_figure(out / "collision_tf0_seed1.png", figures, title="tf0: ", labels=("x (m)",),
-                  min_axes=3)  # fmt: skip
+    assert_figure(
+        out / "collision_tf0_seed1.png", figures, title="tf0: ", labels=("x (m)",), min_axes=3
+    )
     again = run_in_process("analysis", "collision-study", *args)
     assert again.returncode == 0, again.stderr
     assert again.stderr.count("reusing") == 10

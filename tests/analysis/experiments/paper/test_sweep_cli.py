@@ -12,7 +12,7 @@ import pytest
 from analysis.cli import main
 from avdm.calibration_store import lookup_calibration
 from tests.figures import assert_figure, figure_env, recording_figures, saved_figures
-from tests.helpers import assert_one_line_error, run_cli
+from tests.helpers import assert_one_line_error, flags, run_cli
 from tests.in_process import run_in_process
 from vdc.parquet_io import read_metadata
 
@@ -43,9 +43,12 @@ def test_paper_sweep_writes_table_figure_and_monotonicity(out_dir: Path, capsys)
     np.testing.assert_allclose(df["omega_true_dps"], df["tf_hz"] * 360 / df["sf_upc"])
     np.testing.assert_allclose(df["period_px"], 100 / df["sf_upc"])
     fig = assert_figure(
-        out_dir / "sweep.png", figures, title="SF = 10 upc",
-        labels=("TF (Hz)", "SF (units per circle)"), min_axes=6,
-    )  # fmt: skip
+        out_dir / "sweep.png",
+        figures,
+        title="SF = 10 upc",
+        labels=("TF (Hz)", "SF (units per circle)"),
+        min_axes=6,
+    )
     assert "angular velocity (deg/s)" in {ax["ylabel"] for ax in fig["axes"]}
     mono = pl.read_parquet(out_dir / "monotonicity.parquet")
     assert mono.height == 6
@@ -65,14 +68,7 @@ def test_paper_sweep_writes_table_figure_and_monotonicity(out_dir: Path, capsys)
 def test_grid_sweep_is_idempotent_and_honours_the_model(tmp_path: Path) -> None:
     args = [
         "sweep",
-        "--sf",
-        "2,10",
-        "--tf",
-        "1,5,20",
-        "--duration",
-        "0.3",
-        "--model",
-        "avdm-on:beta=0.3",
+        *flags("--sf 2,10 --tf 1,5,20 --duration 0.3 --model avdm-on:beta=0.3"),
     ]
     assert main([*args, "--out", str(tmp_path / "a")]) == 0
     assert main([*args, "--out", str(tmp_path / "b")]) == 0
@@ -87,14 +83,7 @@ def test_sweep_runs_as_a_module(out_dir: Path) -> None:
     proc = run_cli(
         "analysis",
         "sweep",
-        "--sf",
-        "5,10",
-        "--tf",
-        "2,4",
-        "--duration",
-        "0.2",
-        "--out",
-        str(out_dir),
+        *flags("--sf 5,10 --tf 2,4 --duration 0.2", out=out_dir),
     )
     assert proc.returncode == 0, proc.stderr
     assert "summary:" in proc.stdout
@@ -149,14 +138,7 @@ def test_calibrate_prints_and_saves_the_fit(out_dir: Path) -> None:
     proc = run_cli(
         "analysis",
         "calibrate",
-        "--fps",
-        "33",
-        "--size",
-        "99x72",
-        "--deg-per-px",
-        repr(70 / 99),
-        "--out",
-        str(out_dir),
+        *flags("--fps 33 --size 99x72", deg_per_px=repr(70 / 99), out=out_dir),
         env=figure_env(record),
     )
     assert proc.returncode == 0, proc.stderr
@@ -171,18 +153,21 @@ def test_calibrate_prints_and_saves_the_fit(out_dir: Path) -> None:
     saved = (out_dir / "calibration.json").read_text()
     assert '"r2"' in saved and '"grid"' in saved
     assert_figure(
-        out_dir / "calibration.png", saved_figures(record), title="a = ",
+        out_dir / "calibration.png",
+        saved_figures(record),
+        title="a = ",
         labels=("true angular velocity ω (deg/s)", "decoded ω̂ (deg/s)"),
-    )  # fmt: skip
+    )
 
 
 def test_a_poor_calibration_is_not_offered(tmp_path: Path) -> None:
     """12x4 px at 30 Hz leaves a narrow valid band: the log-log fit explains too little of it
     (R^2 about 0.67), so it is written for inspection but neither offered nor stored."""
     proc = run_in_process(
-        "analysis", "calibrate", "--fps", "30", "--size", "12x4", "--update-defaults",
-        "--out", str(tmp_path),
-    )  # fmt: skip
+        "analysis",
+        "calibrate",
+        *flags("--fps 30 --size 12x4 --update-defaults", out=tmp_path),
+    )
     assert proc.returncode == 1, proc.stderr
     assert "not offered for use" in proc.stderr and "use it as" not in proc.stdout
     assert "updated the shipped defaults" not in proc.stdout

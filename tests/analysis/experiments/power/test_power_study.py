@@ -28,8 +28,14 @@ from tests.in_process import run_in_process
 
 QUICK = QUICK_AMENDED  # the quick run of the default (amended) plan
 
-ANSWER = ("answer.md", "primary.parquet", "secondaries.parquet", "per_scene.parquet",
-          "per_scene.png", "studies.parquet")  # fmt: skip
+ANSWER = (
+    "answer.md",
+    "primary.parquet",
+    "secondaries.parquet",
+    "per_scene.parquet",
+    "per_scene.png",
+    "studies.parquet",
+)
 
 
 @pytest.fixture(scope="module")
@@ -122,8 +128,9 @@ def test_the_per_scene_measure_agrees_with_the_predictors_auroc(quick) -> None:
     ran = primary.filter((pl.col("source") == "footage") & pl.col("avdm_estimate").is_not_null())
     assert ran.height
     for r in ran.iter_rows(named=True):
-        units = footage_units(out / "footage" / r["detector"].replace(".", "-").replace(":", "-"),
-                              labels)  # fmt: skip
+        units = footage_units(
+            out / "footage" / r["detector"].replace(".", "-").replace(":", "-"), labels
+        )
         # over failing/passing pairs, AUROC = 1 - the discordant share (ties half in both);
         # the clips' AVDM is recomputed here from the frames the predictors kept
         for m, col in (("avdm", "avdm_estimate"), ("ti_p910", "ti_estimate")):
@@ -255,11 +262,26 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
     verdicts survive Holm over the judged studies (the plan's own run: 4 verdicts, 1 stands)."""
     from analysis.experiments.power.answer import first_paragraph, with_holm_across
 
-    base = {"param": "v", "value": 1.0, "statistic": "s", "n": 48, "n_failing": 20,
-            "n_correct": 28, "n_units": 48, "unit": "condition", "status": "ran",
-            "avdm_estimate": 0.1, "avdm_ci_low": 0.0,
-            "avdm_ci_high": 0.2, "ti_estimate": 0.2, "ti_ci_low": 0.1, "ti_ci_high": 0.3,
-            "difference": -0.1, "difference_low": -0.2, "difference_high": 0.0}  # fmt: skip
+    base = {
+        "param": "v",
+        "value": 1.0,
+        "statistic": "s",
+        "n": 48,
+        "n_failing": 20,
+        "n_correct": 28,
+        "n_units": 48,
+        "unit": "condition",
+        "status": "ran",
+        "avdm_estimate": 0.1,
+        "avdm_ci_low": 0.0,
+        "avdm_ci_high": 0.2,
+        "ti_estimate": 0.2,
+        "ti_ci_low": 0.1,
+        "ti_ci_high": 0.3,
+        "difference": -0.1,
+        "difference_low": -0.2,
+        "difference_high": 0.0,
+    }
     studies = [
         ("arena", "lgmd-plus-arena", 0.0014, "worse"),
         ("arena", "flow-ttc", 0.019, "better"),
@@ -273,9 +295,14 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
             "9 failing clips (the smaller class): too few to judge (46 of each class needed)",
         ),
     ]
-    primary = with_holm_across(pl.DataFrame([
-        base | {"source": s, "detector": d, "p_value": p, "verdict": v} for s, d, p, v in studies
-    ]))  # fmt: skip
+    primary = with_holm_across(
+        pl.DataFrame(
+            [
+                base | {"source": s, "detector": d, "p_value": p, "verdict": v}
+                for s, d, p, v in studies
+            ]
+        )
+    )
     # Holm over the five judged: 0.0014 x 5, then 0.013 x 4 = 0.052 stops it; the unjudged none
     expected = [0.007, 0.057, 0.25, 0.096, 0.052, None]
     got = primary["p_holm_across"].to_list()
