@@ -98,7 +98,29 @@ def clip_times(out: Path, t0: float) -> list[float]:
     return sorted(p.stat().st_mtime - t0 for p in (out / PARTS).glob("*.parquet"))
 
 
-def footage(n_clips: int, seconds: float, runs: int, command: bool) -> None:
+def workers_cpu_s() -> float:
+    """CPU seconds of this process's finished children and of the fork server's finished
+    children (the local pool's workers and the local Dask cluster's processes fork from it;
+    /proc, where there is one): a call's difference is the CPU its workers spent."""
+    import os
+    import resource
+    from multiprocessing import forkserver
+
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    total = kids.ru_utime + kids.ru_stime
+    pid = getattr(forkserver._forkserver, "_forkserver_pid", None)
+    if pid is not None:
+        try:  # cutime, cstime: fields 16 and 17 of /proc/PID/stat, after the command's name
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            total += (int(fields[13]) + int(fields[14])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, IndexError, ValueError):
+            pass
+    return total
+
+
+def footage(
+    n_clips: int, seconds: float, runs: int, command: bool, keep: Path | None = None
+) -> None:
     """A collection of ``n_clips`` clips on 1 and 2 workers, local and Dask (see the module)."""
     import os
     import subprocess
@@ -114,12 +136,14 @@ def footage(n_clips: int, seconds: float, runs: int, command: bool) -> None:
     env = {**os.environ, "PYTHONPATH": str(root)}
     with tempfile.TemporaryDirectory(prefix="vdc-bench-footage-") as tmp:
         folder = Path(tmp)
+        where = keep or folder
+        where.mkdir(parents=True, exist_ok=True)
         t_enc = time.perf_counter()
         # a different pan speed per clip: different content, and files of different sizes
-        clips = [
-            str(write_pan(folder / f"clip{i}.mp4", 1280, 720, round(seconds * 25), step_px=5 + i))
-            for i in range(n_clips)
-        ]
+        clips = [str(where / f"clip{i}-{seconds:g}s.mp4") for i in range(n_clips)]
+        for i, c in enumerate(clips):
+            if not Path(c).exists():  # --keep: written once, reused by later runs
+                write_pan(Path(c), 1280, 720, round(seconds * 25), step_px=5 + i)
         mb = sum(Path(c).stat().st_size for c in clips) / 1e6
         print(
             f"{n_clips} clips of {seconds:g} s (720p25 H.264, {mb:.0f} MB, written in "
@@ -132,6 +156,7 @@ def footage(n_clips: int, seconds: float, runs: int, command: bool) -> None:
         walls: dict[tuple[str, int], list[float]] = {}
         loads: dict[tuple[str, int], list[tuple[float, float]]] = {}
         finish: dict[tuple[str, int], list[float]] = {}
+        cpus: dict[tuple[str, int], list[float]] = {}
         for executor, jobs in {(e, j) for _, e, j in configs}:
             # warm: the fork server, the AVDM's calibration for the raster, the page cache
             os.sched_setaffinity(0, set(cores[:jobs]))  # the workers inherit it
@@ -143,9 +168,10 @@ def footage(n_clips: int, seconds: float, runs: int, command: bool) -> None:
                 os.sched_setaffinity(0, set(cores[:jobs]))
                 s = ComplexitySettings(fov_deg=70.0, executor=executor, jobs=jobs, force=True)
                 out = folder / f"lib-{executor}-{jobs}"
-                before, t0 = os.getloadavg()[0], time.time()
+                before, t0, c0 = os.getloadavg()[0], time.time(), workers_cpu_s()
                 wall = timed(lambda s=s, out=out: complexity(clips, s, out))
                 key = (executor, jobs)
+                cpus.setdefault(key, []).append(workers_cpu_s() - c0)
                 walls.setdefault(key, []).append(wall)
                 loads.setdefault(key, []).append((before, os.getloadavg()[0]))
                 if wall == min(walls[key]):
@@ -168,9 +194,12 @@ def footage(n_clips: int, seconds: float, runs: int, command: bool) -> None:
             tail = f"{ratio:5.2f}x one worker" + (
                 f" (target >= 1.85x: {'met' if ratio >= 1.85 else 'not met'})" if jobs == 2 else ""
             )
+            cpu = cpus[k][i]
             print(
                 f"  {executor:<6}{jobs} worker(s) on {jobs} core(s): {best[k]:6.1f} s "
-                f"{video_s / best[k]:5.1f}x real time, {tail}; load {lb:.1f} -> {la:.1f}"
+                f"{video_s / best[k]:5.1f}x real time, {tail}; load {lb:.1f} -> {la:.1f}; "
+                f"workers' CPU {cpu:.1f} s ({cpu / best[k]:.2f} cores busy, "
+                f"{cpu * 1e3 / (video_s * 25):.2f} ms a frame)"
             )
         print("where the time goes (each clip's table written, s after the call):")
         for _, executor, jobs in configs:
@@ -221,9 +250,12 @@ def main() -> None:
     ap.add_argument(
         "--command", action="store_true", help="--footage: also the command line, once each"
     )
+    ap.add_argument(
+        "--keep", type=Path, help="--footage: write the clips here once and reuse them after"
+    )
     args = ap.parse_args()
     if args.footage:
-        footage(args.clips, args.seconds, args.runs, args.command)
+        footage(args.clips, args.seconds, args.runs, args.command, args.keep)
         return
     with tempfile.TemporaryDirectory(prefix="vdc-bench-batch-") as tmp:
         folder = Path(tmp)
