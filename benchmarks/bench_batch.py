@@ -201,6 +201,17 @@ def footage(
                 f"workers' CPU {cpu:.1f} s ({cpu / best[k]:.2f} cores busy, "
                 f"{cpu * 1e3 / (video_s * 25):.2f} ms a frame)"
             )
+        one_cpu = cpus[("local", 1)][walls[("local", 1)].index(one)]
+        for _, executor, jobs in configs[1:]:
+            k = (executor, jobs)
+            cpu = cpus[k][walls[k].index(best[k])]
+            # what two free cores would give if the workers' CPU spread evenly over them (the
+            # parent's own time left out): a share of the machine the scheduler gives the
+            # benchmark's session does not enter it, a task's cost growing with two does
+            print(
+                f"  {executor} {jobs} workers by their CPU: {one_cpu:.1f} s on one worker "
+                f"against {cpu:.1f} s on two: {2 * one_cpu / cpu:.2f}x on two free cores"
+            )
         print("where the time goes (each clip's table written, s after the call):")
         for _, executor, jobs in configs:
             k = (executor, jobs)
