@@ -297,6 +297,8 @@ def complexity(
             )
             for t in largest_first(list(by_source.values()))
         ]
+        # before the Dask workers are asked whether they see it (a new folder did not exist)
+        out.mkdir(parents=True, exist_ok=True)
         outcomes = run_tasks(
             complexity_task,
             args,

@@ -170,6 +170,22 @@ def test_campaigns_run_on_the_cluster(cluster, tmp_path: Path) -> None:
     assert summary.height == 5
 
 
+def test_a_collection_profiled_on_the_cluster_into_a_new_folder(cluster, tmp_path: Path) -> None:
+    """``complexity`` on Dask into an --out that does not exist yet: the workers are asked
+    whether they see it, so it is made first (it failed 'cannot see ...')."""
+    from tests.helpers import write_pan  # lazy: PyAV's encoder, this test only
+
+    c, _client = cluster
+    clips = [str(write_pan(tmp_path / f"c{i}.mp4", 64, 48, 6, step_px=2 + i)) for i in range(2)]
+    out = tmp_path / "new" / "profiles"
+    proc = run_cli(
+        "analysis", "complexity", *clips, "--metrics", "si_p910,ti_p910", "--out", str(out),
+        "--scheduler", c.scheduler_address,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert pl.read_parquet(out / "clips.parquet").height == 2
+
+
 def _tls_files(folder: Path) -> dict[str, Path]:
     """A CA of our own and one certificate it signed (for 127.0.0.1), as PEM files."""
     import datetime as dt
