@@ -99,23 +99,12 @@ def clip_times(out: Path, t0: float) -> list[float]:
 
 
 def workers_cpu_s() -> float:
-    """CPU seconds of this process's finished children and of the fork server's finished
-    children (the local pool's workers and the local Dask cluster's processes fork from it;
-    /proc, where there is one): a call's difference is the CPU its workers spent."""
-    import os
-    import resource
-    from multiprocessing import forkserver
+    """CPU seconds of this process's finished children and of the fork server's (the local
+    pool's workers and the local Dask cluster's processes): a call's difference is the CPU
+    its workers spent."""
+    from cpu_time import cpu_s  # lazy: --footage only (benchmarks/cpu_time.py)
 
-    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
-    total = kids.ru_utime + kids.ru_stime
-    pid = getattr(forkserver._forkserver, "_forkserver_pid", None)
-    if pid is not None:
-        try:  # cutime, cstime: fields 16 and 17 of /proc/PID/stat, after the command's name
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-            total += (int(fields[13]) + int(fields[14])) / os.sysconf("SC_CLK_TCK")
-        except (OSError, IndexError, ValueError):
-            pass
-    return total
+    return cpu_s(own=False)
 
 
 def footage(

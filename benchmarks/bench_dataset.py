@@ -35,12 +35,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import shutil
 import sys
 import tempfile
 import time
-from multiprocessing import forkserver
 from pathlib import Path
 
 import av
@@ -53,24 +51,10 @@ sys.path.insert(0, str(ROOT))
 # (multiprocessing prepares each worker so), and the command's own module (its page, Rerun,
 # the statistics) cost each worker about 0.7 s of CPU that ``vdc-analyse dataset`` (whose
 # main script imports vdc.launch alone) and a script that does ``import vdc`` do not pay
+from cpu_time import cpu_s  # noqa: E402  (benchmarks/cpu_time.py, beside this script)
+
 from analysis.dataset.layout import open_dataset  # noqa: E402
 from analysis.dataset.window import EDGE_S  # noqa: E402
-
-
-def cpu_s() -> float:
-    """CPU seconds of this process, its finished children and the pool's finished workers
-    (the fork server's children: /proc, where there is one)."""
-    me = resource.getrusage(resource.RUSAGE_SELF)
-    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
-    total = me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
-    pid = getattr(forkserver._forkserver, "_forkserver_pid", None)
-    if pid is not None:
-        try:  # cutime, cstime: fields 16 and 17 of /proc/PID/stat, after the command's name
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-            total += (int(fields[13]) + int(fields[14])) / os.sysconf("SC_CLK_TCK")
-        except (OSError, IndexError, ValueError):
-            pass
-    return total
 
 
 def decode_alone(root: Path) -> tuple[float, float, int]:
