@@ -40,7 +40,7 @@ from analysis.complexity.command import ComplexitySettings, complexity
 from analysis.experiments.captures import profiling_items
 from analysis.experiments.collision.boundary_campaign import grid_items, record_and_measure
 from analysis.experiments.collision.looming_footage import LoomingFootageSettings, looming_footage
-from analysis.experiments.power.study import PLANS
+from analysis.experiments.power.plans import PLANS
 from capture.run import REPLACE_OUTPUT
 from capture.sim import record_sim
 

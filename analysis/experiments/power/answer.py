@@ -40,7 +40,7 @@ from analysis.experiments.power.units import (
     plot_per_scene,
 )
 from analysis.predictors.inference import holm
-from analysis.predictors.report import label, units_phrase
+from analysis.predictors.report import CHANCE, label, units_phrase
 from analysis.predictors.statistics import HEADLINE
 from analysis.predictors.verdicts import MIN_CONDITIONS, MIN_FAILURES, MIN_SCENES
 from analysis.stats import ALPHA
@@ -50,6 +50,7 @@ from vdc.parquet_io import write_parquet
 __all__ = [
     "FAILURE_TARGET",
     "QUICK_BANNER",
+    "against_sign",
     "answer_markdown",
     "discordant_share",
     "first_paragraph",
@@ -59,6 +60,7 @@ __all__ = [
     "primary_row",
     "scene_sizes",
     "share_phrase",
+    "study_lines",
     "with_holm_across",
     "write_answer",
 ]
@@ -209,68 +211,103 @@ def with_holm_across(primary: pl.DataFrame) -> pl.DataFrame:
     )
 
 
+def _names(rows: list[dict[str, Any]]) -> str:
+    names = [f"{r['source']} {r['detector']}" for r in rows]
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def against_sign(r: dict[str, Any], measure: str = "avdm") -> bool:
+    """True when ``measure``'s own interval lies wholly against the expected sign."""
+    high = r.get(f"{measure}_ci_high")
+    # chance: ρ 0, AUROC 0.5; the expected sign is above it (more complexity, more failure)
+    chance = CHANCE.get(r.get("statistic") or "", 0.5)
+    return high is not None and not math.isnan(high) and high < chance
+
+
 def first_paragraph(primary: pl.DataFrame) -> str:
-    """answer.md's first paragraph, generated from the corrected table: the verdicts that stand
-    after Holm's correction over the judged studies (none is counted uncorrected), each
-    study's unit and n, and what the runs cannot tell."""
+    """answer.md's first paragraph, generated from the corrected table, in plain words: the
+    answer (only verdicts that stand after Holm's correction over the judged studies count),
+    what each kind of study showed, how sure (the unit and n), and what the runs cannot tell.
+    The numbers follow it, a study a line (:func:`study_lines`)."""
     rows = list(primary.iter_rows(named=True))
     judged = [r for r in rows if r.get("verdict") in JUDGED]
-    decided = [r for r in judged if r.get("verdict") in ("better", "worse")]
-    kept = [r for r in decided if (r.get("p_holm_across") or 1.0) < ALPHA]
+    kept = [
+        r
+        for r in judged
+        if r.get("verdict") in ("better", "worse") and (r.get("p_holm_across") or 1.0) < ALPHA
+    ]
+    better = [r for r in kept if r["verdict"] == "better"]
+    worse = [r for r in kept if r["verdict"] == "worse"]
+    inverted = [r for r in judged if r["verdict"] == "both against the expected sign"]
+    chance = [r for r in judged if (r.get("verdict") or "").startswith("not shown")]
     few = [r for r in rows if "too few to judge" in (r.get("verdict") or "")]
     mute = [r for r in rows if (r.get("verdict") or "").startswith("cannot inform")]
-    parts = []
-    if judged:
-        names = ", ".join(f"{r['source']} {r['detector']}" for r in kept) or "none"
+    if better:
+        answer = f"Yes, in {len(better)} of the {len(judged)} studies judged ({_names(better)})."
+    elif judged:
+        answer = f"No: in none of the {len(judged)} studies judged does it predict them better."
+    else:
+        answer = "Not known: no study could be judged."
+    parts = [answer]
+    if worse:
+        parts.append(f"TI predicts them better in {_names(worse)}.")
+    if inverted:
         parts.append(
-            f"with Holm's correction over the {len(judged)} judged "
-            f"stud{'ies' if len(judged) != 1 else 'y'}, {len(kept)} of the {len(decided)} "
-            f"verdicts {'stands' if len(kept) == 1 else 'stand'} ({names})"
+            f"In {_names(inverted)}, both measures go against the expected sign, so neither is "
+            "better."
         )
-        for r in kept:
-            parts.append(
-                f"in {r['source']} {r['detector']} the AVDM predicts the failures "
-                f"{r['verdict']} than TI"
-            )
-        inverted = [r for r in judged if r["verdict"] == "both against the expected sign"]
-        if inverted:
-            names = ", ".join(f"{r['source']} {r['detector']}" for r in inverted)
-            parts.append(f"in {names} both are against the expected sign: neither is better")
-    if few:
-        names = ", ".join(f"{r['source']} {r['detector']}" for r in few)
+    if chance:
         parts.append(
-            f"{len(few)} of the {len(rows)} studies cannot be judged ({names}): too few "
-            "scenes, or units in a class, each says which below ("
-            f"{MIN_SCENES} arena scenes and {MIN_CONDITIONS} conditions, or {MIN_SCENES} "
-            "footage scenes with "
-            f"{MIN_FAILURES} failing and as many correct clips, are needed)"
+            f"In {_names(chance)}, neither predicts the failures beyond chance in the "
+            "expected direction."
+        )
+    rest = [r for r in judged if r not in kept + inverted + chance]
+    if rest:
+        parts.append(
+            f"In {_names(rest)}, no difference survives Holm's correction over the studies."
+        )
+    wholly = [r for r in judged if against_sign(r)]
+    if wholly:
+        parts.append(
+            f"The AVDM's own interval lies wholly against the expected sign in {_names(wholly)}:"
+            " where it responds more, the detector fails less (read from the intervals, not a"
+            " planned test)."
+        )
+    if few:
+        parts.append(
+            f"Too few scenes, or units in a class, to judge {_names(few)} ({MIN_SCENES} arena "
+            f"scenes and {MIN_CONDITIONS} conditions, or {MIN_SCENES} footage scenes with "
+            f"{MIN_FAILURES} failing and as many correct clips, are needed)."
         )
     if mute:
-        names = ", ".join(f"{r['source']} {r['detector']}" for r in mute)
         parts.append(
-            f"{len(mute)} named before the runs as unable to inform ({names}) and left out"
+            f"{'The study' if len(mute) == 1 else 'The studies'} {_names(mute)} "
+            f"{'was' if len(mute) == 1 else 'were'} named before the runs as unable to inform, "
+            "and left out."
         )
-    unjudged = len(rows) - len(judged) - len(few) - len(mute)
-    if unjudged:
-        parts.append(f"{unjudged} without evidence")
-    gist = "; ".join(parts) if parts else "no study"
-    sure = (
-        " How sure: each verdict is a two-sided test at 5 % over scenes (intervals clustered on "
-        "them), and only those that survive Holm's correction over the judged studies are "
-        "counted here."
-    )
-    cannot = (
-        " What these runs cannot tell: which measure predicts better where a study has too "
-        "few scenes; whether other scenes, detector values or settings would change this; "
-        "a difference smaller than the plan's powered gap; the per-scene reading below is "
-        "exploratory."
+    if judged:
+        sizes = ", ".join(
+            sorted({f"{r['n_units']} {r['unit']}s in the {r['source']}" for r in judged})
+        )
+        parts.append(
+            f"How sure: each study is a two-sided test at 5 % with the scene as the unit "
+            f"({sizes}; intervals clustered on scenes), and a verdict counts only if it "
+            f"survives Holm's correction over the {len(judged)} judged studies."
+        )
+    parts.append(
+        "What these runs cannot tell: whether other scenes, detector values or settings "
+        "would change this; a difference smaller than the plan's powered gap; why a measure "
+        "goes against its expected sign (answer.md's per-scene reading is exploratory)."
     )
     return (
         "**Does the AVDM predict where collision detectors fail better than P.910 TI, over "
-        f"scenes?** Across the plan's {len(rows)} studies: {gist}.{sure}{cannot} "
-        + "; ".join(in_words(r) for r in rows)
-        + "."
+        "scenes?** " + " ".join(parts)
     )
+
+
+def study_lines(primary: pl.DataFrame) -> list[str]:
+    """Each study's primary comparison in words, a bullet each (:func:`in_words`)."""
+    return [f"- {in_words(r)}." for r in primary.iter_rows(named=True)]
 
 
 def write_answer(
@@ -349,7 +386,12 @@ def answer_markdown(
     """answer.md (see the module); ``scene_units``: the per-scene table."""
     scene_units = pl.DataFrame() if scene_units is None else scene_units
     lines = [QUICK_BANNER + "\n"] if quick else []
-    lines += [first_paragraph(primary) + "\n", "## The primary comparison\n"]
+    lines += [
+        first_paragraph(primary) + "\n",
+        *study_lines(primary),
+        "",
+        "## The primary comparison\n",
+    ]
     lines += [
         "The AVDM against P.910 TI, named before the runs (docs/findings/power_plan.md and "
         "its amendment): arena, the "

@@ -33,6 +33,7 @@ CODE_PATHS = (
     "analysis/experiments/collision/looming_footage.py",
     "analysis/experiments/power/sizes.py",
     "analysis/experiments/power/pilot.py",
+    "analysis/experiments/power/plans.py",
     "analysis/experiments/power/study.py",
     "analysis/experiments/power/answer.py",
     "analysis/experiments/power/units.py",

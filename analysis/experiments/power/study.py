@@ -57,7 +57,6 @@ from typing import Any
 
 import polars as pl
 
-from analysis.boundary.scenes import PHOTOS
 from analysis.boundary.settings import BoundarySettings
 from analysis.experiments.captures import profiling_items
 from analysis.experiments.collision.boundary_campaign import boundary, finished_row, grid_items
@@ -66,6 +65,13 @@ from analysis.experiments.collision.predictor_runs import EVERY
 from analysis.experiments.power.answer import write_answer
 from analysis.experiments.power.findings import publish
 from analysis.experiments.power.pilot import footage_pilot
+from analysis.experiments.power.plans import (
+    MOVE_ABOVE,
+    MOVE_BELOW,
+    PLANS,
+    StudyPlan,
+    plan_of,
+)
 from analysis.experiments.power.resume import (
     _done,
     _mark,
@@ -79,120 +85,6 @@ from vdc.errors import UserError
 from vdc.executors import QUIET, ExecutorSettings, Feedback, one_pool
 from vdc.parquet_io import WroteFiles
 from vdc.scratch import no_files_without_out
-
-
-@dataclasses.dataclass(frozen=True)
-class StudyPlan:
-    """One version of the plan (docs/findings/power_plan.md): the arena grid, the footage collection
-    and each detector at its planned value (detector spec, parameter, value)."""
-
-    scenes: tuple[str, ...]
-    tf_draws: int  # wall TFs per scene, one per stratum of tf_range
-    tf_range: str  # Hz, LO:HI
-    seeds: int  # runs per condition
-    minutes: float  # each arena run's length
-    arena_detectors: tuple[tuple[str, str, float], ...]
-    clips: int
-    clip_seconds: float
-    clip_size: tuple[int, int]  # (width, height) px of the rendered clips
-    footage_detectors: tuple[tuple[str, str, float], ...]
-    name: str = "2026-11"  # the plan's version: docs/findings/power_plan.md (2026-11) or its
-    # amendment (2026-12, docs/findings/power_plan_amendment.md)
-    collection: str = "2026-11"  # looming-footage --collection: the footage's photographs
-    # the amendment: each value confirmed on the first seed of every arena condition, and on a
-    # pilot of ``pilot_clips`` clips of the collection's seed ``pilot_seed`` (outside the
-    # study's clips), and moved one step (``steps``: detector -> (value when fewer than
-    # MOVE_BELOW fail, value when more than MOVE_ABOVE fail)) when outside 20-60 %
-    confirm: bool = False
-    pilot_clips: int = 0
-    pilot_seed: int = 1
-    steps: tuple[tuple[str, str, float, float], ...] = ()  # (source, detector, fewer, more)
-    # studies that cannot inform by construction, named before the runs: run for the record,
-    # left out of the verdicts and of Holm's correction over the studies
-    uninformative: tuple[tuple[str, str, str], ...] = ()  # (source, detector, why)
-    min_ttc_s: float = 0.5  # a later first alert is a miss (docs/findings/power_plan.md)
-    # an alert earlier than this before contact is early: the object enters 1.5-3 s before
-    # contact (analysis.experiments.collision.looming_footage.ENTER_S), so one earlier than 3 s
-    # comes before any hazard is in view
-    alert_window_s: float = 3.0
-
-    def conditions(self) -> int:
-        return len(self.scenes) * self.tf_draws
-
-    def arena_runs(self) -> int:
-        """Closed-loop runs of every arena detector plus the shared profiling runs."""
-        return self.conditions() * self.seeds * (len(self.arena_detectors) + 1)
-
-
-FULL = StudyPlan(
-    scenes=(
-        *("grating", "grating-p0.05", "grating-p0.2", "grating-c0.3", "natural"),
-        *("photo-astronaut", "photo-grass", "photo-brick"),
-    ),
-    tf_draws=6,
-    tf_range="0:4",
-    seeds=3,
-    minutes=3.0,
-    arena_detectors=(("lgmd-plus-arena", "t_ffi", 12.0), ("flow-ttc", "tau_alert_s", 0.6)),
-    clips=480,
-    clip_seconds=6.0,
-    clip_size=(160, 120),
-    footage_detectors=(
-        ("lgmd-plus", "t_sr", 28.0),
-        ("examples.looming:Looming", "threshold", 0.02),
-        ("flow-ttc", "tau_alert_s", 1.0),
-    ),
-)
-# docs/findings/power_plan_amendment.md (2026-12-07): 23 scenes (21 package photographs and
-# the two procedural generators, one scene each) x 3 TFs, 483 clips over 21 photographs.
-PHOTO_SCENES = tuple(f"photo-{p}" for p in PHOTOS)
-LGMD_FOOTAGE_CANNOT_INFORM = (
-    "cannot inform by construction: LGMD+ misses almost every collision clip and rejects "
-    "every near miss, so its failures are the collision clips, and whether a clip collides "
-    "is drawn independently of its scene: no measure of the scene can predict it"
-)
-AMENDED = dataclasses.replace(
-    FULL,
-    name="2026-12",
-    scenes=("grating", "natural", *PHOTO_SCENES),
-    tf_draws=3,
-    clips=483,  # 23 per photograph
-    collection="2026-12",
-    confirm=True,
-    pilot_clips=40,
-    steps=(
-        ("arena", "lgmd-plus-arena", 8.0, 20.0),  # the plan's 12 -> 20 when too many fail
-        ("arena", "flow-ttc", 0.4, 0.8),  # the plan's 0.6 -> 0.4 / 0.8
-        ("footage", "examples.looming:Looming", 0.04, 0.01),
-        ("footage", "flow-ttc", 0.7, 1.5),  # too many failing: misses, so alert earlier
-    ),
-    uninformative=(("footage", "lgmd-plus", LGMD_FOOTAGE_CANNOT_INFORM),),
-)
-MOVE_BELOW, MOVE_ABOVE = 0.20, 0.60  # the plan's band for the first-seed confirmation
-QUICK_AMENDED = dataclasses.replace(
-    AMENDED,
-    scenes=("natural", "photo-grass", "photo-hopper"),
-    tf_draws=1,
-    seeds=1,
-    minutes=0.25,
-    clips=4,
-    clip_seconds=4.0,
-    clip_size=(96, 72),
-    pilot_clips=2,
-)
-PLANS = {"2026-11": FULL, "2026-12": AMENDED}
-QUICK = dataclasses.replace(
-    FULL,
-    scenes=("grating", "natural", "photo-grass"),
-    tf_draws=1,
-    seeds=1,
-    minutes=0.25,  # 15 s: the robot meets a wall about 9 s in, then every few seconds
-    clips=4,
-    clip_seconds=4.0,  # the shortest clip the generator makes
-    # a little over the detectors' working raster at 60 deg (85 x 64): their input is alike,
-    # the native-resolution measures (SI/TI, codecs, flow) cost a third
-    clip_size=(96, 72),
-)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -221,9 +113,7 @@ class PowerStudySettings(ExecutorSettings):
     )
 
     def plan(self) -> StudyPlan:
-        if self.quick:
-            return QUICK_AMENDED if self.plan_version == "2026-12" else QUICK
-        return PLANS[self.plan_version]
+        return plan_of(self.plan_version, self.quick)
 
 
 @dataclasses.dataclass
@@ -525,7 +415,7 @@ def power_study(
     studies = pl.DataFrame(rows, infer_schema_length=None)
     primary, paths, answer = write_answer(studies, out, quick=s.quick, plan=plan)
     if s.publish_findings:
-        paths += publish(out, Path(s.publish_findings), studies, feedback)
+        paths += publish(out, Path(s.publish_findings), studies, plan.name, feedback)
     return PowerStudyResult(studies, primary, paths, answer, s.quick)
 
 

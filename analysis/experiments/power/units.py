@@ -153,8 +153,13 @@ def plot_per_scene(tables: dict[str, pl.DataFrame], path: Path, quick: bool) -> 
     """One heat map per study: measures down, scenes across, the discordant share in each cell
     (green 0: ranks perfectly; yellow 0.5: chance; red 1: inverted; grey: no pair to rank)."""
     n = max(1, len(tables))
-    fig = Figure(figsize=(6.2 * min(n, 3), 5.2 * math.ceil(n / 3)), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(math.ceil(n / 3), min(n, 3))).ravel()
+    widest = max((t["scene"].n_unique() for t in tables.values()), default=1)
+    # many scenes: a study a row, as wide as its scenes need, the values left to the colour
+    # (their numbers are in per_scene.parquet); few: up to three studies side by side
+    cols = 1 if widest > 8 else min(n, 3)
+    width = 4.0 + 0.45 * widest if cols == 1 else 6.2 * cols
+    fig = Figure(figsize=(width, 5.2 * math.ceil(n / cols)), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(math.ceil(n / cols), cols)).ravel()
     image = None
     for ax, (title, t) in zip(axes, tables.items(), strict=False):
         measures = t["measure"].unique(maintain_order=True).to_list()
@@ -164,7 +169,7 @@ def plot_per_scene(tables: dict[str, pl.DataFrame], path: Path, quick: bool) -> 
             grid[measures.index(r["measure"]), scenes.index(r["scene"])] = r["discordant_share"]
         ax.set_facecolor("0.85")
         image = ax.imshow(grid, cmap="RdYlGn_r", vmin=0, vmax=1, aspect="auto")
-        for (i, j), v in np.ndenumerate(grid):
+        for (i, j), v in np.ndenumerate(grid if len(scenes) <= 12 else np.empty((0, 0))):
             ax.text(j, i, "–" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", size=7)
         sizes = dict(zip(t["scene"], t["n"], strict=True))  # the units each column rests on
         ticks = [f"{sc} (n {sizes[sc]})" for sc in scenes]

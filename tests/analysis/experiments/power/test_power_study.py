@@ -16,13 +16,8 @@ import pytest
 import scipy.stats
 
 from analysis.experiments.power.answer import discordant_share, footage_units
-from analysis.experiments.power.study import (
-    AMENDED,
-    FULL,
-    QUICK_AMENDED,
-    PowerStudySettings,
-    power_study,
-)
+from analysis.experiments.power.plans import AMENDED, FULL, QUICK_AMENDED
+from analysis.experiments.power.study import PowerStudySettings, power_study
 from tests.figures import assert_figure, recording_figures
 from tests.in_process import run_in_process
 
@@ -55,7 +50,8 @@ def test_the_quick_plan_writes_the_answer_marked_as_not_findings(quick) -> None:
     assert first.startswith("**Quick run") and "not findings" in first
     # every study is far below the plan's power: the answer says so in words, naming the units
     assert second.startswith("**Does the AVDM predict")
-    assert "cannot be judged" in second and "too few to judge" in second
+    assert "Not known: no study could be judged." in second and "Too few scenes" in second
+    assert "too few to judge" in answer.split("\n\n")[2]  # each study's line says why
     assert "What these runs cannot tell" in second
     assert "QUICK RUN" in res.report()[0]
     for name in ("primary", "secondaries", "per_scene", "studies"):
@@ -261,6 +257,7 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
     """The plan judges each study's primary comparison alone at 5 %; the answer also says which
     verdicts survive Holm over the judged studies (the plan's own run: 4 verdicts, 1 stands)."""
     from analysis.experiments.power.answer import first_paragraph, with_holm_across
+    from analysis.predictors.statistics import HEADLINE
 
     base = {
         "param": "v",
@@ -298,7 +295,9 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
     primary = with_holm_across(
         pl.DataFrame(
             [
-                base | {"source": s, "detector": d, "p_value": p, "verdict": v}
+                base
+                | {"source": s, "detector": d, "p_value": p, "verdict": v}
+                | {"statistic": HEADLINE[s]}
                 for s, d, p, v in studies
             ]
         )
@@ -309,8 +308,29 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
     assert got[-1] is None
     assert np.allclose(got[:-1], expected[:-1], atol=1e-12)  # exact products, one rounding
     text = first_paragraph(primary)
-    assert "with Holm's correction over the 5 judged studies, 1 of the 4 verdicts stands" in text
-    assert "(arena lgmd-plus-arena)" in text
+    assert "No: in none of the 5 studies judged does it predict them better." in text
+    assert "TI predicts them better in arena lgmd-plus-arena." in text  # the one kept
+    # the uncorrected "better" (p 0.019, Holm 0.057) and "worse" verdicts are not counted
+    assert (
+        "In arena flow-ttc, footage lgmd-plus, footage looming and footage flow-ttc, no "
+        "difference survives Holm's correction over the studies." in text
+    )
+    assert "Too few scenes, or units in a class, to judge footage unjudged" in text
+    assert "48 conditions in the arena" in text and "over the 5 judged studies" in text
+    # the AVDM's [0.0, 0.2]: above ρ 0 in the arena, wholly below AUROC 0.5 on footage
+    assert (
+        "The AVDM's own interval lies wholly against the expected sign in footage lgmd-plus, "
+        "footage looming and footage flow-ttc:" in text
+    )
+
+    # a "better" that survives is a yes
+    flipped = primary.with_columns(
+        pl.when(pl.col("detector") == "lgmd-plus-arena")
+        .then(pl.lit("better"))
+        .otherwise(pl.col("verdict"))
+        .alias("verdict"),
+    )
+    assert "Yes, in 1 of the 5 studies judged (arena lgmd-plus-arena)." in first_paragraph(flipped)
 
 
 def test_the_docs_result_section_is_regenerated_from_published_tables(quick, tmp_path) -> None:
@@ -320,6 +340,8 @@ def test_the_docs_result_section_is_regenerated_from_published_tables(quick, tmp
         BEGIN,
         END,
         PENDING,
+        STUDY_TABLES,
+        answer_text,
         publish,
         result_section,
         section_in,
@@ -332,18 +354,28 @@ def test_the_docs_result_section_is_regenerated_from_published_tables(quick, tmp
     made = json.loads((dest / "made_by.json").read_text())
     assert made["quick"] is True and (len(made["commit"]) == 40 or made["commit"] == "unknown")
     assert (dest / "answer.md").read_text() == (out / "answer.md").read_text()
+    # answer.md is a function of the published tables: rebuilt from them, it is the run's own
+    assert answer_text(dest) == (out / "answer.md").read_text()
+    for st in res.studies.filter(pl.col("status") == "ran").iter_rows(named=True):
+        tables = STUDY_TABLES.get(st["source"], ())
+        for name in tables:  # each study's runs or clips, with their failure modes
+            assert (dest / st["source"] / Path(st["folder"]).name / name).exists(), name
+    assert (dest / "footage/clips/labels.csv").exists()
+    assert made["plan"] == "2026-12" and made["code_key"] == json.loads(
+        (out / "code.json").read_text()
+    )
     doc = tmp_path / "README.md"
     doc.write_text(f"# x\n\n{BEGIN}\n{PENDING}\n{END}\n\nafter\n")
     assert update_section(doc, dest) is True
     section = section_in(doc.read_text())
-    assert section == result_section(dest)
+    assert section == result_section(dest, doc)  # its link to answer.md relative to the doc
     assert section.startswith("**Does the AVDM predict") and "a QUICK run: not findings" in section
     assert doc.read_text().endswith(f"{END}\n\nafter\n")
     assert update_section(doc, dest) is False
     # a committed table changed after the doc was generated: the doc no longer matches
     primary = pl.read_parquet(dest / "primary.parquet")
     primary.with_columns(pl.lit("worse").alias("verdict")).write_parquet(dest / "primary.parquet")
-    assert section_in(doc.read_text()) != result_section(dest)
+    assert section_in(doc.read_text()) != result_section(dest, doc)
 
 
 def test_the_readme_and_the_findings_index_show_the_committed_answer() -> None:
@@ -352,11 +384,14 @@ def test_the_readme_and_the_findings_index_show_the_committed_answer() -> None:
     from analysis.experiments.power.findings import FINDINGS, PENDING, result_section, section_in
 
     root = Path(__file__).resolve().parents[4]  # tests/analysis/experiments/power/ to the root
-    want = result_section(root / FINDINGS)
-    if not (root / FINDINGS / "primary.parquet").exists():
-        assert want == PENDING
     for doc in ("README.md", "docs/findings/index.md"):
-        assert section_in((root / doc).read_text(encoding="utf-8")) == want, doc
+        want = result_section(root / FINDINGS, root / doc)
+        if not (root / FINDINGS / "primary.parquet").exists():
+            assert want == PENDING
+        assert section_in((root / doc).read_text(encoding="utf-8")) == want, (
+            f"{doc} differs from the committed answer: run python -m "
+            "analysis.experiments.power.findings"
+        )
 
 
 def test_the_failures_icc_over_scenes_recovers_a_known_truth() -> None:
