@@ -211,9 +211,35 @@ def with_holm_across(primary: pl.DataFrame) -> pl.DataFrame:
     )
 
 
+# the plan's detectors by the names a reader knows them (the tables keep the specs)
+DETECTOR_NAMES = {
+    "lgmd-plus-arena": "LGMD+",
+    "lgmd-plus": "LGMD+",
+    "flow-ttc": "optic-flow TTC",
+    "examples.looming:Looming": "OpenCV looming",
+}
+WHERE = {"arena": "in the arena", "footage": "on footage"}
+
+
+def _and(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
 def _names(rows: list[dict[str, Any]]) -> str:
-    names = [f"{r['source']} {r['detector']}" for r in rows]
-    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+    return _and(
+        [
+            f"{DETECTOR_NAMES.get(r['detector'], r['detector'])} "
+            f"{WHERE.get(r['source'], r['source'])}"
+            for r in rows
+        ]
+    )
+
+
+def _ps(rows: list[dict[str, Any]]) -> str:
+    """The AVDM − TI difference's p of each row, alone and after Holm over the studies."""
+    alone = _and([_p(r.get("p_value")) for r in rows])
+    holm_ = _and([_p(r.get("p_holm_across")) for r in rows])
+    return f"p {alone} alone, {holm_} after Holm's correction over the studies"
 
 
 def against_sign(r: dict[str, Any], measure: str = "avdm") -> bool:
@@ -249,27 +275,38 @@ def first_paragraph(primary: pl.DataFrame) -> str:
     else:
         answer = "Not known: no study could be judged."
     parts = [answer]
+    if judged:
+        parts.append(
+            "(Expected: the more complex the scene, the more the detector fails, so a Spearman ρ "
+            "above 0 with the failure rate in the arena, a clip AUROC above 0.5 on footage.)"
+        )
     if worse:
-        parts.append(f"TI predicts them better in {_names(worse)}.")
+        parts.append(f"TI predicts them better for {_names(worse)}.")
     if inverted:
         parts.append(
-            f"In {_names(inverted)}, both measures go against the expected sign, so neither is "
-            "better."
+            f"For {_names(inverted)}, both measures' estimates fall against that sign, so "
+            f"neither predicts the failures as expected (their difference: {_ps(inverted)})."
         )
     if chance:
+        lead = [r for r in chance if (r.get("difference") or 0.0) < 0]
         parts.append(
-            f"In {_names(chance)}, neither predicts the failures beyond chance in the "
-            "expected direction."
+            f"For {_names(chance)}, neither predicts the failures beyond chance"
+            + (
+                f"; TI came out ahead of the AVDM ({_ps(lead)})"
+                if lead and len(lead) == len(chance)
+                else f" (their difference: {_ps(chance)})"
+            )
+            + "."
         )
     rest = [r for r in judged if r not in kept + inverted + chance]
     if rest:
         parts.append(
-            f"In {_names(rest)}, no difference survives Holm's correction over the studies."
+            f"For {_names(rest)}, no difference survives Holm's correction over the studies."
         )
     wholly = [r for r in judged if against_sign(r)]
     if wholly:
         parts.append(
-            f"The AVDM's own interval lies wholly against the expected sign in {_names(wholly)}:"
+            f"The AVDM's own interval lies wholly against the expected sign for {_names(wholly)}:"
             " where it responds more, the detector fails less (read from the intervals, not a"
             " planned test)."
         )
@@ -287,7 +324,12 @@ def first_paragraph(primary: pl.DataFrame) -> str:
         )
     if judged:
         sizes = ", ".join(
-            sorted({f"{r['n_units']} {r['unit']}s in the {r['source']}" for r in judged})
+            sorted(
+                {
+                    f"{r['n_units']} {r['unit']}s {WHERE.get(r['source'], r['source'])}"
+                    for r in judged
+                }
+            )
         )
         parts.append(
             f"How sure: each study is a two-sided test at 5 % with the scene as the unit "
@@ -296,8 +338,8 @@ def first_paragraph(primary: pl.DataFrame) -> str:
         )
     parts.append(
         "What these runs cannot tell: whether other scenes, detector values or settings "
-        "would change this; a difference smaller than the plan's powered gap; why a measure "
-        "goes against its expected sign (answer.md's per-scene reading is exploratory)."
+        "would change this; a difference smaller than the plan was powered to find; why a "
+        "measure goes against its expected sign (answer.md's per-scene reading is exploratory)."
     )
     return (
         "**Does the AVDM predict where collision detectors fail better than P.910 TI, over "

@@ -217,7 +217,9 @@ def result_section(folder: Path, doc: Path | None = None) -> str:
     lines += [
         "",
         "AVDM and TI: each one's Spearman ρ with a condition's failure rate (arena) or its "
-        "clip AUROC (footage), 95 % intervals over scenes."
+        "clip AUROC (footage), 95 % intervals over scenes. Failing: the study's share against "
+        "the plan's target; a detector's value was confirmed beforehand on a first seed or a "
+        "pilot, and moved one step where 20-60 % did not fail there."
         + (
             " Deviations from the plan: "
             + "; ".join(f"{r['source']} {r['detector']}, {r['deviation']}" for r in moved)

@@ -309,18 +309,18 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
     assert np.allclose(got[:-1], expected[:-1], atol=1e-12)  # exact products, one rounding
     text = first_paragraph(primary)
     assert "No: in none of the 5 studies judged does it predict them better." in text
-    assert "TI predicts them better in arena lgmd-plus-arena." in text  # the one kept
+    assert "TI predicts them better for LGMD+ in the arena." in text  # the one kept
     # the uncorrected "better" (p 0.019, Holm 0.057) and "worse" verdicts are not counted
     assert (
-        "In arena flow-ttc, footage lgmd-plus, footage looming and footage flow-ttc, no "
-        "difference survives Holm's correction over the studies." in text
+        "For optic-flow TTC in the arena, LGMD+ on footage, looming on footage and optic-flow "
+        "TTC on footage, no difference survives Holm's correction over the studies." in text
     )
-    assert "Too few scenes, or units in a class, to judge footage unjudged" in text
+    assert "Too few scenes, or units in a class, to judge unjudged on footage" in text
     assert "48 conditions in the arena" in text and "over the 5 judged studies" in text
     # the AVDM's [0.0, 0.2]: above ρ 0 in the arena, wholly below AUROC 0.5 on footage
     assert (
-        "The AVDM's own interval lies wholly against the expected sign in footage lgmd-plus, "
-        "footage looming and footage flow-ttc:" in text
+        "The AVDM's own interval lies wholly against the expected sign for LGMD+ on footage, "
+        "looming on footage and optic-flow TTC on footage:" in text
     )
 
     # a "better" that survives is a yes
@@ -330,7 +330,7 @@ def test_the_answer_says_which_verdicts_survive_holm_over_the_studies() -> None:
         .otherwise(pl.col("verdict"))
         .alias("verdict"),
     )
-    assert "Yes, in 1 of the 5 studies judged (arena lgmd-plus-arena)." in first_paragraph(flipped)
+    assert "Yes, in 1 of the 5 studies judged (LGMD+ in the arena)." in first_paragraph(flipped)
 
 
 def test_the_docs_result_section_is_regenerated_from_published_tables(quick, tmp_path) -> None:
