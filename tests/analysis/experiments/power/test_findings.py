@@ -97,3 +97,26 @@ def test_the_primary_rows_come_from_the_committed_statistics(source: str) -> Non
             (pl.col("source") == source) & (pl.col("detector") == st["detector"])
         ).row(0, named=True)
         assert {k: row[k] for k in again} == again, st["detector"]
+
+
+def test_refreshing_the_committed_findings_changes_no_text(tmp_path: Path) -> None:
+    """`python -m analysis.experiments.power.findings` (refresh) on a copy of the committed
+    findings and docs rewrites nothing: they are what the tables give; and after a table
+    changes it rewrites answer.md and both docs."""
+    import shutil
+
+    from analysis.experiments.power.findings import refresh
+
+    folder = tmp_path / "docs/findings/power-2026-12"
+    shutil.copytree(COMMITTED, folder)
+    docs = []
+    for doc in ("README.md", "docs/findings/index.md"):
+        (tmp_path / doc).parent.mkdir(parents=True, exist_ok=True)
+        docs.append(Path(shutil.copy(ROOT / doc, tmp_path / doc)))
+    assert refresh(folder, tuple(docs)) == []
+    assert (folder / "per_scene.png").stat().st_size > 10_000  # drawn again
+    primary = pl.read_parquet(folder / "primary.parquet")
+    primary.with_columns(pl.lit(0.2).alias("p_holm_across")).write_parquet(
+        folder / "primary.parquet"
+    )
+    assert refresh(folder, tuple(docs)) == [folder / "answer.md", *docs]
