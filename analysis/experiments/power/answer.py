@@ -37,7 +37,7 @@ from analysis.experiments.power.units import (
     footage_units,
     icc_oneway,
     per_scene,
-    plot_per_scene,
+    plot_scene_table,
 )
 from analysis.predictors.inference import holm
 from analysis.predictors.report import CHANCE, label, units_phrase
@@ -360,7 +360,7 @@ def write_answer(
     meta = {"quick": quick, "not_findings": quick}
     labels_csv = out / "footage" / "clips" / "labels.csv"
     labels = pl.read_csv(labels_csv) if labels_csv.exists() else None
-    prim_rows, secondaries, scene_tables = [], [], {}
+    prim_rows, secondaries, scene_tables = [], [], []
     for st in studies.filter(pl.col("source").is_in(list(HEADLINE))).iter_rows(named=True):
         if st["detector"] == "looming-footage":
             continue
@@ -384,17 +384,19 @@ def write_answer(
         prim_rows[-1]["icc_failure"] = icc_oneway(
             units["failure"].to_numpy(), units["scene"].to_numpy()
         )
-        scene_tables[f"{st['source']}: {st['detector']}"] = per_scene(units).with_columns(
-            pl.lit(st["source"]).alias("source"), pl.lit(st["detector"]).alias("detector")
+        scene_tables.append(
+            per_scene(units).with_columns(
+                pl.lit(st["source"]).alias("source"), pl.lit(st["detector"]).alias("detector")
+            )
         )
     primary = with_holm_across(pl.DataFrame(prim_rows, infer_schema_length=None))
     sec = pl.concat(secondaries, how="diagonal_relaxed") if secondaries else pl.DataFrame()
-    scenes = pl.concat(list(scene_tables.values())) if scene_tables else pl.DataFrame()
+    scenes = pl.concat(scene_tables) if scene_tables else pl.DataFrame()
     paths = [
         write_parquet(primary, out / "primary.parquet", meta),
         write_parquet(sec, out / "secondaries.parquet", meta),
         write_parquet(scenes, out / "per_scene.parquet", meta),
-        plot_per_scene(scene_tables, out / "per_scene.png", quick),
+        plot_scene_table(scenes, out / "per_scene.png", quick),
         write_parquet(studies, out / "studies.parquet", meta),
     ]
     text = answer_markdown(primary, sec, studies, quick, plan, scenes)

@@ -37,7 +37,7 @@ from analysis.experiments.power.answer import (
     share_phrase,
 )
 from analysis.experiments.power.plans import plan_of
-from analysis.experiments.power.units import plot_per_scene
+from analysis.experiments.power.units import plot_scene_table
 
 PUBLISHED = (
     "answer.md",
@@ -69,6 +69,14 @@ def _copy(src: Path, dst: Path) -> Path:
     shutil.copyfile(src, tmp)
     tmp.replace(dst)
     return dst
+
+
+def _write_text(path: Path, text: str) -> Path:
+    """``text`` into ``path`` whole or not at all (a partial file beside it, then renamed)."""
+    tmp = path.with_name(f".{path.name}.partial")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+    return path
 
 
 def _git(*args: str) -> str:
@@ -121,10 +129,7 @@ def publish(
         "quick": _quick(out),
         "studies": studies.height,
     }
-    tmp = dest / ".made_by.json.partial"
-    tmp.write_text(json.dumps(meta, indent=1) + "\n")
-    tmp.replace(dest / "made_by.json")
-    written.append(dest / "made_by.json")
+    written.append(_write_text(dest / "made_by.json", json.dumps(meta, indent=1) + "\n"))
     if feedback is not None:
         feedback.log(f"published the answer into {dest} (commit {meta['commit'][:12]}).")
     return written
@@ -148,21 +153,16 @@ def refresh(folder: Path = FINDINGS, docs: tuple[Path, ...] = DOCS) -> list[Path
     from the tables committed in ``folder``; returns the text files that changed."""
     changed = []
     if (folder / "per_scene.parquet").exists():  # the figure drawn again by this code
-        scenes = pl.read_parquet(folder / "per_scene.parquet")
-        tables = {
-            f"{src}: {det}": t.drop("source", "detector")
-            for (src, det), t in scenes.group_by(["source", "detector"], maintain_order=True)
-        }
         made = json.loads((folder / "made_by.json").read_text())
-        plot_per_scene(tables, folder / "per_scene.png", bool(made.get("quick")))
+        plot_scene_table(
+            pl.read_parquet(folder / "per_scene.parquet"),
+            folder / "per_scene.png",
+            bool(made.get("quick")),
+        )
     if (folder / "primary.parquet").exists():
-        text = answer_text(folder)
-        md = folder / "answer.md"
+        text, md = answer_text(folder), folder / "answer.md"
         if md.read_text(encoding="utf-8") != text:
-            tmp = folder / ".answer.md.partial"
-            tmp.write_text(text, encoding="utf-8")
-            tmp.replace(md)
-            changed.append(md)
+            changed.append(_write_text(md, text))
     changed += [doc for doc in docs if update_section(doc, folder)]
     return changed
 

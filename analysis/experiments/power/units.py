@@ -149,6 +149,20 @@ def per_scene(units: pl.DataFrame) -> pl.DataFrame:
     return pl.DataFrame(rows)
 
 
+def plot_scene_table(scenes: pl.DataFrame, path: Path, quick: bool) -> Path:
+    """:func:`plot_per_scene` from the per-scene table (``per_scene.parquet``): a heat map per
+    study (``source``, ``detector``), in the table's order."""
+    tables = (
+        {}
+        if scenes.is_empty()
+        else {
+            f"{src}: {det}": t.drop("source", "detector")
+            for (src, det), t in scenes.group_by(["source", "detector"], maintain_order=True)
+        }
+    )
+    return plot_per_scene(tables, path, quick)
+
+
 def plot_per_scene(tables: dict[str, pl.DataFrame], path: Path, quick: bool) -> Path:
     """One heat map per study: measures down, scenes across, the discordant share in each cell
     (green 0: ranks perfectly; yellow 0.5: chance; red 1: inverted; grey: no pair to rank)."""
