@@ -21,7 +21,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 from importlib.metadata import version  # vdc.__version__ (the facade: not imported here)
 from pathlib import Path
 from typing import Any
@@ -258,4 +257,3 @@ def update_section(doc: Path, folder: Path = FINDINGS) -> bool:
 if __name__ == "__main__":  # run from the repository's root
     for path in refresh():
         print(f"rewrote {path}")
-    sys.exit(0)
